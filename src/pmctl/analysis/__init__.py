@@ -1,0 +1,1 @@
+"""Analyses of the mechanism and the controller (pmctl analyze ...)."""

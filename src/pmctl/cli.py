@@ -1,0 +1,51 @@
+"""`pmctl` command line. Each subcommand lives in pmctl.commands.<name> with
+``add_parser(subparsers)`` registering it and setting ``func``; errors become one line on stderr."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from . import __version__
+from .errors import PmctlError
+
+# Subcommand modules, in the order --help lists them.
+COMMANDS = ["run", "kin", "analyze", "twin"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="pmctl",
+        description="Controller and digital twin for the 3-RPS + XY-table hybrid milling machine.")
+    p.add_argument("--version", action="version", version=f"pmctl {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        try:
+            mod = importlib.import_module(f"pmctl.commands.{name}")
+        except ModuleNotFoundError as e:
+            if e.name == f"pmctl.commands.{name}":
+                continue          # not built yet
+            raise
+        mod.add_parser(sub)
+    return p
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except PmctlError as e:
+        print(f"pmctl: error: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("pmctl: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

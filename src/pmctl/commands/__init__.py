@@ -1,0 +1,1 @@
+"""Command-line subcommands: thin layers over the pure core."""

@@ -1,0 +1,1 @@
+"""Digital twin: recordings, the nominal twin, effect models, diagnosis."""

@@ -1,0 +1,39 @@
+"""Software V-F (voltage-to-frequency) converter with pulse counting (seed 004 2.2, 4.3.4).
+
+Pure functions of state. The converter integrates its input u (in pulses per second once
+scaled) over one sample; whenever the accumulated sum passes the threshold it emits a pulse and
+subtracts the threshold, so rounding never accumulates: the pulses emitted plus the residue in
+the accumulator always equal the integral of the input.
+
+Two modes:
+- ``max_pulses_per_tick=1``: the seed's converter, at most one pulse per sample (max rate = F);
+- ``max_pulses_per_tick=n``: the integer number of pulses per tick, up to n, for real servo rates
+  (200 kpulse/s at 1 kHz is n = 200); a bridge spreads them evenly inside the tick.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def vf_step(acc, u, dt, threshold=1.0, max_pulses_per_tick=1):
+    """One sample of a bank of V-F converters.
+
+    acc: accumulator per axis (same unit as u*dt); u: input per axis; threshold: the input
+    integral worth one pulse (SD). Returns (pulses: int64 array, new acc). Pulses are signed.
+    Input beyond max_pulses_per_tick saturates; the excess is dropped, as in the hardware
+    (the accumulator is clamped to one threshold beyond the emitted pulses), so a saturated
+    converter does not wind up.
+    """
+    a = np.asarray(acc, float) + np.asarray(u, float) * dt
+    n = np.trunc(a / threshold)
+    n = np.clip(n, -max_pulses_per_tick, max_pulses_per_tick)
+    a = a - n * threshold
+    a = np.clip(a, -threshold, threshold)
+    return n.astype(np.int64), a
+
+
+def vf_min_amplitude(threshold, f_over_F):
+    """Smallest sine amplitude that produces any pulse (seed 004 eq. 2.2): x >= SD sin(pi/2k), f/F = 1/2k."""
+    k = 1.0 / (2.0 * np.asarray(f_over_F, float))
+    return threshold * np.sin(np.pi / (2.0 * k))
