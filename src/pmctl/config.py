@@ -122,6 +122,9 @@ class Machine:
     extra: dict = field(default_factory=dict)   # unknown top-level tables (service config etc.)
 
 
+UNIT_SUFFIXES = ("_ue_per_N", "_N_per_mm", "_mm_s2", "_mm_s", "_m_s2", "_mm", "_deg", "_kg", "_hz", "_s")
+
+
 class _Section:
     """Reads one TOML table, tracking which keys were used so leftovers can be reported."""
 
@@ -136,8 +139,12 @@ class _Section:
         return f"{self.name}.{key}"
 
     def _missing(self, key):
-        stem = key.rsplit("_", 1)[0]
-        near = [k for k in self.data if k.rsplit("_", 1)[0] == stem and k != key]
+        stem = key
+        for unit in UNIT_SUFFIXES:
+            if key.endswith(unit):
+                stem = key[: -len(unit)]
+                break
+        near = [k for k in self.data if k != key and k.startswith(stem) and k not in self.used]
         if near:
             return ConfigError(self.path, self._key(near[0]),
                                f"wrong unit or name: expected '{key}'")

@@ -1,0 +1,44 @@
+"""`pmctl kin` from the outside: JSON on stdout, one clear line on stderr for errors."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+from pmctl import kinematics as K
+from pmctl.config import load_machine
+
+
+def pmctl(*args):
+    return subprocess.run([sys.executable, "-m", "pmctl.cli", *args], capture_output=True, text=True)
+
+
+def test_ik_then_fk_round_trip_through_the_cli():
+    v = K.tilt_to_axis(2.0, 0.2)
+    r = pmctl("kin", "ik", "--tip", "5,-7,160", "--axis", ",".join(repr(float(x)) for x in v), "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert set(out) == {"L", "table", "Z", "theta1_deg", "theta2_deg"}
+    assert abs(out["theta1_deg"] - np.degrees(2.0)) < 1e-9 and abs(out["theta2_deg"] - np.degrees(0.2)) < 1e-9
+    joints = ",".join(repr(x) for x in out["L"] + out["table"])
+    f = json.loads(pmctl("kin", "fk", "--joints", joints, "--json").stdout)
+    assert np.allclose(f["tip"], [5, -7, 160], atol=1e-9) and np.allclose(f["axis"], v, atol=1e-12)
+    assert abs(f["Z"] - out["Z"]) < 1e-9
+
+
+def test_home_pose():
+    f = json.loads(pmctl("kin", "ik", "--tip", "0,0,173", "--axis", "0,0,1", "--json").stdout)
+    m = load_machine()
+    assert np.allclose(f["L"], K.chain_lengths(*K.platform_pose(393.0, 1.0, 0.0, 316.0), m.geometry), atol=1e-9)
+    assert f["table"] == [0.0, 0.0] and f["theta1_deg"] == 180.0 and f["theta2_deg"] == 0.0
+
+
+def test_errors_are_one_line_and_nonzero():
+    for args in (["kin", "ik", "--tip", "0,0", "--axis", "0,0,1"],
+                 ["kin", "ik", "--tip", "0,0,900", "--axis", "0,0,1"],
+                 ["kin", "fk", "--joints", "100,900,100,0,0"],
+                 ["kin", "ik", "--tip", "0,0,150", "--axis", "0,0,1", "--config", "/nonexistent.toml"]):
+        r = pmctl(*args)
+        assert r.returncode != 0 and r.stdout == ""
+        assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("pmctl: error:"), r.stderr
