@@ -14,6 +14,7 @@ Conventions
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -498,3 +499,117 @@ def jacobian_tool(P, R, geom: Geometry):
     J[..., 1, 4] = -1.0
     J[..., 3:, :3] = d_axis
     return J
+
+
+# ---------------------------------------------------------------- the control loop's single-pose path
+
+class PoseTracker:
+    """Forward kinematics for the control loop: one pose at a time, warm-started from the last one.
+
+    The same loop equations, Newton step and criterion as :func:`solve_platform` (and tested
+    against it), written in plain floats because numpy's per-call cost dominates 3x3 work; only
+    the 6x6 solves use numpy. After :meth:`solve`, :meth:`tool_jacobian` reuses the Newton matrix
+    at the converged pose, so the Jacobian costs one more 6x6 solve. Failure raises
+    KinematicsError and the tracker keeps its last good pose.
+    """
+
+    def __init__(self, geom: Geometry, P=None, R=None, *, tol=FK_TOL_MM, max_iter=FK_MAX_ITER,
+                 max_tilt_rad=np.radians(45.0)):
+        self.geom = geom
+        self.A = [tuple(map(float, a)) for a in geom.base_joints]
+        self.Cp = [tuple(map(float, c)) for c in geom.platform_joints]
+        self.N = [tuple(map(float, n)) for n in geom.revolute_axes]
+        self.off = [float(o) for o in geom.length_offsets]
+        self.tip_p = geom.tool_tip_p
+        self.axis_p = geom.tool_axis_p
+        self.tol, self.max_iter, self.cos_tilt = tol, max_iter, float(np.cos(max_tilt_rad))
+        if P is None:
+            P, R = platform_pose(geom.z_home, np.pi, 0.0, geom.platform_radius)
+        self.P = np.array(P, float)
+        self.R = np.array(R, float)
+        self._J = np.eye(6)
+        self._rhs = np.zeros((6, 3))
+        self._rhs[:3, :3] = np.eye(3)
+        self.iterations = 0
+
+    def solve(self, L):
+        """Platform pose (P, R) for chain lengths L (3,); raises KinematicsError."""
+        px, py, pz = self.P.tolist()
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self.R.tolist()
+        Lt = [float(L[i]) + self.off[i] for i in range(3)]
+        sqrt, tol = math.sqrt, self.tol
+        for it in range(self.max_iter + 1):
+            rows_len, rows_pln, f = [], [], []
+            fmax = 0.0
+            for i in range(3):
+                cx, cy, cz = self.Cp[i]
+                ax, ay, az = self.A[i]
+                nx, ny, nz = self.N[i]
+                rx = r00 * cx + r01 * cy + r02 * cz
+                ry = r10 * cx + r11 * cy + r12 * cz
+                rz = r20 * cx + r21 * cy + r22 * cz
+                dx, dy, dz = px + rx - ax, py + ry - ay, pz + rz - az
+                ln = sqrt(dx * dx + dy * dy + dz * dz)
+                ux, uy, uz = dx / ln, dy / ln, dz / ln
+                fl = ln - Lt[i]
+                fp = nx * dx + ny * dy + nz * dz
+                f.append(fl)
+                f.append(fp)
+                fmax = max(fmax, abs(fl), abs(fp))
+                rows_len.append((ux, uy, uz, ry * uz - rz * uy, rz * ux - rx * uz, rx * uy - ry * ux))
+                rows_pln.append((nx, ny, nz, ry * nz - rz * ny, rz * nx - rx * nz, rx * ny - ry * nx))
+            J = rows_len + rows_pln
+            if fmax < tol:
+                break
+            if it == self.max_iter or not math.isfinite(fmax):
+                raise KinematicsError(f"forward kinematics did not converge for L = {[round(x, 6) for x in L]} "
+                                      f"(residual {fmax:.3g} mm after {it} iterations)")
+            rhs = [-f[0], -f[2], -f[4], -f[1], -f[3], -f[5]]
+            sx, sy, sz, wx, wy, wz = np.linalg.solve(J, rhs).tolist()
+            px, py, pz = px + sx, py + sy, pz + sz
+            # R <- exp(w) R (Rodrigues)
+            th2 = wx * wx + wy * wy + wz * wz
+            if th2 < 1e-16:
+                a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
+            else:
+                th = sqrt(th2)
+                a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
+            e00, e01, e02 = 1 - b * (wy * wy + wz * wz), -a * wz + b * wx * wy, a * wy + b * wx * wz
+            e10, e11, e12 = a * wz + b * wx * wy, 1 - b * (wx * wx + wz * wz), -a * wx + b * wy * wz
+            e20, e21, e22 = -a * wy + b * wx * wz, a * wx + b * wy * wz, 1 - b * (wx * wx + wy * wy)
+            r00, r01, r02, r10, r11, r12, r20, r21, r22 = (
+                e00 * r00 + e01 * r10 + e02 * r20, e00 * r01 + e01 * r11 + e02 * r21, e00 * r02 + e01 * r12 + e02 * r22,
+                e10 * r00 + e11 * r10 + e12 * r20, e10 * r01 + e11 * r11 + e12 * r21, e10 * r02 + e11 * r12 + e12 * r22,
+                e20 * r00 + e21 * r10 + e22 * r20, e20 * r01 + e21 * r11 + e22 * r21, e20 * r02 + e21 * r12 + e22 * r22)
+        if not (pz > 0.0 and r22 > self.cos_tilt):
+            raise KinematicsError(f"forward kinematics left the assembly branch for L = {[round(x, 6) for x in L]}")
+        self.P = np.array((px, py, pz))
+        self.R = np.array(((r00, r01, r02), (r10, r11, r12), (r20, r21, r22)))
+        self._J = J
+        self.iterations = it
+        return self.P, self.R
+
+    def tool(self, table_xy):
+        """Tip in W and tool axis at the last solved pose."""
+        tip = self.P + self.R @ self.tip_p
+        tip[0] -= table_xy[0]
+        tip[1] -= table_xy[1]
+        tip[2] -= self.geom.z_table
+        return tip, self.R @ self.axis_p
+
+    def tool_jacobian(self, out=None):
+        """d(tip_W, axis)/dq (6, 5) at the last solved pose: the same as :func:`jacobian_tool`."""
+        T = np.linalg.solve(self._J, self._rhs)     # (6, 3): platform twist per unit chain rate
+        dP, w = T[:3], T[3:]
+        rt = self.R @ self.tip_p
+        v = self.R @ self.axis_p
+        J = np.zeros((6, 5)) if out is None else out
+        J[0, :3] = dP[0] + w[1] * rt[2] - w[2] * rt[1]
+        J[1, :3] = dP[1] + w[2] * rt[0] - w[0] * rt[2]
+        J[2, :3] = dP[2] + w[0] * rt[1] - w[1] * rt[0]
+        J[3, :3] = w[1] * v[2] - w[2] * v[1]
+        J[4, :3] = w[2] * v[0] - w[0] * v[2]
+        J[5, :3] = w[0] * v[1] - w[1] * v[0]
+        J[0, 3] = -1.0
+        J[1, 4] = -1.0
+        return J

@@ -1,0 +1,79 @@
+"""Kinematics timing: single-pose FK/IK (median, p99) and batch throughput (poses/s).
+
+    .venv/bin/python benchmarks/bench_kinematics.py [--batch 1000000]
+
+Single-pose figures are per call on this machine (wall clock, perf_counter_ns); batch figures
+are poses per second for the vectorised numpy forms. Not a test: nothing here asserts a time.
+"""
+
+import argparse
+import math
+import time
+
+import numpy as np
+
+from pmctl import kinematics as K
+from pmctl.config import load_machine
+
+
+def stats(fn, n):
+    ts = np.empty(n)
+    for i in range(n):
+        t0 = time.perf_counter_ns()
+        fn(i)
+        ts[i] = time.perf_counter_ns() - t0
+    ts /= 1e3
+    return np.median(ts), np.percentile(ts, 99)
+
+
+def workspace_poses(n, m, rng):
+    P, R = K.platform_pose(rng.uniform(280, 500, n), rng.uniform(0.01, math.pi, n),
+                           rng.uniform(-0.3, 0.3, n), m.geometry.platform_radius)
+    tip, axis = K.tool_of_platform(P, R, rng.uniform(-30, 30, (n, 2)), m.geometry)
+    return tip, axis
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--batch", type=int, default=1_000_000, help="poses in the batch run")
+    ap.add_argument("--single", type=int, default=3000, help="calls per single-pose figure")
+    a = ap.parse_args()
+    m = load_machine()
+    g = m.geometry
+    rng = np.random.default_rng(0)
+
+    tip, axis = workspace_poses(a.single, m, rng)
+    r = K.ik_batch(tip, axis, m)
+    tip, axis, q = tip[r.ok], axis[r.ok], r.q[r.ok]
+    n = len(q)
+    print(f"single pose ({n} calls each), microseconds: median  p99")
+    print("  ik (closed form + limit checks)      %7.1f %7.1f" % stats(lambda i: K.ik(tip[i], axis[i], m), n))
+    print("  fk cold start (batch code, 1 pose)   %7.1f %7.1f" % stats(lambda i: K.fk(q[i], m), n))
+    # The control loop's case: a smooth path, warm-started from the previous tick (0.1 mm moves).
+    path = q[0] + np.outer(np.arange(n), np.full(5, 0.1 / math.sqrt(5)))
+    tr = K.PoseTracker(g, *K.forward_platform(path[0, :3], g))
+    print("  fk warm, PoseTracker (loop path)     %7.1f %7.1f" % stats(lambda i: tr.solve(path[i, :3]), n))
+    print("  tool Jacobian, PoseTracker           %7.1f %7.1f" % stats(lambda i: tr.tool_jacobian(), n))
+    print("  tool Jacobian, batch code (1 pose)   %7.1f %7.1f" % stats(
+        lambda i: K.jacobian_tool(tr.P, tr.R, g), n))
+
+    nb = a.batch
+    tip, axis = workspace_poses(nb, m, rng)
+    t0 = time.perf_counter()
+    r = K.ik_batch(tip, axis, m)
+    t_ik = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    tp, ok = K.fk_batch(r.q[r.ok], m)
+    t_fk = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    tp2, ok2 = K.fk_batch(r.q[r.ok], m, guess=(tp.P, tp.R))
+    t_fkw = time.perf_counter() - t0
+    err = np.max(np.abs(tp.tip - tip[r.ok]))
+    print(f"batch of {nb} poses ({r.ok.sum()} reachable):")
+    print(f"  ik_batch        {nb / t_ik:12.0f} poses/s  ({t_ik:.2f} s)")
+    print(f"  fk_batch cold   {ok.sum() / t_fk:12.0f} poses/s  ({t_fk:.2f} s), max |FK(IK(x)) - x| = {err:.2e} mm")
+    print(f"  fk_batch warm   {ok2.sum() / t_fkw:12.0f} poses/s  ({t_fkw:.2f} s)")
+
+
+if __name__ == "__main__":
+    main()
