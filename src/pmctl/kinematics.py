@@ -226,33 +226,40 @@ def solve_platform(L, geom: Geometry, guess=None, *, tol=FK_TOL_MM, max_iter=FK_
     use :func:`forward_platform` for the raising single-pose form.
     """
     L = np.asarray(L, float)
+    shape = L.shape[:-1]
     if guess is None:
         P, R = initial_guess(L, geom)
     else:
-        P = np.array(np.broadcast_to(guess[0], L.shape[:-1] + (3,)), dtype=float)
-        R = np.array(np.broadcast_to(guess[1], L.shape[:-1] + (3, 3)), dtype=float)
-    it = 0
+        P = np.broadcast_to(guess[0], shape + (3,))
+        R = np.broadcast_to(guess[1], shape + (3, 3))
+    # Work on flat copies and iterate only the poses that have not converged yet.
+    L = L.reshape(-1, 3)
+    P = np.array(P, dtype=float).reshape(-1, 3)
+    R = np.array(R, dtype=float).reshape(-1, 3, 3)
     f = loop_residual(P, R, L, geom)
     res = np.abs(f).max(-1)
-    while it < max_iter and np.any(~(res < tol)):
-        J = constraint_jacobian(P, R, geom)
-        step = np.linalg.solve(J, -f[..., None])[..., 0]
-        # Only move the poses that still need it (keeps converged ones bit-stable).
-        act = ~(res < tol)
-        step = np.where(act[..., None], step, 0.0)
+    act = np.nonzero(~(res < tol))[0]
+    it = 0
+    while it < max_iter and act.size:
+        Pa, Ra, La = P[act], R[act], L[act]
+        J = constraint_jacobian(Pa, Ra, geom)
+        step = np.linalg.solve(J, -f[act][..., None])[..., 0]
         # Limit wild first steps from a poor guess (50 mm, 0.2 rad).
-        sp = np.linalg.norm(step[..., :3], axis=-1, keepdims=True)
-        sr = np.linalg.norm(step[..., 3:], axis=-1, keepdims=True)
-        scale = np.minimum(1.0, np.minimum(50.0 / np.maximum(sp, 1e-300), 0.2 / np.maximum(sr, 1e-300)))
-        step = step * scale
-        P = P + step[..., :3]
-        R = expm_so3(step[..., 3:]) @ R
-        f = loop_residual(P, R, L, geom)
-        res = np.where(np.isfinite(res), np.abs(f).max(-1), np.inf)
+        sp = np.linalg.norm(step[:, :3], axis=-1, keepdims=True)
+        sr = np.linalg.norm(step[:, 3:], axis=-1, keepdims=True)
+        step = step * np.minimum(1.0, np.minimum(50.0 / np.maximum(sp, 1e-300), 0.2 / np.maximum(sr, 1e-300)))
+        Pa = Pa + step[:, :3]
+        Ra = expm_so3(step[:, 3:]) @ Ra
+        fa = loop_residual(Pa, Ra, La, geom)
+        P[act], R[act], f[act] = Pa, Ra, fa
+        ra = np.abs(fa).max(-1)
+        res[act] = ra
+        act = act[~(ra < tol)]
         it += 1
-    res = np.abs(f).max(-1)
-    ok = (res < tol * 10) & _branch_ok(P, R, geom, max_tilt_rad) & np.isfinite(res)
-    return PlatformSolution(P, R, it, res, ok)
+    res = np.where(np.isfinite(res), res, np.inf)
+    ok = (res < tol) & _branch_ok(P, R, geom, max_tilt_rad)
+    return PlatformSolution(P.reshape(shape + (3,)), R.reshape(shape + (3, 3)), it,
+                            res.reshape(shape), ok.reshape(shape))
 
 
 def forward_platform(L, geom: Geometry, guess=None):
@@ -260,7 +267,7 @@ def forward_platform(L, geom: Geometry, guess=None):
     sol = solve_platform(np.asarray(L, float), geom, guess)
     if not bool(np.all(sol.ok)):
         r = float(np.max(sol.residual))
-        if not np.all(np.isfinite(sol.residual)) or r >= FK_TOL_MM * 10:
+        if not r < FK_TOL_MM:
             raise KinematicsError(f"forward kinematics did not converge for L = {np.round(L, 6).tolist()} "
                                   f"(residual {r:.3g} mm after {sol.iterations} iterations)")
         raise KinematicsError(f"forward kinematics left the assembly branch for L = {np.round(L, 6).tolist()}")
