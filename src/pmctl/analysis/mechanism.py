@@ -592,7 +592,8 @@ def _cmd_path_error(args):
             _, e = interpolation_error(sg, r.s, 16)
             row.append(f"{label}: {len(r.s) - 1:4d} intervals, max {np.linalg.norm(e, axis=1).max() * 1e3:.3f} um")
         print(f"    {text:42s} " + "; ".join(row))
-    fig, axs = plt.subplots(1, 3, figsize=(16, 4.6), constrained_layout=True)
+    fig, axs = plt.subplots(2, 2, figsize=(14, 9), constrained_layout=True)
+    axs = axs.ravel()
     for ax, (name, (th, ez, pts)) in zip(axs[:2], res.items()):
         ax.plot(th, ez * 1e3, lw=1.2)
         ax.plot(pts, np.zeros_like(pts), "k|", ms=12, label="control points")
@@ -613,6 +614,17 @@ def _cmd_path_error(args):
     axs[2].set_ylabel("error [µm]")
     axs[2].grid(alpha=0.3)
     axs[2].legend(fontsize=8)
+    # Spacing chosen vs the input-output ratio along the sweep.
+    mid = -20.0 + 40.0 * 0.5 * (ad.s[1:] + ad.s[:-1])
+    axs[3].step(mid, h, where="mid", color="C0", label="adaptive spacing")
+    axs[3].set_xlabel("θ2 [deg]")
+    axs[3].set_ylabel("control-point spacing [deg]", color="C0")
+    ax2 = axs[3].twinx()
+    th_r = np.linspace(-20.0, 20.0, 161)
+    ax2.plot(th_r, io_ratio(393.0, 0.0, th_r * DEG, geom), color="C3", label="ΔZ² (io ratio)")
+    ax2.set_ylabel("input-output ratio ΔZ² [-]", color="C3")
+    axs[3].set_title(f"spacing for {args.tol_um:g} µm vs input-output ratio (θ1 = 0°, Z = 393 mm)")
+    axs[3].grid(alpha=0.3)
     _save(fig, out / "path_error.png", plt)
     return 0
 
