@@ -1,0 +1,73 @@
+"""A machining job: the list of moves both readers (CL data, G-code) produce and the planner consumes.
+
+All in the workpiece frame W: tool tip in mm, tool axis a unit vector (tip -> spindle). A move goes
+from where the previous one ended (the first from the planner's start pose) to its end pose:
+
+- ``RAPID``  straight line at the planner's rapid speed (G0, CL links);
+- ``LINE``   straight line at ``feed`` (G1, CL cutting points);
+- ``ARC``    circular/helical arc in the XY plane (G2/G3, G17) about ``center`` (x, y), sweeping
+             ``sweep`` radians (positive counter-clockwise seen from +z); the radius goes linearly from
+             the start radius to the end radius (a tolerated mismatch becomes a tiny spiral), z linearly;
+- ``DWELL``  no motion for ``dwell`` seconds (G4).
+
+The tool axis of every moving kind is interpolated by slerp from the start axis to the end axis.
+``line`` is the source line (1-based; 0 for moves the reader added), ``spindle_rpm`` the commanded
+spindle speed during the move (0 = off).
+
+``load_job(path, machine)`` reads a file of either format by its suffix.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+RAPID, LINE, ARC, DWELL = "rapid", "line", "arc", "dwell"
+KINDS = (RAPID, LINE, ARC, DWELL)
+
+GCODE_SUFFIXES = (".ngc", ".nc", ".gcode", ".tap")
+CL_SUFFIXES = (".cl", ".cls", ".txt", ".csv")
+
+
+@dataclass(frozen=True)
+class Move:
+    kind: str
+    tip: np.ndarray                  # (3,) end tool tip in W, mm
+    axis: np.ndarray                 # (3,) end unit tool axis
+    line: int = 0                    # source line, 1-based (0: added by the reader)
+    feed: float = 0.0                # mm/s for LINE and ARC (0 for RAPID and DWELL)
+    spindle_rpm: float = 0.0
+    center: np.ndarray | None = None  # ARC: centre (x, y) in W
+    sweep: float = 0.0               # ARC: signed sweep angle, rad (+ = counter-clockwise from +z)
+    dwell: float = 0.0               # DWELL: seconds
+
+
+@dataclass(frozen=True)
+class Job:
+    moves: tuple[Move, ...]
+    source: str = ""
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # programmed tip points in W
+    point_lines: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # their source lines
+
+    def __len__(self):
+        return len(self.moves)
+
+
+def load_job(path, machine, **options) -> Job:
+    """Read a job file, dispatching on its suffix (G-code: .ngc .nc .gcode .tap; CL: .cl .cls .txt .csv).
+
+    ``options`` go to the reader (CL data: ``feed_mm_min``, ``clearance_mm``)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in GCODE_SUFFIXES:
+        from .gcode import read_gcode
+        return read_gcode(path, machine, **options)
+    if suffix in CL_SUFFIXES:
+        from .cldata import read_cl_job
+        return read_cl_job(path, machine, **options)
+    raise InputError(path, None, f"unknown job format {suffix!r}: use G-code ({' '.join(GCODE_SUFFIXES)}) "
+                                 f"or CL data ({' '.join(CL_SUFFIXES)})")
