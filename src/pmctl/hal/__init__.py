@@ -1,0 +1,31 @@
+"""Hardware abstraction layer: backends by name. Add a backend by adding one entry to BACKENDS
+("module:Class", imported on first use) — the loop never changes."""
+
+from __future__ import annotations
+
+import importlib
+
+from ..errors import ConfigError
+from .base import AXES, Backend, Feedback, HalError, HalTimeout, Status
+
+BACKENDS = {
+    "sim": "pmctl.hal.sim:SimBackend",
+    # "stepdir": "pmctl.hal.stepdir:StepDirBridge",   (planned: firmware step/dir bridge over serial)
+    # "canopen": "pmctl.hal.canopen_csp:CanopenCSP",  (planned: CiA 402 drives in CSP mode)
+}
+
+
+def backend_class(name: str):
+    if name not in BACKENDS:
+        raise ConfigError("service config", "hal.backend",
+                          f"unknown backend {name!r}; known: {', '.join(sorted(BACKENDS))}")
+    mod, cls = BACKENDS[name].split(":")
+    return getattr(importlib.import_module(mod), cls)
+
+
+def create(name: str, machine, dt: float, options: dict | None = None, **kw) -> Backend:
+    """Instantiate backend ``name`` for ``machine`` at tick period ``dt`` with its options."""
+    return backend_class(name)(machine, dt, options or {}, **kw)
+
+
+__all__ = ["AXES", "BACKENDS", "Backend", "Feedback", "HalError", "HalTimeout", "Status", "backend_class", "create"]

@@ -1,0 +1,86 @@
+"""The hardware abstraction layer: one small interface every backend implements.
+
+The loop talks only to :class:`Backend`. A backend reports motor-side positions (drive encoders,
+or the pulse counters of a step/dir bridge) and plate-link strain, and takes either pulses per
+tick (step/dir bridges, the loopback simulation) or position targets (CANopen CSP drives).
+Backends are chosen by name from the service config (``pmctl.hal.create``), so a new one plugs in
+without touching the loop.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import PmctlError
+
+AXES = ("L1", "L2", "L3", "X", "Y")
+
+
+class HalError(PmctlError):
+    """A backend fault (drive alarm, bus error); the message says which device and why."""
+
+
+class HalTimeout(HalError):
+    """The backend did not answer within its deadline."""
+
+
+class Feedback:
+    """One sample of feedback. Backends reuse one instance (no allocation per tick); the loop
+    copies what it keeps before the next read.
+
+    seq: increments with every fresh sample (a stale seq means the device did not update);
+    enc: (5,) motor-side positions, mm (L1, L2, L3, X, Y);
+    strain: (3,) plate-link strain of chains 1-3, microstrain, tension positive;
+    counts: (5,) pulse counters the device holds, or None when it has none."""
+
+    __slots__ = ("seq", "enc", "strain", "counts")
+
+    def __init__(self):
+        self.seq = 0
+        self.enc = np.zeros(5)
+        self.strain = np.zeros(3)
+        self.counts = None
+
+
+@dataclass
+class Status:
+    ok: bool = True
+    fault: str = ""
+
+
+class Backend(ABC):
+    """What the loop needs from a machine. ``accepts`` is "pulses" or "positions"."""
+
+    name = "abstract"
+    accepts = "pulses"
+
+    @abstractmethod
+    def open(self, counts: np.ndarray) -> None:
+        """Connect; ``counts`` are the controller's pulse counters at start (the sim places its
+        plant there; hardware may check them against its own counters)."""
+
+    @abstractmethod
+    def read(self) -> Feedback:
+        """The latest feedback; raises HalTimeout if the device does not answer in time, HalError
+        on a device fault."""
+
+    def write_pulses(self, pulses: np.ndarray) -> None:
+        """Signed pulses for this tick per axis (spread evenly over the tick by the device)."""
+        raise HalError(f"backend {self.name!r} does not take pulses")
+
+    def write_positions(self, q_mm: np.ndarray) -> None:
+        """Position targets for the end of this tick (CSP), mm."""
+        raise HalError(f"backend {self.name!r} does not take position targets")
+
+    def status(self) -> Status:
+        return Status()
+
+    def truth(self) -> np.ndarray | None:
+        """Load-side joint positions (mm), known only to a simulation; None for hardware."""
+        return None
+
+    def close(self) -> None:
+        pass
