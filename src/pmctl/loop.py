@@ -493,6 +493,8 @@ class ControlLoop:
                     st = _stopping(st, self.stop_request)
                 tg = rows[k] if k < n_t else hold
                 counts[k] = st.counts
+                enc[k] = fb.enc                    # copies: the backend reuses its feedback object
+                strain[k] = fb.strain
                 if has_truth:
                     truth[k] = be.truth()          # load side at this tick's start, like enc and counts
                 pulses, st = nc_step(st, tg, fb, p, self.model)
@@ -503,8 +505,6 @@ class ControlLoop:
                     st = _halt(st, reason)
                     break
                 sent += pulses
-                enc[k] = fb.enc
-                strain[k] = fb.strain
                 target[k] = tg[:6]
                 if writer := self.writer:
                     if k % persist_every == 0:
