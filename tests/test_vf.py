@@ -1,0 +1,94 @@
+"""The software V-F converter (pmctl.vf, seed 004 2.2): conservation, saturation, symmetry."""
+
+import math
+
+import numpy as np
+from hypothesis import given, settings, strategies as st
+
+from pmctl import vf
+
+finite = dict(allow_nan=False, allow_infinity=False)
+
+
+@st.composite
+def unsaturated_run(draw):
+    """A bank of converters, a threshold, a pulse cap n and inputs with |u·dt| ≤ n·threshold, so the
+    converter never has to drop input (|acc| < threshold after every sample)."""
+    n_axes = draw(st.integers(1, 5))
+    n_steps = draw(st.integers(1, 200))
+    threshold = draw(st.floats(1e-3, 1e3, **finite))
+    n_max = draw(st.sampled_from([1, 2, 7, 200]))
+    dt = draw(st.sampled_from([1.0, 1e-3, 0.002, 5e-4]))
+    frac = draw(st.lists(st.floats(-1.0, 1.0, **finite), min_size=n_steps * n_axes,
+                         max_size=n_steps * n_axes))
+    u = np.array(frac).reshape(n_steps, n_axes) * n_max * threshold / dt
+    return u, dt, threshold, n_max
+
+
+@settings(max_examples=150, deadline=None)
+@given(unsaturated_run())
+def test_pulses_plus_residue_equal_the_integral(run):
+    u, dt, threshold, n_max = run
+    acc = np.zeros(u.shape[1])
+    total = np.zeros(u.shape[1], np.int64)
+    for row in u:
+        p, acc = vf.vf_step(acc, row, dt, threshold, n_max)
+        assert p.dtype == np.int64
+        assert np.all(np.abs(p) <= n_max)
+        assert np.all(np.abs(acc) < threshold)           # the residue is always below one pulse
+        total += p
+    integral = (u * dt).sum(axis=0)
+    scale = np.abs(u * dt).sum(axis=0) + threshold
+    np.testing.assert_allclose(total * threshold + acc, integral, rtol=0, atol=1e-12 * scale.max())
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(1e-3, 1e3, **finite), st.sampled_from([1, 3, 200]), st.floats(1.0, 50.0, **finite),
+       st.integers(1, 30), st.sampled_from([1.0, 0.001]))
+def test_saturation_caps_pulses_and_does_not_wind_up(threshold, n_max, overdrive, n_ticks, dt):
+    u = overdrive * (n_max + 1) * threshold / dt          # more than n_max pulses' worth per tick
+    acc = np.zeros(2)
+    for _ in range(n_ticks):
+        p, acc = vf.vf_step(acc, np.array([u, -u]), dt, threshold, n_max)
+        assert p.tolist() == [n_max, -n_max]             # exactly the cap, with the input's sign
+        assert np.all(np.abs(acc) <= threshold)
+    # input stops: the clamped accumulator releases at most one more pulse, never the excess
+    extra = np.zeros(2, np.int64)
+    for _ in range(5):
+        p, acc = vf.vf_step(acc, np.zeros(2), dt, threshold, n_max)
+        extra += p
+    assert np.all(np.abs(extra) <= 1)
+
+
+def test_seed_one_pulse_mode_emits_one_pulse_per_sample_at_the_threshold():
+    # seed 2.3.2: threshold = the largest input, which then fires every sample (max rate = F)
+    acc = 0.0
+    pulses = []
+    for _ in range(50):
+        p, acc = vf.vf_step(acc, 1.0, 1.0, threshold=1.0, max_pulses_per_tick=1)
+        pulses.append(int(p))
+    assert pulses == [1] * 50
+    # half the threshold: one pulse every other sample
+    acc, pulses = 0.0, []
+    for _ in range(50):
+        p, acc = vf.vf_step(acc, 0.5, 1.0, 1.0, 1)
+        pulses.append(int(p))
+    assert sum(pulses) == 25 and pulses[1::2] == [1] * 25
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(-0.999, 0.999, **finite), st.floats(-10, 10, **finite), st.floats(1e-2, 10, **finite),
+       st.sampled_from([1, 4]))
+def test_converter_is_odd_symmetric(acc_frac, u, threshold, n_max):
+    acc = acc_frac * threshold
+    p1, a1 = vf.vf_step(acc, u, 1.0, threshold, n_max)
+    p2, a2 = vf.vf_step(-acc, -u, 1.0, threshold, n_max)
+    assert int(p1) == -int(p2)
+    assert float(a1) == -float(a2)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(1, 1000), st.floats(1e-3, 1e3, **finite))
+def test_vf_min_amplitude_is_eq_2_2(k, sd):
+    assert math.isclose(float(vf.vf_min_amplitude(sd, 1.0 / (2 * k))), sd * math.sin(math.pi / (2 * k)),
+                        rel_tol=1e-12)
