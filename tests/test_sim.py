@@ -1,0 +1,125 @@
+"""The loopback simulation plant (pmctl.hal.sim) and the backend registry."""
+
+import math
+
+import numpy as np
+import pytest
+
+from pmctl import hal
+from pmctl.config import load_machine
+from pmctl.errors import ConfigError
+from pmctl.hal.sim import SimBackend, SimOptions
+
+M = load_machine()
+DT = 1e-3
+C0 = np.array([786499, 786499, 786499, 0, 0], np.int64)     # home: L = 393.2495 mm
+
+
+def _sim(**opt):
+    s = hal.create("sim", M, DT, opt)
+    s.open(C0)
+    return s
+
+
+def test_registry_builds_the_sim_and_rejects_unknown_names():
+    assert isinstance(hal.create("sim", M, DT), SimBackend)
+    with pytest.raises(ConfigError, match="unknown backend"):
+        hal.create("nope", M, DT)
+    with pytest.raises(ConfigError, match="unknown sim option"):
+        hal.create("sim", M, DT, {"stiffnes": 1})
+
+
+def test_ideal_drive_encoder_equals_counter():
+    s = _sim()
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        s.write_pulses(rng.integers(-50, 51, 5))
+        fb = s.read()
+        assert np.array_equal(fb.counts, s.counts)
+        assert np.allclose(fb.enc, fb.counts / M.resolution.pulses_per_mm, atol=1e-12)
+        assert np.allclose(s.truth(), fb.enc)                 # rigid: load side = motor side
+
+
+def test_first_order_lag_follows_a_ramp_with_lag_v_tau():
+    tau = 0.01
+    s = _sim(drive_tau_s=[tau, 0, 0, 0, 0])
+    for _ in range(300):                                       # 20 pulses/tick = 10 mm/s on L1
+        s.write_pulses(np.array([20, 0, 0, 0, 0]))
+    fb = s.read()
+    lag = fb.counts[0] / 2000.0 - fb.enc[0]
+    assert lag == pytest.approx(10.0 * tau, rel=1e-6)          # exact for a ramp after 30 tau
+    assert fb.enc[1] == fb.counts[1] / 2000.0
+
+
+def test_flexible_mode_rings_at_its_natural_frequency_and_strain_reads_the_deflection():
+    k, m, zeta = 131.6, 8.333, 0.0                              # ~20 Hz, undamped
+    s = _sim(flex=True, mode_stiffness_N_per_mm=[k] * 3, mode_mass_kg=[m] * 3, mode_damping_ratio=[zeta] * 3)
+    for _ in range(10):                                        # a short move on chain 1, then stop
+        s.write_pulses(np.array([100, 0, 0, 0, 0]))
+    strain, y = [], []
+    for _ in range(1000):
+        s.write_pulses(np.zeros(5, np.int64))
+        fb = s.read()
+        strain.append(fb.strain[0])
+        y.append(s.truth()[0] - fb.enc[0])
+    strain, y = np.array(strain), np.array(y)
+    # strain gauge = k_eps * k * (load - motor), tension positive
+    assert np.allclose(strain, M.strain_gain * k * y, rtol=1e-12, atol=1e-12)
+    # zero crossings of a free undamped oscillation: frequency sqrt(k/m)/2pi
+    zc = np.nonzero(np.diff(np.sign(y)) != 0)[0]
+    f_meas = (len(zc) - 1) / 2 / ((zc[-1] - zc[0]) * DT)
+    assert f_meas == pytest.approx(math.sqrt(k * 1e3 / m) / (2 * math.pi), rel=0.01)
+    assert np.ptp(y[-200:]) > 0.5 * np.ptp(y[:200])            # undamped: still ringing
+    assert np.abs(strain[1:] - strain[:-1]).max() > 0
+
+
+def test_flexible_mode_damping_decays_the_ringing():
+    k, m = 131.6, 8.333
+    s = _sim(flex=True, mode_stiffness_N_per_mm=[k] * 3, mode_mass_kg=[m] * 3, mode_damping_ratio=[0.05] * 3)
+    for _ in range(10):
+        s.write_pulses(np.array([100, 0, 0, 0, 0]))
+    y = []
+    for _ in range(1000):
+        s.write_pulses(np.zeros(5, np.int64))
+        y.append(s.truth()[0] - s.read().enc[0])
+    y = np.array(y)
+    wn = math.sqrt(k * 1e3 / m)
+    # envelope decays as exp(-zeta wn t): over 0.8 s by exp(-0.05 * 125.7 * 0.8) = 0.0066
+    ratio = np.abs(y[800:]).max() / np.abs(y[:200]).max()
+    assert ratio == pytest.approx(math.exp(-0.05 * wn * 0.8), rel=0.3)
+
+
+def test_noise_is_seeded_and_has_the_configured_size():
+    a = _sim(enc_noise_mm=1e-3, strain_noise_ue=0.5, seed=7)
+    b = _sim(enc_noise_mm=1e-3, strain_noise_ue=0.5, seed=7)
+    ea, sa = [], []
+    for _ in range(2000):
+        a.write_pulses(np.zeros(5, np.int64))
+        b.write_pulses(np.zeros(5, np.int64))
+        fa, fb = a.read(), b.read()
+        assert np.array_equal(fa.enc, fb.enc) and np.array_equal(fa.strain, fb.strain)
+        ea.append(fa.enc - fa.counts / 2000.0)
+        sa.append(fa.strain.copy())
+    assert np.std(ea) == pytest.approx(1e-3, rel=0.05)
+    assert np.std(sa) == pytest.approx(0.5, rel=0.05)
+
+
+def test_injected_stall_times_out_and_lost_steps_shift_the_motor():
+    from pmctl.hal import HalTimeout
+    s = _sim(stall_at_tick=3, read_timeout_s=0.001)
+    for _ in range(3):
+        s.read()
+        s.write_pulses(np.zeros(5, np.int64))
+    with pytest.raises(HalTimeout, match="no answer"):
+        s.read()
+    s = _sim(lost_steps_at_tick=0, lost_steps_axis=4, lost_steps_mm=-0.02)
+    s.write_pulses(np.zeros(5, np.int64))
+    fb = s.read()
+    assert fb.enc[4] - fb.counts[4] / 2000.0 == pytest.approx(-0.02)
+
+
+def test_sim_options_validation():
+    with pytest.raises(ConfigError, match="drive_tau_s"):
+        SimOptions.from_dict({"drive_tau_s": [0.0, 0.0]})
+    with pytest.raises(ConfigError, match="mode_mass_kg"):
+        SimOptions.from_dict({"mode_mass_kg": -1.0})
