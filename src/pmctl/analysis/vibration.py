@@ -235,6 +235,19 @@ def response_metrics(sim: LoopSim, t_cmd_end, band=None, window_delay=1.0,
                            float((sim.theta_m[-1] - final) / K_R), band)
 
 
+def residual_amplitude_bound(F, f_load, K_theta, threshold=1.0):
+    """Largest free load vibration the strain loop can leave behind (seed 3.4.2's design rule).
+
+    At rest u = −K_θ·(θ_m − θ_L); a free oscillation of amplitude A at f_load feeds the V-F a sine
+    of amplitude K_θ A, whose accumulator swings K_θ A/sin(π f_load/F) peak to peak over many
+    cycles. Once that swing exceeds 2 SD a pulse must come whatever the residue in (−SD, SD), so the
+    loop keeps acting until A ≤ 2 SD sin(π f_load/F)/K_θ (inf for K_θ = 0: nothing acts).
+    """
+    if K_theta <= 0:
+        return math.inf
+    return 2.0 * threshold * math.sin(math.pi * min(0.5, f_load / F)) / K_theta
+
+
 def linear_step_response(t, k_over_J, K_G, K_theta, KvKR, amplitude):
     """θ_L(t) of the linear model eq. 3.1 for a step of ``amplitude`` (for overlay plots)."""
     from scipy import signal
@@ -529,10 +542,13 @@ def cmd_vibration(args):
     print("\nStep responses (20 pulses = 0.628 rad; V-F threshold 1, one pulse per sample; undamped load)")
     print("  settling: last exit from ±1 pulse (= ±5 %) of the command; residual: θ_L − θ0 over "
           "t ≥ 1 s after the command ends, to the end of the run (3 s)")
-    print(f"  {'case':34} {'settling':>12} {'resid p-p':>10} {'resid RMS':>10} {'pulses':>6} {'end offset':>10}")
-    for label, sim, m in steps:
+    print("  dead-region bound on the residual p-p: 2·(2 SD sin(π f_load/F)/K_θ) (residual_amplitude_bound)")
+    print(f"  {'case':34} {'settling':>12} {'resid p-p':>10} {'resid RMS':>10} {'p-p bound':>10} "
+          f"{'pulses':>6} {'end offset':>10}")
+    for (label, sim, m), (_, F, Kt, fl) in zip(steps, STEP_CASES):
+        bound = 2 * residual_amplitude_bound(F, fl, Kt)
         print(f"  {label:34} {_fmt_ts(m.settling_time):>12} {m.residual_pp:10.4f} {m.residual_rms:10.4f} "
-              f"{int(np.abs(sim.pulses).sum()):6d} {m.final_offset_pulses:+8.0f} p")
+              f"{bound:10.4f} {int(np.abs(sim.pulses).sum()):6d} {m.final_offset_pulses:+8.0f} p")
     for (la, _, a), (lb, _, b) in zip(steps[0::2], steps[1::2]):
         print(f"  {la.split(',', 1)[1].strip()}: K_θ=0 → K_θ=3 residual p-p {a.residual_pp / b.residual_pp:.1f}× "
               f"smaller, RMS {a.residual_rms / b.residual_rms:.1f}× smaller, settling "
