@@ -33,9 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import kinematics as K
 from .errors import InputError
-from .job import LINE, RAPID, Job, Move
+from .job import LINE, RAPID, Job, Move, check_reach
 
 AXIS_TOL = 1e-3                 # allowed | |V| - 1 |
 DEFAULT_FEED_MM_MIN = 600.0     # 10 mm/s
@@ -115,24 +114,6 @@ def parse_cl(text: str, path="<string>") -> CLData:
     if not tips:
         raise InputError(path, None, "no CL points")
     return CLData(np.array(tips, float), np.array(axes, float), np.array(flags), np.array(lines, int), str(path))
-
-
-def check_reach(tip, axis, lines, machine, path) -> K.IKResult:
-    """IK of every pose; InputError at the first line whose pose is out of the tilt range or unreachable."""
-    lo, hi = machine.limits.theta2_deg
-    tilt = np.degrees(np.arccos(np.clip(axis[:, 2], -1.0, 1.0)))
-    bad = tilt > min(abs(lo), abs(hi)) + 1e-9
-    if np.any(bad):
-        k = int(np.argmax(bad))
-        raise InputError(path, int(lines[k]), f"tool axis tilted {tilt[k]:.4f} deg, beyond the machine's "
-                                              f"theta2 limit {min(abs(lo), abs(hi)):g} deg")
-    r = K.ik_batch(tip, axis, machine)
-    if not np.all(r.ok):
-        k = int(np.argmax(~r.ok))
-        more = int(np.count_nonzero(~r.ok)) - 1
-        raise InputError(path, int(lines[k]), f"pose unreachable: {r.reason[k]}"
-                                              + (f" (and {more} more unreachable lines)" if more else ""))
-    return r
 
 
 def read_cl(path, machine) -> CLData:

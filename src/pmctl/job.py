@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import kinematics as K
 from .errors import InputError
 
 RAPID, LINE, ARC, DWELL = "rapid", "line", "arc", "dwell"
@@ -55,6 +56,31 @@ class Job:
 
     def __len__(self):
         return len(self.moves)
+
+
+def home_pose(machine):
+    """Tool tip (W) and axis at home: P = (0, 0, Z_home), level platform, table at X = Y = 0."""
+    g = machine.geometry
+    tip, axis = K.tool_of_platform(np.array([0.0, 0.0, g.z_home]), np.eye(3), np.zeros(2), g)
+    return tip, axis / np.linalg.norm(axis)
+
+
+def check_reach(tip, axis, lines, machine, path) -> K.IKResult:
+    """IK of every pose; InputError at the first line whose pose is out of the tilt range or unreachable."""
+    lo, hi = machine.limits.theta2_deg
+    tilt = np.degrees(np.arccos(np.clip(axis[:, 2], -1.0, 1.0)))
+    bad = tilt > min(abs(lo), abs(hi)) + 1e-9
+    if np.any(bad):
+        k = int(np.argmax(bad))
+        raise InputError(path, int(lines[k]), f"tool axis tilted {tilt[k]:.4f} deg, beyond the machine's "
+                                              f"theta2 limit {min(abs(lo), abs(hi)):g} deg")
+    r = K.ik_batch(tip, axis, machine)
+    if not np.all(r.ok):
+        k = int(np.argmax(~r.ok))
+        more = int(np.count_nonzero(~r.ok)) - 1
+        raise InputError(path, int(lines[k]), f"pose unreachable: {r.reason[k]}"
+                                              + (f" (and {more} more unreachable lines)" if more else ""))
+    return r
 
 
 def load_job(path, machine, **options) -> Job:

@@ -48,7 +48,7 @@ from scipy.interpolate import PchipInterpolator
 
 from . import kinematics as K
 from .errors import InputError, PmctlError
-from .job import ARC, DWELL, RAPID, Job, load_job  # noqa: F401  (load_job re-exported)
+from .job import ARC, DWELL, RAPID, Job, home_pose, load_job  # noqa: F401  (re-exported)
 from .trajectory import Trajectory
 
 __all__ = ["PlannerLimits", "plan", "home_pose", "load_job", "PlanningError"]
@@ -76,13 +76,6 @@ class PlannerLimits:
     @property
     def normal_accel(self):
         return 0.7 * self.accel_mm_s2
-
-
-def home_pose(machine):
-    """Tool tip (W) and axis at home: P = (0, 0, Z_home), level platform, table at X = Y = 0."""
-    g = machine.geometry
-    tip, axis = K.tool_of_platform(np.array([0.0, 0.0, g.z_home]), np.eye(3), np.zeros(2), g)
-    return tip, axis / np.linalg.norm(axis)
 
 
 # ---------------------------------------------------------------- geometry
@@ -234,10 +227,15 @@ def _range_min(n, lo, hi, val):
     return tables[0]
 
 
-def _erode(s, cap, radius):
-    """Each cap[k] also applies within radius[k] of s[k]."""
+def _erode(s, cap, radius, ext):
+    """Each cap[k] also applies within radius[k] of s[k], and where ext[k] to the first grid point
+    beyond it on either side, so that the interpolated profile between grid points obeys it too
+    (junctions do not need that: their grid has points exactly at the plateau edges)."""
     lo = np.searchsorted(s, s - radius, "left")
     hi = np.searchsorted(s, s + radius, "right") - 1
+    ext = ext & (radius > 0)
+    lo = np.where(ext, lo - 1, lo)
+    hi = np.where(ext, hi + 1, hi)
     return np.minimum(cap, _range_min(len(s), lo, hi, cap))
 
 
@@ -336,9 +334,9 @@ def plan(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: Pl
         traj, worst = _sample(path, grid, scale, machine, limits, dt, T, job)
         if worst is None:
             return traj
-        s_bad, factor = worst
+        s_bad, factor, v_bad = worst
         # Lower the caps around the offending samples and plan again.
-        radius = path.vmax.max() * T + 2 * limits.grid_mm
+        radius = 1.1 * v_bad * T + 2 * limits.grid_mm
         lo = np.searchsorted(grid["s"], s_bad - radius, "left")
         hi = np.searchsorted(grid["s"], s_bad + radius, "right") - 1
         scale = np.minimum(scale, _range_min(len(scale), lo, hi, factor))
@@ -371,6 +369,8 @@ def _limit_grid(path: _Path, machine, limits: PlannerLimits, dt, T):
     dq = np.abs(out_q[1:] - in_q[:-1])
     with np.errstate(divide="ignore"):
         vj[1:n] = np.minimum(amax * dt / dtip, (qdd * dt / dq).min(-1))
+    vmax_adj = np.maximum(np.concatenate([path.vmax[:1], path.vmax]), np.concatenate([path.vmax, path.vmax[-1:]]))
+    vj = np.where(vj < vmax_adj, vj, np.inf)           # no junction cap where the feed is lower anyway
     vj[path.stop] = 0.0
     # --- grid: n_i intervals per segment (at least 2), plus the junction plateau edges
     counts = np.maximum(2, np.ceil(path.length / limits.grid_mm).astype(int))
@@ -383,7 +383,7 @@ def _limit_grid(path: _Path, machine, limits: PlannerLimits, dt, T):
     r_end = 1.05 * vj_f[1:] * T / path.length
     ex_seg, ex_u = [], []
     for rr, uu in ((r_start, r_start), (r_end, 1.0 - r_end)):
-        ok = (rr > 0) & (rr < 0.5)
+        ok = (rr > 0) & (rr < 1.0)
         ex_seg.append(np.nonzero(ok)[0])
         ex_u.append(uu[ok])
     seg = np.concatenate([seg] + ex_seg + [np.arange(n)])
@@ -423,7 +423,10 @@ def _limit_grid(path: _Path, machine, limits: PlannerLimits, dt, T):
     vg[b_idx] = np.minimum(vg[b_idx], vj)
     vg = np.maximum(np.nan_to_num(vg, nan=np.inf), 0.0)
     ag = np.maximum(np.nan_to_num(ag, nan=np.inf), 1e-6)
-    return dict(s=s, seg=seg, u=u, vcap=vg, acap=ag, b_idx=b_idx, vmax_seg=path.vmax[seg])
+    jrad = np.zeros(len(s))
+    has_plateau = np.isfinite(vj) & (vj > 0)
+    jrad[b_idx[has_plateau]] = 1.05 * vj[has_plateau] * T * (1 + 1e-9)
+    return dict(s=s, seg=seg, u=u, vcap=vg, acap=ag, b_idx=b_idx, vmax_seg=path.vmax[seg], jrad=jrad)
 
 
 def _profile(path, grid, scale, T):
@@ -432,9 +435,11 @@ def _profile(path, grid, scale, T):
     b_idx = grid["b_idx"]
     stop_pts = b_idx[path.stop]
     vcap[stop_pts] = 0.0
-    vcap = _erode(s, vcap, 1.05 * vcap * T)
+    jrad = grid["jrad"]
+    junction = jrad > 0
+    vcap = _erode(s, vcap, np.maximum(1.06 * vcap * T, jrad), ~junction)
     acap = grid["acap"] * scale
-    acap = _erode(s, acap, 1.05 * grid["vmax_seg"] * T)
+    acap = _erode(s, acap, 1.05 * grid["vmax_seg"] * T, np.ones(len(s), bool))
     vcap = np.maximum(vcap, np.where(vcap > 0, 1e-6, 0.0))
     vcap[stop_pts] = 0.0
     ds = np.diff(s)
@@ -535,13 +540,13 @@ def _violations(q, tip, v, s, seg, path, machine, limits, dt):
     ratios.append(("v", np.concatenate([np.where(rot, 0.0, tv), [0.0]])))
     ta = np.linalg.norm(np.diff(tip, 2, axis=0), axis=-1) / dt**2 / limits.accel_mm_s2
     ratios.append(("a", np.concatenate([[0.0], ta, [0.0]])))
-    bad_s, bad_f = [], []
+    bad_s, bad_f, bad_v = [], [], []
     for kind, r in ratios:
         m = r > tol
         if np.any(m):
-            f = 0.97 / r[m]
             bad_s.append(s[m])
-            bad_f.append(f)
+            bad_f.append(0.97 / r[m])
+            bad_v.append(np.abs(v[m]))
     if not bad_s:
         return None
-    return np.concatenate(bad_s), np.concatenate(bad_f)
+    return np.concatenate(bad_s), np.concatenate(bad_f), np.concatenate(bad_v)
