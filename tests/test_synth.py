@@ -1,0 +1,208 @@
+"""Concealed-effect generator: layout, answer key apart, and each effect is the physics it claims.
+
+Each physics test builds a short run, hides one effect, and recovers its parameter from the
+nominal twin's residual by an independent route (direction split, screw-position regression,
+lag fit, Jacobian regression, spectrum), within a stated tolerance.
+"""
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from pmctl import kinematics as K
+from pmctl.config import load_machine
+from pmctl.errors import InputError
+from pmctl.recording import read_recording
+from pmctl.twin import nominal as N
+from pmctl.twin import synth as S
+
+M = load_machine()
+
+
+def _case(effects, run="calibration", duration=12.0, rate=500.0, seed=3, loads=None):
+    rng = np.random.default_rng(seed)
+    kind = run
+    r = S.make_run(kind, rng, M, duration, rate, loads if loads is not None else kind != "circle")
+    cols, noise = S.simulate(r, effects, rng, M, tracker_div=5)
+    pred = N.predict_columns(cols, M)
+    res = {c: cols[c] - p for c, p in pred.items()}
+    return r, cols, res, noise
+
+
+def _fit(x, y):
+    """Least-squares slope and intercept of y on x over finite samples."""
+    m = np.isfinite(x) & np.isfinite(y)
+    A = np.stack([x[m], np.ones(m.sum())], -1)
+    return np.linalg.lstsq(A, y[m], rcond=None)[0]
+
+
+def test_layout_answer_key_apart_and_catalogue_names(tmp_path):
+    dirs = S.generate(tmp_path, 2, effects=["backlash", "sensor_offset"], seed=7, duration_s=6.0, rate_hz=200.0)
+    assert [d.name for d in dirs] == ["case-000", "case-001"]
+    for d in dirs:
+        assert sorted(p.name for p in (d / "recording").iterdir()) == ["data.csv", "recording.json"]
+        ans = json.loads((d / "answer.json").read_text())
+        rec = read_recording(d / "recording")
+        assert rec.n == 1200 and rec.unknown_columns == []
+        # the recording holds nothing of the answer
+        text = (d / "recording" / "recording.json").read_text() + (d / "recording" / "data.csv").read_text()[:400]
+        assert "backlash" not in text and "offset" not in text
+        assert [e["effect"] for e in ans["effects"]] == ["backlash", "sensor_offset"]
+        assert set(ans["effects"][0]["parameters"]) == {"width_mm"} and ans["effects"][0]["axis"] in S.AXES
+        assert set(ans["effects"][1]["parameters"]) == {"offset"} and ans["effects"][1]["channel"] in rec
+        # a 100 Hz tracker in a 200 Hz log: about half the tip cells are empty
+        assert 0.3 < np.mean(np.isnan(rec["tip_x"])) < 0.7
+    assert json.loads((dirs[0] / "answer.json").read_text()) != json.loads((dirs[1] / "answer.json").read_text())
+
+
+CATALOGUE_PARAMS = {
+    "backlash": {"width_mm"}, "pitch_error": {"period_mm", "amplitude_mm"},
+    "thermal_growth": {"alpha_per_K", "channel"}, "compliance": {"stiffness_N_per_mm"},
+    "servo_lag": {"tau_s"}, "resonance": {"freq_hz", "damping_ratio"}, "lost_steps": {"t_s", "offset_mm"},
+    "sensor_gain": {"gain"}, "sensor_offset": {"offset"}}
+
+
+@pytest.mark.parametrize("name", S.EFFECTS)
+def test_every_effect_uses_catalogue_names(name):
+    rng = np.random.default_rng(5)
+    for _ in range(10):
+        e = S.make_effect(name, rng).answer()
+        locs = {"axis", "channel", "chain"} & set(e)
+        assert len(locs) == 1
+        if name == "geometry":
+            assert e["chain"] in (1, 2, 3, "tool")
+            assert set(e["parameters"]) in ({"length_offset_mm"}, {"tool_length_mm"},
+                                            {"base_joint_radial_mm", "base_joint_z_mm"})
+        else:
+            assert set(e["parameters"]) == CATALOGUE_PARAMS[name]
+
+
+def test_clean_residual_is_noise():
+    r, cols, res, noise = _case([])
+    for c in ("tip_x", "tip_y", "tip_z"):
+        rms = np.sqrt(np.nanmean(res[c] ** 2))
+        assert 0.7 * noise["tip_mm"] < rms < 1.3 * noise["tip_mm"], c
+    for c in ("strain_1", "strain_2", "strain_3"):
+        assert abs(np.sqrt(np.mean(res[c] ** 2)) / noise["strain_ue"] - 1) < 0.2
+    assert max(np.abs(res[c]).max() for c in res if c.startswith("enc_")) <= S.PULSE_MM / 2 + 1e-12
+
+
+def test_backlash_flips_with_direction_by_its_width():
+    e = S.Effect("backlash", {"axis": "X"}, {"width_mm": 0.02})
+    r, cols, res, _ = _case([e], run="circle", duration=40.0, rate=200.0)
+    v = np.gradient(cols["cmd_X"], r.t)
+    up, down = v > 2.0, v < -2.0
+    split = np.nanmean(res["tip_x"][up]) - np.nanmean(res["tip_x"][down])
+    assert split == pytest.approx(0.02, rel=0.15)       # tip in W = T - table: +w/2 moving +, -w/2 moving -
+    assert abs(np.nanmean(res["tip_y"][up]) - np.nanmean(res["tip_y"][down])) < 0.002
+
+
+def test_pitch_error_is_periodic_in_the_screw_position():
+    e = S.Effect("pitch_error", {"axis": "Y"}, {"period_mm": 5.0, "amplitude_mm": 0.008}, {"phase_rad": 1.0})
+    r, cols, res, _ = _case([e], run="raster")
+    ph = 2 * np.pi * cols["enc_Y"] / 5.0
+    m = np.isfinite(res["tip_y"])
+    A = np.stack([np.sin(ph), np.cos(ph), np.ones_like(ph)], -1)[m]
+    s, c, _ = np.linalg.lstsq(A, res["tip_y"][m], rcond=None)[0]
+    assert np.hypot(s, c) == pytest.approx(0.008, rel=0.2)
+
+
+def test_servo_lag_enc_lags_cmd_by_tau_times_speed():
+    e = S.Effect("servo_lag", {"axis": "L2"}, {"tau_s": 0.012})
+    r, cols, res, _ = _case([e], run="circle")
+    v = np.gradient(cols["cmd_L2"], r.t)
+    tau = -_fit(v, res["enc_L2"])[0]
+    assert tau == pytest.approx(0.012, rel=0.1)
+    assert np.abs(res["enc_L1"]).max() <= S.PULSE_MM
+
+
+def test_lost_steps_shift_the_load_side_not_the_motor_count():
+    e = S.Effect("lost_steps", {"axis": "Y"}, {"t_s": 6.0, "offset_mm": 0.03})
+    r, cols, res, _ = _case([e])
+    before, after = r.t < 6.0, r.t >= 6.0
+    jump = np.nanmean(res["tip_y"][after]) - np.nanmean(res["tip_y"][before])
+    assert jump == pytest.approx(-0.03, rel=0.1)          # the table is 0.03 further: the tip in W is less
+    assert np.abs(res["enc_Y"]).max() <= S.PULSE_MM
+
+
+def test_thermal_growth_follows_temperature_times_screw_position():
+    e = S.Effect("thermal_growth", {"axis": "X"}, {"alpha_per_K": 12e-6, "channel": "temp_screwX"},
+                 {"t_ref_C": 20.0, "screw_fixed_end_mm": -75.0})
+    r, cols, res, _ = _case([e], run="warmup", duration=300.0, rate=50.0)
+    temp = N.ffill(cols["temp_screwX"])
+    assert np.nanmax(temp) - np.nanmin(temp) > 2.0      # the screw warms up during the run
+    x = (temp - 20.0) * (cols["enc_X"] + 75.0)
+    alpha = -_fit(x, res["tip_x"])[0]
+    assert alpha == pytest.approx(12e-6, rel=0.2)
+
+
+def test_table_compliance_gives_way_to_the_tip_force():
+    e = S.Effect("compliance", {"axis": "X"}, {"stiffness_N_per_mm": 3000.0})
+    r, cols, res, _ = _case([e], loads=True)
+    k = 1.0 / _fit(cols["load_fx"], res["tip_x"])[0]
+    assert k == pytest.approx(3000.0, rel=0.2)
+
+
+def _tip_jacobian_column(cols, chain):
+    st = N.nominal_state(cols, M)
+    J = K.jacobian_tool(st.P, st.R, M.geometry)       # d(tip, axis)/dq
+    return st, J[:, :3, chain]
+
+
+def test_chain_compliance_deflects_the_tip_by_force_over_stiffness():
+    e = S.Effect("compliance", {"axis": "L3"}, {"stiffness_N_per_mm": 2500.0})
+    r, cols, res, _ = _case([e], loads=True)
+    st, col = _tip_jacobian_column(cols, 2)
+    model = -(col * st.axial[:, 2:3])                   # tip shift per unit 1/k
+    y = np.stack([res[c] for c in ("tip_x", "tip_y", "tip_z")], -1)
+    m = np.all(np.isfinite(y), -1)
+    inv_k = np.sum(model[m] * y[m]) / np.sum(model[m] ** 2)
+    assert 1 / inv_k == pytest.approx(2500.0, rel=0.2)
+
+
+def test_geometry_length_offset_moves_the_tip_along_the_chain_jacobian():
+    e = S.Effect("geometry", {"chain": 1}, {"length_offset_mm": 0.08})
+    r, cols, res, _ = _case([e])
+    st, col = _tip_jacobian_column(cols, 0)
+    y = np.stack([res[c] for c in ("tip_x", "tip_y", "tip_z")], -1)
+    m = np.all(np.isfinite(y), -1)
+    off = np.sum(col[m] * y[m]) / np.sum(col[m] ** 2)
+    assert off == pytest.approx(0.08, rel=0.05)
+
+
+def test_strain_resonance_rings_at_its_frequency():
+    e = S.Effect("resonance", {"channel": "strain_2"}, {"freq_hz": 23.0, "damping_ratio": 0.03},
+                 {"peak_ue": 10.0})
+    r, cols, res, _ = _case([e], rate=1000.0)
+    x = res["strain_2"] - res["strain_2"].mean()
+    f = np.fft.rfftfreq(len(x), 1 / r.rate_hz)
+    spec = np.abs(np.fft.rfft(x * np.hanning(len(x))))
+    band = f > 3.0
+    assert f[band][np.argmax(spec[band])] == pytest.approx(23.0, rel=0.05)
+    assert np.std(res["strain_1"]) < 1.0
+
+
+def test_sensor_gain_and_offset_scale_and_shift_one_channel():
+    eg = S.Effect("sensor_gain", {"channel": "strain_1"}, {"gain": 1.06})
+    eo = S.Effect("sensor_offset", {"channel": "tip_z"}, {"offset": -0.025})
+    r, cols, res, _ = _case([eg, eo])
+    pred = cols["strain_1"] - res["strain_1"]
+    assert _fit(pred, cols["strain_1"])[0] == pytest.approx(1.06, abs=0.01)
+    assert np.nanmean(res["tip_z"]) == pytest.approx(-0.025, abs=0.002)
+
+
+def test_same_seed_same_case_and_cli_rejects_unknown_effects(tmp_path):
+    a = S.synth_case(np.random.default_rng(11), ["pitch_error"], duration_s=5.0, rate_hz=200.0)
+    b = S.synth_case(np.random.default_rng(11), ["pitch_error"], duration_s=5.0, rate_hz=200.0)
+    assert a.answer == b.answer
+    assert all(np.array_equal(a.columns[c], b.columns[c], equal_nan=True) for c in a.columns)
+    with pytest.raises(InputError, match="unknown effect"):
+        S.parse_effects("backlash,flux_capacitor")
+    ap = argparse.ArgumentParser()
+    S.add_parser(ap.add_subparsers())
+    args = ap.parse_args(["synth", str(tmp_path / "o"), "--clean", "--duration", "3", "--rate", "100"])
+    assert args.func(args) == 0
+    ans = json.loads((tmp_path / "o" / "case-000" / "answer.json").read_text())
+    assert ans["effects"] == []
