@@ -206,3 +206,20 @@ def test_same_seed_same_case_and_cli_rejects_unknown_effects(tmp_path):
     assert args.func(args) == 0
     ans = json.loads((tmp_path / "o" / "case-000" / "answer.json").read_text())
     assert ans["effects"] == []
+
+
+def test_bundled_examples_load_with_answers_beside():
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1] / "examples" / "recordings"
+    cases = sorted(p for p in root.iterdir() if (p / "recording").is_dir())
+    assert len(cases) >= 3
+    for d in cases:
+        rec = read_recording(d / "recording")
+        ans = json.loads((d / "answer.json").read_text())
+        assert not (d / "recording" / "answer.json").exists()
+        assert all(e["effect"] in S.EFFECTS for e in ans["effects"])
+        assert sum(p.stat().st_size for p in (d / "recording").iterdir()) < 2e6
+        res = N.residuals(rec)
+        rms = np.sqrt(np.nanmean(res["tip_x"] ** 2))
+        if not ans["effects"]:                                   # clean: tracker noise only
+            assert rms < 1.3 * ans["noise"]["tip_mm"]
