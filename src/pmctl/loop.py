@@ -310,6 +310,13 @@ def build_targets(tip, axis, line, dt: float, machine: Machine, params: NCParams
         raise UnreachablePose(f"trajectory sample {i} (t = {i * dt:.3f} s, job line {int(line[i])}) is unreachable: "
                               f"{r.reason[i]}; nothing moved")
     q = r.q
+    out = (q < params.lower - 1e-9) | (q > params.upper + 1e-9)
+    if out.any():
+        i, j = (int(x) for x in np.argwhere(out)[0])
+        raise UnreachablePose(
+            f"trajectory sample {i} (t = {i * dt:.3f} s, job line {int(line[i])}): "
+            f"{('L1', 'L2', 'L3', 'X', 'Y')[j]} = {q[i, j]:.4f} mm outside the soft limits "
+            f"[{params.lower[j]:g}, {params.upper[j]:g}] mm; nothing moved")
     if n > 1:
         qd = np.abs(np.diff(q, axis=0)) / dt
         over = qd > params.vmax * 1.02 + 0.5 / (params.pulses_per_mm * dt)
