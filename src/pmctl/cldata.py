@@ -68,12 +68,12 @@ def parse_cl(text: str, path="<string>") -> CLData:
     tips, axes, flags, lines = [], [], [], []
     seen_content = False
     open_pass = None       # line of the 's' of the pass in progress
-    for lineno, raw in enumerate(text.splitlines(), 1):
+    for lineno, raw in enumerate(text.split("\n"), 1):
         s = raw.strip()
         if not s or s.startswith("#") or s.startswith(";"):
             continue
         fields = [f for f in _SPLIT.split(s) if f]
-        if not seen_content and fields[0].lower() == "px":
+        if not seen_content and fields and fields[0].lower() == "px":
             seen_content = True
             continue                           # header line
         seen_content = True

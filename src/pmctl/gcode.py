@@ -110,7 +110,7 @@ def parse_gcode(text: str, path="<string>", start_tip=(0.0, 0.0, 0.0), start_axi
     are relative to it; the initial A/B are its roll/pitch)."""
     st = _State(start_tip, start_axis)
     moves, points, point_lines = [], [], []
-    for lineno, raw in enumerate(text.splitlines(), 1):
+    for lineno, raw in enumerate(text.split("\n"), 1):
         chars = _strip_comments(raw, path, lineno)
         if not chars:
             continue
@@ -151,7 +151,7 @@ def _execute_line(words, st: _State, path, lineno, moves, points, point_lines):
     motion = [g for g in codes if g in G_MOTION]
     if len(motion) > 1:
         raise err("two motion codes (G0/G1/G2/G3) on one line", gs[codes.index(motion[1])][1])
-    if (20 in codes and 210 in codes) or (900 in codes and 910 in codes) or (3 in mcodes and 5 in mcodes) \
+    if (200 in codes and 210 in codes) or (900 in codes and 910 in codes) or (3 in mcodes and 5 in mcodes) \
             or (2 in mcodes and 30 in mcodes):
         raise err("conflicting modal codes on one line")
     if "N" in vals:

@@ -1,0 +1,263 @@
+"""RS-274 subset reader: modal state, arcs, units, errors with line/column, hypothesis round trips."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from pmctl import kinematics as K
+from pmctl.config import load_machine
+from pmctl.errors import InputError
+from pmctl.gcode import ARC_RADIUS_TOL_MM, parse_gcode, read_gcode
+from pmctl.job import ARC, DWELL, LINE, RAPID, load_job
+
+JOBS = Path(__file__).resolve().parents[1] / "examples" / "jobs"
+START = (0.0, 0.0, 100.0)
+
+
+@pytest.fixture(scope="module")
+def machine():
+    return load_machine()
+
+
+def parse(text, path="t.ngc"):
+    return parse_gcode(text, path, START, (0.0, 0.0, 1.0))
+
+
+def error_of(text):
+    with pytest.raises(InputError) as e:
+        parse(text)
+    return e.value
+
+
+# ---------------------------------------------------------------- bundled programs
+
+@pytest.mark.parametrize("name", ["cone.ngc", "spiral.ngc"])
+def test_bundled_programs_parse_and_are_reachable(machine, name):
+    job = read_gcode(JOBS / name, machine)
+    assert len(job.moves) > 10
+    assert len(job.points) == len([m for m in job.moves if m.kind != DWELL])
+    # every programmed axis is a unit vector pointing up, within the tilt limit
+    axes = np.array([m.axis for m in job.moves])
+    assert np.allclose(np.linalg.norm(axes, axis=1), 1.0, atol=1e-12)
+    assert np.all(np.degrees(np.arccos(axes[:, 2])) <= 20.0 + 1e-9)
+    assert load_job(JOBS / name, machine).moves[0].line == job.moves[0].line
+
+
+def test_cone_arcs_keep_their_radius(machine):
+    job = read_gcode(JOBS / "cone.ngc", machine)
+    arcs = [(m, prev) for prev, m in zip(job.moves, job.moves[1:]) if m.kind == ARC]
+    assert arcs
+    for m, prev in arcs:
+        r0 = np.hypot(*(prev.tip[:2] - m.center))
+        r1 = np.hypot(*(m.tip[:2] - m.center))
+        assert abs(r1 - r0) <= ARC_RADIUS_TOL_MM
+        assert m.sweep > 0                      # G3: counter-clockwise
+
+
+# ---------------------------------------------------------------- semantics
+
+def test_modal_state_and_words():
+    job = parse("%\nN10 G21 G90 G17 (set up) ; comment\nG0 X10 Y0 Z50\nF600 S9000 M3\nG1 X20\n"
+                "Y5 A10 B-5\nG4 P0.25\nM5\nG0 Z60\nM30\nG1 X1000 (never read)\n%")
+    kinds = [m.kind for m in job.moves]
+    assert kinds == [RAPID, LINE, LINE, DWELL, RAPID]
+    rap, l1, l2, dw, r2 = job.moves
+    assert np.allclose(rap.tip, [10, 0, 50]) and rap.line == 3
+    assert l1.feed == pytest.approx(10.0) and l1.spindle_rpm == 9000 and l1.line == 5
+    assert np.allclose(l2.tip, [20, 5, 50])                  # G1 stays modal
+    assert np.allclose(l2.axis, K.axis_from_roll_pitch(math.radians(10), math.radians(-5)), atol=1e-15)
+    assert dw.dwell == 0.25 and np.allclose(dw.tip, l2.tip)
+    assert r2.spindle_rpm == 0.0                              # M5
+    assert np.allclose(r2.axis, l2.axis)                      # A/B modal too
+    assert job.point_lines.tolist() == [3, 5, 6, 9]
+
+
+def test_spaces_inside_words_and_leading_zeros():
+    a = parse("G01 F600 X1 0.5 Y-.5 Z+3")
+    b = parse("G1F600X10.5Y-0.5Z3")
+    assert np.allclose(a.moves[0].tip, [10.5, -0.5, 3]) and np.allclose(a.moves[0].tip, b.moves[0].tip)
+
+
+def test_g91_equals_g90():
+    absolute = parse("G90 G0 X10 Y5 Z80 A5\nF300 G1 X20 Y5 Z70 B3\nG2 X30 Y5 I5 J0\nG3 X20 Y15 R10\nG1 X0 Y0 Z90 A0 B0")
+    incremental = parse("G91 G0 X10 Y5 Z-20 A5\nF300 G1 X10 Y0 Z-10 B3\nG2 X10 Y0 I5 J0\nG3 X-10 Y10 R10\n"
+                        "G1 X-20 Y-15 Z20 A-5 B-3")
+    assert len(absolute.moves) == len(incremental.moves) == 5
+    for a, b in zip(absolute.moves, incremental.moves):
+        assert a.kind == b.kind
+        assert np.allclose(a.tip, b.tip, atol=1e-12) and np.allclose(a.axis, b.axis, atol=1e-12)
+        if a.kind == ARC:
+            assert np.allclose(a.center, b.center, atol=1e-12) and a.sweep == pytest.approx(b.sweep)
+
+
+def test_g20_inches():
+    inch = parse("G20 G90 G0 X1 Y0.5 Z3\nG1 F10 X2\nG2 X3 Y0.5 I0.5 J0\nG3 X2 Y1.5 R1\nG21 G1 X10")
+    mm = parse("G21 G90 G0 X25.4 Y12.7 Z76.2\nG1 F254 X50.8\nG2 X76.2 Y12.7 I12.7 J0\nG3 X50.8 Y38.1 R25.4\nG1 X10")
+    for a, b in zip(inch.moves, mm.moves):
+        assert np.allclose(a.tip, b.tip, atol=1e-12) and a.feed == pytest.approx(b.feed)
+    assert inch.moves[1].feed == pytest.approx(254.0 / 60.0)       # 10 in/min in mm/s
+    assert np.allclose(inch.moves[2].center, [63.5, 12.7])
+
+
+def test_arc_centres_and_sweeps():
+    # quarter turns around (0, 0) from (10, 0)
+    g3 = parse("G0 X10 Y0 Z100\nF60 G3 X0 Y10 I-10 J0").moves[1]
+    g2 = parse("G0 X10 Y0 Z100\nF60 G2 X0 Y10 I-10 J0").moves[1]
+    assert g3.sweep == pytest.approx(math.pi / 2) and g2.sweep == pytest.approx(-1.5 * math.pi)
+    # R format: R > 0 the short way, R < 0 the long way; G2 and G3 put the centre on opposite sides
+    short3 = parse("G0 X10 Y0 Z100\nF60 G3 X0 Y10 R10").moves[1]
+    long3 = parse("G0 X10 Y0 Z100\nF60 G3 X0 Y10 R-10").moves[1]
+    short2 = parse("G0 X10 Y0 Z100\nF60 G2 X0 Y10 R10").moves[1]
+    assert np.allclose(short3.center, [0, 0], atol=1e-12) and short3.sweep == pytest.approx(math.pi / 2)
+    assert np.allclose(long3.center, [10, 10], atol=1e-12) and long3.sweep == pytest.approx(1.5 * math.pi)
+    assert np.allclose(short2.center, [10, 10], atol=1e-12) and short2.sweep == pytest.approx(-math.pi / 2)
+    # full circle, and P turns
+    full = parse("G0 X10 Y0 Z100\nF60 G2 X10 Y0 I-10 J0").moves[1]
+    assert full.sweep == pytest.approx(-2 * math.pi)
+    helix = parse("G0 X10 Y0 Z100\nF60 G3 X10 Y0 Z90 I-10 P3").moves[1]
+    assert helix.sweep == pytest.approx(6 * math.pi) and helix.tip[2] == 90
+
+
+@pytest.mark.parametrize("text,line,words", [
+    ("G0 X1\nG1 X5", 2, "no F"),
+    ("G0 X1\nG0 X1 Q2", 2, "unknown word 'Q2'"),
+    ("G1 F100 X", 1, "missing value after 'X'"),
+    ("G0 X1\n\nG18", 3, "unsupported G-code G18"),
+    ("G0 X1 (abc", 1, "never closed"),
+    ("G0 X1 (a (b) c)", 1, "nested"),
+    ("X5", 1, "no motion mode"),
+    ("G0 G1 X1", 1, "two motion codes"),
+    ("F600\nG0 X10 Y0\nG2 X10 Y6 I3 J0", 3, "differs from start radius"),
+    ("G0 X1 X2", 1, "repeated"),
+    ("F600 G0 X0 Y0\nG2 X30 Y0 R5", 2, "too small"),
+    ("G4", 1, "needs P"),
+    ("G1 F0 X1", 1, "must be > 0"),
+    ("M7", 1, "unsupported M-code"),
+    ("G0 X1 I2", 1, "need G2/G3"),
+    ("G0 X1\nG1 F600 X2 P3", 2, "'P' only"),
+    ("F600 G2 X0 Y0 I0 J0", 1, "radius is zero"),
+    ("F600 G3 X5 Y5", 1, "needs I/J or R"),
+    ("G0 X1 Y1\nF600 G2 X1 Y1 R5", 2, "full circle"),
+    ("G20 G21", 1, "conflicting"),
+    ("G0 X1\nG1 X2 F-3", 2, "must be > 0"),
+    ("G0 X1 $", 1, "expected a word letter"),
+    ("N1.5 G0 X1", 1, "line number"),
+])
+def test_bad_lines_are_reported_with_their_line(text, line, words):
+    e = error_of(text)
+    assert e.line == line and e.path == "t.ngc"
+    assert words in e.reason, e.reason
+
+
+def test_error_column_points_at_the_word():
+    e = error_of("G0 X1 Y2 Q7")
+    assert e.column == 10 and "t.ngc:1: column 10" in str(e)
+
+
+def test_nothing_from_a_program_with_a_bad_last_line(tmp_path, machine):
+    good = (JOBS / "spiral.ngc").read_text().replace("M30", "")
+    p = tmp_path / "bad.ngc"
+    p.write_text(good + "G1 X1 Y1 W3\n")
+    with pytest.raises(InputError) as e:
+        load_job(p, machine)
+    assert e.value.line == good.count("\n") + 1 and "unknown word 'W3'" in str(e.value)
+
+
+def test_unreachable_programmed_pose_is_reported(tmp_path, machine):
+    p = tmp_path / "far.ngc"
+    p.write_text("G0 X0 Y0 Z60\nG1 F600 X10\nG1 X200\n")
+    with pytest.raises(InputError) as e:
+        read_gcode(p, machine)
+    assert e.value.line == 3 and "unreachable" in e.value.reason
+    p.write_text("G0 X0 Y0 Z60\nG1 F600 X10 B25\n")
+    with pytest.raises(InputError) as e:
+        read_gcode(p, machine)
+    assert e.value.line == 2 and "tilted" in e.value.reason
+
+
+# ---------------------------------------------------------------- hypothesis
+
+coord = st.integers(-40000, 40000).map(lambda k: k / 1000.0)
+angle = st.integers(-150, 150).map(lambda k: k / 10.0)
+
+
+@st.composite
+def programs(draw):
+    """A random program and the moves it must produce (absolute, mm)."""
+    inch = draw(st.booleans())
+    unit = 25.4 if inch else 1.0
+    q = 1e-4 if inch else 1e-3
+    fmt = lambda v: f"{v:.4f}"  # noqa: E731
+    lines = ["G20" if inch else "G21", "F100"]
+    pos = np.array(START)
+    ab = [0.0, 0.0]
+    expect = []
+    absolute = True
+    for _ in range(draw(st.integers(1, 8))):
+        mode = draw(st.sampled_from(["G90", "G91"]))
+        absolute = mode == "G90"
+        kind = draw(st.sampled_from(["G0", "G1", "G2", "G3"]))
+        a, b = draw(angle), draw(angle)
+        if kind in ("G0", "G1"):
+            vals = [round(draw(coord) / unit / q) * q for _ in range(3)]
+            target = np.array(vals) * unit if absolute else pos + np.array(vals) * unit
+            words = f"X{fmt(vals[0])} Y{fmt(vals[1])} Z{fmt(vals[2])}"
+            arc = None
+        else:
+            i = round(draw(st.integers(-20000, 20000)) / 1000.0 / unit / q) * q
+            j = round(draw(st.integers(-20000, 20000)) / 1000.0 / unit / q) * q
+            if math.hypot(i, j) * unit < 0.5:
+                i = round(1.0 / unit / q) * q
+            th = draw(st.floats(0.1, 6.2))
+            c = pos[:2] + np.array([i, j]) * unit
+            r = math.hypot(i, j) * unit
+            th0 = math.atan2(pos[1] - c[1], pos[0] - c[0])
+            end = c + r * np.array([math.cos(th0 + th), math.sin(th0 + th)])
+            dz = draw(coord) / 4
+            end_prog = [round(v / unit / q) * q for v in (end[0], end[1], pos[2] + dz)]
+            if not absolute:
+                end_prog = [round((e * unit - p) / unit / q) * q for e, p in zip(end_prog, pos)]
+            target = np.array(end_prog) * unit if absolute else pos + np.array(end_prog) * unit
+            words = f"X{fmt(end_prog[0])} Y{fmt(end_prog[1])} Z{fmt(end_prog[2])} I{fmt(i)} J{fmt(j)}"
+            arc = (c, kind)
+        ab_new = [a, b] if absolute else [ab[0] + a, ab[1] + b]
+        lines.append(f"{mode} {kind} {words} A{a:g} B{b:g}")
+        expect.append((kind, target, ab_new, arc, len(lines)))
+        pos, ab = target, ab_new
+    lines.append("M30")
+    return "\n".join(lines), expect
+
+
+@settings(max_examples=60, deadline=None)
+@given(programs())
+def test_round_trip_of_generated_programs(prog):
+    text, expect = prog
+    job = parse(text)
+    moves = [m for m in job.moves if m.kind != DWELL]
+    assert len(moves) == len(expect)
+    for m, (kind, target, ab, arc, line) in zip(moves, expect):
+        assert m.kind == {"G0": RAPID, "G1": LINE, "G2": ARC, "G3": ARC}[kind]
+        assert m.line == line
+        assert np.allclose(m.tip, target, atol=1e-9)
+        assert np.allclose(m.axis, K.axis_from_roll_pitch(*np.radians(ab)), atol=1e-12)
+        if arc is not None:
+            assert np.allclose(m.center, arc[0], atol=1e-9)
+            assert (m.sweep < 0) == (arc[1] == "G2")
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.one_of(st.text(max_size=80),
+                 st.text(alphabet="GXYZABIJRFSMNP0123456789.-+ ();%\n\t", max_size=80)))
+def test_junk_raises_only_input_error(text):
+    try:
+        job = parse(text)
+    except InputError as e:
+        assert e.path == "t.ngc" and (e.line is None or 1 <= e.line <= text.count("\n") + 1)
+    else:
+        for m in job.moves:
+            assert np.all(np.isfinite(m.tip)) and np.all(np.isfinite(m.axis))
