@@ -54,6 +54,9 @@ from .trajectory import Trajectory
 __all__ = ["PlannerLimits", "plan", "home_pose", "load_job", "PlanningError"]
 
 
+VIOLATION_TOL = 1e-6      # relative overshoot of a limit on the samples that triggers re-planning
+
+
 class PlanningError(PmctlError):
     """The planner could not meet the limits (should not happen for a reachable job)."""
 
@@ -274,8 +277,12 @@ class _Profile:
         self.t0 = np.concatenate([[0.0], np.cumsum(self.dur)[:-1]])
         self.t_end = float(self.t0[-1] + self.dur[-1])
         d = self.dur
-        self.I0 = np.concatenate([[0.0], np.cumsum(self.s0 * d + 0.5 * self.v0 * d**2 + self.a * d**3 / 6)[:-1]])
-        self.I_end = float(self.I0[-1] + self.s0[-1] * d[-1] + 0.5 * self.v0[-1] * d[-1]**2 + self.a[-1] * d[-1]**3 / 6)
+        # The running integral of s grows like S t; keep it in extended precision so that the moving
+        # average (a difference of two such integrals) stays accurate to ~1e-12 mm on long jobs.
+        piece = (self.s0 * d + 0.5 * self.v0 * d**2 + self.a * d**3 / 6).astype(np.longdouble)
+        cum = np.cumsum(piece)
+        self.I0 = np.concatenate([np.zeros(1, np.longdouble), cum[:-1]])
+        self.I_end = cum[-1]
         self.S = float(s[-1])
         self.T = T
         # Arrival time (after the hold) at every grid point.
@@ -291,11 +298,11 @@ class _Profile:
         tau = np.clip(t - self.t0[i], 0.0, self.dur[i])
         s = self.s0[i] + self.v0[i] * tau + 0.5 * self.a[i] * tau**2
         v = self.v0[i] + self.a[i] * tau
-        I = self.I0[i] + self.s0[i] * tau + 0.5 * self.v0[i] * tau**2 + self.a[i] * tau**3 / 6
+        I = self.I0[i] + (self.s0[i] * tau + 0.5 * self.v0[i] * tau**2 + self.a[i] * tau**3 / 6)
         before, after = t < 0, t > self.t_end
         s = np.where(before, 0.0, np.where(after, self.S, s))
         v = np.where(before | after, 0.0, v)
-        I = np.where(before, 0.0, np.where(after, self.I_end + self.S * (t - self.t_end), I))
+        I = np.where(before, 0.0, np.where(after, self.I_end + np.longdouble(self.S) * (t - self.t_end), I))
         return s, v, I
 
     def filtered(self, t):
@@ -303,7 +310,7 @@ class _Profile:
         h = 0.5 * self.T
         s_a, _, I_a = self._eval(t - h)
         s_b, _, I_b = self._eval(t + h)
-        return (I_b - I_a) / self.T, (s_b - s_a) / self.T
+        return ((I_b - I_a) / self.T).astype(float), (s_b - s_a) / self.T
 
 
 # ---------------------------------------------------------------- the planner
@@ -481,13 +488,21 @@ def _sample(path: _Path, grid, scale, machine, limits, dt, T, job):
     gaps = np.diff(tau)
     ticks = np.maximum(1, np.ceil(gaps / dt - 1e-9).astype(int))
     K_b = np.concatenate([[0], np.cumsum(ticks)])
-    warp = PchipInterpolator(K_b * dt, tau)
-    dwarp = warp.derivative()
+    # The warped clock lags real time by D(t) >= 0; D is a monotone (PCHIP) interpolant of its knot
+    # values, so the warp rate 1 - D' never exceeds 1: the warp only ever slows the profile down.
+    x_b = K_b * dt
+    lag = PchipInterpolator(x_b, x_b - (tau - tau[0]))
+    dlag = lag.derivative()
     k = np.arange(K_b[-1] + 1)
     tk = k * dt
-    tt = warp(tk)
+    rate = 1.0 - dlag(tk)
+    if np.any(rate < 0):              # only for segments far shorter than a tick
+        warp = PchipInterpolator(x_b, tau)
+        tt, rate = warp(tk), warp.derivative()(tk)
+    else:
+        tt = tk - lag(tk) + tau[0]
     sf, vf = prof.filtered(tt)
-    v = vf * dwarp(tk)
+    v = vf * rate
     sf = np.clip(sf, 0.0, path.total)
     seg, u = path.locate(sf)
     # Samples on boundaries: exactly the programmed pose, arriving from the segment before.
@@ -529,7 +544,7 @@ def _tangent(path, seg, u, delta=1e-4):
 def _violations(q, tip, v, s, seg, path, machine, limits, dt):
     """None when every limit holds on the samples; else (s of offending samples, cap factor)."""
     jl = machine.limits
-    tol = 1.0 + 1e-9
+    tol = 1.0 + VIOLATION_TOL
     ratios = []
     qv = np.abs(np.diff(q, axis=0)) / dt / jl.joint_speed
     ratios.append(("v", np.concatenate([qv.max(-1), [0.0]])))
