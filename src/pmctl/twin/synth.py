@@ -84,7 +84,7 @@ EFFECTS = ("geometry", "backlash", "pitch_error", "thermal_growth", "compliance"
            "resonance", "lost_steps", "sensor_gain", "sensor_offset")
 RUNS = ("raster", "circle", "calibration", "warmup")
 # Which runs make an effect observable (thermal needs minutes; compliance needs force changes).
-RUNS_FOR = {"thermal_growth": ("warmup",), "compliance": ("calibration", "raster")}
+RUNS_FOR = {"thermal_growth": ("warmup",), "compliance": ("calibration",)}
 TEMP_CHANNELS = ("temp_screw1", "temp_screw2", "temp_screw3", "temp_screwX", "temp_screwY")
 T_CAL_C = 20.0                     # geometry was calibrated at 20 °C
 SCREW_FIXED = np.array([150.0, 150.0, 150.0, -75.0, -75.0])   # fixed-bearing end of each screw
@@ -140,9 +140,9 @@ def make_effect(name: str, rng, *, duration_s: float = 60.0, axis: str | None = 
             ch = str(rng.choice(STRAIN))
             return Effect(name, {"channel": ch}, {"freq_hz": rng.uniform(10, 60),
                                                   "damping_ratio": rng.uniform(0.02, 0.1)},
-                          {"peak_ue": rng.uniform(4, 15)})
+                          {"peak_ue": rng.uniform(8, 25)})
         return Effect(name, {"axis": ax}, {"freq_hz": rng.uniform(8, 30), "damping_ratio": rng.uniform(0.02, 0.1)},
-                      {"peak_mm": rng.uniform(0.01, 0.04)})
+                      {"peak_mm": rng.uniform(0.02, 0.06)})
     if name == "lost_steps":
         return Effect(name, {"axis": ax}, {"t_s": float(rng.uniform(0.25, 0.75) * duration_s),
                                            "offset_mm": _sgn(rng) * rng.uniform(0.015, 0.06)})
@@ -325,8 +325,8 @@ def _calibration_segs(rng, duration, loads, *, speed=(50, 100), dwell=(0.6, 1.5)
         else:
             segs.append(_line(p, q, rng.uniform(*speed)))
         f = None
-        if loads and rng.random() < 0.7:
-            f = np.array([*rng.normal(0, 80, 2), -rng.choice([0.0, 50.0, 100.0, 200.0])])
+        if loads and rng.random() < 0.85:
+            f = np.array([*rng.normal(0, 100, 2), -rng.choice([0.0, 50.0, 100.0, 200.0])])
         T = rng.uniform(*dwell)
         if f is not None:      # measure unloaded, then with the test load, then unloaded again
             segs += [_dwell(q, T / 2), _dwell(q, T, f), _dwell(q, T / 2)]
