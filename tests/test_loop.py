@@ -9,6 +9,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -129,7 +130,9 @@ def test_unreachable_job_is_refused_before_anything_moves():
 def test_soft_limit_ends_in_a_controlled_stop():
     dt = 1e-3
     params = NCParams.from_machine(M, dt, kv=400.0)
-    params.upper[3] = 5.0                                      # table X soft limit inside the job's range
+    upper = params.upper.copy()
+    upper[3] = 5.0                                             # table X soft limit inside the job's range
+    params = replace(params, upper=upper)
     tr = line_traj([0, 0, 5], [-20, 0, 5], rp(0, 0), rp(0, 0), 10.0, dt)     # tip -x: table X grows
     with pytest.raises(UnreachablePose):                      # the preflight sees it: nothing moves
         prepare(M, params, tr, dt)

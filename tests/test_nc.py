@@ -127,8 +127,9 @@ def test_vf_residue_accounts_for_every_pulse():
 def test_soft_limit_stops_before_the_limit_with_a_reason():
     dt = 1e-3
     params = NCParams.from_machine(M, dt, kv=400.0, max_path_error_mm=1000.0)
-    params = replace(params, upper=params.upper.copy())
-    params.upper[3] = 10.0                                     # table X soft limit at +10 mm
+    upper = params.upper.copy()
+    upper[3] = 10.0                                            # table X soft limit at +10 mm
+    params = replace(params, upper=upper)
     tip, axis = _pose(0, 0, 10, 0, 0)
     st0 = initial_state(M, counts_of(K.ik(tip, axis, M).q, params))
     # the table moves -x_tip: drive the tip toward -x so X grows past +10 mm

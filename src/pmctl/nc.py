@@ -37,6 +37,7 @@ from .kinematics import FK_MAX_ITER, FK_TOL_MM
 from .vf import vf_step
 
 RUN, STOPPING, HALTED, DONE = 0, 1, 2, 3
+_ZERO5 = [0.0] * 5
 MODE_NAMES = {RUN: "run", STOPPING: "stopping", HALTED: "halted", DONE: "done"}
 
 def _solve(M, b):
@@ -45,10 +46,6 @@ def _solve(M, b):
     if info != 0:
         raise KinematicsError("forward kinematics: singular constraint Jacobian (a chain aligned with its plane normal)")
     return x
-
-
-def _skew(x):
-    return np.array([[0.0, -x[2], x[1]], [x[2], 0.0, -x[0]], [-x[1], x[0], 0.0]])
 
 
 def _rodrigues_l(wx, wy, wz):
@@ -86,6 +83,8 @@ class ModelFK:
         self.z_table = float(g.z_table)
         self.tol, self.max_iter = tol, max_iter
         self.cos_max_tilt = math.cos(max_tilt_rad)
+        self._tip_p = self.tip_p.tolist()
+        self._axis_p = self.axis_p.tolist()
         self._A = self.A.tolist()
         self._Cp = self.Cp.tolist()
         self._N = self.N.tolist()
@@ -129,11 +128,20 @@ class ModelFK:
             rows[3 + i] = (nx, ny, nz, ry * nz - rz * ny, rz * nx - rx * nz, rx * ny - ry * nx)
         return np.array(rows)
 
-    def solve(self, q, P, R):
+    def solve_l(self, q, P, R, pred=None):
+        """:meth:`solve` on plain lists (the per-tick path): P, R, tip, axis and J as lists."""
         ql = q.tolist()
         L = ql[:3]
-        P = P.tolist()
-        R = R.tolist()
+        if not isinstance(P, list):
+            P = P.tolist()
+            R = R.tolist()
+        if pred is not None:
+            dL, Tp = pred
+            if dL[0] or dL[1] or dL[2]:
+                st = (Tp @ dL).tolist()
+                P = [P[0] + st[0], P[1] + st[1], P[2] + st[2]]
+                E = _rodrigues_l(st[3], st[4], st[5])
+                R = [[E[r][0] * R[0][c] + E[r][1] * R[1][c] + E[r][2] * R[2][c] for c in range(3)] for r in range(3)]
         f, rcs, ds, lns = self._residual(P, R, L)
         res = max(abs(x) for x in f)
         T = None
@@ -161,23 +169,48 @@ class ModelFK:
             it += 1
         if not (P[2] > 0.0 and R[2][2] > self.cos_max_tilt):
             raise KinematicsError(f"forward kinematics left the assembly branch for L = {[round(x, 6) for x in L]}")
-        if T is None:           # counters unchanged: linearise at the (converged) pose
+        if T is None:           # already converged: linearise at the pose
             T = _solve(self._linearise(rcs, ds, lns), self._rhs[:, 1:])
-        Pa = np.array(P)
-        Ra = np.array(R)
-        rt = Ra @ self.tip_p
-        axis = Ra @ self.axis_p
-        tip_w = Pa + rt
-        tip_w[0] -= ql[3]
-        tip_w[1] -= ql[4]
-        tip_w[2] -= self.z_table
-        w = T[3:]
-        J = np.zeros((6, 5))
-        J[:3, :3] = T[:3] - _skew(rt) @ w
-        J[3:, :3] = -_skew(axis) @ w
-        J[0, 3] = -1.0
-        J[1, 4] = -1.0
-        return Pa, Ra, tip_w, axis, J
+        self.last_T = T
+        # Tool pose and the 6x5 tool Jacobian (as kinematics.tool_of_platform / jacobian_tool), floats.
+        tp, ap = self._tip_p, self._axis_p
+        rt = [R[r][0] * tp[0] + R[r][1] * tp[1] + R[r][2] * tp[2] for r in range(3)]
+        ax = [R[r][0] * ap[0] + R[r][1] * ap[1] + R[r][2] * ap[2] for r in range(3)]
+        tip_w = [P[0] + rt[0] - ql[3], P[1] + rt[1] - ql[4], P[2] + rt[2] - self.z_table]
+        Tl = T.tolist()
+        J = [[0.0] * 5 for _ in range(6)]
+        for j in range(3):
+            wx, wy, wz = Tl[3][j], Tl[4][j], Tl[5][j]
+            # d tip = dP + w x rt ; d axis = w x axis
+            J[0][j] = Tl[0][j] + wy * rt[2] - wz * rt[1]
+            J[1][j] = Tl[1][j] + wz * rt[0] - wx * rt[2]
+            J[2][j] = Tl[2][j] + wx * rt[1] - wy * rt[0]
+            J[3][j] = wy * ax[2] - wz * ax[1]
+            J[4][j] = wz * ax[0] - wx * ax[2]
+            J[5][j] = wx * ax[1] - wy * ax[0]
+        J[0][3] = -1.0
+        J[1][4] = -1.0
+        return P, R, tip_w, ax, J
+
+    def solve(self, q, P, R, pred=None):
+        """Model pose at joints q (5,) from the warm start (P, R): returns arrays
+        (P, R, tip_w, axis, J (6, 5)). ``pred`` = (dL, T): chain-length change since (P, R) and
+        the twist map d(P, w)/dL there (``self.last_T`` of the previous solve); the first-order
+        predicted pose then starts Newton, which usually converges in one iteration, not two."""
+        P, R, tip, ax, J = self.solve_l(q, P, R, pred)
+        return np.array(P), np.array(R), np.array(tip), np.array(ax), np.array(J)
+
+
+class _Lists:
+    __slots__ = ("vmax", "adt", "lower", "upper", "ppm", "amax")
+
+    def __init__(self, p):
+        self.vmax = [float(x) for x in p.vmax]
+        self.amax = [float(x) for x in p.amax]
+        self.adt = [float(x) * p.dt for x in p.amax]
+        self.lower = [float(x) for x in p.lower]
+        self.upper = [float(x) for x in p.upper]
+        self.ppm = [float(x) for x in p.pulses_per_mm]
 
 
 @dataclass(frozen=True)
@@ -201,6 +234,16 @@ class NCParams:
     ferror_mm: float = 1.0             # following-error limit at full speed (LinuxCNC FERROR)
     min_ferror_mm: float = 0.01        # floor at low speed (LinuxCNC MIN_FERROR)
     max_path_error_mm: float = 0.5     # model tool pose vs target (tip mm; axis weighted)
+
+    def __post_init__(self):
+        # Arrays are frozen too (use dataclasses.replace to change a limit), so the plain-float
+        # copies for the per-tick scalar code (5 numbers: cheaper than numpy calls) stay in step.
+        for f in ("pulses_per_mm", "vmax", "amax", "lower", "upper", "k_theta", "deflection_per_ue"):
+            a = np.array(getattr(self, f), float)
+            a.setflags(write=False)
+            object.__setattr__(self, f, a)
+        object.__setattr__(self, "_l", _Lists(self))
+        object.__setattr__(self, "_kth_on", bool(np.any(self.k_theta)))
 
     @classmethod
     def from_machine(cls, machine: Machine, dt: float, *, max_pulses_per_tick=None, k_theta=0.0,
@@ -236,6 +279,8 @@ class NCState:
     mode: int = RUN
     reason: str = ""
     path_error: float = 0.0   # |e| of the last tick, mm (weighted)
+    q_model: np.ndarray | None = None   # joints of the model pose (P, R)
+    T: np.ndarray | None = None         # (6, 3) platform twist per unit chain-length change at (P, R)
 
 
 def initial_state(machine: Machine, counts, model: ModelFK | None = None) -> NCState:
@@ -254,22 +299,33 @@ def counts_of(q, params: NCParams):
     return np.rint(np.asarray(q, float) * params.pulses_per_mm).astype(np.int64)
 
 
+def _limit_rates_l(des, prev, L):
+    """limit_rates on plain lists (the per-tick path)."""
+    m = 0.0
+    for i in range(5):
+        r = abs(des[i]) / L.vmax[i]
+        if r > m:
+            m = r
+    if m > 1.0:
+        des = [d / m for d in des]
+    dq = [des[i] - prev[i] for i in range(5)]
+    m = 0.0
+    for i in range(5):
+        r = abs(dq[i]) / L.adt[i]
+        if r > m:
+            m = r
+    if m > 1.0:
+        return [prev[i] + dq[i] / m for i in range(5)]
+    return des
+
+
 def limit_rates(qdot_des, qdot_prev, params: NCParams):
     """Joint velocity and acceleration limits by uniform scaling (path direction kept).
 
     First the desired rate is scaled into the velocity box, then the change from the previous
     rate is scaled into the per-tick acceleration box. The result is a convex combination of two
     points inside the velocity box, so both limits hold."""
-    r = np.abs(qdot_des) / params.vmax
-    m = float(r.max())
-    if m > 1.0:
-        qdot_des = qdot_des / m
-    dq = qdot_des - qdot_prev
-    ra = np.abs(dq) / (params.amax * params.dt)
-    m = float(ra.max())
-    if m > 1.0:
-        dq = dq / m
-    return qdot_prev + dq
+    return np.array(_limit_rates_l(list(map(float, qdot_des)), list(map(float, qdot_prev)), params._l))
 
 
 def _damped_pinv_apply(J, x, params: NCParams):
@@ -282,31 +338,35 @@ def _damped_pinv_apply(J, x, params: NCParams):
     return Vt.T @ ((s / (s * s + lam2)) * (U.T @ x))
 
 
-def _stopping_violation(q, qdot, params: NCParams):
-    """Reason text if stopping now (uniformly scaled decel) would still cross a soft limit."""
-    a = np.abs(qdot)
-    T = float((a / params.amax).max())
-    s = a * (0.5 * T + 2.0 * params.dt)          # distance while braking, plus two ticks' margin
-    hi = q + s > params.upper
-    lo = q - s < params.lower
-    bad = (hi & (qdot > 0)) | (lo & (qdot < 0)) | (q > params.upper) | (q < params.lower)
-    if not bad.any():
-        return ""
-    i = int(np.nonzero(bad)[0][0])
-    name = ("L1", "L2", "L3", "X", "Y")[i]
-    return (f"soft limit: {name} = {q[i]:.4f} mm moving at {qdot[i]:.3f} mm/s would pass "
-            f"[{params.lower[i]:g}, {params.upper[i]:g}] mm")
+_NAMES = ("L1", "L2", "L3", "X", "Y")
+
+
+def _stopping_violation(q, qdot, L, dt):
+    """Reason text if stopping now (uniformly scaled decel) would still cross a soft limit.
+    q, qdot: lists (position after this tick, rate)."""
+    T = max(abs(qdot[i]) / L.amax[i] for i in range(5))
+    for i in range(5):
+        v = qdot[i]
+        s = abs(v) * (0.5 * T + 2.0 * dt)            # distance while braking, plus two ticks' margin
+        x = q[i]
+        if (v > 0 and x + s > L.upper[i]) or (v < 0 and x - s < L.lower[i]) or x > L.upper[i] or x < L.lower[i]:
+            return (f"soft limit: {_NAMES[i]} = {x:.4f} mm moving at {v:.3f} mm/s would pass "
+                    f"[{L.lower[i]:g}, {L.upper[i]:g}] mm")
+    return ""
 
 
 def _ferror_violation(q, enc, qdot, params: NCParams):
-    fe = np.abs(q - enc)
-    lim = np.maximum(params.min_ferror_mm, params.ferror_mm * np.abs(qdot) / params.vmax)
-    bad = fe > lim
-    if not bad.any():
-        return ""
-    i = int(np.nonzero(bad)[0][0])
-    name = ("L1", "L2", "L3", "X", "Y")[i]
-    return f"following error: {name} off by {fe[i]:.4f} mm (limit {lim[i]:.4f} mm at {qdot[i]:.2f} mm/s)"
+    """LinuxCNC following error: limit = max(MIN_FERROR, FERROR |v| / v_max) per joint (lists)."""
+    L = params._l
+    for i in range(5):
+        fe = abs(q[i] - enc[i])
+        lim = params.ferror_mm * abs(qdot[i]) / L.vmax[i]
+        if lim < params.min_ferror_mm:
+            lim = params.min_ferror_mm
+        if fe > lim:
+            return (f"following error: {_NAMES[i]} off by {fe:.4f} mm "
+                    f"(limit {lim:.4f} mm at {qdot[i]:.2f} mm/s)")
+    return ""
 
 
 def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
@@ -321,51 +381,66 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
     zero = np.zeros(5, np.int64)
     if state.mode in (HALTED, DONE):
         return zero, state
-    q = state.counts / params.pulses_per_mm
-    enc = feedback.enc
-    fe = _ferror_violation(q, enc, state.qdot, params)
+    L = params._l
+    ql = state.counts.tolist()
+    ql = [ql[i] / L.ppm[i] for i in range(5)]
+    prev = state.qdot.tolist()
+    fe = _ferror_violation(ql, feedback.enc.tolist(), prev, params)
     if fe:
         return zero, replace(state, qdot=np.zeros(5), acc=np.zeros(5), mode=HALTED, reason=fe)
     mode, reason = state.mode, state.reason
     P, R, tip, axis, perr = state.P, state.R, state.tip, state.axis, state.path_error
+    qdot_des = _ZERO5
     if mode == RUN:
         try:
-            P, R, tip, axis, J = model.solve(q, P, R)
+            qa = np.array(ql)
+            pred = None if state.q_model is None else ((qa - state.q_model)[:3], state.T)
+            P, R, tip, axis, J = model.solve_l(qa, P, R, pred)
+            Tm, qm = model.last_T, qa
+            t = target.tolist()
+            w = params.orient_weight_mm
+            kv = params.kv
+            # position error; axis error = component of the target axis normal to the model axis
+            c = t[3] * axis[0] + t[4] * axis[1] + t[5] * axis[2]
+            e = [t[0] - tip[0], t[1] - tip[1], t[2] - tip[2],
+                 (t[3] - c * axis[0]) * w, (t[4] - c * axis[1]) * w, (t[5] - c * axis[2]) * w]
+            perr = math.sqrt(sum(v * v for v in e))
+            x = np.array([kv * e[0] + t[6], kv * e[1] + t[7], kv * e[2] + t[8],
+                          kv * e[3] + t[9] * w, kv * e[4] + t[10] * w, kv * e[5] + t[11] * w])
+            for r in (3, 4, 5):
+                Jr = J[r]
+                J[r] = [Jr[0] * w, Jr[1] * w, Jr[2] * w, 0.0, 0.0]
+            qd = _damped_pinv_apply(np.array(J), x, params)
         except KinematicsError as e:
             return zero, replace(state, qdot=np.zeros(5), acc=np.zeros(5), mode=HALTED,
                                  reason=f"model pose lost: {e}")
-        t = np.asarray(target)
-        w = params.orient_weight_mm
-        e = np.empty(6)
-        e[:3] = t[:3] - tip
-        vs = t[3:6]
-        e[3:] = (vs - float(vs @ axis) * axis) * w
-        perr = float(np.sqrt(e @ e))
-        x = e * params.kv
-        x[:3] += t[6:9]
-        x[3:] += t[9:12] * w
-        J[3:] *= w
-        qdot_des = _damped_pinv_apply(J, x, params)
-        if params.k_theta.any():
+        if params._kth_on:
             defl = -feedback.strain * params.deflection_per_ue     # theta_m - theta_L, mm
-            qdot_des[:3] -= params.k_theta * defl
+            qd[:3] -= params.k_theta * defl
+        qdot_des = qd.tolist()
         if perr > params.max_path_error_mm:
             mode, reason = STOPPING, (f"path error {perr:.4f} mm over {params.max_path_error_mm:g} mm "
                                       f"(target not reachable within the joint limits)")
-        elif R[2, 2] < math.cos(params.theta2_max_rad) - 1e-12:
-            mode, reason = STOPPING, (f"soft limit: tilt {math.degrees(math.acos(min(1.0, R[2, 2]))):.3f} deg "
+        elif R[2][2] < math.cos(params.theta2_max_rad) - 1e-12:
+            mode, reason = STOPPING, (f"soft limit: tilt {math.degrees(math.acos(min(1.0, R[2][2]))):.3f} deg "
                                       f"over {math.degrees(params.theta2_max_rad):g} deg")
     if mode == STOPPING:
-        qdot_des = np.zeros(5)
-    qdot = limit_rates(qdot_des, state.qdot, params)
+        qdot_des = _ZERO5
+    qdot = _limit_rates_l(qdot_des, prev, L)
     if mode == RUN:
-        why = _stopping_violation(q + qdot * params.dt, qdot, params)
+        dt = params.dt
+        why = _stopping_violation([ql[i] + qdot[i] * dt for i in range(5)], qdot, L, dt)
         if why:
             mode, reason = STOPPING, why
-            qdot = limit_rates(np.zeros(5), state.qdot, params)
-    pulses, acc = vf_step(state.acc, qdot * params.pulses_per_mm, params.dt, 1.0, params.max_pulses_per_tick)
-    if mode == STOPPING and not qdot.any():
+            qdot = _limit_rates_l(_ZERO5, prev, L)
+    qdot_a = np.array(qdot)
+    pulses, acc = vf_step(state.acc, qdot_a * params.pulses_per_mm, params.dt, 1.0, params.max_pulses_per_tick)
+    if mode == STOPPING and not any(qdot):
         # Braked to rest: drop the sub-pulse residue (no pulse is owed) and halt.
         mode = HALTED
         acc = np.zeros(5)
-    return pulses, NCState(state.counts + pulses, acc, qdot, P, R, tip, axis, mode, reason, perr)
+    if state.mode != RUN:          # no model solve this tick
+        Tm, qm = state.T, state.q_model
+    else:
+        P, R, tip, axis = np.array(P), np.array(R), np.array(tip), np.array(axis)
+    return pulses, NCState(state.counts + pulses, acc, qdot_a, P, R, tip, axis, mode, reason, perr, qm, Tm)
