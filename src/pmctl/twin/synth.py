@@ -35,9 +35,10 @@ How a case is made (all vectorised; a 60 s run at 1 kHz takes about a second)
    ``geometry`` changes the true machine (chain length offset, base joint shifted in its chain
    plane, tool length). The true tip, axis and chain forces come from the real forward
    kinematics and statics of the perturbed load-side joints.
-3. Measurement: enc_* = motor side quantised to the 0.5 µm pulse; laser tracker tip_* (σ 1–2 µm)
-   and tool_* (σ 2–4e-5) at a tenth of the log rate with a random phase and beam drop-outs
-   (empty cells); strain_* (σ 0.3–0.7 µε, ``sensor_gain``/``sensor_offset`` on a channel);
+3. Measurement: enc_* = motor side quantised to the 0.5 µm pulse (enc_* left out of 10 % of the
+   recordings); laser tracker tip_* (σ 1–2 µm) and tool_* (σ 2–4e-5; no 6-DOF probe in 25 % of
+   the recordings) at 50, 100 or 200 Hz (half the log rate, at most 100 Hz, for logs under 400 Hz) with a
+   random phase and beam drop-outs (empty cells); strain_* (σ 0.3–0.7 µε, ``sensor_gain``/``sensor_offset`` on a channel);
    temperatures σ 0.02 K at 10 Hz; loads σ 0.3 N.
 
 Answer key (answer.json) — the RECORDING.md §4 names::
@@ -249,20 +250,28 @@ def _tilt(rng, max_deg=10.0):
 
 
 def _raster_segs(rng, duration, loads):
+    """Pocket layers; each layer's passes run along x or along y (roughing, then cross finishing)."""
     segs, p = [], None
     feed, rapid = rng.uniform(15, 35), rng.uniform(60, 90)
     cx, cy = rng.uniform(-10, 10, 2)
-    w, h = rng.uniform(50, 80), rng.uniform(30, 60)
+    w, h = rng.uniform(50, 80), rng.uniform(40, 70)
     z = rng.uniform(40, 120)
     fc = rng.uniform(20, 80)
     total, layer = 0.0, 0
     while total < duration:
         al, be = _tilt(rng)
-        ys = cy + np.linspace(-h / 2, h / 2, int(rng.integers(4, 8)))
+        along_y = rng.random() < 0.4
+        half_u, half_v = (h / 2, w / 2) if along_y else (w / 2, h / 2)
+
+        def at(u, v, zz):
+            x, y = (cx + v, cy + u) if along_y else (cx + u, cy + v)
+            return np.array([x, y, zz, al, be])
+
+        vs = np.linspace(-half_v, half_v, int(rng.integers(4, 8)))
         if layer % 2:
-            ys = ys[::-1]
+            vs = vs[::-1]
         z -= rng.uniform(1, 4)
-        start = np.array([cx - w / 2, ys[0], z + 20, al, be])
+        start = at(-half_u, vs[0], z + 20)
         if p is not None:
             segs.append(_line(p, p + [0, 0, 20, 0, 0], rapid))          # retract
             segs.append(_line(segs[-1].b, start, rapid))
@@ -270,17 +279,16 @@ def _raster_segs(rng, duration, loads):
             segs.append(_dwell(start, 0.3))
         segs.append(_line(start, start - [0, 0, 20, 0, 0], rapid / 3))     # plunge
         p = segs[-1].b
-        for i, y in enumerate(ys):
-            xe = cx + (w / 2 if i % 2 == 0 else -w / 2)
-            q = np.array([xe, y, z, al, be])
+        for i, v in enumerate(vs):
+            q = at(half_u if i % 2 == 0 else -half_u, v, z)
             d = (q - p)[:3] / max(np.linalg.norm((q - p)[:3]), 1e-9)
             f = None
-            if loads:
-                f = -fc * d + rng.normal(0, 0.1 * fc, 3) + np.array([0, 0, -0.3 * fc])
+            if loads:     # cutting force on the tool: against the feed, a little sideways and up
+                f = -fc * d + rng.normal(0, 0.1 * fc, 3) + np.array([0, 0, 0.3 * fc])
             segs.append(_line(p, q, feed, force=f))
             p = q
-            if i + 1 < len(ys):
-                q = np.array([p[0], ys[i + 1], z, al, be])
+            if i + 1 < len(vs):
+                q = at(-half_u if i % 2 == 0 else half_u, vs[i + 1], z)
                 segs.append(_line(p, q, feed))
                 p = q
         total = sum(s.T for s in segs)
@@ -624,7 +632,8 @@ def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, mach
     r = make_run(kind, rng, machine, duration_s, rate_hz, loads)
     enc = any(e.effect in ("servo_lag",) for e in effs) or rng.random() < 0.9
     tool = rng.random() < 0.75
-    tracker_div = max(1, int(round(rate_hz / 100.0))) if rate_hz > 100 else 5
+    tracker_hz = float(rng.choice([50.0, 100.0, 100.0, 200.0])) if rate_hz >= 400 else min(100.0, rate_hz / 2)
+    tracker_div = max(1, int(round(rate_hz / tracker_hz)))
     cols, noise = simulate(r, effs, rng, machine, enc=enc, tool=tool, tracker_div=tracker_div)
     descr = {"raster": "pocket milling, zig-zag passes in layers",
              "circle": "cone-frustum circle test (5-axis contouring)",
