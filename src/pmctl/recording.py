@@ -281,12 +281,16 @@ def _header(raw: bytes, path: Path) -> tuple[list[str], int]:
 
 
 def _fill_empty(body: bytes) -> bytes:
-    """Empty cells -> 'nan' so one C pass can parse the table."""
+    """Empty cells -> 'nan' so one C pass can parse the table (passes that find nothing are skipped)."""
     body = b"\n" + body
     if not body.endswith(b"\n"):
         body += b"\n"
-    body = body.replace(b",,", b",nan,").replace(b",,", b",nan,")
-    body = body.replace(b"\n,", b"\nnan,").replace(b",\n", b",nan\n")
+    if b",," in body:
+        body = body.replace(b",,", b",nan,").replace(b",,", b",nan,")
+    if b"\n," in body:
+        body = body.replace(b"\n,", b"\nnan,")
+    if b",\n" in body:
+        body = body.replace(b",\n", b",nan\n")
     return body
 
 
@@ -345,7 +349,10 @@ def _slow_parse(body: bytes, names: list[str], path: Path, first_line: int) -> t
 
 def _row_lines(body: bytes, first_line: int) -> np.ndarray | None:
     """File line of each data row when blank lines break 'row + 2' (None otherwise)."""
-    if not re.search(rb"\n[ \t\r]*\n", b"\n" + body.rstrip()):
+    core = b"\n" + body.rstrip()
+    if b"\n\n" not in core and b"\n " not in core and b"\n\t" not in core and b"\n\r" not in core:
+        return None
+    if not re.search(rb"\n[ \t\r]*\n", core):
         return None
     return np.array([first_line + k for k, ln in enumerate(body.split(b"\n")) if ln.strip()], dtype=np.int64)
 
