@@ -63,7 +63,7 @@ class PlanningError(PmctlError):
 
 @dataclass(frozen=True)
 class PlannerLimits:
-    rapid_mm_s: float = 50.0          # G0 / link moves, tool tip speed
+    rapid_mm_s: float = 50.0          # G0 / link moves, tool tip speed; also the ceiling of any feed
     accel_mm_s2: float = 500.0        # tool tip acceleration (tangential and normal share it)
     jerk_mm_s3: float = 10000.0       # tangential jerk of the S-curve
     axis_rate_rad_s: float = 1.0      # tool axis angular speed
@@ -124,7 +124,7 @@ class _Path:
             if rpm_prev is not None and m.spindle_rpm != rpm_prev:
                 stop.add(len(rows))
             rpm_prev = m.spindle_rpm
-            vmax = limits.rapid_mm_s if m.kind == RAPID else m.feed * feed_override
+            vmax = limits.rapid_mm_s if m.kind == RAPID else min(m.feed * feed_override, limits.rapid_mm_s)
             if not vmax > 0:
                 raise InputError(job.source, m.line, f"move has no positive feed ({vmax!r} mm/s)")
             r.update(length=length, rot=rot, vmax=vmax)

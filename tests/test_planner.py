@@ -1,0 +1,269 @@
+"""Path planner: exact programmed points, feed/acceleration/jerk and joint limits on the samples,
+arc geometry, G90/G91 and G20 equivalence, reachability of every sample."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from pmctl import kinematics as K
+from pmctl.config import load_machine
+from pmctl.errors import InputError
+from pmctl.gcode import parse_gcode
+from pmctl.job import DWELL, LINE, RAPID, Job, Move
+from pmctl.planner import VIOLATION_TOL, PlannerLimits, home_pose, load_job, plan
+
+JOBS = Path(__file__).resolve().parents[1] / "examples" / "jobs"
+DT = 1e-3
+LIM = PlannerLimits()
+TOL = 1.0 + VIOLATION_TOL
+
+
+@pytest.fixture(scope="module")
+def machine():
+    return load_machine()
+
+
+@pytest.fixture(scope="module")
+def bundled(machine):
+    out = {}
+    for name in ("hemisphere.cl", "cone.ngc", "spiral.ngc"):
+        job = load_job(JOBS / name, machine)
+        out[name] = (job, plan(job, machine, DT))
+    return out
+
+
+def gjob(machine, text):
+    return parse_gcode(text, "p.ngc", *home_pose(machine))
+
+
+def arrival_indices(traj, points, axes=None, tol=1e-9):
+    """Index of the sample sitting on each point (and axis, if given), in order: each at or after the
+    previous one."""
+    idx, k = [], 0
+    for i, p in enumerate(points):
+        d = np.linalg.norm(traj.tip[k:] - p, axis=1)
+        ok = d <= tol
+        if axes is not None:
+            ok &= np.linalg.norm(traj.axis[k:] - axes[i], axis=1) <= 1e-12
+        hit = np.nonzero(ok)[0]
+        assert len(hit), f"point {p} never reached (closest {d.min():.3g} mm)"
+        k += int(hit[0])
+        idx.append(k)
+    return np.array(idx)
+
+
+def check_limits(traj, machine, dt):
+    """Assert every limit on the samples; returns the measured maxima."""
+    jl = machine.limits
+    ik = K.ik_batch(traj.tip, traj.axis, machine)
+    assert np.all(ik.ok), ik.reason[~ik.ok][:3]
+    qd = np.abs(np.diff(ik.q, axis=0)) / dt
+    qdd = np.abs(np.diff(ik.q, 2, axis=0)) / dt**2
+    assert np.all(qd <= jl.joint_speed * TOL), qd.max(0)
+    assert np.all(qdd <= jl.joint_accel * TOL), qdd.max(0)
+    v = np.linalg.norm(np.diff(traj.tip, axis=0), axis=1) / dt
+    a = np.linalg.norm(np.diff(traj.tip, 2, axis=0), axis=1) / dt**2
+    assert v.max() <= LIM.rapid_mm_s * TOL
+    assert a.max() <= LIM.accel_mm_s2 * TOL
+    assert np.allclose(np.linalg.norm(traj.axis, axis=1), 1.0, atol=1e-12)
+    return dict(qd=qd.max(0), qdd=qdd.max(0), v=v, a=a.max())
+
+
+# ---------------------------------------------------------------- the bundled jobs
+
+@pytest.mark.parametrize("name", ["hemisphere.cl", "cone.ngc", "spiral.ngc"])
+def test_bundled_job_passes_through_every_programmed_point(bundled, name):
+    job, traj = bundled[name]
+    assert np.array_equal(traj.points, job.points)
+    idx = arrival_indices(traj, job.points)
+    assert np.all(np.diff(idx) >= 0)
+    # every move end, with its tool axis, including the approach/retract moves the CL reader adds
+    moving = [m for m in job.moves if m.kind != DWELL]
+    at = arrival_indices(traj, [m.tip for m in moving], [m.axis for m in moving])
+    assert np.all(np.diff(at) >= 0)
+
+
+@pytest.mark.parametrize("name", ["hemisphere.cl", "cone.ngc", "spiral.ngc"])
+def test_bundled_job_limits_hold_on_the_samples(bundled, machine, name):
+    job, traj = bundled[name]
+    m = check_limits(traj, machine, DT)
+    # feed moves run at the programmed 10 mm/s (not some crawl) and never faster
+    feed_lines = {mv.line for mv in job.moves if mv.kind != RAPID}
+    rapid_lines = {mv.line for mv in job.moves if mv.kind == RAPID}
+    cutting = np.array([ln in feed_lines and ln not in rapid_lines for ln in traj.line[1:]])
+    assert m["v"][cutting].max() <= 10.0 * TOL
+    assert np.percentile(m["v"][cutting], 50) > 9.0
+    # 10-30 s of work each (README demo, controller tests)
+    assert 10.0 <= traj.duration <= 32.0
+
+
+@pytest.mark.parametrize("name", ["hemisphere.cl", "cone.ngc", "spiral.ngc"])
+def test_trajectory_contract(bundled, machine, name):
+    job, traj = bundled[name]
+    n = len(traj)
+    for arr, shape in ((traj.tip, (n, 3)), (traj.axis, (n, 3)), (traj.tip_vel, (n, 3)),
+                       (traj.axis_vel, (n, 3)), (traj.line, (n,)), (traj.spindle_rpm, (n,))):
+        assert arr.shape == shape and np.all(np.isfinite(arr))
+    tip0, axis0 = home_pose(machine)
+    assert np.array_equal(traj.tip[0], tip0) and np.allclose(traj.axis[0], axis0)
+    last = [m for m in job.moves if m.kind != DWELL][-1]
+    assert np.array_equal(traj.tip[-1], last.tip)
+    assert not traj.tip_vel[0].any() and not traj.tip_vel[-1].any()
+    assert traj.dt == DT and traj.source == job.source
+    assert set(np.unique(traj.line)) <= {m.line for m in job.moves}
+    assert np.all(np.diff(traj.line) >= 0)
+    # the velocities are the derivatives of the samples (central differences, away from corners)
+    moving = [m for m in job.moves if m.kind != DWELL]
+    corner = np.zeros(n, bool)
+    at = arrival_indices(traj, [m.tip for m in moving], [m.axis for m in moving])
+    for d in (-1, 0, 1):
+        corner[np.clip(at + d, 0, n - 1)] = True
+    fd = (traj.tip[2:] - traj.tip[:-2]) / (2 * DT)
+    err = np.linalg.norm(fd - traj.tip_vel[1:-1], axis=1)[~corner[1:-1]]
+    assert err.max() < 1e-2
+    fda = (traj.axis[2:] - traj.axis[:-2]) / (2 * DT)
+    assert np.linalg.norm(fda - traj.axis_vel[1:-1], axis=1)[~corner[1:-1]].max() < 1e-3
+
+
+# ---------------------------------------------------------------- geometry and programs
+
+def test_arc_samples_stay_on_the_circle(machine):
+    text = "G0 X20 Y0 Z60 B8\nF900 G3 X20 Y0 Z50 I-12 J0\nG2 X-4 Y0 R12\nM30"
+    job = gjob(machine, text)
+    traj = plan(job, machine, DT)
+    check_limits(traj, machine, DT)
+    on = traj.line == 2
+    r = np.hypot(traj.tip[on, 0] - 8.0, traj.tip[on, 1])
+    assert on.sum() > 1000 and np.abs(r - 12.0).max() < 1e-9
+    # helix: z falls linearly with the swept angle
+    ang = np.unwrap(np.arctan2(traj.tip[on, 1], traj.tip[on, 0] - 8.0))      # from 0 (the start, +x)
+    assert ang[0] >= 0 and ang[-1] == pytest.approx(2 * math.pi, abs=1e-12)
+    z_expect = 60.0 - 10.0 * ang / (2 * math.pi)
+    assert np.abs(traj.tip[on, 2] - z_expect).max() < 1e-9
+    on2 = traj.line == 3
+    r2 = np.hypot(traj.tip[on2, 0] - 8.0, traj.tip[on2, 1])
+    assert np.abs(r2 - 12.0).max() < 1e-9 and np.all(traj.tip[on2, 1] <= 1e-9)    # G2 (clockwise) from +x via -y
+
+
+def test_g91_and_g90_plan_the_same_trajectory(machine):
+    a = plan(gjob(machine, "G90 G0 X10 Y5 Z80 A5\nF600 G1 X20 Y5 Z70 B3\nG2 X30 Y5 I5 J0\nG1 X0 Y0 Z90 A0 B0"),
+             machine, DT)
+    b = plan(gjob(machine, "G0 X10 Y5 Z80 A5\nG91 F600 G1 X10 Y0 Z-10 B3\nG2 X10 Y0 I5 J0\nG1 X-30 Y-5 Z20 A-5 B-3"),
+             machine, DT)
+    assert len(a) == len(b)
+    assert np.allclose(a.tip, b.tip, atol=1e-9) and np.allclose(a.axis, b.axis, atol=1e-12)
+
+
+def test_g20_program_plans_like_its_mm_twin(machine):
+    a = plan(gjob(machine, "G20 G0 X0.4 Y0.2 Z3\nG1 F24 X1 Y-0.5\nG3 X1.5 Y0 I0 J0.5"), machine, DT)
+    b = plan(gjob(machine, "G21 G0 X10.16 Y5.08 Z76.2\nG1 F609.6 X25.4 Y-12.7\nG3 X38.1 Y0 I0 J12.7"), machine, DT)
+    assert len(a) == len(b) and np.allclose(a.tip, b.tip, atol=1e-9)
+    on = a.line == 2
+    v = np.linalg.norm(np.diff(a.tip, axis=0), axis=1)[on[1:]] / DT
+    assert v.max() <= 609.6 / 60 * TOL and v.max() == pytest.approx(609.6 / 60, rel=1e-3)   # 24 in/min
+
+
+def test_corners_are_never_cut(machine):
+    job = gjob(machine, "G0 X0 Y0 Z60\nF1200 G1 X20\nY20\nX0\nY0")
+    traj = plan(job, machine, DT)
+    check_limits(traj, machine, DT)
+    arrival_indices(traj, [[20, 0, 60], [20, 20, 60], [0, 20, 60], [0, 0, 60]])
+    # every sample lies on one of the four edges of the square
+    t = traj.tip[traj.line >= 2]
+    on_edge = ((np.abs(t[:, 1]) < 1e-9) | (np.abs(t[:, 1] - 20) < 1e-9)
+               | (np.abs(t[:, 0]) < 1e-9) | (np.abs(t[:, 0] - 20) < 1e-9))
+    assert np.all(on_edge) and np.all(np.abs(t[:, 2] - 60) < 1e-9)
+
+
+def test_jerk_of_a_straight_move_is_limited(machine):
+    traj = plan(gjob(machine, "F1200 G1 X30 Y10 Z150"), machine, DT)
+    j = np.linalg.norm(np.diff(traj.tip, 3, axis=0), axis=1) / DT**3
+    assert j.max() <= LIM.jerk_mm_s3 * 1.01
+    a = np.linalg.norm(np.diff(traj.tip, 2, axis=0), axis=1) / DT**2
+    assert a.max() <= LIM.tangential_accel * TOL
+
+
+def test_joint_limits_slow_the_feed(machine):
+    # a fast move with a large tilt change: the chains, not the feed, set the speed
+    job = gjob(machine, "G0 X0 Y0 Z60\nF6000 G1 X40 A15\nG1 X0 A-15 B10")
+    traj = plan(job, machine, DT)
+    m = check_limits(traj, machine, DT)
+    chains = m["qd"][:3].max()
+    assert chains >= 0.85 * LIM.joint_fraction * machine.limits.chain_speed    # the binding limit
+    assert m["v"][traj.line[1:] >= 2].max() < 100.0 * 0.9                        # feed (100 mm/s) not reached
+
+
+def test_dwell_spindle_and_feed_override(machine):
+    text = "G0 X0 Y0 Z60\nS8000 M3\nF600 G1 X10\nG4 P0.5\nG1 X20\nM5\nG1 X25\nM30"
+    job = gjob(machine, text)
+    traj = plan(job, machine, DT)
+    at = np.nonzero(np.linalg.norm(traj.tip - [10, 0, 60], axis=1) < 1e-12)[0]
+    assert len(at) >= 500 and np.all(np.diff(at) == 1)                          # held >= 0.5 s
+    assert np.all(traj.spindle_rpm[traj.line == 3] == 8000)
+    assert np.all(traj.spindle_rpm[traj.line == 7] == 0)
+    slow = plan(job, machine, DT, feed_override=0.5)
+    v = np.linalg.norm(np.diff(slow.tip, axis=0), axis=1) / DT
+    assert v[slow.line[1:] == 5].max() == pytest.approx(5.0, rel=1e-3) and v[slow.line[1:] >= 3].max() <= 5.0 * TOL
+    assert slow.duration > traj.duration + 1.5
+
+
+def test_unreachable_sample_between_reachable_points_is_reported(machine):
+    # both ends reachable (table X = -60 mm), the arc swings the table past -75 mm in between
+    job = gjob(machine, "G0 X60 Y-30 Z60\nF600 G3 X60 Y30 I0 J30\nM30")
+    with pytest.raises(InputError) as e:
+        plan(job, machine, DT)
+    assert e.value.line == 2 and "table X" in e.value.reason and e.value.path == "p.ngc"
+
+
+def test_custom_start_pose_and_other_tick_rates(machine):
+    start = (np.array([5.0, -5.0, 90.0]), K.axis_from_roll_pitch(0.1, 0.05))
+    job = gjob(machine, "G0 X0 Y0 Z60\nF600 G1 X10 Y10 A2")
+    for dt in (5e-4, 2e-3):
+        traj = plan(job, machine, dt, start=start)
+        assert np.array_equal(traj.tip[0], start[0]) and np.allclose(traj.axis[0], start[1])
+        arrival_indices(traj, [[0, 0, 60], [10, 10, 60]])
+        check_limits(traj, machine, dt)
+
+
+def test_empty_and_dwell_only_jobs(machine):
+    traj = plan(Job((), "e"), machine, DT)
+    assert len(traj) == 1
+    tip, axis = home_pose(machine)
+    traj = plan(Job((Move(DWELL, tip, axis, line=1, dwell=0.2),), "d"), machine, DT)
+    assert traj.duration == pytest.approx(0.201) and np.all(traj.tip == tip)
+
+
+# ---------------------------------------------------------------- hypothesis
+
+@st.composite
+def polylines(draw):
+    n = draw(st.integers(2, 5))
+    pts, axes = [], []
+    for _ in range(n):
+        pts.append([draw(st.floats(-40, 40)), draw(st.floats(-40, 40)), draw(st.floats(30, 120))])
+        tilt, az = math.radians(draw(st.floats(0, 15))), math.radians(draw(st.floats(0, 360)))
+        axes.append([math.sin(tilt) * math.cos(az), math.sin(tilt) * math.sin(az), math.cos(tilt)])
+    feed = draw(st.floats(1.0, 70.0))
+    dt = draw(st.sampled_from([1e-3, 5e-4, 2e-3]))
+    kinds = [draw(st.sampled_from([LINE, RAPID])) for _ in range(n)]
+    return np.array(pts), np.array(axes), feed, dt, kinds
+
+
+@settings(max_examples=12, deadline=None)
+@given(polylines())
+def test_random_polylines(machine, data):
+    pts, axes, feed, dt, kinds = data
+    moves = tuple(Move(k, p, a, line=i + 1, feed=feed) for i, (k, p, a) in enumerate(zip(kinds, pts, axes)))
+    job = Job(moves, "r", pts)
+    traj = plan(job, machine, dt)
+    idx = arrival_indices(traj, pts)
+    assert np.allclose(traj.axis[idx], axes, atol=1e-12)
+    m = check_limits(traj, machine, dt)
+    lim = np.where(np.array([k == RAPID for k in kinds])[traj.line[1:] - 1], LIM.rapid_mm_s,
+                   min(feed, LIM.rapid_mm_s))
+    assert np.all(m["v"] <= lim * TOL)
