@@ -377,7 +377,8 @@ def test_pmctl_run_end_to_end_writes_a_recording_through_the_job_points(tmp_path
     pts = load_job(job, M).points
     assert _seg_dist(pts, tip).max() <= 1e-3
     saved = load_counters(state, machine="prototype")
-    assert saved.clean and np.array_equal(saved.counts, np.rint(q[-1] * 2000.0))   # at rest at the end
+    # the last row is the start of the last tick; K_theta may still trim a pulse in that tick
+    assert saved.clean and np.abs(saved.counts - np.rint(q[-1] * 2000.0)).max() <= 1
     # a bad service value is refused before anything moves, naming the key
     svc.write_text('[nc]\nkv_per_s = 400\n[loop]\nrate_hz = 250\n')
     assert main(["run", "--job", job, "--no-realtime", "--service", str(svc), "--state", ""]) == 1
