@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from pmctl import hal
+from pmctl import kinematics as K
+from pmctl.statics import static_strain
 from pmctl.config import load_machine
 from pmctl.errors import ConfigError
 from pmctl.hal.sim import SimBackend, SimOptions
@@ -56,15 +58,18 @@ def test_flexible_mode_rings_at_its_natural_frequency_and_strain_reads_the_defle
     s = _sim(flex=True, mode_stiffness_N_per_mm=[k] * 3, mode_mass_kg=[m] * 3, mode_damping_ratio=[zeta] * 3)
     for _ in range(10):                                        # a short move on chain 1, then stop
         s.write_pulses(np.array([100, 0, 0, 0, 0]))
-    strain, y = [], []
+    strain, y, truth = [], [], []
     for _ in range(1000):
         s.write_pulses(np.zeros(5, np.int64))
         fb = s.read()
         strain.append(fb.strain[0])
         y.append(s.truth()[0] - fb.enc[0])
+        truth.append(s.truth())
     strain, y = np.array(strain), np.array(y)
-    # strain gauge = k_eps * k * (load - motor), tension positive
-    assert np.allclose(strain, M.strain_gain * k * y, rtol=1e-12, atol=1e-12)
+    # strain gauge = gravity strain of the true pose (pmctl.statics) + k_eps * k * (load - motor)
+    pose, ok = K.fk_batch(np.array(truth), M)
+    grav = static_strain(pose.P, pose.R, M)[:, 0]
+    assert np.allclose(strain - grav, M.strain_gain * k * y, rtol=0, atol=1e-6)
     # zero crossings of a free undamped oscillation: frequency sqrt(k/m)/2pi
     zc = np.nonzero(np.diff(np.sign(y)) != 0)[0]
     f_meas = (len(zc) - 1) / 2 / ((zc[-1] - zc[0]) * DT)
@@ -123,3 +128,25 @@ def test_sim_options_validation():
         SimOptions.from_dict({"drive_tau_s": [0.0, 0.0]})
     with pytest.raises(ConfigError, match="mode_mass_kg"):
         SimOptions.from_dict({"mode_mass_kg": -1.0})
+
+
+def test_rigid_sim_strain_is_the_nominal_twin_gravity_strain():
+    """RECORDING.md §2: at rest on a rigid plant the gauges read the static weight of the platform."""
+    s = _sim(flex=True)
+    for _ in range(50):
+        s.write_pulses(np.array([30, -10, 5, 40, -20]))
+    for _ in range(3000):                                      # let the 246 Hz mode die out
+        s.write_pulses(np.zeros(5, np.int64))
+    fb = s.read()
+    pose = K.fk(s.truth(), M)
+    assert np.allclose(fb.strain, static_strain(pose.P, pose.R, M), atol=1e-6)
+
+
+def test_model_static_strain_matches_statics():
+    from pmctl.nc import ModelFK
+    mf = ModelFK(M)
+    for q in ([393.0, 380.0, 400.0, 5.0, -3.0], [300.0, 310.0, 290.0, 0.0, 0.0]):
+        q = np.array(q)
+        ref = K.fk(q, M)
+        P, R, *_ = mf.solve(q, ref.P, ref.R)
+        assert np.allclose(mf.static_strain(R.tolist(), mf.last_T), static_strain(ref.P, ref.R, M), atol=1e-9)

@@ -82,6 +82,10 @@ class ModelFK:
         self.axis_p = np.array(g.tool_axis_p, float)
         self.z_table = float(g.z_table)
         self.tol, self.max_iter = tol, max_iter
+        ms = machine.mass
+        self._fz = -ms.platform_kg * ms.gravity                # N, gravity on the platform (base -Z)
+        self._com = [float(x) for x in ms.com_offset]
+        self._keps = float(machine.strain_gain)
         self.cos_max_tilt = math.cos(max_tilt_rad)
         self._tip_p = self.tip_p.tolist()
         self._axis_p = self.axis_p.tolist()
@@ -192,6 +196,19 @@ class ModelFK:
         J[1][4] = -1.0
         return P, R, tip_w, ax, J
 
+    def static_strain(self, R, T):
+        """Plate-link strain (microstrain, tension positive) of the platform's weight at rotation R,
+        from the twist map T = (constraint Jacobian)^-1[:, :3] of the same pose: the chains'
+        compressions are a = -T^T w with w = (F, M about P) the gravity wrench (as
+        pmctl.statics.static_strain, one pose, plain floats), and strain = -k_eps a."""
+        c = self._com
+        rc = [R[r][0] * c[0] + R[r][1] * c[1] + R[r][2] * c[2] for r in range(3)]
+        fz = self._fz
+        w = (0.0, 0.0, fz, rc[1] * fz, -rc[0] * fz, 0.0)        # F; M = rc x F
+        Tl = T.tolist() if not isinstance(T, list) else T
+        k = self._keps
+        return [k * sum(Tl[r][i] * w[r] for r in range(6)) for i in range(3)]
+
     def solve(self, q, P, R, pred=None):
         """Model pose at joints q (5,) from the warm start (P, R): returns arrays
         (P, R, tip_w, axis, J (6, 5)). ``pred`` = (dL, T): chain-length change since (P, R) and
@@ -234,6 +251,7 @@ class NCParams:
     ferror_mm: float = 1.0             # following-error limit at full speed (LinuxCNC FERROR)
     min_ferror_mm: float = 0.01        # floor at low speed (LinuxCNC MIN_FERROR)
     max_path_error_mm: float = 0.5     # model tool pose vs target (tip mm; axis weighted)
+    static_strain_comp: bool = True    # subtract the model pose's gravity strain from the gauges
 
     def __post_init__(self):
         # Arrays are frozen too (use dataclasses.replace to change a limit), so the plain-float
@@ -415,7 +433,11 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
             return zero, replace(state, qdot=np.zeros(5), acc=np.zeros(5), mode=HALTED,
                                  reason=f"model pose lost: {e}")
         if params._kth_on:
-            defl = -feedback.strain * params.deflection_per_ue     # theta_m - theta_L, mm
+            sg = feedback.strain
+            if params.static_strain_comp:          # the gauges also read the weight: keep the dynamic part
+                s0 = model.static_strain(R, Tm)
+                sg = sg - np.array(s0)
+            defl = -sg * params.deflection_per_ue                  # theta_m - theta_L, mm
             qd[:3] -= params.k_theta * defl
         qdot_des = qd.tolist()
         if perr > params.max_path_error_mm:

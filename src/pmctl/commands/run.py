@@ -103,7 +103,7 @@ class _Progress:
 
 def record_columns(res: LoopResult, machine, ppm) -> tuple[dict, dict]:
     """Recording channels of a run: commands (pulse counters), encoders, the simulated load-side
-    tool pose and strain (dynamic sim reading + static gravity strain of the true pose)."""
+    tool pose, and the strain gauges as read."""
     cols = {"t": res.t}
     names = ("L1", "L2", "L3", "X", "Y")
     q_cmd = res.counts / ppm
@@ -112,7 +112,6 @@ def record_columns(res: LoopResult, machine, ppm) -> tuple[dict, dict]:
     for i, a in enumerate(names):
         cols[f"enc_{a}"] = res.enc[:, i]
     notes = {f"cmd_{a}": {"source": "pulse counter x resolution at the tick start"} for a in names}
-    strain = res.strain
     if np.all(np.isfinite(res.truth)) and len(res.truth):
         pose, ok = K.fk_batch(res.truth, machine)
         tip = np.where(ok[:, None], pose.tip, np.nan)
@@ -123,13 +122,11 @@ def record_columns(res: LoopResult, machine, ppm) -> tuple[dict, dict]:
             cols[c] = axis[:, i]
         for c in ("tip_x", "tip_y", "tip_z", "tool_i", "tool_j", "tool_k"):
             notes[c] = {"source": "simulation: FK of the load-side joints (after drive lag and flexible mode)"}
-        from ..statics import static_strain
-        strain = strain + np.where(ok[:, None], static_strain(pose.P, pose.R, machine), np.nan)
         for i in range(3):
-            notes[f"strain_{i + 1}"] = {"source": "simulation: static gravity strain of the true pose + "
-                                                  "dynamic flexible-mode strain + gauge noise"}
+            notes[f"strain_{i + 1}"] = {"source": "simulation: gravity strain of the true pose + "
+                                                  "flexible-mode spring strain + gauge noise"}
     for i in range(3):
-        cols[f"strain_{i + 1}"] = strain[:, i]
+        cols[f"strain_{i + 1}"] = res.strain[:, i]
     return cols, notes
 
 

@@ -9,8 +9,9 @@ Per axis (L1, L2, L3, X, Y):
   deflection y = x_L - x_m obeys  y'' + 2 zeta w y' + w^2 y = -x_m''  (w^2 = k/m); the motor moves
   piecewise-linearly, so each tick is a velocity jump followed by free motion, integrated exactly
   with a precomputed transition matrix (stable at any tick rate).
-- **strain gauge** on each plate link: strain = k_eps * tension = k_eps * k * y (microstrain), the
-  dynamic part of the chain force (the static gravity preload is not modelled here);
+- **strain gauge** on each plate link: strain = k_eps * tension, tension = the static gravity
+  load of the true (load-side) platform pose (pmctl.statics, RECORDING.md §2) plus the spring
+  force k * y of the flexible mode (microstrain, tension positive);
 - **measurement noise**: Gaussian on encoders (mm) and strain (microstrain), seeded RNG.
 
 The true tool tip is FK(load-side joints) (:meth:`truth` gives them). Fault injection for tests:
@@ -100,6 +101,8 @@ class SimBackend(Backend):
         self._phi = phi
         self._strain_per_mm = machine.strain_gain * o.mode_stiffness_N_per_mm   # microstrain per mm of y
         self._rng = np.random.default_rng(o.seed)
+        from ..nc import ModelFK
+        self._fk = ModelFK(machine)          # the load-side pose, for the gravity strain
         self._fb = Feedback()
         self._fb.counts = np.zeros(5, np.int64)
         self._open = False
@@ -115,6 +118,10 @@ class SimBackend(Backend):
         self.tick = 0
         self._fb.seq = 0
         self._open = True
+        from ..kinematics import forward_platform
+        q = self.truth()
+        P, R = forward_platform(q[:3], self.machine.geometry)
+        self._pose = (P.tolist(), R.tolist(), None, q)
         self._sample()
 
     def read(self):
@@ -164,6 +171,16 @@ class SimBackend(Backend):
         self._open = False
 
     # ---------------------------------------------------------------- internals
+    def _gravity_strain(self):
+        """Static strain of the platform's weight at the true (load-side) pose; FK warm-started."""
+        P, R, T, q0 = self._pose
+        q = self.truth()
+        pred = None if T is None else ((q - q0)[:3], T)
+        P, R, _, _, _ = self._fk.solve_l(q, P, R, pred)
+        T = self._fk.last_T
+        self._pose = (P, R, T, q)
+        return np.array(self._fk.static_strain(R, T))
+
     def _sample(self):
         fb, o = self._fb, self.opt
         fb.seq += 1
@@ -172,7 +189,7 @@ class SimBackend(Backend):
             fb.enc[:] = self.motor + o.enc_noise_mm * self._rng.standard_normal(5)
         else:
             fb.enc[:] = self.motor
-        s = self._strain_per_mm * self.y
+        s = self._strain_per_mm * self.y + self._gravity_strain()
         if o.strain_noise_ue > 0:
             s = s + o.strain_noise_ue * self._rng.standard_normal(3)
         fb.strain[:] = s
