@@ -370,8 +370,9 @@ def approach_path(q0, q1, dt, params: NCParams, machine: Machine, frac=0.5):
 
 @dataclass
 class TimingStats:
-    compute_ns: np.ndarray
-    late_ns: np.ndarray
+    compute_ns: np.ndarray      # whole tick: read + NC + write (incl. the sim plant) + bookkeeping
+    late_ns: np.ndarray         # wake-up time after the deadline (0 without real time)
+    nc_ns: np.ndarray           # the NC step alone
     overruns: int
     max_overruns_in_row: int
     realtime: bool
@@ -382,7 +383,9 @@ class TimingStats:
         lt = self.late_ns / 1e3
         if len(c) == 0:
             return {}
+        nc = self.nc_ns / 1e3
         return {"ticks": int(len(c)),
+                "nc_median_us": float(np.median(nc)), "nc_p99_us": float(np.percentile(nc, 99)),
                 "compute_median_us": float(np.median(c)), "compute_p99_us": float(np.percentile(c, 99)),
                 "compute_max_us": float(c.max()),
                 "late_median_us": float(np.median(lt)), "late_p99_us": float(np.percentile(lt, 99)),
@@ -451,6 +454,7 @@ class ControlLoop:
         target = np.zeros((n_cap, 6))
         comp = np.zeros(n_cap, np.int64)
         late = np.zeros(n_cap, np.int64)
+        ncns = np.zeros(n_cap, np.int64)
         sent = np.zeros(5, np.int64)
         has_truth = be.truth() is not None
         period = int(round(1e9 / cfg.rate_hz))
@@ -504,7 +508,9 @@ class ControlLoop:
                 strain[k] = fb.strain
                 if has_truth:
                     truth[k] = be.truth()          # load side at this tick's start, like enc and counts
+                t_nc = mono()
                 pulses, st = nc_step(st, tg, fb, p, self.model)
+                ncns[k] = mono() - t_nc
                 try:
                     be.write_pulses(pulses)
                 except HalError as e:
@@ -554,7 +560,7 @@ class ControlLoop:
             if cfg.realtime:
                 undo_realtime(cfg.lock_memory)
         n = k if status != "fault" else max(k, 0)
-        timing = TimingStats(comp[:n].copy(), late[:n].copy(), overruns, max_in_row, cfg.realtime, msgs)
+        timing = TimingStats(comp[:n].copy(), late[:n].copy(), ncns[:n].copy(), overruns, max_in_row, cfg.realtime, msgs)
         return LoopResult(status, reason, n, st, timing, 1.0 / cfg.rate_hz, counts[:n], enc[:n], strain[:n],
                           truth[:n], target[:n], sent, self.targets.job_start)
 

@@ -213,8 +213,9 @@ def run(args) -> int:
               f"{ts['axis_rms_urad']:.2f} urad, max {ts['axis_max_urad']:.2f} urad")
     tm = res.timing.summary()
     if tm:
-        print(f"  timing: compute median {tm['compute_median_us']:.0f} us, p99 {tm['compute_p99_us']:.0f} us, "
-              f"max {tm['compute_max_us']:.0f} us (period {dt * 1e6:.0f} us)"
+        print(f"  timing: tick compute median {tm['compute_median_us']:.0f} us, p99 {tm['compute_p99_us']:.0f} us, "
+              f"max {tm['compute_max_us']:.0f} us (NC step median {tm['nc_median_us']:.0f} us, "
+              f"p99 {tm['nc_p99_us']:.0f} us; period {dt * 1e6:.0f} us)"
               + (f"; lateness p99 {tm['late_p99_us']:.0f} us, max {tm['late_max_us']:.0f} us; "
                  f"overruns {tm['overruns']} (max {tm['max_overruns_in_row']} in a row)" if cfg.realtime
                  else "; lateness n/a (--no-realtime)"))
