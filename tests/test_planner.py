@@ -261,8 +261,7 @@ def test_random_polylines(machine, data):
     moves = tuple(Move(k, p, a, line=i + 1, feed=feed) for i, (k, p, a) in enumerate(zip(kinds, pts, axes)))
     job = Job(moves, "r", pts)
     traj = plan(job, machine, dt)
-    idx = arrival_indices(traj, pts)
-    assert np.allclose(traj.axis[idx], axes, atol=1e-12)
+    arrival_indices(traj, pts, axes)              # tip within 1e-9 mm and axis within 1e-12, in order
     m = check_limits(traj, machine, dt)
     lim = np.where(np.array([k == RAPID for k in kinds])[traj.line[1:] - 1], LIM.rapid_mm_s,
                    min(feed, LIM.rapid_mm_s))
