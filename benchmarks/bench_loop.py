@@ -16,7 +16,6 @@ sim (flexible mode on unless --no-flex). Prints the figures; asserts nothing.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import time
@@ -24,10 +23,9 @@ import time
 import numpy as np
 
 from pmctl import hal
-from pmctl import kinematics as K
 from pmctl.config import load_machine
 from pmctl.hal.base import Feedback
-from pmctl.loop import ControlLoop, LoopConfig, prepare, tracking_stats
+from pmctl.loop import ControlLoop, LoopConfig, load_service_config, prepare, tracking_stats
 from pmctl.nc import ModelFK, NCParams, counts_of, initial_state, nc_step
 from pmctl.trajectory import Trajectory
 
@@ -78,8 +76,11 @@ def bench_nc(m, n=20000):
 
 
 def run_loop(m, rate, seconds, realtime, flex=True):
+    """The service config's NC gains (kv capped at 0.4/dt for high rates) on the sim plant."""
     dt = 1.0 / rate
-    params = NCParams.from_machine(m, dt, kv=min(400.0, 0.4 / dt))
+    nc = load_service_config().nc
+    nc.kv_per_s = min(nc.kv_per_s, 0.4 / dt)
+    params = nc.params(m, dt)
     tr = circle(dt, seconds)
     tg = prepare(m, params, tr, dt)
     c0 = counts_of(tg.q[0], params)

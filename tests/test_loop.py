@@ -2,7 +2,6 @@
 tracking, pulse accounting, controlled stops with reasons, K_theta vibration suppression, counter
 persistence across a crash, service config validation."""
 
-import json
 import os
 import signal
 import subprocess

@@ -33,8 +33,8 @@ from . import kinematics as K
 from .config import CONFIG_DIR, Machine, _Section
 from .errors import ConfigError, KinematicsError, PmctlError, UnreachablePose
 from .hal import Backend, HalError, HalTimeout
-from .nc import DONE, HALTED, MODE_NAMES, RUN, STOPPING, ModelFK, NCParams, NCState, counts_of, initial_state, nc_step
-from .state_store import CounterWriter, load_counters
+from .nc import DONE, HALTED, RUN, STOPPING, ModelFK, NCParams, NCState, nc_step
+from .state_store import CounterWriter
 from .trajectory import Trajectory
 
 # ---------------------------------------------------------------- service config
@@ -586,18 +586,6 @@ def _was_stop(st: NCState) -> bool:
 
 
 # ---------------------------------------------------------------- convenience
-
-
-def start_counts(machine: Machine, params: NCParams, targets: Targets, state_file: str | None,
-                 backend: Backend | None = None, log=None):
-    """Where the machine is: saved counters (if any), else the job start. Returns (counts, note)."""
-    if state_file:
-        saved = load_counters(state_file, machine=machine.name)
-        if saved is not None:
-            note = (f"resuming from {state_file} (tick {saved.tick}, "
-                    f"{'clean stop' if saved.clean else 'NOT a clean stop: the position may be off by up to one persist interval; re-home if in doubt'})")
-            return saved.counts, note
-    return counts_of(targets.q[0], params), "no saved counters: machine assumed at the job start"
 
 
 def prepare(machine: Machine, params: NCParams, traj: Trajectory, dt: float, counts0=None) -> Targets:

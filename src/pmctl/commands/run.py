@@ -199,7 +199,10 @@ def run(args) -> int:
     wall = time.monotonic() - t_wall
     if writer is not None:
         from ..state_store import save_counters
-        save_counters(state_file, res.state.counts, machine=machine.name, clean=True, tick=res.ticks)
+        # clean: the counters are exactly what was sent and the machine did what they say; after a
+        # fault (following error, lost backend) the position is in doubt: the next start says so
+        save_counters(state_file, res.state.counts, machine=machine.name, clean=res.status != "fault",
+                      tick=res.ticks)
 
     # ---- report
     sent_ok = bool(np.all(counts0 + res.pulses_sent == res.state.counts))
