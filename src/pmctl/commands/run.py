@@ -166,7 +166,15 @@ def run(args) -> int:
     st = initial_state(machine, counts0)
 
     job = load_job(args.job, machine)
-    traj = plan(job, machine, dt, feed_override=args.feed_override, start=(st.tip, st.axis))
+    plan_machine = machine
+    if np.any(params.vmax < machine.limits.joint_speed - 1e-9):
+        # the V-F converters cap the joint speed below the machine's (seed mode: one pulse per
+        # tick): plan within what they can emit
+        from dataclasses import replace
+        lim = replace(machine.limits, chain_speed=float(params.vmax[:3].min()), table_speed=float(params.vmax[3:].min()))
+        plan_machine = replace(machine, limits=lim)
+        log(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: planning with that")
+    traj = plan(job, plan_machine, dt, feed_override=args.feed_override, start=(st.tip, st.axis))
     targets = prepare(machine, params, traj, dt, counts0)
 
     backend = hal.create(backend_name, machine, dt, svc.backend_options if backend_name == svc.backend else {})

@@ -65,7 +65,10 @@ class Backend(ABC):
     @abstractmethod
     def read(self) -> Feedback:
         """The latest feedback; raises HalTimeout if the device does not answer in time, HalError
-        on a device fault."""
+        on a device fault. Contract: ``read`` never blocks longer than its own timeout (a small
+        fraction of the tick): the loop turns a timeout into a controlled stop with the reason, and
+        a tick that overruns the stall limit into a braked stop. A device must also stop by itself
+        when the heartbeat of ticks stops (a hung host cannot command a stop)."""
 
     def write_pulses(self, pulses: np.ndarray) -> None:
         """Signed pulses for this tick per axis (spread evenly over the tick by the device)."""
