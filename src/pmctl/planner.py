@@ -295,8 +295,6 @@ class _Profile:
         self.S = float(s[-1])
         self.T = T
         # Arrival time (after the hold) at every grid point.
-        idx_int = np.nonzero(keep)[0]
-        self._piece_of = idx_int
         t_all = np.concatenate([[0.0], np.cumsum(t_dur)])
         self.t_arrive = t_all[0::2]           # start of hold at point k
         self.t_leave = t_all[0::2] + hold
