@@ -42,3 +42,25 @@ def test_errors_are_one_line_and_nonzero():
         r = pmctl(*args)
         assert r.returncode != 0 and r.stdout == ""
         assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("pmctl: error:"), r.stderr
+
+
+def test_negative_values_after_a_space_are_values_not_options():
+    a = json.loads(pmctl("kin", "ik", "--tip", "-5,0,173", "--axis", "-0.1,0.2,0.97468", "--json").stdout)
+    b = json.loads(pmctl("kin", "ik", "--tip=-5,0,173", "--axis=-0.1,0.2,0.97468", "--json").stdout)
+    assert a == b and a["table"][0] > 0
+
+
+def test_fk_applies_the_same_limits_as_ik():
+    """A pose IK refuses must not come back from FK as if it were fine."""
+    for joints, limit in (("303.853239,303.853239,483.534067,-22.478303,12.977854", "theta2 = 22.0"),
+                          ("62.6,208.5,208.5,0,0", "chain L1 = 62.6"),
+                          ("393.249,393.249,393.249,80,0", "table X = 80")):
+        r = pmctl("kin", "fk", "--joints", joints)
+        assert r.returncode == 1 and limit in r.stderr, r.stderr
+
+
+def test_rounded_axis_is_normalised():
+    r = json.loads(pmctl("kin", "ik", "--tip", "1,2,150", "--axis", "0.1,0.2,0.975", "--json").stdout)
+    f = json.loads(pmctl("kin", "fk", "--joints", ",".join(map(repr, r["L"] + r["table"])), "--json").stdout)
+    v = np.array([0.1, 0.2, 0.975])
+    assert np.allclose(f["axis"], v / np.linalg.norm(v), atol=1e-12)

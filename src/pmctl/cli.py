@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 
 from . import __version__
@@ -31,9 +32,23 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+# A value such as "-5,0,173" looks like an option to argparse; glue it to its option.
+_NEGATIVE_LIST = re.compile(r"^-\.?\d[\d.eE+-]*(,.*)?$")
+
+
+def _glue_negative_values(argv):
+    out = []
+    for tok in argv:
+        if out and out[-1].startswith("--") and "=" not in out[-1] and _NEGATIVE_LIST.match(tok):
+            out[-1] = f"{out[-1]}={tok}"
+        else:
+            out.append(tok)
+    return out
+
+
 def main(argv=None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_glue_negative_values(sys.argv[1:] if argv is None else list(argv)))
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

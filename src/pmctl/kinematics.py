@@ -301,11 +301,26 @@ class ToolPose:
         return axis_to_tilt(_mv(self.R, EZ))
 
 
-def fk(q, machine: Machine, guess=None) -> ToolPose:
-    """5-axis forward kinematics q = (L1, L2, L3, X, Y) -> tool pose; raises on failure."""
+def fk(q, machine: Machine, guess=None, *, check_limits=False) -> ToolPose:
+    """5-axis forward kinematics q = (L1, L2, L3, X, Y) -> tool pose; raises on failure.
+
+    With check_limits, joints outside their ranges and poses beyond the tilt or spherical-joint
+    swing limits raise UnreachablePose naming the limit, as :func:`ik` does."""
     q = np.asarray(q, float)
+    if check_limits:
+        if not np.all(np.isfinite(q)):
+            raise UnreachablePose("joint values must be finite numbers")
+        # Joint ranges first: a chain far out of range may have no assembly at all.
+        pre = limit_violations(q, 0.0, *platform_pose(q[..., 0] * 0 + machine.geometry.z_home, np.pi, 0.0,
+                                                       machine.geometry.platform_radius), machine)
+        if pre[()]:
+            raise UnreachablePose(f"joints out of range: {pre[()]}")
     P, R = forward_platform(q[..., :3], machine.geometry, guess)
     tip, axis = tool_of_platform(P, R, q[..., 3:5], machine.geometry)
+    if check_limits:
+        reason = limit_violations(q, axis_to_tilt(_mv(R, EZ))[1], P, R, machine)[()]
+        if reason:
+            raise UnreachablePose(f"pose out of limits: {reason}")
     return ToolPose(tip, axis, P, R)
 
 
@@ -412,14 +427,14 @@ def limit_violations(q, theta2, P, R, machine: Machine):
     t_lo, t_hi = lim.theta2_deg
     c_lo, c_hi = lim.chain_length
     checks = [(lambda k: not t_lo - 1e-9 <= t2d[k] <= t_hi + 1e-9,
-               lambda k: f"tilt theta2 = {t2d[k]:.4f} deg outside [{t_lo:g}, {t_hi:g}] deg")]
+               lambda k: f"tilt theta2 = {t2d[k]:.6f} deg outside [{t_lo:g}, {t_hi:g}] deg")]
     for i in range(3):
         checks.append((lambda k, i=i: not c_lo <= qf[k, i] <= c_hi,
-                       lambda k, i=i: f"chain L{i + 1} = {qf[k, i]:.4f} mm outside [{c_lo:g}, {c_hi:g}] mm"))
+                       lambda k, i=i: f"chain L{i + 1} = {qf[k, i]:.6f} mm outside [{c_lo:g}, {c_hi:g}] mm"))
     for j, name, (a, b) in ((3, "X", lim.table_x), (4, "Y", lim.table_y)):
         checks.append((lambda k, j=j, a=a, b=b: not a - 1e-9 <= qf[k, j] <= b + 1e-9,
                        lambda k, j=j, a=a, b=b, name=name:
-                       f"table {name} = {qf[k, j]:.4f} mm outside [{a:g}, {b:g}] mm"))
+                       f"table {name} = {qf[k, j]:.6f} mm outside [{a:g}, {b:g}] mm"))
     checks.append((lambda k: swing[k] > lim.spherical_swing_deg,
                    lambda k: f"spherical joint swing {swing[k]:.2f} deg over {lim.spherical_swing_deg:g} deg"))
     checks.append((lambda k: pz[k] <= 0, lambda k: "platform below the base"))
@@ -448,7 +463,7 @@ def ik(tip_w, axis, machine: Machine, *, axis_tol=1e-3) -> IKResult:
     if abs(n - 1.0) > axis_tol:
         raise UnreachablePose(f"tool axis {axis.tolist()} is not a unit vector (|v| = {n:.6g})")
     if axis[2] <= 0:
-        raise UnreachablePose(f"tool axis {axis.tolist()} points downward; the spindle is above the tip")
+        raise UnreachablePose(f"tool axis {axis.tolist()} has no upward component; the spindle is above the tip")
     r = ik_batch(tip_w, axis / n, machine)
     if not bool(r.ok):
         raise UnreachablePose(f"pose unreachable: {r.reason[()]}")

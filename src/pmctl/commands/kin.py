@@ -12,6 +12,10 @@ from ..errors import PmctlError
 from .. import kinematics as K
 
 
+# Tool axes typed by hand or rounded to 3 decimals are normalised; anything further off is refused.
+AXIS_TOL = 1e-2
+
+
 def _triple(text, n, what):
     parts = text.split(",")
     try:
@@ -29,7 +33,7 @@ def add_parser(sub):
     ks = p.add_subparsers(dest="kin_command", metavar="ik|fk", required=True)
     a = ks.add_parser("ik", help="tool tip in W + tool axis -> joints L1,L2,L3,X,Y")
     a.add_argument("--tip", required=True, metavar="X,Y,Z", help="tool tip in the workpiece frame W, mm")
-    a.add_argument("--axis", required=True, metavar="I,J,K", help="unit tool axis, tip -> spindle")
+    a.add_argument("--axis", required=True, metavar="I,J,K", help=f"unit tool axis, tip -> spindle (normalised if |v| is within {AXIS_TOL:g} of 1)")
     b = ks.add_parser("fk", help="joints L1,L2,L3,X,Y -> tool tip in W + tool axis")
     b.add_argument("--joints", required=True, metavar="L1,L2,L3,X,Y", help="chain lengths and table, mm")
     for q in (a, b):
@@ -43,12 +47,12 @@ def run(args):
     if args.kin_command == "ik":
         tip = _triple(args.tip, 3, "--tip")
         axis = _triple(args.axis, 3, "--axis")
-        r = K.ik(tip, axis, m)
+        r = K.ik(tip, axis, m, axis_tol=AXIS_TOL)
         out = {"L": r.q[:3].tolist(), "table": r.q[3:].tolist(), "Z": float(r.P[2]),
                "theta1_deg": float(np.degrees(r.theta1)), "theta2_deg": float(np.degrees(r.theta2))}
     else:
         q = _triple(args.joints, 5, "--joints")
-        t = K.fk(q, m)
+        t = K.fk(q, m, check_limits=True)
         t1, t2 = t.tilt
         out = {"tip": t.tip.tolist(), "axis": t.axis.tolist(), "Z": float(t.Z),
                "theta1_deg": float(np.degrees(t1)), "theta2_deg": float(np.degrees(t2))}
