@@ -266,3 +266,42 @@ def test_random_polylines(machine, data):
     lim = np.where(np.array([k == RAPID for k in kinds])[traj.line[1:] - 1], LIM.rapid_mm_s,
                    min(feed, LIM.rapid_mm_s))
     assert np.all(m["v"] <= lim * TOL)
+
+
+
+@st.composite
+def arc_programs(draw):
+    """G0 to a start, then 1-3 G2/G3 arcs (I/J) with random radii, sweeps, helix drops and tilts."""
+    x, y, z = draw(st.floats(-25, 25)), draw(st.floats(-25, 25)), draw(st.floats(40, 100))
+    f = "{:.12f}".format
+    lines = [f"G0 X{f(x)} Y{f(y)} Z{f(z)}", f"F{draw(st.floats(60, 2400)):.1f}"]
+    arcs = []
+    for _ in range(draw(st.integers(1, 3))):
+        r = draw(st.floats(0.5, 12.0))
+        phase = draw(st.floats(0, 2 * math.pi))
+        i, j = -r * math.cos(phase), -r * math.sin(phase)       # centre offset from the start
+        cx, cy = x + i, y + j
+        ccw = draw(st.booleans())
+        sweep = draw(st.floats(0.2, 2 * math.pi - 0.2)) * (1 if ccw else -1)
+        x, y = cx + r * math.cos(phase + sweep), cy + r * math.sin(phase + sweep)
+        z += draw(st.floats(-5, 5))
+        a, b = draw(st.floats(-7, 7)), draw(st.floats(-7, 7))
+        lines.append(f"{'G3' if ccw else 'G2'} X{f(x)} Y{f(y)} Z{f(z)} I{f(i)} J{f(j)} A{f(a)} B{f(b)}")
+        arcs.append((len(lines), (cx, cy), r, (x, y, z)))
+    return "\n".join(lines), arcs
+
+
+@settings(max_examples=10, deadline=None)
+@given(arc_programs())
+def test_random_arcs(machine, prog):
+    text, arcs = prog
+    job = gjob(machine, text)
+    traj = plan(job, machine, DT)
+    check_limits(traj, machine, DT)
+    moving = [m for m in job.moves if m.kind != DWELL]
+    arrival_indices(traj, [m.tip for m in moving], [m.axis for m in moving])
+    for line, (cx, cy), r, end in arcs:
+        on = traj.line == line
+        rad = np.hypot(traj.tip[on, 0] - cx, traj.tip[on, 1] - cy)
+        assert np.abs(rad - r).max() < 1e-9
+        assert np.allclose(traj.tip[on][-1], end, atol=1e-9)
