@@ -147,6 +147,37 @@ def test_approach_poses_are_checked_too(machine):
     assert e.value.line == 1 and "unreachable" in e.value.reason
 
 
+# Seed 000 Fig. 7.10, with its header and its data lines (the pass start added with the same rounding).
+SEED_FIG_7_10 = """Px Py Pz Vx Vy Vz [s,w,e]
+15,-26.04722665,60.27883705,0,-0.173648178,-0.984807753,s
+15,-13.07336141,58.57079529,0,-0.087155743,-0.996194698,w
+15,0,58,0,0,-1,w
+15,13.07336141,58.57079529,0,0.087155743,-0.996194698,w
+15,26.04722665,60.27883705,0,0.173648178,-0.984807753,w
+15,38.82285677,63.11112606,0,0.258819045,-0.965925826,w
+15,51.3030215,67.04610688,0,0.342020143,-0.939692621,e
+"""
+
+
+def test_seed_fig_7_10_data_reads_with_the_normal_convention(tmp_path, machine):
+    p = write(tmp_path, SEED_FIG_7_10)
+    with pytest.raises(InputError) as e:             # as a tool axis it points down
+        read_cl(p, machine)
+    assert e.value.line == 2 and "points downward" in e.value.reason
+    cl = read_cl(p, machine, vector="normal")
+    assert len(cl) == 7 and cl.line.tolist() == list(range(2, 9))
+    assert np.allclose(cl.axis[2], [0, 0, 1]) and np.all(cl.axis[:, 2] > 0)
+    # the points lie on a sphere (R 150 about (15, 0, 208)) and V is its radius direction
+    centre = cl.tip + 150.0 * cl.axis
+    assert np.allclose(centre, [15.0, 0.0, 208.0], atol=1e-6)
+    # the last point's tilt (20 deg) is the machine's limit: still reachable, and post-processed
+    q = cl_actuators(cl, machine)
+    assert q.shape == (7, 5)
+    assert load_job(p, machine, vector="normal").moves[0].kind == RAPID
+    with pytest.raises(InputError, match="'axis' or 'normal'"):
+        parse_cl(SEED_FIG_7_10, vector="down")
+
+
 def test_unknown_suffix(tmp_path, machine):
     with pytest.raises(InputError, match="unknown job format"):
         load_job(write(tmp_path, GOOD, "t.xyz"), machine)

@@ -10,8 +10,8 @@ on this machine), flag one of
 
 An optional header line (first content line, starting with ``Px``), blank lines and comment lines
 (``#`` or ``;``) are allowed. The seed's Fig. 7.10 lists the surface normal into the material
-(V_z < 0, CAD frame); here V is the tool axis as in APT ``GOTO/x,y,z,i,j,k``, so a downward vector is
-an error rather than silently flipped.
+(V_z < 0); by default V is the tool axis as in APT ``GOTO/x,y,z,i,j,k``, so a downward vector is an
+error rather than silently flipped. Seed-style files are read with ``vector="normal"`` (axis = -V).
 
 Every line is parsed and checked before anything is returned: malformed lines, non-unit vectors
 (|V| off by more than ``AXIS_TOL``; within it V is normalised), tool axes pointing down or tilted
@@ -63,8 +63,14 @@ def _float(text):
     return v if math.isfinite(v) else None
 
 
-def parse_cl(text: str, path="<string>") -> CLData:
-    """Parse CL text; checks syntax, vectors (unit, pointing up) and pass structure. No machine needed."""
+def parse_cl(text: str, path="<string>", *, vector="axis") -> CLData:
+    """Parse CL text; checks syntax, vectors (unit, pointing up) and pass structure. No machine needed.
+
+    ``vector="axis"``: V is the tool axis (tip -> spindle); ``"normal"``: V is the seed's surface normal
+    into the material (spindle -> tip, as printed in Fig. 7.10), and the tool axis is -V."""
+    if vector not in ("axis", "normal"):
+        raise InputError(path, None, f"vector convention must be 'axis' or 'normal', got {vector!r}")
+    sign = 1.0 if vector == "axis" else -1.0
     tips, axes, flags, lines = [], [], [], []
     seen_content = False
     open_pass = None       # line of the 's' of the pass in progress
@@ -93,10 +99,12 @@ def parse_cl(text: str, path="<string>") -> CLData:
         if abs(n - 1.0) > AXIS_TOL:
             raise InputError(path, lineno, f"tool vector ({vals[3]:g}, {vals[4]:g}, {vals[5]:g}) is not a unit "
                                            f"vector: |V| = {n:.6g} (tolerance {AXIS_TOL:g})")
-        v = v / n
+        v = sign * v / n
         if v[2] <= 0.0:
-            raise InputError(path, lineno, f"tool vector ({vals[3]:g}, {vals[4]:g}, {vals[5]:g}) points downward; "
-                                           "V is the tool axis from the tip to the spindle (V_z > 0)")
+            raise InputError(path, lineno, f"tool vector ({vals[3]:g}, {vals[4]:g}, {vals[5]:g}) points "
+                                           + ("downward; V is the tool axis from the tip to the spindle (V_z > 0)"
+                                              if vector == "axis" else
+                                              "upward; a 'normal' V points from the spindle into the material (V_z < 0)"))
         if flag == "s":
             if open_pass is not None:
                 raise InputError(path, lineno, f"'s' inside the pass started on line {open_pass} (end it with 'e')")
@@ -116,14 +124,14 @@ def parse_cl(text: str, path="<string>") -> CLData:
     return CLData(np.array(tips, float), np.array(axes, float), np.array(flags), np.array(lines, int), str(path))
 
 
-def read_cl(path, machine) -> CLData:
+def read_cl(path, machine, *, vector="axis") -> CLData:
     """Read and fully check a CL file (syntax, vectors, pass structure, reachability)."""
     path = Path(path)
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as e:
         raise InputError(path, None, f"cannot read: {e}") from None
-    cl = parse_cl(text, path)
+    cl = parse_cl(text, path, vector=vector)
     check_reach(cl.tip, cl.axis, cl.line, machine, path)
     return cl
 
@@ -160,8 +168,8 @@ def cl_job(cl: CLData, machine=None, *, feed_mm_min=DEFAULT_FEED_MM_MIN, clearan
     return Job(tuple(moves), cl.source, cl.tip.copy(), cl.line.copy())
 
 
-def read_cl_job(path, machine, *, feed_mm_min=DEFAULT_FEED_MM_MIN, clearance_mm=DEFAULT_CLEARANCE_MM,
+def read_cl_job(path, machine, *, vector="axis", feed_mm_min=DEFAULT_FEED_MM_MIN, clearance_mm=DEFAULT_CLEARANCE_MM,
                 spindle_rpm=10000.0) -> Job:
     """Read, check and convert a CL file into a job (see :func:`cl_job`)."""
-    cl = read_cl(path, machine)
+    cl = read_cl(path, machine, vector=vector)
     return cl_job(cl, machine, feed_mm_min=feed_mm_min, clearance_mm=clearance_mm, spindle_rpm=spindle_rpm)
