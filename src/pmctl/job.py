@@ -86,7 +86,9 @@ def check_reach(tip, axis, lines, machine, path) -> K.IKResult:
 def load_job(path, machine, **options) -> Job:
     """Read a job file, dispatching on its suffix (G-code: .ngc .nc .gcode .tap; CL: .cl .cls .txt .csv).
 
-    ``options`` go to the reader (CL data: ``feed_mm_min``, ``clearance_mm``)."""
+    ``options`` go to the reader (CL data: ``vector``, ``feed_mm_min``, ``clearance_mm``, ``spindle_rpm``;
+    G-code: ``start`` = (tip, axis) where the program begins, default the home pose: G91 moves, arcs
+    and the initial A/B are relative to it, so pass the planner's start pose here too)."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix in GCODE_SUFFIXES:
