@@ -23,6 +23,7 @@ import numpy as np
 from .. import hal
 from .. import kinematics as K
 from ..config import CONFIG_DIR, load_machine
+from ..errors import PmctlError
 from ..loop import ControlLoop, LoopResult, load_service_config, prepare, tracking_stats
 from ..nc import counts_of, initial_state
 from ..state_store import CounterWriter, load_counters
@@ -137,7 +138,6 @@ def run(args) -> int:
     svc = load_service_config(args.service)
     cfg = svc.loop
     if args.rate is not None:
-        from ..errors import PmctlError
         if not 10 <= args.rate <= 20000:
             raise PmctlError(f"--rate must be within 10 .. 20000 Hz, got {args.rate:g}")
         cfg.rate_hz = float(args.rate)
@@ -165,6 +165,14 @@ def run(args) -> int:
         counts0 = counts_of(K.ik(h_tip, h_axis, machine).q, params)
     st = initial_state(machine, counts0)
 
+    if args.record:               # find out now, not after the run, that the recording cannot be written
+        folder = Path(args.record)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise PmctlError(f"--record {folder}: cannot create the folder: {e.strerror or e}") from None
+        if not os.access(folder, os.W_OK):
+            raise PmctlError(f"--record {folder}: folder is not writable")
     job = load_job(args.job, machine)
     plan_machine = machine
     if np.any(params.vmax < machine.limits.joint_speed - 1e-9):
