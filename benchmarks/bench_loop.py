@@ -1,6 +1,6 @@
 """Benchmark of the control loop (issue 3): per-tick compute time, lateness at 1 kHz, highest rate.
 
-    .venv/bin/python benchmarks/bench_loop.py [--duration 60] [--rates 1000,2000,3000,4000,5000]
+    .venv/bin/python benchmarks/bench_loop.py [--duration 60] [--rates 250,500,750,1000,1500,2000,3000]
                                               [--rate-seconds 5] [--no-flex]
 
 1. NC step alone (pmctl.nc.nc_step, tight loop): median / p99 per call.
@@ -97,7 +97,7 @@ def run_loop(m, rate, seconds, realtime, flex=True):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=60.0, help="real-time run at 1 kHz, seconds (default 60)")
-    ap.add_argument("--rates", default="1000,2000,3000,4000,5000")
+    ap.add_argument("--rates", default="250,500,750,1000,1500,2000,3000")
     ap.add_argument("--rate-seconds", type=float, default=5.0)
     ap.add_argument("--no-flex", action="store_true")
     a = ap.parse_args(argv)
