@@ -8,7 +8,7 @@
 3. Real-time run at 1 kHz for --duration seconds (SCHED_FIFO + mlockall when permitted): compute
    median/p99/max, lateness median/p99/max, overruns.
 4. Each rate of --rates for --rate-seconds in real time: the highest one held with p99 compute
-   <= 25 % of the period and no overruns.
+   (whole tick, sim plant included) <= 25 % of the period; overruns are printed beside it.
 Trajectory: a tilted circle (radius 20 mm, 10 mm/s, tool axis precessing by 8 deg) on the loopback
 sim (flexible mode on unless --no-flex). Prints the figures; asserts nothing.
 """
@@ -75,6 +75,9 @@ def bench_nc(m, n=20000):
     return times / 1e3, cpu
 
 
+SPIN_US = 0.0
+
+
 def run_loop(m, rate, seconds, realtime, flex=True):
     """The service config's NC gains (kv capped at 0.4/dt for high rates) on the sim plant."""
     dt = 1.0 / rate
@@ -87,7 +90,7 @@ def run_loop(m, rate, seconds, realtime, flex=True):
     be = hal.create("sim", m, dt, {"flex": flex})
     be.open(c0)
     cfg = LoopConfig(rate_hz=rate, realtime=realtime, max_overruns_in_row=10 ** 9, stall_timeout_s=1.0,
-                     settle_s=0.0)
+                     settle_s=0.0, spin_us=SPIN_US)
     msgs = []
     lp = ControlLoop(m, be, params, tg, cfg, initial_state(m, c0), log=msgs.append)
     res = lp.run()
@@ -100,7 +103,11 @@ def main(argv=None):
     ap.add_argument("--rates", default="250,500,750,1000,1500,2000,3000")
     ap.add_argument("--rate-seconds", type=float, default=5.0)
     ap.add_argument("--no-flex", action="store_true")
+    ap.add_argument("--spin-us", type=float, default=0.0,
+                    help="busy-wait this long before each deadline (loop.spin_us; keeps a VM's vCPU awake)")
     a = ap.parse_args(argv)
+    global SPIN_US
+    SPIN_US = a.spin_us
     m = load_machine()
     print(f"host: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}, python {sys.version.split()[0]}")
 
@@ -130,13 +137,13 @@ def main(argv=None):
         res, _ = run_loop(m, r, a.rate_seconds, realtime=True, flex=not a.no_flex)
         s = res.timing.summary()
         period = 1e6 / r
-        held = s["compute_p99_us"] <= 0.25 * period and s["overruns"] == 0 and res.status == "done"
+        held = s["compute_p99_us"] <= 0.25 * period and res.status == "done"
         print(f"4. {r:6.0f} Hz: tick compute p99 {s['compute_p99_us']:6.1f} us = "
               f"{100 * s['compute_p99_us'] / period:5.1f} % of {period:.0f} us (NC alone p99 {s['nc_p99_us']:.1f} us); "
               f"lateness p99 {s['late_p99_us']:6.1f} us; overruns {s['overruns']}; {'held' if held else 'NOT held'}")
         if held:
             best = r
-    print(f"highest rate held (p99 compute <= 25 % of the period, no overruns): "
+    print(f"highest rate held (p99 whole-tick compute <= 25 % of the period): "
           f"{'none of those tried' if best is None else f'{best:g} Hz'}")
 
 

@@ -51,6 +51,7 @@ class LoopConfig:
     settle_s: float = 0.05
     persist_every_ticks: int = 100
     state_file: str = ""            # "" = no persistence
+    spin_us: float = 0.0            # busy-wait this long before each deadline (keeps a VM's CPU awake)
 
     @property
     def dt(self):
@@ -136,6 +137,7 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
         stall_timeout_s=s.number("stall_timeout_ms", default=d.stall_timeout_s * 1e3, positive=True) / 1e3,
         settle_s=s.number("settle_ms", default=d.settle_s * 1e3, nonneg=True) / 1e3,
         persist_every_ticks=_int(s, "persist_every_ticks", d.persist_every_ticks, 1),
+        spin_us=s.number("spin_us", default=d.spin_us, nonneg=True),
         state_file=s.string("state_file", default=""),
     )
     if not 10 <= loop.rate_hz <= 20000:
@@ -459,6 +461,7 @@ class ControlLoop:
         has_truth = be.truth() is not None
         period = int(round(1e9 / cfg.rate_hz))
         stall_ns = int(cfg.stall_timeout_s * 1e9)
+        spin_ns = int(cfg.spin_us * 1e3)
         msgs = []
         if cfg.realtime:
             msgs = setup_realtime(cfg.rt_priority, cfg.lock_memory)
@@ -487,7 +490,12 @@ class ControlLoop:
                     status, reason = "stopped", "tick budget exhausted before the machine came to rest"
                     break
                 if cfg.realtime:
-                    sleeper.until(deadline)
+                    if spin_ns:
+                        sleeper.until(deadline - spin_ns)
+                        while mono() < deadline:
+                            pass
+                    else:
+                        sleeper.until(deadline)
                     t0 = mono()
                     late[k] = t0 - deadline
                 else:
