@@ -194,3 +194,21 @@ def test_orientation_error_ignores_spin_about_the_tool():
     tg = np.concatenate([st0.tip, st0.axis, np.zeros(6)])
     p, st = nc_step(st0, tg, fb, params, MODEL)
     assert not p.any() and st.path_error < 1e-9
+
+
+def test_damped_pseudo_inverse_is_exact_when_regular_and_bounded_at_a_singularity():
+    from pmctl.nc import _damped_pinv_apply
+    params = NCParams.from_machine(M, 1e-3)
+    tip, axis = _pose(3, -2, 12, 5, 7)
+    r = K.ik(tip, axis, M)
+    J = MODEL.solve(r.q, r.P, r.R)[4]
+    J[3:] *= params.orient_weight_mm
+    x = np.array([1.0, -2.0, 0.5, 0.3, -0.1, 0.0])
+    # the workspace is far from singular (smallest singular value ~0.25 > threshold 0.05): plain LS
+    assert np.linalg.svd(J, compute_uv=False)[-1] > params.sv_threshold
+    assert np.allclose(_damped_pinv_apply(J, x, params), np.linalg.lstsq(J, x, rcond=None)[0], atol=1e-12)
+    # a rank-deficient Jacobian (two equal columns): undamped LS would need huge opposite rates
+    Js = J.copy()
+    Js[:, 1] = Js[:, 0] + 1e-9 * Js[:, 1]
+    qd = _damped_pinv_apply(Js, x, params)
+    assert np.all(np.isfinite(qd)) and np.abs(qd).max() < 100 * np.abs(x).max()
