@@ -15,20 +15,26 @@ from .errors import PmctlError
 COMMANDS = ["run", "kin", "analyze", "twin"]
 
 
+def add_module_parsers(subparsers, modules, hook="add_parser"):
+    """Let each module register its own subcommand(s) by calling ``module.<hook>(subparsers)``.
+    A module that does not exist yet is skipped; an import error inside one is not hidden."""
+    for name in modules:
+        try:
+            mod = importlib.import_module(name)
+        except ModuleNotFoundError as e:
+            if e.name == name:
+                continue
+            raise
+        getattr(mod, hook)(subparsers)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="pmctl",
         description="Controller and digital twin for the 3-RPS + XY-table hybrid milling machine.")
     p.add_argument("--version", action="version", version=f"pmctl {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
-        try:
-            mod = importlib.import_module(f"pmctl.commands.{name}")
-        except ModuleNotFoundError as e:
-            if e.name == f"pmctl.commands.{name}":
-                continue          # not built yet
-            raise
-        mod.add_parser(sub)
+    add_module_parsers(sub, [f"pmctl.commands.{name}" for name in COMMANDS])
     return p
 
 

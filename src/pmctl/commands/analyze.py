@@ -3,7 +3,7 @@ with ``add_parsers(subparsers)``."""
 
 from __future__ import annotations
 
-import importlib
+from ..cli import add_module_parsers
 
 ANALYSES = ["pmctl.analysis.mechanism", "pmctl.analysis.vibration"]
 
@@ -11,12 +11,5 @@ ANALYSES = ["pmctl.analysis.mechanism", "pmctl.analysis.vibration"]
 def add_parser(sub):
     p = sub.add_parser("analyze", help="mechanism and controller analyses (PNG maps + figures)",
                        description="Analyses reproducing the seed documents' figures.")
-    asub = p.add_subparsers(dest="analysis", metavar="ANALYSIS", required=True)
-    for name in ANALYSES:
-        try:
-            mod = importlib.import_module(name)
-        except ModuleNotFoundError as e:
-            if e.name == name:
-                continue
-            raise
-        mod.add_parsers(asub)
+    add_module_parsers(p.add_subparsers(dest="analysis", metavar="ANALYSIS", required=True),
+                       ANALYSES, hook="add_parsers")

@@ -1,9 +1,9 @@
 """`pmctl twin ...`: digital-twin tools. Modules under pmctl.twin register their own subcommands
-with ``add_parser(subparsers)``: synth (concealed-effect recordings), diagnose (the report)."""
+with ``add_parser(subparsers)``: diagnose (the report), synth (concealed-effect recordings)."""
 
 from __future__ import annotations
 
-import importlib
+from ..cli import add_module_parsers
 
 TOOLS = ["pmctl.twin.diagnose", "pmctl.twin.synth"]
 
@@ -11,12 +11,4 @@ TOOLS = ["pmctl.twin.diagnose", "pmctl.twin.synth"]
 def add_parser(sub):
     p = sub.add_parser("twin", help="digital twin: diagnose recordings, synthesise test recordings",
                        description="Where and why does the machine differ from the nominal twin?")
-    tsub = p.add_subparsers(dest="twin_command", metavar="TOOL", required=True)
-    for name in TOOLS:
-        try:
-            mod = importlib.import_module(name)
-        except ModuleNotFoundError as e:
-            if e.name == name:
-                continue
-            raise
-        mod.add_parser(tsub)
+    add_module_parsers(p.add_subparsers(dest="twin_command", metavar="TOOL", required=True), TOOLS)
