@@ -45,6 +45,7 @@ def test_round_trip_exact_with_unknown_and_sparse_channels(tmp):
     assert rec.channel_notes == {"tip_x": {"source": "laser tracker"}}
     assert rec.machine.name == "prototype" and rec.machine_path.name == "prototype.toml"
     assert rec.sample_rate_hz == 1000 and rec.description == "d"
+    assert read_recording(tmp / "r" / "data.csv").n == 300          # a file in the folder works too
 
 
 names = st.sampled_from(["enc_L1", "enc_X", "tip_x", "tip_z", "tool_k", "strain_1", "load_fz",

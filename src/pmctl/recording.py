@@ -400,8 +400,11 @@ def read_data(path: str | Path) -> tuple[list[str], np.ndarray, np.ndarray | Non
 
 
 def read_recording(folder: str | Path) -> Recording:
-    """Read and validate a ``pmctl-recording/1`` folder (see the module docstring)."""
+    """Read and validate a ``pmctl-recording/1`` folder (see the module docstring). A path to the
+    folder's recording.json or data.csv is accepted too."""
     folder = Path(folder)
+    if folder.name in (META_FILE, DATA_FILE) and folder.is_file():
+        folder = folder.parent
     meta, machine_path, _ = read_meta(folder)
     names, data, lines = read_data(folder / DATA_FILE)
     machine = load_machine(machine_path)
