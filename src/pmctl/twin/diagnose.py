@@ -39,6 +39,7 @@ N_BLOCKS = 12
 N_FOLDS = 3
 MIN_DSSE = 30.0         # whitened: ~ 5 sigma of the held-out SSE difference of a null effect
 REL_MIN = 0.04          # the effect must explain this fraction of its channels' residual energy
+MIN_PEAK = 1.5         # ... and reach 1.5 x noise on at least 1 % of its samples
 MAX_FINDINGS = 6
 DEFAULT_CAP = 20000
 
@@ -48,8 +49,8 @@ DEFAULT_CAP = 20000
 
 def _floor(name, machine):
     """Smallest credible noise level of a channel (a perfect channel still has quantisation)."""
-    if name.startswith("enc_"):
-        return 0.5 / machine.resolution.chain_pulses_per_mm / math.sqrt(3)
+    if name.startswith("enc_"):       # half a pulse: sub-pulse quantisation error is not physics
+        return 0.5 / machine.resolution.chain_pulses_per_mm
     if name.startswith("tip_"):
         return 1e-6
     if name.startswith("tool_"):
@@ -136,6 +137,8 @@ def build_context(columns: dict, machine, *, cap=DEFAULT_CAP) -> Context:
     uniform = float(np.mean(dt)) if len(dt) and np.ptp(dt) <= 1e-6 * np.mean(dt) + 1e-12 else None
     ctx = Context(machine, t, q_cmd, q_motor, has_enc, temps, rows, J, geo, forces, obs, uniform)
     ctx.extra["P"], ctx.extra["R"] = P, R
+    if len(rows) and state.tip_force is not None:
+        ctx.extra["tip_force"] = np.nan_to_num(state.tip_force[at])
     return ctx
 
 
@@ -211,13 +214,14 @@ def evaluate(cand, ctx, y, folds):
     m = aff[o.ch]
     base = float(y[m] @ y[m])
     d_cv = base - float((y[m] - cv[m]) @ (y[m] - cv[m]))
-    return {"cand": cand, "fit": full, "cv": cv, "d_cv": d_cv, "d_in": d_in, "pen": pen,
+    big = float(np.quantile(np.abs(full.pred[m]), 0.99)) if m.any() else 0.0
+    return {"cand": cand, "fit": full, "cv": cv, "d_cv": d_cv, "d_in": d_in, "pen": pen, "big": big,
             "rel": d_cv / base if base > 0 else 0.0, "affected": aff,
             "score": d_cv - 0.5 * pen}
 
 
 def accept(ev) -> bool:
-    return ev["d_cv"] > max(MIN_DSSE, ev["pen"]) and ev["rel"] > REL_MIN
+    return ev["d_cv"] > max(MIN_DSSE, ev["pen"]) and ev["rel"] > REL_MIN and ev["big"] > MIN_PEAK
 
 
 def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, candidates=None):

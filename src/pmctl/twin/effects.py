@@ -79,7 +79,8 @@ class Context:
 def geometry_sensitivity(P, R, geom):
     """d(tip_W, tool axis)/d(geometry parameters) at fixed actuator positions, per group.
 
-    Groups: ``chain{i}:length_offset`` (1, mm), ``chain{i}:base_joint`` (3, mm, base frame),
+    Groups: ``chain{i}:length_offset`` (1, mm), ``chain{i}:base_joint`` (2, mm: radial, z, i.e. in
+    the chain plane, where the revolute axis keeps the chain),
     ``chain{i}:platform_joint`` (3, mm, platform frame), ``tool:length`` (1, mm),
     ``tool:tilt`` (2, deg). Returns {group: (..., 6, k)}."""
     A = kin.constraint_jacobian(P, R, geom)
@@ -103,9 +104,13 @@ def geometry_sensitivity(P, R, geom):
         df = np.zeros(shape + (6, 1))
         df[..., i, 0] = -1.0
         out[f"chain{i + 1}:length_offset"] = tool_of_dx(-Ainv @ df)
-        df = np.zeros(shape + (6, 3))
-        df[..., i, :] = -u[..., i, :]
-        df[..., 3 + i, :] = -n[..., i, :]
+        # base joint moved within its chain plane: radially (along its horizontal direction) and in z
+        ai = geom.base_joints[i]
+        radial = np.array([ai[0], ai[1], 0.0]) / max(math.hypot(ai[0], ai[1]), 1e-12)
+        basis = np.stack([radial, [0.0, 0.0, 1.0]], 1)                       # (3, 2)
+        df = np.zeros(shape + (6, 2))
+        df[..., i, :] = -u[..., i, :] @ basis
+        df[..., 3 + i, :] = -n[..., i, :] @ basis
         out[f"chain{i + 1}:base_joint"] = tool_of_dx(-Ainv @ df)
         df = np.zeros(shape + (6, 3))
         df[..., i, :] = np.einsum("...j,...jk->...k", u[..., i, :], R)
@@ -172,20 +177,27 @@ def direction(x, dead=0.0):
 
 
 def first_order_lag(t, u, tau):
-    """Response of a first-order lag (time constant tau) to u, starting settled at u[0]."""
+    """Response of a first-order lag τ·y' + y = u to u, starting settled at u[0].
+
+    Exact for an input that is linear between samples (first-order hold), so a ramp at speed v is
+    trailed by exactly τ·v whatever the sample rate."""
     u = np.asarray(u, float)
     if tau <= 0:
         return u.copy()
     dt = np.diff(t)
     if len(dt) and np.ptp(dt) <= 1e-6 * np.mean(dt):
-        a = math.exp(-float(np.mean(dt)) / tau)
-        y, _ = signal.lfilter([1 - a], [1, -a], u - u[0], zi=[0.0])
+        h = float(np.mean(dt))
+        a = math.exp(-h / tau)
+        c = (1 - a) * tau / h - a
+        # y_k = a y_{k-1} + (1 - a - c) u_k + c u_{k-1}
+        y, _ = signal.lfilter([1 - a - c, c], [1, -a], u - u[0], zi=[0.0])
         return y + u[0]
     y = np.empty_like(u)
     y[0] = u[0]
     aa = np.exp(-dt / tau)
+    cc = (1 - aa) * tau / dt - aa
     for k in range(1, len(u)):
-        y[k] = aa[k - 1] * y[k - 1] + (1 - aa[k - 1]) * u[k]
+        y[k] = aa[k - 1] * y[k - 1] + (1 - aa[k - 1] - cc[k - 1]) * u[k] + cc[k - 1] * u[k - 1]
     return y
 
 
@@ -376,7 +388,7 @@ class PitchError(AxisSignal):
 
         base = float(ys @ ys)
         gains = [(base - float(r @ r), p0) for p0 in self._starts for r in [res([p0])]]
-        gains = [gp for gp in sorted(gains, reverse=True)[:2] if gp[0] > PRESCREEN]
+        gains = [gp for gp in sorted(gains, reverse=True)[:1] if gp[0] > 3 * PRESCREEN]
         best = None
         for _, p0 in gains:
             try:
@@ -397,9 +409,14 @@ class PitchError(AxisSignal):
 
 
 class ThermalGrowth(AxisSignal):
-    """Screw growth α·ΔT·x on actuator a (x = the screw coordinate, ΔT from the run's start)."""
+    """Screw growth α·(T − T_ref)·(x − x_fixed) on actuator a: x the screw coordinate, T a temperature.
+
+    The reference temperature (of the calibration) and the fixed-bearing end of the screw are not
+    known to the twin, so the expansion αTx − αT_ref·x − αx_fixed·T + const is fitted with four
+    linear terms; α is the coefficient of T·x, T_ref and x_fixed follow from the others."""
 
     effect = "thermal_growth"
+    nparams = 4
 
     def __init__(self, axis, channel):
         super().__init__(axis)
@@ -417,26 +434,58 @@ class ThermalGrowth(AxisSignal):
         return super().applicable(ctx) and T is not None and np.ptp(T) > 0
 
     def design(self, ctx):
-        T = ctx.temps[self.channel]
-        dT = T - T[0]
-        x = ctx.q_cmd[:, self.a]
         r = ctx.obs.row
-        return (self.gain(ctx) * dT[r] * x[r])[:, None]
+        T = ctx.temps[self.channel][r]
+        x = ctx.q_cmd[r, self.a]
+        Tm, xm = float(np.mean(T)), float(np.mean(x))
+        g = self.gain(ctx)
+        return np.stack([g * (T - Tm) * (x - xm), g * (T - Tm), g * (x - xm), g], 1)
 
     def params_of(self, c, ctx):
-        return {"alpha_per_K": float(c[0]), "channel": self.channel}
+        r = ctx.obs.row
+        T = ctx.temps[self.channel][r]
+        x = ctx.q_cmd[r, self.a]
+        al = float(c[0])
+        out = {"alpha_per_K": al, "channel": self.channel}
+        if al != 0:
+            # α(T−Tm)(x−xm) + c1(T−Tm) + c2(x−xm) = α(T − Tm + c2/α)(x − xm + c1/α) + const
+            self.refs = {"t_ref_C": float(np.mean(T) - c[2] / al), "screw_fixed_end_mm": float(np.mean(x) - c[1] / al)}
+        return out
+
+    def fit(self, ctx, y, train):
+        f = super().fit(ctx, y, train)
+        r = ctx.obs.row
+        T = ctx.temps[self.channel][r]
+        x = ctx.q_cmd[r, self.a]
+        # the T·x term must carry the fit: drop it and the remaining three terms must do clearly worse
+        X = self.design(ctx)
+        sel = train & (self.gain(ctx) != 0)
+        c3 = _lstsq(X[sel][:, 1:], y[sel])
+        r3 = X[sel][:, 1:] @ c3 - y[sel]
+        r4 = X[sel] @ f.internal["coef"] - y[sel]
+        f.internal["dsse_Tx"] = float(r3 @ r3 - r4 @ r4)
+        f.ok = f.internal["dsse_Tx"] > PRESCREEN and np.ptp(T) > 0 and np.ptp(x) > 0
+        return f
 
 
 class Compliance(AxisSignal):
-    """Chain i shortens by a_i / k under its axial compression a_i (statics of the nominal twin)."""
+    """Chain i shortens by a_i / k under its axial compression a_i (statics of the nominal twin);
+    table axis X/Y gives way by −F/k to the known tool-tip force F (load_f*)."""
 
     effect = "compliance"
 
+    def _force(self, ctx):
+        if self.a < 3:
+            return ctx.forces[:, self.a]
+        F = ctx.extra.get("tip_force")
+        return None if F is None else F[:, self.a - 3]
+
     def applicable(self, ctx):
-        return self.a < 3 and super().applicable(ctx) and np.ptp(ctx.forces[:, self.a]) > 0
+        f = self._force(ctx)
+        return f is not None and super().applicable(ctx) and np.ptp(f) > 0
 
     def design(self, ctx):
-        f = ctx.forces[ctx.obs.pos, self.a]
+        f = self._force(ctx)[ctx.obs.pos]
         return (self.gain(ctx) * -f)[:, None]
 
     def params_of(self, c, ctx):
@@ -531,7 +580,7 @@ class Resonance(Candidate):
         if self.target_key == "axis":
             a = AXES.index(self.target)
             return bool(np.any(axis_gain(ctx, a) != 0)) and np.ptp(ctx.q_cmd[:, a]) > 0
-        return self.target in ctx.obs.channels
+        return self.target in ctx.obs.channels and np.ptp(ctx.q_cmd[:, int(self.target[-1]) - 1]) > 0
 
     def _uniform(self, ctx):
         if "uniform" not in ctx.extra:
@@ -546,8 +595,8 @@ class Resonance(Candidate):
     def _bases(self, ctx, f, z):
         tu, dt, resample = self._uniform(ctx)
         o = ctx.obs
-        axes = [AXES.index(self.target)] if self.target_key == "axis" else \
-            [a for a in range(5) if np.ptp(ctx.q_cmd[:, a]) > 0]
+        # an axis mode is excited by that axis; a gauge's plate-link mode by its own chain
+        axes = [AXES.index(self.target)] if self.target_key == "axis" else [int(self.target[-1]) - 1]
         cols = []
         for a in axes:
             x = ctx.q_cmd[:, a] if resample is None else np.interp(tu, ctx.t, ctx.q_cmd[:, a])
@@ -556,6 +605,12 @@ class Resonance(Candidate):
                 h = np.interp(ctx.t, tu, h)
             if self.target_key == "axis":
                 cols.append(axis_gain(ctx, a) * h[o.row])
+                sg = f"strain_{a + 1}"
+                if a < 3 and sg in o.channels:     # the mode's spring force reaches the gauge
+                    m = o.ch == o.channels.index(sg)
+                    c = np.zeros(o.y.shape)
+                    c[m] = h[o.row[m]] * o.w[m]
+                    cols.append(c)
             else:
                 m = o.ch == o.channels.index(self.target)
                 c = np.zeros(o.y.shape)
@@ -598,11 +653,13 @@ class Resonance(Candidate):
         tu, dt, _ = self._uniform(ctx)
         nyq = 0.5 / dt
         if self._starts is None:
-            self._starts = self._f_candidates(ctx, y)
+            grid = np.geomspace(1.0, 0.4 * nyq, 20) if nyq > 2.5 else np.array([])
+            self._starts = [(f, z) for f in self._f_candidates(ctx, y) for z in (0.02, 0.1)] + \
+                [(float(f), 0.05) for f in grid]
         fs = self._starts
         if not fs:
             return Fit({}, np.zeros_like(y), 3, ok=False)
-        X0 = self._bases(ctx, fs[0], 0.05)
+        X0 = self._bases(ctx, fs[0][0], 0.05)
         sel = train & np.any(X0 != 0, 1)
         yt = y[sel]
 
@@ -614,11 +671,10 @@ class Resonance(Candidate):
         # prescreen: a start must already explain something, else this is no resonance
         base = float(yt @ yt)
         starts = []
-        for f0 in fs:
-            for z0 in (0.02, 0.1):
-                r = res([math.log(f0), z0])
-                starts.append((base - float(r @ r), f0, z0))
-        starts = [s for s in sorted(starts, reverse=True)[:2] if s[0] > PRESCREEN]
+        for f0, z0 in fs:
+            r = res([math.log(f0), z0])
+            starts.append((base - float(r @ r), f0, z0))
+        starts = [s for s in sorted(starts, reverse=True)[:1] if s[0] > 3 * PRESCREEN]
         if not starts:
             return Fit({}, np.zeros_like(y), 3, ok=False)
         best = None
@@ -628,7 +684,7 @@ class Resonance(Candidate):
                     sol = optimize.least_squares(
                         res, [math.log(f0), z0],
                         bounds=([math.log(0.2), 1e-3], [math.log(0.9 * nyq), 0.9]),
-                        diff_step=[1e-4, 1e-3], max_nfev=25)
+                        diff_step=[1e-4, 1e-3], max_nfev=15)
                 except ValueError:
                     continue
                 if best is None or sol.cost < best.cost:
@@ -647,8 +703,8 @@ class Geometry(Candidate):
 
     effect = "geometry"
     target_key = "chain"
-    NAMES = {"length_offset": "length_offset_mm", "base_joint": "base_joint_mm",
-             "platform_joint": "platform_joint_mm", "length": "tool_length_mm", "tilt": "tool_tilt_deg"}
+    NAMES = {"length_offset": ["length_offset_mm"], "base_joint": ["base_joint_radial_mm", "base_joint_z_mm"],
+             "platform_joint": ["platform_joint_mm"], "length": ["tool_length_mm"], "tilt": ["tool_tilt_deg"]}
 
     def __init__(self, group):
         who, what = group.split(":")
@@ -677,7 +733,10 @@ class Geometry(Candidate):
 
     def params_of(self, c, ctx):
         v = [float(x) for x in c]
-        return {self.NAMES[self.what]: v[0] if len(v) == 1 else v}
+        names = self.NAMES[self.what]
+        if len(names) == len(v):
+            return dict(zip(names, v))
+        return {names[0]: v[0] if len(v) == 1 else v}
 
 
 class SensorGain(Candidate):
@@ -720,8 +779,7 @@ def catalogue(ctx: Context) -> list[Candidate]:
         cands.append(Geometry(grp))
     for ax in AXES:
         cands += [Backlash(ax), PitchError(ax), ServoLag(ax), LostSteps(ax), Resonance(ax, "axis")]
-        if ax.startswith("L"):
-            cands.append(Compliance(ax))
+        cands.append(Compliance(ax))
         for tc in ctx.temps:
             cands.append(ThermalGrowth(ax, tc))
     for c in ctx.obs.channels:
