@@ -3,7 +3,7 @@
 A 1 kHz log with 23 channels: t, cmd_*, enc_*, strain_*, temp_screw1, and a 100 Hz laser tracker
 (tip_*, tool_*; 9 of 10 cells empty). Prints median read time, rows/s and the scaling exponent.
 
-    .venv/bin/python benchmarks/bench_recording.py [--max-rows 1000000] [--repeat 3]
+    .venv/bin/python benchmarks/bench_recording.py [--max-rows 1000000] [--repeat 3] [--twin]
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--max-rows", type=int, default=1_000_000)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--twin", action="store_true", help="also time the nominal-twin replay (predict)")
     args = ap.parse_args()
     sizes = [n for n in (10_000, 100_000, 1_000_000) if n <= args.max_rows]
     tmp = Path(tempfile.mkdtemp(prefix="bench-rec-"))
@@ -62,6 +63,13 @@ def main():
             rows.append((n, size_mb, tw, med, max(times)))
             print(f"rows {n:>9,d}  {size_mb:7.1f} MB  write {tw:7.2f} s  read median {med:7.3f} s "
                   f"(max {max(times):.3f} s)  {n / med / 1e6:5.2f} Mrow/s", flush=True)
+            if args.twin:
+                from pmctl.twin.nominal import predict
+                t0 = time.perf_counter()
+                pred = predict(rec)
+                tp = time.perf_counter() - t0
+                print(f"    nominal twin predict ({len(pred)} channels): {tp:.2f} s, {n / tp / 1e6:.2f} Msample/s",
+                      flush=True)
             shutil.rmtree(tmp / f"r{n}")
         if len(rows) >= 2:
             n = np.log([r[0] for r in rows])
