@@ -14,6 +14,7 @@ import numpy as np
 
 from pmctl import kinematics as K
 from pmctl.config import load_machine
+from pmctl.nc import ModelFK
 
 
 def stats(fn, n):
@@ -51,11 +52,17 @@ def main():
     print("  fk cold start (batch code, 1 pose)   %7.1f %7.1f" % stats(lambda i: K.fk(q[i], m), n))
     # The control loop's case: a smooth path, warm-started from the previous tick (0.1 mm moves).
     path = q[0] + np.outer(np.arange(n), np.full(5, 0.1 / math.sqrt(5)))
-    tr = K.PoseTracker(g, *K.forward_platform(path[0, :3], g))
-    print("  fk warm, PoseTracker (loop path)     %7.1f %7.1f" % stats(lambda i: tr.solve(path[i, :3]), n))
-    print("  tool Jacobian, PoseTracker           %7.1f %7.1f" % stats(lambda i: tr.tool_jacobian(), n))
-    print("  tool Jacobian, batch code (1 pose)   %7.1f %7.1f" % stats(
-        lambda i: K.jacobian_tool(tr.P, tr.R, g), n))
+    model = ModelFK(m)
+    pose = list(K.forward_platform(path[0, :3], g))
+
+    def loop_fk(i):
+        pred = (path[i, :3] - path[i - 1, :3], model.last_T) if i else None
+        pose[0], pose[1], _, _, _ = model.solve_l(path[i], pose[0], pose[1], pred)
+
+    print("  fk warm + tool Jacobian, nc.ModelFK  %7.1f %7.1f   (the loop's path, predictor warm start)"
+          % stats(loop_fk, n))
+    P, R = K.forward_platform(path[0, :3], g)
+    print("  tool Jacobian, batch code (1 pose)   %7.1f %7.1f" % stats(lambda i: K.jacobian_tool(P, R, g), n))
 
     nb = a.batch
     tip, axis = workspace_poses(nb, m, rng)

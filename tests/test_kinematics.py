@@ -217,11 +217,13 @@ def test_general_geometry_fk_of_ik(seed, z, t1, t2, x, y):
     assert np.max(np.abs(np.einsum("ki,ki->k", C_base - m.geometry.base_joints, m.geometry.revolute_axes))) < 1e-9
 
 
-# ---------------------------------------------------------------- the loop's single-pose tracker
+# ---------------------------------------------------------------- the loop's single-pose FK (pmctl.nc.ModelFK)
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**31))
-def test_pose_tracker_follows_a_path_like_the_batch_solver(seed):
+def test_loop_fk_follows_a_path_like_the_batch_solver(seed):
+    """Tick after tick, with the predictor warm start, the loop's FK lands on the batch solution."""
+    from pmctl.nc import ModelFK
     rng = np.random.default_rng(seed)
     n = 60
     z = 393 + np.cumsum(rng.normal(0, 0.5, n))
@@ -229,22 +231,15 @@ def test_pose_tracker_follows_a_path_like_the_batch_solver(seed):
     t2 = np.clip(np.cumsum(rng.normal(0, 0.005, n)), -0.3, 0.3)
     P, R = K.platform_pose(z, t1, t2, R_OUT)
     L = K.chain_lengths(P, R, G)
-    tr = K.PoseTracker(G)
+    q = np.concatenate([L, np.zeros((n, 2))], 1)
+    model = ModelFK(M)
+    Pk, Rk = K.forward_platform(L[0], G)
+    pred = None
     for k in range(n):
-        Pk, Rk = tr.solve(L[k])
+        Pk, Rk, tip, axis, J = model.solve(q[k], Pk, Rk, pred)
         assert np.max(np.abs(Pk - P[k])) < 1e-9 and np.max(np.abs(Rk - R[k])) < 1e-12
         assert np.max(np.abs(K.loop_residual(Pk, Rk, L[k], G))) < K.FK_TOL_MM
-    assert np.max(np.abs(tr.tool_jacobian() - K.jacobian_tool(tr.P, tr.R, G))) < 1e-12
-    tip, axis = tr.tool(np.array([3.0, -2.0]))
-    tip2, axis2 = K.tool_of_platform(tr.P, tr.R, np.array([3.0, -2.0]), G)
-    assert np.allclose(tip, tip2, atol=1e-12) and np.allclose(axis, axis2, atol=1e-15)
-
-
-def test_pose_tracker_failure_keeps_last_good_pose():
-    tr = K.PoseTracker(G)
-    P0, R0 = tr.solve([393.249] * 3)
-    with pytest.raises(KinematicsError):
-        tr.solve([100.0, 900.0, 100.0])
-    with pytest.raises(KinematicsError):
-        tr.solve([float("nan"), 393.0, 393.0])
-    assert np.array_equal(tr.P, P0) and np.array_equal(tr.R, R0)
+        if k + 1 < n:
+            pred = (L[k + 1] - L[k], model.last_T)
+    _, _, _, _, J = model.solve(q[-1], Pk, Rk)
+    assert np.max(np.abs(J - K.jacobian_tool(Pk, Rk, G))) < 1e-12
