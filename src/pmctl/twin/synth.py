@@ -9,17 +9,18 @@
 ``--effects a,b`` hides all listed effects in every case; ``random`` (default) one random effect per
 case (``--max-effects K``: 1..K distinct random effects); ``--clean``: none.
 
-How a case is made (all vectorised; a 60 s run at 1 kHz takes about a second)
+How a case is made (vectorised; a 60 s run at 1 kHz takes 1-2 s to simulate, ~0.5 s to write)
 ----------------------------------------------------------------------------
 1. A run in tool space, stop-and-go segments with trapezoidal speed profiles (and arcs), turned into
    commanded joints with :func:`pmctl.kinematics.ik_batch`, slowed down until every axis is
    within its speed and acceleration limits:
-   - ``raster``: a pocket milled in layers, zig-zag passes along x (X reverses every pass, Y
-     between layers), a new tool tilt per layer, rapid retracts; cutting-force estimate in load_*;
+   - ``raster``: a pocket milled in layers, zig-zag passes along x or y (that table axis reverses
+     every pass, the other between layers), a new tool tilt per layer, rapid retracts; a
+     cutting-force estimate in load_* in half of them;
    - ``circle``: NAS 979-style cone circles (tool leaning toward the centre, CW and CCW, several
      heights): X and Y reverse at the quadrants, the chains with the tilt azimuth;
-   - ``calibration``: point-to-point sweep over the workspace with dwells, optionally known test
-     loads hung/pushed on the tip during dwells;
+   - ``calibration``: point-to-point sweep over the workspace with dwells, optionally (always for
+     compliance) known test loads hung/pushed on the tip during dwells (unloaded before and after);
    - ``warmup``: 10 min at 100 Hz of fast cycles that heat the screws (thermal runs).
    Screw temperatures follow friction heating (first order, time constant 5-15 min, input
    |screw speed|), the room drifts slowly; channels ``temp_screw1..3``, ``temp_screwX/Y``,
@@ -37,9 +38,17 @@ How a case is made (all vectorised; a 60 s run at 1 kHz takes about a second)
    kinematics and statics of the perturbed load-side joints.
 3. Measurement: enc_* = motor side quantised to the 0.5 µm pulse (enc_* left out of 10 % of the
    recordings); laser tracker tip_* (σ 1–2 µm) and tool_* (σ 2–4e-5; no 6-DOF probe in 25 % of
-   the recordings) at 50, 100 or 200 Hz (half the log rate, at most 100 Hz, for logs under 400 Hz) with a
-   random phase and beam drop-outs (empty cells); strain_* (σ 0.3–0.7 µε, ``sensor_gain``/``sensor_offset`` on a channel);
-   temperatures σ 0.02 K at 10 Hz; loads σ 0.3 N.
+   the recordings) at 50, 100 or 200 Hz (half the log rate, at most 100 Hz, for logs under
+   400 Hz) with a random phase and beam drop-outs (empty cells); strain_* every row (σ 0.3–0.7
+   µε); ``sensor_gain`` (measured = gain·true) / ``sensor_offset`` (measured = true + offset) on
+   one channel; temperatures σ 0.02 K at 10 Hz, 0.01 K resolution; loads σ 0.3 N.
+
+Sign conventions of the answer parameters: backlash ``width_mm`` is the whole deadband (the load
+side trails the motor by width/2 in the direction of motion); pitch ``amplitude_mm`` is the sine
+amplitude (not peak-to-peak); ``lost_steps`` ``offset_mm`` is added to the load-side position
+(load = motor + offset after t_s); geometry ``length_offset_mm`` as the config's
+length_offsets_mm (true |C_i − A_i| = L_i + offset), ``base_joint_*`` move A_i by δr·e_i + δz·Z,
+``tool_length_mm`` is added to l_t; ``compliance`` deflection = force / stiffness.
 
 Answer key (answer.json) — the RECORDING.md §4 names::
 
@@ -58,7 +67,9 @@ servo_lag {tau_s}; resonance {freq_hz, damping_ratio}; lost_steps {t_s, offset_m
 
 Python API: ``EFFECTS``, ``RUNS``, ``make_effect(name, rng, ...) -> Effect``,
 ``make_run(kind, rng, machine, duration_s, rate_hz, loads) -> Run``, ``simulate(run, effects, rng,
-machine) -> (columns, noise)``, ``synth_case(rng, effects=..., ...) -> Case``,
+machine, *, enc=True, tool=True, tracker_div=10) -> (columns, noise)`` (rng consumption does not
+depend on the effects, so the same seed with and without effects gives the same noise),
+``play(x, width)`` (backlash operator), ``first_order_lag``, ``mode_response``, ``synth_case(rng, effects=..., ...) -> Case``,
 ``write_case(out_dir, name, case)``, ``generate(out_dir, count, ...) -> list[Path]``.
 """
 
