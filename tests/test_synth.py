@@ -224,3 +224,24 @@ def test_bundled_examples_load_with_answers_beside():
         rms = np.sqrt(np.nanmean(res["tip_x"] ** 2))
         if not ans["effects"]:                                   # clean: tracker noise only
             assert rms < 1.3 * ans["noise"]["tip_mm"]
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-50, 50), min_size=2, max_size=200), st.floats(0.001, 0.1))
+def test_play_operator_is_a_deadband(xs, width):
+    """Backlash: the load stays within w/2 of the motor and only moves when pushed at the edge."""
+    x = np.array(xs)
+    y = S.play(x, width)
+    assert np.all(np.abs(y - x) <= width / 2 + 1e-12)
+    moved = np.flatnonzero(np.diff(y) != 0) + 1
+    assert np.allclose(np.abs(y[moved] - x[moved]), width / 2, atol=1e-9)
+
+
+def test_first_order_lag_trails_a_ramp_by_tau_times_speed():
+    dt, tau, v = 1e-3, 0.02, 30.0
+    t = np.arange(5000) * dt
+    y = S.first_order_lag(v * t, tau, dt)
+    assert np.mean(v * t[-1000:] - y[-1000:]) == pytest.approx(v * tau, rel=0.01)

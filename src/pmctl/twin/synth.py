@@ -416,8 +416,11 @@ def play(x, width):
 
 
 def first_order_lag(x, tau, dt):
+    """tau·y' + y = x for samples x every dt, x linear between samples (so a ramp at speed v is
+    trailed by exactly tau·v); starts at rest at x[0]."""
     a = np.exp(-dt / tau)
-    y, _ = signal.lfilter([1 - a], [1, -a], x, zi=[a * x[0]])
+    b, den = [(1 - a) / 2, (1 - a) / 2], [1.0, -a]
+    y, _ = signal.lfilter(b, den, x, zi=signal.lfilter_zi(b, den) * x[0])
     return y
 
 
