@@ -83,17 +83,18 @@ def check_reach(tip, axis, lines, machine, path) -> K.IKResult:
     return r
 
 
-def load_job(path, machine, **options) -> Job:
+def load_job(path, machine, *, start=None, **options) -> Job:
     """Read a job file, dispatching on its suffix (G-code: .ngc .nc .gcode .tap; CL: .cl .cls .txt .csv).
 
-    ``options`` go to the reader (CL data: ``vector``, ``feed_mm_min``, ``clearance_mm``, ``spindle_rpm``;
-    G-code: ``start`` = (tip, axis) where the program begins, default the home pose: G91 moves, arcs
-    and the initial A/B are relative to it, so pass the planner's start pose here too)."""
+    ``start`` = (tip, axis) where the machine is when the job begins (default: the home pose). G-code
+    needs it (G91 moves, arcs and the initial A/B are relative to it), so pass the planner's start
+    pose here too; CL data is absolute and ignores it. ``options`` go to the reader (CL data:
+    ``vector``, ``feed_mm_min``, ``clearance_mm``, ``spindle_rpm``)."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix in GCODE_SUFFIXES:
         from .gcode import read_gcode
-        return read_gcode(path, machine, **options)
+        return read_gcode(path, machine, start=start, **options)
     if suffix in CL_SUFFIXES:
         from .cldata import read_cl_job
         return read_cl_job(path, machine, **options)

@@ -173,7 +173,7 @@ def run(args) -> int:
             raise PmctlError(f"--record {folder}: cannot create the folder: {e.strerror or e}") from None
         if not os.access(folder, os.W_OK):
             raise PmctlError(f"--record {folder}: folder is not writable")
-    job = load_job(args.job, machine)
+    job = load_job(args.job, machine, start=(st.tip, st.axis))
     plan_machine = machine
     if np.any(params.vmax < machine.limits.joint_speed - 1e-9):
         # the V-F converters cap the joint speed below the machine's (seed mode: one pulse per
