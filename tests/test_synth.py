@@ -245,3 +245,18 @@ def test_first_order_lag_trails_a_ramp_by_tau_times_speed():
     t = np.arange(5000) * dt
     y = S.first_order_lag(v * t, tau, dt)
     assert np.mean(v * t[-1000:] - y[-1000:]) == pytest.approx(v * tau, rel=0.01)
+
+
+def test_magnitude_and_noise_scale():
+    rng = np.random.default_rng(2)
+    e = S.make_effect("compliance", rng, axis="X")
+    half = S.scale_effect(e, 0.5)
+    assert half.parameters["stiffness_N_per_mm"] == pytest.approx(2 * e.parameters["stiffness_N_per_mm"])
+    g = S.Effect("sensor_gain", {"channel": "tip_x"}, {"gain": 1.001})
+    assert S.scale_effect(g, 3).parameters["gain"] == pytest.approx(1.003)
+    r = S.make_run("calibration", np.random.default_rng(1), M, 5.0, 200.0, False)
+    _, n1 = S.simulate(r, [], np.random.default_rng(4), M)
+    c0, n0 = S.simulate(r, [], np.random.default_rng(4), M, noise_scale=0.0, enc=False)
+    assert n0["tip_mm"] == 0.0 and n1["tip_mm"] > 0
+    pred = N.predict_columns(c0, M)
+    assert np.nanmax(np.abs(c0["tip_x"] - pred["tip_x"])) < 1e-9      # noiseless clean, no pulse quantisation = the twin

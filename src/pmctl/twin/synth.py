@@ -1,7 +1,8 @@
 """Concealed-effect recordings: realistic runs with hidden physics and a separate answer key.
 
 ``pmctl twin synth OUT_DIR [--effects backlash,pitch_error,...|random] [--count N] [--seed S]
-[--clean] [--run raster|circle|calibration|warmup] [--duration S] [--rate HZ]`` writes
+[--clean] [--run raster|circle|calibration|warmup] [--duration S] [--rate HZ]
+[--magnitude-scale F] [--noise-scale F]`` writes
 
     OUT_DIR/case-000/recording/{recording.json,data.csv}    the data (pmctl-recording/1)
     OUT_DIR/case-000/answer.json                             the answer key, outside the recording
@@ -121,8 +122,31 @@ def _sgn(rng):
     return 1.0 if rng.random() < 0.5 else -1.0
 
 
-def make_effect(name: str, rng, *, duration_s: float = 60.0, axis: str | None = None) -> Effect:
-    """A random instance of a catalogue effect with realistic magnitude."""
+def make_effect(name: str, rng, *, duration_s: float = 60.0, axis: str | None = None,
+                scale: float = 1.0) -> Effect:
+    """A random instance of a catalogue effect with realistic magnitude (times ``scale``)."""
+    e = _draw_effect(name, rng, duration_s=duration_s, axis=axis)
+    return scale_effect(e, scale) if scale != 1.0 else e
+
+
+def scale_effect(e: Effect, s: float) -> Effect:
+    """The same effect ``s`` times as strong (stiffness divided, gain deviation multiplied)."""
+    p, d = dict(e.parameters), dict(e.details)
+    for k in ("width_mm", "amplitude_mm", "alpha_per_K", "tau_s", "offset_mm", "offset",
+              "length_offset_mm", "base_joint_radial_mm", "base_joint_z_mm", "tool_length_mm"):
+        if k in p:
+            p[k] = p[k] * s
+    if "stiffness_N_per_mm" in p:
+        p["stiffness_N_per_mm"] = p["stiffness_N_per_mm"] / s
+    if "gain" in p:
+        p["gain"] = 1 + (p["gain"] - 1) * s
+    for k in ("peak_mm", "peak_ue"):
+        if k in d:
+            d[k] = d[k] * s
+    return Effect(e.effect, dict(e.locator), p, d)
+
+
+def _draw_effect(name: str, rng, *, duration_s: float, axis: str | None) -> Effect:
     ax = axis or str(rng.choice(AXES))
     if name == "geometry":
         kind = str(rng.choice(["length_offset", "base_joint", "tool_length"], p=[0.4, 0.35, 0.25]))
@@ -486,7 +510,8 @@ def _true_machine(machine: Machine, effects) -> Machine:
     return dataclasses.replace(machine, geometry=dataclasses.replace(g, nominal=False, **changes))
 
 
-def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, tracker_div=10):
+def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, tracker_div=10,
+             noise_scale=1.0):
     """Inject ``effects`` as machine physics into ``run``, measure; returns (columns, noise)."""
     t, n, dt = run.t, len(run.t), 1.0 / run.rate_hz
     by = {}
@@ -562,6 +587,8 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
     noise = {"tip_mm": rng.uniform(0.001, 0.002), "tool": rng.uniform(2e-5, 4e-5),
              "strain_ue": rng.uniform(0.3, 0.7), "temp_K": 0.02, "load_N": 0.3,
              "enc_quantum_mm": PULSE_MM}
+    for k in ("tip_mm", "tool", "strain_ue", "temp_K", "load_N"):
+        noise[k] *= noise_scale
     cols = {"t": t}
     for j, c in enumerate(CMD):
         cols[c] = q_cmd[:, j]
@@ -620,7 +647,7 @@ def _pick_run(names, rng, run=None):
 
 
 def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, machine=None,
-               seed=None) -> Case:
+               seed=None, magnitude_scale=1.0, noise_scale=1.0) -> Case:
     """One case: ``effects`` a list of catalogue names (each drawn at random) or Effect objects."""
     machine = machine or load_machine()
     names = [e.effect if isinstance(e, Effect) else e for e in effects]
@@ -637,7 +664,7 @@ def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, mach
             effs.append(e)
             continue
         for _ in range(10):
-            cand = make_effect(e, rng, duration_s=duration_s)
+            cand = make_effect(e, rng, duration_s=duration_s, scale=magnitude_scale)
             key = (cand.effect, tuple(sorted(cand.locator.items())))
             if key not in used:
                 break
@@ -648,7 +675,8 @@ def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, mach
     tool = rng.random() < 0.75
     tracker_hz = float(rng.choice([50.0, 100.0, 100.0, 200.0])) if rate_hz >= 400 else min(100.0, rate_hz / 2)
     tracker_div = max(1, int(round(rate_hz / tracker_hz)))
-    cols, noise = simulate(r, effs, rng, machine, enc=enc, tool=tool, tracker_div=tracker_div)
+    cols, noise = simulate(r, effs, rng, machine, enc=enc, tool=tool, tracker_div=tracker_div,
+                           noise_scale=noise_scale)
     descr = {"raster": "pocket milling, zig-zag passes in layers",
              "circle": "cone-frustum circle test (5-axis contouring)",
              "calibration": "point-to-point calibration sweep with laser tracker",
@@ -697,7 +725,8 @@ def parse_effects(text: str) -> list[str] | str:
 
 
 def generate(out_dir, count=1, *, effects="random", seed=0, clean=False, max_effects=1, run=None,
-             duration_s=None, rate_hz=None, progress=None) -> list[Path]:
+             duration_s=None, rate_hz=None, progress=None, magnitude_scale=1.0,
+             noise_scale=1.0) -> list[Path]:
     """Write ``count`` cases to OUT_DIR/case-NNN; returns their folders."""
     machine = load_machine()
     out = []
@@ -712,6 +741,7 @@ def generate(out_dir, count=1, *, effects="random", seed=0, clean=False, max_eff
         else:
             names = list(effects)
         case = synth_case(rng, names, run=run, duration_s=duration_s, rate_hz=rate_hz,
+                          magnitude_scale=magnitude_scale, noise_scale=noise_scale,
                           machine=machine, seed=case_seed)
         out.append(write_case(out_dir, f"case-{k:03d}", case))
         if progress:
@@ -736,6 +766,9 @@ def add_parser(sub):
     p.add_argument("--run", choices=RUNS, default=None, help="trajectory kind (default: one that shows the effects)")
     p.add_argument("--duration", type=float, default=None, help="seconds (default 60; warmup 600)")
     p.add_argument("--rate", type=float, default=None, help="log rate Hz (default 1000; warmup 100)")
+    p.add_argument("--magnitude-scale", type=float, default=1.0,
+                   help="make the hidden effects this many times stronger (<1: harder cases)")
+    p.add_argument("--noise-scale", type=float, default=1.0, help="multiply every measurement noise")
     p.set_defaults(func=_cmd)
 
 
@@ -746,6 +779,8 @@ def _cmd(args) -> int:
         raise InputError("--duration", None, "must be 1..7200 s")
     if args.rate is not None and not 20 <= args.rate <= 20000:
         raise InputError("--rate", None, "must be 20..20000 Hz")
+    if not 0 < args.magnitude_scale <= 100 or not 0 <= args.noise_scale <= 100:
+        raise InputError("--magnitude-scale/--noise-scale", None, "must be > 0 (noise >= 0) and <= 100")
     eff = parse_effects(args.effects)
     t0 = time.perf_counter()
 
@@ -755,6 +790,7 @@ def _cmd(args) -> int:
 
     generate(args.out_dir, args.count, effects=eff, seed=args.seed, clean=args.clean,
              max_effects=args.max_effects, run=args.run, duration_s=args.duration, rate_hz=args.rate,
+             magnitude_scale=args.magnitude_scale, noise_scale=args.noise_scale,
              progress=progress)
     print(f"{args.count} case(s) in {time.perf_counter() - t0:.1f} s; answer keys are beside, not in, "
           f"each recording folder")
