@@ -92,3 +92,15 @@ def test_converter_is_odd_symmetric(acc_frac, u, threshold, n_max):
 def test_vf_min_amplitude_is_eq_2_2(k, sd):
     assert math.isclose(float(vf.vf_min_amplitude(sd, 1.0 / (2 * k))), sd * math.sin(math.pi / (2 * k)),
                         rel_tol=1e-12)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.floats(-5e5, 5e5), min_size=1, max_size=6), st.integers(1, 300),
+       st.floats(1e-4, 1e-2), st.floats(0.1, 10.0), st.integers(0, 2**31))
+def test_per_tick_form_equals_the_batch_form(u, n_max, dt, threshold, seed):
+    """vf_tick (the loop's plain-float form) gives the same pulses and residue as vf_step."""
+    rng = np.random.default_rng(seed)
+    acc = rng.uniform(-threshold, threshold, len(u))
+    p1, a1 = vf.vf_step(acc, np.array(u), dt, threshold, n_max)
+    p2, a2 = vf.vf_tick(acc.tolist(), u, dt, threshold, n_max)
+    assert p1.tolist() == p2 and a1.tolist() == a2

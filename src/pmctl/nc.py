@@ -8,7 +8,7 @@ Each tick:
   4. joint velocity and acceleration limits (uniform scaling: the path direction is kept);
   5. soft limits (joint ranges with the stopping distance, tilt range), following error
      (LinuxCNC FERROR scaled with speed, floor MIN_FERROR) and path error stop motion with a reason;
-  6. V-F converters (pmctl.vf.vf_step) -> signed pulses per axis; pulse counters += pulses.
+  6. V-F converters (pmctl.vf.vf_tick, the per-tick form of vf_step) -> signed pulses per axis; pulse counters += pulses.
 
 Units: mm, s, rad. Joint rates in mm/s; V-F input in pulses/s, threshold one pulse.
 
@@ -34,7 +34,7 @@ from scipy.linalg import lapack
 from .config import Machine
 from .errors import KinematicsError
 from .kinematics import FK_MAX_ITER, FK_TOL_MM
-from .vf import vf_step
+from .vf import vf_tick
 
 RUN, STOPPING, HALTED, DONE = 0, 1, 2, 3
 _ZERO5 = [0.0] * 5
@@ -456,7 +456,10 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
             mode, reason = STOPPING, why
             qdot = _limit_rates_l(_ZERO5, prev, L)
     qdot_a = np.array(qdot)
-    pulses, acc = vf_step(state.acc, qdot_a * params.pulses_per_mm, params.dt, 1.0, params.max_pulses_per_tick)
+    ppm = L.ppm
+    pl, al = vf_tick(state.acc.tolist(), [qdot[i] * ppm[i] for i in range(5)], params.dt, 1.0,
+                     params.max_pulses_per_tick)
+    pulses, acc = np.array(pl, np.int64), np.array(al)
     if mode == STOPPING and not any(qdot):
         # Braked to rest: drop the sub-pulse residue (no pulse is owed) and halt.
         mode = HALTED
