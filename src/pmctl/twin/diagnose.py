@@ -9,7 +9,7 @@ Pipeline (pure functions; the CLI at the bottom is a thin layer):
 2. :func:`pmctl.twin.locate.locate`: where the mismatch lives.
 3. :func:`select_effects`: greedy forward selection over the effect library
    (:mod:`pmctl.twin.effects`). Each round fits every candidate to the current residual; a candidate
-   is scored on held-out samples by blocked cross-validation in time (12 blocks, 3 interleaved
+   is scored on held-out samples by blocked cross-validation in time (24 blocks, 3 interleaved
    folds: each fold is predicted by a fit on the other two). The best candidate is accepted only
    when its held-out improvement of the whitened sum of squares beats what noise gives,
    ``ΔSSE_cv > max(MIN_DSSE, BIC penalty p·ln N)`` and ``ΔSSE_cv > REL_MIN`` of the residual energy
@@ -35,13 +35,13 @@ from . import nominal
 from .effects import AXES, Context, Obs
 from .locate import channel_series, locate, noise_level, windows
 
-N_BLOCKS = 12
+N_BLOCKS = 24
 N_FOLDS = 3
 MIN_DSSE = 30.0         # whitened: ~ 5 sigma of the held-out SSE difference of a null effect
 REL_MIN = 0.04          # the effect must explain this fraction of its channels' residual energy
 MIN_PEAK = 1.5         # ... and reach 1.5 x noise on at least 1 % of its samples
 MAX_FINDINGS = 6
-DEFAULT_CAP = 20000
+DEFAULT_CAP = 10000
 
 
 

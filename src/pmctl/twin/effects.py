@@ -29,6 +29,7 @@ from scipy import optimize, signal
 from .. import kinematics as kin
 
 AXES = ("L1", "L2", "L3", "X", "Y")
+MAX_ALPHA = 1e-4   # /K, no solid screw expands more
 PRESCREEN = 10.0   # whitened SSE a start value of a nonlinear parameter must already remove
 TOOL_ROWS = {"tip_x": 0, "tip_y": 1, "tip_z": 2, "tool_i": 3, "tool_j": 4, "tool_k": 5}
 ENC = tuple(f"enc_{a}" for a in AXES)
@@ -141,9 +142,10 @@ def fill_gaps(t, x):
     return np.interp(t, t[ok], x[ok])
 
 
-def play_error(x, width):
+def play_error(x, width, start=0.0):
     """Backlash as a play operator: load position stays within ±width/2 of the motor position and
-    only moves when dragged. Returns e = x_load - x_motor (starts at 0). Exact, segment-wise."""
+    only moves when dragged. Returns e = x_load - x_motor, starting at ``start``·width/2 (start in
+    [-1, 1]: where in the deadband the load rests when the record begins). Exact, segment-wise."""
     h = 0.5 * abs(width)
     x = np.asarray(x, float)
     e = np.zeros_like(x)
@@ -157,7 +159,7 @@ def play_error(x, width):
     rev = nz[1:][s[1:] != s[:-1]]          # the increment index where direction changes
     starts = np.concatenate([[0], rev])    # segment k starts at sample starts[k]
     ends = np.concatenate([rev, [len(x) - 1]])
-    e0 = 0.0
+    e0 = float(np.clip(start, -1, 1)) * h
     for a, b in zip(starts, ends):
         seg = np.clip(e0 - (x[a:b + 1] - x[a]), -h, h)
         e[a:b + 1] = seg
@@ -224,11 +226,20 @@ class Fit:
 
 
 def _lstsq(X, y):
+    """Least squares for few columns: scaled normal equations (lstsq fallback when singular)."""
     if X.shape[1] == 0 or X.shape[0] == 0:
         return np.zeros(X.shape[1])
-    sc = np.sqrt((X * X).sum(0))
+    sc = np.sqrt(np.einsum("ij,ij->j", X, X))
     sc[sc == 0] = 1.0
-    c, *_ = np.linalg.lstsq(X / sc, y, rcond=1e-10)
+    Xs = X / sc
+    G = Xs.T @ Xs
+    b = Xs.T @ y
+    try:
+        if np.linalg.cond(G) < 1e10:
+            return np.linalg.solve(G, b) / sc
+    except np.linalg.LinAlgError:
+        pass
+    c, *_ = np.linalg.lstsq(Xs, y, rcond=1e-10)
     return c / sc
 
 
@@ -259,9 +270,17 @@ class Candidate:
     def params_of(self, c, ctx):
         raise NotImplementedError
 
+    def cached_design(self, ctx: Context):
+        """(X, rows where X is non-zero); computed once per context."""
+        if getattr(self, "_dz", None) is None or self._dz[0] is not ctx:
+            X = self.design(ctx)
+            self._dz = (ctx, X, np.any(X != 0, 1))
+        return self._dz[1], self._dz[2]
+
     def fit(self, ctx: Context, y: np.ndarray, train: np.ndarray) -> Fit:
-        X = self.design(ctx)
-        c = _lstsq(X[train], y[train])
+        X, nz = self.cached_design(ctx)
+        sel = train & nz
+        c = _lstsq(X[sel], y[sel])
         return Fit(self.params_of(c, ctx), X @ c, X.shape[1], internal={"coef": c})
 
 
@@ -323,17 +342,22 @@ class Backlash(AxisSignal):
         sel = train & (g != 0)
         gs, ys, rs = g[sel], y[sel], rows[sel]
 
-        def res(p):
-            return gs * play_error(x, p[0])[rs] - ys
+        # the load's place in the deadband at the start is unknown: middle, or either flank
+        best = None
+        for st0 in (0.0, -1.0, 1.0):
+            def res(p, st0=st0):
+                return gs * play_error(x, p[0], st0)[rs] - ys
 
-        try:
-            sol = optimize.least_squares(res, [w0], bounds=([0.0], [np.inf]), x_scale=[max(w0, 1e-6)],
-                                         diff_step=[1e-3], max_nfev=30)
-            w = float(sol.x[0])
-        except ValueError:
-            w = w0
-        pred = g * play_error(x, w)[rows]
-        return Fit({"width_mm": w}, pred, 1, ok=w > 0)
+            try:
+                sol = optimize.least_squares(res, [w0], bounds=([0.0], [np.inf]), x_scale=[max(w0, 1e-6)],
+                                             diff_step=[1e-3], max_nfev=30)
+            except ValueError:
+                continue
+            if best is None or sol.cost < best[0].cost:
+                best = (sol, st0)
+        w, st0 = (float(best[0].x[0]), best[1]) if best else (w0, 0.0)
+        pred = g * play_error(x, w, st0)[rows]
+        return Fit({"width_mm": w}, pred, 1, ok=w > 0, internal={"start": st0})
 
 
 class PitchError(AxisSignal):
@@ -458,13 +482,19 @@ class ThermalGrowth(AxisSignal):
         T = ctx.temps[self.channel][r]
         x = ctx.q_cmd[r, self.a]
         # the T·x term must carry the fit: drop it and the remaining three terms must do clearly worse
-        X = self.design(ctx)
-        sel = train & (self.gain(ctx) != 0)
+        X, nz = self.cached_design(ctx)
+        sel = train & nz
         c3 = _lstsq(X[sel][:, 1:], y[sel])
         r3 = X[sel][:, 1:] @ c3 - y[sel]
         r4 = X[sel] @ f.internal["coef"] - y[sel]
         f.internal["dsse_Tx"] = float(r3 @ r3 - r4 @ r4)
-        f.ok = f.internal["dsse_Tx"] > PRESCREEN and np.ptp(T) > 0 and np.ptp(x) > 0
+        # physical sanity: the temperature must really change (20 x its noise) and the growth
+        # coefficient must be one of a solid (|α| below 1e-4 /K; steel 1.2e-5, aluminium 2.3e-5)
+        from .locate import noise_level
+        Tfull = ctx.temps[self.channel]
+        dT_ok = np.ptp(Tfull) > 20 * max(noise_level(Tfull[np.isfinite(Tfull)]), 1e-3)
+        f.ok = bool(f.internal["dsse_Tx"] > PRESCREEN and dT_ok and np.ptp(x) > 0
+                    and abs(f.internal["coef"][0]) < MAX_ALPHA)
         return f
 
 
@@ -592,31 +622,37 @@ class Resonance(Candidate):
                 ctx.extra["uniform"] = (tu, dt, True)
         return ctx.extra["uniform"]
 
-    def _bases(self, ctx, f, z):
-        tu, dt, resample = self._uniform(ctx)
-        o = ctx.obs
-        # an axis mode is excited by that axis; a gauge's plate-link mode by its own chain
-        axes = [AXES.index(self.target)] if self.target_key == "axis" else [int(self.target[-1]) - 1]
-        cols = []
-        for a in axes:
-            x = ctx.q_cmd[:, a] if resample is None else np.interp(tu, ctx.t, ctx.q_cmd[:, a])
-            h = resonance_response(x, dt, f, z)
-            if resample is not None:
-                h = np.interp(ctx.t, tu, h)
+    def _weights(self, ctx):
+        """(axis whose motion excites the mode, (k, N) element weights of each column, support)."""
+        key = ("res_w", self.target_key, self.target)
+        if key not in ctx.extra:
+            o = ctx.obs
+            # an axis mode is excited by that axis; a gauge's plate-link mode by its own chain
+            a = AXES.index(self.target) if self.target_key == "axis" else int(self.target[-1]) - 1
+            ws = []
             if self.target_key == "axis":
-                cols.append(axis_gain(ctx, a) * h[o.row])
+                ws.append(axis_gain(ctx, a))
                 sg = f"strain_{a + 1}"
                 if a < 3 and sg in o.channels:     # the mode's spring force reaches the gauge
-                    m = o.ch == o.channels.index(sg)
-                    c = np.zeros(o.y.shape)
-                    c[m] = h[o.row[m]] * o.w[m]
-                    cols.append(c)
+                    ws.append(np.where(o.ch == o.channels.index(sg), o.w, 0.0))
             else:
-                m = o.ch == o.channels.index(self.target)
-                c = np.zeros(o.y.shape)
-                c[m] = h[o.row[m]] * o.w[m]
-                cols.append(c)
-        return np.stack(cols, 1) if cols else np.zeros((len(o.y), 0))
+                ws.append(np.where(o.ch == o.channels.index(self.target), o.w, 0.0))
+            W = np.stack(ws)
+            ctx.extra[key] = (a, W, np.any(W != 0, 0))
+        return ctx.extra[key]
+
+    def _bases(self, ctx, f, z, idx=None):
+        """Columns of the fit at obs elements ``idx`` (default: all)."""
+        tu, dt, resample = self._uniform(ctx)
+        a, W, _ = self._weights(ctx)
+        x = ctx.q_cmd[:, a] if resample is None else np.interp(tu, ctx.t, ctx.q_cmd[:, a])
+        h = resonance_response(x, dt, f, z)
+        if resample is not None:
+            h = np.interp(ctx.t, tu, h)
+        o = ctx.obs
+        if idx is None:
+            return (W * h[o.row]).T
+        return (W[:, idx] * h[o.row[idx]]).T
 
     def _f_candidates(self, ctx, y):
         """Peaks of the spectrum of the target residual (uniform grid), strongest first."""
@@ -659,12 +695,11 @@ class Resonance(Candidate):
         fs = self._starts
         if not fs:
             return Fit({}, np.zeros_like(y), 3, ok=False)
-        X0 = self._bases(ctx, fs[0][0], 0.05)
-        sel = train & np.any(X0 != 0, 1)
+        sel = np.flatnonzero(train & self._weights(ctx)[2])
         yt = y[sel]
 
         def res(p):
-            X = self._bases(ctx, math.exp(p[0]), p[1])[sel]
+            X = self._bases(ctx, math.exp(p[0]), p[1], sel)
             c = _lstsq(X, yt)
             return X @ c - yt
 

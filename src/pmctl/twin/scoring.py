@@ -4,7 +4,9 @@ A hidden effect counts as **found** when a finding has the same effect and locat
 channel, or chain), every numeric parameter of the answer is recovered within ``tol`` (relative;
 a gain is compared as gain − 1, the time of lost steps within 2 % of the run), and the held-out
 RMS of the finding's most affected channel is cut at least ``cut``-fold, or down to 1.3 x that
-channel's noise where the effect itself is too small for a ``cut``-fold cut.
+channel's noise where the effect itself is too small for a ``cut``-fold cut. With several findings
+the cut is that of all of them together (each finding's rms_after is cumulative anyway; the first of
+two effects on the same channels cannot cut them alone).
 """
 
 from __future__ import annotations
@@ -41,8 +43,11 @@ def param_errors(found: dict, true: dict, duration_s: float | None = None) -> di
     return out
 
 
-def cut_ok(finding: dict, noise: dict | None = None, cut: float = 3.0) -> tuple[bool, float]:
-    rb, ra = finding.get("rms_before", {}), finding.get("rms_after", {})
+def cut_ok(finding: dict, noise: dict | None = None, cut: float = 3.0, last: dict | None = None) -> tuple[bool, float]:
+    """Nominal held-out RMS over the RMS with the findings (cumulative up to ``last`` when given)."""
+    rb, ra = finding.get("rms_before", {}), dict(finding.get("rms_after", {}))
+    if last is not None:
+        ra.update({c: v for c, v in last.get("rms_after", {}).items() if c in ra})
     best_ch, best = None, -1.0
     for c, b in rb.items():
         if b is not None and ra.get(c) is not None and b > best:
@@ -73,7 +78,7 @@ def score(report: dict, answer: dict, *, tol=0.2, cut=3.0, noise=None) -> dict:
             errs = param_errors(f["parameters"], eff["parameters"], answer.get("duration_s"))
             r["param_errors"] = errs
             r["params_ok"] = all(e is not None and e <= tol for e in errs.values())
-            r["cut_ok"], r["cut"] = cut_ok(f, noise, cut)
+            r["cut_ok"], r["cut"] = cut_ok(f, noise, cut, report["findings"][-1])
         r["success"] = r["named"] and r["params_ok"] and r["cut_ok"]
         res.append(r)
     extra = [f["effect"] + ":" + str(_locator(f)[1]) for i, f in enumerate(report.get("findings", []))
