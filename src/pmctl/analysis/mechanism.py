@@ -367,7 +367,7 @@ class AdaptiveSpacing:
     refinements: int           # intervals split by the verification
 
 
-def adaptive_control_parameters(seg, tol_mm=1e-3, *, n_probe=64, safety=0.8,
+def adaptive_control_parameters(seg, tol_mm=1e-3, *, n_probe=64, safety=0.8, verify_margin=0.95,
                                 fractions=(0.2, 0.35, 0.5, 0.65, 0.8), max_rounds=30,
                                 max_intervals=200_000) -> AdaptiveSpacing:
     """Control points for ``seg`` (a :class:`ZttSegment`, :class:`ToolSegment` or any object with
@@ -378,8 +378,10 @@ def adaptive_control_parameters(seg, tol_mm=1e-3, *, n_probe=64, safety=0.8,
        (the optimal spacing for piecewise-linear interpolation: small steps where the
        input-output ratio and the joint curvature are large, as in seed 4.5).
     2. Verification by forward kinematics at ``fractions`` of every interval (the error of an
-       interval is, to leading order, a parabola peaking at its middle); an interval over ``tol_mm``
-       is split into ceil(sqrt(e / (safety tol))) parts, and the check repeats.
+       interval is, to leading order, a parabola peaking at its middle); an interval over
+       ``verify_margin * tol_mm`` is split into ceil(sqrt(e / (safety tol))) parts, and the check
+       repeats. The margin covers the peak falling between the sampled fractions (a skewed
+       interval's true maximum can exceed the sampled one by a little).
     """
     if not tol_mm > 0:
         raise PmctlError(f"path tolerance must be > 0 mm, got {tol_mm}")
@@ -396,7 +398,7 @@ def adaptive_control_parameters(seg, tol_mm=1e-3, *, n_probe=64, safety=0.8,
     splits = 0
     for _ in range(max_rounds):
         emax = _interval_max_error(seg, s_ctrl, q_ctrl, fractions)
-        bad = emax > tol_mm
+        bad = emax > verify_margin * tol_mm
         if not np.any(bad):
             return AdaptiveSpacing(s_ctrl, tol_mm, float(emax.max()), n, splits)
         parts = np.where(bad, np.maximum(2, np.ceil(np.sqrt(emax / (safety * tol_mm)))), 1).astype(int)
