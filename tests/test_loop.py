@@ -382,3 +382,16 @@ def test_pmctl_run_end_to_end_writes_a_recording_through_the_job_points(tmp_path
     svc.write_text('[nc]\nkv_per_s = 400\n[loop]\nrate_hz = 250\n')
     assert main(["run", "--job", job, "--no-realtime", "--service", str(svc), "--state", ""]) == 1
     assert "nc.kv_per_s" in capsys.readouterr().err
+
+
+def test_one_controller_per_state_file(tmp_path):
+    """A second run on the same machine state is refused before anything moves; the lock goes
+    with its holder."""
+    from pmctl.errors import PmctlError
+    from pmctl.state_store import StateLock
+    state = tmp_path / "counters.json"
+    first = StateLock(state)
+    with pytest.raises(PmctlError, match="another pmctl run holds"):
+        StateLock(state)
+    first.release()
+    StateLock(state).release()

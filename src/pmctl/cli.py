@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import re
 import sys
 
@@ -66,6 +67,11 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("pmctl: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # stdout went away (e.g. piped into `head`): nothing left to say; keep Python from
+        # complaining again when it flushes stdout at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
 
 
 if __name__ == "__main__":

@@ -8,7 +8,8 @@ class PmctlError(Exception):
 class ConfigError(PmctlError):
     def __init__(self, path, key, reason):
         self.path, self.key, self.reason = str(path), key, reason
-        super().__init__(f"{self.path}: {key}: {reason}")
+        where = self.path if key in (None, "", "-") else f"{self.path}: {key}"
+        super().__init__(f"{where}: {reason}")
 
 
 class UnreachablePose(PmctlError):

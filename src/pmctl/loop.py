@@ -138,7 +138,7 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
         settle_s=s.number("settle_ms", default=d.settle_s * 1e3, nonneg=True) / 1e3,
         persist_every_ticks=_int(s, "persist_every_ticks", d.persist_every_ticks, 1),
         spin_us=s.number("spin_us", default=d.spin_us, nonneg=True),
-        state_file=s.string("state_file", default=""),
+        state_file=os.path.expanduser(s.string("state_file", default="")),
     )
     if not 10 <= loop.rate_hz <= 20000:
         raise ConfigError(path, "loop.rate_hz", f"must be within 10 .. 20000 Hz, got {loop.rate_hz:g}")

@@ -19,9 +19,38 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, PmctlError
 
 FORMAT = "pmctl-counters/1"
+
+
+class StateLock:
+    """One controller per machine: an exclusive, non-blocking lock on ``<state file>.lock``, held
+    for the life of the run (the kernel drops it if the process dies). A second ``pmctl run`` on
+    the same state file is refused before anything moves."""
+
+    def __init__(self, state_path):
+        import fcntl
+        self._fd = None
+        self.path = Path(str(state_path) + ".lock")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise PmctlError(f"{state_path}: another pmctl run holds {self.path} "
+                             f"(one controller per machine)") from None
+        self._fd = fd
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+
+    def release(self):
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    __del__ = release
 
 
 @dataclass

@@ -11,6 +11,7 @@ stall, Ctrl-C); 4 fault (following error, backend not answering, model pose lost
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import sys
@@ -26,7 +27,7 @@ from ..config import CONFIG_DIR, load_machine
 from ..errors import PmctlError
 from ..loop import ControlLoop, LoopResult, load_service_config, prepare, tracking_stats
 from ..nc import counts_of, initial_state
-from ..state_store import CounterWriter, load_counters
+from ..state_store import CounterWriter, StateLock, load_counters
 
 EXIT_DONE, EXIT_STOPPED, EXIT_FAULT = 0, 3, 4
 
@@ -144,7 +145,11 @@ def run(args) -> int:
     if args.no_realtime:
         cfg.realtime = False
     if args.k_theta is not None:
+        if not (math.isfinite(args.k_theta) and args.k_theta >= 0):
+            raise PmctlError(f"--k-theta must be >= 0 1/s, got {args.k_theta:g}")
         svc.nc.k_theta_per_s = (args.k_theta,) * 3
+    if not (math.isfinite(args.feed_override) and 0 < args.feed_override <= 10):
+        raise PmctlError(f"--feed-override must be within (0, 10], got {args.feed_override:g}")
     if args.pulse_mode:
         svc.nc.pulse_mode = args.pulse_mode
     backend_name = args.backend or svc.backend
@@ -154,6 +159,7 @@ def run(args) -> int:
     log = lambda m: print(f"pmctl: {m}", file=sys.stderr)  # noqa: E731
 
     # Where the machine is: saved counters, else home.
+    lock = StateLock(state_file) if state_file else None      # held until the process exits
     saved = load_counters(state_file, machine=machine.name) if state_file else None
     if saved is not None:
         counts0 = saved.counts
@@ -220,24 +226,10 @@ def run(args) -> int:
         save_counters(state_file, res.state.counts, machine=machine.name, clean=res.status != "fault",
                       tick=res.ticks)
 
-    # ---- report
+    # ---- the recording first (the run's data must not depend on stdout staying open), then the report
     sent_ok = bool(np.all(counts0 + res.pulses_sent == res.state.counts))
-    print(f"result: {res.status}" + (f" ({res.reason})" if res.reason else ""))
-    print(f"  ticks {res.ticks} ({res.ticks * dt:.2f} s machine time, {wall:.2f} s wall), "
-          f"pulses sent = pulse counters: {'yes' if sent_ok else 'NO'}")
     ts = tracking_stats(res, machine)
-    if ts:
-        print(f"  tool-tip error (load side vs target, job part): RMS {ts['tip_rms_um']:.3f} um, "
-              f"p99 {ts['tip_p99_um']:.3f} um, max {ts['tip_max_um']:.3f} um; tool axis RMS "
-              f"{ts['axis_rms_urad']:.2f} urad, max {ts['axis_max_urad']:.2f} urad")
     tm = res.timing.summary()
-    if tm:
-        print(f"  timing: tick compute median {tm['compute_median_us']:.0f} us, p99 {tm['compute_p99_us']:.0f} us, "
-              f"max {tm['compute_max_us']:.0f} us (NC step median {tm['nc_median_us']:.0f} us, "
-              f"p99 {tm['nc_p99_us']:.0f} us; period {dt * 1e6:.0f} us)"
-              + (f"; lateness p99 {tm['late_p99_us']:.0f} us, max {tm['late_max_us']:.0f} us; "
-                 f"overruns {tm['overruns']} (max {tm['max_overruns_in_row']} in a row)" if cfg.realtime
-                 else "; lateness n/a (--no-realtime)"))
     if args.record:
         from ..recording import write_recording
         folder = Path(args.record)
@@ -248,5 +240,20 @@ def run(args) -> int:
                         sample_rate_hz=cfg.rate_hz, description=desc, channel_notes=notes,
                         extra_meta={"run": {"job": str(args.job), "status": res.status, "reason": res.reason,
                                             "tracking": ts, "timing": tm, "job_start_row": res.job_start}})
-        print(f"  recording: {folder} ({res.ticks} rows)")
+    print(f"result: {res.status}" + (f" ({res.reason})" if res.reason else ""))
+    print(f"  ticks {res.ticks} ({res.ticks * dt:.2f} s machine time, {wall:.2f} s wall), "
+          f"pulses sent = pulse counters: {'yes' if sent_ok else 'NO'}")
+    if ts:
+        print(f"  tool-tip error (load side vs target, job part): RMS {ts['tip_rms_um']:.3f} um, "
+              f"p99 {ts['tip_p99_um']:.3f} um, max {ts['tip_max_um']:.3f} um; tool axis RMS "
+              f"{ts['axis_rms_urad']:.2f} urad, max {ts['axis_max_urad']:.2f} urad")
+    if tm:
+        print(f"  timing: tick compute median {tm['compute_median_us']:.0f} us, p99 {tm['compute_p99_us']:.0f} us, "
+              f"max {tm['compute_max_us']:.0f} us (NC step median {tm['nc_median_us']:.0f} us, "
+              f"p99 {tm['nc_p99_us']:.0f} us; period {dt * 1e6:.0f} us)"
+              + (f"; lateness p99 {tm['late_p99_us']:.0f} us, max {tm['late_max_us']:.0f} us; "
+                 f"overruns {tm['overruns']} (max {tm['max_overruns_in_row']} in a row)" if cfg.realtime
+                 else "; lateness n/a (--no-realtime)"))
+    if args.record:
+        print(f"  recording: {args.record} ({res.ticks} rows)")
     return {"done": EXIT_DONE, "stopped": EXIT_STOPPED}.get(res.status, EXIT_FAULT)

@@ -781,6 +781,8 @@ def _cmd(args) -> int:
         raise InputError("--rate", None, "must be 20..20000 Hz")
     if not 0 < args.magnitude_scale <= 100 or not 0 <= args.noise_scale <= 100:
         raise InputError("--magnitude-scale/--noise-scale", None, "must be > 0 (noise >= 0) and <= 100")
+    if args.clean and args.effects != "random":
+        raise InputError("--clean", None, f"contradicts --effects {args.effects}: a clean case hides no effect")
     eff = parse_effects(args.effects)
     t0 = time.perf_counter()
 
