@@ -12,9 +12,14 @@ Pipeline (pure functions; the CLI at the bottom is a thin layer):
    is scored on held-out samples by blocked cross-validation in time (24 blocks, 3 interleaved
    folds: each fold is predicted by a fit on the other two). The best candidate is accepted only
    when its held-out improvement of the whitened sum of squares beats what noise gives,
-   ``ΔSSE_cv > max(MIN_DSSE, BIC penalty p·ln N)`` and ``ΔSSE_cv > REL_MIN`` of the residual energy
-   in the channels it touches, and its in-sample BIC falls. Then the residual is updated and the
-   next round runs. At the end the accepted effects are refitted jointly (backfitting).
+   ``ΔSSE_cv > max(MIN_DSSE, BIC penalty p·ln N)``, ``ΔSSE_cv > REL_MIN`` of the residual energy
+   in the channels it touches, and the effect reaches MIN_PEAK x noise on at least 1 % of its
+   samples (sub-noise and sub-pulse structure is not physics). Candidates are ranked by
+   ``ΔSSE_cv − ½ p·ln N``. Then the residual is updated and the next round runs. At the end the
+   accepted effects are refitted with the others held (backfitting, two passes) and their held-out
+   predictions recomputed; ``rms_after`` of finding k is cumulative over findings 1..k.
+   Nonlinear parameters (backlash width, pitch period, lag τ, mode frequency/damping, step time)
+   are refitted inside every training fold, so the held-out score includes their search.
 4. :func:`diagnose` returns the RECORDING.md §4 report (a dict) plus the locate summary;
    :func:`format_text` renders it, ``pmctl.twin.plots`` draws it.
 """
@@ -431,7 +436,7 @@ def format_text(report, extras) -> str:
             L.append(f"  {k:9s} " + "  ".join(f"[{r['range'][0]:.1f},{r['range'][1]:.1f}]: {r['rms_over_noise']:.2f}"
                                              for r in regs))
     sp = [(k, v["spectrum_peak_hz"], v["spectrum_peak_ratio"]) for k, v in loc["channels"].items()
-          if v.get("spectrum_peak_hz") and v["spectrum_peak_ratio"] > 20]
+          if v.get("spectrum_peak_hz") and v["spectrum_peak_hz"] >= 1.0 and v["spectrum_peak_ratio"] > 50]
     if sp:
         L.append("")
         L.append("  spectral lines against time: " + ", ".join(f"{k} {f:.2f} Hz ({r:.0f}x)" for k, f, r in sp))
