@@ -76,3 +76,14 @@ def test_cli_writes_the_recording_md_report_and_plots(tmp_path, capsys):
         assert f["rms_after"][c] <= f["rms_before"][c]
     for name in ("residual_before_after.png", "direction_split.png", "spectrum.png"):
         assert (plots / name).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_only_commands_and_encoders_still_diagnose_a_servo_lag():
+    case = _case(["servo_lag"], 3, duration=10.0, rate=500.0)
+    cmd_only = {k: v for k, v in case.columns.items() if k == "t" or k.startswith("cmd_")}
+    rep, _ = diagnose(cmd_only, M, cap=CAP)
+    assert rep["findings"] == []                      # nothing measured: nothing to explain
+    enc = {k: v for k, v in case.columns.items() if k == "t" or k.startswith(("cmd_", "enc_"))}
+    rep, _ = diagnose(enc, M, cap=CAP)
+    sc = score(rep, case.answer)
+    assert sc["all_found"], (rep["findings"], case.answer["effects"])

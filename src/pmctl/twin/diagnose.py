@@ -136,7 +136,7 @@ def build_context(columns: dict, machine, *, cap=DEFAULT_CAP) -> Context:
         geo = fx.geometry_sensitivity(P, R, machine.geometry)
         forces = np.nan_to_num(state.axial[at])
     else:
-        P = R = np.zeros((0, 3))
+        P, R = np.zeros((0, 3)), np.zeros((0, 3, 3))
         J, geo, forces = np.zeros((0, 6, 5)), {}, np.zeros((0, 3))
     dt = np.diff(t)
     uniform = float(np.mean(dt)) if len(dt) and np.ptp(dt) <= 1e-6 * np.mean(dt) + 1e-12 else None
@@ -450,7 +450,9 @@ def format_text(report, extras) -> str:
         L.append(f"     {f['evidence']}")
         L.append("     held-out rms: " + ", ".join(
             f"{k} {f['rms_before'][k]:.3g} -> {f['rms_after'][k]:.3g}" for k in f["rms_before"]))
-    if not report["findings"]:
+    if not ctx.obs.channels:
+        L.append("  The recording carries no measured channel (enc_*, tip_*, tool_*, strain_*): nothing to compare.")
+    elif not report["findings"]:
         L.append("  No effect improves the held-out fit by more than noise would.")
     return "\n".join(L)
 

@@ -197,7 +197,7 @@ def locate(ctx: Context, y=None) -> dict:
     feats["Y_mm"] = ctx.q_cmd[ctx.rows, 4]
     for k, v in feats.items():
         vals = v[o.pos]
-        if np.ptp(vals) <= 0:
+        if len(vals) == 0 or np.ptp(vals) <= 0:
             continue
         q = np.quantile(vals, [0, 1 / 3, 2 / 3, 1])
         regs = []
