@@ -341,8 +341,9 @@ def _evidence(ev, ctx, loc, explained):
         return (f"{c.target} reads {1e6 * (p['gain'] - 1):+.0f} ppm of its predicted value across its range; a "
                 f"gain of {p['gain']:.6f} explains {pct} of its residual on held-out samples.")
     if eff == "sensor_offset":
-        return (f"{c.target} is shifted by {p['offset']:.4g} at every pose and speed; an offset explains {pct} of "
-                f"its residual on held-out samples.")
+        unit = {"tip": " mm", "enc": " mm", "str": " µε"}.get(c.target[:3], "")
+        return (f"{c.target} is shifted by {p['offset']:+.4g}{unit} against its prediction at every pose and speed; "
+                f"an offset explains {pct} of its residual on held-out samples.")
     if eff == "geometry":
         who = "the tool" if c.target == "tool" else f"chain {c.target}"
         pp = ", ".join(f"{k} = {np.round(np.atleast_1d(v), 4).tolist()}" for k, v in p.items())
