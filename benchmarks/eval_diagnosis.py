@@ -7,7 +7,7 @@ the main channel cut ≥ CUT-fold (or down to 1.3 x noise). Clean cases: success
 
     .venv/bin/python benchmarks/eval_diagnosis.py [--n 20] [--duration 30] [--effects a,b] [--shard k/K]
 
-Shards let two processes split the work; ``--merge f1 f2`` prints the table of saved shard results.
+Shards let two processes split the work (a run resumes where its --save file stops); ``--merge f1 f2`` prints the table of saved shard results.
 """
 
 from __future__ import annotations
@@ -83,10 +83,21 @@ def main(argv=None):
     k0, K = (int(x) for x in a.shard.split("/"))
     m = load_machine()
     jobs = [(e, k) for k in range(a.n) for e in a.effects.split(",")]
-    res = []
+    res, done = [], set()
+    if a.save:
+        try:
+            for line in open(a.save):
+                r = json.loads(line)
+                res.append(r)
+                done.add(r["seed"])
+        except FileNotFoundError:
+            pass
     out = open(a.save, "a") if a.save else None
     for j, (e, k) in enumerate(jobs):
         if j % K != k0:
+            continue
+        seed = 7919 * (synth.EFFECTS.index(e) + 1 if e != "clean" else 0) + k
+        if seed in done:          # resumed: this case is already in the save file
             continue
         r = run_case(e, k, m, a.duration, a.cap)
         res.append(r)

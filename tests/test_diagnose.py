@@ -87,3 +87,10 @@ def test_only_commands_and_encoders_still_diagnose_a_servo_lag():
     rep, _ = diagnose(enc, M, cap=CAP)
     sc = score(rep, case.answer)
     assert sc["all_found"], (rep["findings"], case.answer["effects"])
+
+
+def test_table_compliance_under_a_known_tip_force_is_found():
+    case = _case([synth.Effect("compliance", {"axis": "X"}, {"stiffness_N_per_mm": 3000.0})], 41, run="calibration")
+    rep, sc = _diagnose(case)
+    assert sc["all_found"], (rep["findings"], sc)
+    assert "tip force" in rep["findings"][0]["evidence"]

@@ -322,7 +322,13 @@ def _evidence(ev, ctx, loc, explained):
                 f"position; α = {p['alpha_per_K']:.3g} /K ({_fmt_um(abs(p['alpha_per_K']) * np.ptp(T) * x)} at "
                 f"{x:.0f} mm) explains {pct} of it on held-out samples.")
     if eff == "compliance":
-        f = ctx.forces[:, AXES.index(c.target)]
+        a = AXES.index(c.target)
+        if a >= 3:
+            F = ctx.extra.get("tip_force", np.zeros((1, 3)))[:, a - 3]
+            return (f"the table gives way along {c.target} in proportion to the tip force F{'xy'[a - 3]} "
+                    f"({F.min():.0f} … {F.max():.0f} N); a stiffness of {p['stiffness_N_per_mm']:.0f} N/mm explains "
+                    f"{pct} of it on held-out samples.")
+        f = ctx.forces[:, a]
         return (f"the tool deflects along chain {c.target} in proportion to its axial force "
                 f"({f.min():.0f} … {f.max():.0f} N); a stiffness of {p['stiffness_N_per_mm']:.0f} N/mm explains "
                 f"{pct} of it on held-out samples.")
