@@ -153,19 +153,27 @@ class DriveSummary:
     box: dict
 
 
-def drive_characteristics(geom: Geometry, *, Z=(293.0, 458.0), theta1_deg=(0.0, 180.0),
-                          theta2_deg=(-30.0, 30.0), nZ=34, n1=37, n2=61) -> DriveSummary:
-    """Maxima of :func:`drive_characteristics_at` over a (Z, theta1, theta2) box (default: Table 2.1's)."""
+def maxima_over_box(fn, Z, theta1_deg, theta2_deg, steps):
+    """Evaluate ``fn(Z, theta1, theta2) -> {name: grid}`` (radians) on a grid over the box and return
+    ({name: max}, {name: (Z, theta1 deg, theta2 deg) where it occurs})."""
+    nZ, n1, n2 = steps
     Zv = np.linspace(*Z, nZ)
     t1 = np.linspace(*theta1_deg, n1)
     t2 = np.linspace(*theta2_deg, n2)
     Zg, T1, T2 = np.meshgrid(Zv, t1 * DEG, t2 * DEG, indexing="ij")
-    res = drive_characteristics_at(Zg, T1, T2, geom)
     vals, where = {}, {}
-    for k, v in res.items():
+    for k, v in fn(Zg, T1, T2).items():
         idx = np.unravel_index(int(np.argmax(v)), v.shape)
         vals[k] = float(v[idx])
         where[k] = (float(Zv[idx[0]]), float(t1[idx[1]]), float(t2[idx[2]]))
+    return vals, where
+
+
+def drive_characteristics(geom: Geometry, *, Z=(293.0, 458.0), theta1_deg=(0.0, 180.0),
+                          theta2_deg=(-30.0, 30.0), nZ=34, n1=37, n2=61) -> DriveSummary:
+    """Maxima of :func:`drive_characteristics_at` over a (Z, theta1, theta2) box (default: Table 2.1's)."""
+    vals, where = maxima_over_box(lambda Zg, T1, T2: drive_characteristics_at(Zg, T1, T2, geom),
+                                  Z, theta1_deg, theta2_deg, (nZ, n1, n2))
     return DriveSummary(vals, where, {"Z": Z, "theta1_deg": theta1_deg, "theta2_deg": theta2_deg,
                                       "steps": (nZ, n1, n2)})
 
@@ -215,17 +223,8 @@ def compliance_errors(Z, theta1, theta2, machine: Machine):
 def compliance_over_box(machine: Machine, *, Z=(293.0, 458.0), theta1_deg=(0.0, 180.0),
                         theta2_deg=(-20.0, 20.0), nZ=12, n1=37, n2=41):
     """Maxima of :func:`compliance_errors` over a box: (values dict, where dict (Z, th1, th2 deg))."""
-    Zv = np.linspace(*Z, nZ)
-    t1 = np.linspace(*theta1_deg, n1)
-    t2 = np.linspace(*theta2_deg, n2)
-    Zg, T1, T2 = np.meshgrid(Zv, t1 * DEG, t2 * DEG, indexing="ij")
-    res = compliance_errors(Zg, T1, T2, machine)
-    vals, where = {}, {}
-    for k, v in res.items():
-        idx = np.unravel_index(int(np.argmax(v)), v.shape)
-        vals[k] = float(v[idx])
-        where[k] = (float(Zv[idx[0]]), float(t1[idx[1]]), float(t2[idx[2]]))
-    return vals, where
+    return maxima_over_box(lambda Zg, T1, T2: compliance_errors(Zg, T1, T2, machine),
+                           Z, theta1_deg, theta2_deg, (nZ, n1, n2))
 
 
 # ============================================================== path error of joint interpolation (4.4-4.5)
