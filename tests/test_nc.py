@@ -212,3 +212,17 @@ def test_damped_pseudo_inverse_is_exact_when_regular_and_bounded_at_a_singularit
     Js[:, 1] = Js[:, 0] + 1e-9 * Js[:, 1]
     qd = _damped_pinv_apply(Js, x, params)
     assert np.all(np.isfinite(qd)) and np.abs(qd).max() < 100 * np.abs(x).max()
+
+
+@pytest.mark.parametrize("which", ["enc", "strain"])
+def test_a_dead_sensor_halts_with_a_reason(which):
+    """A NaN reading compares false against every limit; it must halt, not blind the supervision."""
+    dt = 1e-3
+    params = NCParams.from_machine(M, dt, k_theta=100.0)
+    tip, axis = _pose(0, 0, 10, 0, 0)
+    st0 = initial_state(M, counts_of(K.ik(tip, axis, M).q, params))
+    fb = FB(st0.counts / params.pulses_per_mm)
+    getattr(fb, which)[0] = float("nan")
+    p, st = nc_step(st0, np.concatenate([tip + [1.0, 0, 0], axis, np.zeros(6)]), fb, params, MODEL)
+    assert st.mode == HALTED and st.reason.startswith("feedback fault")
+    assert not p.any() and np.array_equal(st.counts, st0.counts)

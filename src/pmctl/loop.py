@@ -24,7 +24,7 @@ import os
 import sys
 import time
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -527,8 +527,9 @@ class ControlLoop:
                 try:
                     be.write_pulses(pulses)
                 except HalError as e:
+                    # the backend did not take this tick's pulses: the counters must not claim them
                     status, reason = "fault", f"backend fault: {e}"
-                    st = _halt(st, reason)
+                    st = _halt(replace(st, counts=st.counts - pulses), reason)
                     break
                 sent += pulses
                 target[k] = tg[:6]

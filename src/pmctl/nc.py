@@ -373,6 +373,17 @@ def _stopping_violation(q, qdot, L, dt):
     return ""
 
 
+def _nonfinite_feedback(enc, strain):
+    """Reason text if a feedback value is NaN or infinite (a lost or broken sensor), else ''."""
+    for i, v in enumerate(enc):
+        if not math.isfinite(v):
+            return f"feedback fault: encoder {_NAMES[i]} reads {v}"
+    for i, v in enumerate(strain):
+        if not math.isfinite(v):
+            return f"feedback fault: strain gauge {i + 1} reads {v}"
+    return ""
+
+
 def _ferror_violation(q, enc, qdot, params: NCParams):
     """LinuxCNC following error: limit = max(MIN_FERROR, FERROR |v| / v_max) per joint (lists)."""
     L = params._l
@@ -403,7 +414,11 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
     ql = state.counts.tolist()
     ql = [ql[i] / L.ppm[i] for i in range(5)]
     prev = state.qdot.tolist()
-    fe = _ferror_violation(ql, feedback.enc.tolist(), prev, params)
+    enc = feedback.enc.tolist()
+    bad = _nonfinite_feedback(enc, feedback.strain.tolist())
+    if bad:              # a dead sensor must not blind the supervision (NaN compares false)
+        return zero, replace(state, qdot=np.zeros(5), acc=np.zeros(5), mode=HALTED, reason=bad)
+    fe = _ferror_violation(ql, enc, prev, params)
     if fe:
         return zero, replace(state, qdot=np.zeros(5), acc=np.zeros(5), mode=HALTED, reason=fe)
     mode, reason = state.mode, state.reason
