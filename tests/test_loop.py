@@ -422,3 +422,16 @@ def test_pulses_the_backend_refused_are_not_counted():
     assert res.status == "fault" and "link lost" in res.reason
     assert np.array_equal(res.state.counts, be.counts)
     assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
+
+
+@pytest.mark.parametrize("field,value", [("clean", '"false"'), ("tick", '"12"'), ("counts", "[1, 2, 3, 4, 99999999999999999999]")])
+def test_state_file_fields_are_type_checked(tmp_path, field, value):
+    from pmctl.errors import InputError
+    from pmctl.state_store import load_counters
+    fields = {"format": '"pmctl-counters/1"', "machine": '"prototype"', "counts": "[1, 2, 3, 4, 5]",
+              "clean": "true", "tick": "3", "wall_time": "1.5"}
+    fields[field] = value
+    f = tmp_path / "c.json"
+    f.write_text("{" + ", ".join(f'"{k}": {v}' for k, v in fields.items()) + "}")
+    with pytest.raises(InputError, match=field):
+        load_counters(f, machine="prototype")

@@ -108,8 +108,16 @@ def load_counters(path, *, machine: str, axes: int = 5) -> SavedCounters | None:
     if (not isinstance(c, list) or len(c) != axes
             or any(isinstance(x, bool) or not isinstance(x, int) for x in c)):
         raise InputError(path, 1, f"counts: expected a list of {axes} integers, got {c!r}")
-    return SavedCounters(np.array(c, dtype=np.int64), bool(d.get("clean", False)), int(d.get("tick", 0)),
-                         machine, float(d.get("wall_time", 0.0)))
+    if any(abs(x) >= 2**63 for x in c):
+        raise InputError(path, 1, f"counts: out of the int64 range: {c!r}")
+    clean, tick, wall = d.get("clean", False), d.get("tick", 0), d.get("wall_time", 0.0)
+    if not isinstance(clean, bool):
+        raise InputError(path, 1, f"clean: expected true or false, got {clean!r}")
+    if isinstance(tick, bool) or not isinstance(tick, int) or tick < 0:
+        raise InputError(path, 1, f"tick: expected a non-negative integer, got {tick!r}")
+    if isinstance(wall, bool) or not isinstance(wall, (int, float)):
+        raise InputError(path, 1, f"wall_time: expected a number, got {wall!r}")
+    return SavedCounters(np.array(c, dtype=np.int64), clean, tick, machine, float(wall))
 
 
 class CounterWriter:

@@ -219,6 +219,9 @@ def run(args) -> int:
         if writer is not None:
             writer.stop()          # on a crash the last periodic snapshot (clean = false) stays
     wall = time.monotonic() - t_wall
+    if writer is not None and writer.error:
+        log(f"warning: periodic writes of {state_file} failed during the run ({writer.error}); "
+            f"a crash would have lost the position")
     if writer is not None:
         from ..state_store import save_counters
         # clean: the counters are exactly what was sent and the machine did what they say; after a
