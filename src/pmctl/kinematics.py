@@ -311,8 +311,7 @@ def fk(q, machine: Machine, guess=None, *, check_limits=False) -> ToolPose:
         if not np.all(np.isfinite(q)):
             raise UnreachablePose("joint values must be finite numbers")
         # Joint ranges first: a chain far out of range may have no assembly at all.
-        pre = limit_violations(q, 0.0, *platform_pose(q[..., 0] * 0 + machine.geometry.z_home, np.pi, 0.0,
-                                                       machine.geometry.platform_radius), machine)
+        pre = limit_violations(q, None, None, None, machine)
         if pre[()]:
             raise UnreachablePose(f"joints out of range: {pre[()]}")
     P, R = forward_platform(q[..., :3], machine.geometry, guess)
@@ -412,17 +411,22 @@ def ik_batch(tip_w, axis, machine: Machine, *, check_limits=True) -> IKResult:
 
 
 def limit_violations(q, theta2, P, R, machine: Machine):
-    """First violated limit per pose as text ('' when within every limit)."""
+    """First violated limit per pose as text ('' when within every limit).
+
+    With ``theta2``, ``P`` and ``R`` all None only the joint ranges are checked (before FK)."""
     lim, geom = machine.limits, machine.geometry
     q = np.asarray(q, float)
     shape = q.shape[:-1]
     qf = q.reshape(-1, 5)
-    t2d = np.degrees(np.asarray(theta2, float)).reshape(-1)
-    d = joint_positions(P, R, geom) - geom.base_joints
-    u = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    cosw = np.einsum("...ki,...i->...k", u, R[..., :, 2])
-    swing = np.degrees(np.arccos(np.clip(cosw, -1, 1))).max(-1).reshape(-1)
-    pz = P[..., 2].reshape(-1)
+    if P is None:
+        t2d, swing, pz = np.zeros(len(qf)), np.zeros(len(qf)), np.ones(len(qf))
+    else:
+        t2d = np.broadcast_to(np.degrees(np.asarray(theta2, float)), shape).reshape(-1)
+        d = joint_positions(P, R, geom) - geom.base_joints
+        u = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        cosw = np.einsum("...ki,...i->...k", u, R[..., :, 2])
+        swing = np.degrees(np.arccos(np.clip(cosw, -1, 1))).max(-1).reshape(-1)
+        pz = P[..., 2].reshape(-1)
     out = np.full(qf.shape[0], "", dtype=object)
     t_lo, t_hi = lim.theta2_deg
     c_lo, c_hi = lim.chain_length
