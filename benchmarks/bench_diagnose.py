@@ -17,9 +17,9 @@ import time
 
 import numpy as np
 
-from pmctl.config import load_machine
-from pmctl.twin import synth
-from pmctl.twin.diagnose import diagnose
+from pmctl.core.config import load_machine
+from pmctl.tools.twin import synth
+from pmctl.tools.twin.diagnose import diagnose
 
 
 def main():

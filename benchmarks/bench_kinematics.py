@@ -12,9 +12,9 @@ import time
 
 import numpy as np
 
-from pmctl import kinematics as K
-from pmctl.config import load_machine
-from pmctl.nc import ModelFK
+from pmctl.core import kinematics as K
+from pmctl.core.config import load_machine
+from pmctl.motion.nc import ModelFK
 
 
 def stats(fn, n):

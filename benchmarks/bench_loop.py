@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_loop.py [--duration 60] [--rates 250,500,750,1000,1500,2000,3000]
                                               [--rate-seconds 5] [--no-flex]
 
-1. NC step alone (pmctl.nc.nc_step, tight loop): median / p99 per call.
+1. NC step alone (pmctl.motion.nc.nc_step, tight loop): median / p99 per call.
 2. Whole tick (read sim -> NC -> write sim -> record), ticks back to back (realtime=False).
 3. Real-time run at 1 kHz for --duration seconds (SCHED_FIFO + mlockall when permitted): compute
    median/p99/max, lateness median/p99/max, overruns.
@@ -23,11 +23,11 @@ import time
 import numpy as np
 
 from pmctl import hal
-from pmctl.config import load_machine
+from pmctl.core.config import load_machine
 from pmctl.hal.base import Feedback
-from pmctl.loop import ControlLoop, LoopConfig, load_service_config, prepare, tracking_stats
-from pmctl.nc import ModelFK, NCParams, counts_of, initial_state, nc_step
-from pmctl.trajectory import Trajectory
+from pmctl.motion.loop import ControlLoop, LoopConfig, load_service_config, prepare, tracking_stats
+from pmctl.motion.nc import ModelFK, NCParams, counts_of, initial_state, nc_step
+from pmctl.task.trajectory import Trajectory
 
 
 def circle(dt, seconds, radius=20.0, feed=10.0, tilt_deg=8.0, z=10.0, ramp=2.0):

@@ -7,9 +7,9 @@ import time
 
 import numpy as np
 
-from pmctl import kinematics as K
-from pmctl.analysis import mechanism as M
-from pmctl.config import load_machine
+from pmctl.core import kinematics as K
+from pmctl.tools.analysis import mechanism as M
+from pmctl.core.config import load_machine
 
 D = M.DEG
 

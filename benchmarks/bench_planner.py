@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pmctl.cldata import cl_job, parse_cl
-from pmctl.config import load_machine
-from pmctl.planner import load_job, plan
+from pmctl.task.cldata import cl_job, parse_cl
+from pmctl.core.config import load_machine
+from pmctl.task.planner import load_job, plan
 
 JOBS = Path(__file__).resolve().parents[1] / "examples" / "jobs"
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pmctl.recording import CMD, ENC, STRAIN, TIP, TOOL, read_recording, write_recording
+from pmctl.core.recording import CMD, ENC, STRAIN, TIP, TOOL, read_recording, write_recording
 
 
 def make_columns(n, seed=0):
@@ -64,7 +64,7 @@ def main():
             print(f"rows {n:>9,d}  {size_mb:7.1f} MB  write {tw:7.2f} s  read median {med:7.3f} s "
                   f"(max {max(times):.3f} s)  {n / med / 1e6:5.2f} Mrow/s", flush=True)
             if args.twin:
-                from pmctl.twin.nominal import predict
+                from pmctl.tools.twin.nominal import predict
                 t0 = time.perf_counter()
                 pred = predict(rec)
                 tp = time.perf_counter() - t0

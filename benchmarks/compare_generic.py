@@ -4,7 +4,7 @@ Not part of the test suite; PySINDy is not a project dependency (``.venv/bin/pip
 
 For each concealed synth case, both tools see the same nominal-twin residual of the channel the
 residual is largest in (whitened excess over noise), with the same blocked cross-validation in time
-(pmctl.twin.diagnose.folds_of). PySINDy gets a generic library of the machine state -- polynomials
+(pmctl.tools.twin.diagnose.folds_of). PySINDy gets a generic library of the machine state -- polynomials
 (degree 1 or 2, chosen like the threshold) and Fourier terms (sin/cos of k·x, k = 1, 2) of the commanded axes, their speeds, the
 sign of each speed, temperatures, tip loads and time -- fitted by sequentially thresholded least
 squares (STLSQ on the residual scaled to unit variance, ridge 1e-2, threshold of a small grid with
@@ -22,10 +22,10 @@ import sys
 
 import numpy as np
 
-from pmctl.config import load_machine
-from pmctl.twin import synth
-from pmctl.twin.diagnose import diagnose, folds_of, N_FOLDS
-from pmctl.twin.effects import AXES
+from pmctl.core.config import load_machine
+from pmctl.tools.twin import synth
+from pmctl.tools.twin.diagnose import diagnose, folds_of, N_FOLDS
+from pmctl.tools.twin.effects import AXES
 
 try:
     import pysindy as ps

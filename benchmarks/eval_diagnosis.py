@@ -1,8 +1,8 @@
 """Blind evaluation of `pmctl twin diagnose` on concealed synth cases (issue 4 "Must show").
 
 For every catalogue effect, N random cases (random axis/channel/magnitude, run, noise, tracker rate)
-are generated with pmctl.twin.synth, diagnosed without the answer key, and scored with
-pmctl.twin.scoring: success = right effect + locator, every parameter within ±TOL, held-out RMS of
+are generated with pmctl.tools.twin.synth, diagnosed without the answer key, and scored with
+pmctl.tools.twin.scoring: success = right effect + locator, every parameter within ±TOL, held-out RMS of
 the main channel cut ≥ CUT-fold (or down to 1.3 x noise). Clean cases: success = no finding.
 
     .venv/bin/python benchmarks/eval_diagnosis.py [--n 20] [--duration 30] [--effects a,b] [--shard k/K]
@@ -19,10 +19,10 @@ import time
 
 import numpy as np
 
-from pmctl.config import load_machine
-from pmctl.twin import synth
-from pmctl.twin.diagnose import diagnose
-from pmctl.twin.scoring import score
+from pmctl.core.config import load_machine
+from pmctl.tools.twin import synth
+from pmctl.tools.twin.diagnose import diagnose
+from pmctl.tools.twin.scoring import score
 
 
 def run_case(effect, k, machine, duration, cap):

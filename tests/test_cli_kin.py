@@ -6,12 +6,12 @@ import sys
 
 import numpy as np
 
-from pmctl import kinematics as K
-from pmctl.config import load_machine
+from pmctl.core import kinematics as K
+from pmctl.core.config import load_machine
 
 
 def pmctl(*args):
-    return subprocess.run([sys.executable, "-m", "pmctl.cli", *args], capture_output=True, text=True)
+    return subprocess.run([sys.executable, "-m", "pmctl.interfaces.cli", *args], capture_output=True, text=True)
 
 
 def test_ik_then_fk_round_trip_through_the_cli():

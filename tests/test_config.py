@@ -6,8 +6,8 @@ import tomllib
 import numpy as np
 import pytest
 
-from pmctl.config import CONFIG_DIR, load_machine, machine_from_dict
-from pmctl.errors import ConfigError
+from pmctl.core.config import CONFIG_DIR, load_machine, machine_from_dict
+from pmctl.core.errors import ConfigError
 
 BASE = tomllib.loads((CONFIG_DIR / "prototype.toml").read_text())
 

@@ -1,7 +1,7 @@
 """Blind diagnosis of freshly generated concealed-effect recordings (issue 4 "Must show").
 
-Each case is made by pmctl.twin.synth; the diagnosis sees only the columns, the answer key is used
-to score afterwards (pmctl.twin.scoring: right effect and locator, parameters within ±20 %, held-out
+Each case is made by pmctl.tools.twin.synth; the diagnosis sees only the columns, the answer key is used
+to score afterwards (pmctl.tools.twin.scoring: right effect and locator, parameters within ±20 %, held-out
 RMS cut). Short runs keep the file fast; benchmarks/eval_diagnosis.py runs ≥ 20 cases per effect.
 """
 
@@ -10,11 +10,11 @@ import json
 import numpy as np
 import pytest
 
-from pmctl.cli import main
-from pmctl.config import load_machine
-from pmctl.twin import synth
-from pmctl.twin.diagnose import diagnose
-from pmctl.twin.scoring import score
+from pmctl.interfaces.cli import main
+from pmctl.core.config import load_machine
+from pmctl.tools.twin import synth
+from pmctl.tools.twin.diagnose import diagnose
+from pmctl.tools.twin.scoring import score
 
 M = load_machine()
 CAP = 3000

@@ -1,4 +1,4 @@
-"""Physical facts of the effect models and the locate helpers (pmctl.twin.effects / locate)."""
+"""Physical facts of the effect models and the locate helpers (pmctl.tools.twin.effects / locate)."""
 
 import dataclasses
 import math
@@ -6,10 +6,10 @@ import math
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from pmctl import kinematics as kin
-from pmctl.config import load_machine
-from pmctl.twin import effects as fx
-from pmctl.twin.locate import noise_level, spectrum_position
+from pmctl.core import kinematics as kin
+from pmctl.core.config import load_machine
+from pmctl.tools.twin import effects as fx
+from pmctl.tools.twin.locate import noise_level, spectrum_position
 
 M = load_machine()
 

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from pmctl import kinematics as K
-from pmctl.config import load_machine
-from pmctl.errors import InputError
-from pmctl.gcode import ARC_RADIUS_TOL_MM, parse_gcode, read_gcode
-from pmctl.job import ARC, DWELL, LINE, RAPID, load_job
+from pmctl.core import kinematics as K
+from pmctl.core.config import load_machine
+from pmctl.core.errors import InputError
+from pmctl.task.gcode import ARC_RADIUS_TOL_MM, parse_gcode, read_gcode
+from pmctl.task.job import ARC, DWELL, LINE, RAPID, load_job
 
 JOBS = Path(__file__).resolve().parents[1] / "examples" / "jobs"
 START = (0.0, 0.0, 100.0)

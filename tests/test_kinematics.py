@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings, strategies as st
 
-from pmctl import kinematics as K
-from pmctl.config import load_machine, machine_from_dict
-from pmctl.errors import KinematicsError, UnreachablePose
+from pmctl.core import kinematics as K
+from pmctl.core.config import load_machine, machine_from_dict
+from pmctl.core.errors import KinematicsError, UnreachablePose
 
 M = load_machine()
 G = M.geometry
@@ -191,7 +191,7 @@ def test_fk_iteration_cap_is_reported():
 
 def _calibrated(**over):
     import tomllib
-    from pmctl.config import CONFIG_DIR
+    from pmctl.core.config import CONFIG_DIR
     data = tomllib.loads((CONFIG_DIR / "prototype.toml").read_text())
     data["geometry"].update(over)
     return machine_from_dict(data, "<test>")
@@ -217,13 +217,13 @@ def test_general_geometry_fk_of_ik(seed, z, t1, t2, x, y):
     assert np.max(np.abs(np.einsum("ki,ki->k", C_base - m.geometry.base_joints, m.geometry.revolute_axes))) < 1e-9
 
 
-# ---------------------------------------------------------------- the loop's single-pose FK (pmctl.nc.ModelFK)
+# ---------------------------------------------------------------- the loop's single-pose FK (pmctl.motion.nc.ModelFK)
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**31))
 def test_loop_fk_follows_a_path_like_the_batch_solver(seed):
     """Tick after tick, with the predictor warm start, the loop's FK lands on the batch solution."""
-    from pmctl.nc import ModelFK
+    from pmctl.motion.nc import ModelFK
     rng = np.random.default_rng(seed)
     n = 60
     z = 393 + np.cumsum(rng.normal(0, 0.5, n))

@@ -1,4 +1,4 @@
-"""The control loop (pmctl.loop) against the loopback sim, realtime=False (same code path, no sleeping):
+"""The control loop (pmctl.motion.loop) against the loopback sim, realtime=False (same code path, no sleeping):
 tracking, pulse accounting, controlled stops with reasons, K_theta vibration suppression, counter
 persistence across a crash, service config validation."""
 
@@ -15,14 +15,14 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from pmctl import hal
-from pmctl import kinematics as K
-from pmctl.config import load_machine
-from pmctl.errors import ConfigError, InputError, UnreachablePose
-from pmctl.loop import (ControlLoop, LoopConfig, NCConfig, load_service_config, prepare, service_from_dict,
+from pmctl.core import kinematics as K
+from pmctl.core.config import load_machine
+from pmctl.core.errors import ConfigError, InputError, UnreachablePose
+from pmctl.motion.loop import (ControlLoop, LoopConfig, NCConfig, load_service_config, prepare, service_from_dict,
                         tracking_stats)
-from pmctl.nc import NCParams, counts_of, initial_state
-from pmctl.state_store import load_counters, save_counters
-from pmctl.trajectory import Trajectory
+from pmctl.motion.nc import NCParams, counts_of, initial_state
+from pmctl.motion.state_store import load_counters, save_counters
+from pmctl.task.trajectory import Trajectory
 
 M = load_machine()
 
@@ -230,7 +230,7 @@ CRASH_SCRIPT = textwrap.dedent("""
     import sys, numpy as np
     sys.path.insert(0, {tests!r})
     from test_loop import line_traj, rp, run
-    from pmctl.state_store import CounterWriter
+    from pmctl.motion.state_store import CounterWriter
     w = CounterWriter({path!r}, machine="prototype")
     tr = line_traj([0, 0, 5], [40, 20, 5], rp(0, 0), rp(0, 0), 10.0, 1e-3)
     print("start", flush=True)
@@ -323,7 +323,7 @@ def test_bundled_job_is_tracked_within_1um_and_passes_through_its_points(job):
     links: measured max tip error 0.5-0.6 um (pulse quantisation). The commanded path (FK of the
     pulse counters, what an outside check sees in cmd_*) passes within 1 um of every programmed
     point in the window."""
-    from pmctl.planner import load_job, plan
+    from pmctl.task.planner import load_job, plan
     dt = 1e-3
     traj = plan(load_job(os.path.join(JOBS, job), M), M, dt)
     n = len(traj)
@@ -354,9 +354,9 @@ def test_pmctl_run_end_to_end_writes_a_recording_through_the_job_points(tmp_path
     """`pmctl run` on the cone job at 250 Hz (fewer ticks: a fast test), no real time. Exit 0, a
     readable recording whose commanded path (FK of cmd_*) passes within 1 um of every programmed
     point, and the counters persisted cleanly."""
-    from pmctl.cli import main
-    from pmctl.planner import load_job
-    from pmctl.recording import read_recording
+    from pmctl.interfaces.cli import main
+    from pmctl.task.planner import load_job
+    from pmctl.core.recording import read_recording
     svc = tmp_path / "service.toml"
     svc.write_text('[loop]\nrate_hz = 250\nstate_file = ""\n[nc]\nkv_per_s = 100\nk_theta_per_s = 50\n'
                    '[hal]\nbackend = "sim"\n[hal.sim]\nflex = true\n')
@@ -386,8 +386,8 @@ def test_pmctl_run_end_to_end_writes_a_recording_through_the_job_points(tmp_path
 def test_one_controller_per_state_file(tmp_path):
     """A second run on the same machine state is refused before anything moves; the lock goes
     with its holder."""
-    from pmctl.errors import PmctlError
-    from pmctl.state_store import StateLock
+    from pmctl.core.errors import PmctlError
+    from pmctl.motion.state_store import StateLock
     state = tmp_path / "counters.json"
     first = StateLock(state)
     with pytest.raises(PmctlError, match="another pmctl run holds"):
@@ -426,8 +426,8 @@ def test_pulses_the_backend_refused_are_not_counted():
 
 @pytest.mark.parametrize("field,value", [("clean", '"false"'), ("tick", '"12"'), ("counts", "[1, 2, 3, 4, 99999999999999999999]")])
 def test_state_file_fields_are_type_checked(tmp_path, field, value):
-    from pmctl.errors import InputError
-    from pmctl.state_store import load_counters
+    from pmctl.core.errors import InputError
+    from pmctl.motion.state_store import load_counters
     fields = {"format": '"pmctl-counters/1"', "machine": '"prototype"', "counts": "[1, 2, 3, 4, 5]",
               "clean": "true", "tick": "3", "wall_time": "1.5"}
     fields[field] = value

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from pmctl import kinematics as K
-from pmctl.analysis import mechanism as M
-from pmctl.config import Stiffness, load_machine
-from pmctl.errors import PmctlError
+from pmctl.core import kinematics as K
+from pmctl.tools.analysis import mechanism as M
+from pmctl.core.config import Stiffness, load_machine
+from pmctl.core.errors import PmctlError
 
 MACHINE = load_machine("prototype")
 GEOM = MACHINE.geometry

@@ -1,4 +1,4 @@
-"""The NC step (pmctl.nc): single-pose model FK/Jacobian vs kinematics.py, pulse accounting, joint
+"""The NC step (pmctl.motion.nc): single-pose model FK/Jacobian vs kinematics.py, pulse accounting, joint
 velocity/acceleration limits in both V-F modes, stops with reasons."""
 
 from dataclasses import replace
@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings, strategies as st
 
-from pmctl import kinematics as K
-from pmctl.config import load_machine
-from pmctl.errors import KinematicsError
+from pmctl.core import kinematics as K
+from pmctl.core.config import load_machine
+from pmctl.core.errors import KinematicsError
 from pmctl.hal.base import Feedback
-from pmctl.nc import (HALTED, RUN, STOPPING, ModelFK, NCParams, counts_of, initial_state, limit_rates,
+from pmctl.motion.nc import (HALTED, RUN, STOPPING, ModelFK, NCParams, counts_of, initial_state, limit_rates,
                       nc_step)
 
 M = load_machine()
@@ -197,7 +197,7 @@ def test_orientation_error_ignores_spin_about_the_tool():
 
 
 def test_damped_pseudo_inverse_is_exact_when_regular_and_bounded_at_a_singularity():
-    from pmctl.nc import _damped_pinv_apply
+    from pmctl.motion.nc import _damped_pinv_apply
     params = NCParams.from_machine(M, 1e-3)
     tip, axis = _pose(3, -2, 12, 5, 7)
     r = K.ik(tip, axis, M)

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from pmctl import kinematics as K
-from pmctl import statics as S
-from pmctl.config import load_machine
-from pmctl.recording import read_recording, write_recording
-from pmctl.twin import nominal as N
+from pmctl.core import kinematics as K
+from pmctl.core import statics as S
+from pmctl.core.config import load_machine
+from pmctl.core.recording import read_recording, write_recording
+from pmctl.tools.twin import nominal as N
 
 M = load_machine()
 G = M.geometry

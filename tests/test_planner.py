@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from pmctl import kinematics as K
-from pmctl.config import load_machine
-from pmctl.errors import InputError
-from pmctl.gcode import parse_gcode
-from pmctl.job import DWELL, LINE, RAPID, Job, Move
-from pmctl.planner import VIOLATION_TOL, PlannerLimits, home_pose, load_job, plan
+from pmctl.core import kinematics as K
+from pmctl.core.config import load_machine
+from pmctl.core.errors import InputError
+from pmctl.task.gcode import parse_gcode
+from pmctl.task.job import DWELL, LINE, RAPID, Job, Move
+from pmctl.task.planner import VIOLATION_TOL, PlannerLimits, home_pose, load_job, plan
 
 JOBS = Path(__file__).resolve().parents[1] / "examples" / "jobs"
 DT = 1e-3

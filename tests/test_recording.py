@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from pmctl.errors import InputError
-from pmctl.recording import (CMD, REQUIRED, RecordingWriter, channel_kind, read_recording,
+from pmctl.core.errors import InputError
+from pmctl.core.recording import (CMD, REQUIRED, RecordingWriter, channel_kind, read_recording,
                              write_recording)
 
 

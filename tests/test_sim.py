@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from pmctl import hal
-from pmctl import kinematics as K
-from pmctl.statics import static_strain
-from pmctl.config import load_machine
-from pmctl.errors import ConfigError
+from pmctl.core import kinematics as K
+from pmctl.core.statics import static_strain
+from pmctl.core.config import load_machine
+from pmctl.core.errors import ConfigError
 from pmctl.hal.sim import SimBackend, SimOptions
 
 M = load_machine()
@@ -67,7 +67,7 @@ def test_flexible_mode_rings_at_its_natural_frequency_and_strain_reads_the_defle
         y.append(s.truth()[0] - fb.enc[0])
         truth.append(s.truth())
     strain, y = np.array(strain), np.array(y)
-    # strain gauge = gravity strain of the true pose (pmctl.statics) + k_eps * k * (load - motor)
+    # strain gauge = gravity strain of the true pose (pmctl.core.statics) + k_eps * k * (load - motor)
     pose, ok = K.fk_batch(np.array(truth), M)
     grav = static_strain(pose.P, pose.R, M)[:, 0]
     assert np.allclose(strain - grav, M.strain_gain * k * y, rtol=0, atol=1e-6)
@@ -144,7 +144,7 @@ def test_rigid_sim_strain_is_the_nominal_twin_gravity_strain():
 
 
 def test_model_static_strain_matches_statics():
-    from pmctl.nc import ModelFK
+    from pmctl.motion.nc import ModelFK
     mf = ModelFK(M)
     for q in ([393.0, 380.0, 400.0, 5.0, -3.0], [300.0, 310.0, 290.0, 0.0, 0.0]):
         q = np.array(q)

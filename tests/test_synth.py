@@ -11,12 +11,12 @@ import json
 import numpy as np
 import pytest
 
-from pmctl import kinematics as K
-from pmctl.config import load_machine
-from pmctl.errors import InputError
-from pmctl.recording import read_recording
-from pmctl.twin import nominal as N
-from pmctl.twin import synth as S
+from pmctl.core import kinematics as K
+from pmctl.core.config import load_machine
+from pmctl.core.errors import InputError
+from pmctl.core.recording import read_recording
+from pmctl.tools.twin import nominal as N
+from pmctl.tools.twin import synth as S
 
 M = load_machine()
 

@@ -1,11 +1,11 @@
-"""The software V-F converter (pmctl.vf, seed 004 2.2): conservation, saturation, symmetry."""
+"""The software V-F converter (pmctl.core.vf, seed 004 2.2): conservation, saturation, symmetry."""
 
 import math
 
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from pmctl import vf
+from pmctl.core import vf
 
 finite = dict(allow_nan=False, allow_infinity=False)
 

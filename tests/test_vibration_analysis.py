@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings, strategies as st
 
-from pmctl import vf
-from pmctl.analysis import vibration as V
+from pmctl.core import vf
+from pmctl.tools.analysis import vibration as V
 
 finite = dict(allow_nan=False, allow_infinity=False)
 KJ = (2 * math.pi * 5) ** 2
@@ -232,7 +232,7 @@ def test_seed_3_6_strain_noise_falls_in_the_dead_region():
 # ---------------------------------------------------------------- CLI
 
 def test_cli_vibration_writes_figures(tmp_path, capsys):
-    from pmctl.cli import main
+    from pmctl.interfaces.cli import main
     assert main(["analyze", "vibration", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "-213.4" in out and "18.63" in out and "-78.8" in out and "216.41" in out and "86.56" in out

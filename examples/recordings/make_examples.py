@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pmctl.config import load_machine
-from pmctl.twin import synth as S
+from pmctl.core.config import load_machine
+from pmctl.tools.twin import synth as S
 
 HERE = Path(__file__).resolve().parent
 

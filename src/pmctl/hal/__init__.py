@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import importlib
 
-from ..errors import ConfigError
-from .base import AXES, Backend, Feedback, HalError, HalTimeout, Status
+from pmctl.core.errors import ConfigError
+from pmctl.hal.base import AXES, Backend, Feedback, HalError, HalTimeout, Status
 
 BACKENDS = {
     "sim": "pmctl.hal.sim:SimBackend",

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import PmctlError
+from pmctl.core.errors import PmctlError
 
 AXES = ("L1", "L2", "L3", "X", "Y")
 

@@ -10,7 +10,7 @@ Per axis (L1, L2, L3, X, Y):
   piecewise-linearly, so each tick is a velocity jump followed by free motion, integrated exactly
   with a precomputed transition matrix (stable at any tick rate).
 - **strain gauge** on each plate link: strain = k_eps * tension, tension = the static gravity
-  load of the true (load-side) platform pose (pmctl.statics, RECORDING.md §2) plus the spring
+  load of the true (load-side) platform pose (pmctl.core.statics, RECORDING.md §2) plus the spring
   force k * y of the flexible mode (microstrain, tension positive);
 - **measurement noise**: Gaussian on encoders (mm) and strain (microstrain), seeded RNG.
 
@@ -27,9 +27,9 @@ from dataclasses import dataclass, fields
 import numpy as np
 from scipy.linalg import expm
 
-from ..config import Machine
-from ..errors import ConfigError
-from .base import Backend, Feedback, HalError, HalTimeout, Status
+from pmctl.core.config import Machine
+from pmctl.core.errors import ConfigError
+from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Status
 
 
 @dataclass
@@ -105,7 +105,7 @@ class SimBackend(Backend):
         self._phi = phi
         self._strain_per_mm = machine.strain_gain * o.mode_stiffness_N_per_mm   # microstrain per mm of y
         self._rng = np.random.default_rng(o.seed)
-        from ..nc import ModelFK
+        from pmctl.motion.nc import ModelFK
         self._fk = ModelFK(machine)          # the load-side pose, for the gravity strain
         self._fb = Feedback()
         self._fb.counts = np.zeros(5, np.int64)
@@ -122,7 +122,7 @@ class SimBackend(Backend):
         self.tick = 0
         self._fb.seq = 0
         self._open = True
-        from ..kinematics import forward_platform
+        from pmctl.core.kinematics import forward_platform
         q = self.truth()
         P, R = forward_platform(q[:3], self.machine.geometry)
         self._pose = (P.tolist(), R.tolist(), None, q)

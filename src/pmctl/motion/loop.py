@@ -1,0 +1,639 @@
+"""The fixed-rate control loop: read feedback -> NC step -> write pulses, on absolute deadlines.
+
+- Fixed rate (default 1 kHz), deadlines on CLOCK_MONOTONIC, slept to with
+  clock_nanosleep(TIMER_ABSTIME) (no drift); ``realtime=False`` runs the same ticks back to back
+  (tests, CI, offline simulation).
+- SCHED_FIFO and mlockall when permitted, with a clear message when not; the garbage collector is
+  paused during the run (no collection pauses on the hot path).
+- Per-tick compute time and lateness in preallocated arrays; overruns counted, warned about
+  (rate-limited), and N in a row stop the machine safely (decelerating stop).
+- A tick longer than the stall timeout, or a backend that does not answer, ends in a controlled
+  stop with a reason. The pulse counters are persisted by a writer thread every N ticks and at the
+  stop (pmctl.motion.state_store).
+- Everything a run keeps (commands, encoders, strain, the simulated load side) goes into
+  preallocated arrays; nothing is written to disk until the run ends.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import gc
+import math
+import os
+import sys
+import time
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from pmctl.core import kinematics as K
+from pmctl.core.config import CONFIG_DIR, Machine, _Section
+from pmctl.core.errors import ConfigError, KinematicsError, PmctlError, UnreachablePose
+from pmctl.hal import Backend, HalError, HalTimeout
+from pmctl.motion.nc import DONE, HALTED, RUN, STOPPING, ModelFK, NCParams, NCState, nc_step
+from pmctl.motion.state_store import CounterWriter
+from pmctl.task.trajectory import Trajectory
+
+# ---------------------------------------------------------------- service config
+
+
+@dataclass
+class LoopConfig:
+    rate_hz: float = 1000.0
+    realtime: bool = True
+    rt_priority: int = 50
+    lock_memory: bool = True
+    max_overruns_in_row: int = 10
+    stall_timeout_s: float = 0.05
+    settle_s: float = 0.05
+    persist_every_ticks: int = 100
+    state_file: str = ""            # "" = no persistence
+    spin_us: float = 0.0            # busy-wait this long before each deadline (keeps a VM's CPU awake)
+
+    @property
+    def dt(self):
+        return 1.0 / self.rate_hz
+
+
+@dataclass
+class NCConfig:
+    kv_per_s: float = 400.0
+    damping: float = 0.05
+    sv_threshold: float = 0.05
+    pulse_mode: str = "multi"       # "multi": integer pulses per tick up to the speed limit; "single": seed's 1/tick
+    k_theta_per_s: tuple = (0.0, 0.0, 0.0)
+    ferror_mm: float = 1.0
+    min_ferror_mm: float = 0.01
+    max_path_error_mm: float = 0.5
+
+    def params(self, machine: Machine, dt: float, where="service config") -> NCParams:
+        if self.kv_per_s * dt >= 1.0:
+            raise ConfigError(where, "nc.kv_per_s",
+                              f"{self.kv_per_s:g}/s at {1 / dt:g} Hz gives kv*dt = {self.kv_per_s * dt:.2f}; "
+                              f"must be < 1 for a stable loop (lower the gain or raise the rate)")
+        kth = np.asarray(self.k_theta_per_s, float)
+        if np.any(kth * dt >= 1.0):
+            raise ConfigError(where, "nc.k_theta_per_s", "k_theta*dt must be < 1")
+        return NCParams.from_machine(
+            machine, dt, max_pulses_per_tick=1 if self.pulse_mode == "single" else None,
+            k_theta=kth, kv=self.kv_per_s, damping=self.damping, sv_threshold=self.sv_threshold,
+            ferror_mm=self.ferror_mm, min_ferror_mm=self.min_ferror_mm,
+            max_path_error_mm=self.max_path_error_mm)
+
+
+@dataclass
+class ServiceConfig:
+    loop: LoopConfig = field(default_factory=LoopConfig)
+    nc: NCConfig = field(default_factory=NCConfig)
+    backend: str = "sim"
+    backend_options: dict = field(default_factory=dict)   # [hal.<backend>] table, validated by the backend
+    source: str = "<defaults>"
+
+
+def _bool(s: _Section, key, default):
+    if key not in s.data:
+        return default
+    s.used.add(key)
+    v = s.data[key]
+    if not isinstance(v, bool):
+        raise ConfigError(s.path, s._key(key), f"must be true or false, got {v!r}")
+    return v
+
+
+def _int(s: _Section, key, default, minimum):
+    v = s.number(key, default=default)
+    if v != int(v) or v < minimum:
+        raise ConfigError(s.path, s._key(key), f"must be an integer >= {minimum}, got {v:g}")
+    return int(v)
+
+
+def load_service_config(path: str | Path | None = None) -> ServiceConfig:
+    """Read and validate config/service.toml (file, key, reason on any problem; nothing half-applied)."""
+    p = Path(path) if path else CONFIG_DIR / "service.toml"
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise ConfigError(p, "-", f"cannot read: {e.strerror or e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(p, "-", f"not valid TOML: {e}") from None
+    return service_from_dict(data, p)
+
+
+def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
+    for k in data:
+        if k not in ("loop", "nc", "hal"):
+            raise ConfigError(path, k, "unknown table")
+    s = _Section(path, data.get("loop", {}), "loop")
+    d = LoopConfig()
+    loop = LoopConfig(
+        rate_hz=s.number("rate_hz", default=d.rate_hz, positive=True),
+        realtime=_bool(s, "realtime", d.realtime),
+        rt_priority=_int(s, "rt_priority", d.rt_priority, 1),
+        lock_memory=_bool(s, "lock_memory", d.lock_memory),
+        max_overruns_in_row=_int(s, "max_overruns_in_row", d.max_overruns_in_row, 1),
+        stall_timeout_s=s.number("stall_timeout_ms", default=d.stall_timeout_s * 1e3, positive=True) / 1e3,
+        settle_s=s.number("settle_ms", default=d.settle_s * 1e3, nonneg=True) / 1e3,
+        persist_every_ticks=_int(s, "persist_every_ticks", d.persist_every_ticks, 1),
+        spin_us=s.number("spin_us", default=d.spin_us, nonneg=True),
+        state_file=os.path.expanduser(s.string("state_file", default="")),
+    )
+    if not 10 <= loop.rate_hz <= 20000:
+        raise ConfigError(path, "loop.rate_hz", f"must be within 10 .. 20000 Hz, got {loop.rate_hz:g}")
+    if loop.rt_priority > 99:
+        raise ConfigError(path, "loop.rt_priority", "must be 1 .. 99")
+    s.finish()
+
+    s = _Section(path, data.get("nc", {}), "nc")
+    d = NCConfig()
+    kth = s.vector("k_theta_per_s", 3, default=None) if isinstance(s.data.get("k_theta_per_s"), list) \
+        else np.full(3, s.number("k_theta_per_s", default=0.0, nonneg=True))
+    if np.any(kth < 0):
+        raise ConfigError(path, "nc.k_theta_per_s", "must be >= 0")
+    mode = s.string("pulse_mode", default=d.pulse_mode)
+    if mode not in ("multi", "single"):
+        raise ConfigError(path, "nc.pulse_mode", f"must be 'multi' or 'single', got {mode!r}")
+    nc = NCConfig(
+        kv_per_s=s.number("kv_per_s", default=d.kv_per_s, positive=True),
+        damping=s.number("damping", default=d.damping, nonneg=True),
+        sv_threshold=s.number("sv_threshold", default=d.sv_threshold, positive=True),
+        pulse_mode=mode, k_theta_per_s=tuple(float(x) for x in kth),
+        ferror_mm=s.number("ferror_mm", default=d.ferror_mm, positive=True),
+        min_ferror_mm=s.number("min_ferror_mm", default=d.min_ferror_mm, positive=True),
+        max_path_error_mm=s.number("max_path_error_mm", default=d.max_path_error_mm, positive=True),
+    )
+    if nc.min_ferror_mm > nc.ferror_mm:
+        raise ConfigError(path, "nc.min_ferror_mm", "must not exceed nc.ferror_mm")
+    s.finish()
+
+    h = data.get("hal", {})
+    if not isinstance(h, dict):
+        raise ConfigError(path, "hal", "must be a table")
+    s = _Section(path, {k: v for k, v in h.items() if not isinstance(v, dict)}, "hal")
+    backend = s.string("backend", default="sim")
+    s.finish()
+    from pmctl.hal import BACKENDS
+    for k, v in h.items():
+        if isinstance(v, dict) and k not in BACKENDS:
+            raise ConfigError(path, f"hal.{k}", f"options for an unknown backend; known: {', '.join(BACKENDS)}")
+    opts = dict(h.get(backend, {}))
+    cfg = ServiceConfig(loop, nc, backend, opts, str(path))
+    if backend == "sim":           # validate now, not at the first tick
+        from pmctl.hal.sim import SimOptions
+        try:
+            SimOptions.from_dict(opts, None, where=f"{path}: hal.sim")
+        except TypeError as e:
+            raise ConfigError(path, "hal.sim", str(e)) from None
+    return cfg
+
+
+# ---------------------------------------------------------------- real-time setup
+
+_libc = None
+
+
+def _get_libc():
+    global _libc
+    if _libc is None:
+        _libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+    return _libc
+
+
+class _Timespec(ctypes.Structure):
+    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
+
+
+CLOCK_MONOTONIC, TIMER_ABSTIME = 1, 1
+MCL_CURRENT, MCL_FUTURE = 1, 2
+
+
+class AbsoluteSleeper:
+    """Sleep until an absolute CLOCK_MONOTONIC time in ns (time.monotonic_ns's clock)."""
+
+    def __init__(self):
+        self._ts = _Timespec()
+        try:
+            self._fn = _get_libc().clock_nanosleep
+            self._fn.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.POINTER(_Timespec), ctypes.c_void_p]
+            self._ref = ctypes.byref(self._ts)
+        except (OSError, AttributeError):
+            self._fn = None
+
+    def until(self, t_ns: int) -> None:
+        if self._fn is not None:
+            self._ts.tv_sec, self._ts.tv_nsec = divmod(t_ns, 1_000_000_000)
+            while self._fn(CLOCK_MONOTONIC, TIMER_ABSTIME, self._ref, None) == 4:   # EINTR: again
+                pass
+        else:
+            d = t_ns - time.monotonic_ns()
+            if d > 0:
+                time.sleep(d / 1e9)
+
+
+def setup_realtime(priority: int = 50, lock_memory: bool = True) -> list[str]:
+    """Try SCHED_FIFO and mlockall; return one message per thing that was or was not granted."""
+    msgs = []
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        msgs.append(f"real-time: SCHED_FIFO priority {priority}")
+    except (PermissionError, OSError, AttributeError) as e:
+        msgs.append(f"real-time: SCHED_FIFO not permitted ({getattr(e, 'strerror', None) or e}); running at normal "
+                    f"priority, expect more lateness (grant CAP_SYS_NICE or an rtprio limit in "
+                    f"/etc/security/limits.conf)")
+    if lock_memory:
+        try:
+            libc = _get_libc()
+            if libc.mlockall(MCL_CURRENT | MCL_FUTURE) != 0:
+                err = ctypes.get_errno()
+                raise OSError(err, os.strerror(err))
+            msgs.append("memory: locked (mlockall)")
+        except OSError as e:
+            msgs.append(f"memory: mlockall not permitted ({e.strerror or e}); pages may be swapped out "
+                        f"(raise RLIMIT_MEMLOCK / 'ulimit -l')")
+    return msgs
+
+
+def undo_realtime(lock_memory: bool) -> None:
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (PermissionError, OSError, AttributeError):
+        pass
+    if lock_memory:
+        try:
+            _get_libc().munlockall()
+        except OSError:
+            pass
+
+
+# ---------------------------------------------------------------- targets
+
+
+@dataclass
+class Targets:
+    """Per-tick targets for the NC: (N, 12) = tip, axis, tip_vel, axis_vel, plus bookkeeping."""
+
+    rows: np.ndarray
+    q: np.ndarray             # (N, 5) joints of each target (IK), for the preflight and the start
+    line: np.ndarray          # (N,) job line (0 = approach / none)
+    job_start: int            # index of the first job sample (after any approach)
+
+
+def resample(traj: Trajectory, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tip, axis and line of ``traj`` at period dt (linear interpolation, axis renormalised)."""
+    if abs(traj.dt - dt) <= 1e-12 * dt:
+        return np.asarray(traj.tip, float), np.asarray(traj.axis, float), np.asarray(traj.line)
+    n = len(traj)
+    t0 = np.arange(n) * traj.dt
+    t1 = np.arange(int(math.floor(t0[-1] / dt + 1e-9)) + 1) * dt
+    tip = np.stack([np.interp(t1, t0, traj.tip[:, i]) for i in range(3)], -1)
+    ax = np.stack([np.interp(t1, t0, traj.axis[:, i]) for i in range(3)], -1)
+    ax /= np.linalg.norm(ax, axis=-1, keepdims=True)
+    line = np.asarray(traj.line)[np.minimum(np.rint(t1 / traj.dt).astype(int), n - 1)]
+    return tip, ax, line
+
+
+def build_targets(tip, axis, line, dt: float, machine: Machine, params: NCParams) -> Targets:
+    """Preflight (every sample reachable, joint speeds within limits) and the target rows.
+
+    The feed-forward is the forward difference of the samples, so pulses over tick k carry the
+    model exactly from sample k to sample k+1 (no lag, no velocity/position mismatch)."""
+    tip = np.asarray(tip, float)
+    axis = np.asarray(axis, float)
+    n = len(tip)
+    if n == 0:
+        raise PmctlError("the trajectory is empty")
+    if not (np.all(np.isfinite(tip)) and np.all(np.isfinite(axis))):
+        raise PmctlError("the trajectory has non-finite samples")
+    r = K.ik_batch(tip, axis, machine)
+    if not np.all(r.ok):
+        i = int(np.nonzero(~r.ok)[0][0])
+        raise UnreachablePose(f"trajectory sample {i} (t = {i * dt:.3f} s, job line {int(line[i])}) is unreachable: "
+                              f"{r.reason[i]}; nothing moved")
+    q = r.q
+    out = (q < params.lower - 1e-9) | (q > params.upper + 1e-9)
+    if out.any():
+        i, j = (int(x) for x in np.argwhere(out)[0])
+        raise UnreachablePose(
+            f"trajectory sample {i} (t = {i * dt:.3f} s, job line {int(line[i])}): "
+            f"{('L1', 'L2', 'L3', 'X', 'Y')[j]} = {q[i, j]:.4f} mm outside the soft limits "
+            f"[{params.lower[j]:g}, {params.upper[j]:g}] mm; nothing moved")
+    if n > 1:
+        qd = np.abs(np.diff(q, axis=0)) / dt
+        over = qd > params.vmax * 1.02 + 0.5 / (params.pulses_per_mm * dt)
+        if over.any():
+            i, j = (int(x) for x in np.argwhere(over)[0])
+            raise UnreachablePose(
+                f"trajectory needs {('L1', 'L2', 'L3', 'X', 'Y')[j]} at {qd[i, j]:.2f} mm/s over the "
+                f"{params.vmax[j]:.2f} mm/s limit at t = {i * dt:.3f} s (job line {int(line[i])}); nothing moved")
+    rows = np.zeros((n, 12))
+    rows[:, :3] = tip
+    rows[:, 3:6] = axis
+    if n > 1:
+        rows[:-1, 6:9] = np.diff(tip, axis=0) / dt
+        rows[:-1, 9:12] = np.diff(axis, axis=0) / dt
+    return Targets(rows, q, np.asarray(line), 0)
+
+
+def approach_path(q0, q1, dt, params: NCParams, machine: Machine, frac=0.5):
+    """Joint-space move q0 -> q1 with a trapezoidal profile at ``frac`` of the joint limits, as tool
+    poses (tip, axis). Used when the machine is not at the job start (restart from saved counters)."""
+    d = np.asarray(q1, float) - np.asarray(q0, float)
+    dist = np.abs(d)
+    v = frac * params.vmax
+    a = frac * params.amax
+    # time per axis for a trapezoid (or triangle) over its distance; the slowest sets the time
+    tri = dist <= v * v / a
+    T_ax = np.where(tri, 2 * np.sqrt(dist / a), dist / v + v / a)
+    T = float(T_ax.max())
+    if T <= 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    # normalised trapezoid s(t) in [0, 1] with peak speed/accel scaled to the slowest axis
+    i = int(np.argmax(T_ax))
+    vs, as_ = (v[i] / dist[i], a[i] / dist[i])
+    if tri[i]:
+        vs = math.sqrt(as_)          # triangle: peak at half way, s'' = as_, T = 2 sqrt(1/as_)
+    ta = vs / as_
+    n = int(math.ceil(T / dt)) + 1
+    t = np.minimum(np.arange(n) * dt, T)
+    s = np.where(t < ta, 0.5 * as_ * t * t,
+                 np.where(t > T - ta, 1.0 - 0.5 * as_ * (T - t) ** 2, vs * (t - 0.5 * ta)))
+    s = np.clip(s, 0.0, 1.0)
+    q = q0 + s[:, None] * d
+    pose, ok = K.fk_batch(q, machine)
+    if not np.all(ok):
+        raise KinematicsError("approach move: forward kinematics failed on the way to the job start")
+    return pose.tip, pose.axis
+
+
+# ---------------------------------------------------------------- the loop
+
+
+@dataclass
+class TimingStats:
+    compute_ns: np.ndarray      # whole tick: read + NC + write (incl. the sim plant) + bookkeeping
+    late_ns: np.ndarray         # wake-up time after the deadline (0 without real time)
+    nc_ns: np.ndarray           # the NC step alone
+    overruns: int
+    max_overruns_in_row: int
+    realtime: bool
+    messages: list
+
+    def summary(self) -> dict:
+        c = self.compute_ns / 1e3
+        lt = self.late_ns / 1e3
+        if len(c) == 0:
+            return {}
+        nc = self.nc_ns / 1e3
+        return {"ticks": int(len(c)),
+                "nc_median_us": float(np.median(nc)), "nc_p99_us": float(np.percentile(nc, 99)),
+                "compute_median_us": float(np.median(c)), "compute_p99_us": float(np.percentile(c, 99)),
+                "compute_max_us": float(c.max()),
+                "late_median_us": float(np.median(lt)), "late_p99_us": float(np.percentile(lt, 99)),
+                "late_max_us": float(lt.max()), "overruns": int(self.overruns),
+                "max_overruns_in_row": int(self.max_overruns_in_row), "realtime": bool(self.realtime)}
+
+
+@dataclass
+class LoopResult:
+    status: str                 # "done" | "stopped" (controlled stop) | "fault" (halted at once)
+    reason: str
+    ticks: int
+    state: NCState
+    timing: TimingStats
+    dt: float
+    counts: np.ndarray          # (ticks, 5) pulse counters at the start of each tick (commanded position)
+    enc: np.ndarray             # (ticks, 5) motor-side feedback
+    strain: np.ndarray          # (ticks, 3)
+    truth: np.ndarray           # (ticks, 5) load-side joints (NaN without a simulation)
+    target: np.ndarray          # (ticks, 6) target tip + axis
+    pulses_sent: np.ndarray     # (5,) sum of all pulses written
+    job_start: int = 0
+
+    @property
+    def t(self):
+        return np.arange(self.ticks) * self.dt
+
+    @property
+    def ok(self):
+        return self.status == "done"
+
+
+class ControlLoop:
+    """Runs targets through the NC against a backend. ``run()`` returns a LoopResult.
+
+    Attributes ``tick``, ``n_ticks`` and ``mode`` are updated every tick for a progress display
+    running in another thread."""
+
+    def __init__(self, machine: Machine, backend: Backend, params: NCParams, targets: Targets,
+                 cfg: LoopConfig, state: NCState, *, log=None, writer: CounterWriter | None = None):
+        self.machine, self.backend, self.params = machine, backend, params
+        self.targets, self.cfg, self.state0 = targets, cfg, state
+        self.log = log or (lambda msg: print(f"pmctl: {msg}", file=sys.stderr))
+        self.writer = writer
+        self.model = ModelFK(machine)
+        self.settle_ticks = int(round(cfg.settle_s * cfg.rate_hz))
+        # budget: the targets, settling, and a full stop from top speed (plus margin)
+        stop_ticks = int(math.ceil(float(np.max(params.vmax / params.amax)) * cfg.rate_hz)) + 10
+        self.capacity = len(targets.rows) + self.settle_ticks + stop_ticks + 2
+        self.tick = 0
+        self.n_ticks = len(targets.rows) + self.settle_ticks
+        self.mode = RUN
+        self.stop_request = ""          # set from another thread to stop (e.g. Ctrl-C handler)
+
+    def run(self) -> LoopResult:
+        cfg, p, be = self.cfg, self.params, self.backend
+        n_cap = self.capacity
+        rows = self.targets.rows
+        n_t = len(rows)
+        hold = rows[-1].copy()
+        hold[6:] = 0.0
+        counts = np.zeros((n_cap, 5), np.int64)
+        enc = np.zeros((n_cap, 5))
+        strain = np.zeros((n_cap, 3))
+        truth = np.full((n_cap, 5), np.nan)
+        target = np.zeros((n_cap, 6))
+        comp = np.zeros(n_cap, np.int64)
+        late = np.zeros(n_cap, np.int64)
+        ncns = np.zeros(n_cap, np.int64)
+        sent = np.zeros(5, np.int64)
+        has_truth = be.truth() is not None
+        period = int(round(1e9 / cfg.rate_hz))
+        stall_ns = int(cfg.stall_timeout_s * 1e9)
+        spin_ns = int(cfg.spin_us * 1e3)
+        msgs = []
+        if cfg.realtime:
+            msgs = setup_realtime(cfg.rt_priority, cfg.lock_memory)
+            for m in msgs:
+                self.log(m)
+        sleeper = AbsoluteSleeper()
+        st = self.state0
+        status, reason = "done", ""
+        overruns = in_row = max_in_row = 0
+        last_warn = 0
+        persist_every = cfg.persist_every_ticks
+        gc_was = gc.isenabled()
+        gc.collect()
+        gc.disable()
+        switch = sys.getswitchinterval()
+        if cfg.realtime:
+            # a helper thread (progress, counter writer) holding the GIL when the tick wakes is
+            # asked to let go after 100 us instead of 5 ms
+            sys.setswitchinterval(1e-4)
+        mono = time.monotonic_ns
+        k = 0
+        deadline = mono() + period
+        try:
+            while True:
+                if k >= n_cap:
+                    status, reason = "stopped", "tick budget exhausted before the machine came to rest"
+                    break
+                if cfg.realtime:
+                    if spin_ns:
+                        sleeper.until(deadline - spin_ns)
+                        while mono() < deadline:
+                            pass
+                    else:
+                        sleeper.until(deadline)
+                    t0 = mono()
+                    late[k] = t0 - deadline
+                else:
+                    t0 = mono()
+                # ---- hot path
+                try:
+                    fb = be.read()
+                except HalTimeout as e:
+                    status, reason = "fault", f"backend not answering: {e}"
+                    st = _halt(st, reason)
+                    comp[k] = mono() - t0
+                    break
+                except HalError as e:
+                    status, reason = "fault", f"backend fault: {e}"
+                    st = _halt(st, reason)
+                    comp[k] = mono() - t0
+                    break
+                if self.stop_request and st.mode == RUN:
+                    st = _stopping(st, self.stop_request)
+                tg = rows[k] if k < n_t else hold
+                counts[k] = st.counts
+                enc[k] = fb.enc                    # copies: the backend reuses its feedback object
+                strain[k] = fb.strain
+                if has_truth:
+                    truth[k] = be.truth()          # load side at this tick's start, like enc and counts
+                t_nc = mono()
+                pulses, st = nc_step(st, tg, fb, p, self.model)
+                ncns[k] = mono() - t_nc
+                try:
+                    be.write_pulses(pulses)
+                except HalError as e:
+                    # the backend did not take this tick's pulses: the counters must not claim them
+                    status, reason = "fault", f"backend fault: {e}"
+                    st = _halt(replace(st, counts=st.counts - pulses), reason)
+                    break
+                sent += pulses
+                target[k] = tg[:6]
+                if writer := self.writer:
+                    if k % persist_every == 0:
+                        writer.offer(st.counts, k)
+                t1 = mono()
+                comp[k] = t1 - t0
+                # ---- end of hot path
+                self.tick = k
+                self.mode = st.mode
+                k += 1
+                if st.mode == HALTED:
+                    status, reason = ("stopped" if _was_stop(st) else "fault"), st.reason
+                    break
+                if st.mode == RUN and k >= n_t + self.settle_ticks:
+                    st = _done(st)
+                    status, reason = "done", ""
+                    break
+                if t1 - t0 > stall_ns and st.mode == RUN:
+                    st = _stopping(st, f"loop stalled: a tick took {(t1 - t0) / 1e6:.1f} ms "
+                                       f"(limit {cfg.stall_timeout_s * 1e3:g} ms)")
+                if cfg.realtime:
+                    deadline += period
+                    if t1 > deadline:
+                        missed = (t1 - deadline) // period + 1
+                        overruns += 1
+                        in_row += 1
+                        max_in_row = max(max_in_row, in_row)
+                        deadline += missed * period
+                        if t1 - last_warn > 1_000_000_000:
+                            last_warn = t1
+                            self.log(f"warning: tick {k} overran its deadline by {(t1 - deadline + missed * period) / 1e3:.0f} us "
+                                     f"({overruns} overruns so far)")
+                        if in_row >= cfg.max_overruns_in_row and st.mode == RUN:
+                            st = _stopping(st, f"{in_row} deadlines missed in a row at {cfg.rate_hz:g} Hz")
+                    else:
+                        in_row = 0
+        finally:
+            sys.setswitchinterval(switch)
+            if gc_was:
+                gc.enable()
+            if cfg.realtime:
+                undo_realtime(cfg.lock_memory)
+        n = k if status != "fault" else max(k, 0)
+        timing = TimingStats(comp[:n].copy(), late[:n].copy(), ncns[:n].copy(), overruns, max_in_row, cfg.realtime, msgs)
+        return LoopResult(status, reason, n, st, timing, 1.0 / cfg.rate_hz, counts[:n], enc[:n], strain[:n],
+                          truth[:n], target[:n], sent, self.targets.job_start)
+
+
+def _halt(st: NCState, reason: str) -> NCState:
+    from dataclasses import replace
+    return replace(st, mode=HALTED, reason=reason, qdot=np.zeros(5), acc=np.zeros(5))
+
+
+def _stopping(st: NCState, reason: str) -> NCState:
+    from dataclasses import replace
+    return replace(st, mode=STOPPING, reason=reason)
+
+
+def _done(st: NCState) -> NCState:
+    from dataclasses import replace
+    return replace(st, mode=DONE)
+
+
+def _was_stop(st: NCState) -> bool:
+    r = st.reason
+    return not (r.startswith("following error") or r.startswith("model pose lost"))
+
+
+# ---------------------------------------------------------------- convenience
+
+
+def prepare(machine: Machine, params: NCParams, traj: Trajectory, dt: float, counts0=None) -> Targets:
+    """Preflight the trajectory at tick period dt and prepend an approach move from counts0."""
+    tip, axis, line = resample(traj, dt)
+    tg = build_targets(tip, axis, line, dt, machine, params)
+    if counts0 is None:
+        return tg
+    q0 = np.asarray(counts0) / params.pulses_per_mm
+    q1 = tg.q[0]
+    if np.all(np.abs(np.rint(q1 * params.pulses_per_mm) - counts0) <= 1):
+        return tg
+    a_tip, a_axis = approach_path(q0, q1, dt, params, machine)
+    hold = int(round(0.02 / dt))
+    a_tip = np.concatenate([a_tip, np.repeat(tip[:1], hold, 0)])
+    a_axis = np.concatenate([a_axis, np.repeat(axis[:1], hold, 0)])
+    full = build_targets(np.concatenate([a_tip, tip]), np.concatenate([a_axis, axis]),
+                         np.concatenate([np.zeros(len(a_tip), int), line]), dt, machine, params)
+    full.job_start = len(a_tip)
+    return full
+
+
+def tracking_stats(res: LoopResult, machine: Machine, from_tick: int | None = None) -> dict:
+    """Tool-tip error of the load-side pose (FK of the simulated load side) against the target."""
+    i0 = res.job_start if from_tick is None else from_tick
+    tr = res.truth[i0:]
+    if len(tr) == 0 or not np.all(np.isfinite(tr)):
+        return {}
+    pose, ok = K.fk_batch(tr, machine)
+    e = np.linalg.norm(pose.tip - res.target[i0:, :3], axis=-1)
+    ang = np.arccos(np.clip(np.sum(pose.axis * res.target[i0:, 3:6], -1), -1.0, 1.0))
+    e = np.where(ok, e, np.nan)
+    return {"samples": int(len(e)), "tip_rms_um": float(np.sqrt(np.nanmean(e ** 2)) * 1e3),
+            "tip_max_um": float(np.nanmax(e) * 1e3), "tip_p99_um": float(np.nanpercentile(e, 99) * 1e3),
+            "axis_rms_urad": float(np.sqrt(np.nanmean(ang ** 2)) * 1e6),
+            "axis_max_urad": float(np.nanmax(ang) * 1e6), "fk_failures": int(np.sum(~ok))}

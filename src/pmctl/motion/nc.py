@@ -1,0 +1,486 @@
+"""Closed-loop NC step (MACHINE.md §6, seed 004 ch. 2-4): a pure function of (state, target, feedback).
+
+Each tick:
+  1. model pose r^ = FK(pulse counters x resolution), Newton warm-started from the previous pose;
+  2. pose error e = (p* - p^, axis error normal to the tool axis: spin about the tool is free);
+  3. joint rates qdot = J+(rdot* + K_v e) with J+ a damped SVD pseudo-inverse of the 6x5 tool
+     Jacobian d(tip_W, axis)/dq; minus the strain-gauge term K_theta (theta_m - theta_L) per chain;
+  4. joint velocity and acceleration limits (uniform scaling: the path direction is kept);
+  5. soft limits (joint ranges with the stopping distance, tilt range), following error
+     (LinuxCNC FERROR scaled with speed, floor MIN_FERROR) and path error stop motion with a reason;
+  6. V-F converters (pmctl.core.vf.vf_tick, the per-tick form of vf_step) -> signed pulses per axis; pulse counters += pulses.
+
+Units: mm, s, rad. Joint rates in mm/s; V-F input in pulses/s, threshold one pulse.
+
+Gains, in the seed's terms (eq. 3.1): the seed's V-F input is u = K_G(theta0 - theta_m) - K_theta
+(theta_m - theta_L) and the motor rate K_v K_R u. Here the rate is written directly,
+qdot = K_v e - K_theta (theta_m - theta_L), so ``kv`` = (seed K_v K_R K_G) and ``k_theta`` =
+(seed K_v K_R K_theta), both in 1/s.
+
+The hot path (one pose per tick) has its own small single-pose kinematics (:class:`ModelFK`): the
+batch functions of :mod:`pmctl.core.kinematics` cost ~0.3 ms per call in numpy overhead alone. It solves
+the same 6 loop equations with the same Newton scheme as ``kinematics.solve_platform`` and builds the
+same Jacobian as ``kinematics.jacobian_tool``; tests check both against kinematics.py.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.linalg import lapack
+
+from pmctl.core.config import Machine
+from pmctl.core.errors import KinematicsError
+from pmctl.core.kinematics import FK_MAX_ITER, FK_TOL_MM
+from pmctl.core.vf import vf_tick
+
+RUN, STOPPING, HALTED, DONE = 0, 1, 2, 3
+_ZERO5 = [0.0] * 5
+MODE_NAMES = {RUN: "run", STOPPING: "stopping", HALTED: "halted", DONE: "done"}
+
+def _solve(M, b):
+    """LAPACK dgesv without numpy.linalg's per-call overhead; raises KinematicsError if singular."""
+    _, _, x, info = lapack.dgesv(M, b)
+    if info != 0:
+        raise KinematicsError("forward kinematics: singular constraint Jacobian (a chain aligned with its plane normal)")
+    return x
+
+
+def _rodrigues_l(wx, wy, wz):
+    """Rotation matrix (nested lists) of the rotation vector (wx, wy, wz), as kinematics.expm_so3."""
+    th2 = wx * wx + wy * wy + wz * wz
+    if th2 < 1e-16:
+        a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
+    else:
+        th = math.sqrt(th2)
+        a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
+    return [[1.0 - b * (wy * wy + wz * wz), -a * wz + b * wx * wy, a * wy + b * wx * wz],
+            [a * wz + b * wx * wy, 1.0 - b * (wx * wx + wz * wz), -a * wx + b * wy * wz],
+            [-a * wy + b * wx * wz, a * wx + b * wy * wz, 1.0 - b * (wx * wx + wy * wy)]]
+
+
+class ModelFK:
+    """Single-pose forward kinematics + tool Jacobian for the tick (same equations as kinematics.py).
+
+    ``solve(q, P, R)`` -> (P, R, tip_w, axis, J): Newton on the 6 loop equations
+    |C_i - A_i| = L_i + off_i, n_i.(C_i - A_i) = 0 from the warm start (P, R); J is the 6x5
+    d(tip_W, axis)/dq, evaluated at the last Newton linearisation point (the previous model pose
+    when the counters moved: relative error ~ step/length, below 1e-3 at 200 pulses per tick; J
+    only shapes rates, positions always come from the converged FK).
+    Raises KinematicsError on non-convergence or a step off the assembly branch.
+    """
+
+    def __init__(self, machine: Machine, *, tol=FK_TOL_MM, max_iter=FK_MAX_ITER, max_tilt_rad=math.radians(45.0)):
+        g = machine.geometry
+        self.A = np.array(g.base_joints, float)
+        self.Cp = np.array(g.platform_joints, float)
+        self.N = np.array(g.revolute_axes, float)
+        self.off = np.array(g.length_offsets, float)
+        self.tip_p = np.array(g.tool_tip_p, float)
+        self.axis_p = np.array(g.tool_axis_p, float)
+        self.z_table = float(g.z_table)
+        self.tol, self.max_iter = tol, max_iter
+        ms = machine.mass
+        self._fz = -ms.platform_kg * ms.gravity                # N, gravity on the platform (base -Z)
+        self._com = [float(x) for x in ms.com_offset]
+        self._keps = float(machine.strain_gain)
+        self.cos_max_tilt = math.cos(max_tilt_rad)
+        self._tip_p = self.tip_p.tolist()
+        self._axis_p = self.axis_p.tolist()
+        self._A = self.A.tolist()
+        self._Cp = self.Cp.tolist()
+        self._N = self.N.tolist()
+        self._off = self.off.tolist()
+        self._rhs = np.zeros((6, 4))
+        self._rhs[:3, 1:] = np.eye(3)
+
+    def _residual(self, P, R, L):
+        """Loop equations at (P, R) in plain floats (one pose: cheaper than numpy calls).
+        Returns (f (6 floats), rc rows, d rows, lengths)."""
+        Rl = R
+        px, py, pz = P
+        f = [0.0] * 6
+        rcs, ds, lns = [], [], []
+        for i in range(3):
+            cx, cy, cz = self._Cp[i]
+            rx = Rl[0][0] * cx + Rl[0][1] * cy + Rl[0][2] * cz
+            ry = Rl[1][0] * cx + Rl[1][1] * cy + Rl[1][2] * cz
+            rz = Rl[2][0] * cx + Rl[2][1] * cy + Rl[2][2] * cz
+            ax, ay, az = self._A[i]
+            dx, dy, dz = rx + px - ax, ry + py - ay, rz + pz - az
+            ln = math.sqrt(dx * dx + dy * dy + dz * dz)
+            nx, ny, nz = self._N[i]
+            f[i] = ln - L[i] - self._off[i]
+            f[3 + i] = dx * nx + dy * ny + dz * nz
+            rcs.append((rx, ry, rz))
+            ds.append((dx, dy, dz))
+            lns.append(ln)
+        return f, rcs, ds, lns
+
+    def _linearise(self, rcs, ds, lns):
+        """Constraint Jacobian d(loop equations)/d(P, w) (6x6), as kinematics.constraint_jacobian."""
+        rows = [None] * 6
+        for i in range(3):
+            rx, ry, rz = rcs[i]
+            dx, dy, dz = ds[i]
+            ln = lns[i]
+            ux, uy, uz = dx / ln, dy / ln, dz / ln
+            nx, ny, nz = self._N[i]
+            rows[i] = (ux, uy, uz, ry * uz - rz * uy, rz * ux - rx * uz, rx * uy - ry * ux)
+            rows[3 + i] = (nx, ny, nz, ry * nz - rz * ny, rz * nx - rx * nz, rx * ny - ry * nx)
+        return np.array(rows)
+
+    def solve_l(self, q, P, R, pred=None):
+        """:meth:`solve` on plain lists (the per-tick path): P, R, tip, axis and J as lists."""
+        ql = q.tolist()
+        L = ql[:3]
+        if not isinstance(P, list):
+            P = P.tolist()
+            R = R.tolist()
+        if pred is not None:
+            dL, Tp = pred
+            if dL[0] or dL[1] or dL[2]:
+                st = (Tp @ dL).tolist()
+                P = [P[0] + st[0], P[1] + st[1], P[2] + st[2]]
+                E = _rodrigues_l(st[3], st[4], st[5])
+                R = [[E[r][0] * R[0][c] + E[r][1] * R[1][c] + E[r][2] * R[2][c] for c in range(3)] for r in range(3)]
+        f, rcs, ds, lns = self._residual(P, R, L)
+        res = max(abs(x) for x in f)
+        T = None
+        it = 0
+        while not res < self.tol:
+            if it >= self.max_iter or not math.isfinite(res):
+                raise KinematicsError(
+                    f"forward kinematics did not converge for L = {[round(x, 6) for x in L]} "
+                    f"(residual {res:.3g} mm after {it} iterations)")
+            M = self._linearise(rcs, ds, lns)
+            rhs = self._rhs
+            rhs[:, 0] = f
+            sol = _solve(M, rhs)
+            if T is None:
+                T = sol[:, 1:]
+            step = (-sol[:, 0]).tolist()
+            sp = math.sqrt(step[0] ** 2 + step[1] ** 2 + step[2] ** 2)
+            sr = math.sqrt(step[3] ** 2 + step[4] ** 2 + step[5] ** 2)
+            sc = min(1.0, 50.0 / max(sp, 1e-300), 0.2 / max(sr, 1e-300))
+            P = [P[0] + sc * step[0], P[1] + sc * step[1], P[2] + sc * step[2]]
+            E = _rodrigues_l(sc * step[3], sc * step[4], sc * step[5])
+            R = [[E[r][0] * R[0][c] + E[r][1] * R[1][c] + E[r][2] * R[2][c] for c in range(3)] for r in range(3)]
+            f, rcs, ds, lns = self._residual(P, R, L)
+            res = max(abs(x) for x in f)
+            it += 1
+        if not (P[2] > 0.0 and R[2][2] > self.cos_max_tilt):
+            raise KinematicsError(f"forward kinematics left the assembly branch for L = {[round(x, 6) for x in L]}")
+        if T is None:           # already converged: linearise at the pose
+            T = _solve(self._linearise(rcs, ds, lns), self._rhs[:, 1:])
+        self.last_T = T
+        # Tool pose and the 6x5 tool Jacobian (as kinematics.tool_of_platform / jacobian_tool), floats.
+        tp, ap = self._tip_p, self._axis_p
+        rt = [R[r][0] * tp[0] + R[r][1] * tp[1] + R[r][2] * tp[2] for r in range(3)]
+        ax = [R[r][0] * ap[0] + R[r][1] * ap[1] + R[r][2] * ap[2] for r in range(3)]
+        tip_w = [P[0] + rt[0] - ql[3], P[1] + rt[1] - ql[4], P[2] + rt[2] - self.z_table]
+        Tl = T.tolist()
+        J = [[0.0] * 5 for _ in range(6)]
+        for j in range(3):
+            wx, wy, wz = Tl[3][j], Tl[4][j], Tl[5][j]
+            # d tip = dP + w x rt ; d axis = w x axis
+            J[0][j] = Tl[0][j] + wy * rt[2] - wz * rt[1]
+            J[1][j] = Tl[1][j] + wz * rt[0] - wx * rt[2]
+            J[2][j] = Tl[2][j] + wx * rt[1] - wy * rt[0]
+            J[3][j] = wy * ax[2] - wz * ax[1]
+            J[4][j] = wz * ax[0] - wx * ax[2]
+            J[5][j] = wx * ax[1] - wy * ax[0]
+        J[0][3] = -1.0
+        J[1][4] = -1.0
+        return P, R, tip_w, ax, J
+
+    def static_strain(self, R, T):
+        """Plate-link strain (microstrain, tension positive) of the platform's weight at rotation R,
+        from the twist map T = (constraint Jacobian)^-1[:, :3] of the same pose: the chains'
+        compressions are a = -T^T w with w = (F, M about P) the gravity wrench (as
+        pmctl.core.statics.static_strain, one pose, plain floats), and strain = -k_eps a."""
+        c = self._com
+        rc = [R[r][0] * c[0] + R[r][1] * c[1] + R[r][2] * c[2] for r in range(3)]
+        fz = self._fz
+        w = (0.0, 0.0, fz, rc[1] * fz, -rc[0] * fz, 0.0)        # F; M = rc x F
+        Tl = T.tolist() if not isinstance(T, list) else T
+        k = self._keps
+        return [k * sum(Tl[r][i] * w[r] for r in range(6)) for i in range(3)]
+
+    def solve(self, q, P, R, pred=None):
+        """Model pose at joints q (5,) from the warm start (P, R): returns arrays
+        (P, R, tip_w, axis, J (6, 5)). ``pred`` = (dL, T): chain-length change since (P, R) and
+        the twist map d(P, w)/dL there (``self.last_T`` of the previous solve); the first-order
+        predicted pose then starts Newton, which usually converges in one iteration, not two."""
+        P, R, tip, ax, J = self.solve_l(q, P, R, pred)
+        return np.array(P), np.array(R), np.array(tip), np.array(ax), np.array(J)
+
+
+class _Lists:
+    __slots__ = ("vmax", "adt", "lower", "upper", "ppm", "amax")
+
+    def __init__(self, p):
+        self.vmax = [float(x) for x in p.vmax]
+        self.amax = [float(x) for x in p.amax]
+        self.adt = [float(x) * p.dt for x in p.amax]
+        self.lower = [float(x) for x in p.lower]
+        self.upper = [float(x) for x in p.upper]
+        self.ppm = [float(x) for x in p.pulses_per_mm]
+
+
+@dataclass(frozen=True)
+class NCParams:
+    """Gains and limits of the NC step. Build with :meth:`from_machine`."""
+
+    dt: float
+    pulses_per_mm: np.ndarray          # (5,)
+    vmax: np.ndarray                   # (5,) mm/s, effective (min of the limit and the V-F maximum)
+    amax: np.ndarray                   # (5,) mm/s^2
+    lower: np.ndarray                  # (5,) joint soft limits, mm
+    upper: np.ndarray
+    theta2_max_rad: float
+    kv: float = 500.0                  # 1/s, pose-error gain
+    damping: float = 0.05              # max damping factor lambda of the pseudo-inverse
+    sv_threshold: float = 0.05         # damping fades in below this smallest singular value
+    orient_weight_mm: float = 100.0    # weight of the axis rows (mm per unit axis error)
+    k_theta: np.ndarray = field(default_factory=lambda: np.zeros(3))   # 1/s per chain, 0 = off
+    deflection_per_ue: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mm per microstrain
+    max_pulses_per_tick: int = 1
+    ferror_mm: float = 1.0             # following-error limit at full speed (LinuxCNC FERROR)
+    min_ferror_mm: float = 0.01        # floor at low speed (LinuxCNC MIN_FERROR)
+    max_path_error_mm: float = 0.5     # model tool pose vs target (tip mm; axis weighted)
+    static_strain_comp: bool = True    # subtract the model pose's gravity strain from the gauges
+
+    def __post_init__(self):
+        # Arrays are frozen too (use dataclasses.replace to change a limit), so the plain-float
+        # copies for the per-tick scalar code (5 numbers: cheaper than numpy calls) stay in step.
+        for f in ("pulses_per_mm", "vmax", "amax", "lower", "upper", "k_theta", "deflection_per_ue"):
+            a = np.array(getattr(self, f), float)
+            a.setflags(write=False)
+            object.__setattr__(self, f, a)
+        object.__setattr__(self, "_l", _Lists(self))
+        object.__setattr__(self, "_kth_on", bool(np.any(self.k_theta)))
+
+    @classmethod
+    def from_machine(cls, machine: Machine, dt: float, *, max_pulses_per_tick=None, k_theta=0.0,
+                     modal_stiffness_N_per_mm=None, **kw):
+        """Limits from the machine config. ``max_pulses_per_tick=None`` -> multi-pulse mode sized by
+        the joint speed limit (200 kpulse/s at 2000 pulse/mm and 100 mm/s); 1 -> the seed's mode.
+        The strain->deflection scale is 1/(strain gain x chain stiffness)."""
+        lim, res = machine.limits, machine.resolution
+        ppm = res.pulses_per_mm
+        vlim = lim.joint_speed
+        if max_pulses_per_tick is None:
+            max_pulses_per_tick = int(math.ceil(float(np.max(vlim * ppm)) * dt))
+        max_pulses_per_tick = max(1, int(max_pulses_per_tick))
+        vmax = np.minimum(vlim, max_pulses_per_tick / (ppm * dt))
+        k = machine.stiffness.chain_axial if modal_stiffness_N_per_mm is None else modal_stiffness_N_per_mm
+        kth = np.broadcast_to(np.asarray(k_theta, float), (3,)).copy()
+        dpu = np.broadcast_to(1.0 / (machine.strain_gain * np.asarray(k, float)), (3,)).copy()
+        kw.setdefault("orient_weight_mm", machine.geometry.tool_length)
+        return cls(dt=dt, pulses_per_mm=ppm, vmax=vmax, amax=lim.joint_accel, lower=lim.joint_lower,
+                   upper=lim.joint_upper, theta2_max_rad=math.radians(max(abs(x) for x in lim.theta2_deg)),
+                   k_theta=kth, deflection_per_ue=dpu, max_pulses_per_tick=max_pulses_per_tick, **kw)
+
+
+@dataclass(frozen=True)
+class NCState:
+    counts: np.ndarray        # (5,) int64 pulse counters
+    acc: np.ndarray           # (5,) V-F accumulators, pulses
+    qdot: np.ndarray          # (5,) last commanded joint rate, mm/s
+    P: np.ndarray             # model platform pose (warm start)
+    R: np.ndarray
+    tip: np.ndarray           # model tool tip in W and axis
+    axis: np.ndarray
+    mode: int = RUN
+    reason: str = ""
+    path_error: float = 0.0   # |e| of the last tick, mm (weighted)
+    q_model: np.ndarray | None = None   # joints of the model pose (P, R)
+    T: np.ndarray | None = None         # (6, 3) platform twist per unit chain-length change at (P, R)
+
+
+def initial_state(machine: Machine, counts, model: ModelFK | None = None) -> NCState:
+    """State at given pulse counters: model pose by a cold-start FK (raises KinematicsError)."""
+    from pmctl.core.kinematics import forward_platform
+    counts = np.asarray(counts, dtype=np.int64).copy()
+    q = counts / machine.resolution.pulses_per_mm
+    P, R = forward_platform(q[:3], machine.geometry)
+    model = model or ModelFK(machine)
+    P, R, tip, axis, _ = model.solve(q, P, R)
+    return NCState(counts, np.zeros(5), np.zeros(5), P, R, tip, axis)
+
+
+def counts_of(q, params: NCParams):
+    """Nearest pulse counters of joint positions q (mm)."""
+    return np.rint(np.asarray(q, float) * params.pulses_per_mm).astype(np.int64)
+
+
+def _limit_rates_l(des, prev, L):
+    """limit_rates on plain lists (the per-tick path)."""
+    m = 0.0
+    for i in range(5):
+        r = abs(des[i]) / L.vmax[i]
+        if r > m:
+            m = r
+    if m > 1.0:
+        des = [d / m for d in des]
+    dq = [des[i] - prev[i] for i in range(5)]
+    m = 0.0
+    for i in range(5):
+        r = abs(dq[i]) / L.adt[i]
+        if r > m:
+            m = r
+    if m > 1.0:
+        return [prev[i] + dq[i] / m for i in range(5)]
+    return des
+
+
+def limit_rates(qdot_des, qdot_prev, params: NCParams):
+    """Joint velocity and acceleration limits by uniform scaling (path direction kept).
+
+    First the desired rate is scaled into the velocity box, then the change from the previous
+    rate is scaled into the per-tick acceleration box. The result is a convex combination of two
+    points inside the velocity box, so both limits hold."""
+    return np.array(_limit_rates_l(list(map(float, qdot_des)), list(map(float, qdot_prev)), params._l))
+
+
+def _damped_pinv_apply(J, x, params: NCParams):
+    U, s, Vt, info = lapack.dgesdd(J, full_matrices=0)
+    if info != 0:
+        raise KinematicsError("tool Jacobian SVD did not converge")
+    smin = s[-1]
+    eps = params.sv_threshold
+    lam2 = 0.0 if smin >= eps else params.damping ** 2 * (1.0 - (smin / eps) ** 2)
+    return Vt.T @ ((s / (s * s + lam2)) * (U.T @ x))
+
+
+_NAMES = ("L1", "L2", "L3", "X", "Y")
+
+
+def _stopping_violation(q, qdot, L, dt):
+    """Reason text if stopping now (uniformly scaled decel) would still cross a soft limit.
+    q, qdot: lists (position after this tick, rate)."""
+    T = max(abs(qdot[i]) / L.amax[i] for i in range(5))
+    for i in range(5):
+        v = qdot[i]
+        s = abs(v) * (0.5 * T + 2.0 * dt)            # distance while braking, plus two ticks' margin
+        x = q[i]
+        if (v > 0 and x + s > L.upper[i]) or (v < 0 and x - s < L.lower[i]) or x > L.upper[i] or x < L.lower[i]:
+            return (f"soft limit: {_NAMES[i]} = {x:.4f} mm moving at {v:.3f} mm/s would pass "
+                    f"[{L.lower[i]:g}, {L.upper[i]:g}] mm")
+    return ""
+
+
+def _nonfinite_feedback(enc, strain):
+    """Reason text if a feedback value is NaN or infinite (a lost or broken sensor), else ''."""
+    for i, v in enumerate(enc):
+        if not math.isfinite(v):
+            return f"feedback fault: encoder {_NAMES[i]} reads {v}"
+    for i, v in enumerate(strain):
+        if not math.isfinite(v):
+            return f"feedback fault: strain gauge {i + 1} reads {v}"
+    return ""
+
+
+def _ferror_violation(q, enc, qdot, params: NCParams):
+    """LinuxCNC following error: limit = max(MIN_FERROR, FERROR |v| / v_max) per joint (lists)."""
+    L = params._l
+    for i in range(5):
+        fe = abs(q[i] - enc[i])
+        lim = params.ferror_mm * abs(qdot[i]) / L.vmax[i]
+        if lim < params.min_ferror_mm:
+            lim = params.min_ferror_mm
+        if fe > lim:
+            return (f"following error: {_NAMES[i]} off by {fe:.4f} mm "
+                    f"(limit {lim:.4f} mm at {qdot[i]:.2f} mm/s)")
+    return ""
+
+
+def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
+    """One tick. Returns (pulses int64 (5,), new NCState). Pure: ``state`` is not modified.
+
+    target: (12,) = tip (3, mm in W), axis (3, unit), tip_vel (3, mm/s), axis_vel (3, 1/s).
+    feedback: has ``enc`` (5,) motor-side positions in mm and ``strain`` (3,) microstrain.
+    A stop (soft limit, path error) decelerates within the acceleration limits (mode STOPPING,
+    then HALTED); a fault (FK failure, following error) halts at once (no more pulses).
+    ``model`` holds only constants and scratch space.
+    """
+    zero = np.zeros(5, np.int64)
+    if state.mode in (HALTED, DONE):
+        return zero, state
+    L = params._l
+    ql = state.counts.tolist()
+    ql = [ql[i] / L.ppm[i] for i in range(5)]
+    prev = state.qdot.tolist()
+    enc = feedback.enc.tolist()
+    bad = _nonfinite_feedback(enc, feedback.strain.tolist())
+    if bad:              # a dead sensor must not blind the supervision (NaN compares false)
+        return zero, replace(state, qdot=np.zeros(5), acc=np.zeros(5), mode=HALTED, reason=bad)
+    fe = _ferror_violation(ql, enc, prev, params)
+    if fe:
+        return zero, replace(state, qdot=np.zeros(5), acc=np.zeros(5), mode=HALTED, reason=fe)
+    mode, reason = state.mode, state.reason
+    P, R, tip, axis, perr = state.P, state.R, state.tip, state.axis, state.path_error
+    qdot_des = _ZERO5
+    if mode == RUN:
+        try:
+            qa = np.array(ql)
+            pred = None if state.q_model is None else ((qa - state.q_model)[:3], state.T)
+            P, R, tip, axis, J = model.solve_l(qa, P, R, pred)
+            Tm, qm = model.last_T, qa
+            t = target.tolist()
+            w = params.orient_weight_mm
+            kv = params.kv
+            # position error; axis error = component of the target axis normal to the model axis
+            c = t[3] * axis[0] + t[4] * axis[1] + t[5] * axis[2]
+            e = [t[0] - tip[0], t[1] - tip[1], t[2] - tip[2],
+                 (t[3] - c * axis[0]) * w, (t[4] - c * axis[1]) * w, (t[5] - c * axis[2]) * w]
+            perr = math.sqrt(sum(v * v for v in e))
+            x = np.array([kv * e[0] + t[6], kv * e[1] + t[7], kv * e[2] + t[8],
+                          kv * e[3] + t[9] * w, kv * e[4] + t[10] * w, kv * e[5] + t[11] * w])
+            for r in (3, 4, 5):
+                Jr = J[r]
+                J[r] = [Jr[0] * w, Jr[1] * w, Jr[2] * w, 0.0, 0.0]
+            qd = _damped_pinv_apply(np.array(J), x, params)
+        except KinematicsError as e:
+            return zero, replace(state, qdot=np.zeros(5), acc=np.zeros(5), mode=HALTED,
+                                 reason=f"model pose lost: {e}")
+        if params._kth_on:
+            sg = feedback.strain
+            if params.static_strain_comp:          # the gauges also read the weight: keep the dynamic part
+                s0 = model.static_strain(R, Tm)
+                sg = sg - np.array(s0)
+            defl = -sg * params.deflection_per_ue                  # theta_m - theta_L, mm
+            qd[:3] -= params.k_theta * defl
+        qdot_des = qd.tolist()
+        if perr > params.max_path_error_mm:
+            mode, reason = STOPPING, (f"path error {perr:.4f} mm over {params.max_path_error_mm:g} mm "
+                                      f"(target not reachable within the joint limits)")
+        elif R[2][2] < math.cos(params.theta2_max_rad) - 1e-12:
+            mode, reason = STOPPING, (f"soft limit: tilt {math.degrees(math.acos(min(1.0, R[2][2]))):.3f} deg "
+                                      f"over {math.degrees(params.theta2_max_rad):g} deg")
+    if mode == STOPPING:
+        qdot_des = _ZERO5
+    qdot = _limit_rates_l(qdot_des, prev, L)
+    if mode == RUN:
+        dt = params.dt
+        why = _stopping_violation([ql[i] + qdot[i] * dt for i in range(5)], qdot, L, dt)
+        if why:
+            mode, reason = STOPPING, why
+            qdot = _limit_rates_l(_ZERO5, prev, L)
+    qdot_a = np.array(qdot)
+    ppm = L.ppm
+    pl, al = vf_tick(state.acc.tolist(), [qdot[i] * ppm[i] for i in range(5)], params.dt, 1.0,
+                     params.max_pulses_per_tick)
+    pulses, acc = np.array(pl, np.int64), np.array(al)
+    if mode == STOPPING and not any(qdot):
+        # Braked to rest: drop the sub-pulse residue (no pulse is owed) and halt.
+        mode = HALTED
+        acc = np.zeros(5)
+    if state.mode != RUN:          # no model solve this tick
+        Tm, qm = state.T, state.q_model
+    else:
+        P, R, tip, axis = np.array(P), np.array(R), np.array(tip), np.array(axis)
+    return pulses, NCState(state.counts + pulses, acc, qdot_a, P, R, tip, axis, mode, reason, perr, qm, Tm)

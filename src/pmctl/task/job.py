@@ -1,0 +1,102 @@
+"""A machining job: the list of moves both readers (CL data, G-code) produce and the planner consumes.
+
+All in the workpiece frame W: tool tip in mm, tool axis a unit vector (tip -> spindle). A move goes
+from where the previous one ended (the first from the planner's start pose) to its end pose:
+
+- ``RAPID``  straight line at the planner's rapid speed (G0, CL links);
+- ``LINE``   straight line at ``feed`` (G1, CL cutting points);
+- ``ARC``    circular/helical arc in the XY plane (G2/G3, G17) about ``center`` (x, y), sweeping
+             ``sweep`` radians (positive counter-clockwise seen from +z); the radius goes linearly from
+             the start radius to the end radius (a tolerated mismatch becomes a tiny spiral), z linearly;
+- ``DWELL``  no motion for ``dwell`` seconds (G4).
+
+The tool axis of every moving kind is interpolated by slerp from the start axis to the end axis.
+``line`` is the source line (1-based; 0 for moves the reader added), ``spindle_rpm`` the commanded
+spindle speed during the move (0 = off).
+
+``load_job(path, machine)`` reads a file of either format by its suffix.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pmctl.core import kinematics as K
+from pmctl.core.errors import InputError
+
+RAPID, LINE, ARC, DWELL = "rapid", "line", "arc", "dwell"
+KINDS = (RAPID, LINE, ARC, DWELL)
+
+GCODE_SUFFIXES = (".ngc", ".nc", ".gcode", ".tap")
+CL_SUFFIXES = (".cl", ".cls", ".txt", ".csv")
+
+
+@dataclass(frozen=True)
+class Move:
+    kind: str
+    tip: np.ndarray                  # (3,) end tool tip in W, mm
+    axis: np.ndarray                 # (3,) end unit tool axis
+    line: int = 0                    # source line, 1-based (0: added by the reader)
+    feed: float = 0.0                # mm/s for LINE and ARC (0 for RAPID and DWELL)
+    spindle_rpm: float = 0.0
+    center: np.ndarray | None = None  # ARC: centre (x, y) in W
+    sweep: float = 0.0               # ARC: signed sweep angle, rad (+ = counter-clockwise from +z)
+    dwell: float = 0.0               # DWELL: seconds
+
+
+@dataclass(frozen=True)
+class Job:
+    moves: tuple[Move, ...]
+    source: str = ""
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # programmed tip points in W
+    point_lines: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # their source lines
+
+    def __len__(self):
+        return len(self.moves)
+
+
+def home_pose(machine):
+    """Tool tip (W) and axis at home: P = (0, 0, Z_home), level platform, table at X = Y = 0."""
+    g = machine.geometry
+    tip, axis = K.tool_of_platform(np.array([0.0, 0.0, g.z_home]), np.eye(3), np.zeros(2), g)
+    return tip, axis / np.linalg.norm(axis)
+
+
+def check_reach(tip, axis, lines, machine, path) -> K.IKResult:
+    """IK of every pose; InputError at the first line whose pose is out of the tilt range or unreachable."""
+    lo, hi = machine.limits.theta2_deg
+    tilt = np.degrees(np.arccos(np.clip(axis[:, 2], -1.0, 1.0)))
+    bad = tilt > min(abs(lo), abs(hi)) + 1e-9
+    if np.any(bad):
+        k = int(np.argmax(bad))
+        raise InputError(path, int(lines[k]), f"tool axis tilted {tilt[k]:.4f} deg, beyond the machine's "
+                                              f"theta2 limit {min(abs(lo), abs(hi)):g} deg")
+    r = K.ik_batch(tip, axis, machine)
+    if not np.all(r.ok):
+        k = int(np.argmax(~r.ok))
+        more = int(np.count_nonzero(~r.ok)) - 1
+        raise InputError(path, int(lines[k]), f"pose unreachable: {r.reason[k]}"
+                                              + (f" (and {more} more unreachable lines)" if more else ""))
+    return r
+
+
+def load_job(path, machine, *, start=None, **options) -> Job:
+    """Read a job file, dispatching on its suffix (G-code: .ngc .nc .gcode .tap; CL: .cl .cls .txt .csv).
+
+    ``start`` = (tip, axis) where the machine is when the job begins (default: the home pose). G-code
+    needs it (G91 moves, arcs and the initial A/B are relative to it), so pass the planner's start
+    pose here too; CL data is absolute and ignores it. ``options`` go to the reader (CL data:
+    ``vector``, ``feed_mm_min``, ``clearance_mm``, ``spindle_rpm``)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in GCODE_SUFFIXES:
+        from pmctl.task.gcode import read_gcode
+        return read_gcode(path, machine, start=start, **options)
+    if suffix in CL_SUFFIXES:
+        from pmctl.task.cldata import read_cl_job
+        return read_cl_job(path, machine, **options)
+    raise InputError(path, None, f"unknown job format {suffix!r}: use G-code ({' '.join(GCODE_SUFFIXES)}) "
+                                 f"or CL data ({' '.join(CL_SUFFIXES)})")

@@ -1,0 +1,31 @@
+"""The contract between the path planner and the controller: tool poses sampled at the tick rate.
+
+The planner (pmctl.task.planner) produces a Trajectory from a job (G-code or CL data); the loop reads
+one row per tick. All in the workpiece frame W: tip in mm, tool axis unit (tip -> spindle).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Trajectory:
+    dt: float                    # s, the tick period it was sampled at
+    tip: np.ndarray              # (N, 3) mm, tool tip in W
+    axis: np.ndarray             # (N, 3) unit tool axis
+    tip_vel: np.ndarray          # (N, 3) mm/s
+    axis_vel: np.ndarray         # (N, 3) 1/s
+    line: np.ndarray             # (N,) int, source line of the job each sample comes from (0: none)
+    spindle_rpm: np.ndarray      # (N,) commanded spindle speed (0 = off)
+    source: str = ""             # the job file
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # the job's programmed tip points in W
+
+    def __len__(self):
+        return len(self.tip)
+
+    @property
+    def duration(self):
+        return len(self.tip) * self.dt

@@ -1,0 +1,498 @@
+"""Diagnosis: where and why a recording differs from the nominal twin (issue 4, items 3-5).
+
+Pipeline (pure functions; the CLI at the bottom is a thin layer):
+
+1. :func:`build_context`: residual = measured - nominal prediction for every observed channel
+   (enc_*, tip_*, tool_*, strain_*), each channel's noise level estimated robustly from the data
+   (locate.noise_level), whitened and stacked; kinematic Jacobians, geometry sensitivities and chain
+   forces at the analysis rows (at most ``cap`` samples per channel, evenly spread).
+2. :func:`pmctl.tools.twin.locate.locate`: where the mismatch lives.
+3. :func:`select_effects`: greedy forward selection over the effect library
+   (:mod:`pmctl.tools.twin.effects`). Each round fits every candidate to the current residual; a candidate
+   is scored on held-out samples by blocked cross-validation in time (24 blocks, 3 interleaved
+   folds: each fold is predicted by a fit on the other two). The best candidate is accepted only
+   when its held-out improvement of the whitened sum of squares beats what noise gives,
+   ``ΔSSE_cv > max(MIN_DSSE, BIC penalty p·ln N)``, ``ΔSSE_cv > REL_MIN`` of the residual energy
+   in the channels it touches, and the effect reaches MIN_PEAK x noise on at least 1 % of its
+   samples (sub-noise and sub-pulse structure is not physics). Candidates are ranked by
+   ``ΔSSE_cv − ½ p·ln N``. Then the residual is updated and the next round runs. At the end the
+   accepted effects are refitted with the others held (backfitting, two passes) and their held-out
+   predictions recomputed; ``rms_after`` of finding k is cumulative over findings 1..k.
+   Nonlinear parameters (backlash width, pitch period, lag τ, mode frequency/damping, step time)
+   are refitted inside every training fold, so the held-out score includes their search.
+4. :func:`diagnose` returns the RECORDING.md §4 report (a dict) plus the locate summary;
+   :func:`format_text` renders it, ``pmctl.tools.twin.plots`` draws it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pmctl.core import kinematics as kin
+from pmctl.tools.twin import effects as fx
+from pmctl.tools.twin import nominal
+from pmctl.tools.twin.effects import AXES, Context, Obs
+from pmctl.tools.twin.locate import channel_series, locate, noise_level, windows
+
+N_BLOCKS = 24
+N_FOLDS = 3
+MIN_DSSE = 30.0         # whitened: ~ 5 sigma of the held-out SSE difference of a null effect
+REL_MIN = 0.04          # the effect must explain this fraction of its channels' residual energy
+MIN_PEAK = 1.5         # ... and reach 1.5 x noise on at least 1 % of its samples
+MAX_FINDINGS = 6
+DEFAULT_CAP = 10000
+
+
+
+# ---------------------------------------------------------------- context
+
+def _floor(name, machine):
+    """Smallest credible noise level of a channel (a perfect channel still has quantisation)."""
+    if name.startswith("enc_"):       # half a pulse: sub-pulse quantisation error is not physics
+        return 0.5 / machine.resolution.chain_pulses_per_mm
+    if name.startswith("tip_"):
+        return 1e-6
+    if name.startswith("tool_"):
+        return 1e-9
+    return 1e-6
+
+
+def _spread(idx, cap):
+    if len(idx) <= cap:
+        return idx
+    return idx[np.linspace(0, len(idx) - 1, cap).round().astype(int)]
+
+
+def _noise_rows(idx, n_chunks=8, chunk=2500):
+    """Runs of consecutive sampled indices (for the noise estimate), spread over the record."""
+    if len(idx) <= n_chunks * chunk:
+        return [idx]
+    starts = np.linspace(0, len(idx) - chunk, n_chunks).astype(int)
+    return [idx[s:s + chunk] for s in starts]
+
+
+def build_context(columns: dict, machine, *, cap=DEFAULT_CAP) -> Context:
+    """Residuals of the nominal twin (pmctl.tools.twin.nominal) at the analysis rows, whitened and stacked."""
+    t = np.asarray(columns["t"], float)
+    n = len(t)
+    q_cmd = np.stack([fx.fill_gaps(t, np.asarray(columns[f"cmd_{a}"], float)) for a in AXES], 1)
+    has_enc = np.array([f"enc_{a}" in columns and np.isfinite(columns[f"enc_{a}"]).any() for a in AXES])
+    q_motor = q_cmd.copy()
+    for i, a in enumerate(AXES):
+        if has_enc[i]:
+            q_motor[:, i] = fx.fill_gaps(t, np.asarray(columns[f"enc_{a}"], float))
+    temps = {k: fx.fill_gaps(t, np.asarray(v, float)) for k, v in columns.items()
+             if k.startswith("temp_") and np.isfinite(v).sum() >= 2}
+    obs_names = [k for k in columns if k in nominal.PREDICTABLE]
+    sampled, ana, noi = {}, {}, {}
+    for k in obs_names:
+        ok = np.flatnonzero(np.isfinite(np.asarray(columns[k], float)))
+        if len(ok) < 10:
+            continue
+        sampled[k] = ok
+        ana[k] = _spread(ok, cap)
+        noi[k] = _noise_rows(ok)
+    names = list(sampled)
+    rows_all = np.unique(np.concatenate([ana[k] for k in names] + [c for k in names for c in noi[k]])) \
+        if names else np.zeros(0, int)
+    sub = {k: np.asarray(v, float)[rows_all] for k, v in columns.items()}
+    state = nominal.nominal_state(sub, machine, statics=True) if len(rows_all) else None
+    pred = nominal.predict_columns(sub, machine, names, state=state) if names else {}
+    sig = {}
+    for k in names:
+        r = sub[k] - pred[k]
+        parts = [r[np.searchsorted(rows_all, c)] for c in noi[k]]
+        sig[k] = float(np.median([noise_level(p, _floor(k, machine)) for p in parts]))
+    rows = np.unique(np.concatenate([ana[k] for k in names])) if names else np.zeros(0, int)
+    at = np.searchsorted(rows_all, rows)
+    ys, chs, rws, ws, preds = [], [], [], [], []
+    for ci, k in enumerate(names):
+        j = np.searchsorted(rows_all, ana[k])
+        r = sub[k][j] - pred[k][j]
+        good = np.isfinite(r)
+        ys.append(r[good] / sig[k])
+        chs.append(np.full(good.sum(), ci))
+        rws.append(ana[k][good])
+        ws.append(np.full(good.sum(), 1 / sig[k]))
+        preds.append(pred[k][j][good])
+
+    def cat(lst, dt=float):
+        return np.concatenate(lst) if lst else np.zeros(0, dt)
+
+    row = cat(rws, int)
+    obs = Obs(names, sig, cat(ys), cat(chs, int), row, np.searchsorted(rows, row), cat(ws), cat(preds))
+    if len(rows):
+        P, R = state.P[at], state.R[at]
+        bad = ~np.all(np.isfinite(P), -1)
+        if bad.any():                      # FK failed there: keep the rows but give them no leverage
+            P[bad], R[bad] = P[~bad][0] if (~bad).any() else 0, np.eye(3)
+        J = kin.jacobian_tool(P, R, machine.geometry)
+        geo = fx.geometry_sensitivity(P, R, machine.geometry)
+        forces = np.nan_to_num(state.axial[at])
+    else:
+        P, R = np.zeros((0, 3)), np.zeros((0, 3, 3))
+        J, geo, forces = np.zeros((0, 6, 5)), {}, np.zeros((0, 3))
+    dt = np.diff(t)
+    uniform = float(np.mean(dt)) if len(dt) and np.ptp(dt) <= 1e-6 * np.mean(dt) + 1e-12 else None
+    ctx = Context(machine, t, q_cmd, q_motor, has_enc, temps, rows, J, geo, forces, obs, uniform)
+    ctx.extra["P"], ctx.extra["R"] = P, R
+    if len(rows) and state.tip_force is not None:
+        ctx.extra["tip_force"] = np.nan_to_num(state.tip_force[at])
+    return ctx
+
+
+def folds_of(ctx: Context) -> np.ndarray:
+    tt = ctx.t[ctx.obs.row]
+    span = max(ctx.duration, 1e-12)
+    block = np.minimum(((tt - ctx.t[0]) / span * N_BLOCKS).astype(int), N_BLOCKS - 1)
+    return block % N_FOLDS
+
+
+# ---------------------------------------------------------------- selection
+
+class _Progress:
+    def __init__(self, total, enabled, label="diagnosing"):
+        self.total, self.enabled, self.label, self.k = max(total, 1), enabled, label, 0
+        self.t0 = time.monotonic()
+
+    def step(self, note=""):
+        self.k += 1
+        if self.enabled:
+            frac = min(self.k / self.total, 1.0)
+            bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
+            sys.stderr.write(f"\r{self.label} [{bar}] {100 * frac:3.0f}% {time.monotonic() - self.t0:5.1f}s {note[:28]:28s}")
+            sys.stderr.flush()
+
+    def done(self):
+        if self.enabled:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def _cv_pred(cand, ctx, y, folds):
+    pred = np.zeros_like(y)
+    for k in range(N_FOLDS):
+        test = folds == k
+        if not test.any():
+            continue
+        f = cand.fit(ctx, y, ~test)
+        if not f.ok:
+            return None
+        pred[test] = f.pred[test]
+    return pred
+
+
+def _affected(ctx, pred):
+    o = ctx.obs
+    e = np.bincount(o.ch, pred * pred, minlength=len(o.channels))
+    if e.max() <= 0:
+        return np.zeros(len(o.channels), bool)
+    return e >= 0.02 * e.max()
+
+
+def evaluate(cand, ctx, y, folds):
+    """Full fit + held-out score of one candidate on residual y. None when it is no candidate."""
+    o = ctx.obs
+    N = len(y)
+    allm = np.ones(N, bool)
+    try:
+        full = cand.fit(ctx, y, allm)
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+        return None
+    if not full.ok or not np.all(np.isfinite(full.pred)):
+        return None
+    sse0 = float(y @ y)
+    d_in = sse0 - float((y - full.pred) @ (y - full.pred))
+    pen = full.nparams * math.log(max(N, 2))
+    if d_in < max(MIN_DSSE, pen):
+        return None
+    cv = _cv_pred(cand, ctx, y, folds)
+    if cv is None or not np.all(np.isfinite(cv)):
+        return None
+    aff = _affected(ctx, full.pred)
+    m = aff[o.ch]
+    base = float(y[m] @ y[m])
+    d_cv = base - float((y[m] - cv[m]) @ (y[m] - cv[m]))
+    big = float(np.quantile(np.abs(full.pred[m]), 0.99)) if m.any() else 0.0
+    return {"cand": cand, "fit": full, "cv": cv, "d_cv": d_cv, "d_in": d_in, "pen": pen, "big": big,
+            "rel": d_cv / base if base > 0 else 0.0, "affected": aff,
+            "score": d_cv - 0.5 * pen}
+
+
+def accept(ev) -> bool:
+    return ev["d_cv"] > max(MIN_DSSE, ev["pen"]) and ev["rel"] > REL_MIN and ev["big"] > MIN_PEAK
+
+
+def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, candidates=None):
+    """Greedy forward selection. Returns (accepted evaluations in order, final residual)."""
+    y0 = ctx.obs.y
+    folds = folds_of(ctx)
+    cands = fx.catalogue(ctx) if candidates is None else candidates
+    y = y0.copy()
+    accepted = []
+    bar = _Progress(len(cands) * 2, progress)
+    for rnd in range(max_findings):
+        best = None
+        taken = {ev["cand"].key() for ev in accepted}
+        for c in cands:
+            bar.step(c.label)
+            if c.key() in taken:
+                continue
+            if hasattr(c, "reset"):
+                c.reset()
+            ev = evaluate(c, ctx, y, folds)
+            if ev is not None and accept(ev) and (best is None or ev["score"] > best["score"]):
+                best = ev
+        if best is None:
+            break
+        accepted.append(best)
+        y = y - best["fit"].pred
+    bar.done()
+    # backfitting: refit each accepted effect with the others held at their current fits
+    allm = np.ones(len(y0), bool)
+    for _ in range(2 if len(accepted) > 1 else 0):
+        for j, ev in enumerate(accepted):
+            others = sum((e["fit"].pred for k, e in enumerate(accepted) if k != j), np.zeros_like(y0))
+            c = ev["cand"]
+            if hasattr(c, "reset"):
+                c.reset()
+            f = c.fit(ctx, y0 - others, allm)
+            if f.ok:
+                ev["fit"] = f
+    # held-out predictions for the report, each on the residual left by the others
+    for j, ev in enumerate(accepted):
+        others = sum((e["fit"].pred for k, e in enumerate(accepted) if k != j), np.zeros_like(y0))
+        c = ev["cand"]
+        if hasattr(c, "reset"):
+            c.reset()
+        cv = _cv_pred(c, ctx, y0 - others, folds) if len(accepted) > 1 else ev["cv"]
+        ev["cv"] = cv if cv is not None else ev["fit"].pred
+    yfinal = y0 - sum((e["fit"].pred for e in accepted), np.zeros_like(y0))
+    return accepted, yfinal
+
+
+# ---------------------------------------------------------------- report
+
+def _rms_by_channel(ctx, y, channels):
+    o = ctx.obs
+    out = {}
+    for c in channels:
+        m = o.ch == o.channels.index(c)
+        out[c] = float(np.sqrt(np.mean((y[m] / o.w[m]) ** 2))) if m.any() else None
+    return out
+
+
+def _r(x, sig=4):
+    """Round for the report (enough digits for gains near 1)."""
+    if isinstance(x, float):
+        return float(f"{x:.{sig}g}") if math.isfinite(x) else x
+    if isinstance(x, list):
+        return [_r(v, sig) for v in x]
+    return x
+
+
+def _fmt_um(mm):
+    return f"{mm * 1000:.1f} µm" if abs(mm) < 1 else f"{mm:.3f} mm"
+
+
+def _evidence(ev, ctx, loc, explained):
+    c, p = ev["cand"], ev["fit"].params
+    pct = f"{100 * explained:.0f} %"
+    eff = c.effect
+    if eff == "backlash":
+        d = loc["direction"].get(c.target, {})
+        jump = abs(d.get("jump_mm", p["width_mm"]))
+        return (f"the tool error along {c.target} flips by {_fmt_um(jump)} when {c.target} reverses "
+                f"(t = {abs(d.get('t_value', 0)):.0f}), independent of pose; a {p['width_mm']:.4f} mm backlash "
+                f"on {c.target} explains {pct} of it on held-out samples.")
+    if eff == "pitch_error":
+        return (f"the error along {c.target} is periodic in the screw position with a period of "
+                f"{p['period_mm']:.3f} mm ({1 / p['period_mm']:.3f} /mm) and {_fmt_um(p['amplitude_mm'])} amplitude; "
+                f"a screw pitch error explains {pct} of it on held-out samples.")
+    if eff == "thermal_growth":
+        T = ctx.temps[p["channel"]]
+        x = np.abs(ctx.q_cmd[:, AXES.index(c.target)]).max()
+        return (f"the error along {c.target} grows with {p['channel']} (ΔT = {np.ptp(T):.1f} K) and with the screw "
+                f"position; α = {p['alpha_per_K']:.3g} /K ({_fmt_um(abs(p['alpha_per_K']) * np.ptp(T) * x)} at "
+                f"{x:.0f} mm) explains {pct} of it on held-out samples.")
+    if eff == "compliance":
+        a = AXES.index(c.target)
+        if a >= 3:
+            F = ctx.extra.get("tip_force", np.zeros((1, 3)))[:, a - 3]
+            return (f"the table gives way along {c.target} in proportion to the tip force F{'xy'[a - 3]} "
+                    f"({F.min():.0f} … {F.max():.0f} N); a stiffness of {p['stiffness_N_per_mm']:.0f} N/mm explains "
+                    f"{pct} of it on held-out samples.")
+        f = ctx.forces[:, a]
+        return (f"the tool deflects along chain {c.target} in proportion to its axial force "
+                f"({f.min():.0f} … {f.max():.0f} N); a stiffness of {p['stiffness_N_per_mm']:.0f} N/mm explains "
+                f"{pct} of it on held-out samples.")
+    if eff == "servo_lag":
+        v = np.abs(np.gradient(ctx.q_cmd[:, AXES.index(c.target)], ctx.t)).max()
+        return (f"enc_{c.target} trails cmd_{c.target} in proportion to speed ({_fmt_um(v * p['tau_s'])} at "
+                f"{v:.0f} mm/s); a first-order servo lag τ = {1000 * p['tau_s']:.2f} ms explains {pct} of it "
+                f"on held-out samples.")
+    if eff == "resonance":
+        return (f"{c.target} rings at {p['freq_hz']:.2f} Hz (damping ratio {p['damping_ratio']:.3f}) after "
+                f"accelerations; a base-excited mode explains {pct} of the residual on held-out samples.")
+    if eff == "lost_steps":
+        return (f"the load side of {c.target} steps by {_fmt_um(p['offset_mm'])} at t = {p['t_s']:.3f} s while the "
+                f"motor-side count runs on, and stays; a lost-step offset explains {pct} of it on held-out samples.")
+    if eff == "sensor_gain":
+        return (f"{c.target} reads {1e6 * (p['gain'] - 1):+.0f} ppm of its predicted value across its range; a "
+                f"gain of {p['gain']:.6f} explains {pct} of its residual on held-out samples.")
+    if eff == "sensor_offset":
+        unit = {"tip": " mm", "enc": " mm", "str": " µε"}.get(c.target[:3], "")
+        return (f"{c.target} is shifted by {p['offset']:+.4g}{unit} against its prediction at every pose and speed; "
+                f"an offset explains {pct} of its residual on held-out samples.")
+    if eff == "geometry":
+        who = "the tool" if c.target == "tool" else f"chain {c.target}"
+        pp = ", ".join(f"{k} = {np.round(np.atleast_1d(v), 4).tolist()}" for k, v in p.items())
+        return (f"the tool error is a smooth function of pose; kinematic deltas of {who} ({pp}) explain {pct} of it "
+                f"on held-out samples.")
+    return f"explains {pct} of the residual on held-out samples."
+
+
+def _finding(ev, ctx, y_before, y0, y_after_cum, loc_before):
+    c, f = ev["cand"], ev["fit"]
+    o = ctx.obs
+    aff = [o.channels[i] for i in np.nonzero(ev["affected"])[0]]
+    m = ev["affected"][o.ch]
+    sse_b = float(y_before[m] @ y_before[m])
+    r_after = y_before - ev["cv"]
+    sse_a = float(r_after[m] @ r_after[m])
+    excess = max(sse_b - m.sum(), 1e-12)
+    explained = min(max((sse_b - sse_a) / excess, 0.0), 1.0)
+    # where: spans where the effect's contribution exceeds 2 x noise
+    tt = ctx.t[o.row]
+    pred = np.abs(f.pred)
+    flag = pred > 2.0
+    tw = windows(np.sort(tt[flag]), np.ones(int(flag.sum()), bool), ctx.duration / 50) if flag.any() else []
+    target_key = c.target_key
+    tgt = c.target
+    params = {k: _r(v, 7 if k == "gain" else 4) for k, v in f.params.items()}
+    item = {"effect": c.effect, target_key: tgt, "parameters": params,
+            "where": {"channels": aff, "time_windows_s": [[round(a, 3), round(b, 3)] for a, b in tw],
+                      "direction_dependent": c.effect == "backlash",
+                      "frequency_hz": _r(f.params["freq_hz"]) if c.effect == "resonance" else None},
+            "evidence": _evidence(ev, ctx, loc_before, explained),
+            "rms_before": {k: _r(v) for k, v in _rms_by_channel(ctx, y0, aff).items()},
+            "rms_after": {k: _r(v) for k, v in _rms_by_channel(ctx, y_after_cum, aff).items()},
+            "heldout": True}
+    if c.effect == "pitch_error":
+        item["where"]["spatial_frequency_per_mm"] = _r(1 / f.params["period_mm"])
+    return item, explained
+
+
+def diagnose(columns: dict, machine, *, name="recording", progress=False,
+             cap=DEFAULT_CAP) -> tuple[dict, dict]:
+    """Run the whole diagnosis. Returns (report per RECORDING.md §4, extras for text and plots)."""
+    ctx = build_context(columns, machine, cap=cap)
+    loc0 = locate(ctx)
+    accepted, yfinal = select_effects(ctx, progress=progress)
+    y0 = ctx.obs.y
+    findings, cum, y_before = [], np.zeros_like(y0), y0.copy()
+    for ev in accepted:
+        loc_b = locate(ctx, y_before) if ev["cand"].effect == "backlash" else loc0
+        y_after = y0 - cum - ev["cv"]
+        item, expl = _finding(ev, ctx, y_before, y0, y_after, loc_b)
+        findings.append(item)
+        cum = cum + ev["fit"].pred
+        y_before = y0 - cum
+    report = {"recording": name,
+              "verdict": "unmodelled physics found" if findings else "consistent with the nominal twin",
+              "findings": findings}
+    extras = {"ctx": ctx, "locate": loc0, "accepted": accepted, "y_final": yfinal,
+              "locate_after": locate(ctx, yfinal)}
+    return report, extras
+
+
+def format_text(report, extras) -> str:
+    ctx, loc = extras["ctx"], extras["locate"]
+    L = [f"recording: {report['recording']}  ({len(ctx.t)} samples, {ctx.duration:.1f} s)", "",
+         "WHERE the recording differs from the nominal twin", ""]
+    L.append(f"  {'channel':10s} {'samples':>8s} {'rms':>11s} {'noise':>11s} {'excess/noise':>12s}  windows (s)")
+    for k, v in loc["channels"].items():
+        win = ", ".join(f"{a:.1f}-{b:.1f}" for a, b in v["windows_s"][:3]) or "-"
+        L.append(f"  {k:10s} {v['n']:8d} {v['rms']:11.4g} {v['noise']:11.3g} {v['excess']:12.1f}  {win}")
+    L.append("")
+    L.append("  by axis (load-side equivalent seen by the tool; direction split; spectrum against screw position)")
+    for ax, v in loc["axes"].items():
+        parts = []
+        if "enc_rms_mm" in v:
+            parts.append(f"enc-cmd rms {_fmt_um(v['enc_rms_mm'])}")
+        if "tool_equiv_rms_mm" in v:
+            parts.append(f"tool-equivalent rms {_fmt_um(v['tool_equiv_rms_mm'])}")
+        d = loc["direction"].get(ax)
+        if d:
+            parts.append(f"+/- motion jump {_fmt_um(d['jump_mm'])} (t = {d['t_value']:.1f})")
+        if v.get("screw_peak_per_mm"):
+            parts.append(f"screw-position peak {v['screw_peak_per_mm']:.3f} /mm "
+                         f"(period {v['screw_peak_period_mm']:.2f} mm, {v['screw_peak_ratio']:.0f}x median)")
+        if parts:
+            L.append(f"  {ax:3s} " + "; ".join(parts))
+    if loc["regions"]:
+        L.append("")
+        L.append("  by pose region (rms of residual / noise, terciles)")
+        for k, regs in loc["regions"].items():
+            L.append(f"  {k:9s} " + "  ".join(f"[{r['range'][0]:.1f},{r['range'][1]:.1f}]: {r['rms_over_noise']:.2f}"
+                                             for r in regs))
+    sp = [(k, v["spectrum_peak_hz"], v["spectrum_peak_ratio"]) for k, v in loc["channels"].items()
+          if v.get("spectrum_peak_hz") and v["spectrum_peak_hz"] >= 1.0 and v["spectrum_peak_ratio"] > 50]
+    if sp:
+        L.append("")
+        L.append("  spectral lines against time: " + ", ".join(f"{k} {f:.2f} Hz ({r:.0f}x)" for k, f, r in sp))
+    if loc["windows_s"]:
+        L.append("  residual above noise in: " + ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in loc["windows_s"]))
+    L += ["", "WHY: " + report["verdict"], ""]
+    for i, f in enumerate(report["findings"], 1):
+        tk = "chain" if "chain" in f else ("channel" if "channel" in f else "axis")
+        L.append(f"  {i}. {f['effect']} on {tk} {f[tk]}: " +
+                 ", ".join(f"{k} = {v}" for k, v in f["parameters"].items()))
+        L.append(f"     {f['evidence']}")
+        L.append("     held-out rms: " + ", ".join(
+            f"{k} {f['rms_before'][k]:.3g} -> {f['rms_after'][k]:.3g}" for k in f["rms_before"]))
+    if not ctx.obs.channels:
+        L.append("  The recording carries no measured channel (enc_*, tip_*, tool_*, strain_*): nothing to compare.")
+    elif not report["findings"]:
+        L.append("  No effect improves the held-out fit by more than noise would.")
+    return "\n".join(L)
+
+
+# ---------------------------------------------------------------- CLI
+
+def add_parser(sub):
+    p = sub.add_parser("diagnose", help="where and why a recording differs from the nominal twin",
+                       description="Locate the mismatch between a recording and the nominal twin, name the "
+                                   "physics it left out, fit it and show the held-out fit improve.")
+    p.add_argument("folder", help="recording folder (pmctl-recording/1)")
+    p.add_argument("--json", metavar="PATH", help="write the RECORDING.md §4 report here")
+    p.add_argument("--plots", metavar="DIR", help="write PNG plots here")
+    p.add_argument("--config", metavar="PATH", help="machine config (default: the one the recording names)")
+    p.add_argument("--cap", type=int, default=DEFAULT_CAP, help="max analysis samples per channel")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=_run)
+    return p
+
+
+def _run(args) -> int:
+    from pmctl.core.config import load_machine
+    from pmctl.core.recording import read_recording
+    rec = read_recording(args.folder)
+    machine = load_machine(args.config) if args.config else rec.machine
+    prog = (not args.no_progress) and rec.n >= 100_000
+    report, extras = diagnose(rec.columns, machine, name=rec.name, progress=prog, cap=args.cap)
+    print(format_text(report, extras))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(report, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+    if args.plots:
+        from pmctl.tools.twin.plots import write_plots
+        for pth in write_plots(report, extras, args.plots):
+            print(f"plot: {pth}")
+    return 0

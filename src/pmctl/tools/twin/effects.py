@@ -1,0 +1,824 @@
+"""Library of physical effects the nominal twin leaves out (RECORDING.md §3), as fit-able models.
+
+Every effect is a physical model with physical parameters, mapped through the machine's
+kinematics to the channels it touches:
+
+- a *load-side* error δq_a(t) on actuator a (backlash, pitch error, thermal growth, compliance,
+  lost steps, resonance of an axis) moves the tool by ``J_tool[:, a] · δq_a`` (kinematics.jacobian_tool);
+  the motor-side encoders do not see it;
+- a *motor-side* error (servo lag) shows in ``enc_a - cmd_a``; the tool only sees it where the
+  twin had to predict it from ``cmd`` (no encoder for that axis);
+- a geometry error δp (joint positions, actuator zero offsets, tool length / tilt) moves the tool by
+  the parameter sensitivity of the closed loop: dX = -A⁻¹ ∂f/∂p δp, A = kinematics.constraint_jacobian;
+- a sensor gain / offset scales / shifts one channel against its nominal prediction.
+
+Fitting works on a :class:`Context`: the residual (measured - nominal) of every observed channel,
+stacked into one vector and whitened by each channel's noise level, on a capped set of analysis rows.
+Each :class:`Candidate` fits on a boolean training mask and predicts every element, so the caller
+can score it on held-out samples. Pure math; no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize, signal
+
+from pmctl.core import kinematics as kin
+
+AXES = ("L1", "L2", "L3", "X", "Y")
+MAX_ALPHA = 1e-4   # /K, no solid screw expands more
+PRESCREEN = 10.0   # whitened SSE a start value of a nonlinear parameter must already remove
+TOOL_ROWS = {"tip_x": 0, "tip_y": 1, "tip_z": 2, "tool_i": 3, "tool_j": 4, "tool_k": 5}
+ENC = tuple(f"enc_{a}" for a in AXES)
+CMD = tuple(f"cmd_{a}" for a in AXES)
+STRAIN = ("strain_1", "strain_2", "strain_3")
+
+
+# ---------------------------------------------------------------- the fitting context
+
+@dataclass
+class Obs:
+    """The stacked, whitened residual of all observed channels at the analysis samples."""
+
+    channels: list[str]          # channel names; ch indexes into this
+    sigma: dict[str, float]      # noise level per channel (channel units)
+    y: np.ndarray                # (N,) whitened residual
+    ch: np.ndarray               # (N,) channel index
+    row: np.ndarray              # (N,) index into the full-rate arrays
+    pos: np.ndarray              # (N,) index into Context.rows
+    w: np.ndarray                # (N,) 1/sigma of the element's channel
+    pred: np.ndarray             # (N,) nominal prediction (channel units)
+
+    def mask_of(self, name):
+        return self.ch == self.channels.index(name) if name in self.channels else np.zeros(self.y.shape, bool)
+
+
+@dataclass
+class Context:
+    machine: object
+    t: np.ndarray                # (n,) s
+    q_cmd: np.ndarray            # (n, 5) commanded actuator positions, mm
+    q_motor: np.ndarray          # (n, 5) motor side (enc where recorded, else cmd)
+    has_enc: np.ndarray          # (5,) bool
+    temps: dict                  # name -> (n,) temperature, interpolated over gaps
+    rows: np.ndarray             # (m,) analysis rows (sorted)
+    J: np.ndarray                # (m, 6, 5) d(tip_W, axis)/dq at the analysis rows
+    geo: dict                    # group name -> (m, 6, k) sensitivity, and names
+    forces: np.ndarray           # (m, 3) chain axial force, compression positive, N
+    obs: Obs
+    uniform_dt: float | None     # sample interval when t is uniform
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def duration(self):
+        return float(self.t[-1] - self.t[0]) if len(self.t) > 1 else 0.0
+
+
+def geometry_sensitivity(P, R, geom):
+    """d(tip_W, tool axis)/d(geometry parameters) at fixed actuator positions, per group.
+
+    Groups: ``chain{i}:length_offset`` (1, mm), ``chain{i}:base_joint`` (2, mm: radial, z, i.e. in
+    the chain plane, where the revolute axis keeps the chain),
+    ``chain{i}:platform_joint`` (3, mm, platform frame), ``tool:length`` (1, mm),
+    ``tool:tilt`` (2, deg). Returns {group: (..., 6, k)}."""
+    A = kin.constraint_jacobian(P, R, geom)
+    Ainv = np.linalg.inv(A)                                   # (..., 6, 6)
+    rc = np.einsum("...ij,kj->...ki", R, geom.platform_joints)
+    d = P[..., None, :] + rc - geom.base_joints
+    u = d / np.linalg.norm(d, axis=-1, keepdims=True)          # (..., 3, 3)
+    n = np.broadcast_to(geom.revolute_axes, u.shape)
+    rt = np.einsum("...ij,j->...i", R, geom.tool_tip_p)
+    v = np.einsum("...ij,j->...i", R, geom.tool_axis_p)
+
+    def tool_of_dx(dX):                                       # dX (..., 6, k) -> (..., 6, k)
+        dP, w = dX[..., :3, :], dX[..., 3:, :]
+        dtip = dP + np.cross(w, rt[..., :, None], axisa=-2, axisb=-2, axisc=-2)
+        dax = np.cross(w, v[..., :, None], axisa=-2, axisb=-2, axisc=-2)
+        return np.concatenate([dtip, dax], -2)
+
+    out = {}
+    shape = P.shape[:-1]
+    for i in range(3):
+        df = np.zeros(shape + (6, 1))
+        df[..., i, 0] = -1.0
+        out[f"chain{i + 1}:length_offset"] = tool_of_dx(-Ainv @ df)
+        # base joint moved within its chain plane: radially (along its horizontal direction) and in z
+        ai = geom.base_joints[i]
+        radial = np.array([ai[0], ai[1], 0.0]) / max(math.hypot(ai[0], ai[1]), 1e-12)
+        basis = np.stack([radial, [0.0, 0.0, 1.0]], 1)                       # (3, 2)
+        df = np.zeros(shape + (6, 2))
+        df[..., i, :] = -u[..., i, :] @ basis
+        df[..., 3 + i, :] = -n[..., i, :] @ basis
+        out[f"chain{i + 1}:base_joint"] = tool_of_dx(-Ainv @ df)
+        df = np.zeros(shape + (6, 3))
+        df[..., i, :] = np.einsum("...j,...jk->...k", u[..., i, :], R)
+        df[..., 3 + i, :] = np.einsum("...j,...jk->...k", n[..., i, :], R)
+        out[f"chain{i + 1}:platform_joint"] = tool_of_dx(-Ainv @ df)
+    a, b = np.radians(geom.tool_tilt_deg)
+    ap = geom.tool_axis_p
+    da = np.array([0.0, -math.cos(a) * math.cos(b), -math.sin(a) * math.cos(b)])
+    db = np.array([math.cos(b), math.sin(a) * math.sin(b), -math.cos(a) * math.sin(b)])
+    s = np.zeros(shape + (6, 1))
+    s[..., :3, 0] = -np.einsum("...ij,j->...i", R, ap)
+    out["tool:length"] = s
+    s = np.zeros(shape + (6, 2))
+    for k, dd in enumerate((da, db)):
+        s[..., :3, k] = -geom.tool_length * np.einsum("...ij,j->...i", R, dd) * math.pi / 180
+        s[..., 3:, k] = np.einsum("...ij,j->...i", R, dd) * math.pi / 180
+    out["tool:tilt"] = s
+    return out
+
+
+# ---------------------------------------------------------------- signal helpers
+
+def fill_gaps(t, x):
+    """Linear interpolation over NaN gaps (edges held). All-NaN stays NaN."""
+    ok = np.isfinite(x)
+    if ok.all() or not ok.any():
+        return x.astype(float)
+    return np.interp(t, t[ok], x[ok])
+
+
+def play_error(x, width, start=0.0):
+    """Backlash as a play operator: load position stays within ±width/2 of the motor position and
+    only moves when dragged. Returns e = x_load - x_motor, starting at ``start``·width/2 (start in
+    [-1, 1]: where in the deadband the load rests when the record begins). Exact, segment-wise."""
+    h = 0.5 * abs(width)
+    x = np.asarray(x, float)
+    e = np.zeros_like(x)
+    if len(x) < 2 or h == 0:
+        return e
+    dx = np.diff(x)
+    nz = np.nonzero(dx)[0]
+    if len(nz) == 0:
+        return e
+    s = np.sign(dx[nz])
+    rev = nz[1:][s[1:] != s[:-1]]          # the increment index where direction changes
+    starts = np.concatenate([[0], rev])    # segment k starts at sample starts[k]
+    ends = np.concatenate([rev, [len(x) - 1]])
+    e0 = float(np.clip(start, -1, 1)) * h
+    for a, b in zip(starts, ends):
+        seg = np.clip(e0 - (x[a:b + 1] - x[a]), -h, h)
+        e[a:b + 1] = seg
+        e0 = seg[-1]
+    return e
+
+
+def direction(x, dead=0.0):
+    """+1/-1 for the direction of the last motion (held through stops), 0 before the first move."""
+    dx = np.diff(np.asarray(x, float), prepend=x[0])
+    s = np.where(dx > dead, 1.0, np.where(dx < -dead, -1.0, 0.0))
+    idx = np.where(s != 0, np.arange(len(s)), 0)
+    np.maximum.accumulate(idx, out=idx)
+    d = s[idx]
+    d[: np.argmax(s != 0) if np.any(s != 0) else len(s)] = 0.0
+    return d
+
+
+def first_order_lag(t, u, tau):
+    """Response of a first-order lag τ·y' + y = u to u, starting settled at u[0].
+
+    Exact for an input that is linear between samples (first-order hold), so a ramp at speed v is
+    trailed by exactly τ·v whatever the sample rate."""
+    u = np.asarray(u, float)
+    if tau <= 0:
+        return u.copy()
+    dt = np.diff(t)
+    if len(dt) and np.ptp(dt) <= 1e-6 * np.mean(dt):
+        h = float(np.mean(dt))
+        a = math.exp(-h / tau)
+        c = (1 - a) * tau / h - a
+        # y_k = a y_{k-1} + (1 - a - c) u_k + c u_{k-1}
+        y, _ = signal.lfilter([1 - a - c, c], [1, -a], u - u[0], zi=[0.0])
+        return y + u[0]
+    y = np.empty_like(u)
+    y[0] = u[0]
+    aa = np.exp(-dt / tau)
+    cc = (1 - aa) * tau / dt - aa
+    for k in range(1, len(u)):
+        y[k] = aa[k - 1] * y[k - 1] + (1 - aa[k - 1] - cc[k - 1]) * u[k] + cc[k - 1] * u[k - 1]
+    return y
+
+
+def resonance_response(x, dt, freq_hz, zeta):
+    """Relative displacement of a base-excited oscillator y'' + 2ζω y' + ω² y = -x'' (uniform dt),
+    i.e. H(s) = -s² / (s² + 2ζω s + ω²) applied to x - x[0]. Bilinear with prewarping at ω."""
+    w = 2 * math.pi * freq_hz
+    wp = 2.0 / dt * math.tan(min(w * dt / 2, 1.55))
+    b, a = signal.bilinear([-1.0, 0.0, 0.0], [1.0, 2 * zeta * wp, wp * wp], fs=1.0 / dt)
+    x = np.asarray(x, float)
+    return signal.lfilter(b, a, x - x[0])
+
+
+# ---------------------------------------------------------------- fit results and candidates
+
+@dataclass
+class Fit:
+    params: dict                 # report-named physical parameters
+    pred: np.ndarray             # (N,) whitened prediction for every obs element
+    nparams: int
+    ok: bool = True
+    note: str = ""
+    internal: dict = field(default_factory=dict)
+
+
+def _lstsq(X, y):
+    """Least squares for few columns: scaled normal equations (lstsq fallback when singular)."""
+    if X.shape[1] == 0 or X.shape[0] == 0:
+        return np.zeros(X.shape[1])
+    sc = np.sqrt(np.einsum("ij,ij->j", X, X))
+    sc[sc == 0] = 1.0
+    Xs = X / sc
+    G = Xs.T @ Xs
+    b = Xs.T @ y
+    try:
+        if np.linalg.cond(G) < 1e10:
+            return np.linalg.solve(G, b) / sc
+    except np.linalg.LinAlgError:
+        pass
+    c, *_ = np.linalg.lstsq(Xs, y, rcond=1e-10)
+    return c / sc
+
+
+class Candidate:
+    """One effect on one target. Subclasses implement ``design`` (linear ones) or ``fit``."""
+
+    effect = ""
+    target_key = "axis"
+    nparams = 1
+
+    def __init__(self, target):
+        self.target = target
+
+    @property
+    def label(self):
+        return f"{self.effect}[{self.target}]"
+
+    def key(self):
+        return (self.effect, self.target_key, self.target)
+
+    def applicable(self, ctx: Context) -> bool:
+        return True
+
+    # linear models: columns (N, k) of whitened obs; params from coefficients
+    def design(self, ctx: Context):
+        raise NotImplementedError
+
+    def params_of(self, c, ctx):
+        raise NotImplementedError
+
+    def cached_design(self, ctx: Context):
+        """(X, rows where X is non-zero); computed once per context."""
+        if getattr(self, "_dz", None) is None or self._dz[0] is not ctx:
+            X = self.design(ctx)
+            self._dz = (ctx, X, np.any(X != 0, 1))
+        return self._dz[1], self._dz[2]
+
+    def fit(self, ctx: Context, y: np.ndarray, train: np.ndarray) -> Fit:
+        X, nz = self.cached_design(ctx)
+        sel = train & nz
+        c = _lstsq(X[sel], y[sel])
+        return Fit(self.params_of(c, ctx), X @ c, X.shape[1], internal={"coef": c})
+
+
+def axis_gain(ctx: Context, a: int, site: str = "load") -> np.ndarray:
+    """(N,) whitened obs response to a unit error on actuator a.
+
+    load: the tool channels move by J[:, a]; motor: enc_a sees it, and the tool channels too when
+    axis a has no encoder (the twin then predicted the tool from cmd)."""
+    key = ("axis_gain", a, site)
+    if key in ctx.extra:
+        return ctx.extra[key]
+    o = ctx.obs
+    g = np.zeros(o.y.shape)
+    for name, r in TOOL_ROWS.items():
+        if name in o.channels and (site == "load" or not ctx.has_enc[a]):
+            m = o.ch == o.channels.index(name)
+            g[m] = ctx.J[o.pos[m], r, a] * o.w[m]
+    if site == "motor":
+        e = f"enc_{a}" if isinstance(a, str) else f"enc_{AXES[a]}"
+        if e in o.channels:
+            m = o.ch == o.channels.index(e)
+            g[m] = o.w[m]
+    ctx.extra[key] = g
+    return g
+
+
+class AxisSignal(Candidate):
+    """Base: an error signal δq_a(t) on actuator a; design = axis_gain * signal at the rows."""
+
+    site = "load"
+
+    def __init__(self, axis):
+        super().__init__(axis)
+        self.a = AXES.index(axis)
+        self._g = None
+
+    def gain(self, ctx):
+        if self._g is None or self._g[0] is not ctx:
+            self._g = (ctx, axis_gain(ctx, self.a, self.site))
+        return self._g[1]
+
+    def applicable(self, ctx):
+        return bool(np.any(self.gain(ctx) != 0)) and np.ptp(ctx.q_cmd[:, self.a]) > 0
+
+
+class Backlash(AxisSignal):
+    effect = "backlash"
+
+    def fit(self, ctx, y, train):
+        g = self.gain(ctx)
+        x = ctx.q_cmd[:, self.a]
+        rows = ctx.obs.row
+        d = direction(x)
+        col = g * (-0.5 * d[rows])
+        w0 = float(_lstsq(col[train, None], y[train])[0])
+        if w0 <= 0:
+            return Fit({"width_mm": 0.0}, np.zeros_like(y), 1, ok=False, note="negative width")
+
+        sel = train & (g != 0)
+        gs, ys, rs = g[sel], y[sel], rows[sel]
+
+        # the load's place in the deadband at the start is unknown: middle, or either flank
+        best = None
+        for st0 in (0.0, -1.0, 1.0):
+            def res(p, st0=st0):
+                return gs * play_error(x, p[0], st0)[rs] - ys
+
+            try:
+                sol = optimize.least_squares(res, [w0], bounds=([0.0], [np.inf]), x_scale=[max(w0, 1e-6)],
+                                             diff_step=[1e-3], max_nfev=30)
+            except ValueError:
+                continue
+            if best is None or sol.cost < best[0].cost:
+                best = (sol, st0)
+        w, st0 = (float(best[0].x[0]), best[1]) if best else (w0, 0.0)
+        pred = g * play_error(x, w, st0)[rows]
+        return Fit({"width_mm": w}, pred, 1, ok=w > 0, internal={"start": st0})
+
+
+class PitchError(AxisSignal):
+    """Screw lead error periodic in the screw position x: δq = A·sin(2πx/p + φ)."""
+
+    effect = "pitch_error"
+    nparams = 3
+
+    def reset(self):
+        self._starts = None
+
+    def _start_periods(self, ctx, y):
+        """Strongest lines of the axis-equivalent residual against screw position (binned, FFT)."""
+        from pmctl.tools.twin.locate import axis_projection, spectrum_position
+        _, e, rows = axis_projection(ctx, self.a, y)
+        if len(e) < 64:
+            return []
+        x = ctx.q_cmd[rows, self.a]
+        v = np.gradient(ctx.q_cmd[:, self.a], ctx.t)[rows]
+        sp = spectrum_position(x, e, np.abs(v) > 1e-3 * max(np.abs(v).max(), 1e-12))
+        if sp is None:
+            return []
+        f, amp = sp
+        span = float(np.ptp(x))
+        ok = (f > 1.5 / max(span, 1e-9)) & (f < 1 / 0.2)
+        if not ok.any():
+            return []
+        fo, ao = f[ok], amp[ok]
+        pk, _ = signal.find_peaks(ao)
+        if len(pk) == 0:
+            pk = np.array([int(np.argmax(ao))])
+        pk = pk[np.argsort(ao[pk])[::-1]][:3]
+        return [1.0 / float(fo[k]) for k in pk]
+
+    def fit(self, ctx, y, train):
+        g = self.gain(ctx)
+        if getattr(self, "_starts", None) is None:
+            self._starts = self._start_periods(ctx, y)
+        if not self._starts:
+            return Fit({}, np.zeros_like(y), 3, ok=False)
+        sel = train & (g != 0)
+        x = ctx.q_cmd[ctx.obs.row, self.a]
+        gs, ys, xs = g[sel], y[sel], x[sel]
+
+        def design(p, gg, xx):
+            ph = 2 * np.pi * xx / p
+            return np.stack([gg * np.sin(ph), gg * np.cos(ph)], 1)
+
+        def res(pp):
+            X = design(pp[0], gs, xs)
+            return X @ _lstsq(X, ys) - ys
+
+        base = float(ys @ ys)
+        gains = [(base - float(r @ r), p0) for p0 in self._starts for r in [res([p0])]]
+        gains = [gp for gp in sorted(gains, reverse=True)[:1] if gp[0] > 3 * PRESCREEN]
+        best = None
+        for _, p0 in gains:
+            try:
+                sol = optimize.least_squares(res, [p0], x_scale=[p0 * 1e-3], diff_step=[1e-6], max_nfev=20,
+                                             bounds=([0.5 * p0], [2 * p0]))
+            except ValueError:
+                continue
+            if best is None or sol.cost < best.cost:
+                best = sol
+        if best is None:
+            return Fit({}, np.zeros_like(y), 3, ok=False)
+        p = float(best.x[0])
+        c = _lstsq(design(p, gs, xs), ys)
+        pred = design(p, g, x) @ c
+        amp = float(np.hypot(*c))
+        return Fit({"period_mm": p, "amplitude_mm": amp}, pred, 3,
+                   internal={"phase_rad": float(math.atan2(c[1], c[0]))})
+
+
+class ThermalGrowth(AxisSignal):
+    """Screw growth α·(T − T_ref)·(x − x_fixed) on actuator a: x the screw coordinate, T a temperature.
+
+    The reference temperature (of the calibration) and the fixed-bearing end of the screw are not
+    known to the twin, so the expansion αTx − αT_ref·x − αx_fixed·T + const is fitted with four
+    linear terms; α is the coefficient of T·x, T_ref and x_fixed follow from the others."""
+
+    effect = "thermal_growth"
+    nparams = 4
+
+    def __init__(self, axis, channel):
+        super().__init__(axis)
+        self.channel = channel
+
+    @property
+    def label(self):
+        return f"thermal_growth[{self.target},{self.channel}]"
+
+    def key(self):
+        return (self.effect, "axis", self.target, self.channel)
+
+    def applicable(self, ctx):
+        T = ctx.temps.get(self.channel)
+        return super().applicable(ctx) and T is not None and np.ptp(T) > 0
+
+    def design(self, ctx):
+        r = ctx.obs.row
+        T = ctx.temps[self.channel][r]
+        x = ctx.q_cmd[r, self.a]
+        Tm, xm = float(np.mean(T)), float(np.mean(x))
+        g = self.gain(ctx)
+        return np.stack([g * (T - Tm) * (x - xm), g * (T - Tm), g * (x - xm), g], 1)
+
+    def params_of(self, c, ctx):
+        r = ctx.obs.row
+        T = ctx.temps[self.channel][r]
+        x = ctx.q_cmd[r, self.a]
+        al = float(c[0])
+        out = {"alpha_per_K": al, "channel": self.channel}
+        if al != 0:
+            # α(T−Tm)(x−xm) + c1(T−Tm) + c2(x−xm) = α(T − Tm + c2/α)(x − xm + c1/α) + const
+            self.refs = {"t_ref_C": float(np.mean(T) - c[2] / al), "screw_fixed_end_mm": float(np.mean(x) - c[1] / al)}
+        return out
+
+    def fit(self, ctx, y, train):
+        f = super().fit(ctx, y, train)
+        r = ctx.obs.row
+        T = ctx.temps[self.channel][r]
+        x = ctx.q_cmd[r, self.a]
+        # the T·x term must carry the fit: drop it and the remaining three terms must do clearly worse
+        X, nz = self.cached_design(ctx)
+        sel = train & nz
+        c3 = _lstsq(X[sel][:, 1:], y[sel])
+        r3 = X[sel][:, 1:] @ c3 - y[sel]
+        r4 = X[sel] @ f.internal["coef"] - y[sel]
+        f.internal["dsse_Tx"] = float(r3 @ r3 - r4 @ r4)
+        # physical sanity: the temperature must really change (20 x its noise) and the growth
+        # coefficient must be one of a solid (|α| below 1e-4 /K; steel 1.2e-5, aluminium 2.3e-5)
+        from pmctl.tools.twin.locate import noise_level
+        Tfull = ctx.temps[self.channel]
+        dT_ok = np.ptp(Tfull) > 20 * max(noise_level(Tfull[np.isfinite(Tfull)]), 1e-3)
+        f.ok = bool(f.internal["dsse_Tx"] > PRESCREEN and dT_ok and np.ptp(x) > 0
+                    and abs(f.internal["coef"][0]) < MAX_ALPHA)
+        return f
+
+
+class Compliance(AxisSignal):
+    """Chain i shortens by a_i / k under its axial compression a_i (statics of the nominal twin);
+    table axis X/Y gives way by −F/k to the known tool-tip force F (load_f*)."""
+
+    effect = "compliance"
+
+    def _force(self, ctx):
+        if self.a < 3:
+            return ctx.forces[:, self.a]
+        F = ctx.extra.get("tip_force")
+        return None if F is None else F[:, self.a - 3]
+
+    def applicable(self, ctx):
+        f = self._force(ctx)
+        return f is not None and super().applicable(ctx) and np.ptp(f) > 0
+
+    def design(self, ctx):
+        f = self._force(ctx)[ctx.obs.pos]
+        return (self.gain(ctx) * -f)[:, None]
+
+    def params_of(self, c, ctx):
+        k = 1.0 / c[0] if c[0] > 0 else float("inf")
+        return {"stiffness_N_per_mm": float(k)}
+
+    def fit(self, ctx, y, train):
+        f = super().fit(ctx, y, train)
+        f.ok = bool(f.internal["coef"][0] > 0)
+        return f
+
+
+class ServoLag(AxisSignal):
+    """The drive follows cmd through a first-order lag: enc = lag_tau(cmd)."""
+
+    effect = "servo_lag"
+    site = "motor"
+
+    def fit(self, ctx, y, train):
+        g = self.gain(ctx)
+        u = ctx.q_cmd[:, self.a]
+        rows = ctx.obs.row
+        v = np.gradient(u, ctx.t)
+        col = g * -v[rows]
+        tau0 = float(_lstsq(col[train, None], y[train])[0])
+        if tau0 <= 0:
+            return Fit({"tau_s": 0.0}, np.zeros_like(y), 1, ok=False)
+
+        sel = train & (g != 0)
+        gs, ys, rs = g[sel], y[sel], rows[sel]
+
+        def res(p):
+            return gs * (first_order_lag(ctx.t, u, p[0]) - u)[rs] - ys
+
+        tau = tau0
+        if ctx.uniform_dt is not None:
+            try:
+                sol = optimize.least_squares(res, [tau0], bounds=([1e-9], [np.inf]), x_scale=[tau0],
+                                             diff_step=[1e-3], max_nfev=20)
+                tau = float(sol.x[0])
+            except ValueError:
+                pass
+        pred = g * (first_order_lag(ctx.t, u, tau) - u)[rows]
+        return Fit({"tau_s": tau}, pred, 1)
+
+
+class LostSteps(AxisSignal):
+    effect = "lost_steps"
+    nparams = 2
+
+    def fit(self, ctx, y, train):
+        g = self.gain(ctx)
+        o = ctx.obs
+        tt = ctx.t[o.row]
+        idx = np.nonzero(train & (g != 0))[0]
+        if len(idx) < 4:
+            return Fit({}, np.zeros_like(y), 2, ok=False)
+        order = idx[np.argsort(tt[idx], kind="stable")]
+        gy = (g * y)[order][::-1].cumsum()[::-1]
+        gg = (g * g)[order][::-1].cumsum()[::-1]
+        # a step at the time of element k (first affected element), excluding the very first
+        score = np.where(gg > 0, gy * gy / np.where(gg > 0, gg, 1), 0)
+        score[0] = 0
+        k = int(np.argmax(score))
+        ts = float(0.5 * (tt[order[k - 1]] + tt[order[k]]))
+        off = float(gy[k] / gg[k])
+        pred = g * off * (tt >= ts)
+        return Fit({"t_s": ts, "offset_mm": off}, pred, 2)
+
+
+class Resonance(Candidate):
+    """A lightly damped mode excited by the axis accelerations (base excitation, RECORDING.md §3).
+
+    Target an axis (load-side deflection of that axis, seen at the tool) or a channel (e.g. a
+    strain gauge; excited by every moving axis, one gain each)."""
+
+    effect = "resonance"
+    nparams = 3
+
+    def __init__(self, target, key):
+        super().__init__(target)
+        self.target_key = key        # "axis" or "channel"
+        self._starts = None
+
+    def reset(self):
+        """Forget the start frequencies (taken from the residual of the first fit after a reset)."""
+        self._starts = None
+
+    def applicable(self, ctx):
+        if ctx.uniform_dt is None and len(ctx.t) < 16:
+            return False
+        if self.target_key == "axis":
+            a = AXES.index(self.target)
+            return bool(np.any(axis_gain(ctx, a) != 0)) and np.ptp(ctx.q_cmd[:, a]) > 0
+        return self.target in ctx.obs.channels and np.ptp(ctx.q_cmd[:, int(self.target[-1]) - 1]) > 0
+
+    def _uniform(self, ctx):
+        if "uniform" not in ctx.extra:
+            if ctx.uniform_dt is not None:
+                ctx.extra["uniform"] = (ctx.t, ctx.uniform_dt, None)
+            else:
+                dt = float(np.median(np.diff(ctx.t)))
+                tu = np.arange(ctx.t[0], ctx.t[-1] + dt / 2, dt)
+                ctx.extra["uniform"] = (tu, dt, True)
+        return ctx.extra["uniform"]
+
+    def _weights(self, ctx):
+        """(axis whose motion excites the mode, (k, N) element weights of each column, support)."""
+        key = ("res_w", self.target_key, self.target)
+        if key not in ctx.extra:
+            o = ctx.obs
+            # an axis mode is excited by that axis; a gauge's plate-link mode by its own chain
+            a = AXES.index(self.target) if self.target_key == "axis" else int(self.target[-1]) - 1
+            ws = []
+            if self.target_key == "axis":
+                ws.append(axis_gain(ctx, a))
+                sg = f"strain_{a + 1}"
+                if a < 3 and sg in o.channels:     # the mode's spring force reaches the gauge
+                    ws.append(np.where(o.ch == o.channels.index(sg), o.w, 0.0))
+            else:
+                ws.append(np.where(o.ch == o.channels.index(self.target), o.w, 0.0))
+            W = np.stack(ws)
+            ctx.extra[key] = (a, W, np.any(W != 0, 0))
+        return ctx.extra[key]
+
+    def _bases(self, ctx, f, z, idx=None):
+        """Columns of the fit at obs elements ``idx`` (default: all)."""
+        tu, dt, resample = self._uniform(ctx)
+        a, W, _ = self._weights(ctx)
+        x = ctx.q_cmd[:, a] if resample is None else np.interp(tu, ctx.t, ctx.q_cmd[:, a])
+        h = resonance_response(x, dt, f, z)
+        if resample is not None:
+            h = np.interp(ctx.t, tu, h)
+        o = ctx.obs
+        if idx is None:
+            return (W * h[o.row]).T
+        return (W[:, idx] * h[o.row[idx]]).T
+
+    def _f_candidates(self, ctx, y):
+        """Peaks of the spectrum of the target residual (uniform grid), strongest first."""
+        o = ctx.obs
+        if self.target_key == "axis":
+            g = axis_gain(ctx, AXES.index(self.target))
+            m = g != 0
+            sig = np.zeros(len(ctx.t))
+            tt = ctx.t[o.row[m]]
+            # project onto the axis: per row, the LS axis error from the tool channels present
+            num = np.bincount(o.row[m], g[m] * y[m], minlength=len(ctx.t))
+            den = np.bincount(o.row[m], g[m] ** 2, minlength=len(ctx.t))
+            ok = den > 0
+            sig = num[ok] / den[ok]
+            tt = ctx.t[ok]
+        else:
+            m = o.ch == o.channels.index(self.target)
+            order = np.argsort(o.row[m])
+            sig, tt = y[m][order], ctx.t[o.row[m][order]]
+        if len(sig) < 32:
+            return []
+        dt = float(np.median(np.diff(tt)))
+        tu = np.arange(tt[0], tt[-1], dt)
+        su = np.interp(tu, tt, sig)
+        fq, p = signal.welch(su - su.mean(), fs=1 / dt, nperseg=min(len(su), 4096))
+        base = signal.medfilt(p, 31) if len(p) > 31 else np.full_like(p, np.median(p))
+        ratio = p / np.maximum(base, 1e-300)
+        ratio[fq < 0.5] = 0
+        pk, _ = signal.find_peaks(ratio)
+        pk = pk[np.argsort(ratio[pk])[::-1]][:3]
+        return [float(fq[k]) for k in pk if ratio[k] > 6]
+
+    def fit(self, ctx, y, train):
+        tu, dt, _ = self._uniform(ctx)
+        nyq = 0.5 / dt
+        if self._starts is None:
+            grid = np.geomspace(1.0, 0.4 * nyq, 20) if nyq > 2.5 else np.array([])
+            self._starts = [(f, z) for f in self._f_candidates(ctx, y) for z in (0.02, 0.1)] + \
+                [(float(f), 0.05) for f in grid]
+        fs = self._starts
+        if not fs:
+            return Fit({}, np.zeros_like(y), 3, ok=False)
+        sel = np.flatnonzero(train & self._weights(ctx)[2])
+        yt = y[sel]
+
+        def res(p):
+            X = self._bases(ctx, math.exp(p[0]), p[1], sel)
+            c = _lstsq(X, yt)
+            return X @ c - yt
+
+        # prescreen: a start must already explain something, else this is no resonance
+        base = float(yt @ yt)
+        starts = []
+        for f0, z0 in fs:
+            r = res([math.log(f0), z0])
+            starts.append((base - float(r @ r), f0, z0))
+        starts = [s for s in sorted(starts, reverse=True)[:1] if s[0] > 3 * PRESCREEN]
+        if not starts:
+            return Fit({}, np.zeros_like(y), 3, ok=False)
+        best = None
+        for _, f0, z0 in starts:
+            if True:
+                try:
+                    sol = optimize.least_squares(
+                        res, [math.log(f0), z0],
+                        bounds=([math.log(0.2), 1e-3], [math.log(0.9 * nyq), 0.9]),
+                        diff_step=[1e-4, 1e-3], max_nfev=15)
+                except ValueError:
+                    continue
+                if best is None or sol.cost < best.cost:
+                    best = sol
+        if best is None:
+            return Fit({}, np.zeros_like(y), 3, ok=False)
+        f, z = math.exp(best.x[0]), float(best.x[1])
+        X = self._bases(ctx, f, z)
+        c = _lstsq(X[sel], yt)
+        return Fit({"freq_hz": f, "damping_ratio": z}, X @ c, 2 + X.shape[1],
+                   internal={"gains": c.tolist()})
+
+
+class Geometry(Candidate):
+    """Kinematic parameter deltas of one chain (a parameter group) or of the tool."""
+
+    effect = "geometry"
+    target_key = "chain"
+    NAMES = {"length_offset": ["length_offset_mm"], "base_joint": ["base_joint_radial_mm", "base_joint_z_mm"],
+             "platform_joint": ["platform_joint_mm"], "length": ["tool_length_mm"], "tilt": ["tool_tilt_deg"]}
+
+    def __init__(self, group):
+        who, what = group.split(":")
+        super().__init__(int(who[5:]) if who.startswith("chain") else "tool")
+        self.group, self.what = group, what
+
+    @property
+    def label(self):
+        return f"geometry[{self.group}]"
+
+    def key(self):
+        return (self.effect, "chain", self.target, self.what)
+
+    def applicable(self, ctx):
+        return any(c in ctx.obs.channels for c in TOOL_ROWS)
+
+    def design(self, ctx):
+        o = ctx.obs
+        S = ctx.geo[self.group]
+        X = np.zeros((len(o.y), S.shape[-1]))
+        for name, r in TOOL_ROWS.items():
+            if name in o.channels:
+                m = o.ch == o.channels.index(name)
+                X[m] = S[o.pos[m], r, :] * o.w[m, None]
+        return X
+
+    def params_of(self, c, ctx):
+        v = [float(x) for x in c]
+        names = self.NAMES[self.what]
+        if len(names) == len(v):
+            return dict(zip(names, v))
+        return {names[0]: v[0] if len(v) == 1 else v}
+
+
+class SensorGain(Candidate):
+    effect = "sensor_gain"
+    target_key = "channel"
+
+    def applicable(self, ctx):
+        o = ctx.obs
+        return self.target in o.channels and np.ptp(o.pred[o.mask_of(self.target)]) > 0
+
+    def design(self, ctx):
+        o = ctx.obs
+        m = o.mask_of(self.target)
+        return (np.where(m, o.pred * o.w, 0.0))[:, None]
+
+    def params_of(self, c, ctx):
+        return {"gain": 1.0 + float(c[0])}
+
+
+class SensorOffset(Candidate):
+    effect = "sensor_offset"
+    target_key = "channel"
+
+    def applicable(self, ctx):
+        return self.target in ctx.obs.channels
+
+    def design(self, ctx):
+        o = ctx.obs
+        return np.where(o.mask_of(self.target), o.w, 0.0)[:, None]
+
+    def params_of(self, c, ctx):
+        sig = ctx.obs.sigma[self.target]
+        return {"offset": float(c[0])} if sig else {"offset": float(c[0])}
+
+
+def catalogue(ctx: Context) -> list[Candidate]:
+    """Every applicable candidate for this recording (effect × target)."""
+    cands: list[Candidate] = []
+    for grp in ctx.geo:
+        cands.append(Geometry(grp))
+    for ax in AXES:
+        cands += [Backlash(ax), PitchError(ax), ServoLag(ax), LostSteps(ax), Resonance(ax, "axis")]
+        cands.append(Compliance(ax))
+        for tc in ctx.temps:
+            cands.append(ThermalGrowth(ax, tc))
+    for c in ctx.obs.channels:
+        if c.startswith("strain_"):
+            cands.append(Resonance(c, "channel"))
+        cands += [SensorGain(c), SensorOffset(c)]
+    return [c for c in cands if c.applicable(ctx)]

@@ -1,0 +1,799 @@
+"""Concealed-effect recordings: realistic runs with hidden physics and a separate answer key.
+
+``pmctl twin synth OUT_DIR [--effects backlash,pitch_error,...|random] [--count N] [--seed S]
+[--clean] [--run raster|circle|calibration|warmup] [--duration S] [--rate HZ]
+[--magnitude-scale F] [--noise-scale F]`` writes
+
+    OUT_DIR/case-000/recording/{recording.json,data.csv}    the data (pmctl-recording/1)
+    OUT_DIR/case-000/answer.json                             the answer key, outside the recording
+
+``--effects a,b`` hides all listed effects in every case; ``random`` (default) one random effect per
+case (``--max-effects K``: 1..K distinct random effects); ``--clean``: none.
+
+How a case is made (vectorised; a 60 s run at 1 kHz takes 1-2 s to simulate, ~0.5 s to write)
+----------------------------------------------------------------------------
+1. A run in tool space, stop-and-go segments with trapezoidal speed profiles (and arcs), turned into
+   commanded joints with :func:`pmctl.core.kinematics.ik_batch`, slowed down until every axis is
+   within its speed and acceleration limits:
+   - ``raster``: a pocket milled in layers, zig-zag passes along x or y (that table axis reverses
+     every pass, the other between layers), a new tool tilt per layer, rapid retracts; a
+     cutting-force estimate in load_* in half of them;
+   - ``circle``: NAS 979-style cone circles (tool leaning toward the centre, CW and CCW, several
+     heights): X and Y reverse at the quadrants, the chains with the tilt azimuth;
+   - ``calibration``: point-to-point sweep over the workspace with dwells, optionally (always for
+     compliance) known test loads hung/pushed on the tip during dwells (unloaded before and after);
+   - ``warmup``: 10 min at 100 Hz of fast cycles that heat the screws (thermal runs).
+   Screw temperatures follow friction heating (first order, time constant 5-15 min, input
+   |screw speed|), the room drifts slowly; channels ``temp_screw1..3``, ``temp_screwX/Y``,
+   ``temp_room`` at 10 Hz.
+2. Physics at the machine level, per axis (``AXES``): motor side = cmd (or a first-order
+   ``servo_lag``); load side = motor side + ``backlash`` (play operator, deadband width w) +
+   ``pitch_error`` (A·sin(2π·s/lead + φ) of the screw position s) + ``thermal_growth``
+   (α·(T − 20 °C)·(s − s_fixed), fixed bearing at L = 150 mm / X, Y = −75 mm) + ``lost_steps``
+   (offset after t_s; the motor count does not see it) + ``resonance`` (a mode δ'' + 2ζωδ' + ω²δ =
+   −γ·(commanded acceleration) of that axis; or a plate-link bending mode seen only by a strain
+   gauge) + ``compliance`` (chain i shortens by a_i/k, a_i its static compression from
+   :mod:`pmctl.core.statics`; the table gives way by −F/k to the tip force F).
+   ``geometry`` changes the true machine (chain length offset, base joint shifted in its chain
+   plane, tool length). The true tip, axis and chain forces come from the real forward
+   kinematics and statics of the perturbed load-side joints.
+3. Measurement: enc_* = motor side quantised to the 0.5 µm pulse (enc_* left out of 10 % of the
+   recordings); laser tracker tip_* (σ 1–2 µm) and tool_* (σ 2–4e-5; no 6-DOF probe in 25 % of
+   the recordings) at 50, 100 or 200 Hz (half the log rate, at most 100 Hz, for logs under
+   400 Hz) with a random phase and beam drop-outs (empty cells); strain_* every row (σ 0.3–0.7
+   µε); ``sensor_gain`` (measured = gain·true) / ``sensor_offset`` (measured = true + offset) on
+   one channel; temperatures σ 0.02 K at 10 Hz, 0.01 K resolution; loads σ 0.3 N.
+
+Sign conventions of the answer parameters: backlash ``width_mm`` is the whole deadband (the load
+side trails the motor by width/2 in the direction of motion); pitch ``amplitude_mm`` is the sine
+amplitude (not peak-to-peak); ``lost_steps`` ``offset_mm`` is added to the load-side position
+(load = motor + offset after t_s); geometry ``length_offset_mm`` as the config's
+length_offsets_mm (true |C_i − A_i| = L_i + offset), ``base_joint_*`` move A_i by δr·e_i + δz·Z,
+``tool_length_mm`` is added to l_t; ``compliance`` deflection = force / stiffness.
+
+Answer key (answer.json) — the RECORDING.md §4 names::
+
+    {"case": "case-003", "recording": "recording", "run": "calibration", "seed": 1234,
+     "effects": [{"effect": "backlash", "axis": "X", "parameters": {"width_mm": 0.012},
+                  "details": {...}}],       # [] for a clean case
+     "noise": {"tip_mm": 0.0015, ...}}
+
+Locators per effect: ``axis`` (backlash, pitch_error, thermal_growth, compliance, servo_lag,
+lost_steps, resonance on an axis), ``channel`` (sensor_gain, sensor_offset, resonance in a strain
+channel), ``chain`` (geometry: 1-3 or "tool"). Parameters: geometry {length_offset_mm} or
+{base_joint_radial_mm, base_joint_z_mm} or {tool_length_mm}; backlash {width_mm}; pitch_error
+{period_mm, amplitude_mm}; thermal_growth {alpha_per_K, channel}; compliance {stiffness_N_per_mm};
+servo_lag {tau_s}; resonance {freq_hz, damping_ratio}; lost_steps {t_s, offset_mm}; sensor_gain
+{gain}; sensor_offset {offset}.
+
+Python API: ``EFFECTS``, ``RUNS``, ``make_effect(name, rng, ...) -> Effect``,
+``make_run(kind, rng, machine, duration_s, rate_hz, loads) -> Run``, ``simulate(run, effects, rng,
+machine, *, enc=True, tool=True, tracker_div=10) -> (columns, noise)`` (rng consumption does not
+depend on the effects, so the same seed with and without effects gives the same noise),
+``play(x, width)`` (backlash operator), ``first_order_lag``, ``mode_response``, ``synth_case(rng, effects=..., ...) -> Case``,
+``write_case(out_dir, name, case)``, ``generate(out_dir, count, ...) -> list[Path]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import signal
+
+from pmctl.core.config import Machine, load_machine
+from pmctl.core.errors import InputError
+from pmctl.core.kinematics import axis_from_roll_pitch, ik_batch, roll_pitch_from_axis
+from pmctl.core.recording import AXES, CMD, ENC, LOAD, STRAIN, TIP, TOOL, write_recording
+from pmctl.core.statics import chain_forces, strain_of_axial
+from pmctl.tools.twin.nominal import pose_of_joints
+
+EFFECTS = ("geometry", "backlash", "pitch_error", "thermal_growth", "compliance", "servo_lag",
+           "resonance", "lost_steps", "sensor_gain", "sensor_offset")
+RUNS = ("raster", "circle", "calibration", "warmup")
+# Which runs make an effect observable (thermal needs minutes; compliance needs force changes).
+RUNS_FOR = {"thermal_growth": ("warmup",), "compliance": ("calibration",)}
+TEMP_CHANNELS = ("temp_screw1", "temp_screw2", "temp_screw3", "temp_screwX", "temp_screwY")
+T_CAL_C = 20.0                     # geometry was calibrated at 20 °C
+SCREW_FIXED = np.array([150.0, 150.0, 150.0, -75.0, -75.0])   # fixed-bearing end of each screw
+PULSE_MM = 1.0 / 2000.0
+
+
+# ---------------------------------------------------------------- effects
+
+@dataclass
+class Effect:
+    effect: str
+    locator: dict                  # {"axis": "X"} | {"channel": "strain_2"} | {"chain": 2}
+    parameters: dict               # catalogue parameter names
+    details: dict = field(default_factory=dict)   # generator internals (not catalogue names)
+
+    def answer(self) -> dict:
+        return {"effect": self.effect, **self.locator, "parameters": self.parameters,
+                "details": self.details}
+
+
+def _sgn(rng):
+    return 1.0 if rng.random() < 0.5 else -1.0
+
+
+def make_effect(name: str, rng, *, duration_s: float = 60.0, axis: str | None = None,
+                scale: float = 1.0) -> Effect:
+    """A random instance of a catalogue effect with realistic magnitude (times ``scale``)."""
+    e = _draw_effect(name, rng, duration_s=duration_s, axis=axis)
+    return scale_effect(e, scale) if scale != 1.0 else e
+
+
+def scale_effect(e: Effect, s: float) -> Effect:
+    """The same effect ``s`` times as strong (stiffness divided, gain deviation multiplied)."""
+    p, d = dict(e.parameters), dict(e.details)
+    for k in ("width_mm", "amplitude_mm", "alpha_per_K", "tau_s", "offset_mm", "offset",
+              "length_offset_mm", "base_joint_radial_mm", "base_joint_z_mm", "tool_length_mm"):
+        if k in p:
+            p[k] = p[k] * s
+    if "stiffness_N_per_mm" in p:
+        p["stiffness_N_per_mm"] = p["stiffness_N_per_mm"] / s
+    if "gain" in p:
+        p["gain"] = 1 + (p["gain"] - 1) * s
+    for k in ("peak_mm", "peak_ue"):
+        if k in d:
+            d[k] = d[k] * s
+    return Effect(e.effect, dict(e.locator), p, d)
+
+
+def _draw_effect(name: str, rng, *, duration_s: float, axis: str | None) -> Effect:
+    ax = axis or str(rng.choice(AXES))
+    if name == "geometry":
+        kind = str(rng.choice(["length_offset", "base_joint", "tool_length"], p=[0.4, 0.35, 0.25]))
+        if kind == "tool_length":
+            return Effect(name, {"chain": "tool"}, {"tool_length_mm": _sgn(rng) * rng.uniform(0.03, 0.2)})
+        chain = int(rng.integers(1, 4))
+        if kind == "length_offset":
+            return Effect(name, {"chain": chain}, {"length_offset_mm": _sgn(rng) * rng.uniform(0.02, 0.15)})
+        return Effect(name, {"chain": chain}, {"base_joint_radial_mm": _sgn(rng) * rng.uniform(0.03, 0.15),
+                                              "base_joint_z_mm": _sgn(rng) * rng.uniform(0.03, 0.15)})
+    if name == "backlash":
+        return Effect(name, {"axis": ax}, {"width_mm": rng.uniform(0.005, 0.04)})
+    if name == "pitch_error":
+        return Effect(name, {"axis": ax}, {"period_mm": 5.0, "amplitude_mm": rng.uniform(0.004, 0.015)},
+                      {"phase_rad": rng.uniform(0, 2 * np.pi)})
+    if name == "thermal_growth":
+        return Effect(name, {"axis": ax}, {"alpha_per_K": rng.uniform(8e-6, 18e-6),
+                                           "channel": "temp_screw" + ax.lstrip("L")},
+                      {"t_ref_C": T_CAL_C, "screw_fixed_end_mm": float(SCREW_FIXED[AXES.index(ax)])})
+    if name == "compliance":
+        k = rng.uniform(1500, 6000) if ax.startswith("L") else rng.uniform(2000, 8000)
+        return Effect(name, {"axis": ax}, {"stiffness_N_per_mm": k})
+    if name == "servo_lag":
+        return Effect(name, {"axis": ax}, {"tau_s": rng.uniform(0.003, 0.03)})
+    if name == "resonance":
+        if axis is None and rng.random() < 0.5:
+            ch = str(rng.choice(STRAIN))
+            return Effect(name, {"channel": ch}, {"freq_hz": rng.uniform(10, 60),
+                                                  "damping_ratio": rng.uniform(0.02, 0.1)},
+                          {"peak_ue": rng.uniform(8, 25)})
+        return Effect(name, {"axis": ax}, {"freq_hz": rng.uniform(8, 30), "damping_ratio": rng.uniform(0.02, 0.1)},
+                      {"peak_mm": rng.uniform(0.02, 0.06)})
+    if name == "lost_steps":
+        return Effect(name, {"axis": ax}, {"t_s": float(rng.uniform(0.25, 0.75) * duration_s),
+                                           "offset_mm": _sgn(rng) * rng.uniform(0.015, 0.06)})
+    if name in ("sensor_gain", "sensor_offset"):
+        ch = str(rng.choice(STRAIN + TIP))
+        if name == "sensor_gain":
+            g = 1 + _sgn(rng) * (rng.uniform(0.03, 0.1) if ch.startswith("strain") else rng.uniform(2e-4, 1e-3))
+            return Effect(name, {"channel": ch}, {"gain": g})
+        o = _sgn(rng) * (rng.uniform(2, 10) if ch.startswith("strain") else rng.uniform(0.01, 0.05))
+        return Effect(name, {"channel": ch}, {"offset": o})
+    raise InputError("--effects", None, f"unknown effect {name!r}; the catalogue: {', '.join(EFFECTS)}")
+
+
+# ---------------------------------------------------------------- runs (trajectories)
+
+@dataclass
+class Seg:
+    T: float
+    kind: str                     # "line" | "arc"
+    a: np.ndarray                 # start (x, y, z, alpha, beta)
+    b: np.ndarray                 # end
+    arc: tuple | None = None      # (cx, cy, z, r, phi0, dphi, lean)
+    force: np.ndarray | None = None   # tip force during the segment, N
+
+
+@dataclass
+class Run:
+    kind: str
+    t: np.ndarray                 # (n,)
+    q: np.ndarray                 # (n, 5) commanded joints
+    tip: np.ndarray               # (n, 3) commanded tip in W
+    axis: np.ndarray              # (n, 3)
+    force: np.ndarray | None      # (n, 3) tip force, N (None: no load channels)
+    rate_hz: float
+
+
+RAMP = 0.25          # acceleration and deceleration each take this fraction of a segment
+
+
+def _profile(tau, rho=RAMP):
+    """Trapezoidal velocity profile: position fraction s(tau), tau in [0, 1]; the acceleration
+    steps at the ramp ends are what excites the machine's modes."""
+    k = 1.0 / (2 * rho * (1 - rho))
+    return np.where(tau < rho, k * tau**2,
+                    np.where(tau > 1 - rho, 1 - k * (1 - tau) ** 2, (tau - rho / 2) / (1 - rho)))
+
+
+_VPEAK = 1.0 / (1 - RAMP)   # peak speed / mean speed of the profile
+
+
+def _arc_pose(arc, s):
+    cx, cy, z, r, phi0, dphi, lean = arc
+    phi = phi0 + s * dphi
+    tip = np.stack([cx + r * np.cos(phi), cy + r * np.sin(phi), np.full_like(phi, z)], -1)
+    axis = np.stack([-np.sin(lean) * np.cos(phi), -np.sin(lean) * np.sin(phi),
+                     np.full_like(phi, np.cos(lean))], -1)
+    return tip, axis
+
+
+def _arc_end(arc, s):
+    tip, axis = _arc_pose(arc, np.array([s]))
+    al, be = roll_pitch_from_axis(axis[0])
+    return np.array([*tip[0], al, be])
+
+
+def _line(a, b, v, w_max=np.radians(8.0), t_min=0.15, force=None):
+    d = float(np.linalg.norm(b[:3] - a[:3]))
+    ang = float(np.max(np.abs(b[3:] - a[3:])))
+    T = max(_VPEAK * d / v, _VPEAK * ang / w_max, t_min)
+    return Seg(T, "line", np.asarray(a, float), np.asarray(b, float), None, force)
+
+
+def _dwell(p, T, force=None):
+    return Seg(T, "line", np.asarray(p, float), np.asarray(p, float), None, force)
+
+
+def _evaluate(segs, t, stretch=1.0):
+    T = np.array([s.T for s in segs]) * stretch
+    t0 = np.concatenate([[0.0], np.cumsum(T)])
+    k = np.clip(np.searchsorted(t0, t, side="right") - 1, 0, len(segs) - 1)
+    tau = np.clip((t - t0[k]) / T[k], 0.0, 1.0)
+    s = _profile(tau)
+    tip = np.empty((len(t), 3))
+    axis = np.empty((len(t), 3))
+    force = np.zeros((len(t), 3))
+    bounds = np.searchsorted(k, np.arange(len(segs) + 1))      # k is sorted: one slice per segment
+    for i, sg in enumerate(segs):
+        m = slice(bounds[i], bounds[i + 1])
+        if bounds[i] == bounds[i + 1]:
+            continue
+        if sg.kind == "arc":
+            tip[m], axis[m] = _arc_pose(sg.arc, s[m])
+        else:
+            p = sg.a + s[m, None] * (sg.b - sg.a)
+            tip[m] = p[:, :3]
+            axis[m] = axis_from_roll_pitch(p[:, 3], p[:, 4])
+        if sg.force is not None:
+            force[m] = sg.force
+    return tip, axis, force
+
+
+def _tilt(rng, max_deg=10.0):
+    return rng.uniform(-1, 1, 2) * np.radians(max_deg)
+
+
+def _raster_segs(rng, duration, loads):
+    """Pocket layers; each layer's passes run along x or along y (roughing, then cross finishing)."""
+    segs, p = [], None
+    feed, rapid = rng.uniform(15, 35), rng.uniform(60, 90)
+    cx, cy = rng.uniform(-10, 10, 2)
+    w, h = rng.uniform(50, 80), rng.uniform(40, 70)
+    z = rng.uniform(40, 120)
+    fc = rng.uniform(20, 80)
+    total, layer = 0.0, 0
+    while total < duration:
+        al, be = _tilt(rng)
+        along_y = rng.random() < 0.4
+        half_u, half_v = (h / 2, w / 2) if along_y else (w / 2, h / 2)
+
+        def at(u, v, zz):
+            x, y = (cx + v, cy + u) if along_y else (cx + u, cy + v)
+            return np.array([x, y, zz, al, be])
+
+        vs = np.linspace(-half_v, half_v, int(rng.integers(4, 8)))
+        if layer % 2:
+            vs = vs[::-1]
+        z -= rng.uniform(1, 4)
+        start = at(-half_u, vs[0], z + 20)
+        if p is not None:
+            segs.append(_line(p, p + [0, 0, 20, 0, 0], rapid))          # retract
+            segs.append(_line(segs[-1].b, start, rapid))
+        else:
+            segs.append(_dwell(start, 0.3))
+        segs.append(_line(start, start - [0, 0, 20, 0, 0], rapid / 3))     # plunge
+        p = segs[-1].b
+        for i, v in enumerate(vs):
+            q = at(half_u if i % 2 == 0 else -half_u, v, z)
+            d = (q - p)[:3] / max(np.linalg.norm((q - p)[:3]), 1e-9)
+            f = None
+            if loads:     # cutting force on the tool: against the feed, a little sideways and up
+                f = -fc * d + rng.normal(0, 0.1 * fc, 3) + np.array([0, 0, 0.3 * fc])
+            segs.append(_line(p, q, feed, force=f))
+            p = q
+            if i + 1 < len(vs):
+                q = at(-half_u if i % 2 == 0 else half_u, vs[i + 1], z)
+                segs.append(_line(p, q, feed))
+                p = q
+        total = sum(s.T for s in segs)
+        layer += 1
+    return segs
+
+
+def _circle_segs(rng, duration, loads):
+    segs = []
+    feed = rng.uniform(15, 40)
+    p = None
+    total = 0.0
+    while total < duration:
+        cx, cy = rng.uniform(-10, 10, 2)
+        r = rng.uniform(20, 45)
+        z = rng.uniform(30, 170)
+        lean = np.radians(rng.uniform(0, 12))
+        phi0 = rng.uniform(0, 2 * np.pi)
+        dphi = _sgn(rng) * 2 * np.pi * rng.choice([1.0, 1.25])
+        arc = (cx, cy, z, r, phi0, dphi, lean)
+        start, end = _arc_end(arc, 0.0), _arc_end(arc, 1.0)
+        if p is None:
+            segs.append(_dwell(start, 0.3))
+        else:
+            up = p + [0, 0, 10, 0, 0]
+            segs += [_line(p, up, 60), _line(up, start + [0, 0, 10, 0, 0], 60),
+                     _line(start + [0, 0, 10, 0, 0], start, 30)]
+        segs.append(Seg(_VPEAK * r * abs(dphi) / feed, "arc", start, end, arc))
+        p = end
+        segs.append(_dwell(p, rng.uniform(0.2, 0.6)))
+        total = sum(s.T for s in segs)
+    return segs
+
+
+def _calibration_segs(rng, duration, loads, *, speed=(50, 100), dwell=(0.6, 1.5)):
+    segs, p, total = [], None, 0.0
+    while total < duration:
+        al, be = _tilt(rng, 12.0)
+        q = np.array([*rng.uniform(-40, 40, 2), rng.uniform(20, 200), al, be])
+        if p is None:
+            segs.append(_dwell(q, 0.3))
+        else:
+            segs.append(_line(p, q, rng.uniform(*speed)))
+        f = None
+        if loads and rng.random() < 0.85:
+            f = np.array([*rng.normal(0, 100, 2), -rng.choice([0.0, 50.0, 100.0, 200.0])])
+        T = rng.uniform(*dwell)
+        if f is not None:      # measure unloaded, then with the test load, then unloaded again
+            segs += [_dwell(q, T / 2), _dwell(q, T, f), _dwell(q, T / 2)]
+        else:
+            segs.append(_dwell(q, T))
+        p = q
+        total = sum(s.T for s in segs)
+    return segs
+
+
+def make_run(kind: str, rng, machine: Machine, duration_s: float, rate_hz: float, loads: bool) -> Run:
+    """A reachable run of ``kind`` sampled at ``rate_hz`` within every axis limit."""
+    lim = machine.limits
+    n = int(round(duration_s * rate_hz))
+    t = np.arange(n) / rate_hz
+    for _attempt in range(20):
+        if kind == "raster":
+            segs = _raster_segs(rng, duration_s, loads)
+        elif kind == "circle":
+            segs = _circle_segs(rng, duration_s, loads)
+        elif kind == "calibration":
+            segs = _calibration_segs(rng, duration_s, loads)
+        elif kind == "warmup":
+            segs = _calibration_segs(rng, duration_s, loads, speed=(70, 100), dwell=(0.5, 2.0))
+        else:
+            raise InputError("--run", None, f"unknown run {kind!r}; one of {', '.join(RUNS)}")
+        stretch = 1.0
+        for _ in range(6):
+            # over-long segment lists are cut at the run's end
+            tip, axis, force = _evaluate(segs, t, stretch)
+            r = ik_batch(tip, axis, machine)
+            if not r.ok.all():
+                break
+            dt = 1.0 / rate_hz
+            v = np.abs(np.gradient(r.q, dt, axis=0)).max(0)
+            a = np.abs(np.gradient(np.gradient(r.q, dt, axis=0), dt, axis=0)).max(0)
+            fv = (v / (0.9 * lim.joint_speed)).max()
+            fa = np.sqrt((a / (0.9 * lim.joint_accel)).max())
+            f = max(fv, fa)
+            if f <= 1.0:
+                if loads:
+                    # hand-applied / estimated loads build up over ~50 ms, not in one sample
+                    b, a_ = signal.butter(2, min(0.9, 2 * 8.0 / rate_hz))
+                    force = signal.filtfilt(b, a_, force, axis=0)
+                return Run(kind, t, r.q, tip, axis, force if loads else None, rate_hz)
+            stretch *= f * 1.05
+    raise RuntimeError(f"could not build a reachable {kind} run in 20 attempts")
+
+
+# ---------------------------------------------------------------- physics
+
+def play(x, width):
+    """Backlash (play operator) of a motor-side position series: the load side stays put until
+    the motor has crossed the deadband ``width``, then follows it width/2 behind. At the start
+    the load sits on the side that the first motion pushes."""
+    x = np.asarray(x, float)
+    h = width / 2.0
+    moved = np.flatnonzero(x != x[0])
+    yk = x[0] - h * (np.sign(x[moved[0]] - x[0]) if moved.size else 0.0)
+    out = []
+    for xk in x.tolist():
+        if yk < xk - h:
+            yk = xk - h
+        elif yk > xk + h:
+            yk = xk + h
+        out.append(yk)
+    return np.array(out)
+
+
+def first_order_lag(x, tau, dt):
+    """tau·y' + y = x for samples x every dt, x linear between samples (so a ramp at speed v is
+    trailed by exactly tau·v); starts at rest at x[0]."""
+    a = np.exp(-dt / tau)
+    b, den = [(1 - a) / 2, (1 - a) / 2], [1.0, -a]
+    y, _ = signal.lfilter(b, den, x, zi=signal.lfilter_zi(b, den) * x[0])
+    return y
+
+
+def mode_response(accel, freq_hz, zeta, dt):
+    """Response of δ'' + 2ζωδ' + ω²δ = −a(t) (base excitation), zero initial state."""
+    w = 2 * np.pi * freq_hz
+    sysd = signal.cont2discrete(([-1.0], [1.0, 2 * zeta * w, w * w]), dt, method="zoh")
+    b, a = np.asarray(sysd[0]).ravel(), np.asarray(sysd[1]).ravel()
+    return signal.lfilter(b, a, accel)
+
+
+def screw_temperatures(run: Run, rng, heated_axis: int | None, warm: bool):
+    """Friction-heated screw temperatures (n, 5) and the room (n,), °C."""
+    t, dt = run.t, 1.0 / run.rate_hz
+    n = len(t)
+    room = rng.uniform(19.0, 22.5) + rng.uniform(-0.3, 0.6) * t / 600.0 + 0.05 * np.sin(2 * np.pi * t / 900 + rng.uniform(0, 6))
+    speed = np.abs(np.gradient(run.q, dt, axis=0))
+    temps = np.empty((n, 5))
+    for j in range(5):
+        tau = rng.uniform(300, 900)
+        rise = rng.uniform(3, 12) if warm else rng.uniform(0.5, 3)
+        if heated_axis == j:
+            rise = max(rise, rng.uniform(6, 12))
+        mean_speed = max(speed[:, j].mean(), 1e-9)
+        u = rise * speed[:, j] / mean_speed
+        t0 = room[0] + rng.uniform(0, 1.0)
+        a = np.exp(-dt / tau)
+        y, _ = signal.lfilter([1 - a], [1, -a], u, zi=[a * (t0 - room[0])])
+        temps[:, j] = room + y
+    return temps, room
+
+
+@dataclass
+class Case:
+    columns: dict
+    meta: dict
+    answer: dict
+
+
+def _true_machine(machine: Machine, effects) -> Machine:
+    g = machine.geometry
+    changes = {}
+    for e in effects:
+        if e.effect != "geometry":
+            continue
+        p = e.parameters
+        if "tool_length_mm" in p:
+            changes["tool_length"] = g.tool_length + p["tool_length_mm"]
+        chain = e.locator.get("chain")
+        if isinstance(chain, int):
+            i = chain - 1
+            if "length_offset_mm" in p:
+                off = np.array(changes.get("length_offsets", g.length_offsets), float)
+                off[i] += p["length_offset_mm"]
+                changes["length_offsets"] = off
+            if "base_joint_radial_mm" in p:
+                A = np.array(changes.get("base_joints", g.base_joints), float)
+                e_i = A[i] / np.linalg.norm(A[i])
+                A[i] = A[i] + p["base_joint_radial_mm"] * e_i + p["base_joint_z_mm"] * np.array([0, 0, 1.0])
+                changes["base_joints"] = A
+    if not changes:
+        return machine
+    return dataclasses.replace(machine, geometry=dataclasses.replace(g, nominal=False, **changes))
+
+
+def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, tracker_div=10,
+             noise_scale=1.0):
+    """Inject ``effects`` as machine physics into ``run``, measure; returns (columns, noise)."""
+    t, n, dt = run.t, len(run.t), 1.0 / run.rate_hz
+    by = {}
+    for e in effects:
+        by.setdefault(e.effect, []).append(e)
+    ai = {a: j for j, a in enumerate(AXES)}
+    q_cmd = run.q
+    accel = np.gradient(np.gradient(q_cmd, dt, axis=0), dt, axis=0)
+
+    # motor side
+    q_mot = q_cmd.copy()
+    for e in by.get("servo_lag", []):
+        j = ai[e.locator["axis"]]
+        q_mot[:, j] = first_order_lag(q_cmd[:, j], e.parameters["tau_s"], dt)
+
+    # temperatures
+    th = by.get("thermal_growth", [])
+    temps, room = screw_temperatures(run, rng, ai[th[0].locator["axis"]] if th else None,
+                                     warm=run.kind == "warmup")
+
+    # load side
+    q_load = q_mot.copy()
+    for e in by.get("backlash", []):
+        j = ai[e.locator["axis"]]
+        q_load[:, j] += play(q_mot[:, j], e.parameters["width_mm"]) - q_mot[:, j]
+    for e in by.get("pitch_error", []):
+        j = ai[e.locator["axis"]]
+        p = e.parameters
+        q_load[:, j] += p["amplitude_mm"] * np.sin(2 * np.pi * q_mot[:, j] / p["period_mm"] + e.details["phase_rad"])
+    for e in th:
+        j = ai[e.locator["axis"]]
+        q_load[:, j] += e.parameters["alpha_per_K"] * (temps[:, j] - T_CAL_C) * (q_mot[:, j] - SCREW_FIXED[j])
+    for e in by.get("lost_steps", []):
+        j = ai[e.locator["axis"]]
+        q_load[:, j] += np.where(t >= e.parameters["t_s"], e.parameters["offset_mm"], 0.0)
+    strain_extra = np.zeros((n, 3))
+    m_eff = machine.mass.platform_kg / 3.0
+    for e in by.get("resonance", []):
+        p = e.parameters
+        if "axis" in e.locator:
+            j = ai[e.locator["axis"]]
+            d = mode_response(accel[:, j], p["freq_hz"], p["damping_ratio"], dt)
+            gamma = e.details["peak_mm"] / max(np.abs(d).max(), 1e-12)
+            e.details["participation"] = gamma
+            q_load[:, j] += gamma * d
+            if j < 3:   # the mode's spring force reaches the gauge: k = m ω², N/mm
+                strain_extra[:, j] += machine.strain_gain * m_eff * (2 * np.pi * p["freq_hz"]) ** 2 * 1e-3 * gamma * d
+        else:
+            i = STRAIN.index(e.locator["channel"])
+            d = mode_response(accel[:, i], p["freq_hz"], p["damping_ratio"], dt)
+            strain_extra[:, i] += e.details["peak_ue"] * d / max(np.abs(d).max(), 1e-12)
+
+    true_m = _true_machine(machine, by.get("geometry", []))
+    force = run.force
+    pose = pose_of_joints(q_load, true_m)
+    cf = chain_forces(pose.P, pose.R, true_m, force)
+    comp = by.get("compliance", [])
+    if comp:
+        for e in comp:
+            j = ai[e.locator["axis"]]
+            k = e.parameters["stiffness_N_per_mm"]
+            if j < 3:
+                q_load[:, j] -= cf.axial[:, j] / k          # compression shortens the chain
+            elif force is not None:
+                q_load[:, j] -= force[:, j - 3] / k         # the table gives way to -F
+        pose = pose_of_joints(q_load, true_m, guess=(pose.P, pose.R))
+        cf = chain_forces(pose.P, pose.R, true_m, force)
+    if not pose.ok.all():
+        raise RuntimeError("forward kinematics failed on the perturbed joints")
+    strain_true = strain_of_axial(cf.axial, true_m) + strain_extra
+
+    # measurement
+    noise = {"tip_mm": rng.uniform(0.001, 0.002), "tool": rng.uniform(2e-5, 4e-5),
+             "strain_ue": rng.uniform(0.3, 0.7), "temp_K": 0.02, "load_N": 0.3,
+             "enc_quantum_mm": PULSE_MM}
+    for k in ("tip_mm", "tool", "strain_ue", "temp_K", "load_N"):
+        noise[k] *= noise_scale
+    cols = {"t": t}
+    for j, c in enumerate(CMD):
+        cols[c] = q_cmd[:, j]
+    if enc:
+        for j, c in enumerate(ENC):
+            cols[c] = np.round(q_mot[:, j] / PULSE_MM) * PULSE_MM
+    tracked = (np.arange(n) % tracker_div) == int(rng.integers(0, tracker_div))
+    tracked &= rng.random(n) > 0.01                                # lost beam, single samples
+    for _ in range(int(rng.integers(0, 3))):                       # and a few longer breaks
+        s = int(rng.integers(0, n))
+        tracked[s:s + int(rng.uniform(0.2, 1.0) * run.rate_hz)] = False
+    tip = pose.tip + rng.normal(0, noise["tip_mm"], (n, 3))
+    ax = pose.axis + rng.normal(0, noise["tool"], (n, 3))
+    ax /= np.linalg.norm(ax, axis=-1, keepdims=True)
+    meas = {}
+    for j, c in enumerate(TIP):
+        meas[c] = tip[:, j]
+    if tool:
+        for j, c in enumerate(TOOL):
+            meas[c] = ax[:, j]
+    for j, c in enumerate(STRAIN):
+        meas[c] = strain_true[:, j] + rng.normal(0, noise["strain_ue"], n)
+    for e in by.get("sensor_gain", []):
+        c = e.locator["channel"]
+        meas[c] = meas[c] * e.parameters["gain"]
+    for e in by.get("sensor_offset", []):
+        c = e.locator["channel"]
+        meas[c] = meas[c] + e.parameters["offset"]
+    for c in TIP + (TOOL if tool else ()):
+        cols[c] = np.where(tracked, meas[c], np.nan)
+    for c in STRAIN:
+        cols[c] = meas[c]
+    tdiv = max(1, int(round(run.rate_hz / 10.0)))
+    tsamp = (np.arange(n) % tdiv) == 0
+    for j, c in enumerate(TEMP_CHANNELS):
+        cols[c] = np.where(tsamp, np.round(temps[:, j] + rng.normal(0, 0.02, n), 2), np.nan)
+    cols["temp_room"] = np.where(tsamp, np.round(room + rng.normal(0, 0.02, n), 2), np.nan)
+    if force is not None:
+        for j, c in enumerate(LOAD):
+            cols[c] = force[:, j] + rng.normal(0, noise["load_N"], n)
+    return cols, noise
+
+
+# ---------------------------------------------------------------- cases
+
+def _pick_run(names, rng, run=None):
+    if run:
+        return run
+    allowed = set(RUNS) - {"warmup"}
+    for nm in names:
+        if nm in RUNS_FOR:
+            allowed &= set(RUNS_FOR[nm])
+    if "thermal_growth" in names:
+        return "warmup"
+    return str(rng.choice(sorted(allowed))) if allowed else "calibration"
+
+
+def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, machine=None,
+               seed=None, magnitude_scale=1.0, noise_scale=1.0) -> Case:
+    """One case: ``effects`` a list of catalogue names (each drawn at random) or Effect objects."""
+    machine = machine or load_machine()
+    names = [e.effect if isinstance(e, Effect) else e for e in effects]
+    kind = _pick_run(names, rng, run)
+    if duration_s is None:
+        duration_s = 600.0 if kind == "warmup" else 60.0
+    if rate_hz is None:
+        rate_hz = 100.0 if kind == "warmup" else 1000.0
+    loads = "compliance" in names or (kind in ("calibration", "raster") and rng.random() < 0.5)
+    # distinct axes when the same effect appears twice
+    effs, used = [], set()
+    for e in effects:
+        if isinstance(e, Effect):
+            effs.append(e)
+            continue
+        for _ in range(10):
+            cand = make_effect(e, rng, duration_s=duration_s, scale=magnitude_scale)
+            key = (cand.effect, tuple(sorted(cand.locator.items())))
+            if key not in used:
+                break
+        used.add(key)
+        effs.append(cand)
+    r = make_run(kind, rng, machine, duration_s, rate_hz, loads)
+    enc = any(e.effect in ("servo_lag",) for e in effs) or rng.random() < 0.9
+    tool = rng.random() < 0.75
+    tracker_hz = float(rng.choice([50.0, 100.0, 100.0, 200.0])) if rate_hz >= 400 else min(100.0, rate_hz / 2)
+    tracker_div = max(1, int(round(rate_hz / tracker_hz)))
+    cols, noise = simulate(r, effs, rng, machine, enc=enc, tool=tool, tracker_div=tracker_div,
+                           noise_scale=noise_scale)
+    descr = {"raster": "pocket milling, zig-zag passes in layers",
+             "circle": "cone-frustum circle test (5-axis contouring)",
+             "calibration": "point-to-point calibration sweep with laser tracker",
+             "warmup": "warm-up cycles with laser tracker checks"}[kind]
+    notes = {c: {"source": "laser tracker", "rate_hz": rate_hz / tracker_div} for c in TIP}
+    if tool:
+        notes.update({c: {"source": "laser tracker 6-DOF probe", "rate_hz": rate_hz / tracker_div} for c in TOOL})
+    if enc:
+        notes.update({c: {"source": "drive pulse counter"} for c in ENC})
+    notes.update({c: {"source": "plate-link strain gauge"} for c in STRAIN})
+    if r.force is not None:
+        notes.update({c: {"source": "test load / cutting-force estimate"} for c in LOAD})
+    meta = {"sample_rate_hz": rate_hz, "description": f"{descr}, {duration_s:g} s",
+            "channel_notes": notes}
+    answer = {"run": kind, "seed": seed, "duration_s": duration_s, "sample_rate_hz": rate_hz,
+              "effects": [e.answer() for e in effs], "noise": noise}
+    return Case(cols, meta, answer)
+
+
+def write_case(out_dir, name: str, case: Case) -> Path:
+    d = Path(out_dir) / name
+    write_recording(d / "recording", case.columns, machine="prototype",
+                    sample_rate_hz=case.meta["sample_rate_hz"], description=case.meta["description"],
+                    channel_notes=case.meta["channel_notes"])
+    ans = {"case": name, "recording": "recording", **case.answer}
+    (d / "answer.json").write_text(json.dumps(ans, indent=2, default=_jsonable) + "\n", encoding="utf-8")
+    return d
+
+
+def _jsonable(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o).__name__)
+
+
+def parse_effects(text: str) -> list[str] | str:
+    if text in ("random", ""):
+        return "random"
+    names = [s.strip() for s in text.split(",") if s.strip()]
+    for nm in names:
+        if nm not in EFFECTS:
+            raise InputError("--effects", None, f"unknown effect {nm!r}; the catalogue: {', '.join(EFFECTS)}")
+    return names
+
+
+def generate(out_dir, count=1, *, effects="random", seed=0, clean=False, max_effects=1, run=None,
+             duration_s=None, rate_hz=None, progress=None, magnitude_scale=1.0,
+             noise_scale=1.0) -> list[Path]:
+    """Write ``count`` cases to OUT_DIR/case-NNN; returns their folders."""
+    machine = load_machine()
+    out = []
+    for k in range(count):
+        case_seed = int(seed) * 1000 + k
+        rng = np.random.default_rng(case_seed)
+        if clean:
+            names = []
+        elif effects == "random":
+            m = int(rng.integers(1, max_effects + 1))
+            names = [str(x) for x in rng.choice(EFFECTS, size=m, replace=False)]
+        else:
+            names = list(effects)
+        case = synth_case(rng, names, run=run, duration_s=duration_s, rate_hz=rate_hz,
+                          magnitude_scale=magnitude_scale, noise_scale=noise_scale,
+                          machine=machine, seed=case_seed)
+        out.append(write_case(out_dir, f"case-{k:03d}", case))
+        if progress:
+            progress(k, out[-1], case)
+    return out
+
+
+# ---------------------------------------------------------------- CLI
+
+def add_parser(sub):
+    p = sub.add_parser("synth", help="make recordings with concealed effects and separate answer keys",
+                       description="Write OUT_DIR/case-NNN/recording/ (pmctl-recording/1) and "
+                                   "OUT_DIR/case-NNN/answer.json (the hidden effects).")
+    p.add_argument("out_dir")
+    p.add_argument("--effects", default="random",
+                   help=f"comma list of catalogue effects hidden together in every case, or 'random' "
+                        f"(one per case). Catalogue: {', '.join(EFFECTS)}")
+    p.add_argument("--count", type=int, default=1)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--clean", action="store_true", help="no effects: noise only")
+    p.add_argument("--max-effects", type=int, default=1, help="with --effects random: up to K per case")
+    p.add_argument("--run", choices=RUNS, default=None, help="trajectory kind (default: one that shows the effects)")
+    p.add_argument("--duration", type=float, default=None, help="seconds (default 60; warmup 600)")
+    p.add_argument("--rate", type=float, default=None, help="log rate Hz (default 1000; warmup 100)")
+    p.add_argument("--magnitude-scale", type=float, default=1.0,
+                   help="make the hidden effects this many times stronger (<1: harder cases)")
+    p.add_argument("--noise-scale", type=float, default=1.0, help="multiply every measurement noise")
+    p.set_defaults(func=_cmd)
+
+
+def _cmd(args) -> int:
+    if args.count < 1:
+        raise InputError("--count", None, "must be >= 1")
+    if args.duration is not None and not 1.0 <= args.duration <= 7200:
+        raise InputError("--duration", None, "must be 1..7200 s")
+    if args.rate is not None and not 20 <= args.rate <= 20000:
+        raise InputError("--rate", None, "must be 20..20000 Hz")
+    if not 0 < args.magnitude_scale <= 100 or not 0 <= args.noise_scale <= 100:
+        raise InputError("--magnitude-scale/--noise-scale", None, "must be > 0 (noise >= 0) and <= 100")
+    if args.clean and args.effects != "random":
+        raise InputError("--clean", None, f"contradicts --effects {args.effects}: a clean case hides no effect")
+    eff = parse_effects(args.effects)
+    t0 = time.perf_counter()
+
+    def progress(k, d, case):
+        names = ", ".join(f"{e['effect']}" for e in case.answer["effects"]) or "clean"
+        print(f"{d}  {case.answer['run']:<11s} {len(case.columns['t']):>7d} samples  [{names}]", flush=True)
+
+    generate(args.out_dir, args.count, effects=eff, seed=args.seed, clean=args.clean,
+             max_effects=args.max_effects, run=args.run, duration_s=args.duration, rate_hz=args.rate,
+             magnitude_scale=args.magnitude_scale, noise_scale=args.noise_scale,
+             progress=progress)
+    print(f"{args.count} case(s) in {time.perf_counter() - t0:.1f} s; answer keys are beside, not in, "
+          f"each recording folder")
+    return 0
