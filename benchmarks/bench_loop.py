@@ -25,7 +25,8 @@ import numpy as np
 from pmctl import hal
 from pmctl.core.config import load_machine
 from pmctl.hal.base import Feedback
-from pmctl.motion.loop import ControlLoop, LoopConfig, load_service_config, prepare, tracking_stats
+from pmctl.motion.loop import ControlLoop, prepare, tracking_stats
+from pmctl.motion.service_config import LoopConfig, load_service_config
 from pmctl.motion.nc import ModelFK, NCParams, counts_of, initial_state, nc_step
 from pmctl.task.trajectory import Trajectory
 

@@ -18,8 +18,8 @@ from pmctl import hal
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.core.errors import ConfigError, InputError, UnreachablePose
-from pmctl.motion.loop import (ControlLoop, LoopConfig, NCConfig, load_service_config, prepare, service_from_dict,
-                        tracking_stats)
+from pmctl.motion.loop import ControlLoop, prepare, tracking_stats
+from pmctl.motion.service_config import LoopConfig, NCConfig, load_service_config, service_from_dict
 from pmctl.motion.nc import NCParams, counts_of, initial_state
 from pmctl.motion.state_store import load_counters, save_counters
 from pmctl.task.trajectory import Trajectory

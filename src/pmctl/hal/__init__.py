@@ -23,9 +23,14 @@ def backend_class(name: str):
     return getattr(importlib.import_module(mod), cls)
 
 
+def validate_options(name: str, table: dict, where: str):
+    """Validate backend ``name``'s options table (see Backend.validate_options)."""
+    return backend_class(name).validate_options(table, where)
+
+
 def create(name: str, machine, dt: float, options: dict | None = None, **kw) -> Backend:
     """Instantiate backend ``name`` for ``machine`` at tick period ``dt`` with its options."""
     return backend_class(name)(machine, dt, options or {}, **kw)
 
 
-__all__ = ["AXES", "BACKENDS", "Backend", "Feedback", "HalError", "HalTimeout", "Status", "backend_class", "create"]
+__all__ = ["AXES", "BACKENDS", "Backend", "Feedback", "HalError", "HalTimeout", "Status", "backend_class", "create", "validate_options"]

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pmctl.core.errors import PmctlError
+from pmctl.core.errors import ConfigError, PmctlError
 
 AXES = ("L1", "L2", "L3", "X", "Y")
 
@@ -56,6 +56,15 @@ class Backend(ABC):
 
     name = "abstract"
     accepts = "pulses"
+
+    @classmethod
+    def validate_options(cls, table: dict, where: str):
+        """Check this backend's ``[hal.<name>]`` options table at config load (file, key and reason
+        on any problem) and return the validated options. The service config calls it for every
+        backend's table, so a typo in an unused backend's options is found too."""
+        if table:
+            raise ConfigError(where, next(iter(table)), f"backend {cls.name!r} takes no options")
+        return table
 
     @abstractmethod
     def open(self, counts: np.ndarray) -> None:

@@ -86,6 +86,13 @@ class SimBackend(Backend):
     name = "sim"
     accepts = "pulses"
 
+    @classmethod
+    def validate_options(cls, table: dict, where: str) -> SimOptions:
+        try:
+            return SimOptions.from_dict(table, None, where=where)
+        except TypeError as e:
+            raise ConfigError(where, "-", str(e)) from None
+
     def __init__(self, machine: Machine, dt: float, options: dict | SimOptions | None = None):
         self.machine, self.dt = machine, float(dt)
         o = options if isinstance(options, SimOptions) else SimOptions.from_dict(options or {}, machine)

@@ -25,7 +25,8 @@ from pmctl import hal
 from pmctl.core import kinematics as K
 from pmctl.core.config import CONFIG_DIR, load_machine
 from pmctl.core.errors import PmctlError
-from pmctl.motion.loop import ControlLoop, LoopResult, load_service_config, prepare, tracking_stats
+from pmctl.motion.loop import ControlLoop, LoopResult, prepare, tracking_stats
+from pmctl.motion.service_config import load_service_config
 from pmctl.motion.nc import counts_of, initial_state
 from pmctl.motion.state_store import CounterWriter, StateLock, load_counters
 
