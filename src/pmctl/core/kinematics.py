@@ -343,40 +343,65 @@ def _perp_basis(v):
 
 
 def _ik_platform(tip_w, axis, geom: Geometry, tol=FK_TOL_MM, max_iter=FK_MAX_ITER):
-    """Platform pose realising the tool axis and tip height, satisfying the chain-plane constraints."""
+    """Platform pose realising the tool axis and tip height, satisfying the chain-plane constraints.
+
+    Nominal geometry: the closed form of the zero-torsion mechanism (exact). General (calibrated)
+    geometry: the closed form is the start guess of a Newton solve on the platform pose (P, w) with
+    6 equations: the 3 chain-plane constraints n_i.(C_i - A_i) = 0, the tool axis (2 components
+    normal to the target axis) and the tip height. The table X, Y then take the tip's horizontal
+    position exactly. Only the poses not yet converged are iterated (batch)."""
     t1, t2 = axis_to_tilt(axis)
     Z = tip_w[..., 2] + geom.z_table + geom.tool_length * np.cos(t2)
     P, R = platform_pose(Z, t1, t2, geom.platform_radius)
     if geom.nominal:
         return P, R, np.ones(P.shape[:-1], bool)
-    # General geometry: Newton on (P, w) with 3 plane constraints, 2 axis equations, 1 tip-height equation.
+    shape = P.shape[:-1]
     e1, e2 = _perp_basis(axis)
+    e1 = np.broadcast_to(e1, shape + (3,)).reshape(-1, 3)
+    e2 = np.broadcast_to(e2, shape + (3,)).reshape(-1, 3)
+    z_target = np.broadcast_to(tip_w[..., 2] + geom.z_table, shape).reshape(-1)
+    P = np.array(P, float).reshape(-1, 3)
+    R = np.array(R, float).reshape(-1, 3, 3)
     ap, tp = geom.tool_axis_p, geom.tool_tip_p
-    z_target = tip_w[..., 2] + geom.z_table
-    ok = np.zeros(P.shape[:-1], bool)
-    for _ in range(max_iter):
-        rc = np.einsum("...ij,kj->...ki", R, geom.platform_joints)
-        d = P[..., None, :] + rc - geom.base_joints
-        w = _mv(R, ap)
-        rt = _mv(R, tp)
-        f = np.concatenate([np.einsum("...ki,ki->...k", d, geom.revolute_axes),
-                            np.sum(e1 * w, -1, keepdims=True), np.sum(e2 * w, -1, keepdims=True),
-                            (P[..., 2] + rt[..., 2] - z_target)[..., None]], -1)
+    n_ax = geom.revolute_axes
+
+    def residual(Pa, Ra, k):
+        rc = np.einsum("...ij,kj->...ki", Ra, geom.platform_joints)
+        d = Pa[:, None, :] + rc - geom.base_joints
+        w = _mv(Ra, ap)
+        rt = _mv(Ra, tp)
+        f = np.concatenate([np.einsum("...ki,ki->...k", d, n_ax),
+                            np.sum(e1[k] * w, -1, keepdims=True), np.sum(e2[k] * w, -1, keepdims=True),
+                            (Pa[:, 2] + rt[:, 2] - z_target[k])[:, None]], -1)
+        return f, rc, w, rt
+
+    ok = np.zeros(len(P), bool)
+    act = np.arange(len(P))
+    f, rc, w, rt = residual(P, R, act)
+    for it in range(max_iter + 1):
         res = np.abs(f).max(-1)
-        ok = res < tol
-        if np.all(ok):
+        done = res < tol
+        ok[act[done]] = True
+        keep = ~done & np.isfinite(res)
+        act, f, rc, w, rt = act[keep], f[keep], rc[keep], w[keep], rt[keep]
+        if not act.size or it == max_iter:
             break
-        n = np.broadcast_to(geom.revolute_axes, d.shape)
+        n = np.broadcast_to(n_ax, rc.shape)
         zeros = np.zeros(w.shape)
         rows = np.concatenate([
             np.concatenate([n, np.cross(rc, n)], -1),
-            np.concatenate([zeros, np.cross(w, e1)], -1)[..., None, :],
-            np.concatenate([zeros, np.cross(w, e2)], -1)[..., None, :],
-            np.concatenate([np.broadcast_to(EZ, w.shape), np.cross(rt, EZ)], -1)[..., None, :]], -2)
+            np.concatenate([zeros, np.cross(w, e1[act])], -1)[:, None, :],
+            np.concatenate([zeros, np.cross(w, e2[act])], -1)[:, None, :],
+            np.concatenate([np.broadcast_to(EZ, w.shape), np.cross(rt, EZ)], -1)[:, None, :]], -2)
         step = np.linalg.solve(rows, -f[..., None])[..., 0]
-        P = P + step[..., :3]
-        R = expm_so3(step[..., 3:]) @ R
-    return P, R, ok
+        # Limit wild steps (a calibrated geometry is within millimetres of the nominal one).
+        sp = np.linalg.norm(step[:, :3], axis=-1, keepdims=True)
+        sr = np.linalg.norm(step[:, 3:], axis=-1, keepdims=True)
+        step = step * np.minimum(1.0, np.minimum(50.0 / np.maximum(sp, 1e-300), 0.2 / np.maximum(sr, 1e-300)))
+        P[act] = P[act] + step[:, :3]
+        R[act] = expm_so3(step[:, 3:]) @ R[act]
+        f, rc, w, rt = residual(P[act], R[act], act)
+    return P.reshape(shape + (3,)), R.reshape(shape + (3, 3)), ok.reshape(shape)
 
 
 @dataclass
