@@ -8,7 +8,7 @@ from __future__ import annotations
 def add_parser(sub):
     p = sub.add_parser("calibrate", help="kinematic calibration: plan poses, identify the geometry",
                        description="Kinematic calibration of the machine geometry (mm, degrees).")
-    cs = p.add_subparsers(dest="calibrate_command", metavar="identify|plan|rsm", required=True)
+    cs = p.add_subparsers(dest="calibrate_command", metavar="identify|plan|rsm|from-twin", required=True)
 
     a = cs.add_parser("identify", help="identify the geometry from measured poses; write a calibrated config",
                       description="Identify base/platform joints, revolute axes, length offsets, tool length "
@@ -53,6 +53,14 @@ def add_parser(sub):
     c.add_argument("--config", default="prototype", help="machine config (default: prototype)")
     c.add_argument("--seed", type=int, default=3, help="random seed of the simulated machine (default 3)")
     c.set_defaults(func=run_rsm)
+
+    d = cs.add_parser("from-twin", help="calibrated config from the geometry findings of a twin diagnosis",
+                      description="Apply the geometry findings of a `pmctl twin diagnose` JSON report to a "
+                                  "machine config and write the calibrated config.")
+    d.add_argument("report", help="twin diagnosis report (JSON)")
+    d.add_argument("--config", default="prototype", help="reference machine config (default: prototype)")
+    d.add_argument("--out", required=True, help="calibrated machine config to write (TOML)")
+    d.set_defaults(func=run_from_twin)
 
 
 def run_identify(args):
@@ -125,4 +133,24 @@ def run_rsm(args):
     from pmctl.tools.calibrate import rsm
 
     print(rsm.run(load_machine(args.config), seed=args.seed))
+    return 0
+
+
+def run_from_twin(args):
+    import json
+
+    from pmctl.core.config import load_machine
+    from pmctl.core.errors import InputError
+    from pmctl.tools.calibrate import twin_link
+
+    try:
+        report = json.loads(open(args.report, encoding="utf-8").read())
+    except OSError as e:
+        raise InputError(args.report, None, f"cannot read: {e.strerror or e}") from None
+    except json.JSONDecodeError as e:
+        raise InputError(args.report, e.lineno, f"not valid JSON: {e.msg}", column=e.colno) from None
+    m = load_machine(args.config)
+    n = len(twin_link._findings(report))
+    out = twin_link.write_calibrated(m, report, args.out, source=args.report)
+    print(f"applied {n} geometry finding(s); wrote {args.out} (machine '{out.name}')")
     return 0
