@@ -296,11 +296,17 @@ class RSMCalibration:
     fits: dict          # "Z", "t1", "t2", "x", "y" -> Fit in coded L
     region: tuple
 
+    responses: str = "tilt"
+
     @classmethod
-    def build(cls, q, tip_meas, axis_meas, machine, *, alpha=0.05, region=None):
+    def build(cls, q, tip_meas, axis_meas, machine, *, alpha=0.05, region=None, responses="tilt"):
+        """responses "tilt": the report's (Z_se, theta1e, theta2e); "axis": (Z_se, v_x, v_y), the
+        tool axis components, smooth in L where theta1 is not (it is undefined at theta2 = 0)."""
         L = q[:, :3]
         code = Coder(L.min(0), L.max(0))
         Zs, t1, t2 = pose_of_tool(tip_meas, axis_meas, machine)
+        if responses == "axis":
+            t1, t2 = axis_meas[:, 0], axis_meas[:, 1]
         # tip in the base frame with the table at the commanded position
         xb = tip_meas[:, 0] + q[:, 3]
         yb = tip_meas[:, 1] + q[:, 4]
@@ -312,16 +318,17 @@ class RSMCalibration:
             f2 = fit_quadratic(code(L), y, keep)
             # keep the pruned surface unless it fits the data worse (adjusted R^2)
             fits[name] = f2 if (np.isnan(f.r2_adj) or f2.r2_adj >= f.r2_adj) else f
-        return cls(code, fits, region)
+        return cls(code, fits, region, responses)
 
     def predict(self, L):
         c = self.code(np.atleast_2d(L))
         return {k: predict_quad(f, c) for k, f in self.fits.items()}
 
-    def solve(self, Zs, th1_deg, th2_deg, L0, *, tol=1e-10, max_iter=50):
-        """Inputs L (3,) whose predicted pose is (Zs, th1, th2): Newton on the three surfaces."""
+    def solve(self, Zs, r1, r2, L0, *, tol=1e-10, max_iter=50):
+        """Inputs L (3,) whose predicted pose is (Zs, r1, r2) -- (Z_s, theta1, theta2) in degrees, or
+        (Z_s, v_x, v_y) with axis responses: Newton on the three surfaces."""
         L = np.array(L0, float)
-        target = np.array([Zs, th1_deg, th2_deg])
+        target = np.array([Zs, r1, r2])
         for _ in range(max_iter):
             p = self.predict(L)
             f = np.array([p["Z"][0], p["t1"][0], p["t2"][0]]) - target
@@ -341,6 +348,8 @@ class RSMCalibration:
         """Joints for a wanted tool pose (tip in W, axis): chains from the surfaces, table from the
         predicted horizontal tip position at those chain inputs."""
         Zs, t1, t2 = pose_of_tool(tip_w, axis, machine)
+        if self.responses == "axis":
+            t1, t2 = axis[:, 0], axis[:, 1]
         q0 = K.ik_batch(tip_w, axis, machine, check_limits=False).q
         out = np.array(q0, float)
         for k in range(len(out)):
