@@ -124,6 +124,18 @@ def test_unidentifiable_directions_are_reported_and_not_fitted_to_noise():
     assert len([d for d in r_tip.fixed if not math.isfinite(d.sigma)]) > len(exact)
 
 
+def test_poses_without_a_measured_axis_still_count_for_their_tip():
+    """A 6-DOF probe that dropped out at some poses: those poses give the tip only."""
+    gt, q, mt, ma, rng = measured(7, 60)
+    ma = ma.copy()
+    ma[::3] = np.nan
+    res = I.identify(q, mt, ma, G)
+    assert res.has_axis and len([d for d in res.fixed if not math.isfinite(d.sigma)]) == 4
+    e_tip, e_ax = held_out_errors(res.geometry, gt, np.random.default_rng(70))
+    assert e_tip.max() < 5e-3 and np.degrees(e_ax.max()) < 0.002
+    assert np.isfinite(res.axis_rms_urad) and res.axis_rms_urad < 30
+
+
 def test_too_few_poses_is_an_error():
     gt, q, mt, ma, rng = measured(5, 2)
     with pytest.raises(I.IdentificationError, match="too few"):

@@ -70,10 +70,9 @@ def poses_of(rec, *, joints="auto", tol_mm=1e-6, min_rows=3) -> Poses:
     if not Q:
         raise InputError(path, None, "no static pose with a measured tool tip "
                                      + ("(no dwell of at least %d rows)" % min_rows if dwells else ""))
-    A = np.array(A) if has_axis else None
-    if A is not None and not np.all(np.isfinite(A)):
-        bad = int(np.nonzero(~np.all(np.isfinite(A), 1))[0][0])
-        raise InputError(path, rec.line_of_row(R[bad]), "tool axis not measured at this pose while others have it")
+    A = np.array(A) if has_axis else None         # NaN rows: axis not measured at that pose
+    if A is not None and not np.any(np.isfinite(A)):
+        A = None
     return Poses(np.array(Q), np.array(T), A, np.array(R), "enc" if use_enc else "cmd", dwells, rec.machine)
 
 

@@ -73,20 +73,23 @@ class Result:
     history: list = field(default_factory=list)
 
 
-def _residual(q, tip, axis, geom, guess, ws):
+def _residual(q, tip, axis, geom, guess, ws, has_axis=None):
     pr = Mo.predict(q, geom, guess)
     r_tip = (pr.tip - tip) / ws[0]
     parts = [r_tip.reshape(-1)]
     if axis is not None:
-        parts.append(((pr.axis - axis) / ws[1]).reshape(-1))
+        sel = slice(None) if has_axis is None or has_axis is True else has_axis
+        parts.append(((pr.axis[sel] - axis[sel]) / ws[1]).reshape(-1))
     return np.concatenate(parts), pr
 
 
 def _jac(pr, geom, has_axis, ws):
+    """Whitened identification Jacobian; has_axis True / False or a mask of poses with an axis."""
     S = Mo.identification_jacobian(pr.P, pr.R, geom)
     rows = [(S[:, :3, :] / ws[0]).reshape(-1, Mo.N_PARAMS)]
-    if has_axis:
-        rows.append((S[:, 3:, :] / ws[1]).reshape(-1, Mo.N_PARAMS))
+    if has_axis is not False:
+        sel = slice(None) if has_axis is True else has_axis
+        rows.append((S[sel, 3:, :] / ws[1]).reshape(-1, Mo.N_PARAMS))
     return np.concatenate(rows, 0)
 
 
@@ -120,21 +123,30 @@ def analyse(J, *, rcond=RCOND, max_sigma=MAX_SIGMA, noise_factor=1.0):
 
 def identify(q, tip, axis, ref: Geometry, *, tip_sigma_mm=TIP_SIGMA_MM, axis_sigma_rad=AXIS_SIGMA_RAD,
              rcond=RCOND, max_sigma=MAX_SIGMA, max_iter=40, workspace_q=None) -> Result:
-    """Identify the geometry from measured poses. ``axis`` may be None (tip-only measurement).
-    ``workspace_q`` (k, 5): actuator positions where the predicted accuracy is evaluated
-    (default: the measured poses)."""
+    """Identify the geometry from measured poses. ``axis`` may be None (tip-only measurement) or
+    have NaN rows where the axis was not measured. ``workspace_q`` (k, 5): actuator positions where
+    the predicted accuracy is evaluated (default: the measured poses)."""
     q = np.asarray(q, float)
     tip = np.asarray(tip, float)
-    has_axis = axis is not None
-    if has_axis:
+    amask = True
+    if axis is not None:
         axis = np.asarray(axis, float)
-        axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+        amask = np.all(np.isfinite(axis), -1)
+        if not amask.any():
+            axis = None
+        else:
+            axis = np.where(amask[:, None], axis, np.array([0.0, 0.0, 1.0]))
+            axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+            amask = True if amask.all() else amask
+    if axis is None:
+        amask = False
+    has_axis = axis is not None
     n = len(q)
     if n < 3:
         raise IdentificationError(f"{n} measured poses: too few to identify anything")
     ws = (tip_sigma_mm, axis_sigma_rad)
     geom = ref
-    r, pr = _residual(q, tip, axis, geom, None, ws)
+    r, pr = _residual(q, tip, axis, geom, None, ws, amask)
     cost = float(r @ r)
     r0 = r
     lam = 1e-3
@@ -142,7 +154,7 @@ def identify(q, tip, axis, ref: Geometry, *, tip_sigma_mm=TIP_SIGMA_MM, axis_sig
     history = [cost]
     rank = 0
     for it in range(1, max_iter + 1):
-        J = _jac(pr, geom, has_axis, ws)
+        J = _jac(pr, geom, amask, ws)
         D, U, s, Vt, keep, _ = analyse(J, rcond=rcond, max_sigma=max_sigma)
         rank = int(keep.sum())
         Ur, sr, Vr = U[:, keep], s[keep], Vt[keep]
@@ -153,7 +165,7 @@ def identify(q, tip, axis, ref: Geometry, *, tip_sigma_mm=TIP_SIGMA_MM, axis_sig
             dp = (Vr.T @ z) / D
             try:
                 g_new = Mo.perturb(geom, dp)
-                r_new, pr_new = _residual(q, tip, axis, g_new, (pr.P, pr.R), ws)
+                r_new, pr_new = _residual(q, tip, axis, g_new, (pr.P, pr.R), ws, amask)
             except PmctlError:
                 lam *= 10
                 continue
@@ -172,7 +184,7 @@ def identify(q, tip, axis, ref: Geometry, *, tip_sigma_mm=TIP_SIGMA_MM, axis_sig
         if step_small or rel_drop < 1e-12:
             break
     # Final analysis at the solution.
-    J = _jac(pr, geom, has_axis, ws)
+    J = _jac(pr, geom, amask, ws)
     m = len(r)
     dof = max(m - rank, 1)
     chi2 = cost / dof
@@ -190,6 +202,8 @@ def identify(q, tip, axis, ref: Geometry, *, tip_sigma_mm=TIP_SIGMA_MM, axis_sig
     e0 = np.linalg.norm(r0[:3 * n].reshape(n, 3), axis=-1) * tip_sigma_mm * 1e3
     if has_axis:
         e_ax = Mo.angle_between(pr.axis, axis) * 1e6
+        if amask is not True:
+            e_ax = e_ax[amask]
         ax_rms, ax_max = float(np.sqrt(np.mean(e_ax**2))), float(e_ax.max())
     else:
         ax_rms = ax_max = float("nan")
