@@ -8,7 +8,7 @@ from __future__ import annotations
 def add_parser(sub):
     p = sub.add_parser("calibrate", help="kinematic calibration: plan poses, identify the geometry",
                        description="Kinematic calibration of the machine geometry (mm, degrees).")
-    cs = p.add_subparsers(dest="calibrate_command", metavar="identify|plan|rsm|from-twin", required=True)
+    cs = p.add_subparsers(dest="calibrate_command", metavar="identify|plan|rsm|from-twin|su-export|su-import", required=True)
 
     a = cs.add_parser("identify", help="identify the geometry from measured poses; write a calibrated config",
                       description="Identify base/platform joints, revolute axes, length offsets, tool length "
@@ -61,6 +61,20 @@ def add_parser(sub):
     d.add_argument("--config", default="prototype", help="reference machine config (default: prototype)")
     d.add_argument("--out", required=True, help="calibrated machine config to write (TOML)")
     d.set_defaults(func=run_from_twin)
+
+    e = cs.add_parser("su-export", help="the machine as kinematic chains in SU-parameter notation (JSON)",
+                      description="Write the machine's kinematic chains (three RPS chains, the table, the tool) "
+                                  "with Sheth-Uicker (SU) link parameters, for virtual-machining tools.")
+    e.add_argument("--config", default="prototype", help="machine config (default: prototype)")
+    e.add_argument("--out", required=True, help="JSON file to write")
+    e.set_defaults(func=run_su_export)
+    f = cs.add_parser("su-import", help="read an SU-parameter description back into a machine config",
+                      description="Read a `pmctl calibrate su-export` file; the geometry comes from it, "
+                                  "limits, resolution, masses etc. from --config.")
+    f.add_argument("su", help="SU-parameter JSON file")
+    f.add_argument("--config", default="prototype", help="machine config for everything but the geometry")
+    f.add_argument("--out", required=True, help="machine config to write (TOML)")
+    f.set_defaults(func=run_su_import)
 
 
 def run_identify(args):
@@ -153,4 +167,33 @@ def run_from_twin(args):
     n = len(twin_link._findings(report))
     out = twin_link.write_calibrated(m, report, args.out, source=args.report)
     print(f"applied {n} geometry finding(s); wrote {args.out} (machine '{out.name}')")
+    return 0
+
+
+def run_su_export(args):
+    from pmctl.core.config import load_machine
+    from pmctl.core.errors import PmctlError
+    from pmctl.tools.calibrate import su
+
+    m = load_machine(args.config)
+    try:
+        doc = su.write_su(m, args.out)
+    except OSError as e:
+        raise PmctlError(f"{args.out}: cannot write: {e.strerror or e}") from None
+    print(f"wrote {args.out}: {len(doc['loops'])} loops "
+          f"({', '.join(lp['name'] for lp in doc['loops'])}) of machine '{m.name}'")
+    return 0
+
+
+def run_su_import(args):
+    from pmctl.core.config import load_machine
+    from pmctl.tools.calibrate import configio, su
+
+    base = load_machine(args.config)
+    geom = su.read_su(args.su, base)
+    data = configio.calibrated_dict(base, geom, name=f"{base.name}-su",
+                                    description=f"{base.name} with the geometry of {args.su}")
+    data["geometry"]["z_table_mm"] = float(geom.z_table)
+    out = configio.write_machine(args.out, data, f"Geometry read from the SU-parameter description {args.su}")
+    print(f"wrote {args.out} (machine '{out.name}')")
     return 0
