@@ -4,7 +4,6 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
 from hypothesis import given, settings, strategies as st
 
 from pmctl.core import kinematics as K

@@ -1,6 +1,5 @@
 """The twin's geometry findings become a calibrated config through the calibration machinery."""
 
-import dataclasses
 import json
 import subprocess
 import sys

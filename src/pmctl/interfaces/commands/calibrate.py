@@ -46,7 +46,7 @@ def add_parser(sub):
     b.add_argument("--out", required=True, help="output stem: writes STEM.ngc and STEM.csv")
     b.set_defaults(func=run_plan)
 
-    c = cs.add_parser("rsm", help="the response-surface method (seed 000 ch. 5-6) vs identification",
+    c = cs.add_parser("rsm", help="the response-surface method of the 2006 report (ch. 5-6) vs identification",
                       description="Reproduce the response-surface error estimation and calibration on a "
                                   "simulated machine with +-0.5 mm / +-0.5 deg errors and compare it with "
                                   "the model-based identification on the same measurement budget.")

@@ -6,8 +6,9 @@ Jacobian at the reference geometry, projected on the combinations that are ident
 (the exact symmetries of the model are left out; they cannot be measured from any pose). The
 selection maximises log det(sum B_k^T B_k) (D-optimality): greedy start, then Fedorov exchange
 passes until no swap improves. The condition number of the resulting identification Jacobian is
-reported next to that of random pose sets of the same size (seed 002 chooses measurement
-configurations by the condition number; D-optimality also keeps the weakest direction up).
+reported next to that of random pose sets of the same size (iterative least-squares calibration of
+a 6-DOF parallel mechanism with a redundant passive link chooses its measurement configurations by
+the condition number; D-optimality also keeps the weakest direction up).
 
 Output: a G-code job that visits the poses (nearest-neighbour order, G1 at a feed, ``G4`` dwell at
 each) and a CSV of the poses, with the joints of the reference config.

@@ -29,7 +29,6 @@ Table 6.2 for Z_s = 200 mm, theta1 = 30 deg, theta2 = 5 deg.
 from __future__ import annotations
 
 import itertools
-import math
 from dataclasses import dataclass, replace
 
 import numpy as np
