@@ -241,9 +241,9 @@ def test_identify_then_kin_ik_on_held_out_poses_end_to_end(tmp_path):
     assert rep["poses"] == 60 and rep["rank"] + len(rep["not_identifiable"]) == 30
     assert sum(d["exact_symmetry"] for d in rep["not_identifiable"]) == 4
     assert rep["tip_rms_um"] < 5 and 0.6 < rep["chi2_red"] < 1.5
-    tips, axes = Mo.random_tool_poses(M, 8, np.random.default_rng(99))
+    tips, axes = Mo.random_tool_poses(M, 200, np.random.default_rng(99))
     worst_tip = worst_ang = 0.0
-    for tip, ax in zip(tips, axes):
+    for tip, ax in zip(tips[:3], axes[:3]):                   # through the command line ...
         r = pmctl("kin", "ik", "--config", str(out), "--tip", ",".join(repr(float(x)) for x in tip),
                   "--axis", ",".join(repr(float(x)) for x in ax), "--json")
         assert r.returncode == 0, r.stderr
@@ -252,10 +252,16 @@ def test_identify_then_kin_ik_on_held_out_poses_end_to_end(tmp_path):
         et, ea = Mo.tool_errors(tip[None], ax[None], qh, gt)
         worst_tip, worst_ang = max(worst_tip, et[0]), max(worst_ang, ea[0])
     assert worst_tip < 5e-3 and np.degrees(worst_ang) < 0.001, (worst_tip, np.degrees(worst_ang))
+    # ... and, for many more held-out poses, the same IK in-process on the written file
+    mc = load_machine(out)
+    r_all = K.ik_batch(tips, axes, mc)
+    assert r_all.ok.all() and np.allclose(r_all.q[2], qh[0], atol=1e-9)
+    et, ea = Mo.tool_errors(tips, axes, r_all.q, gt)
+    assert et.max() < 5e-3 and np.degrees(ea.max()) < 0.001, (et.max(), np.degrees(ea.max()))
     # and the file is a machine config like any other: fk accepts it too
     r = pmctl("kin", "fk", "--config", str(out), "--joints", ",".join(repr(float(x)) for x in qh[0]), "--json")
     assert r.returncode == 0, r.stderr
-    assert np.allclose(json.loads(r.stdout)["tip"], tips[-1], atol=1e-8)
+    assert np.allclose(json.loads(r.stdout)["tip"], tips[2], atol=1e-8)
 
 
 def test_identify_refuses_a_bad_recording_with_one_line(tmp_path):
