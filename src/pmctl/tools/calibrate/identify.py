@@ -245,9 +245,9 @@ def format_report(res: Result, *, ref_name="reference") -> str:
              f"(noise assumed {res.tip_sigma_mm * 1e3:g} um tip"
              + (f", {res.axis_sigma_rad * 1e6:g} urad axis)" if res.has_axis else ")"))
     L.append(f"iterations: {res.iterations}  identified combinations: {res.rank} of {Mo.N_PARAMS}  "
-             f"condition number (scaled): {res.cond:.1f}")
-    L.append(f"residual before: tip RMS {res.before_tip_rms_um:.2f} um, worst {res.before_tip_max_um:.2f} um")
-    L.append(f"residual after:  tip RMS {res.tip_rms_um:.3f} um, worst {res.tip_max_um:.3f} um"
+             f"condition number of the identified part (scaled): {res.cond:.1f}")
+    L.append(f"residual before: tip distance RMS {res.before_tip_rms_um:.2f} um, worst {res.before_tip_max_um:.2f} um")
+    L.append(f"residual after:  tip distance RMS {res.tip_rms_um:.3f} um, worst {res.tip_max_um:.3f} um"
              + (f"; axis RMS {res.axis_rms_urad:.2f} urad, worst {res.axis_max_urad:.2f} urad" if res.has_axis else ""))
     L.append(f"chi2 per degree of freedom: {res.chi2_red:.3f} (1 = residuals match the assumed noise)")
     L.append(f"predicted accuracy of the calibrated model (1 sigma, over the evaluation poses): tip RMS "
