@@ -21,6 +21,7 @@ import numpy as np
 
 from pmctl.core.config import Geometry, Machine
 from pmctl.core.errors import KinematicsError, UnreachablePose
+from pmctl.core.tolerances import AXIS_TOL
 
 FK_TOL_MM = 1e-10        # residual of the 6 loop equations at which Newton stops (criterion: < 1e-9 mm)
 FK_MAX_ITER = 30
@@ -457,7 +458,7 @@ def limit_violations(q, theta2, P, R, machine: Machine):
     return out.reshape(shape)
 
 
-def ik(tip_w, axis, machine: Machine, *, axis_tol=1e-3) -> IKResult:
+def ik(tip_w, axis, machine: Machine, *, axis_tol=AXIS_TOL) -> IKResult:
     """Single-pose IK; raises UnreachablePose naming the limit. ``axis`` must be unit within axis_tol."""
     tip_w = np.asarray(tip_w, float).reshape(3)
     axis = np.asarray(axis, float).reshape(3)

@@ -453,21 +453,10 @@ def seed_path_error(machine: Machine, theta2_points_deg, *, Z=393.0, theta1_deg=
 # ============================================================== CLI (thin: compute, print, plot)
 
 def add_parsers(sub):
-    """Register ``io-ratio``, ``drive``, ``path-error`` and ``compliance`` under ``pmctl analyze``."""
-    specs = [
-        ("io-ratio", _cmd_io_ratio, "input-output ratio maps dZ^2 over theta1 x theta2 (seed Fig. 4.1-4.3)"),
-        ("drive", _cmd_drive, "drive characteristics G_T, G_R, omega_T, omega_R vs Table 2.1"),
-        ("path-error", _cmd_path_error, "joint-interpolation path error (Fig. 4.4-4.6) and adaptive spacing"),
-        ("compliance", _cmd_compliance, "output displacement error for unit loads (seed 2.4.1)"),
-    ]
-    for name, func, text in specs:
-        p = sub.add_parser(name, help=text, description=text + ".")
-        p.add_argument("--config", default="prototype", help="machine config (default: prototype)")
-        p.add_argument("--out", default="out/analyze", help="directory for the PNGs (default: out/analyze)")
-        if name == "path-error":
-            p.add_argument("--tol-um", type=float, default=1.0,
-                           help="path tolerance of the adaptive spacing, micrometres (default 1)")
-        p.set_defaults(func=func)
+    """Register ``io-ratio``, ``drive``, ``path-error`` and ``compliance`` under ``pmctl analyze``
+    (the registration lives in :mod:`pmctl.tools.analysis.cli`, which imports no numpy)."""
+    from pmctl.tools.analysis.cli import add_mechanism_parsers
+    add_mechanism_parsers(sub)
 
 
 def _setup(args):

@@ -702,14 +702,6 @@ def cmd_vf(args):
 
 
 def add_parsers(sub):
-    p = sub.add_parser("vibration", help="seed 004 ch. 3: eq. 3.1 roots/factors, step and ramp "
-                       "responses with and without strain feedback K_θ (PNG)",
-                       description="Reproduces seed 004 eq. 3.1-3.5 and Figs. 3.3/3.5 by simulation "
-                                   "with the software V-F converter.")
-    p.add_argument("--out", default="out/analyze", help="directory for the PNG figures (default out/analyze)")
-    p.set_defaults(func=cmd_vibration)
-    q = sub.add_parser("vf", help="seed 004 ch. 2: V-F minimum-amplitude law (eq. 2.2), three-region "
-                       "map (Fig. 2.9) and the 3.6 noise claim, by simulation (PNG)",
-                       description="The software V-F converter's dead region and regions, by simulation.")
-    q.add_argument("--out", default="out/analyze", help="directory for the PNG figures (default out/analyze)")
-    q.set_defaults(func=cmd_vf)
+    """Register ``vibration`` and ``vf`` under ``pmctl analyze`` (see :mod:`pmctl.tools.analysis.cli`)."""
+    from pmctl.tools.analysis.cli import add_vibration_parsers
+    add_vibration_parsers(sub)

@@ -37,6 +37,7 @@ import numpy as np
 from pmctl.core import kinematics as kin
 from pmctl.tools.twin import effects as fx
 from pmctl.tools.twin import nominal
+from pmctl.tools.twin.catalogue import DEFAULT_CAP
 from pmctl.tools.twin.effects import AXES, Context, Obs
 from pmctl.tools.twin.locate import channel_series, locate, noise_level, windows
 
@@ -46,7 +47,6 @@ MIN_DSSE = 30.0         # whitened: ~ 5 sigma of the held-out SSE difference of 
 REL_MIN = 0.04          # the effect must explain this fraction of its channels' residual energy
 MIN_PEAK = 1.5         # ... and reach 1.5 x noise on at least 1 % of its samples
 MAX_FINDINGS = 6
-DEFAULT_CAP = 10000
 
 
 
@@ -467,17 +467,9 @@ def format_text(report, extras) -> str:
 # ---------------------------------------------------------------- CLI
 
 def add_parser(sub):
-    p = sub.add_parser("diagnose", help="where and why a recording differs from the nominal twin",
-                       description="Locate the mismatch between a recording and the nominal twin, name the "
-                                   "physics it left out, fit it and show the held-out fit improve.")
-    p.add_argument("folder", help="recording folder (pmctl-recording/1)")
-    p.add_argument("--json", metavar="PATH", help="write the RECORDING.md §4 report here")
-    p.add_argument("--plots", metavar="DIR", help="write PNG plots here")
-    p.add_argument("--config", metavar="PATH", help="machine config (default: the one the recording names)")
-    p.add_argument("--cap", type=int, default=DEFAULT_CAP, help="max analysis samples per channel")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    p.set_defaults(func=_run)
-    return p
+    """Register ``diagnose`` (the registration lives in :mod:`pmctl.tools.twin.cli`, without numpy)."""
+    from pmctl.tools.twin.cli import add_diagnose_parser
+    return add_diagnose_parser(sub)
 
 
 def _run(args) -> int:
