@@ -52,7 +52,7 @@ def add_parser(sub):
     p.add_argument("--k-theta", type=float, default=None, metavar="PER_S",
                    help="strain-gauge feedback gain per chain, 1/s (0 = off; default: service config)")
     p.add_argument("--pulse-mode", choices=("multi", "single"), default=None,
-                   help="V-F converters: integer pulses per tick (multi) or the seed's one per tick (single)")
+                   help="V-F converters: integer pulses per tick (multi) or the original controller's one per tick (single; Kamiya et al. 2005)")
     p.add_argument("--state", default=None, metavar="FILE",
                    help="pulse-counter state file: where the machine is between runs (default: the service "
                         "config's state_file, per user); --state '' for none")
@@ -279,7 +279,7 @@ def run(args) -> int:
     backend.open(counts0)
     writer = CounterWriter(state_file, machine=machine.name) if state_file else None
     lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer)
-    mode = "multi-pulse" if params.max_pulses_per_tick > 1 else "one pulse per tick (seed)"
+    mode = "multi-pulse" if params.max_pulses_per_tick > 1 else "one pulse per tick (as in Kamiya et al. 2005)"
     log(f"{Path(args.job).name}: {len(targets.rows) * dt:.2f} s at {cfg.rate_hz:g} Hz, backend {backend_name}, "
         f"V-F {mode}, K_theta {svc.nc.k_theta_per_s[0]:g}/s, "
         f"{'real-time' if cfg.realtime else 'no real-time (ticks back to back)'}")

@@ -519,7 +519,13 @@ def _plt():
 
 
 def _fmt_ts(ts):
-    return "not settled" if math.isinf(ts) else f"{ts:.3f} s"
+    """A settling time for a table cell: '0.123 s', or 'never' (still outside the band at the end)."""
+    return "never" if math.isinf(ts) else f"{ts:.3f} s"
+
+
+def _settles(ts):
+    """A settling time in a sentence."""
+    return "does not settle within the run" if math.isinf(ts) else f"settles in {ts:.3f} s"
 
 
 def _outdir(path):
@@ -533,7 +539,7 @@ def _outdir(path):
 
 
 def _print_eq31():
-    print("Eq. 3.1 closed loop (seed 004 3.5): k/J = (2π·5)², K_G = 1/0.628, K_θ = 3")
+    print("Eq. 3.1 closed loop (Kamiya et al. 2005, sec. 3.5): k/J = (2π·5)², K_G = 1/0.628, K_θ = 3")
     print(f"  {'F':>6} {'K_vK_R':>8}  {'exact: real root':>16} {'ω_n':>7} {'ζ':>6}   "
           f"{'eq.3.3 approx: (s+p)':>20} {'ω_n':>6} {'ζ':>5}   {'D2=K_θK_vK_R k/J':>16}  Hurwitz")
     rows = []
@@ -566,20 +572,20 @@ def cmd_vibration(args):
     print("  settling: last exit from ±1 pulse (= ±5 %) of the command; residual: θ_L − θ0 over "
           "t ≥ 1 s after the command ends, to the end of the run (3 s)")
     print("  dead-region bound on the residual p-p: 2·(2 SD sin(π f_load/F)/K_θ) (residual_amplitude_bound)")
-    print(f"  {'case':34} {'settling':>12} {'resid p-p':>10} {'resid RMS':>10} {'p-p bound':>10} "
+    print(f"  {'case':34} {'settling time':>13} {'resid p-p':>10} {'resid RMS':>10} {'p-p bound':>10} "
           f"{'pulses':>6} {'end offset':>10}")
     for (label, sim, m), (_, F, Kt, fl) in zip(steps, STEP_CASES):
         bound = 2 * residual_amplitude_bound(F, fl, Kt)
-        print(f"  {label:34} {_fmt_ts(m.settling_time):>12} {m.residual_pp:10.4f} {m.residual_rms:10.4f} "
+        print(f"  {label:34} {_fmt_ts(m.settling_time):>13} {m.residual_pp:10.4f} {m.residual_rms:10.4f} "
               f"{bound:10.4f} {int(np.abs(sim.pulses).sum()):6d} {m.final_offset_pulses:+8.0f} p")
     for (la, _, a), (lb, _, b) in zip(steps[0::2], steps[1::2]):
         print(f"  {la.split(',', 1)[1].strip()}: K_θ=0 → K_θ=3 residual p-p {a.residual_pp / b.residual_pp:.1f}× "
-              f"smaller, RMS {a.residual_rms / b.residual_rms:.1f}× smaller, settling "
+              f"smaller, RMS {a.residual_rms / b.residual_rms:.1f}× smaller, settling time "
               f"{_fmt_ts(a.settling_time)} → {_fmt_ts(b.settling_time)}")
     print("\nRamp responses (5 pulse/s = one pulse per load period, 20 pulses, then hold)")
-    print(f"  {'case':34} {'RMS defl. moving':>16} {'settling':>12} {'resid p-p':>10} {'resid RMS':>10}")
+    print(f"  {'case':34} {'RMS defl. moving':>16} {'settling time':>13} {'resid p-p':>10} {'resid RMS':>10}")
     for label, sim, m, te in ramps:
-        print(f"  {label:34} {m.moving_rms_deflection:16.4f} {_fmt_ts(m.settling_time):>12} "
+        print(f"  {label:34} {m.moving_rms_deflection:16.4f} {_fmt_ts(m.settling_time):>13} "
               f"{m.residual_pp:10.4f} {m.residual_rms:10.4f}")
     a, b = ramps[0][2], ramps[1][2]
     print(f"  K_θ=3 vs K_θ=0: deflection while moving {a.moving_rms_deflection / b.moving_rms_deflection:.1f}× "
@@ -593,7 +599,7 @@ def cmd_vibration(args):
         ax.plot(sim.t, sim.theta_L, lw=1.3, label="θ_L load")
         lin = linear_step_response(sim.t, kJ(fl), K_G_SEED, Kt, F * K_R_SEED, sim.theta0[-1])
         ax.plot(sim.t, lin, "--", lw=0.8, color="gray", label="linear eq. 3.1, K_vK_R=F·K_R")
-        ax.set_title(f"{label}\nsettling {_fmt_ts(m.settling_time)}, residual p-p {m.residual_pp:.3f} rad",
+        ax.set_title(f"{label}\n{_settles(m.settling_time)}, residual p-p {m.residual_pp:.3f} rad",
                      fontsize=9)
         ax.set_xlim(0, 2.0)
         ax.grid(alpha=0.3)
@@ -602,7 +608,7 @@ def cmd_vibration(args):
     for ax in axs[:, 0]:
         ax.set_ylabel("angle [rad]")
     axs[0, 0].legend(fontsize=7, loc="lower right")
-    fig.suptitle("Seed 004 Fig. 3.3: 20-pulse step, simulated with the software V-F converter", fontsize=10)
+    fig.suptitle("Kamiya et al. 2005, Fig. 3.3: 20-pulse step, simulated with the software V-F converter", fontsize=10)
     fig.tight_layout()
     p1 = d / "vibration_step.png"
     fig.savefig(p1, dpi=110)
@@ -621,7 +627,7 @@ def cmd_vibration(args):
         ax.grid(alpha=0.3)
     axs[-1].set_xlabel("t [s]")
     axs[0].legend(fontsize=7, loc="upper left")
-    fig.suptitle("Seed 004 Fig. 3.5: ramp at the load's resonance, simulated", fontsize=10)
+    fig.suptitle("Kamiya et al. 2005, Fig. 3.5: ramp at the load's resonance, simulated", fontsize=10)
     fig.tight_layout()
     p2 = d / "vibration_ramp.png"
     fig.savefig(p2, dpi=110)
@@ -633,7 +639,7 @@ def cmd_vibration(args):
 def cmd_vf(args):
     d = _outdir(args.out)
     SD = 1.0
-    print("V-F minimum amplitude (seed 004 eq. 2.2), by simulation with vf_step (bisection to 1e-7):")
+    print("V-F minimum amplitude (Kamiya et al. 2005, eq. 2.2), by simulation with vf_step (bisection to 1e-7):")
     print("  sine starting at a zero crossing, accumulator empty, sampled φ samples late")
     print(f"  {'k':>4} {'f/F':>7} {'sim φ=½':>10} {'SD sin(π/2k)':>12} {'sim φ=0':>10} {'SD tan(π/2k)':>12} "
           f"{'sim min φ':>10}")
@@ -646,13 +652,13 @@ def cmd_vf(args):
         print(f"  {k:4d} {1 / (2 * k):7.4f} {a:10.6f} {vf.vf_min_amplitude(SD, 1 / (2 * k)):12.6f} "
               f"{b:10.6f} {(SD * math.tan(math.pi / (2 * k)) if k > 1 else math.inf):12.6f} {c:10.6f}")
     # seed checks: 50 Hz at 500 Hz, 4 Hz at 500 Hz, level 1 cut-off near f/F = 0.3
-    print("  seed 2.3.4: 50 Hz @ 500 Hz, SD 1 → no output below "
-          f"{vf_min_amplitude_sim(0.1, SD, 0.0):.3f} (seed: ≈0.2 and below gives none); "
-          f"4 Hz → {vf_min_amplitude_sim(0.008, SD, 0.0):.4f} (seed: ≈0.02)")
+    print("  report sec. 2.3.4: 50 Hz @ 500 Hz, SD 1 → no output below "
+          f"{vf_min_amplitude_sim(0.1, SD, 0.0):.3f} (report: ≈0.2 and below gives none); "
+          f"4 Hz → {vf_min_amplitude_sim(0.008, SD, 0.0):.4f} (report: ≈0.02)")
     R = np.linspace(0.2, 0.35, 151)
     fires = vf_min_amplitude_sim(R, SD, 0.0, n_periods=40) <= 1.0
-    print(f"  seed 2.3.3: level 1 stops producing pulses above f/F = {R[fires][-1]:.3f} "
-          f"(seed: 150 Hz @ 500 Hz and 300 Hz @ 1000 Hz, f/F = 0.3)")
+    print(f"  report sec. 2.3.3: level 1 stops producing pulses above f/F = {R[fires][-1]:.3f} "
+          f"(report: 150 Hz @ 500 Hz and 300 Hz @ 1000 Hz, f/F = 0.3)")
 
     levels = 10.0 ** np.round(np.linspace(-3.0, 0.3, 67), 6)     # 0.05-decade steps, 1.0 exact
     ratios = np.logspace(np.log10(0.002), np.log10(0.5), 56)
@@ -673,7 +679,7 @@ def cmd_vf(args):
 
     chk = seed36_noise_check()
     bad = chk["freqs"][chk["pulses_per_freq"] > 0]
-    print("\nSeed 3.6 noise claim: 0.03 V strain noise × K_θ 25 = "
+    print("\nReport sec. 3.6 noise claim: 0.03 V strain noise × K_θ 25 = "
           f"{chk['vf_input_amplitude']:.2f} V into SD 10 V at 200 Hz, 10 s runs, 8 sampling phases:")
     print(f"  sine noise 100-300 Hz (0.5 Hz steps): pulses at {len(bad)} of {len(chk['freqs'])} frequencies"
           + (f", all within {np.max(np.abs(bad - 200.0)):.1f} Hz of 200 Hz (alias near DC; bound "
@@ -714,7 +720,7 @@ def cmd_vf(args):
     ax.legend(handles=handles, fontsize=8, loc="lower right")
     ax.set_xlabel("R = f/F (input frequency / sampling frequency)")
     ax.set_ylabel("input level (× threshold SD)")
-    ax.set_title("Seed 004 Fig. 2.9 by simulation: I correct (fundamental of the\n"
+    ax.set_title("Kamiya et al. 2005, Fig. 2.9 by simulation: I correct (fundamental of the\n"
                  "equivalent input within 25 %), II noisy, III no output", fontsize=10)
     fig.tight_layout()
     p2 = d / "vf_regions.png"
