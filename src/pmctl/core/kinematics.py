@@ -439,7 +439,9 @@ def limit_violations(q, theta2, P, R, machine: Machine):
     for j, name, (a, b) in ((3, "X", lim.table_x), (4, "Y", lim.table_y)):
         checks.append((lambda k, j=j, a=a, b=b: not a - 1e-9 <= qf[k, j] <= b + 1e-9,
                        lambda k, j=j, a=a, b=b, name=name:
-                       f"table {name} = {qf[k, j]:.6f} mm outside [{a:g}, {b:g}] mm"))
+                       f"table {name} = {qf[k, j]:.6f} mm outside [{a:g}, {b:g}] mm (the table carries the "
+                       f"workpiece and moves opposite to the tool: a tool tip near {name.lower()} = "
+                       f"{-qf[k, j]:+.3f} mm in the workpiece frame needs table {name} = {qf[k, j]:+.3f} mm)"))
     checks.append((lambda k: swing[k] > lim.spherical_swing_deg,
                    lambda k: f"spherical joint swing {swing[k]:.2f} deg over {lim.spherical_swing_deg:g} deg"))
     checks.append((lambda k: pz[k] <= 0, lambda k: "platform below the base"))

@@ -175,6 +175,17 @@ def record_columns(res, machine, ppm, rate_hz: float | None = None) -> tuple[dic
     return cols, notes
 
 
+def _plant_meta(backend) -> dict:
+    """What a simulated plant put into the run that the nominal twin leaves out (its chain modes),
+    so that ``pmctl twin diagnose`` can say a finding is the simulation's own physics."""
+    opt = getattr(backend, "opt", None)
+    hz = getattr(backend, "mode_hz", None)
+    if opt is None or hz is None or not getattr(opt, "flex", False):
+        return {}
+    return {"kind": "simulation", "chain_mode_hz": [round(float(f), 4) for f in hz],
+            "chain_mode_damping_ratio": [float(z) for z in getattr(opt, "mode_damping_ratio", [])]}
+
+
 def tracking_window(res, stop_tick: int | None) -> tuple[int, int, str]:
     """Ticks over which the tool-tip error means something: (first, end, note).
 
@@ -348,7 +359,10 @@ def _run_and_report(args, lp, prog, backend, writer, state_file, machine, params
         desc = (f"pmctl run {Path(args.job).name} on backend {backend_name} at {cfg.rate_hz:g} Hz: {res.status}"
                 + (f" ({res.reason})" if res.reason else ""))
         run_meta = {"job": str(args.job), "status": res.status, "reason": res.reason,
-                    "tracking": ts, "timing": tm, "job_start_row": res.job_start}
+                    "tracking": ts, "timing": tm, "job_start_row": res.job_start, "backend": backend_name}
+        plant = _plant_meta(backend)
+        if plant:
+            run_meta["plant"] = plant
         if track_note:
             run_meta["tracking_note"] = track_note
         write_recording(folder, cols, machine=_machine_ref(args.config, machine, folder),

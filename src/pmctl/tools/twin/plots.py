@@ -44,7 +44,7 @@ def write_plots(report, extras, out_dir) -> list[Path]:
         ax.axhline(0, color="k", lw=0.5)
     axs[0, 0].legend(loc="upper right", markerscale=6, fontsize=8)
     axs[-1, 0].set_xlabel("t (s)")
-    fig.suptitle(f"{name}: residual (measured − predicted) before and after — {report['verdict']}")
+    fig.suptitle(f"recording {name}: residual (measured − predicted) before and after — {report['verdict']}")
     fig.tight_layout()
     p = out / "residual_before_after.png"
     fig.savefig(p, dpi=110)
