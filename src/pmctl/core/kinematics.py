@@ -1,4 +1,4 @@
-"""Kinematics of the 3-RPS + XY-table machine (MACHINE.md §3-5). Pure functions, no I/O.
+"""Kinematics of the 3-RPS + XY-table machine (docs/machine.md §3-5). Pure functions, no I/O.
 
 Conventions
 -----------
@@ -102,7 +102,7 @@ def platform_pose(Z, theta1, theta2, r_out):
 
 
 def axis_to_tilt(v):
-    """Tool axis v (...,3) -> (theta1, theta2), theta1 in (0, pi], theta2 signed (MACHINE.md §3).
+    """Tool axis v (...,3) -> (theta1, theta2), theta1 in (0, pi], theta2 signed (docs/machine.md §3).
 
     At theta2 = 0 the tilt axis is undefined; theta1 = pi is returned.
     """
@@ -124,7 +124,7 @@ def tilt_to_axis(theta1, theta2):
 
 
 def dependent_yaw(alpha, beta):
-    """gamma_u of the roll-pitch representation (MACHINE.md §3, sign corrected from seed eq. 3.24)."""
+    """gamma_u of the roll-pitch representation (docs/machine.md §3, sign corrected from seed eq. 3.24)."""
     a, b = np.asarray(alpha, float), np.asarray(beta, float)
     return -np.arctan(np.sin(a) * np.sin(b) / (np.cos(a) + np.cos(b)))
 

@@ -1,10 +1,10 @@
-"""Mechanism analysis of the 3-RPS spatial part (seed 000 ch. 2.3, 2.4.1 and ch. 4; MACHINE.md §5).
+"""Mechanism analysis of the 3-RPS spatial part (seed 000 ch. 2.3, 2.4.1 and ch. 4; docs/machine.md §5).
 
 Pure numpy functions, vectorised over grids (leading dimensions broadcast), plus a thin CLI
 (``pmctl analyze io-ratio | drive | path-error | compliance``) that writes PNGs and prints figures.
 
 Conventions: lengths in mm, angles in radians inside the functions (the CLI speaks degrees),
-(Z, theta1, theta2) as in MACHINE.md §3 (theta1 = 0 is accepted and is the same physical tilt
+(Z, theta1, theta2) as in docs/machine.md §3 (theta1 = 0 is accepted and is the same physical tilt
 as theta1 = 180 deg with theta2 negated). "J_L" is ``kinematics.jacobian_ztt`` =
 d(L1, L2, L3)/d(Z, theta1, theta2); the seed's mechanism Jacobian is J = J_L^-1 (eq. 4.13).
 

@@ -1,4 +1,4 @@
-"""Strain-gauge vibration suppression and the software V-F converter (seed 004 ch. 2-3, MACHINE.md §6).
+"""Strain-gauge vibration suppression and the software V-F converter (seed 004 ch. 2-3, docs/machine.md §6).
 
 Pure functions first, a thin CLI (``pmctl analyze vibration`` / ``pmctl analyze vf``) at the end.
 

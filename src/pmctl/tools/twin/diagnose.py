@@ -309,9 +309,8 @@ def _evidence(ev, ctx, loc, explained, channels=(), beyond_noise=False):
     if chans:
         text = text.rstrip(".") + f" (channels {chans})."
     if beyond_noise:
-        text += (" That is more than these channels' excess over their estimated noise: the noise level is "
-                 "estimated from the residual itself, and this effect is fast or small enough to have been "
-                 "counted as noise there (compare the rms after the findings in the WHERE table).")
+        text += (" That is more than the excess over the estimated noise: part of what the WHERE table "
+                 "counted as noise is this effect (see its rms after).")
     return text
 
 
@@ -444,7 +443,7 @@ def format_text(report, extras) -> str:
         if after:
             ra = after.get(k, {}).get("rms")
             mark = ""
-            if ra is not None and v["noise"] > 0 and ra < 0.5 * v["noise"]:
+            if ra is not None and v["noise"] > 0 and ra < 0.5 * v["noise"] <= v["rms"]:
                 mark = "*"
                 hidden.append(k)
             col = f" {ra:10.4g}{mark or ' '}" if ra is not None else f" {'-':>11s}"
@@ -561,9 +560,8 @@ def plant_notes(report, meta) -> list[str]:
         if abs(fr - modes[i]) <= 0.03 * modes[i]:
             z = plant.get("chain_mode_damping_ratio") or []
             zs = f", damping ratio {z[i]:g}" if i < len(z) else ""
-            note = (f"This is the simulated plant's own chain-{i + 1} mode ({modes[i]:.1f} Hz{zs}, "
-                    f"recording.json run.plant): the nominal twin leaves that flexibility out, so finding it "
-                    f"is expected, not a fault.")
+            note = (f"It matches the simulated plant's chain-{i + 1} mode ({modes[i]:.1f} Hz{zs}; "
+                    f"recording.json run.plant): expected, not a fault.")
             f["evidence"] = f["evidence"] + " " + note
             notes.append(f"{tgt}: {fr:g} Hz matches the simulated chain mode {modes[i]:.1f} Hz")
     return notes
