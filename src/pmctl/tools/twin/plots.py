@@ -18,9 +18,17 @@ def _plt():
 
 
 def _top_channels(extras, k=4):
+    """The channels worth a panel: most excess over noise, or most changed by the findings (a fast
+    mode can hide inside the noise estimate and still be what the findings remove). Channels with
+    nothing in them (rms 0) come last."""
     loc = extras["locate"]["channels"]
-    order = sorted(loc, key=lambda c: loc[c]["excess"], reverse=True)
-    return order[:k]
+    after = extras.get("locate_after", {}).get("channels", {})
+
+    def score(c):
+        v = loc[c]
+        gain = (v["rms"] - after.get(c, {}).get("rms", v["rms"])) / v["noise"] if v["noise"] > 0 else 0.0
+        return (v["rms"] > 0, max(v["excess"], gain))
+    return sorted(loc, key=score, reverse=True)[:k]
 
 
 def write_plots(report, extras, out_dir) -> list[Path]:
