@@ -284,25 +284,19 @@ def run(args) -> int:
     targets = prepare(machine, params, traj, dt, counts0)
     backend = hal.create(backend_name, machine, dt, svc.backend_options if backend_name == svc.backend else {})
 
-    log(where)
-    for m in notes:
-        log(m)
-    backend.open(counts0)
-    writer = CounterWriter(state_file, machine=machine.name) if state_file else None
-    lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer)
-    mode = "multi-pulse" if params.max_pulses_per_tick > 1 else "one pulse per tick (as in Kamiya et al. 2005)"
-    log(f"{Path(args.job).name}: {len(targets.rows) * dt:.2f} s at {cfg.rate_hz:g} Hz, backend {backend_name}, "
-        f"V-F {mode}, K_theta {svc.nc.k_theta_per_s[0]:g}/s, "
-        f"{'real-time' if cfg.realtime else 'no real-time (ticks back to back)'}")
-
-    prog = _Progress(lp, Path(args.job).name, dt, args.quiet, out)
-    stop_tick = []
+    # From here on a stop signal is a controlled stop: before the loop exists it is remembered and
+    # the loop stops at its first tick (nothing moves), after that it asks the loop to decelerate.
+    stop_tick, pending, holder = [], [], {}
 
     def _stop(signum, frame):
-        # runs in the main thread between two bytecodes of the loop: set a flag, nothing else
-        if not lp.stop_request:
-            stop_tick.append(lp.tick)
-            lp.stop_request = STOP_SIGNALS.get(signal.Signals(signum).name, f"signal {signum}")
+        # runs in the main thread between two bytecodes (of the loop, once it runs): flags only
+        reason = STOP_SIGNALS.get(signal.Signals(signum).name, f"signal {signum}")
+        lp_ = holder.get("lp")
+        if lp_ is None:
+            pending.append(reason)
+        elif not lp_.stop_request:
+            stop_tick.append(lp_.tick)
+            lp_.stop_request = reason
     old = {}
     if threading.current_thread() is threading.main_thread():
         for name in STOP_SIGNALS:
@@ -310,6 +304,21 @@ def run(args) -> int:
             if sig is not None:
                 old[sig] = signal.signal(sig, _stop)
     try:
+        log(where)
+        for m in notes:
+            log(m)
+        backend.open(counts0)
+        writer = CounterWriter(state_file, machine=machine.name) if state_file else None
+        lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer)
+        holder["lp"] = lp
+        if pending:
+            stop_tick.append(0)
+            lp.stop_request = pending[0]
+        mode = "multi-pulse" if params.max_pulses_per_tick > 1 else "one pulse per tick (as in Kamiya et al. 2005)"
+        log(f"{Path(args.job).name}: {len(targets.rows) * dt:.2f} s at {cfg.rate_hz:g} Hz, backend {backend_name}, "
+            f"V-F {mode}, K_theta {svc.nc.k_theta_per_s[0]:g}/s, "
+            f"{'real-time' if cfg.realtime else 'no real-time (ticks back to back)'}")
+        prog = _Progress(lp, Path(args.job).name, dt, args.quiet, out)
         return _run_and_report(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt,
                                counts0, backend_name, stop_tick, out)
     finally:
