@@ -70,7 +70,7 @@ def test_roll_pitch_and_tilt_representations_agree(alpha, beta, z):
 
 
 def test_seed_printed_gamma_without_minus_violates_the_constraints():
-    """Erratum: the report's eq. 3.24 as printed (no minus sign) breaks the chain-plane constraints."""
+    """docs/machine.md §8 erratum: the seed's eq. 3.24 sign breaks the chain-plane constraints."""
     a, b = 0.2, 0.15
     g = -K.dependent_yaw(a, b)           # the seed's sign
     R = K.rot_x(a) @ K.rot_y(b) @ K.rot_z(g)

@@ -132,7 +132,7 @@ def test_sim_options_validation():
 
 
 def test_rigid_sim_strain_is_the_nominal_twin_gravity_strain():
-    """RECORDING.md §2: at rest on a rigid plant the gauges read the static weight of the platform."""
+    """docs/diagnosis-report.md §1: at rest on a rigid plant the gauges read the static weight of the platform."""
     s = _sim(flex=True)
     for _ in range(50):
         s.write_pulses(np.array([30, -10, 5, 40, -20]))

@@ -1,4 +1,4 @@
-# pmctl bundled job: concave hemisphere (seed 000 Fig. 7.12 a/b), CL data (Fig. 7.10)
+# pmctl bundled job: concave hemisphere (Tachiya et al. 2006, Fig. 7.12 a/b), CL data (Fig. 7.10)
 # sphere centre [0.0, 0.0, 60.0] mm in W, radius 25.0 mm; contour passes at polar angles (30.0, 55.0) deg
 # P = tool tip in W (mm), V = unit tool axis tip -> spindle, tilted toward the surface normal
 Px,Py,Pz,Vx,Vy,Vz,flag

@@ -1,4 +1,4 @@
-"""Write the bundled test-piece jobs (seed 000 Fig. 7.12), sized for the prototype's workspace.
+"""Write the bundled test-piece jobs (Tachiya et al. 2006, Fig. 7.12), sized for the prototype's workspace.
 
     python examples/jobs/make_jobs.py          # rewrites the files next to this script
 
@@ -11,7 +11,7 @@
 
 The tool axis between two points is a slerp, so a precessing axis needs closely spaced points (1-3 deg):
 every change of direction of the axis motion is a junction the planner must slow down for, and the
-chains move ~5.5 mm per degree of tilt (seed 000 Table 2.1).
+chains move ~5.5 mm per degree of tilt (Tachiya et al. 2006, Table 2.1).
 
 All at F600 (10 mm/s); each takes 10-30 s to machine. Work is in W, the table-top frame: the face of the
 workpiece is at z_W = 60 mm (the home tool tip is at z_W = 173 mm).
@@ -42,7 +42,7 @@ def tilted_toward(normal, max_tilt_deg=MAX_TILT_DEG):
 
 
 def roll_pitch_deg(axis):
-    """A (roll), B (pitch) in degrees for axis = Rx(A) Ry(B) z (MACHINE.md §3)."""
+    """A (roll), B (pitch) in degrees for axis = Rx(A) Ry(B) z (docs/machine.md §3)."""
     b = math.asin(float(np.clip(axis[0], -1, 1)))
     a = math.atan2(-axis[1], axis[2])
     return math.degrees(a), math.degrees(b)
@@ -51,7 +51,7 @@ def roll_pitch_deg(axis):
 def hemisphere(radius=25.0, polar_deg=(30.0, 55.0), step_deg=1.0):
     """Concave hemisphere: sphere centre at the face (z = FACE_Z), bottom FACE_Z - radius."""
     c = np.array([0.0, 0.0, FACE_Z])
-    lines = ["# pmctl bundled job: concave hemisphere (seed 000 Fig. 7.12 a/b), CL data (Fig. 7.10)",
+    lines = ["# pmctl bundled job: concave hemisphere (Tachiya et al. 2006, Fig. 7.12 a/b), CL data (Fig. 7.10)",
              f"# sphere centre {c.tolist()} mm in W, radius {radius} mm; contour passes at polar angles {polar_deg} deg",
              "# P = tool tip in W (mm), V = unit tool axis tip -> spindle, tilted toward the surface normal",
              "Px,Py,Pz,Vx,Vy,Vz,flag"]
@@ -73,7 +73,7 @@ def _g(x):
 
 def cone(r_bottom=13.0, r_top=6.0, height=16.0, levels=3, pieces=4, tilt_deg=10.0):
     """Cone frustum boss from z = FACE_Z - height (r_bottom) up to FACE_Z (r_top)."""
-    out = ["(pmctl bundled job: cone frustum, seed 000 Fig. 7.12 c)",
+    out = ["(pmctl bundled job: cone frustum, Tachiya et al. 2006, Fig. 7.12 c)",
            f"(boss r {r_bottom} -> {r_top} mm over {height} mm, top at z {FACE_Z}; fixed tool tilt {tilt_deg} deg)",
            "G17 G21 G90 G94", f"F{FEED:g} S8000 M3"]
     zs = np.linspace(FACE_Z, FACE_Z - height, levels)
@@ -96,7 +96,7 @@ def cone(r_bottom=13.0, r_top=6.0, height=16.0, levels=3, pieces=4, tilt_deg=10.
 def spiral(r0=2.0, r1=18.0, turns=3, step_deg=3.0, max_tilt=8.0):
     """Archimedean spiral on the face z = FACE_Z - 0.5 with the tool pitched outward by up to max_tilt."""
     z = FACE_Z - 0.5
-    out = ["(pmctl bundled job: spiral, seed 000 Fig. 7.12 e)",
+    out = ["(pmctl bundled job: spiral, Tachiya et al. 2006, Fig. 7.12 e)",
            f"(Archimedean spiral r {r0} -> {r1} mm, {turns} turns at z {z}; tilt grows with the radius)",
            "G21 G90 G17", f"G0 X{_g(r0)} Y0 Z{_g(FACE_Z + CLEAR)}", "S12000 M3", f"G1 Z{_g(z)} F{FEED:g}"]
     n = int(round(360.0 * turns / step_deg))

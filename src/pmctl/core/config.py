@@ -18,7 +18,7 @@ from pmctl.core.errors import ConfigError
 
 CONFIG_DIR = Path(__file__).resolve().parents[3] / "config"
 
-# Unit directions of the three chain planes (MACHINE.md §2).
+# Unit directions of the three chain planes (docs/machine.md §2).
 E_DIRS = np.array([[0.0, -1.0, 0.0],
                    [math.sqrt(3) / 2, 0.5, 0.0],
                    [-math.sqrt(3) / 2, 0.5, 0.0]])

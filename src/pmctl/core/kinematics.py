@@ -1,5 +1,6 @@
-"""Kinematics of the 3-RPS + XY-table machine (the KAKENHI report "Hybrid parallel mechanism for
-high-precision machining and compensation of its machining error", ch. 3-4). Pure functions, no I/O.
+"""Kinematics of the 3-RPS + XY-table machine (docs/machine.md §3-5; the KAKENHI report "Hybrid parallel
+mechanism for high-precision machining and compensation of its machining error", ch. 3-4). Pure
+functions, no I/O.
 
 Conventions
 -----------
@@ -21,6 +22,7 @@ import numpy as np
 
 from pmctl.core.config import Geometry, Machine
 from pmctl.core.errors import KinematicsError, UnreachablePose
+from pmctl.core.tolerances import AXIS_TOL
 
 FK_TOL_MM = 1e-10        # residual of the 6 loop equations at which Newton stops (criterion: < 1e-9 mm)
 FK_MAX_ITER = 30
@@ -101,7 +103,7 @@ def platform_pose(Z, theta1, theta2, r_out):
 
 
 def axis_to_tilt(v):
-    """Tool axis v (...,3) -> (theta1, theta2), theta1 in (0, pi], theta2 signed.
+    """Tool axis v (...,3) -> (theta1, theta2), theta1 in (0, pi], theta2 signed (docs/machine.md §3).
 
     At theta2 = 0 the tilt axis is undefined; theta1 = pi is returned.
     """
@@ -123,7 +125,7 @@ def tilt_to_axis(theta1, theta2):
 
 
 def dependent_yaw(alpha, beta):
-    """gamma_u of the roll-pitch representation (the report's eq. 3.24 with its missing minus sign)."""
+    """gamma_u of the roll-pitch representation (docs/machine.md §3, sign corrected from seed eq. 3.24)."""
     a, b = np.asarray(alpha, float), np.asarray(beta, float)
     return -np.arctan(np.sin(a) * np.sin(b) / (np.cos(a) + np.cos(b)))
 
@@ -463,7 +465,9 @@ def limit_violations(q, theta2, P, R, machine: Machine):
     for j, name, (a, b) in ((3, "X", lim.table_x), (4, "Y", lim.table_y)):
         checks.append((lambda k, j=j, a=a, b=b: not a - 1e-9 <= qf[k, j] <= b + 1e-9,
                        lambda k, j=j, a=a, b=b, name=name:
-                       f"table {name} = {qf[k, j]:.6f} mm outside [{a:g}, {b:g}] mm"))
+                       f"table {name} = {qf[k, j]:.6f} mm outside [{a:g}, {b:g}] mm (the table carries the "
+                       f"workpiece and moves opposite to the tool: a tool tip near {name.lower()} = "
+                       f"{-qf[k, j]:+.3f} mm in the workpiece frame needs table {name} = {qf[k, j]:+.3f} mm)"))
     checks.append((lambda k: swing[k] > lim.spherical_swing_deg,
                    lambda k: f"spherical joint swing {swing[k]:.2f} deg over {lim.spherical_swing_deg:g} deg"))
     checks.append((lambda k: pz[k] <= 0, lambda k: "platform below the base"))
@@ -482,7 +486,7 @@ def limit_violations(q, theta2, P, R, machine: Machine):
     return out.reshape(shape)
 
 
-def ik(tip_w, axis, machine: Machine, *, axis_tol=1e-3) -> IKResult:
+def ik(tip_w, axis, machine: Machine, *, axis_tol=AXIS_TOL) -> IKResult:
     """Single-pose IK; raises UnreachablePose naming the limit. ``axis`` must be unit within axis_tol."""
     tip_w = np.asarray(tip_w, float).reshape(3)
     axis = np.asarray(axis, float).reshape(3)

@@ -1,4 +1,4 @@
-"""Recordings in the ``pmctl-recording/1`` format (RECORDING.md §1): strict reader, writer.
+"""Recordings in the ``pmctl-recording/1`` format (docs/recording.md): strict reader, writer.
 
 A recording is a folder holding ``recording.json`` (metadata) and ``data.csv`` (one header row of
 channel names, one row per sample, plain decimal numbers; an empty cell or ``nan`` means "not
@@ -32,15 +32,20 @@ Writing
 -------
 ``write_recording(folder, columns, *, machine="prototype", sample_rate_hz, description="",
 channel_notes=None, digits=10, exact=False, extra_meta=None) -> Path`` writes a whole recording;
-``RecordingWriter`` (context manager, ``append(chunk)``) streams one in chunks for long runs.
+``RecordingWriter`` (context manager, ``append(chunk)``, ``finish(complete=...)``) streams one in
+chunks for long runs. Both refuse an existing recording unless ``overwrite=True``
+(:func:`check_target` says so up front).
 Column order: ``t``, the ``cmd_*`` channels, then the others in the order given. ``t`` is written
 exact (shortest round-trip repr), other channels with ``digits`` significant digits (``exact=True``:
-all exact); NaN is written as an empty cell. The files are written under temporary names and
-renamed at the end, so a reader never sees half a recording. Invalid data (missing required
+all exact); NaN is written as an empty cell. Everything is written into the sibling folder
+``<folder>.partial`` (recording.json first, with ``"complete": false``) and renamed to ``folder``
+when complete, so ``folder`` is never half a recording; a killed writer leaves the sibling, readable
+and marked incomplete. A finished recording says ``"complete": true``; a recording without the key
+(other loggers) counts as complete. Invalid data (missing required
 channel, ragged lengths, non-increasing ``t``, infinities, bad names) raises InputError before
 anything is written.
 
-Channel names (RECORDING.md §1): ``KNOWN_FIXED`` plus ``temp_<name>``; :func:`channel_kind` classifies.
+Channel names (docs/recording.md): ``KNOWN_FIXED`` plus ``temp_<name>``; :func:`channel_kind` classifies.
 """
 
 from __future__ import annotations
@@ -454,12 +459,25 @@ class RecordingWriter:
 
         with RecordingWriter(folder, ["t", "cmd_L1", ...], sample_rate_hz=1000) as w:
             w.append({"t": t_chunk, "cmd_L1": ..., ...})     # or an (n, nchannels) array
-    On a clean exit recording.json is written and data.csv renamed into place; on an exception
-    the partial file is removed and nothing is left in the folder's name.
+
+    Safe writes (docs/recording.md, "Writing a recording safely"):
+
+    - ``folder`` must not exist yet (an empty directory is accepted); an existing recording is
+      refused with InputError unless ``overwrite=True``, and even then only a folder that holds a
+      recording (recording.json / data.csv) or nothing is replaced, never any other folder.
+    - Everything is written into the sibling ``<folder>.partial/``: recording.json first, marked
+      ``"complete": false``, then data.csv, flushed chunk by chunk. A process killed mid-way
+      leaves that sibling, readable as a recording that says it is incomplete.
+    - On a clean exit recording.json is rewritten with ``"complete": true`` and the sibling is
+      renamed to ``folder`` in one step, so ``folder`` either does not exist or is whole.
+    - On an exception inside the ``with`` block, or when the writer refuses a chunk, the sibling is
+      removed; nothing appears under ``folder``'s name.
+    - ``finish(complete=False, reason=...)`` instead of a clean exit renames what was written into
+      place marked incomplete (a session that ended early but whose samples are worth keeping).
     """
 
     def __init__(self, folder, channels, *, machine="prototype", sample_rate_hz, description="",
-                 channel_notes=None, digits=10, exact=False, extra_meta=None):
+                 channel_notes=None, digits=10, exact=False, extra_meta=None, overwrite=False):
         self.folder = Path(folder)
         for nm in channels:
             _check_name(nm, self.folder)
@@ -471,8 +489,13 @@ class RecordingWriter:
         if isinstance(sample_rate_hz, bool) or not isinstance(sample_rate_hz, (int, float)) \
                 or not math.isfinite(sample_rate_hz) or sample_rate_hz <= 0:
             raise InputError(self.folder, None, f"sample_rate_hz must be a positive number, got {sample_rate_hz!r}")
-        if not isinstance(machine, str) or resolve_machine(machine, self.folder) is None:
+        if not isinstance(machine, str) or (
+                resolve_machine(machine, self.folder) is None
+                and not Path(os.path.normpath(self.folder / machine)).is_file()):
+            # (a path relative to a folder that does not exist yet is resolved lexically)
             raise InputError(self.folder, None, f"unknown machine {machine!r}")
+        self.overwrite = bool(overwrite)
+        check_target(self.folder, overwrite=self.overwrite)
         self.channels = _order(list(channels))
         self._perm = [list(channels).index(c) for c in self.channels]
         self.meta = {"format": FORMAT, "machine": machine, "sample_rate_hz": sample_rate_hz,
@@ -482,67 +505,195 @@ class RecordingWriter:
         if extra_meta:
             for k, v in extra_meta.items():
                 self.meta.setdefault(k, v)
+        self.meta["complete"] = False
         tail = "%r" if exact else f"%.{int(digits)}g"
         self._fmt = "%r" + ("," + tail) * (len(self.channels) - 1)
         self._last_t = -math.inf
         self._rows = 0
         self._fh = None
+        self.partial = partial_path(self.folder)
+        self._done = False
+
+    @property
+    def rows(self) -> int:
+        """Samples written so far."""
+        return self._rows
 
     def __enter__(self):
-        self.folder.mkdir(parents=True, exist_ok=True)
-        self._tmp = self.folder / (DATA_FILE + ".partial")
-        self._fh = open(self._tmp, "w", encoding="utf-8", newline="\n")
-        self._fh.write(",".join(self.channels) + "\n")
+        part = self.partial
+        if part.exists():
+            if not self.overwrite:
+                raise InputError(self.folder, None,
+                                 f"{part} exists: another writer is using it, or a killed run left it "
+                                 f"(it is readable as an incomplete recording); move it away or remove it")
+            _remove_recording_dir(part)
+        part.mkdir(parents=True)
+        try:
+            self._write_meta()
+            self._fh = open(part / DATA_FILE, "w", encoding="utf-8", newline="\n")
+            self._fh.write(",".join(self.channels) + "\n")
+            self._fh.flush()
+        except BaseException:
+            self._discard()
+            raise
         return self
+
+    def _write_meta(self):
+        tmp = self.partial / (META_FILE + ".tmp")
+        tmp.write_text(json.dumps(self.meta, indent=2, default=_json_default) + "\n", encoding="utf-8")
+        os.replace(tmp, self.partial / META_FILE)
 
     def append(self, chunk):
         """Append rows: a dict {channel: array} (all channels) or an (n, nchannels) array in the
-        order the channels were given to the constructor."""
-        if isinstance(chunk, dict):
-            if set(chunk) != set(self.channels):
-                extra = set(chunk) ^ set(self.channels)
-                raise InputError(self.folder, None, f"chunk channels differ from the header: {sorted(extra)}")
-            cols = [np.asarray(chunk[c], dtype=np.float64).reshape(-1) for c in self.channels]
-            lens = {len(c) for c in cols}
-            if len(lens) > 1:
-                raise InputError(self.folder, None, f"channels have different lengths {sorted(lens)}")
-            arr = np.stack(cols, 1) if cols else np.zeros((0, 0))
-        else:
-            arr = np.asarray(chunk, dtype=np.float64)
-            if arr.ndim != 2 or arr.shape[1] != len(self.channels):
-                raise InputError(self.folder, None, f"chunk must be (n, {len(self.channels)}), got {arr.shape}")
-            arr = arr[:, self._perm]
-        if arr.shape[0] == 0:
-            return
-        _check_rows(arr, self.channels, self._last_t, self._rows, self.folder)
+        order the channels were given to the constructor. Each chunk is flushed to the file."""
+        if self._fh is None:
+            raise InputError(self.folder, None, "append() outside the writer's with-block")
+        try:
+            if isinstance(chunk, dict):
+                if set(chunk) != set(self.channels):
+                    extra = set(chunk) ^ set(self.channels)
+                    raise InputError(self.folder, None, f"chunk channels differ from the header: {sorted(extra)}")
+                cols = [np.asarray(chunk[c], dtype=np.float64).reshape(-1) for c in self.channels]
+                lens = {len(c) for c in cols}
+                if len(lens) > 1:
+                    raise InputError(self.folder, None, f"channels have different lengths {sorted(lens)}")
+                arr = np.stack(cols, 1) if cols else np.zeros((0, 0))
+            else:
+                arr = np.asarray(chunk, dtype=np.float64)
+                if arr.ndim != 2 or arr.shape[1] != len(self.channels):
+                    raise InputError(self.folder, None, f"chunk must be (n, {len(self.channels)}), got {arr.shape}")
+                arr = arr[:, self._perm]
+            if arr.shape[0] == 0:
+                return
+            _check_rows(arr, self.channels, self._last_t, self._rows, self.folder)
+        except InputError:
+            # a refused chunk ends the recording: nothing half-valid is kept under any name
+            self._discard()
+            raise
         fmt = self._fmt
         text = "\n".join([fmt % row for row in map(tuple, arr.tolist())])
         text = text.replace(",nan", ",")
         self._fh.write(text + "\n")
+        self._fh.flush()
         self._last_t = float(arr[-1, 0])
         self._rows += arr.shape[0]
 
-    def __exit__(self, exc_type, exc, tb):
+    def _discard(self):
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
+        self._done = True
+        _remove_recording_dir(self.partial, missing_ok=True)
+
+    def finish(self, *, complete=True, reason=""):
+        """Close the recording and rename it into place. ``complete=False`` keeps what was
+        written, marked ``"complete": false`` (with ``incomplete_reason``). Returns the folder."""
+        if self._done:
+            return self.folder
         self._fh.close()
-        if exc_type is not None:
-            try:
-                os.unlink(self._tmp)
-            except OSError:
-                pass
-            return False
+        self._fh = None
+        self._done = True
         if self._rows == 0:
-            os.unlink(self._tmp)
+            _remove_recording_dir(self.partial, missing_ok=True)
             raise InputError(self.folder, None, "no samples to write")
-        mtmp = self.folder / (META_FILE + ".partial")
-        mtmp.write_text(json.dumps(self.meta, indent=2, default=_json_default) + "\n", encoding="utf-8")
-        os.replace(self._tmp, self.folder / DATA_FILE)
-        os.replace(mtmp, self.folder / META_FILE)
+        self.meta["complete"] = bool(complete)
+        if not complete and reason:
+            self.meta["incomplete_reason"] = str(reason)
+        self._write_meta()
+        _rename_into_place(self.partial, self.folder, overwrite=self.overwrite)
+        return self.folder
+
+    def __exit__(self, exc_type, exc, tb):
+        if self._done:
+            return False
+        if exc_type is not None:
+            self._discard()
+            return False
+        self.finish()
         return False
 
 
+def partial_path(folder) -> Path:
+    """Where a recording of ``folder`` is written until it is complete: the sibling ``<name>.partial``."""
+    folder = Path(folder)
+    return folder.with_name(folder.name + ".partial")
+
+
+def _is_recording_dir(p: Path) -> bool:
+    """A folder holding a recording (recording.json or data.csv, plus files only: plots, notes),
+    or nothing: what ``overwrite`` may replace. A folder with sub-folders is never replaced."""
+    entries = list(p.iterdir())
+    if not entries:
+        return True
+    return all(q.is_file() and not q.is_symlink() for q in entries) and \
+        any(q.name in (META_FILE, DATA_FILE) for q in entries)
+
+
+def check_target(folder, *, overwrite=False) -> None:
+    """Refuse a recording target that exists (an empty directory is fine) unless ``overwrite``;
+    never replace something that is not a recording. Raises InputError naming the folder."""
+    folder = Path(folder)
+    if not folder.exists() and not folder.is_symlink():
+        parent = folder.parent if str(folder.parent) else Path(".")
+        anc = parent
+        while not anc.exists():
+            anc = anc.parent
+        if not anc.is_dir() or not os.access(anc, os.W_OK | os.X_OK):
+            raise InputError(folder, None, f"cannot create it: {anc} is not a writable folder")
+        return
+    if not folder.is_dir() or folder.is_symlink():
+        raise InputError(folder, None, "exists and is not a folder; choose another name")
+    if not any(folder.iterdir()):
+        if not os.access(folder.parent if str(folder.parent) else Path("."), os.W_OK):
+            raise InputError(folder, None, "its parent folder is not writable")
+        return
+    if not _is_recording_dir(folder):
+        raise InputError(folder, None, "exists and holds files that are not a recording; "
+                                       "choose another name (not even --force replaces it)")
+    if not overwrite:
+        raise InputError(folder, None, "a recording is already there; choose another name, "
+                                       "or --force to replace it")
+
+
+def _remove_recording_dir(p: Path, missing_ok=False):
+    import shutil
+    if not p.exists():
+        if missing_ok:
+            return
+        raise FileNotFoundError(p)
+    shutil.rmtree(p)
+
+
+def _rename_into_place(part: Path, folder: Path, *, overwrite: bool):
+    """``part`` -> ``folder`` in one rename; an existing ``folder`` (already checked) is moved
+    aside first and removed after, so a reader sees the old or the new recording, never a mix."""
+    old = None
+    if folder.exists() and any(folder.iterdir()):
+        if not overwrite or not _is_recording_dir(folder):
+            raise InputError(folder, None, f"appeared while writing; the new recording is complete "
+                                           f"in {part}")
+        old = folder.with_name(f"{folder.name}.old-{os.getpid()}")
+        os.replace(folder, old)
+    elif folder.is_dir():
+        folder.rmdir()          # empty: nothing to keep
+    try:
+        os.replace(part, folder)
+    except OSError as e:
+        if old is not None:
+            os.replace(old, folder)
+        raise InputError(folder, None, f"cannot rename {part} into place: {e.strerror or e}; "
+                                       f"the recording is in {part}") from None
+    if old is not None:
+        _remove_recording_dir(old, missing_ok=True)
+
+
 def write_recording(folder, columns, *, machine="prototype", sample_rate_hz, description="",
-                    channel_notes=None, digits=10, exact=False, extra_meta=None) -> Path:
-    """Write a whole recording: ``columns`` is a dict {channel: 1-D array}; returns the folder."""
+                    channel_notes=None, digits=10, exact=False, extra_meta=None, overwrite=False,
+                    complete=True, incomplete_reason="") -> Path:
+    """Write a whole recording: ``columns`` is a dict {channel: 1-D array}; returns the folder.
+    Written into ``<folder>.partial`` and renamed into place (see :class:`RecordingWriter`); an
+    existing recording is refused unless ``overwrite``. ``complete=False`` marks a recording of a
+    run that ended early."""
     folder = Path(folder)
     cols = {k: np.asarray(v, dtype=np.float64) for k, v in columns.items()}
     for k, v in cols.items():
@@ -560,8 +711,9 @@ def write_recording(folder, columns, *, machine="prototype", sample_rate_hz, des
         _check_rows(np.stack([cols[c] for c in names], 1), names, -math.inf, 0, folder)
     with RecordingWriter(folder, list(cols), machine=machine, sample_rate_hz=sample_rate_hz,
                          description=description, channel_notes=channel_notes, digits=digits,
-                         exact=exact, extra_meta=extra_meta) as w:
+                         exact=exact, extra_meta=extra_meta, overwrite=overwrite) as w:
         step = 200_000
         for s in range(0, total, step):
             w.append({k: v[s:s + step] for k, v in cols.items()})
+        w.finish(complete=complete, reason=incomplete_reason)
     return folder

@@ -1,4 +1,4 @@
-"""Static forces in the three chains (RECORDING.md §2, MACHINE.md §2). Pure functions, batch-capable.
+"""Static forces in the three chains (docs/diagnosis-report.md §1, docs/machine.md §2). Pure functions, batch-capable.
 
 The platform (mass m_p at its centre of mass P + R·com_offset) under gravity, plus a known force
 on the tool tip, is held by the three chains. Chain i pushes on the platform at C_i with

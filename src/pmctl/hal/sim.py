@@ -10,7 +10,7 @@ Per axis (L1, L2, L3, X, Y):
   piecewise-linearly, so each tick is a velocity jump followed by free motion, integrated exactly
   with a precomputed transition matrix (stable at any tick rate).
 - **strain gauge** on each plate link: strain = k_eps * tension, tension = the static gravity
-  load of the true (load-side) platform pose (pmctl.core.statics, RECORDING.md §2) plus the spring
+  load of the true (load-side) platform pose (pmctl.core.statics, docs/diagnosis-report.md §1) plus the spring
   force k * y of the flexible mode (microstrain, tension positive);
 - **measurement noise**: Gaussian on encoders (mm) and strain (microstrain), seeded RNG.
 

@@ -1,5 +1,9 @@
 """`pmctl` command line. Each subcommand lives in pmctl.interfaces.commands.<name> with
-``add_parser(subparsers)`` registering it and setting ``func``; errors become one line on stderr."""
+``add_parser(subparsers)`` registering it and setting ``func``; errors become one line on stderr.
+
+Registering must stay light: no module imported while building the parser may import numpy,
+scipy or matplotlib at module level (``tests/test_cli_help.py`` checks it); heavy work is imported
+inside ``func`` or through :func:`lazy`."""
 
 from __future__ import annotations
 
@@ -29,10 +33,23 @@ def add_module_parsers(subparsers, modules, hook="add_parser"):
         getattr(mod, hook)(subparsers)
 
 
+def lazy(target: str):
+    """A subcommand ``func`` that imports ``"package.module:function"`` only when it runs, so
+    registering a parser never loads numpy, scipy or matplotlib (``pmctl --help`` stays fast)."""
+    mod_name, _, fn_name = target.partition(":")
+
+    def call(args):
+        return getattr(importlib.import_module(mod_name), fn_name)(args)
+    call.target = target
+    return call
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="pmctl",
-        description="Controller and digital twin for the 3-RPS + XY-table hybrid milling machine.")
+        description="Controller and digital twin for the 3-RPS + XY-table hybrid milling machine.",
+        epilog="Each command has --help. Documentation: README.md and docs/ in the repository "
+               "(docs/README.md is the index).")
     p.add_argument("--version", action="version", version=f"pmctl {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     add_module_parsers(sub, [f"pmctl.interfaces.commands.{name}" for name in COMMANDS])

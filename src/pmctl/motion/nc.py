@@ -1,4 +1,4 @@
-"""Closed-loop NC step (MACHINE.md §6, seed 004 ch. 2-4): a pure function of (state, target, feedback).
+"""Closed-loop NC step (docs/machine.md §6, seed 004 ch. 2-4): a pure function of (state, target, feedback).
 
 Each tick:
   1. model pose r^ = FK(pulse counters x resolution), Newton warm-started from the previous pose;

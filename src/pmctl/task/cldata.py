@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core.errors import InputError
+from pmctl.core.tolerances import AXIS_TOL    # allowed | |V| - 1 |, the same as for pmctl kin --axis
 from pmctl.task.job import LINE, RAPID, Job, Move, check_reach
 
-AXIS_TOL = 1e-3                 # allowed | |V| - 1 |
 DEFAULT_FEED_MM_MIN = 600.0     # 10 mm/s
 DEFAULT_CLEARANCE_MM = 5.0      # approach/retract distance along the tool axis
 FLAGS = ("s", "w", "e")

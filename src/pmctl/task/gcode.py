@@ -7,7 +7,7 @@ Supported (LinuxCNC semantics unless noted):
   radius ``R`` (R < 0: the arc longer than a half turn), optional ``P`` full turns; ``G4 P<seconds>`` dwell;
 - modes: ``G17``, ``G20`` inch / ``G21`` mm, ``G90`` absolute / ``G91`` incremental (also for A, B),
   ``G94`` units per minute (the only feed mode);
-- words: ``X Y Z`` tool tip in W, ``A B`` tool tilt as roll / pitch in degrees (MACHINE.md §3: axis =
+- words: ``X Y Z`` tool tip in W, ``A B`` tool tilt as roll / pitch in degrees (docs/machine.md §3: axis =
   Rx(A) Ry(B) z), ``F`` feed (mm/min or in/min), ``S`` spindle rpm, ``N`` line number;
 - ``M3`` spindle on (at S), ``M5`` off, ``M2``/``M30`` end of program (later lines are ignored);
 - comments ``( ... )`` and ``;`` to the end of the line; spaces anywhere; a line holding only ``%``.

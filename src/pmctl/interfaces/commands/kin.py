@@ -5,18 +5,12 @@ from __future__ import annotations
 import json
 import math
 
-import numpy as np
-
-from pmctl.core.config import load_machine
 from pmctl.core.errors import PmctlError
-from pmctl.core import kinematics as K
-
-
-# Tool axes typed by hand or rounded to 3 decimals are normalised; anything further off is refused.
-AXIS_TOL = 1e-2
+from pmctl.core.tolerances import AXIS_TOL      # the same tolerance as CL data's tool vectors
 
 
 def _triple(text, n, what):
+    import numpy as np
     parts = text.split(",")
     try:
         vals = [float(x) for x in parts]
@@ -29,7 +23,7 @@ def _triple(text, n, what):
 
 def add_parser(sub):
     p = sub.add_parser("kin", help="inverse/forward kinematics of one pose",
-                       description="Kinematics of one pose, per MACHINE.md (mm, degrees).")
+                       description="Kinematics of one pose (mm, degrees). Frames and equations: docs/machine.md.")
     ks = p.add_subparsers(dest="kin_command", metavar="ik|fk", required=True)
     a = ks.add_parser("ik", help="tool tip in W + tool axis -> joints L1,L2,L3,X,Y")
     a.add_argument("--tip", required=True, metavar="X,Y,Z", help="tool tip in the workpiece frame W, mm")
@@ -43,6 +37,10 @@ def add_parser(sub):
 
 
 def run(args):
+    import numpy as np
+
+    from pmctl.core import kinematics as K
+    from pmctl.core.config import load_machine
     m = load_machine(args.config)
     if args.kin_command == "ik":
         tip = _triple(args.tip, 3, "--tip")

@@ -1,12 +1,18 @@
 """`pmctl run`: machine a job with the fixed-rate loop against a backend (the loopback sim by default).
 
     pmctl run --config config/prototype.toml --backend sim --job examples/jobs/<job> --record DIR
-              [--rate HZ] [--no-realtime] [--service config/service.toml]
+              [--force] [--rate HZ] [--no-realtime] [--service config/service.toml] [--state FILE]
 
-Plans the job from where the machine is (saved pulse counters, else home), runs the loop, shows
-progress, prints tracking-error and timing statistics, and writes the run as a recording
-(RECORDING.md). Exit codes: 0 done; 3 controlled stop (soft limit, path error, missed deadlines,
-stall, Ctrl-C); 4 fault (following error, backend not answering, model pose lost); 1 bad input.
+Checks every input first (job, record target, backend, state file), then plans the job from where
+the machine is (saved pulse counters, else home), runs the loop, shows progress, prints
+tracking-error and timing statistics, and writes the run as a recording (docs/recording.md).
+
+Ctrl-C, SIGTERM (``systemctl stop``) and SIGHUP all ask for a controlled stop: the machine
+decelerates along its path, the counters are saved as a clean stop and the recording is written.
+Output to a closed pipe (``pmctl run ... | head``) is dropped; the run goes on and is saved.
+
+Exit codes: 0 done; 3 controlled stop (soft limit, path error, missed deadlines, stall, Ctrl-C,
+SIGTERM); 4 fault (following error, backend not answering, model pose lost); 1 bad input.
 """
 
 from __future__ import annotations
@@ -19,37 +25,37 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
-
-from pmctl import hal
-from pmctl.core import kinematics as K
-from pmctl.core.config import CONFIG_DIR, load_machine
-from pmctl.core.errors import PmctlError
-from pmctl.motion.loop import ControlLoop, LoopResult, prepare, tracking_stats
-from pmctl.motion.service_config import load_service_config
-from pmctl.motion.nc import counts_of, initial_state
-from pmctl.motion.state_store import CounterWriter, StateLock, load_counters
-
 EXIT_DONE, EXIT_STOPPED, EXIT_FAULT = 0, 3, 4
+STOP_SIGNALS = {"SIGINT": "interrupted by the operator (Ctrl-C)",
+                "SIGTERM": "stop requested (SIGTERM, e.g. systemctl stop)",
+                "SIGHUP": "stop requested (SIGHUP: the terminal went away)"}
 
 
 def add_parser(sub):
     p = sub.add_parser("run", help="machine a job: the control loop against a backend (sim by default)",
-                       description="Run a job through the closed-loop NC at a fixed tick rate and record it.")
+                       description="Run a job through the closed-loop NC at a fixed tick rate and record it. "
+                                   "Ctrl-C or SIGTERM stops the machine in a controlled way and saves the run. "
+                                   "Exit status: 0 done, 3 controlled stop, 4 fault, 1 bad input.",
+                       epilog="The recording format is described in docs/recording.md; the state file and "
+                              "what stops a run in README.md.")
     p.add_argument("--config", default="prototype", help="machine config (default: config/prototype.toml)")
     p.add_argument("--service", default=None, help="service config (default: config/service.toml)")
-    p.add_argument("--backend", default=None, help="HAL backend (default: from the service config; 'sim')")
+    p.add_argument("--backend", default=None, help="HAL backend, e.g. 'sim' (default: [hal] backend of the service config)")
     p.add_argument("--job", required=True, help="job file: G-code (.ngc .nc .gcode .tap) or CL data (.cl ...)")
-    p.add_argument("--record", metavar="DIR", default=None, help="write the run as a recording folder")
+    p.add_argument("--record", metavar="DIR", default=None,
+                   help="write the run as a recording folder (must not exist yet; see --force)")
+    p.add_argument("--force", action="store_true", help="replace an existing recording in --record DIR")
     p.add_argument("--rate", type=float, default=None, metavar="HZ", help="tick rate (default: service config)")
     p.add_argument("--no-realtime", action="store_true",
-                   help="run ticks back to back, no sleeping and no real-time priority (offline simulation)")
+                   help="run ticks back to back, no sleeping and no real-time priority (offline simulation: "
+                        "a slow tick is not a stall)")
     p.add_argument("--k-theta", type=float, default=None, metavar="PER_S",
                    help="strain-gauge feedback gain per chain, 1/s (0 = off; default: service config)")
     p.add_argument("--pulse-mode", choices=("multi", "single"), default=None,
-                   help="V-F converters: integer pulses per tick (multi) or the seed's one per tick (single)")
+                   help="V-F converters: integer pulses per tick (multi) or the original controller's one per tick (single; Kamiya et al. 2005)")
     p.add_argument("--state", default=None, metavar="FILE",
-                   help="pulse-counter state file (default: service config); --state '' disables it")
+                   help="pulse-counter state file: where the machine is between runs (default: the service "
+                        "config's state_file, per user); --state '' for none")
     p.add_argument("--feed-override", type=float, default=1.0, help="feed override factor (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=run)
@@ -57,20 +63,53 @@ def add_parser(sub):
 
 def _machine_ref(config_arg: str, machine, record_dir: Path) -> str:
     """How recording.json names the machine: a shipped config by name, else a path relative to the folder."""
+    from pmctl.core.config import CONFIG_DIR
     p = Path(config_arg)
     if not p.suffix and not p.exists():
         return p.name
     p = p.resolve()
     if p.parent == CONFIG_DIR.resolve():
         return p.stem
-    return os.path.relpath(p, record_dir.resolve())
+    return os.path.relpath(p, record_dir.absolute())
+
+
+class _Out:
+    """stdout/stderr that never raise: output to a closed pipe (``pmctl run ... | head``) is
+    dropped, so the loop, the saved counters and the recording never depend on a reader."""
+
+    def __init__(self):
+        self.lost = set()
+
+    def write(self, text: str, err: bool = False):
+        stream = sys.stderr if err else sys.stdout
+        if stream is None or err in self.lost:
+            return
+        try:
+            stream.write(text)
+            stream.flush()
+        except (BrokenPipeError, ValueError, OSError):
+            self.lost.add(err)
+            try:           # keep Python from failing again when it flushes the stream at exit
+                os.dup2(os.open(os.devnull, os.O_WRONLY), stream.fileno())
+            except (OSError, ValueError):
+                pass
+
+    def say(self, msg: str):
+        self.write(msg + "\n")
+
+    def log(self, msg: str):
+        self.write(f"pmctl: {msg}\n", err=True)
 
 
 class _Progress:
-    def __init__(self, lp: ControlLoop, job_name: str, dt: float, quiet: bool):
+    def __init__(self, lp, job_name: str, dt: float, quiet: bool, out: _Out):
         self.lp, self.name, self.dt = lp, job_name, dt
-        self.tty = sys.stderr.isatty()
+        try:
+            self.tty = sys.stderr.isatty()
+        except (ValueError, AttributeError):
+            self.tty = False
         self.quiet = quiet
+        self.out = out
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, daemon=True, name="pmctl-progress")
 
@@ -79,11 +118,11 @@ class _Progress:
             self._t.start()
 
     def _line(self):
+        from pmctl.motion.nc import MODE_NAMES
         lp = self.lp
         k, n = lp.tick, max(lp.n_ticks, 1)
         frac = min(1.0, k / n)
         bar = "#" * int(frac * 24)
-        from pmctl.motion.nc import MODE_NAMES
         return (f"{self.name}: [{bar:<24}] {100 * frac:5.1f}%  t = {k * self.dt:7.2f} / {n * self.dt:.2f} s  "
                 f"{MODE_NAMES.get(lp.mode, '?')}")
 
@@ -91,23 +130,26 @@ class _Progress:
         period = 0.2 if self.tty else 5.0
         while not self._stop.wait(period):
             if self.tty:
-                sys.stderr.write("\r" + self._line())
-                sys.stderr.flush()
+                self.out.write("\r" + self._line(), err=True)
             else:
-                print(self._line(), file=sys.stderr, flush=True)
+                self.out.write(self._line() + "\n", err=True)
 
     def finish(self):
         self._stop.set()
         if self._t.is_alive():
             self._t.join()
             if self.tty:
-                sys.stderr.write("\r" + self._line() + "\n")
+                self.out.write("\r" + self._line() + "\n", err=True)
 
 
-def record_columns(res: LoopResult, machine, ppm) -> tuple[dict, dict]:
+def record_columns(res, machine, ppm, rate_hz: float | None = None) -> tuple[dict, dict]:
     """Recording channels of a run: commands (pulse counters), encoders, the simulated load-side
-    tool pose, and the strain gauges as read."""
-    cols = {"t": res.t}
+    tool pose, and the strain gauges as read. ``t`` is tick / rate, so it prints as 1.263, not as
+    the 1.2630000000000001 of tick x period."""
+    import numpy as np
+    from pmctl.core import kinematics as K
+    t = np.arange(res.ticks) / rate_hz if rate_hz else res.t
+    cols = {"t": t}
     names = ("L1", "L2", "L3", "X", "Y")
     q_cmd = res.counts / ppm
     for i, a in enumerate(names):
@@ -133,89 +175,169 @@ def record_columns(res: LoopResult, machine, ppm) -> tuple[dict, dict]:
     return cols, notes
 
 
+def _plant_meta(backend) -> dict:
+    """What a simulated plant put into the run that the nominal twin leaves out (its chain modes),
+    so that ``pmctl twin diagnose`` can say a finding is the simulation's own physics."""
+    opt = getattr(backend, "opt", None)
+    hz = getattr(backend, "mode_hz", None)
+    if opt is None or hz is None or not getattr(opt, "flex", False):
+        return {}
+    return {"kind": "simulation", "chain_mode_hz": [round(float(f), 4) for f in hz],
+            "chain_mode_damping_ratio": [float(z) for z in getattr(opt, "mode_damping_ratio", [])]}
+
+
+def tracking_window(res, stop_tick: int | None) -> tuple[int, int, str]:
+    """Ticks over which the tool-tip error means something: (first, end, note).
+
+    A run that ended done is tracked from the job's first point to its end. A run stopped by a
+    signal is tracked up to the stop request: after it the machine decelerates off the path on
+    purpose. A run the loop stopped on its own (stall, limit, path error) is not reported: the
+    stopping ramp would dominate the figures. ``end <= first`` means nothing to report."""
+    j0 = int(res.job_start)
+    if res.status == "done":
+        return j0, res.ticks, ""
+    if stop_tick is not None:
+        end = min(int(stop_tick), res.ticks)
+        if end <= j0:
+            return j0, j0, "the job was stopped before it started (during the approach to its first point)"
+        return j0, end, f"over the {(end - j0) * res.dt:.2f} s machined before the stop request"
+    return j0, j0, f"not reported: the run {res.status} ({res.reason}); the figures would measure the stop, not the tracking"
+
+
 def run(args) -> int:
+    import numpy as np
+
+    from pmctl import hal
+    from pmctl.core import kinematics as K
+    from pmctl.core.config import load_machine
+    from pmctl.core.errors import PmctlError
+    from pmctl.core.recording import check_target, partial_path
+    from pmctl.motion.loop import ControlLoop, prepare
+    from pmctl.motion.nc import counts_of, initial_state
+    from pmctl.motion.service_config import load_service_config
+    from pmctl.motion.state_store import CounterWriter, StateLock, load_counters
     from pmctl.task.planner import load_job, plan
 
+    out = _Out()
+    log = out.log
+
+    # ---- every input is checked before anything is said about the machine or anything moves
+    if args.rate is not None and not (math.isfinite(args.rate) and 10 <= args.rate <= 20000):
+        raise PmctlError(f"--rate must be within 10 .. 20000 Hz, got {args.rate:g}")
+    if args.k_theta is not None and not (math.isfinite(args.k_theta) and args.k_theta >= 0):
+        raise PmctlError(f"--k-theta must be >= 0 1/s, got {args.k_theta:g}")
+    if not (math.isfinite(args.feed_override) and 0 < args.feed_override <= 10):
+        raise PmctlError(f"--feed-override must be within (0, 10], got {args.feed_override:g}")
+    if args.backend is not None and args.backend not in hal.BACKENDS:
+        raise PmctlError(f"--backend {args.backend!r}: unknown backend; known: {', '.join(sorted(hal.BACKENDS))}")
+    if args.force and not args.record:
+        raise PmctlError("--force replaces an existing --record folder; there is no --record")
+    if args.record:               # find out now, not after the run, that the recording cannot be written
+        folder = Path(args.record)
+        check_target(folder, overwrite=args.force)
+        part = partial_path(folder)
+        if part.exists() and not args.force:
+            raise PmctlError(f"--record {folder}: {part} exists (a run that was killed left it; it reads as an "
+                             f"incomplete recording); move it away, or --force to replace it")
     machine = load_machine(args.config)
     svc = load_service_config(args.service)
     cfg = svc.loop
     if args.rate is not None:
-        if not 10 <= args.rate <= 20000:
-            raise PmctlError(f"--rate must be within 10 .. 20000 Hz, got {args.rate:g}")
         cfg.rate_hz = float(args.rate)
     if args.no_realtime:
         cfg.realtime = False
     if args.k_theta is not None:
-        if not (math.isfinite(args.k_theta) and args.k_theta >= 0):
-            raise PmctlError(f"--k-theta must be >= 0 1/s, got {args.k_theta:g}")
         svc.nc.k_theta_per_s = (args.k_theta,) * 3
-    if not (math.isfinite(args.feed_override) and 0 < args.feed_override <= 10):
-        raise PmctlError(f"--feed-override must be within (0, 10], got {args.feed_override:g}")
     if args.pulse_mode:
         svc.nc.pulse_mode = args.pulse_mode
     backend_name = args.backend or svc.backend
     state_file = cfg.state_file if args.state is None else args.state
     dt = cfg.dt
     params = svc.nc.params(machine, dt, where=svc.source)
-    log = lambda m: print(f"pmctl: {m}", file=sys.stderr)  # noqa: E731
 
-    # Where the machine is: saved counters, else home.
-    lock = StateLock(state_file) if state_file else None      # held until the process exits
+    # Where the machine is: saved counters, else home (said only once everything has been checked).
+    lock = StateLock(state_file) if state_file else None      # noqa: F841 (held until the process exits)
     saved = load_counters(state_file, machine=machine.name) if state_file else None
     if saved is not None:
         counts0 = saved.counts
-        log(f"position from {state_file} (tick {saved.tick}"
-            + (", clean stop)" if saved.clean else "; NOT a clean stop: re-home if in doubt)"))
+        where = (f"position from {state_file} (tick {saved.tick}"
+                 + (", clean stop)" if saved.clean else "; NOT a clean stop: re-home if in doubt)"))
     else:
         from pmctl.task.planner import home_pose
         h_tip, h_axis = home_pose(machine)
         counts0 = counts_of(K.ik(h_tip, h_axis, machine).q, params)
+        where = "position: home" + (f" (no saved counters in {state_file})" if state_file else " (--state '')")
     st = initial_state(machine, counts0)
 
-    if args.record:               # find out now, not after the run, that the recording cannot be written
-        folder = Path(args.record)
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise PmctlError(f"--record {folder}: cannot create the folder: {e.strerror or e}") from None
-        if not os.access(folder, os.W_OK):
-            raise PmctlError(f"--record {folder}: folder is not writable")
     job = load_job(args.job, machine, start=(st.tip, st.axis))
     plan_machine = machine
+    notes = []
     if np.any(params.vmax < machine.limits.joint_speed - 1e-9):
         # the V-F converters cap the joint speed below the machine's (seed mode: one pulse per
         # tick): plan within what they can emit
         from dataclasses import replace
         lim = replace(machine.limits, chain_speed=float(params.vmax[:3].min()), table_speed=float(params.vmax[3:].min()))
         plan_machine = replace(machine, limits=lim)
-        log(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: planning with that")
+        notes.append(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: "
+                     f"planning with that")
     traj = plan(job, plan_machine, dt, feed_override=args.feed_override, start=(st.tip, st.axis))
     targets = prepare(machine, params, traj, dt, counts0)
-
     backend = hal.create(backend_name, machine, dt, svc.backend_options if backend_name == svc.backend else {})
-    backend.open(counts0)
-    writer = CounterWriter(state_file, machine=machine.name) if state_file else None
-    lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer)
-    mode = "multi-pulse" if params.max_pulses_per_tick > 1 else "one pulse per tick (seed)"
-    log(f"{Path(args.job).name}: {len(targets.rows) * dt:.2f} s at {cfg.rate_hz:g} Hz, backend {backend_name}, "
-        f"V-F {mode}, K_theta {svc.nc.k_theta_per_s[0]:g}/s, "
-        f"{'real-time' if cfg.realtime else 'no real-time (ticks back to back)'}")
 
-    prog = _Progress(lp, Path(args.job).name, dt, args.quiet)
-    old = signal.getsignal(signal.SIGINT)
+    # From here on a stop signal is a controlled stop: before the loop exists it is remembered and
+    # the loop stops at its first tick (nothing moves), after that it asks the loop to decelerate.
+    stop_tick, pending, holder = [], [], {}
 
-    def _sigint(signum, frame):
-        lp.stop_request = "interrupted by the operator (Ctrl-C)"
+    def _stop(signum, frame):
+        # runs in the main thread between two bytecodes (of the loop, once it runs): flags only
+        reason = STOP_SIGNALS.get(signal.Signals(signum).name, f"signal {signum}")
+        lp_ = holder.get("lp")
+        if lp_ is None:
+            pending.append(reason)
+        elif not lp_.stop_request:
+            stop_tick.append(lp_.tick)
+            lp_.stop_request = reason
+    old = {}
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, _sigint)
+        for name in STOP_SIGNALS:
+            sig = getattr(signal, name, None)
+            if sig is not None:
+                old[sig] = signal.signal(sig, _stop)
+    try:
+        log(where)
+        for m in notes:
+            log(m)
+        backend.open(counts0)
+        writer = CounterWriter(state_file, machine=machine.name) if state_file else None
+        lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer)
+        holder["lp"] = lp
+        if pending:
+            stop_tick.append(0)
+            lp.stop_request = pending[0]
+        mode = "multi-pulse" if params.max_pulses_per_tick > 1 else "one pulse per tick (as in Kamiya et al. 2005)"
+        log(f"{Path(args.job).name}: {len(targets.rows) * dt:.2f} s at {cfg.rate_hz:g} Hz, backend {backend_name}, "
+            f"V-F {mode}, K_theta {svc.nc.k_theta_per_s[0]:g}/s, "
+            f"{'real-time' if cfg.realtime else 'no real-time (ticks back to back)'}")
+        prog = _Progress(lp, Path(args.job).name, dt, args.quiet, out)
+        return _run_and_report(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt,
+                               counts0, backend_name, stop_tick, out)
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+
+def _run_and_report(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt, counts0,
+                    backend_name, stop_tick, out) -> int:
+    import numpy as np
+
+    from pmctl.motion.loop import tracking_stats
+    log = out.log
     prog.start()
     t_wall = time.monotonic()
     try:
         res = lp.run()
     finally:
         prog.finish()
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGINT, old)
         backend.close()
         if writer is not None:
             writer.stop()          # on a crash the last periodic snapshot (clean = false) stays
@@ -225,39 +347,56 @@ def run(args) -> int:
             f"a crash would have lost the position")
     if writer is not None:
         from pmctl.motion.state_store import save_counters
-        # clean: the counters are exactly what was sent and the machine did what they say; after a
-        # fault (following error, lost backend) the position is in doubt: the next start says so
+        # clean: the counters are exactly what was sent and the machine did what they say (a
+        # controlled stop included); after a fault (following error, lost backend) the position is
+        # in doubt: the next start says so
         save_counters(state_file, res.state.counts, machine=machine.name, clean=res.status != "fault",
                       tick=res.ticks)
 
     # ---- the recording first (the run's data must not depend on stdout staying open), then the report
     sent_ok = bool(np.all(counts0 + res.pulses_sent == res.state.counts))
-    ts = tracking_stats(res, machine)
+    i0, i1, track_note = tracking_window(res, stop_tick[0] if stop_tick else None)
+    ts = {}
+    if i1 > i0:
+        from dataclasses import replace
+        ts = tracking_stats(replace(res, truth=res.truth[:i1], target=res.target[:i1]), machine, from_tick=i0)
     tm = res.timing.summary()
     if args.record:
         from pmctl.core.recording import write_recording
         folder = Path(args.record)
-        cols, notes = record_columns(res, machine, params.pulses_per_mm)
+        cols, chan_notes = record_columns(res, machine, params.pulses_per_mm, cfg.rate_hz)
         desc = (f"pmctl run {Path(args.job).name} on backend {backend_name} at {cfg.rate_hz:g} Hz: {res.status}"
                 + (f" ({res.reason})" if res.reason else ""))
+        run_meta = {"job": str(args.job), "status": res.status, "reason": res.reason,
+                    "tracking": ts, "timing": tm, "job_start_row": res.job_start, "backend": backend_name}
+        plant = _plant_meta(backend)
+        if plant:
+            run_meta["plant"] = plant
+        if track_note:
+            run_meta["tracking_note"] = track_note
         write_recording(folder, cols, machine=_machine_ref(args.config, machine, folder),
-                        sample_rate_hz=cfg.rate_hz, description=desc, channel_notes=notes,
-                        extra_meta={"run": {"job": str(args.job), "status": res.status, "reason": res.reason,
-                                            "tracking": ts, "timing": tm, "job_start_row": res.job_start}})
-    print(f"result: {res.status}" + (f" ({res.reason})" if res.reason else ""))
-    print(f"  ticks {res.ticks} ({res.ticks * dt:.2f} s machine time, {wall:.2f} s wall), "
-          f"pulses sent = pulse counters: {'yes' if sent_ok else 'NO'}")
+                        sample_rate_hz=cfg.rate_hz, description=desc, channel_notes=chan_notes,
+                        extra_meta={"run": run_meta}, overwrite=args.force)
+        # a stopped run is a complete recording of what happened: "complete" is about the file
+    say = out.say
+    say(f"result: {res.status}" + (f" ({res.reason})" if res.reason else ""))
+    say(f"  ticks {res.ticks} ({res.ticks * dt:.2f} s machine time, {wall:.2f} s wall), "
+        f"pulses sent = pulse counters: {'yes' if sent_ok else 'NO'}")
     if ts:
-        print(f"  tool-tip error (load side vs target, job part): RMS {ts['tip_rms_um']:.3f} um, "
-              f"p99 {ts['tip_p99_um']:.3f} um, max {ts['tip_max_um']:.3f} um; tool axis RMS "
-              f"{ts['axis_rms_urad']:.2f} urad, max {ts['axis_max_urad']:.2f} urad")
+        say(f"  tool-tip error (load side vs target, job part{', ' + track_note if track_note else ''}): "
+            f"RMS {ts['tip_rms_um']:.3f} um, p99 {ts['tip_p99_um']:.3f} um, max {ts['tip_max_um']:.3f} um; "
+            f"tool axis RMS {ts['axis_rms_urad']:.2f} urad, max {ts['axis_max_urad']:.2f} urad")
+    elif track_note:
+        say(f"  tool-tip error: {track_note}")
     if tm:
-        print(f"  timing: tick compute median {tm['compute_median_us']:.0f} us, p99 {tm['compute_p99_us']:.0f} us, "
-              f"max {tm['compute_max_us']:.0f} us (NC step median {tm['nc_median_us']:.0f} us, "
-              f"p99 {tm['nc_p99_us']:.0f} us; period {dt * 1e6:.0f} us)"
-              + (f"; lateness p99 {tm['late_p99_us']:.0f} us, max {tm['late_max_us']:.0f} us; "
-                 f"overruns {tm['overruns']} (max {tm['max_overruns_in_row']} in a row)" if cfg.realtime
-                 else "; lateness n/a (--no-realtime)"))
+        say(f"  timing: tick compute median {tm['compute_median_us']:.0f} us, p99 {tm['compute_p99_us']:.0f} us, "
+            f"max {tm['compute_max_us']:.0f} us (NC step median {tm['nc_median_us']:.0f} us, "
+            f"p99 {tm['nc_p99_us']:.0f} us; period {dt * 1e6:.0f} us)"
+            + (f"; lateness p99 {tm['late_p99_us']:.0f} us, max {tm['late_max_us']:.0f} us; "
+               f"overruns {tm['overruns']} (max {tm['max_overruns_in_row']} in a row)" if cfg.realtime
+               else "; lateness n/a (--no-realtime)"))
+    if state_file:
+        say(f"  counters: {state_file} ({'clean stop' if res.status != 'fault' else 'NOT a clean stop'})")
     if args.record:
-        print(f"  recording: {args.record} ({res.ticks} rows)")
+        say(f"  recording: {args.record} ({res.ticks} rows)")
     return {"done": EXIT_DONE, "stopped": EXIT_STOPPED}.get(res.status, EXIT_FAULT)

@@ -1,11 +1,11 @@
-"""`pmctl twin ...`: digital-twin tools. Modules under pmctl.tools.twin register their own subcommands
-with ``add_parser(subparsers)``: diagnose (the report), synth (concealed-effect recordings)."""
+"""`pmctl twin ...`: digital-twin tools: diagnose (the report), synth (concealed-effect recordings).
+Registered by :mod:`pmctl.tools.twin.cli`, which imports no numpy (the tools load when they run)."""
 
 from __future__ import annotations
 
 from pmctl.interfaces.cli import add_module_parsers
 
-TOOLS = ["pmctl.tools.twin.diagnose", "pmctl.tools.twin.synth"]
+TOOLS = ["pmctl.tools.twin.cli"]
 
 
 def add_parser(sub):

@@ -1,10 +1,10 @@
-"""Mechanism analysis of the 3-RPS spatial part (seed 000 ch. 2.3, 2.4.1 and ch. 4; MACHINE.md §5).
+"""Mechanism analysis of the 3-RPS spatial part (seed 000 ch. 2.3, 2.4.1 and ch. 4; docs/machine.md §5).
 
 Pure numpy functions, vectorised over grids (leading dimensions broadcast), plus a thin CLI
 (``pmctl analyze io-ratio | drive | path-error | compliance``) that writes PNGs and prints figures.
 
 Conventions: lengths in mm, angles in radians inside the functions (the CLI speaks degrees),
-(Z, theta1, theta2) as in MACHINE.md §3 (theta1 = 0 is accepted and is the same physical tilt
+(Z, theta1, theta2) as in docs/machine.md §3 (theta1 = 0 is accepted and is the same physical tilt
 as theta1 = 180 deg with theta2 negated). "J_L" is ``kinematics.jacobian_ztt`` =
 d(L1, L2, L3)/d(Z, theta1, theta2); the seed's mechanism Jacobian is J = J_L^-1 (eq. 4.13).
 
@@ -453,21 +453,10 @@ def seed_path_error(machine: Machine, theta2_points_deg, *, Z=393.0, theta1_deg=
 # ============================================================== CLI (thin: compute, print, plot)
 
 def add_parsers(sub):
-    """Register ``io-ratio``, ``drive``, ``path-error`` and ``compliance`` under ``pmctl analyze``."""
-    specs = [
-        ("io-ratio", _cmd_io_ratio, "input-output ratio maps dZ^2 over theta1 x theta2 (seed Fig. 4.1-4.3)"),
-        ("drive", _cmd_drive, "drive characteristics G_T, G_R, omega_T, omega_R vs Table 2.1"),
-        ("path-error", _cmd_path_error, "joint-interpolation path error (Fig. 4.4-4.6) and adaptive spacing"),
-        ("compliance", _cmd_compliance, "output displacement error for unit loads (seed 2.4.1)"),
-    ]
-    for name, func, text in specs:
-        p = sub.add_parser(name, help=text, description=text + ".")
-        p.add_argument("--config", default="prototype", help="machine config (default: prototype)")
-        p.add_argument("--out", default="out/analyze", help="directory for the PNGs (default: out/analyze)")
-        if name == "path-error":
-            p.add_argument("--tol-um", type=float, default=1.0,
-                           help="path tolerance of the adaptive spacing, micrometres (default 1)")
-        p.set_defaults(func=func)
+    """Register ``io-ratio``, ``drive``, ``path-error`` and ``compliance`` under ``pmctl analyze``
+    (the registration lives in :mod:`pmctl.tools.analysis.cli`, which imports no numpy)."""
+    from pmctl.tools.analysis.cli import add_mechanism_parsers
+    add_mechanism_parsers(sub)
 
 
 def _setup(args):
@@ -493,7 +482,7 @@ def _cmd_io_ratio(args):
     machine, out, plt = _setup(args)
     Zs = (300.0, 393.0, 500.0)
     t1, t2, r = io_ratio_maps(machine.geometry, Zs)
-    print("input-output ratio dZ^2 = max eig(J_z J_z^T) per unit |dL| (seed eq. 4.22), theta1 0-180, theta2 +-30 deg")
+    print("input-output ratio dZ^2 = max eig(J_z J_z^T) per unit |dL| (Tachiya et al. 2006, eq. 4.22), theta1 0-180, theta2 +-30 deg")
     i0 = int(np.argmin(np.abs(t2)))
     for k, Z in enumerate(Zs):
         m = r[k]
@@ -519,7 +508,7 @@ def _cmd_drive(args):
     geom = machine.geometry
     full = drive_characteristics(geom)
     seedgrid = drive_characteristics(geom, Z=(298.0, 458.0), nZ=9, n1=37, n2=61)
-    print("drive characteristics (seed 000 2.3.1), maxima over Z 293-458 mm, theta1 0-180 deg, theta2 +-30 deg")
+    print("drive characteristics (Tachiya et al. 2006, sec. 2.3.1), maxima over Z 293-458 mm, theta1 0-180 deg, theta2 +-30 deg")
     print(f"  {'':10s} {'Table 2.1':>10s} {'ours':>10s}  {'Z from 298 step 20':>18s}   at (Z, theta1, theta2)")
     units = {"G_T": "N/N", "G_R": "N/(N mm)", "omega_T": "(mm/s)/(mm/s)", "omega_R": "(mm/s)/(deg/s)"}
     for k in ("G_T", "G_R", "omega_T", "omega_R"):
@@ -532,10 +521,10 @@ def _cmd_drive(args):
     print("  R_out*pi/180 = %.4f (mm/s)/(deg/s)" % (geom.platform_radius * DEG))
     print("  notes: G_T, G_R rise steeply as Z falls, so their maxima sit at the lowest Z of the box.\n"
           "  Over Z 293-458 our model gives G_T 0.575, G_R 0.0042; evaluated on Z = 298, 318, ..., 458\n"
-          "  (the 20 mm grid of the seed's 2.4.2 study) it gives Table 2.1's 0.5599 / 0.0041: the seed's\n"
+          "  (the 20 mm grid of the report's 2.4.2 study) it gives Table 2.1's 0.5599 / 0.0041: the report's\n"
           "  table was evidently computed from Z = 298 mm. omega_T = max dL_i/dZ = 1 (chains nearly vertical);\n"
           "  omega_R = 5.52 ~ R_out pi/180. G_T/G_R use generalised forces (Z force, theta2 moment) as the\n"
-          "  seed's J = J_L^-1 does; a horizontal force also loads the inclined chains (G_T_phys).")
+          "  report's J = J_L^-1 does; a horizontal force also loads the inclined chains (G_T_phys).")
     # Plot: maxima over theta1 vs theta2 for a few heights.
     t1 = np.linspace(0.0, 180.0, 91) * DEG
     t2 = np.linspace(-30.0, 30.0, 121)
@@ -564,7 +553,7 @@ def _cmd_path_error(args):
     geom = machine.geometry
     fig44 = np.arange(-20.0, 20.1, 5.0)
     fig46 = np.array([-20.0, -15.0, -10.0, -5.0, 0.0, 5.0, 10.0, 13.5, 17.0, 20.0])
-    print("path error of joint-space interpolation, Z = 393 mm, theta1 = 0 deg, tool length 0 (seed 4.4)")
+    print("path error of joint-space interpolation, Z = 393 mm, theta1 = 0 deg, tool length 0 (Tachiya et al. 2006, sec. 4.4)")
     res = {}
     for name, pts in (("Fig. 4.4 (5 deg spacing)", fig44), ("Fig. 4.6 (3.5/3.5/3 deg above +10)", fig46)):
         th, ez, per = seed_path_error(machine, pts)
@@ -634,17 +623,23 @@ def _cmd_compliance(args):
     machine, out, plt = _setup(args)
     s = machine.stiffness
     vals, where = compliance_over_box(machine)
-    print(f"output displacement error (seed 2.4.1), C = J K^-1 J^T at P, chain axial {s.chain_axial:g} N/mm, "
-          f"lateral {s.chain_lateral:g} N/mm;\n  maxima over Z 293-458 mm, theta1 0-180 deg, theta2 +-20 deg:")
-    lines = [("PF", "translation per unit force", vals["PF"] * 1e3, "um/N", "seed P_F"),
-             ("RF", "rotation per unit force", vals["RF"] / DEG * 1e3, "mdeg/N", "seed P_M"),
-             ("PM", "translation per unit moment", vals["PM"] * 1e6, "um/(N m)", "seed R_F"),
-             ("RM", "rotation per unit moment", vals["RM"] / DEG * 1e6, "mdeg/(N m)", "seed R_M")]
+    print(f"output displacement error (Tachiya et al. 2006, sec. 2.4.1), C = J K^-1 J^T at P, chain axial "
+          f"{s.chain_axial:g} N/mm, lateral {s.chain_lateral:g} N/mm;\n"
+          f"  maxima over Z 293-458 mm, theta1 0-180 deg, theta2 +-20 deg. Names as in eq. 2.34: C_<error><load>,\n"
+          f"  P = translation error, R = rotation error, F = force load, M = moment load:")
+    # Table 2.4/2.5 of the report name the same four maxima by load first (P_F, P_M: under a
+    # force; R_F, R_M: under a moment), so its P_M is our RF and its R_F our PM (docs/machine.md).
+    lines = [("PF", "translation per unit force", vals["PF"] * 1e3, "um/N", "Table 2.5 column P_F"),
+             ("RF", "rotation per unit force", vals["RF"] / DEG * 1e3, "mdeg/N", "Table 2.5 column P_M"),
+             ("PM", "translation per unit moment", vals["PM"] * 1e6, "um/(N m)", "Table 2.5 column R_F"),
+             ("RM", "rotation per unit moment", vals["RM"] / DEG * 1e6, "mdeg/(N m)", "Table 2.5 column R_M")]
     for k, text, v, u, seed in lines:
         w = where[k]
-        print(f"  {k} {text:28s} {v:10.4f} {u:11s} at ({w[0]:.0f}, {w[1]:.0f}, {w[2]:+.0f})  [{seed}]")
-    print("  (seed Table 2.5 for the 134 mm plate link: 0.133, 0.058, 0.166, 0.078 from its own stiffness\n"
-          "  model, whose stiffness values the seed does not give; not directly comparable)")
+        print(f"  C_{k} {text:28s} {v:10.4f} {u:11s} at ({w[0]:.0f}, {w[1]:.0f}, {w[2]:+.0f})  [{seed}]")
+    print("  (Table 2.5 names the maxima load first: its P_M is the rotation under a force (our C_RF), its R_F\n"
+          "  the translation under a moment (our C_PM). Its values for the 134 mm plate link, P_F 0.133,\n"
+          "  P_M 0.058, R_F 0.166, R_M 0.078, come from its own stiffness model, whose stiffness values the\n"
+          "  report does not give: not directly comparable)")
     t1 = np.linspace(0.0, 180.0, 91)
     t2 = np.linspace(-20.0, 20.0, 81)
     Zs = (300.0, 393.0, 458.0)
@@ -655,7 +650,8 @@ def _cmd_compliance(args):
         m = res[k] * scale
         for c, ax in enumerate(axs[row]):
             im = ax.pcolormesh(t1, t2, m[c].T, shading="auto", cmap="magma", vmin=m.min(), vmax=m.max())
-            ax.set_title(f"{k}: worst error per unit load, Z = {Zs[c]:.0f} mm")
+            ax.set_title(f"C_{k} ({'translation per unit force' if k == 'PF' else 'rotation per unit moment'}): "
+                         f"worst error, Z = {Zs[c]:.0f} mm", fontsize=10)
             ax.set_xlabel("θ1 [deg]")
             ax.set_ylabel("θ2 [deg]")
         fig.colorbar(im, ax=axs[row], label=f"{k} [{unit}]")

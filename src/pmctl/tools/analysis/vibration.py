@@ -1,4 +1,4 @@
-"""Strain-gauge vibration suppression and the software V-F converter (seed 004 ch. 2-3, MACHINE.md §6).
+"""Strain-gauge vibration suppression and the software V-F converter (seed 004 ch. 2-3, docs/machine.md §6).
 
 Pure functions first, a thin CLI (``pmctl analyze vibration`` / ``pmctl analyze vf``) at the end.
 
@@ -298,8 +298,15 @@ def vf_min_amplitude_sim(f_over_F, threshold=1.0, phase=0.0, n_periods=4, rel_to
     peak = np.max(np.abs(s), axis=-1)
     dead = peak < 1e-12
     s = np.where(dead[..., None], 0.0, s)
-    hi = np.where(dead, 1.0, threshold / np.where(dead, 1.0, peak))
-    lo = np.zeros_like(hi)
+    # Bracket: before its first pulse the accumulator is x·cumsum(s), so the answer is near
+    # SD / max|cumsum(s)|. The bracket is verified by simulation (and widened if needed), then the
+    # bisection below narrows it with full vf_step runs: a handful of runs instead of ~25.
+    top = np.max(np.abs(np.cumsum(s, axis=-1)), axis=-1)
+    guess = np.where(dead | (top <= 0), 1.0, threshold / np.where(top > 0, top, 1.0))
+    hi = np.where(dead, 1.0, guess * (1 + 1e-6))
+    lo = np.where(dead, 0.0, guess * (1 - 1e-6))
+    P, _ = run_vf(lo[..., None] * s, threshold)
+    lo = np.where(np.any(P != 0, axis=-1) & ~dead, 0.0, lo)     # lo fires after all: start from 0
     while True:                         # make sure hi fires (the largest sample alone may not)
         P, _ = run_vf(hi[..., None] * s, threshold)
         bad = ~np.any(P != 0, axis=-1) & ~dead
@@ -376,12 +383,21 @@ def vf_conversion_error(level, f_over_F, threshold=1.0, n_periods=6, phase=0.0,
     saturated = np.abs(P.sum(-1) * threshold + A[..., -1] - integral) > 1e-9 * (1 + np.abs(u).sum(-1))
     eq = equivalent_input(P, threshold)
     i = np.arange(n)
-    per = 1.0 / r[..., None]
-    n_whole = np.floor((n - 1) / per)
-    w = (i >= per) & (i < n_whole * per)          # periods 2 .. last whole one
-    ph = np.exp(-2j * np.pi * r[..., None] * i) * w
-    E1 = (eq * ph).sum(-1)
-    X1 = (u * ph).sum(-1)
+    r0 = float(r.reshape(-1)[0]) if r.size else 0.0
+    if r.size and np.all(r == r0):
+        # one f/F for the whole bank (the region map's columns): one DFT kernel, a matrix product
+        per = 1.0 / r0
+        w = (i >= per) & (i < np.floor((n - 1) / per) * per)
+        ph = np.exp(-2j * np.pi * r0 * i) * w
+        E1 = eq @ ph
+        X1 = u @ ph
+    else:
+        per = 1.0 / r[..., None]
+        n_whole = np.floor((n - 1) / per)
+        w = (i >= per) & (i < n_whole * per)          # periods 2 .. last whole one
+        ph = np.exp(-2j * np.pi * r[..., None] * i) * w
+        E1 = (eq * ph).sum(-1)
+        X1 = (u * ph).sum(-1)
     err = np.abs(E1 - X1) / np.maximum(np.abs(X1), 1e-300)
     return err, np.abs(P).sum(-1), saturated
 
@@ -403,14 +419,20 @@ def vf_region_map(levels, ratios, threshold=1.0, correct_tol=0.25, n_phases=4, *
     its 50 Hz / 500 Hz example ("large distortion") is II at every level up to 1.
     Returns (codes [len(levels), len(ratios)], mean error array).
     """
-    L, R = np.meshgrid(np.asarray(levels, float), np.asarray(ratios, float), indexing="ij")
-    errs, fired, sat = [], np.zeros(L.shape, bool), np.zeros(L.shape, bool)
-    for ph in np.arange(n_phases) / n_phases:
-        e, npulse, s = vf_conversion_error(L * threshold, R, threshold, phase=ph, **kw)
-        errs.append(e)
-        fired |= npulse > 0
-        sat |= s
-    err = np.mean(errs, axis=0)
+    levels = np.asarray(levels, float)
+    ratios = np.asarray(ratios, float)
+    err = np.zeros((len(levels), len(ratios)))
+    fired = np.zeros(err.shape, bool)
+    sat = np.zeros(err.shape, bool)
+    phases = np.arange(n_phases) / n_phases
+    # one f/F at a time, all levels and phases together: each column simulates just the periods it
+    # needs (a high f/F needs few samples), so time and memory follow the grid, not its lowest f/F
+    for j, r in enumerate(ratios):
+        e, npulse, s = vf_conversion_error(levels[:, None] * threshold, np.full((1, n_phases), r),
+                                           threshold, phase=phases[None, :], **kw)
+        err[:, j] = e.mean(axis=1)
+        fired[:, j] = (npulse > 0).any(axis=1)
+        sat[:, j] = s.any(axis=1)
     codes = np.where(~fired, REGION_NONE,
                      np.where(sat, REGION_SATURATED,
                               np.where(err <= correct_tol, REGION_CORRECT, REGION_NOISY)))
@@ -439,9 +461,10 @@ def seed36_noise_check(F=200.0, threshold=10.0, K_theta=25.0, amplitude=0.03,
     freqs = np.arange(100.0, 300.0 + 1e-9, 0.5) if freqs is None else np.asarray(freqs, float)
     n = int(round(duration * F))
     t = np.arange(n) / F
-    ph = (np.arange(n_phases) / n_phases)[:, None, None]
-    x = amplitude * np.sin(2 * np.pi * (freqs[None, :, None] * t + ph))
-    pulses = vf_noise_pulses(x, K_theta, threshold).max(axis=0)
+    pulses = np.zeros(len(freqs), np.int64)
+    for ph in np.arange(n_phases) / n_phases:       # one phase at a time: memory of one bank
+        x = amplitude * np.sin(2 * np.pi * (freqs[:, None] * t + ph))
+        pulses = np.maximum(pulses, vf_noise_pulses(x, K_theta, threshold))
     rng = np.random.default_rng(seed)
     fr = rng.uniform(100.0, 195.0, 200)
     noise = np.sin(2 * np.pi * (fr[:, None] * t + rng.uniform(0, 1, 200)[:, None])).sum(0)
@@ -496,7 +519,13 @@ def _plt():
 
 
 def _fmt_ts(ts):
-    return "not settled" if math.isinf(ts) else f"{ts:.3f} s"
+    """A settling time for a table cell: '0.123 s', or 'never' (still outside the band at the end)."""
+    return "never" if math.isinf(ts) else f"{ts:.3f} s"
+
+
+def _settles(ts):
+    """A settling time in a sentence."""
+    return "does not settle within the run" if math.isinf(ts) else f"settles in {ts:.3f} s"
 
 
 def _outdir(path):
@@ -510,7 +539,7 @@ def _outdir(path):
 
 
 def _print_eq31():
-    print("Eq. 3.1 closed loop (seed 004 3.5): k/J = (2π·5)², K_G = 1/0.628, K_θ = 3")
+    print("Eq. 3.1 closed loop (Kamiya et al. 2005, sec. 3.5): k/J = (2π·5)², K_G = 1/0.628, K_θ = 3")
     print(f"  {'F':>6} {'K_vK_R':>8}  {'exact: real root':>16} {'ω_n':>7} {'ζ':>6}   "
           f"{'eq.3.3 approx: (s+p)':>20} {'ω_n':>6} {'ζ':>5}   {'D2=K_θK_vK_R k/J':>16}  Hurwitz")
     rows = []
@@ -543,20 +572,20 @@ def cmd_vibration(args):
     print("  settling: last exit from ±1 pulse (= ±5 %) of the command; residual: θ_L − θ0 over "
           "t ≥ 1 s after the command ends, to the end of the run (3 s)")
     print("  dead-region bound on the residual p-p: 2·(2 SD sin(π f_load/F)/K_θ) (residual_amplitude_bound)")
-    print(f"  {'case':34} {'settling':>12} {'resid p-p':>10} {'resid RMS':>10} {'p-p bound':>10} "
+    print(f"  {'case':34} {'settling time':>13} {'resid p-p':>10} {'resid RMS':>10} {'p-p bound':>10} "
           f"{'pulses':>6} {'end offset':>10}")
     for (label, sim, m), (_, F, Kt, fl) in zip(steps, STEP_CASES):
         bound = 2 * residual_amplitude_bound(F, fl, Kt)
-        print(f"  {label:34} {_fmt_ts(m.settling_time):>12} {m.residual_pp:10.4f} {m.residual_rms:10.4f} "
+        print(f"  {label:34} {_fmt_ts(m.settling_time):>13} {m.residual_pp:10.4f} {m.residual_rms:10.4f} "
               f"{bound:10.4f} {int(np.abs(sim.pulses).sum()):6d} {m.final_offset_pulses:+8.0f} p")
     for (la, _, a), (lb, _, b) in zip(steps[0::2], steps[1::2]):
         print(f"  {la.split(',', 1)[1].strip()}: K_θ=0 → K_θ=3 residual p-p {a.residual_pp / b.residual_pp:.1f}× "
-              f"smaller, RMS {a.residual_rms / b.residual_rms:.1f}× smaller, settling "
+              f"smaller, RMS {a.residual_rms / b.residual_rms:.1f}× smaller, settling time "
               f"{_fmt_ts(a.settling_time)} → {_fmt_ts(b.settling_time)}")
     print("\nRamp responses (5 pulse/s = one pulse per load period, 20 pulses, then hold)")
-    print(f"  {'case':34} {'RMS defl. moving':>16} {'settling':>12} {'resid p-p':>10} {'resid RMS':>10}")
+    print(f"  {'case':34} {'RMS defl. moving':>16} {'settling time':>13} {'resid p-p':>10} {'resid RMS':>10}")
     for label, sim, m, te in ramps:
-        print(f"  {label:34} {m.moving_rms_deflection:16.4f} {_fmt_ts(m.settling_time):>12} "
+        print(f"  {label:34} {m.moving_rms_deflection:16.4f} {_fmt_ts(m.settling_time):>13} "
               f"{m.residual_pp:10.4f} {m.residual_rms:10.4f}")
     a, b = ramps[0][2], ramps[1][2]
     print(f"  K_θ=3 vs K_θ=0: deflection while moving {a.moving_rms_deflection / b.moving_rms_deflection:.1f}× "
@@ -570,7 +599,7 @@ def cmd_vibration(args):
         ax.plot(sim.t, sim.theta_L, lw=1.3, label="θ_L load")
         lin = linear_step_response(sim.t, kJ(fl), K_G_SEED, Kt, F * K_R_SEED, sim.theta0[-1])
         ax.plot(sim.t, lin, "--", lw=0.8, color="gray", label="linear eq. 3.1, K_vK_R=F·K_R")
-        ax.set_title(f"{label}\nsettling {_fmt_ts(m.settling_time)}, residual p-p {m.residual_pp:.3f} rad",
+        ax.set_title(f"{label}\n{_settles(m.settling_time)}, residual p-p {m.residual_pp:.3f} rad",
                      fontsize=9)
         ax.set_xlim(0, 2.0)
         ax.grid(alpha=0.3)
@@ -579,7 +608,7 @@ def cmd_vibration(args):
     for ax in axs[:, 0]:
         ax.set_ylabel("angle [rad]")
     axs[0, 0].legend(fontsize=7, loc="lower right")
-    fig.suptitle("Seed 004 Fig. 3.3: 20-pulse step, simulated with the software V-F converter", fontsize=10)
+    fig.suptitle("Kamiya et al. 2005, Fig. 3.3: 20-pulse step, simulated with the software V-F converter", fontsize=10)
     fig.tight_layout()
     p1 = d / "vibration_step.png"
     fig.savefig(p1, dpi=110)
@@ -598,7 +627,7 @@ def cmd_vibration(args):
         ax.grid(alpha=0.3)
     axs[-1].set_xlabel("t [s]")
     axs[0].legend(fontsize=7, loc="upper left")
-    fig.suptitle("Seed 004 Fig. 3.5: ramp at the load's resonance, simulated", fontsize=10)
+    fig.suptitle("Kamiya et al. 2005, Fig. 3.5: ramp at the load's resonance, simulated", fontsize=10)
     fig.tight_layout()
     p2 = d / "vibration_ramp.png"
     fig.savefig(p2, dpi=110)
@@ -610,7 +639,7 @@ def cmd_vibration(args):
 def cmd_vf(args):
     d = _outdir(args.out)
     SD = 1.0
-    print("V-F minimum amplitude (seed 004 eq. 2.2), by simulation with vf_step (bisection to 1e-7):")
+    print("V-F minimum amplitude (Kamiya et al. 2005, eq. 2.2), by simulation with vf_step (bisection to 1e-7):")
     print("  sine starting at a zero crossing, accumulator empty, sampled φ samples late")
     print(f"  {'k':>4} {'f/F':>7} {'sim φ=½':>10} {'SD sin(π/2k)':>12} {'sim φ=0':>10} {'SD tan(π/2k)':>12} "
           f"{'sim min φ':>10}")
@@ -623,13 +652,13 @@ def cmd_vf(args):
         print(f"  {k:4d} {1 / (2 * k):7.4f} {a:10.6f} {vf.vf_min_amplitude(SD, 1 / (2 * k)):12.6f} "
               f"{b:10.6f} {(SD * math.tan(math.pi / (2 * k)) if k > 1 else math.inf):12.6f} {c:10.6f}")
     # seed checks: 50 Hz at 500 Hz, 4 Hz at 500 Hz, level 1 cut-off near f/F = 0.3
-    print("  seed 2.3.4: 50 Hz @ 500 Hz, SD 1 → no output below "
-          f"{vf_min_amplitude_sim(0.1, SD, 0.0):.3f} (seed: ≈0.2 and below gives none); "
-          f"4 Hz → {vf_min_amplitude_sim(0.008, SD, 0.0):.4f} (seed: ≈0.02)")
+    print("  report sec. 2.3.4: 50 Hz @ 500 Hz, SD 1 → no output below "
+          f"{vf_min_amplitude_sim(0.1, SD, 0.0):.3f} (report: ≈0.2 and below gives none); "
+          f"4 Hz → {vf_min_amplitude_sim(0.008, SD, 0.0):.4f} (report: ≈0.02)")
     R = np.linspace(0.2, 0.35, 151)
     fires = vf_min_amplitude_sim(R, SD, 0.0, n_periods=40) <= 1.0
-    print(f"  seed 2.3.3: level 1 stops producing pulses above f/F = {R[fires][-1]:.3f} "
-          f"(seed: 150 Hz @ 500 Hz and 300 Hz @ 1000 Hz, f/F = 0.3)")
+    print(f"  report sec. 2.3.3: level 1 stops producing pulses above f/F = {R[fires][-1]:.3f} "
+          f"(report: 150 Hz @ 500 Hz and 300 Hz @ 1000 Hz, f/F = 0.3)")
 
     levels = 10.0 ** np.round(np.linspace(-3.0, 0.3, 67), 6)     # 0.05-decade steps, 1.0 exact
     ratios = np.logspace(np.log10(0.002), np.log10(0.5), 56)
@@ -650,7 +679,7 @@ def cmd_vf(args):
 
     chk = seed36_noise_check()
     bad = chk["freqs"][chk["pulses_per_freq"] > 0]
-    print("\nSeed 3.6 noise claim: 0.03 V strain noise × K_θ 25 = "
+    print("\nReport sec. 3.6 noise claim: 0.03 V strain noise × K_θ 25 = "
           f"{chk['vf_input_amplitude']:.2f} V into SD 10 V at 200 Hz, 10 s runs, 8 sampling phases:")
     print(f"  sine noise 100-300 Hz (0.5 Hz steps): pulses at {len(bad)} of {len(chk['freqs'])} frequencies"
           + (f", all within {np.max(np.abs(bad - 200.0)):.1f} Hz of 200 Hz (alias near DC; bound "
@@ -691,7 +720,7 @@ def cmd_vf(args):
     ax.legend(handles=handles, fontsize=8, loc="lower right")
     ax.set_xlabel("R = f/F (input frequency / sampling frequency)")
     ax.set_ylabel("input level (× threshold SD)")
-    ax.set_title("Seed 004 Fig. 2.9 by simulation: I correct (fundamental of the\n"
+    ax.set_title("Kamiya et al. 2005, Fig. 2.9 by simulation: I correct (fundamental of the\n"
                  "equivalent input within 25 %), II noisy, III no output", fontsize=10)
     fig.tight_layout()
     p2 = d / "vf_regions.png"
@@ -702,14 +731,6 @@ def cmd_vf(args):
 
 
 def add_parsers(sub):
-    p = sub.add_parser("vibration", help="seed 004 ch. 3: eq. 3.1 roots/factors, step and ramp "
-                       "responses with and without strain feedback K_θ (PNG)",
-                       description="Reproduces seed 004 eq. 3.1-3.5 and Figs. 3.3/3.5 by simulation "
-                                   "with the software V-F converter.")
-    p.add_argument("--out", default="out/analyze", help="directory for the PNG figures (default out/analyze)")
-    p.set_defaults(func=cmd_vibration)
-    q = sub.add_parser("vf", help="seed 004 ch. 2: V-F minimum-amplitude law (eq. 2.2), three-region "
-                       "map (Fig. 2.9) and the 3.6 noise claim, by simulation (PNG)",
-                       description="The software V-F converter's dead region and regions, by simulation.")
-    q.add_argument("--out", default="out/analyze", help="directory for the PNG figures (default out/analyze)")
-    q.set_defaults(func=cmd_vf)
+    """Register ``vibration`` and ``vf`` under ``pmctl analyze`` (see :mod:`pmctl.tools.analysis.cli`)."""
+    from pmctl.tools.analysis.cli import add_vibration_parsers
+    add_vibration_parsers(sub)

@@ -20,7 +20,7 @@ Pipeline (pure functions; the CLI at the bottom is a thin layer):
    predictions recomputed; ``rms_after`` of finding k is cumulative over findings 1..k.
    Nonlinear parameters (backlash width, pitch period, lag τ, mode frequency/damping, step time)
    are refitted inside every training fold, so the held-out score includes their search.
-4. :func:`diagnose` returns the RECORDING.md §4 report (a dict) plus the locate summary;
+4. :func:`diagnose` returns the report of docs/diagnosis-report.md (a dict) plus the locate summary;
    :func:`format_text` renders it, ``pmctl.tools.twin.plots`` draws it.
 """
 
@@ -37,6 +37,7 @@ import numpy as np
 from pmctl.core import kinematics as kin
 from pmctl.tools.twin import effects as fx
 from pmctl.tools.twin import nominal
+from pmctl.tools.twin.catalogue import DEFAULT_CAP
 from pmctl.tools.twin.effects import AXES, Context, Obs
 from pmctl.tools.twin.locate import channel_series, locate, noise_level, windows
 
@@ -46,7 +47,6 @@ MIN_DSSE = 30.0         # whitened: ~ 5 sigma of the held-out SSE difference of 
 REL_MIN = 0.04          # the effect must explain this fraction of its channels' residual energy
 MIN_PEAK = 1.5         # ... and reach 1.5 x noise on at least 1 % of its samples
 MAX_FINDINGS = 6
-DEFAULT_CAP = 10000
 
 
 
@@ -301,7 +301,20 @@ def _fmt_um(mm):
     return f"{mm * 1000:.1f} µm" if abs(mm) < 1 else f"{mm:.3f} mm"
 
 
-def _evidence(ev, ctx, loc, explained):
+def _evidence(ev, ctx, loc, explained, channels=(), beyond_noise=False):
+    """One or two sentences; ``explained`` is the share of the residual energy (whitened) the
+    effect removes from its channels on held-out samples."""
+    text = _evidence_core(ev, ctx, loc, explained)
+    chans = ", ".join(channels[:4]) + (" ..." if len(channels) > 4 else "")
+    if chans:
+        text = text.rstrip(".") + f" (channels {chans})."
+    if beyond_noise:
+        text += (" That is more than the excess over the estimated noise: part of what the WHERE table "
+                 "counted as noise is this effect (see its rms after).")
+    return text
+
+
+def _evidence_core(ev, ctx, loc, explained):
     c, p = ev["cand"], ev["fit"].params
     pct = f"{100 * explained:.0f} %"
     eff = c.effect
@@ -368,6 +381,10 @@ def _finding(ev, ctx, y_before, y0, y_after_cum, loc_before):
     sse_a = float(r_after[m] @ r_after[m])
     excess = max(sse_b - m.sum(), 1e-12)
     explained = min(max((sse_b - sse_a) / excess, 0.0), 1.0)
+    # for the text: the share of the residual energy removed, and whether that is more than the
+    # excess over the estimated noise (then part of what was counted as noise was this effect)
+    share = min(max((sse_b - sse_a) / max(sse_b, 1e-12), 0.0), 1.0)
+    beyond_noise = (sse_b - sse_a) > 1.5 * excess
     # where: spans where the effect's contribution exceeds 2 x noise
     tt = ctx.t[o.row]
     pred = np.abs(f.pred)
@@ -380,7 +397,7 @@ def _finding(ev, ctx, y_before, y0, y_after_cum, loc_before):
             "where": {"channels": aff, "time_windows_s": [[round(a, 3), round(b, 3)] for a, b in tw],
                       "direction_dependent": c.effect == "backlash",
                       "frequency_hz": _r(f.params["freq_hz"]) if c.effect == "resonance" else None},
-            "evidence": _evidence(ev, ctx, loc_before, explained),
+            "evidence": _evidence(ev, ctx, loc_before, share, aff, beyond_noise),
             "rms_before": {k: _r(v) for k, v in _rms_by_channel(ctx, y0, aff).items()},
             "rms_after": {k: _r(v) for k, v in _rms_by_channel(ctx, y_after_cum, aff).items()},
             "heldout": True}
@@ -391,7 +408,7 @@ def _finding(ev, ctx, y_before, y0, y_after_cum, loc_before):
 
 def diagnose(columns: dict, machine, *, name="recording", progress=False,
              cap=DEFAULT_CAP) -> tuple[dict, dict]:
-    """Run the whole diagnosis. Returns (report per RECORDING.md §4, extras for text and plots)."""
+    """Run the whole diagnosis. Returns (report per docs/diagnosis-report.md, extras for text and plots)."""
     ctx = build_context(columns, machine, cap=cap)
     loc0 = locate(ctx)
     accepted, yfinal = select_effects(ctx, progress=progress)
@@ -416,10 +433,27 @@ def format_text(report, extras) -> str:
     ctx, loc = extras["ctx"], extras["locate"]
     L = [f"recording: {report['recording']}  ({len(ctx.t)} samples, {ctx.duration:.1f} s)", "",
          "WHERE the recording differs from the nominal twin", ""]
-    L.append(f"  {'channel':10s} {'samples':>8s} {'rms':>11s} {'noise':>11s} {'excess/noise':>12s}  windows (s)")
+    after = extras.get("locate_after", {}).get("channels", {}) if report["findings"] else {}
+    L.append(f"  {'channel':10s} {'samples':>8s} {'rms':>11s} {'noise':>11s} {'excess/noise':>12s}"
+             + (f" {'rms after':>11s}" if after else "") + "  windows (s)")
+    hidden = []
     for k, v in loc["channels"].items():
         win = ", ".join(f"{a:.1f}-{b:.1f}" for a, b in v["windows_s"][:3]) or "-"
-        L.append(f"  {k:10s} {v['n']:8d} {v['rms']:11.4g} {v['noise']:11.3g} {v['excess']:12.1f}  {win}")
+        col = ""
+        if after:
+            ra = after.get(k, {}).get("rms")
+            mark = ""
+            if ra is not None and v["noise"] > 0 and ra < 0.5 * v["noise"] <= v["rms"]:
+                mark = "*"
+                hidden.append(k)
+            col = f" {ra:10.4g}{mark or ' '}" if ra is not None else f" {'-':>11s}"
+        L.append(f"  {k:10s} {v['n']:8d} {v['rms']:11.4g} {v['noise']:11.3g} {v['excess']:12.1f}{col}  {win}")
+    if after:
+        L.append("  (noise: estimated from each channel's own residual; rms after: with the findings below)")
+    if hidden:
+        L.append(f"  * {', '.join(hidden)}: the findings bring the rms far below the estimated noise, so what "
+                 "looked like noise there is explained structure (e.g. a mode ringing faster than the "
+                 "noise estimate can tell from noise).")
     L.append("")
     L.append("  by axis (load-side equivalent seen by the tool; direction split; spectrum against screw position)")
     for ax, v in loc["axes"].items():
@@ -467,27 +501,91 @@ def format_text(report, extras) -> str:
 # ---------------------------------------------------------------- CLI
 
 def add_parser(sub):
-    p = sub.add_parser("diagnose", help="where and why a recording differs from the nominal twin",
-                       description="Locate the mismatch between a recording and the nominal twin, name the "
-                                   "physics it left out, fit it and show the held-out fit improve.")
-    p.add_argument("folder", help="recording folder (pmctl-recording/1)")
-    p.add_argument("--json", metavar="PATH", help="write the RECORDING.md §4 report here")
-    p.add_argument("--plots", metavar="DIR", help="write PNG plots here")
-    p.add_argument("--config", metavar="PATH", help="machine config (default: the one the recording names)")
-    p.add_argument("--cap", type=int, default=DEFAULT_CAP, help="max analysis samples per channel")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    p.set_defaults(func=_run)
-    return p
+    """Register ``diagnose`` (the registration lives in :mod:`pmctl.tools.twin.cli`, without numpy)."""
+    from pmctl.tools.twin.cli import add_diagnose_parser
+    return add_diagnose_parser(sub)
+
+
+def _display_name(folder: Path) -> str:
+    """How the report names a recording: its folder's name, with the parent's when the folder has a
+    generic name (``case-003/recording``, not ``recording``)."""
+    folder = Path(folder).absolute()
+    if folder.name.lower() in ("recording", "data", "rec", "") and folder.parent.name:
+        return f"{folder.parent.name}/{folder.name}"
+    return folder.name
+
+
+def find_recording(folder) -> Path:
+    """The recording folder a user meant: ``folder`` itself, or the one recording one or two levels
+    below it (``OUT/case-000`` holds ``recording/``). Raises InputError saying what is there."""
+    from pmctl.core.errors import InputError
+    from pmctl.core.recording import META_FILE, partial_path
+    folder = Path(folder)
+    if folder.is_file() and folder.name in (META_FILE, "data.csv"):
+        return folder.parent
+    if not folder.exists():
+        part = partial_path(folder)
+        if part.is_dir():
+            raise InputError(folder, None, f"no such folder, but {part} is there: the recording of a run that "
+                                           f"did not finish; diagnose it with: pmctl twin diagnose {part}")
+        raise InputError(folder, None, "no such folder")
+    if not folder.is_dir() or (folder / META_FILE).is_file():
+        return folder
+    found = sorted({p.parent for p in folder.glob(f"*/{META_FILE}")} | {p.parent for p in folder.glob(f"*/*/{META_FILE}")})
+    if len(found) == 1:
+        return found[0]
+    if found:
+        shown = ", ".join(str(p) for p in found[:5]) + (" ..." if len(found) > 5 else "")
+        raise InputError(folder, None, f"not a recording folder (no {META_FILE}); it holds {len(found)} "
+                                       f"recordings: {shown}; name one of them")
+    raise InputError(folder, None, f"not a recording folder: no {META_FILE} here or in its sub-folders")
+
+
+def plant_notes(report, meta) -> list[str]:
+    """Findings that are the recorded simulation's own physics: a resonance on chain i (or strain_i)
+    at the simulated plant's chain-mode frequency (recording.json ``run.plant``, written by
+    ``pmctl run`` on the sim backend). Each matching finding's evidence says so; returns the notes."""
+    run = meta.get("run") if isinstance(meta.get("run"), dict) else {}
+    plant = run.get("plant") if isinstance(run.get("plant"), dict) else {}
+    modes = plant.get("chain_mode_hz") or []
+    notes = []
+    for f in report["findings"]:
+        if f["effect"] != "resonance":
+            continue
+        tgt = str(f.get("axis") or f.get("channel") or "")
+        i = {"L1": 0, "L2": 1, "L3": 2, "strain_1": 0, "strain_2": 1, "strain_3": 2}.get(tgt)
+        fr = f["parameters"].get("freq_hz")
+        if i is None or i >= len(modes) or not fr:
+            continue
+        if abs(fr - modes[i]) <= 0.03 * modes[i]:
+            z = plant.get("chain_mode_damping_ratio") or []
+            zs = f", damping ratio {z[i]:g}" if i < len(z) else ""
+            note = (f"It matches the simulated plant's chain-{i + 1} mode ({modes[i]:.1f} Hz{zs}; "
+                    f"recording.json run.plant): expected, not a fault.")
+            f["evidence"] = f["evidence"] + " " + note
+            notes.append(f"{tgt}: {fr:g} Hz matches the simulated chain mode {modes[i]:.1f} Hz")
+    return notes
 
 
 def _run(args) -> int:
     from pmctl.core.config import load_machine
     from pmctl.core.recording import read_recording
-    rec = read_recording(args.folder)
+    folder = find_recording(args.folder)
+    if Path(folder) != Path(args.folder) and not Path(args.folder).is_file():
+        print(f"pmctl: {args.folder} holds one recording, in {folder}: diagnosing that", file=sys.stderr)
+    rec = read_recording(folder)
+    if rec.meta.get("complete") is False:
+        why = rec.meta.get("incomplete_reason") or "the run that wrote it did not finish"
+        print(f"pmctl: warning: {folder} is an incomplete recording ({why}); diagnosing the "
+              f"{rec.n} samples it holds", file=sys.stderr)
     machine = load_machine(args.config) if args.config else rec.machine
     prog = (not args.no_progress) and rec.n >= 100_000
-    report, extras = diagnose(rec.columns, machine, name=rec.name, progress=prog, cap=args.cap)
+    report, extras = diagnose(rec.columns, machine, name=_display_name(folder), progress=prog, cap=args.cap)
+    notes = plant_notes(report, rec.meta)
     print(format_text(report, extras))
+    if notes:
+        print("\n  Simulated recording: " + "; ".join(notes) + ". The findings are the simulation's flexible "
+              "chain modes (config/service.toml [hal.sim]), which the nominal twin does not model.")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(report, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")

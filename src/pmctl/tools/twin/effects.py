@@ -1,4 +1,4 @@
-"""Library of physical effects the nominal twin leaves out (RECORDING.md §3), as fit-able models.
+"""Library of physical effects the nominal twin leaves out (docs/diagnosis-report.md §2), as fit-able models.
 
 Every effect is a physical model with physical parameters, mapped through the machine's
 kinematics to the channels it touches:
@@ -587,7 +587,7 @@ class LostSteps(AxisSignal):
 
 
 class Resonance(Candidate):
-    """A lightly damped mode excited by the axis accelerations (base excitation, RECORDING.md §3).
+    """A lightly damped mode excited by the axis accelerations (base excitation, docs/diagnosis-report.md §2).
 
     Target an axis (load-side deflection of that axis, seen at the tool) or a channel (e.g. a
     strain gauge; excited by every moving axis, one gain each)."""

@@ -1,4 +1,4 @@
-"""The nominal quasi-static twin (RECORDING.md §2): what every channel of a recording should read.
+"""The nominal quasi-static twin (docs/diagnosis-report.md §1): what every channel of a recording should read.
 
 - drives ideal: ``enc_*`` = ``cmd_*``;
 - rigid links, nominal (config) geometry: platform pose = FK(chain lengths), tool tip in W and

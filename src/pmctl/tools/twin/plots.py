@@ -18,9 +18,17 @@ def _plt():
 
 
 def _top_channels(extras, k=4):
+    """The channels worth a panel: most excess over noise, or most changed by the findings (a fast
+    mode can hide inside the noise estimate and still be what the findings remove). Channels with
+    nothing in them (rms 0) come last."""
     loc = extras["locate"]["channels"]
-    order = sorted(loc, key=lambda c: loc[c]["excess"], reverse=True)
-    return order[:k]
+    after = extras.get("locate_after", {}).get("channels", {})
+
+    def score(c):
+        v = loc[c]
+        gain = (v["rms"] - after.get(c, {}).get("rms", v["rms"])) / v["noise"] if v["noise"] > 0 else 0.0
+        return (v["rms"] > 0, max(v["excess"], gain))
+    return sorted(loc, key=score, reverse=True)[:k]
 
 
 def write_plots(report, extras, out_dir) -> list[Path]:
@@ -44,7 +52,7 @@ def write_plots(report, extras, out_dir) -> list[Path]:
         ax.axhline(0, color="k", lw=0.5)
     axs[0, 0].legend(loc="upper right", markerscale=6, fontsize=8)
     axs[-1, 0].set_xlabel("t (s)")
-    fig.suptitle(f"{name}: residual (measured − predicted) before and after — {report['verdict']}")
+    fig.suptitle(f"recording {name}: residual (measured − predicted) before and after — {report['verdict']}")
     fig.tight_layout()
     p = out / "residual_before_after.png"
     fig.savefig(p, dpi=110)

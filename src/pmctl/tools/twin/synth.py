@@ -51,7 +51,7 @@ amplitude (not peak-to-peak); ``lost_steps`` ``offset_mm`` is added to the load-
 length_offsets_mm (true |C_i − A_i| = L_i + offset), ``base_joint_*`` move A_i by δr·e_i + δz·Z,
 ``tool_length_mm`` is added to l_t; ``compliance`` deflection = force / stiffness.
 
-Answer key (answer.json) — the RECORDING.md §4 names::
+Answer key (answer.json) — the names of the diagnosis report (docs/diagnosis-report.md)::
 
     {"case": "case-003", "recording": "recording", "run": "calibration", "seed": 1234,
      "effects": [{"effect": "backlash", "axis": "X", "parameters": {"width_mm": 0.012},
@@ -76,7 +76,6 @@ depend on the effects, so the same seed with and without effects gives the same 
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import time
@@ -91,11 +90,9 @@ from pmctl.core.errors import InputError
 from pmctl.core.kinematics import axis_from_roll_pitch, ik_batch, roll_pitch_from_axis
 from pmctl.core.recording import AXES, CMD, ENC, LOAD, STRAIN, TIP, TOOL, write_recording
 from pmctl.core.statics import chain_forces, strain_of_axial
+from pmctl.tools.twin.catalogue import EFFECTS, RUNS  # names shared with the command line
 from pmctl.tools.twin.nominal import pose_of_joints
 
-EFFECTS = ("geometry", "backlash", "pitch_error", "thermal_growth", "compliance", "servo_lag",
-           "resonance", "lost_steps", "sensor_gain", "sensor_offset")
-RUNS = ("raster", "circle", "calibration", "warmup")
 # Which runs make an effect observable (thermal needs minutes; compliance needs force changes).
 RUNS_FOR = {"thermal_growth": ("warmup",), "compliance": ("calibration",)}
 TEMP_CHANNELS = ("temp_screw1", "temp_screw2", "temp_screw3", "temp_screwX", "temp_screwY")
@@ -696,11 +693,13 @@ def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, mach
     return Case(cols, meta, answer)
 
 
-def write_case(out_dir, name: str, case: Case) -> Path:
+def write_case(out_dir, name: str, case: Case, *, overwrite=False) -> Path:
+    """OUT_DIR/name/recording/ and OUT_DIR/name/answer.json; an existing case is refused unless
+    ``overwrite``."""
     d = Path(out_dir) / name
     write_recording(d / "recording", case.columns, machine="prototype",
                     sample_rate_hz=case.meta["sample_rate_hz"], description=case.meta["description"],
-                    channel_notes=case.meta["channel_notes"])
+                    channel_notes=case.meta["channel_notes"], overwrite=overwrite)
     ans = {"case": name, "recording": "recording", **case.answer}
     (d / "answer.json").write_text(json.dumps(ans, indent=2, default=_jsonable) + "\n", encoding="utf-8")
     return d
@@ -726,8 +725,12 @@ def parse_effects(text: str) -> list[str] | str:
 
 def generate(out_dir, count=1, *, effects="random", seed=0, clean=False, max_effects=1, run=None,
              duration_s=None, rate_hz=None, progress=None, magnitude_scale=1.0,
-             noise_scale=1.0) -> list[Path]:
-    """Write ``count`` cases to OUT_DIR/case-NNN; returns their folders."""
+             noise_scale=1.0, overwrite=False) -> list[Path]:
+    """Write ``count`` cases to OUT_DIR/case-NNN; returns their folders. Existing cases are refused
+    (before anything is written) unless ``overwrite``."""
+    from pmctl.core.recording import check_target
+    for k in range(count):
+        check_target(Path(out_dir) / f"case-{k:03d}" / "recording", overwrite=overwrite)
     machine = load_machine()
     out = []
     for k in range(count):
@@ -743,7 +746,7 @@ def generate(out_dir, count=1, *, effects="random", seed=0, clean=False, max_eff
         case = synth_case(rng, names, run=run, duration_s=duration_s, rate_hz=rate_hz,
                           magnitude_scale=magnitude_scale, noise_scale=noise_scale,
                           machine=machine, seed=case_seed)
-        out.append(write_case(out_dir, f"case-{k:03d}", case))
+        out.append(write_case(out_dir, f"case-{k:03d}", case, overwrite=overwrite))
         if progress:
             progress(k, out[-1], case)
     return out
@@ -752,24 +755,9 @@ def generate(out_dir, count=1, *, effects="random", seed=0, clean=False, max_eff
 # ---------------------------------------------------------------- CLI
 
 def add_parser(sub):
-    p = sub.add_parser("synth", help="make recordings with concealed effects and separate answer keys",
-                       description="Write OUT_DIR/case-NNN/recording/ (pmctl-recording/1) and "
-                                   "OUT_DIR/case-NNN/answer.json (the hidden effects).")
-    p.add_argument("out_dir")
-    p.add_argument("--effects", default="random",
-                   help=f"comma list of catalogue effects hidden together in every case, or 'random' "
-                        f"(one per case). Catalogue: {', '.join(EFFECTS)}")
-    p.add_argument("--count", type=int, default=1)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--clean", action="store_true", help="no effects: noise only")
-    p.add_argument("--max-effects", type=int, default=1, help="with --effects random: up to K per case")
-    p.add_argument("--run", choices=RUNS, default=None, help="trajectory kind (default: one that shows the effects)")
-    p.add_argument("--duration", type=float, default=None, help="seconds (default 60; warmup 600)")
-    p.add_argument("--rate", type=float, default=None, help="log rate Hz (default 1000; warmup 100)")
-    p.add_argument("--magnitude-scale", type=float, default=1.0,
-                   help="make the hidden effects this many times stronger (<1: harder cases)")
-    p.add_argument("--noise-scale", type=float, default=1.0, help="multiply every measurement noise")
-    p.set_defaults(func=_cmd)
+    """Register ``synth`` (the registration lives in :mod:`pmctl.tools.twin.cli`, without numpy)."""
+    from pmctl.tools.twin.cli import add_synth_parser
+    return add_synth_parser(sub)
 
 
 def _cmd(args) -> int:
@@ -793,7 +781,7 @@ def _cmd(args) -> int:
     generate(args.out_dir, args.count, effects=eff, seed=args.seed, clean=args.clean,
              max_effects=args.max_effects, run=args.run, duration_s=args.duration, rate_hz=args.rate,
              magnitude_scale=args.magnitude_scale, noise_scale=args.noise_scale,
-             progress=progress)
+             progress=progress, overwrite=args.force)
     print(f"{args.count} case(s) in {time.perf_counter() - t0:.1f} s; answer keys are beside, not in, "
           f"each recording folder")
     return 0

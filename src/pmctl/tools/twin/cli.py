@@ -1,0 +1,56 @@
+"""Command-line registration of the twin tools (``pmctl twin diagnose|synth``), importable without
+numpy: each ``func`` imports its module only when it runs, so ``pmctl --help`` stays fast."""
+
+from __future__ import annotations
+
+from pmctl.interfaces.cli import lazy
+from pmctl.tools.twin.catalogue import DEFAULT_CAP, EFFECTS, RUNS
+
+
+def add_diagnose_parser(sub):
+    p = sub.add_parser("diagnose", help="where and why a recording differs from the nominal twin",
+                       description="Locate the mismatch between a recording and the nominal twin, name the "
+                                   "physics it left out, fit it and show the held-out fit improve. "
+                                   "The report and its JSON form are described in docs/diagnosis-report.md.")
+    p.add_argument("folder", help="recording folder (holding recording.json and data.csv); a folder with "
+                                  "one recording in a sub-folder is accepted too")
+    p.add_argument("--json", metavar="PATH", help="also write the report as JSON here (docs/diagnosis-report.md)")
+    p.add_argument("--plots", metavar="DIR", help="write PNG plots here")
+    p.add_argument("--config", metavar="PATH", help="machine config (default: the one the recording names)")
+    p.add_argument("--cap", type=int, default=DEFAULT_CAP,
+                   help=f"max analysis samples per channel (default {DEFAULT_CAP})")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=lazy("pmctl.tools.twin.diagnose:_run"))
+    return p
+
+
+def add_synth_parser(sub):
+    p = sub.add_parser("synth", help="make recordings with concealed effects and separate answer keys",
+                       description="Write OUT_DIR/case-NNN/recording/ (a recording, docs/recording.md) and "
+                                   "OUT_DIR/case-NNN/answer.json (the hidden effects, outside the recording), "
+                                   "to test the diagnosis blind. An existing case is refused unless --force.")
+    p.add_argument("out_dir", metavar="OUT_DIR", help="folder for the cases (created if missing)")
+    p.add_argument("--effects", default="random",
+                   help=f"comma list of catalogue effects hidden together in every case, or 'random' "
+                        f"(one per case). Catalogue: {', '.join(EFFECTS)}")
+    p.add_argument("--count", type=int, default=1, metavar="N", help="number of cases (default 1)")
+    p.add_argument("--seed", type=int, default=0, metavar="S",
+                   help="random seed: the same seed gives the same cases (default 0)")
+    p.add_argument("--clean", action="store_true", help="no effects: noise only")
+    p.add_argument("--max-effects", type=int, default=1, metavar="K",
+                   help="with --effects random: up to K distinct effects per case (default 1)")
+    p.add_argument("--run", choices=RUNS, default=None, help="trajectory kind (default: one that shows the effects)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="seconds (default 60; warmup 600)")
+    p.add_argument("--rate", type=float, default=None, metavar="HZ", help="log rate Hz (default 1000; warmup 100)")
+    p.add_argument("--magnitude-scale", type=float, default=1.0, metavar="F",
+                   help="make the hidden effects this many times stronger (<1: harder cases; default 1)")
+    p.add_argument("--noise-scale", type=float, default=1.0, metavar="F",
+                   help="multiply every measurement noise (default 1)")
+    p.add_argument("--force", action="store_true", help="replace cases that already exist in OUT_DIR")
+    p.set_defaults(func=lazy("pmctl.tools.twin.synth:_cmd"))
+    return p
+
+
+def add_parser(sub):
+    add_diagnose_parser(sub)
+    add_synth_parser(sub)
