@@ -283,6 +283,8 @@ int main(int argc, char **argv)
             }
         }
         sb_poll(&core, now_ns());
+        if (g_edges && core.state != SB_S_RUNNING && core.state != SB_S_DRAINING)
+            fflush(g_edges);         /* not stepping: the log on disk is complete */
     }
     board_event("exit", &core);
     if (g_edges)

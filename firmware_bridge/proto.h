@@ -17,7 +17,7 @@
 
 #define SB_SYNC 0x7E
 #define SB_FRAME_MIN 6
-#define SB_FRAME_MAX 128
+#define SB_FRAME_MAX 125   /* < SYNC: a SYNC byte is never a valid LEN, so "~~" resynchronises at once */
 #define SB_PAYLOAD_MAX (SB_FRAME_MAX - SB_FRAME_MIN)
 
 #define SB_PROTO_VERSION 1

@@ -2,7 +2,7 @@
 payload codecs (firmware_bridge/PROTOCOL.md; the bridge's C side is firmware_bridge/proto.c).
 
 Frame: ``SYNC(0x7E) LEN SEQ TYPE PAYLOAD[LEN-6] CRC_HI CRC_LO``; LEN is the whole frame length
-(6 .. 128); the CRC is CRC-16/CCITT-FALSE over LEN, SEQ, TYPE and the payload. Payload integers are
+(6 .. 125); the CRC is CRC-16/CCITT-FALSE over LEN, SEQ, TYPE and the payload. Payload integers are
 little-endian. Pure Python, no I/O: the backend (pmctl.hal.stepdir) owns the port.
 """
 
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 SYNC = 0x7E
 FRAME_MIN = 6
-FRAME_MAX = 128
+FRAME_MAX = 125        # < SYNC: a SYNC byte is never a valid LEN
 PAYLOAD_MAX = FRAME_MAX - FRAME_MIN
 PROTO_VERSION = 1
 MAGIC = b"PMSB"
@@ -235,3 +235,31 @@ def max_pulses(tick_ns: int, step_width_ns: int, dir_setup_ns: int, dir_change: 
     """Largest pulse count per tick the step width allows (the bridge's sb_max_pulses)."""
     span = tick_ns - (dir_setup_ns if dir_change else 0)
     return min(span // (2 * step_width_ns), 32767)
+
+
+# ---------------------------------------------------------------- the host build's edge log
+
+EDGE_DTYPE = [("t", "<u8"), ("tick", "<u4"), ("axis", "u1"), ("kind", "u1"), ("pad", "<u2")]
+EDGE_LOW, EDGE_HIGH, EDGE_DIR_NEG, EDGE_DIR_POS, EDGE_TICK = 0, 1, 2, 3, 4
+
+
+def read_edge_log(path):
+    """The host bridge's --edge-log: a numpy record array (t ns, tick, axis, kind)."""
+    import numpy as np
+    return np.fromfile(path, dtype=np.dtype(EDGE_DTYPE))
+
+
+def executed_steps(log):
+    """Signed steps per axis in an edge log (each rising edge counts in the direction last set;
+    the bridge starts with every direction positive)."""
+    import numpy as np
+    out = np.zeros(NAXES, np.int64)
+    for a in range(NAXES):
+        ev = log[(log["axis"] == a) & (log["kind"] != EDGE_LOW)]
+        sign = np.where(ev["kind"] == EDGE_DIR_NEG, -1, np.where(ev["kind"] == EDGE_DIR_POS, 1, 0))
+        # direction in force at each event: the last dir record at or before it (forward fill)
+        idx = np.where(sign != 0, np.arange(len(ev)), -1)
+        np.maximum.accumulate(idx, out=idx)
+        d = np.where(idx >= 0, sign[np.maximum(idx, 0)], 1)
+        out[a] = int(np.sum(d[ev["kind"] == EDGE_HIGH]))
+    return out

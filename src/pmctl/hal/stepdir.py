@@ -64,7 +64,7 @@ class StepDirOptions:
     prime_ticks: int = 2                 # ticks queued before stepping starts (1..queue_ticks)
     read_timeout_ms: float = 10.0        # read() blocks at most this long (only while the queue is full)
     link_timeout_ms: float = 30.0        # nothing valid from the bridge for this long: link lost
-    retransmit_ms: float = 4.0           # unacknowledged frame resent after this long
+    retransmit_ms: float = 4.0           # unacknowledged frame resent after at most this long (sooner: 3 round trips)
     max_retransmits: int = 8             # then the link is declared lost
     open_timeout_ms: float = 2000.0      # identify/configure/reset at open
     bridge_binary: str = ""              # host-pty: "" = firmware_bridge/build/bridge-host (made when stale)
@@ -507,21 +507,35 @@ class StepDirBackend(Backend):
         while True:
             self._check()
             now = time.monotonic()
-            if self.unacked and now - self.unacked[0].t > o.retransmit_ms / 1e3:
-                self._retransmit(now, f"no ack within {o.retransmit_ms:g} ms")
+            if self.unacked and now - self.unacked[0].t > self._rto():
+                self._retransmit(now, f"no ack within {self._rto() * 1e3:.1f} ms")
             s = self.status_last
             started = s.started if s is not None else 0
             if self.next_tick - started < o.queue_ticks and len(self.unacked) < 32:
                 break                                        # room for this tick's frame
             if now >= t_end:
-                raise self._timeout(f"the bridge's tick queue stayed full for {o.read_timeout_ms:g} ms "
-                                    f"(state {bp.STATE_NAMES.get(s.state, s.state) if s else '?'}, "
-                                    f"{self.next_tick - started} ticks waiting)")
-            self._pump(min(t_end - now, o.retransmit_ms / 1e3))
+                if self.unacked:
+                    u = self.unacked[0]
+                    why = (f"{len(self.unacked)} frames not acknowledged (the oldest, tick {u.tick}, sent "
+                           f"{u.tries + 1} times; the bridge counted {s.rx_bad if s else '?'} bad frames): "
+                           f"link corrupted or lost")
+                else:
+                    why = (f"the bridge's tick queue stayed full for {o.read_timeout_ms:g} ms "
+                           f"(state {bp.STATE_NAMES.get(s.state, s.state) if s else '?'}, "
+                           f"{self.next_tick - started} ticks waiting)")
+                raise self._timeout(why)
+            self._pump(min(t_end - now, self._rto() / 2))
         if time.monotonic() - self.t_rx > o.link_timeout_ms / 1e3:
             raise self._timeout(f"nothing from the bridge for {o.link_timeout_ms:g} ms (link lost)")
         self._fb.enc[:] = self.cum[self.next_tick % len(self.cum)] / self.ppm
         return self._fb
+
+    def _rto(self) -> float:
+        """Retransmit timeout, s: 3 smoothed round trips + 0.5 ms, within 1 ms .. retransmit_ms."""
+        cap = self.opt.retransmit_ms / 1e3
+        if self.srtt is None:
+            return cap
+        return min(cap, max(0.001, 3 * self.srtt + 0.0005))
 
     def _timeout(self, why) -> BridgeFault:
         e = self._host_fault(why)

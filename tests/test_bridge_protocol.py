@@ -1,0 +1,114 @@
+"""The step/dir bridge's framing, both sides: the Python framer/parser (pmctl.hal.bridge_protocol)
+and the C parser (firmware_bridge/proto.c, run through the parser-harness program) must find the
+same frames in the same byte streams, resynchronise after garbage and never accept a corrupted
+frame."""
+
+import subprocess
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from pmctl.hal import bridge_protocol as bp
+from pmctl.hal.stepdir import FIRMWARE_DIR, ensure_built
+
+frames_st = st.lists(st.tuples(st.integers(0, 255), st.integers(0, 255), st.binary(max_size=bp.PAYLOAD_MAX)),
+                     min_size=1, max_size=6)
+
+
+@pytest.fixture(scope="module")
+def harness():
+    ensure_built()
+    return FIRMWARE_DIR / "build" / "parser-harness"
+
+
+def c_parse(harness, data: bytes):
+    out = subprocess.run([str(harness)], input=data, capture_output=True, check=True).stdout.decode().split("\n")
+    frames = []
+    for line in out:
+        if line.startswith("F "):
+            _, seq, ty, *hexp = line.split(" ")
+            frames.append(bp.Frame(int(seq), int(ty), bytes.fromhex(hexp[0] if hexp else "")))
+        elif line.startswith("S "):
+            stats = tuple(int(x) for x in line.split()[1:])
+    return frames, stats
+
+
+def test_crc_check_value():
+    # CRC-16/CCITT-FALSE's catalogue check value
+    assert bp.crc16(b"123456789") == 0x29B1
+    assert bp.crc16_fast(b"123456789") == 0x29B1
+
+
+def test_frame_layout():
+    f = bp.frame(7, bp.T_TICK, bp.tick_payload(3, [1, -1, 200, -200, 0]))
+    assert f[0] == bp.SYNC and f[1] == len(f) == 6 + 14 and f[2] == 7 and f[3] == bp.T_TICK
+    assert (f[-2] << 8 | f[-1]) == bp.crc16(f[1:-2])
+
+
+@settings(max_examples=60, deadline=None)
+@given(frames_st, st.lists(st.binary(max_size=40), min_size=7, max_size=7))
+def test_python_parser_recovers_frames_between_garbage(frames, garbage):
+    stream = b""
+    want = []
+    for i, (seq, ty, pl) in enumerate(frames):
+        stream += garbage[i] + bp.frame(seq, ty, pl)
+        want.append(bp.Frame(seq, ty, pl))
+    # a stray SYNC in the garbage makes the parser wait for the length it claims (at most FRAME_MAX
+    # bytes), then drop it and rescan: trailing bytes let every candidate complete
+    stream += garbage[-1] + bytes(bp.FRAME_MAX)
+    got = bp.Parser().feed(stream)
+    # every real frame is found, in order (garbage could add a chance frame: a 1 in 65536 CRC match)
+    it = iter(got)
+    assert all(any(g == w for g in it) for w in want)
+    # fed one byte at a time: the same frames
+    p = bp.Parser()
+    one = [f for b in stream for f in p.feed(bytes([b]))]
+    assert one == got
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 255), st.integers(0, 255), st.binary(max_size=bp.PAYLOAD_MAX), st.data())
+def test_corrupted_frame_is_never_accepted(seq, ty, pl, data):
+    f = bytearray(bp.frame(seq, ty, pl))
+    # any change of one byte covered by the CRC (SEQ, TYPE, payload) or of the CRC itself
+    i = data.draw(st.integers(2, len(f) - 1))
+    x = data.draw(st.integers(1, 255))
+    f[i] ^= x
+    good = bp.frame(seq ^ 1, ty, pl)
+    got = bp.Parser().feed(bytes(f) + good + bytes(bp.FRAME_MAX))
+    assert got == [bp.Frame(seq ^ 1, ty, pl)]       # the bad one dropped, the next one found
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(frames_st, st.lists(st.binary(max_size=40), min_size=7, max_size=7), st.lists(st.integers(0, 10_000), max_size=3))
+def test_c_parser_agrees_with_python(harness, frames, garbage, flips):
+    stream = bytearray()
+    for i, (seq, ty, pl) in enumerate(frames):
+        stream += garbage[i] + bp.frame(seq, ty, pl)
+    stream += garbage[-1] + bytes(bp.FRAME_MAX)
+    for k in flips:                        # some corruption too
+        if stream:
+            stream[k % len(stream)] ^= 0x5A
+    stream = bytes(stream)
+    py = bp.Parser()
+    want = py.feed(stream)
+    got, (ok, bad, dropped) = c_parse(harness, stream)
+    assert got == want
+    assert (ok, bad) == (py.frames_ok, py.bad_frames)
+
+
+def test_status_and_ident_codecs_roundtrip():
+    import struct
+    payload = struct.pack("<BBHHHIII5i5iI3hHIIIBB", 2, 3, 0x06, 0x0220, 7, 100, 99, 104,
+                          1, -2, 3, -4, 2**31 - 1, 0, 0, -5, 0, 0, 1, 10, -20, 30, 4, 123456, 123000, 0, 0, 1)
+    s = bp.decode_status(bp.Frame(9, bp.T_STATUS, payload))
+    assert s.next_seq == 9 and s.state == bp.S_RUNNING and s.counters == (1, -2, 3, -4, 2**31 - 1)
+    assert s.not_executed[2] == -5 and s.adc == (10, -20, 30) and s.room == 1
+    assert "E-stop" in s.fault_text() and "drive alarm input (L2)" in s.fault_text()
+    with pytest.raises(ValueError):
+        bp.decode_status(bp.Frame(0, bp.T_STATUS, payload[:-1]))
+    with pytest.raises(ValueError, match="PMSB"):
+        bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, b"GRBL" + bytes(46)))
+    with pytest.raises(ValueError, match="protocol version 2"):
+        bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, b"PMSB" + struct.pack("<H", 2) + bytes(44)))

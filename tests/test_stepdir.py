@@ -1,0 +1,264 @@
+"""The `stepdir` backend against the real bridge: the C host build (firmware_bridge/) running as a
+process on a pty. Each test starts the process, drives it through pmctl.hal.stepdir, and checks what
+the bridge executed from its own counters and from its step-edge log."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+from pmctl import hal
+from pmctl.core.config import load_machine
+from pmctl.core.errors import ConfigError
+from pmctl.hal import bridge_protocol as bp
+from pmctl.hal.stepdir import BridgeFault, HalError, StepDirBackend, StepDirOptions, ensure_built
+from pmctl.motion.loop import ControlLoop, prepare
+from pmctl.motion.nc import NCParams, counts_of, initial_state
+from pmctl.motion.service_config import LoopConfig
+from stepdir_support import Bridge, per_tick_steps
+from test_loop import line_traj, rp
+
+M = load_machine()
+DT = 1e-3
+
+
+@pytest.fixture
+def bridge(tmp_path):
+    b = Bridge(tmp_path)
+    yield b
+    b.stop()
+
+
+def stream(be, pulses_list, *, stop_on_fault=True):
+    """Drives the backend as the loop does (read, then write) with the given per-tick pulses."""
+    sent = []
+    for p in pulses_list:
+        be.read()
+        be.write_pulses(p)
+        sent.append(np.asarray(p, np.int64))
+    return np.array(sent)
+
+
+# ---------------------------------------------------------------- the job path
+
+
+def test_a_job_through_the_loop_counts_every_commanded_pulse(bridge):
+    tr = line_traj([-8, -5, 3], [8, 5, 6], rp(4, -3), rp(-2, 4), 20.0, DT)
+    params = NCParams.from_machine(M, DT, kv=0.4 / DT)
+    tg = prepare(M, params, tr, DT, None)
+    c0 = counts_of(tg.q[0], params)
+    be = hal.create("stepdir", M, DT, bridge.options())
+    be.open(c0)
+    cfg = LoopConfig(rate_hz=1000.0, realtime=False, stall_timeout_s=5.0)
+    res = ControlLoop(M, be, params, tg, cfg, initial_state(M, c0), log=lambda m: None).run()
+    be.close()                              # runs out the bridge's queue and checks its counters
+    assert res.status == "done", res.reason
+    assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
+    s = bridge.status()
+    assert s.state == bp.S_IDLE and s.faults == 0
+    assert np.array_equal(s.counters, res.state.counts)          # the bridge's counters
+    steps = bp.executed_steps(bridge.edges())
+    assert np.array_equal(steps, res.pulses_sent)                 # the edges it emitted
+    assert np.abs(res.pulses_sent).sum() > 10_000                 # it did move
+
+
+def test_open_refuses_a_bridge_it_does_not_understand(tmp_path):
+    """A device that answers IDENTIFY with something else is not driven (here: a fake peer on a pty
+    that replies with a frame of the right type but another protocol's magic)."""
+    import pty
+    import threading
+    master, slave = pty.openpty()
+    name = os.ttyname(slave)
+    stop = threading.Event()
+
+    def peer():
+        p = bp.Parser()
+        while not stop.is_set():
+            try:
+                data = os.read(master, 256)
+            except OSError:
+                return
+            for f in p.feed(data):
+                if f.type == bp.T_IDENT:
+                    os.write(master, bp.frame(f.seq + 1, bp.T_IDENT_REPLY, b"GRBL" + bytes(46)))
+    t = threading.Thread(target=peer, daemon=True)
+    t.start()
+    be = StepDirBackend(M, DT, {"port": name, "open_timeout_ms": 500})
+    with pytest.raises(HalError, match="not a pmctl step/dir bridge"):
+        be.open(np.zeros(5, int))
+    stop.set()
+    os.close(slave)
+    os.close(master)
+
+
+# ---------------------------------------------------------------- faults on the line
+
+
+class Injector:
+    """Line faults on the host side of the link: a frame dropped, sent twice, with a corrupted CRC or
+    with noise bytes before it; received chunks with bytes flipped or lost."""
+
+    def __init__(self, seed, p_drop=0.03, p_dup=0.03, p_crc=0.03, p_noise=0.03, p_rx=0.03):
+        self.rng = np.random.default_rng(seed)
+        self.p = (p_drop, p_dup, p_crc, p_noise)
+        self.p_rx = p_rx
+        self.counts = dict(drop=0, dup=0, crc=0, noise=0, rx=0)
+
+    def tx(self, data: bytes) -> bytes:
+        r = self.rng.random(4)
+        if r[0] < self.p[0]:
+            self.counts["drop"] += 1
+            return b""
+        out = data
+        if r[2] < self.p[2]:
+            self.counts["crc"] += 1
+            b = bytearray(data)
+            b[-1 - int(self.rng.integers(0, 2))] ^= 1 + int(self.rng.integers(0, 255))
+            out = bytes(b)
+        if r[1] < self.p[1]:
+            self.counts["dup"] += 1
+            out = out + data
+        if r[3] < self.p[3]:
+            self.counts["noise"] += 1
+            out = bytes(self.rng.integers(0, 256, int(self.rng.integers(1, 12)), dtype=np.uint8)) + out
+        return out
+
+    def rx(self, data: bytes) -> bytes:
+        if data and self.rng.random() < self.p_rx:
+            self.counts["rx"] += 1
+            b = bytearray(data)
+            i = int(self.rng.integers(0, len(b)))
+            if self.rng.random() < 0.5:
+                b[i] ^= 0xFF
+            else:
+                del b[i:i + int(self.rng.integers(1, 20))]
+            return bytes(b)
+        return data
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_line_noise_drops_duplicates_and_bad_crcs_execute_every_step_exactly_once(bridge, seed):
+    inj = Injector(seed)
+    be = StepDirBackend(M, DT, bridge.options(max_retransmits=20), tx_filter=inj.tx, rx_filter=inj.rx)
+    c0 = np.array([100, -200, 300, -400, 500])
+    be.open(c0)
+    rng = np.random.default_rng(seed)
+    ticks = rng.integers(-150, 151, (1200, 5))
+    ticks[-10:] = 0
+    try:
+        stream(be, ticks)
+        be.close()
+        stopped = None
+    except BridgeFault as e:                  # the other allowed outcome: a controlled stop
+        stopped = e
+        be.close()
+    assert sum(inj.counts.values()) > 50       # the faults were really injected
+    log = bridge.edges()
+    per_tick = per_tick_steps(log)
+    starts = log[log["kind"] == bp.EDGE_TICK]["tick"]
+    assert len(np.unique(starts)) == len(starts)          # no tick started twice
+    if stopped is None:
+        assert sum(inj.counts.values()) > 150
+        assert be.stats["retransmits"] > 0 and be.stats["dup_acks"] > 0
+        # every tick executed exactly once, each with exactly its pulses
+        assert sorted(starts.tolist()) == list(range(len(ticks)))
+        for k, p in enumerate(ticks):
+            assert np.array_equal(per_tick.get(k, np.zeros(5)), p), k
+        assert np.array_equal(bridge.status().counters, c0 + ticks.sum(0))
+    else:
+        assert "not acknowledged" in str(stopped) or "link" in str(stopped), str(stopped)
+        executed = sum(per_tick.values(), np.zeros(5, np.int64))
+        assert stopped.counts is not None and np.array_equal(stopped.counts, c0 + executed), str(stopped)
+        for k, p in per_tick.items():          # whatever ran, ran as commanded, once
+            assert np.all(np.abs(p) <= np.abs(ticks[k]))
+
+
+def test_a_persistently_corrupted_link_ends_in_a_controlled_stop_with_exact_counters(bridge):
+    be = StepDirBackend(M, DT, bridge.options(max_retransmits=3))
+    be.open(np.zeros(5, int))
+    stream(be, [[50, 50, -50, 10, 0]] * 100)
+    be.tx_filter = lambda d: d[:-1] + bytes([d[-1] ^ 0x55])         # every CRC wrong from now on
+    with pytest.raises(BridgeFault, match="not acknowledged") as ei:
+        stream(be, [[50, 50, -50, 10, 0]] * 200)
+    be.close()
+    e = ei.value
+    assert "stopped the bridge" in str(e)
+    executed = bp.executed_steps(bridge.edges())
+    assert np.array_equal(e.counts, executed)
+    s = bridge.status()
+    assert s.state == bp.S_FAULT and s.faults & bp.F_HOST_STOP
+    assert s.rx_bad >= 3
+
+
+def test_a_tick_out_of_sequence_is_refused_and_stops(bridge):
+    be = StepDirBackend(M, DT, bridge.options())
+    be.open(np.zeros(5, int))
+    stream(be, [[20, 0, 0, 0, 0]] * 50)
+
+    def skip_index(d):                       # a host bug: tick index jumps by one (valid CRC)
+        if d[3] == bp.T_TICK:
+            f = bp.Parser().feed(d)[0]
+            k, *p = bp._TICK.unpack(f.payload)
+            return bp.frame(f.seq, f.type, bp.tick_payload(k + 1, p))
+        return d
+    be.tx_filter = skip_index
+    with pytest.raises(BridgeFault, match="protocol error|tick index out of order") as ei:
+        stream(be, [[20, 0, 0, 0, 0]] * 20)
+    be.close()
+    assert np.array_equal(ei.value.counts, bp.executed_steps(bridge.edges()))
+    s = bridge.status()
+    assert s.faults & bp.F_PROTOCOL
+    # stopped at once: the queue was dropped; executed + not executed = every tick sent
+    assert ei.value.counts[0] <= 50 * 20
+    assert s.counters[0] + s.not_executed[0] == 20 * be.next_tick
+
+
+# ---------------------------------------------------------------- inputs and the watchdog
+
+
+@pytest.mark.parametrize("line, reason, bit", [("estop 1", "E-stop input", bp.F_ESTOP),
+                                               ("alarm 3 1", r"drive alarm input \(X\)", bp.F_ALARM)])
+def test_estop_and_drive_alarm_stop_at_once_and_need_a_reset(bridge, line, reason, bit):
+    be = StepDirBackend(M, DT, bridge.options())
+    c0 = np.array([0, 1000, 0, -1000, 0])
+    be.open(c0)
+    ticks = np.tile([150, -150, 120, 90, -60], (3000, 1))
+    with pytest.raises(BridgeFault, match=reason) as ei:
+        for k, p in enumerate(ticks):
+            if k == 300:
+                bridge.ctl(line)
+            be.read()
+            be.write_pulses(p)
+    be.close()
+    e = ei.value
+    log = bridge.edges()
+    executed = bp.executed_steps(log)
+    assert np.array_equal(e.counts, c0 + executed)                  # host counters = what was executed
+    s = bridge.status()
+    assert s.state == bp.S_FAULT and s.faults & bit
+    # a stop in the middle of the stream: what was accepted and not executed is reported, exactly
+    assert np.any(np.array(s.not_executed) != 0)
+    # (every tick sent reached the bridge: accepted and then dropped by the stop, or refused after it)
+    sent = be.next_tick
+    assert np.array_equal(np.array(s.counters) + s.not_executed, c0 + ticks[:sent].sum(0))
+    # no step after the fault time
+    t_fault = s.fault_us * 1000
+    assert log[log["kind"] == bp.EDGE_HIGH]["t"].max() <= t_fault + 1000
+    # nothing moves until an explicit reset, and a reset is refused while the input is active
+    be2 = StepDirBackend(M, DT, bridge.options())
+    with pytest.raises(HalError, match="refused RESET"):
+        be2.open(s.counters)
+    bridge.ctl(line[:-1] + "0")
+    time.sleep(0.05)
+    be2 = StepDirBackend(M, DT, bridge.options())
+    be2.open(s.counters)
+    stream(be2, [[10, 0, 0, 0, 0]] * 20)
+    be2.close()
+    assert bridge.status().counters[0] == s.counters[0] + 200
