@@ -35,7 +35,10 @@ class Bridge:
         os.write(self._ctl, (line + "\n").encode())
 
     def options(self, **kw):
-        return {"port": self.port, **kw}
+        """Backend options for this bridge. The timeouts are generous: seven test processes share two
+        cores here, and these tests check what was executed, not how fast (benchmarks/ does that)."""
+        return {"port": self.port, "read_timeout_ms": 200.0, "link_timeout_ms": 500.0, "watchdog_ms": 1000.0,
+                **kw}
 
     def edges(self):
         self.flush()

@@ -377,6 +377,7 @@ class StepDirBackend(Backend):
         try:
             self.tx_filter = None         # the injected faults apply to the job, not to the stop
             self.rx_filter = None
+            self.unacked.clear()          # abandoned: the bridge's counters will say what ran
             t_end = time.monotonic() + max(self.opt.link_timeout_ms, 20.0) / 1e3
             data = bp.frame(self.seq, bp.T_STOP)
             last = 0.0
@@ -513,7 +514,7 @@ class StepDirBackend(Backend):
             started = s.started if s is not None else 0
             if self.next_tick - started < o.queue_ticks and len(self.unacked) < 32:
                 break                                        # room for this tick's frame
-            if now >= t_end:
+            if now >= t_end and self._pump() == 0:      # a last look: the host may have been descheduled
                 if self.unacked:
                     u = self.unacked[0]
                     why = (f"{len(self.unacked)} frames not acknowledged (the oldest, tick {u.tick}, sent "
@@ -524,6 +525,8 @@ class StepDirBackend(Backend):
                            f"(state {bp.STATE_NAMES.get(s.state, s.state) if s else '?'}, "
                            f"{self.next_tick - started} ticks waiting)")
                 raise self._timeout(why)
+            if now >= t_end:
+                continue
             self._pump(min(t_end - now, self._rto() / 2))
         if time.monotonic() - self.t_rx > o.link_timeout_ms / 1e3:
             raise self._timeout(f"nothing from the bridge for {o.link_timeout_ms:g} ms (link lost)")
