@@ -262,3 +262,191 @@ def test_estop_and_drive_alarm_stop_at_once_and_need_a_reset(bridge, line, reaso
     stream(be2, [[10, 0, 0, 0, 0]] * 20)
     be2.close()
     assert bridge.status().counters[0] == s.counters[0] + 200
+
+
+HOST = textwrap.dedent("""
+    import sys
+    import numpy as np
+    from pmctl.core.config import load_machine
+    from pmctl.hal.stepdir import StepDirBackend
+    be = StepDirBackend(load_machine(), 1e-3, {"port": sys.argv[1], "watchdog_ms": 50.0,
+                                               "read_timeout_ms": 500.0, "link_timeout_ms": 1000.0})
+    be.open(np.zeros(5, int))
+    k = 0
+    while True:
+        be.read()
+        be.write_pulses([100, -100, 50, 20, 0])
+        k += 1
+        if k == 300:
+            print("moving", flush=True)
+""")
+
+
+def test_host_killed_mid_move_the_bridge_stops_within_its_watchdog_time_and_says_so(bridge):
+    host = subprocess.Popen([sys.executable, "-c", HOST, bridge.port], stdout=subprocess.PIPE)
+    try:
+        assert host.stdout.readline().strip() == b"moving"
+        time.sleep(0.02)
+        host.send_signal(signal.SIGKILL)
+        host.wait()
+    finally:
+        if host.poll() is None:
+            host.kill()
+            host.wait()
+        host.stdout.close()
+    time.sleep(0.3)                                          # > the 50 ms watchdog
+    s = bridge.status()
+    assert s.state == bp.S_FAULT and s.faults == bp.F_WATCHDOG
+    assert "host timeout" in s.fault_text()
+    # latched at exactly the watchdog time after the last valid tick (bridge clock, us)
+    assert abs((s.fault_us - s.last_tick_rx_us) - 50_000) <= 1
+    log = bridge.edges()
+    rises = log[log["kind"] == bp.EDGE_HIGH]
+    assert rises["t"].max() <= s.last_tick_rx_us * 1000 + 1000 + 50_000_000   # nothing after the trip
+    # every tick it accepted was executed (the queue ran out before the trip), nothing else
+    assert s.done == s.next_tick > 300
+    assert np.array_equal(s.counters, np.array([100, -100, 50, 20, 0]) * s.next_tick)
+    assert np.array_equal(bp.executed_steps(log), s.counters)
+    assert s.not_executed == (0, 0, 0, 0, 0)
+
+
+def test_a_watchdog_trip_with_ticks_queued_reports_what_was_not_executed(bridge):
+    """Watchdog shorter than the queue (2 ms vs 4 queued ticks): the queued pulses are dropped and
+    reported. The host stops sending on purpose (a hung host)."""
+    be = StepDirBackend(M, DT, bridge.options(watchdog_ms=2.0, queue_ticks=4, prime_ticks=4))
+    be.open(np.zeros(5, int))
+    for k in range(4):                                       # fills the queue; stepping starts at 4
+        be.read()
+        be.write_pulses([40, 0, 0, 0, -40])
+    time.sleep(0.2)                                          # hung host
+    with pytest.raises(BridgeFault, match="watchdog") as ei:
+        be.read()
+    be.close()
+    s = bridge.status()
+    executed = bp.executed_steps(bridge.edges())
+    assert np.array_equal(ei.value.counts, executed) and np.array_equal(s.counters, executed)
+    assert np.array_equal(np.array(s.counters) + s.not_executed, [160, 0, 0, 0, -160])
+    assert s.not_executed[0] >= 40 and s.dropped_ticks >= 1      # 4 ms of ticks cannot run in 2 ms
+
+
+def _per_axis_tick(log, axis, tick):
+    sel = (log["axis"] == axis) & (log["tick"] == tick)
+    return log[sel]
+
+
+def test_edge_log_even_spacing_min_width_dir_setup_and_full_rate(bridge):
+    """From the bridge's own edge log: inside each tick the n steps sit at t0 + d + (2i+1)(T-d)/2n
+    (d = direction set-up when the direction changed), so the spacing is even to the nanosecond;
+    every pulse is high for the step width and low for at least as long; the direction changes at
+    the tick start, after the last pulse's falling edge and at least the set-up time before the next
+    rising edge; 200 pulses per 1 ms tick on every axis at once (200 kpulse/s per axis, 1 Mpulse/s in
+    total) fit inside their ticks."""
+    W, D, T = 2500, 5000, 1_000_000
+    be = StepDirBackend(M, DT, bridge.options(step_width_ns=W, dir_setup_ns=D))
+    be.open(np.zeros(5, int))
+    rng = np.random.default_rng(5)
+    ticks = np.concatenate([np.full((100, 5), 200), np.full((1, 5), -199), np.full((99, 5), -200),
+                            rng.integers(-199, 200, (200, 5)), np.zeros((5, 5), int)])
+    stream(be, ticks)
+    be.close()
+    log = bridge.edges()
+    t0s = {int(r["tick"]): int(r["t"]) for r in log[log["kind"] == bp.EDGE_TICK]}
+    assert sorted(t0s) == list(range(len(ticks)))
+    worst_dev = 0
+    for a in range(5):
+        ax = log[log["axis"] == a]
+        prev_fall = -1
+        for k, p in enumerate(ticks[:, a]):
+            ev = ax[ax["tick"] == k]
+            dirs = ev[(ev["kind"] == bp.EDGE_DIR_NEG) | (ev["kind"] == bp.EDGE_DIR_POS)]
+            r = ev[ev["kind"] == bp.EDGE_HIGH]["t"].astype(np.int64)
+            f = ev[ev["kind"] == bp.EDGE_LOW]["t"].astype(np.int64)
+            n = abs(int(p))
+            assert len(r) == len(f) == n
+            t0 = t0s[k]
+            d = 0
+            if len(dirs):
+                assert len(dirs) == 1 and int(dirs["t"][0]) == t0
+                assert (dirs["kind"][0] == bp.EDGE_DIR_POS) == (p > 0)
+                assert prev_fall <= t0                                # dir hold: after the last fall
+                d = D
+            if n == 0:
+                continue
+            assert r[0] - t0 >= d                                    # dir set-up (and first edge in the tick)
+            S = T - d
+            ideal = t0 + d + (2 * np.arange(n) + 1) * S / (2 * n)
+            dev = np.abs(r - ideal).max()
+            worst_dev = max(worst_dev, dev)
+            assert dev < 1.0                                         # even spacing, to the ns
+            assert np.all(f - r == W)                                # high time = step width
+            assert np.all(r[1:] - f[:-1] >= W)                       # low time >= step width
+            assert f[-1] <= t0 + T                                   # inside its tick
+            if k > 0 and prev_fall >= 0:
+                assert r[0] - prev_fall >= W
+            prev_fall = f[-1]
+    # the full-rate ticks: 200 steps per 1 ms on all five axes = 1 M steps/s, each axis 200 k/s
+    full = [k for k in range(len(ticks)) if np.all(np.abs(ticks[k]) == 200)]
+    assert len(full) == 199
+    for k in full:
+        ev = log[(log["tick"] == k) & (log["kind"] == bp.EDGE_HIGH)]
+        assert len(ev) == 1000 and ev["t"].max() - t0s[k] < T
+    assert np.array_equal(bp.executed_steps(log), ticks.sum(0))
+
+
+# ---------------------------------------------------------------- config and build
+
+
+def test_shipped_service_config_selects_the_host_pty_bridge_and_validates():
+    import tomllib
+    from pmctl.motion.service_config import load_service_config
+    table = tomllib.loads((hal.stepdir.FIRMWARE_DIR.parent / "config" / "service.toml").read_text())["hal"]["stepdir"]
+    opts = StepDirBackend.validate_options(table, "service.toml: hal.stepdir")
+    assert opts.port == "host-pty" and opts.step_width_ns == 2500 and opts.dir_setup_ns == 5000
+    assert load_service_config().backend in hal.BACKENDS
+
+
+@pytest.mark.parametrize("table, key, why", [
+    ({"port": 5}, "port", "string"),
+    ({"queue_ticks": 5}, "queue_ticks", "2 .. 4"),
+    ({"prime_ticks": 3, "queue_ticks": 2}, "prime_ticks", "1 .. 2"),
+    ({"watchdog_ms": 0}, "watchdog_ms", "1 .. 10000"),
+    ({"step_width_ns": 2.5}, "step_width_ns", "integer"),
+    ({"strain_ue_per_count": [1, 2]}, "strain_ue_per_count", "3 numbers"),
+    ({"watchdog_msec": 5}, "watchdog_msec", "unknown stepdir option"),
+])
+def test_bad_options_are_refused_at_load_with_file_key_and_reason(table, key, why):
+    with pytest.raises(ConfigError, match=f"svc.toml: hal.stepdir: {key}: .*{why}"):
+        StepDirBackend.validate_options(table, "svc.toml: hal.stepdir")
+
+
+def test_a_step_width_that_cannot_fit_the_tick_is_refused():
+    with pytest.raises(ConfigError, match="does not fit"):
+        StepDirBackend(M, 1e-4, {"step_width_ns": 40_000, "dir_setup_ns": 30_000})
+
+
+def test_missing_make_or_compiler_is_named(tmp_path, monkeypatch):
+    import shutil
+    fw = tmp_path / "firmware_bridge"
+    shutil.copytree(hal.stepdir.FIRMWARE_DIR, fw, ignore=shutil.ignore_patterns("build"))
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    with pytest.raises(HalError, match="'make' not found.*C compiler"):
+        ensure_built(fw)
+    bindir = tmp_path / "bin"
+    bindir.mkdir()
+    (bindir / "make").symlink_to(shutil.which("make", path="/usr/bin:/bin"))
+    monkeypatch.setenv("PATH", str(bindir))
+    monkeypatch.setenv("CC", "no-such-cc")
+    with pytest.raises(HalError, match="C compiler 'no-such-cc' not found"):
+        ensure_built(fw)
+
+
+def test_a_stale_binary_is_rebuilt(tmp_path):
+    import shutil
+    fw = tmp_path / "firmware_bridge"
+    shutil.copytree(hal.stepdir.FIRMWARE_DIR, fw, ignore=shutil.ignore_patterns("build"))
+    b = ensure_built(fw)
+    m0 = b.stat().st_mtime_ns
+    assert ensure_built(fw).stat().st_mtime_ns == m0            # up to date: not rebuilt
+    src = fw / "core.c"
+    os.utime(src, ns=(m0 + 10**9, m0 + 10**9))
+    assert ensure_built(fw).stat().st_mtime_ns > m0
