@@ -1,6 +1,7 @@
 /* board_host.c - the host board layer: runs the portable core as a Linux process on a pty.
  *
- *   bridge-host [--link-file PATH] [--edge-log PATH] [--control PATH] [--orphan-exit-ms N] [--quiet]
+ *   bridge-host [--link-file PATH] [--edge-log PATH] [--control PATH] [--orphan-exit-ms N]
+ *               [--rt-priority N] [--quiet]
  *
  * - Opens a pseudo-terminal (posix_openpt) and prints "PTY <slave path>" on stdout (and writes
  *   the path to --link-file); the host opens the slave as its serial port. The bridge keeps a
@@ -14,6 +15,8 @@
  * - --control: a FIFO (created if missing) taking text lines that set the simulated inputs:
  *   "estop 0|1", "alarm AXIS 0|1", "home AXIS 0|1", "adc CH COUNTS", "quit".
  *   The strain ADC channels read what was last set there (0 by default): no strain model.
+ * - --rt-priority N: asks for SCHED_FIFO priority N (a board has the CPU to itself; a process
+ *   shares it), and runs at normal priority with a note on stderr when that is not permitted.
  * - Exits on SIGTERM/SIGINT, on "quit", or --orphan-exit-ms after its parent process died
  *   (default 2000 ms: long enough for the watchdog to act and report).
  */
@@ -22,6 +25,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
+#include <sched.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -154,14 +158,14 @@ static int control_line(char *s)
 static void usage(void)
 {
     fprintf(stderr, "usage: bridge-host [--link-file PATH] [--edge-log PATH] [--control FIFO] "
-                    "[--orphan-exit-ms N] [--quiet]\n");
+                    "[--orphan-exit-ms N] [--rt-priority N] [--quiet]\n");
     exit(2);
 }
 
 int main(int argc, char **argv)
 {
     const char *link_file = NULL, *edge_path = NULL, *control_path = NULL;
-    long orphan_ms = 2000;
+    long orphan_ms = 2000, rt_prio = 0;
     int slave, ctl = -1, i;
     char *name;
     char cbuf[512];
@@ -180,6 +184,8 @@ int main(int argc, char **argv)
             control_path = argv[++i];
         else if (!strcmp(argv[i], "--orphan-exit-ms") && i + 1 < argc)
             orphan_ms = strtol(argv[++i], NULL, 10);
+        else if (!strcmp(argv[i], "--rt-priority") && i + 1 < argc)
+            rt_prio = strtol(argv[++i], NULL, 10);
         else if (!strcmp(argv[i], "--quiet"))
             g_quiet = 1;
         else
@@ -191,6 +197,13 @@ int main(int argc, char **argv)
     sigaction(SIGINT, &sa, NULL);
     signal(SIGPIPE, SIG_IGN);
 
+    if (rt_prio > 0) {
+        struct sched_param sp;
+        memset(&sp, 0, sizeof sp);
+        sp.sched_priority = (int)rt_prio;
+        if (sched_setscheduler(0, SCHED_FIFO, &sp) != 0 && !g_quiet)
+            fprintf(stderr, "bridge: SCHED_FIFO %ld not permitted (%s): normal priority\n", rt_prio, strerror(errno));
+    }
     g_master = posix_openpt(O_RDWR | O_NOCTTY);
     if (g_master < 0 || grantpt(g_master) != 0 || unlockpt(g_master) != 0 || !(name = ptsname(g_master))) {
         perror("bridge: posix_openpt");

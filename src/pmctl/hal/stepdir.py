@@ -62,15 +62,16 @@ class StepDirOptions:
     watchdog_ms: float = 50.0            # no valid tick for this long: the bridge stops and latches
     queue_ticks: int = 4                 # ticks the bridge may hold (2..4)
     prime_ticks: int = 2                 # ticks queued before stepping starts (1..queue_ticks)
-    read_timeout_ms: float = 10.0        # read() blocks at most this long (only while the queue is full)
-    link_timeout_ms: float = 30.0        # nothing valid from the bridge for this long: link lost
+    read_timeout_ms: float = 25.0        # read() blocks at most this long (only while the queue is full)
+    link_timeout_ms: float = 50.0        # nothing valid from the bridge for this long: link lost
     retransmit_ms: float = 4.0           # unacknowledged frame resent after at most this long (sooner: 3 round trips)
-    max_retransmits: int = 8             # then the link is declared lost
+    max_retransmits: int = 8             # and link_timeout_ms unacknowledged: the link is declared lost
     open_timeout_ms: float = 2000.0      # identify/configure/reset at open
     bridge_binary: str = ""              # host-pty: "" = firmware_bridge/build/bridge-host (made when stale)
     edge_log: str = ""                   # host-pty: file for the bridge's step-edge log ("" = none)
     control: str = ""                    # host-pty: FIFO for simulated inputs ("" = none)
     bridge_verbose: bool = False         # host-pty: let the bridge print its events on stderr
+    bridge_rt_priority: int = 51         # host-pty: SCHED_FIFO priority asked for the bridge (0 = normal)
     strain_ue_per_count: tuple = (0.01, 0.01, 0.01)   # strain ADC scale, microstrain per count
     strain_offset_counts: tuple = (0.0, 0.0, 0.0)     # ADC reading at zero strain
 
@@ -107,6 +108,7 @@ class StepDirOptions:
         integer("queue_ticks", 2, 4)
         integer("prime_ticks", 1, o.queue_ticks)
         integer("max_retransmits", 1, 100)
+        integer("bridge_rt_priority", 0, 99)
         number("watchdog_ms", 1.0, 10_000.0)
         number("read_timeout_ms", 0.1, 1000.0)
         number("link_timeout_ms", 1.0, 10_000.0)
@@ -159,10 +161,10 @@ def ensure_built(firmware_dir: Path = FIRMWARE_DIR) -> Path:
 
 
 class _Out:
-    __slots__ = ("seq", "data", "t", "tries", "type", "tick", "pulses")
+    __slots__ = ("seq", "data", "t", "t0", "tries", "type", "tick", "pulses")
 
     def __init__(self, seq, data, t, type_, tick=-1, pulses=None):
-        self.seq, self.data, self.t, self.tries, self.type = seq, data, t, 0, type_
+        self.seq, self.data, self.t, self.t0, self.tries, self.type = seq, data, t, t, 0, type_
         self.tick, self.pulses = tick, pulses
 
 
@@ -207,7 +209,7 @@ class StepDirBackend(Backend):
         binary = Path(o.bridge_binary) if o.bridge_binary else ensure_built()
         if not binary.is_file():
             raise HalError(f"step/dir bridge: {binary} not found")
-        cmd = [str(binary), "--orphan-exit-ms", "2000"]
+        cmd = [str(binary), "--orphan-exit-ms", "2000", "--rt-priority", str(o.bridge_rt_priority)]
         if o.edge_log:
             cmd += ["--edge-log", o.edge_log]
         if o.control:
@@ -278,10 +280,11 @@ class StepDirBackend(Backend):
     def _retransmit(self, now, why):
         for o in self.unacked:
             o.tries += 1
-            if o.tries > self.opt.max_retransmits:
+            if o.tries > self.opt.max_retransmits and now - o.t0 > self.opt.link_timeout_ms / 1e3:
                 raise self._host_fault(f"link lost: frame {o.seq} ({_TYPE_NAMES.get(o.type, o.type)}"
                                        + (f", tick {o.tick}" if o.tick >= 0 else "")
-                                       + f") not acknowledged after {self.opt.max_retransmits} retransmits ({why})")
+                                       + f") not acknowledged after {o.tries - 1} retransmits over "
+                                       f"{(now - o.t0) * 1e3:.0f} ms ({why})")
             o.t = now
             self.stats["retransmits"] += 1
             self._write(o.data)
