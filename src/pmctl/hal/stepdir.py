@@ -59,7 +59,7 @@ class StepDirOptions:
     baud: int = 1_000_000                # serial devices only
     step_width_ns: int = 2500            # minimum step pulse high time
     dir_setup_ns: int = 5000             # direction set-up before the first step edge
-    watchdog_ms: float = 50.0            # no valid tick for this long: the bridge stops and latches
+    watchdog_ms: float = 100.0           # no valid tick for this long: the bridge stops and latches
     queue_ticks: int = 4                 # ticks the bridge may hold (2..4)
     prime_ticks: int = 2                 # ticks queued before stepping starts (1..queue_ticks)
     read_timeout_ms: float = 25.0        # read() blocks at most this long (only while the queue is full)
@@ -406,8 +406,12 @@ class StepDirBackend(Backend):
     def _bridge_fault(self, s: bp.BridgeStatus) -> BridgeFault:
         self._dead = True
         in_flight = self.next_tick - s.next_tick
+        extra = ""
+        if s.faults & bp.F_WATCHDOG:
+            extra = (f" [the bridge had no valid tick for {(s.fault_us - s.last_tick_rx_us) / 1e3:.1f} ms; the host "
+                     f"sent its last tick frame {(time.monotonic() - self.t_send) * 1e3:.1f} ms ago]")
         return BridgeFault(
-            f"step/dir bridge stopped: {s.fault_text()} (tick {s.done} of {self.next_tick} sent); not executed: "
+            f"step/dir bridge stopped: {s.fault_text()}{extra} (tick {s.done} of {self.next_tick} sent); not executed: "
             f"{_axes(s.not_executed)} pulses over {s.dropped_ticks} ticks"
             + (f", plus {in_flight} ticks still in flight (refused)" if in_flight > 0 else ""), s.counters)
 
@@ -440,7 +444,7 @@ class StepDirBackend(Backend):
         except BaseException:
             self.close()
             raise
-        self.t_rx = time.monotonic()
+        self.t_rx = self.t_send = time.monotonic()
         self._open = True
 
     def _handshake(self, counts):
@@ -572,6 +576,7 @@ class StepDirBackend(Backend):
         self.cum[(k + 1) % n] = self.cum[k % n] + p
         self._send(bp.T_TICK, bp.tick_payload(k, p), tick=k, pulses=p)
         self.next_tick = k + 1
+        self.t_send = time.monotonic()
 
     def status(self):
         if self.fault is not None:

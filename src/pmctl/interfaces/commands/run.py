@@ -192,7 +192,7 @@ def run(args) -> int:
     traj = plan(job, plan_machine, dt, feed_override=args.feed_override, start=(st.tip, st.axis))
     targets = prepare(machine, params, traj, dt, counts0)
 
-    backend = hal.create(backend_name, machine, dt, svc.backend_options if backend_name == svc.backend else {})
+    backend = hal.create(backend_name, machine, dt, svc.backend_tables.get(backend_name, {}))
     backend.open(counts0)
     writer = CounterWriter(state_file, machine=machine.name) if state_file else None
     lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer)
