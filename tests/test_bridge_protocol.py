@@ -4,6 +4,9 @@ same frames in the same byte streams, resynchronise after garbage and never acce
 frame."""
 
 import subprocess
+import time
+
+import numpy as np
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -112,3 +115,47 @@ def test_status_and_ident_codecs_roundtrip():
         bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, b"GRBL" + bytes(46)))
     with pytest.raises(ValueError, match="protocol version 2"):
         bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, b"PMSB" + struct.pack("<H", 2) + bytes(44)))
+
+
+# ---------------------------------------------------------------- the live bridge under garbage
+
+_COMMANDS = {bp.T_IDENT, bp.T_CONFIG, bp.T_RESET, bp.T_TICK, bp.T_END, bp.T_STOP, bp.T_STATUS_REQ}
+
+
+@pytest.fixture(scope="module")
+def live_bridge(tmp_path_factory):
+    from stepdir_support import Bridge
+    b = Bridge(tmp_path_factory.mktemp("fuzz"))
+    yield b
+    b.stop()
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.one_of(
+    st.binary(min_size=1, max_size=200),                                        # line noise
+    st.builds(lambda s, t, p: bp.frame(s, t, p), st.integers(0, 255),           # valid CRC, unknown type
+              st.integers(0, 255).filter(lambda t: t not in _COMMANDS), st.binary(max_size=40)),
+    st.builds(lambda s, t, p: bp.frame(s, t, p), st.integers(0, 255),           # command, wrong length
+              st.sampled_from([bp.T_CONFIG, bp.T_RESET, bp.T_TICK]), st.binary(max_size=12)),
+), min_size=1, max_size=12))
+def test_the_running_bridge_survives_garbage_and_executes_none_of_it(live_bridge, chunks):
+    import serial
+    with serial.Serial(live_bridge.port, timeout=0) as s:
+        s.write(bp.frame(0, bp.T_IDENT))
+        for c in chunks:
+            s.write(c)
+        s.write(bytes(bp.FRAME_MAX))              # let any half candidate complete and be dropped
+        p = bp.Parser()
+        s.write(bp.frame(0, bp.T_IDENT))          # still answers, and understands
+        t_end = time.monotonic() + 2
+        ident = None
+        while ident is None and time.monotonic() < t_end:
+            for f in p.feed(s.read(4096)):
+                if f.type == bp.T_IDENT_REPLY:
+                    ident = bp.decode_ident(f)
+            time.sleep(0.002)
+        assert ident is not None and ident.board == "host-pty"
+    st_ = live_bridge.status()
+    assert st_.state in (bp.S_IDLE, bp.S_FAULT) and st_.started == 0 and st_.counters == (0, 0, 0, 0, 0)
+    log = live_bridge.edges()
+    assert not np.any(log["kind"] == bp.EDGE_HIGH)
