@@ -315,6 +315,11 @@ static uint8_t do_reset(struct sb_core *c, const struct sb_frame *f)
         c->counters[i] = (int32_t)sb_get_u32(f->payload + 4 * i);
         c->not_executed[i] = 0;
     }
+    for (i = 0; i < SB_NAXES; i++) {     /* direction outputs to + : the host knows where they are */
+        if (c->ax[i].dir != 1)
+            board_dir((uint8_t)i, 1, c->now, 0);
+        c->ax[i].dir = 1;
+    }
     c->dropped_ticks = 0;
     c->started = c->done = c->next_tick = 0;
     c->underruns = 0;

@@ -450,3 +450,16 @@ def test_a_stale_binary_is_rebuilt(tmp_path):
     src = fw / "core.c"
     os.utime(src, ns=(m0 + 10**9, m0 + 10**9))
     assert ensure_built(fw).stat().st_mtime_ns > m0
+
+
+def test_more_pulses_than_a_tick_holds_are_not_sent_and_stop_cleanly(bridge):
+    be = StepDirBackend(M, DT, bridge.options())
+    be.open(np.zeros(5, int))
+    stream(be, [[200, 0, 0, 0, 0]] * 20)                 # 200 per 1 ms: the most at 2.5 us
+    with pytest.raises(BridgeFault, match="200 pulses on L1 in one tick exceed the 199 .* after a direction change"):
+        stream(be, [[-200, 0, 0, 0, 0]])                  # reversing costs the 5 us set-up: 199 fit
+    be.close()
+    s = bridge.status()
+    assert s.faults == bp.F_HOST_STOP                    # the host stopped it; the bad tick never left
+    assert s.counters[0] == bp.executed_steps(bridge.edges())[0]
+    assert s.counters[0] + s.not_executed[0] == 4000     # what was queued at the stop is reported

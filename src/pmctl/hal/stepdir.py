@@ -434,6 +434,7 @@ class StepDirBackend(Backend):
         self.base = None
         self.next_tick = 0
         self.cum = np.zeros((64, 5), np.int64)
+        self._dir = np.ones(5, np.int64)          # direction per axis as the bridge will have it (RESET: +)
         self._ident_frame = None
         self._fb.seq = 0
         try:
@@ -566,11 +567,17 @@ class StepDirBackend(Backend):
         if self._dead or not self._open:
             raise HalError("step/dir bridge: not running")
         p = np.asarray(pulses, np.int64)
-        if np.any(np.abs(p) > self.max_step):
-            i = int(np.argmax(np.abs(p)))
+        a = np.abs(p)
+        sg = np.sign(p)
+        # the bridge's limit: one pulse fewer when the direction changes (set-up time)
+        rev = (sg != 0) & (sg != self._dir)
+        lim = np.where(rev, self.max_step_rev, self.max_step)
+        if np.any(a > lim):
+            i = int(np.argmax(a - lim))
             raise self._host_fault(f"{abs(int(p[i]))} pulses on {bp.AXES[i]} in one tick exceed the "
-                                   f"{self.max_step} a {self.tick_ns} ns tick holds at a {self.opt.step_width_ns} ns "
-                                   f"step width; not sent")
+                                   f"{int(lim[i])} a {self.tick_ns} ns tick holds at a {self.opt.step_width_ns} ns "
+                                   f"step width" + (" after a direction change" if rev[i] else "") + "; not sent")
+        self._dir = np.where(sg != 0, sg, self._dir)
         k = self.next_tick
         n = len(self.cum)
         self.cum[(k + 1) % n] = self.cum[k % n] + p
