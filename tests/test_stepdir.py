@@ -463,3 +463,19 @@ def test_more_pulses_than_a_tick_holds_are_not_sent_and_stop_cleanly(bridge):
     assert s.faults == bp.F_HOST_STOP                    # the host stopped it; the bad tick never left
     assert s.counters[0] == bp.executed_steps(bridge.edges())[0]
     assert s.counters[0] + s.not_executed[0] == 4000     # what was queued at the stop is reported
+
+
+def test_a_lost_link_is_a_controlled_stop_that_says_the_position_is_unknown(bridge):
+    """The bridge process dies mid-move (a pulled USB cable looks the same to the host): the host
+    cannot learn what was executed, and says so instead of guessing."""
+    be = StepDirBackend(M, DT, bridge.options(link_timeout_ms=100.0, read_timeout_ms=100.0))
+    be.open(np.zeros(5, int))
+    stream(be, [[30, 0, 0, 0, 0]] * 50)
+    bridge.proc.kill()
+    bridge.proc.wait()
+    with pytest.raises(HalError) as ei:
+        stream(be, [[30, 0, 0, 0, 0]] * 500)
+    be.close()
+    msg = str(ei.value)
+    assert "unknown" in msg and "watchdog stops it" in msg, msg
+    assert getattr(ei.value, "counts", None) is None        # the loop keeps its commanded counters
