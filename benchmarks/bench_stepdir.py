@@ -12,6 +12,8 @@ a tick holds on all five axes (1 ms: 200 per axis = 200 kpulse/s per axis, 1 Mpu
 - host cost: wall time of read() + write_pulses() per tick, and the host process's CPU time per
   tick (user + system) over the run, as a share of one core;
 - bridge: its CPU time over the run (it computes every step edge and writes the edge log);
+- spacing: from the edge log, how far rising edges sit from their ideal even spacing, and the
+  shortest high and low times;
 - rate held: from the edge log, the steps per second over the run and whether every tick started
   exactly one period after the previous one (no underrun: the host kept the queue fed).
 Prints medians, p99s and the load average; asserts nothing. On the host build the step edges are
@@ -84,6 +86,7 @@ def run(rate: float, seconds: float, tmp: str, bridge_prio: int, measure_rtt: bo
     steps_full = int(np.sum(log[(log["kind"] == bp.EDGE_HIGH)]["tick"] < full))
     per_axis = np.array([np.sum((rises["axis"] == a) & (rises["tick"] < full)) for a in range(5)])
     rtt = rtt[np.isfinite(rtt)] / 1e3
+    spacing = edge_figures(log, be.tick_ns, min(full, 300))
     os.unlink(log_path)
     return {"rate": rate, "ticks": n, "pulses_per_tick": int(be.max_step),
             "rtt_med": np.median(rtt) if len(rtt) else np.nan,
@@ -94,7 +97,31 @@ def run(rate: float, seconds: float, tmp: str, bridge_prio: int, measure_rtt: bo
             "bridge_cpu_s": (ruc.ru_utime + ruc.ru_stime) - (rc0.ru_utime + rc0.ru_stime), "underruns": underruns,
             "steps_per_s": steps_full / (t_full / 1e9), "axis_min_per_s": per_axis.min() / (t_full / 1e9),
             "gap_max_us": gaps[:full].max() / 1e3 if len(gaps) else float("nan"),
-            "gaps_exact": bool(np.all(gaps[:full - 1] == period)), "retransmits": be.stats["retransmits"]}
+            "gaps_exact": bool(np.all(gaps[:full - 1] == period)), "retransmits": be.stats["retransmits"],
+            **spacing}
+
+
+def edge_figures(log, tick_ns: int, n_ticks: int) -> dict:
+    """From the edge log, over the first n_ticks: the largest deviation of a rising edge from its
+    ideal place t0 + (2i+1) T / 2n (no direction changes in this run), and the shortest high and
+    low times."""
+    t0 = {int(r["tick"]): int(r["t"]) for r in log[log["kind"] == bp.EDGE_TICK]}
+    dev, hi, lo = 0.0, np.inf, np.inf
+    for a in range(5):
+        ax = log[(log["axis"] == a) & (log["tick"] < n_ticks)]
+        for k in range(n_ticks):
+            ev = ax[ax["tick"] == k]
+            r = ev[ev["kind"] == bp.EDGE_HIGH]["t"].astype(np.int64)
+            f = ev[ev["kind"] == bp.EDGE_LOW]["t"].astype(np.int64)
+            n = len(r)
+            if n == 0 or k not in t0:
+                continue
+            ideal = t0[k] + (2 * np.arange(n) + 1) * tick_ns / (2 * n)
+            dev = max(dev, float(np.abs(r - ideal).max()))
+            hi = min(hi, float((f - r).min()))
+            if n > 1:
+                lo = min(lo, float((r[1:] - f[:-1]).min()))
+    return {"edge_dev_ns": dev, "high_min_ns": hi, "low_min_ns": lo, "edge_ticks": n_ticks}
 
 
 def main():
@@ -123,6 +150,8 @@ def main():
                   f"(wake-up lateness median {o['late_med']:.0f} us, p99 {o['late_p99']:.0f} us)")
             print(f"  bridge CPU: {o['bridge_cpu_s']:.2f} s over the {a.seconds:g} s run "
                   f"({100 * o['bridge_cpu_s'] / a.seconds:.1f} % of one core, edge log included)")
+            print(f"  edge log, first {o['edge_ticks']} ticks: rising edges within {o['edge_dev_ns']:.1f} ns of their "
+                  f"ideal even spacing; shortest high {o['high_min_ns']:.0f} ns, shortest low {o['low_min_ns']:.0f} ns")
             print(f"  steps held: {o['steps_per_s'] / 1e6:.3f} Mstep/s total, slowest axis "
                   f"{o['axis_min_per_s'] / 1e3:.1f} kstep/s; underruns {o['underruns']}; tick starts all exactly "
                   f"one period apart: {'yes' if o['gaps_exact'] else 'no'} (largest gap {o['gap_max_us']:.0f} us)")
