@@ -269,7 +269,7 @@ HOST = textwrap.dedent("""
     import numpy as np
     from pmctl.core.config import load_machine
     from pmctl.hal.stepdir import StepDirBackend
-    be = StepDirBackend(load_machine(), 1e-3, {"port": sys.argv[1], "watchdog_ms": 50.0,
+    be = StepDirBackend(load_machine(), 1e-3, {"port": sys.argv[1], "watchdog_ms": 200.0,
                                                "read_timeout_ms": 500.0, "link_timeout_ms": 1000.0})
     be.open(np.zeros(5, int))
     k = 0
@@ -283,9 +283,12 @@ HOST = textwrap.dedent("""
 
 
 def test_host_killed_mid_move_the_bridge_stops_within_its_watchdog_time_and_says_so(bridge):
-    host = subprocess.Popen([sys.executable, "-c", HOST, bridge.port], stdout=subprocess.PIPE)
+    err = open(bridge.edge_log.parent / "host.err", "w+")
+    host = subprocess.Popen([sys.executable, "-c", HOST, bridge.port], stdout=subprocess.PIPE, stderr=err)
     try:
-        assert host.stdout.readline().strip() == b"moving"
+        line = host.stdout.readline().strip()
+        err.seek(0)
+        assert line == b"moving", err.read()[-2000:]
         time.sleep(0.02)
         host.send_signal(signal.SIGKILL)
         host.wait()
@@ -294,15 +297,16 @@ def test_host_killed_mid_move_the_bridge_stops_within_its_watchdog_time_and_says
             host.kill()
             host.wait()
         host.stdout.close()
-    time.sleep(0.3)                                          # > the 50 ms watchdog
+        err.close()
+    time.sleep(0.6)                                          # > the 200 ms watchdog
     s = bridge.status()
     assert s.state == bp.S_FAULT and s.faults == bp.F_WATCHDOG
     assert "host timeout" in s.fault_text()
     # latched at exactly the watchdog time after the last valid tick (bridge clock, us)
-    assert abs((s.fault_us - s.last_tick_rx_us) - 50_000) <= 1
+    assert abs((s.fault_us - s.last_tick_rx_us) - 200_000) <= 1
     log = bridge.edges()
     rises = log[log["kind"] == bp.EDGE_HIGH]
-    assert rises["t"].max() <= s.last_tick_rx_us * 1000 + 1000 + 50_000_000   # nothing after the trip
+    assert rises["t"].max() <= s.last_tick_rx_us * 1000 + 1000 + 200_000_000  # nothing after the trip
     # every tick it accepted was executed (the queue ran out before the trip), nothing else
     assert s.done == s.next_tick > 300
     assert np.array_equal(s.counters, np.array([100, -100, 50, 20, 0]) * s.next_tick)
@@ -315,17 +319,19 @@ def test_a_watchdog_trip_with_ticks_queued_reports_what_was_not_executed(bridge)
     reported. The host stops sending on purpose (a hung host)."""
     be = StepDirBackend(M, DT, bridge.options(watchdog_ms=2.0, queue_ticks=4, prime_ticks=4))
     be.open(np.zeros(5, int))
-    for k in range(4):                                       # fills the queue; stepping starts at 4
-        be.read()
-        be.write_pulses([40, 0, 0, 0, -40])
-    time.sleep(0.2)                                          # hung host
     with pytest.raises(BridgeFault, match="watchdog") as ei:
+        for k in range(4):                                   # fills the queue; stepping starts at 4
+            be.read()
+            be.write_pulses([40, 0, 0, 0, -40])
+        time.sleep(0.2)                                      # hung host
         be.read()
     be.close()
     s = bridge.status()
     executed = bp.executed_steps(bridge.edges())
     assert np.array_equal(ei.value.counts, executed) and np.array_equal(s.counters, executed)
-    assert np.array_equal(np.array(s.counters) + s.not_executed, [160, 0, 0, 0, -160])
+    # (a host descheduled for 2 ms while filling the queue trips it earlier: the invariant holds)
+    sent = be.next_tick
+    assert np.array_equal(np.array(s.counters) + s.not_executed, np.array([40, 0, 0, 0, -40]) * sent)
     assert s.not_executed[0] >= 40 and s.dropped_ticks >= 1      # 4 ms of ticks cannot run in 2 ms
 
 
