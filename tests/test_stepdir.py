@@ -165,7 +165,7 @@ def test_line_noise_drops_duplicates_and_bad_crcs_execute_every_step_exactly_onc
     starts = log[log["kind"] == bp.EDGE_TICK]["tick"]
     assert len(np.unique(starts)) == len(starts)          # no tick started twice
     if stopped is None:
-        assert sum(inj.counts.values()) > 150
+        assert sum(inj.counts.values()) > 100
         assert be.stats["retransmits"] > 0 and be.stats["dup_acks"] > 0
         # every tick executed exactly once, each with exactly its pulses
         assert sorted(starts.tolist()) == list(range(len(ticks)))
