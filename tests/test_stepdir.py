@@ -18,7 +18,7 @@ from pmctl import hal
 from pmctl.core.config import load_machine
 from pmctl.core.errors import ConfigError
 from pmctl.hal import bridge_protocol as bp
-from pmctl.hal.stepdir import BridgeFault, HalError, StepDirBackend, StepDirOptions, ensure_built
+from pmctl.hal.stepdir import BridgeFault, HalError, StepDirBackend, ensure_built
 from pmctl.motion.loop import ControlLoop, prepare
 from pmctl.motion.nc import NCParams, counts_of, initial_state
 from pmctl.motion.service_config import LoopConfig
@@ -36,7 +36,7 @@ def bridge(tmp_path):
     b.stop()
 
 
-def stream(be, pulses_list, *, stop_on_fault=True):
+def stream(be, pulses_list):
     """Drives the backend as the loop does (read, then write) with the given per-tick pulses."""
     sent = []
     for p in pulses_list:

@@ -5,7 +5,6 @@ and the bridge's edge log holds exactly the commanded steps."""
 import subprocess
 import sys
 import tomllib
-from pathlib import Path
 
 import numpy as np
 
