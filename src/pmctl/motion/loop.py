@@ -352,12 +352,12 @@ class ControlLoop:
                     fb = be.read()
                 except HalTimeout as e:
                     status, reason = "fault", f"backend not answering: {e}"
-                    st = _halt(st, reason)
+                    st = _halt(_executed(st, e), reason)
                     comp[k] = mono() - t0
                     break
                 except HalError as e:
                     status, reason = "fault", f"backend fault: {e}"
-                    st = _halt(st, reason)
+                    st = _halt(_executed(st, e), reason)
                     comp[k] = mono() - t0
                     break
                 if self.stop_request and st.mode == RUN:
@@ -376,7 +376,7 @@ class ControlLoop:
                 except HalError as e:
                     # the backend did not take this tick's pulses: the counters must not claim them
                     status, reason = "fault", f"backend fault: {e}"
-                    st = _halt(replace(st, counts=st.counts - pulses), reason)
+                    st = _halt(_executed(replace(st, counts=st.counts - pulses), e), reason)
                     break
                 sent += pulses
                 target[k] = tg[:6]
@@ -425,6 +425,13 @@ class ControlLoop:
         timing = TimingStats(comp[:n].copy(), late[:n].copy(), ncns[:n].copy(), overruns, max_in_row, cfg.realtime, msgs)
         return LoopResult(status, reason, n, st, timing, 1.0 / cfg.rate_hz, counts[:n], enc[:n], strain[:n],
                           truth[:n], target[:n], sent, self.targets.job_start)
+
+
+def _executed(st: NCState, e: HalError) -> NCState:
+    """A backend that knows what the device executed (a step/dir bridge's counters) puts it on the
+    error as ``counts``: the controller's counters follow the device, not the commands."""
+    c = getattr(e, "counts", None)
+    return st if c is None else replace(st, counts=np.array(c, np.int64))
 
 
 def _halt(st: NCState, reason: str) -> NCState:

@@ -66,8 +66,13 @@ class ServiceConfig:
     loop: LoopConfig = field(default_factory=LoopConfig)
     nc: NCConfig = field(default_factory=NCConfig)
     backend: str = "sim"
-    backend_options: dict = field(default_factory=dict)   # [hal.<backend>] table, validated by the backend
     source: str = "<defaults>"
+    backend_tables: dict = field(default_factory=dict)    # every [hal.<name>] table (for --backend NAME)
+
+    @property
+    def backend_options(self) -> dict:
+        """The selected backend's [hal.<backend>] table (validated at load by the backend)."""
+        return self.backend_tables.get(self.backend, {})
 
 
 def _bool(s: _Section, key, default):
@@ -160,5 +165,5 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
     for k, v in h.items():           # validate every backend's options now, not at the first tick
         if isinstance(v, dict):
             validate_options(k, v, f"{path}: hal.{k}")
-    opts = dict(h.get(backend, {}))
-    return ServiceConfig(loop, nc, backend, opts, str(path))
+    tables = {k: dict(v) for k, v in h.items() if isinstance(v, dict)}
+    return ServiceConfig(loop, nc, backend, source=str(path), backend_tables=tables)

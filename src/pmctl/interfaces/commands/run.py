@@ -282,7 +282,7 @@ def run(args) -> int:
                      f"planning with that")
     traj = plan(job, plan_machine, dt, feed_override=args.feed_override, start=(st.tip, st.axis))
     targets = prepare(machine, params, traj, dt, counts0)
-    backend = hal.create(backend_name, machine, dt, svc.backend_options if backend_name == svc.backend else {})
+    backend = hal.create(backend_name, machine, dt, svc.backend_tables.get(backend_name, {}))
 
     # From here on a stop signal is a controlled stop: before the loop exists it is remembered and
     # the loop stops at its first tick (nothing moves), after that it asks the loop to decelerate.

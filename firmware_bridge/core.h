@@ -1,0 +1,105 @@
+/* core.h - the bridge's portable core: protocol handling, tick queue, step generator, counters,
+ * inputs and watchdog. No allocation, no board dependency beyond board.h. Portable C99.
+ *
+ * Use: sb_init(); feed received bytes with sb_rx(); call sb_poll(now) at least by
+ * sb_next_deadline() and whenever an input may have changed.
+ */
+#ifndef SB_CORE_H
+#define SB_CORE_H
+
+#include <stdint.h>
+
+#include "proto.h"
+
+#define SB_QUEUE_MAX 4
+
+#define SB_FW_VERSION "0.1.0"
+
+/* states */
+#define SB_S_IDLE 0       /* not armed (after power-up or END): no stepping, no watchdog */
+#define SB_S_ARMED 1      /* after RESET: waiting for the queue to hold `prime` ticks */
+#define SB_S_RUNNING 2
+#define SB_S_DRAINING 3   /* after END: runs out the queue, then IDLE */
+#define SB_S_FAULT 4      /* latched: nothing moves until RESET */
+
+/* fault bits (latched) */
+#define SB_F_WATCHDOG 0x01
+#define SB_F_ESTOP 0x02
+#define SB_F_ALARM 0x04
+#define SB_F_PROTOCOL 0x08
+#define SB_F_OVERSPEED 0x10
+#define SB_F_HOST_STOP 0x20
+
+/* why a STATUS was sent (its last-but-one byte) */
+#define SB_WHY_TICK 0     /* at a tick start: the counters hold exactly the ticks before it */
+#define SB_WHY_OTHER 1    /* fault, idle period, request: the counters may include part of a tick */
+
+struct sb_tick {
+    uint32_t index;
+    int16_t pulses[SB_NAXES];
+};
+
+struct sb_axis {
+    /* current tick */
+    uint32_t n;          /* pulses this tick */
+    uint32_t k;          /* rising edges emitted */
+    uint64_t t_first;    /* tick start + dir set-up (if the direction changed) */
+    uint64_t s;          /* span the pulses are spread over, ns */
+    uint64_t a;          /* offset of the next rising edge from t_first, ns (Bresenham) */
+    uint64_t e, q, r;    /* Bresenham remainder, quotient and remainder per step */
+    uint64_t fall;       /* pending falling edge time, 0 = none */
+    int8_t dir;          /* +1 / -1 last direction output */
+    int8_t sign;         /* this tick's direction */
+};
+
+struct sb_config {
+    uint32_t tick_ns;
+    uint32_t step_width_ns;
+    uint32_t dir_setup_ns;
+    uint32_t watchdog_us;
+    uint8_t queue;       /* ticks the queue may hold, 2..SB_QUEUE_MAX */
+    uint8_t prime;       /* ticks queued before stepping starts, 1..queue */
+};
+
+struct sb_core {
+    struct sb_config cfg;
+    struct sb_parser parser;
+    uint8_t state;
+    uint16_t faults;
+    uint8_t expect_seq;           /* next host SEQ */
+    uint8_t last_code;
+    /* queue */
+    struct sb_tick q[SB_QUEUE_MAX];
+    uint8_t q_head, q_n;
+    /* current tick */
+    int cur_active;
+    uint32_t cur_index;
+    uint64_t cur_start;
+    struct sb_axis ax[SB_NAXES];
+    int32_t counters[SB_NAXES];
+    int32_t not_executed[SB_NAXES];
+    uint32_t dropped_ticks;
+    uint32_t started, done;
+    uint32_t next_tick;           /* next tick index accepted */
+    uint16_t underruns;
+    uint16_t inputs;
+    uint64_t now;
+    uint64_t last_tick_rx;        /* time of the last valid tick (or RESET) */
+    uint64_t fault_time;
+    uint32_t status_every;        /* a STATUS at every n-th tick start */
+    uint64_t next_idle_status;
+};
+
+void sb_init(struct sb_core *c, uint64_t now_ns);
+void sb_rx(struct sb_core *c, const uint8_t *buf, uint32_t n, uint64_t now_ns);
+void sb_poll(struct sb_core *c, uint64_t now_ns);
+/* The latest time by which sb_poll must run again (tick boundary, watchdog, idle status). */
+uint64_t sb_next_deadline(const struct sb_core *c);
+/* Largest pulse count per tick the step width allows (with or without a direction change). */
+uint32_t sb_max_pulses(const struct sb_config *cfg, int dir_change);
+void sb_send_status(struct sb_core *c);
+
+/* Board-independent event hook for logging (the host build prints; a board may leave it empty). */
+void board_event(const char *what, const struct sb_core *c);
+
+#endif
