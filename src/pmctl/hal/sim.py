@@ -112,8 +112,17 @@ class SimBackend(Backend):
         self._phi = phi
         self._strain_per_mm = machine.strain_gain * o.mode_stiffness_N_per_mm   # microstrain per mm of y
         self._rng = np.random.default_rng(o.seed)
-        from pmctl.motion.nc import ModelFK
-        self._fk = ModelFK(machine)          # the load-side pose, for the gravity strain
+        # The per-tick path works on plain floats (5 axes: cheaper than numpy calls) and the
+        # compiled core's FK for the gravity strain (pmctl.motion.ncore).
+        self._ppm_l = [float(x) for x in self.ppm]
+        self._tau_on = bool(np.any(tau > 0))
+        self._tau_l = [float(x) for x in tau]
+        self._lag_l = [float(x) for x in self._lag]
+        self._ph = [[float(x) for x in (ph[0, 0], ph[0, 1], ph[1, 0], ph[1, 1])] for ph in phi]
+        self._spm_l = [float(x) for x in self._strain_per_mm]
+        self._n_enc = 5 if o.enc_noise_mm > 0 else 0
+        self._n_noise = self._n_enc + (3 if o.strain_noise_ue > 0 else 0)
+        self._noise, self._noise_i = [], 0
         self._fb = Feedback()
         self._fb.counts = np.zeros(5, np.int64)
         self._open = False
@@ -121,18 +130,21 @@ class SimBackend(Backend):
     # ---------------------------------------------------------------- Backend API
     def open(self, counts):
         self.counts = np.array(counts, dtype=np.int64)
-        self.cmd = self.counts / self.ppm          # commanded position, mm
-        self.motor = self.cmd.copy()               # motor-side position
-        self.vmotor = np.zeros(5)                  # motor velocity over the last tick
-        self.y = np.zeros(3)                       # load - motor deflection, chains
-        self.ydot = np.zeros(3)
+        ppm = self._ppm_l
+        cl = self.counts.tolist()
+        self._cmd = [cl[i] / ppm[i] for i in range(5)]      # commanded position, mm
+        self._motor = list(self._cmd)                       # motor-side position
+        self._vm = [0.0] * 5                                # motor velocity over the last tick
+        self._y = [0.0] * 3                                 # load - motor deflection, chains
+        self._yd = [0.0] * 3
         self.tick = 0
         self._fb.seq = 0
         self._open = True
         from pmctl.core.kinematics import forward_platform
+        from pmctl.motion.ncore import CompiledFK
         q = self.truth()
         P, R = forward_platform(q[:3], self.machine.geometry)
-        self._pose = (P.tolist(), R.tolist(), None, q)
+        self._fk = CompiledFK(self.machine, P, R, q)         # the load-side pose, for the gravity strain
         self._g_a = self._g_b = None            # last two exact (q, gravity strain) evaluations
         self._sample()
 
@@ -147,34 +159,36 @@ class SimBackend(Backend):
         return self._fb
 
     def write_pulses(self, pulses):
-        p = np.asarray(pulses)
-        self.counts += p
-        c_old = self.cmd
-        c_new = self.counts / self.ppm
-        v = (c_new - c_old) / self.dt
-        if self._tau.any():
-            tv = self._tau * v
-            m_new = c_new - tv + (self.motor - c_old + tv) * self._lag
+        self.counts += pulses
+        cl = self.counts.tolist()
+        ppm, dt = self._ppm_l, self.dt
+        c_old, motor = self._cmd, self._motor
+        c_new = [cl[i] / ppm[i] for i in range(5)]
+        if self._tau_on:
+            # first-order lag, exact for the ramp the command makes inside the tick
+            m_new = [0.0] * 5
+            for i in range(5):
+                tv = self._tau_l[i] * ((c_new[i] - c_old[i]) / dt)
+                m_new[i] = c_new[i] - tv + (motor[i] - c_old[i] + tv) * self._lag_l[i]
         else:
-            m_new = c_new
+            m_new = list(c_new)
         if self.tick == self.opt.lost_steps_at_tick:
-            m_new = m_new.copy()
             m_new[self.opt.lost_steps_axis] += self.opt.lost_steps_mm
-        vm = (m_new - self.motor) / self.dt
+        vm = [(m_new[i] - motor[i]) / dt for i in range(5)]
         if self.opt.flex:
-            yd = self.ydot - (vm[:3] - self.vmotor[:3])        # velocity jump of the motor frame
-            ph = self._phi
-            y = ph[:, 0, 0] * self.y + ph[:, 0, 1] * yd
-            self.ydot = ph[:, 1, 0] * self.y + ph[:, 1, 1] * yd
-            self.y = y
-        self.cmd, self.motor, self.vmotor = c_new, m_new, vm
+            y, yd0, vm0 = self._y, self._yd, self._vm
+            for i in range(3):
+                a, b, c, d = self._ph[i]
+                yd = yd0[i] - (vm[i] - vm0[i])          # velocity jump of the motor frame
+                y[i], yd0[i] = a * y[i] + b * yd, c * y[i] + d * yd
+        self._cmd, self._motor, self._vm = c_new, m_new, vm
         self.tick += 1
         self._sample()
 
     def truth(self):
-        q = self.motor.copy()
-        q[:3] += self.y
-        return q
+        """Load-side joints (mm): motor side plus the chains' deflection."""
+        m, y = self._motor, self._y
+        return np.array([m[0] + y[0], m[1] + y[1], m[2] + y[2], m[3], m[4]])
 
     def status(self):
         return Status(True, "")
@@ -184,38 +198,54 @@ class SimBackend(Backend):
 
     # ---------------------------------------------------------------- internals
     def _gravity_strain(self):
-        """Static strain of the platform's weight at the true (load-side) pose. Exact (FK warm-started,
-        one Newton step) every ``gravity_update_ticks`` ticks; in between extrapolated along the
-        motion from the last two exact values (the strain changes by ~0.1 microstrain per mm)."""
-        q = self.truth()
+        """Static strain of the platform's weight at the true (load-side) pose (list of 3). Exact (FK
+        warm-started with the predictor) every ``gravity_update_ticks`` ticks; in between
+        extrapolated along the motion from the last two exact values (the strain changes by ~0.1
+        microstrain per mm)."""
+        m, y = self._motor, self._y
+        q = [m[0] + y[0], m[1] + y[1], m[2] + y[2], m[3], m[4]]
         a, b = self._g_a, self._g_b
         n = self.opt.gravity_update_ticks
         if a is not None and n > 1 and self.tick % n:
             if b is None:
                 return a[1]
-            d = a[0] - b[0]
-            dd = float(d @ d)
+            qa, ga = a
+            qb, gb = b
+            d = [qa[i] - qb[i] for i in range(5)]
+            dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + d[3] * d[3] + d[4] * d[4]
             if dd <= 0.0:
-                return a[1]
-            return a[1] + (a[1] - b[1]) * (float((q - a[0]) @ d) / dd)
-        P, R, T, q0 = self._pose
-        pred = None if T is None else ((q - q0)[:3], T)
-        P, R, _, _, _ = self._fk.solve_l(q, P, R, pred)
-        T = self._fk.last_T
-        self._pose = (P, R, T, q)
-        g = np.array(self._fk.static_strain(R, T))
+                return ga
+            f = sum((q[i] - qa[i]) * d[i] for i in range(5)) / dd
+            return [ga[i] + (ga[i] - gb[i]) * f for i in range(3)]
+        fk = self._fk
+        fk.solve(np.array(q))
+        g = fk.static_strain().tolist()
         self._g_b, self._g_a = self._g_a, (q, g)
         return g
+
+    def _draw(self):
+        """Next row of Gaussian noise (encoders, then gauges), drawn from the seeded RNG in blocks."""
+        if self._noise_i >= len(self._noise):
+            self._noise = self._rng.standard_normal((512, self._n_noise)).tolist()
+            self._noise_i = 0
+        r = self._noise[self._noise_i]
+        self._noise_i += 1
+        return r
 
     def _sample(self):
         fb, o = self._fb, self.opt
         fb.seq += 1
         fb.counts[:] = self.counts
-        if o.enc_noise_mm > 0:
-            fb.enc[:] = self.motor + o.enc_noise_mm * self._rng.standard_normal(5)
+        nz = self._draw() if self._n_noise else None
+        if self._n_enc:
+            e, m = o.enc_noise_mm, self._motor
+            fb.enc[:] = [m[i] + e * nz[i] for i in range(5)]
         else:
-            fb.enc[:] = self.motor
-        s = self._strain_per_mm * self.y + self._gravity_strain()
+            fb.enc[:] = self._motor
+        g = self._gravity_strain()
+        spm, y = self._spm_l, self._y
+        s = [spm[i] * y[i] + g[i] for i in range(3)]
         if o.strain_noise_ue > 0:
-            s = s + o.strain_noise_ue * self._rng.standard_normal(3)
+            k, e = self._n_enc, o.strain_noise_ue
+            s = [s[i] + e * nz[k + i] for i in range(3)]
         fb.strain[:] = s

@@ -93,17 +93,14 @@ class CompiledState:
     NCState (``counts``, ``mode``, ``reason``) and the same mode-change methods, which change the
     buffers in place and return the handle. :meth:`snapshot` copies it out as an NCState."""
 
-    __slots__ = ("s", "n", "counts", "pulses", "reason", "_params")
+    __slots__ = ("s", "n", "counts", "pulses", "reason", "mode", "_params")
 
     def __init__(self, s: np.ndarray, n: np.ndarray, params: NCParams):
         self.s, self.n, self._params = s, n, params
         self.counts = n[_N_COUNTS:_N_COUNTS + 5]       # views: always current
         self.pulses = n[_N_PULSES:_N_PULSES + 5]
         self.reason = ""
-
-    @property
-    def mode(self) -> int:
-        return int(self.n[_N_MODE])
+        self.mode = int(n[_N_MODE])            # a copy of n[NC_N_MODE], kept in step by every change
 
     @property
     def iterations(self) -> int:
@@ -113,17 +110,17 @@ class CompiledState:
     def halted(self, reason):
         self.s[_S_QDOT:_S_QDOT + 5] = 0.0
         self.s[_S_ACC:_S_ACC + 5] = 0.0
-        self.n[_N_MODE] = _nc.HALTED
+        self.n[_N_MODE] = self.mode = _nc.HALTED
         self.reason = reason
         return self
 
     def stopping(self, reason):
-        self.n[_N_MODE] = _nc.STOPPING
+        self.n[_N_MODE] = self.mode = _nc.STOPPING
         self.reason = reason
         return self
 
     def done(self):
-        self.n[_N_MODE] = _nc.DONE
+        self.n[_N_MODE] = self.mode = _nc.DONE
         return self
 
     def uncounted(self, pulses):
@@ -148,6 +145,7 @@ class CompiledState:
             s[_S_T:_S_T + 18] = np.asarray(st.T, float).ravel()
             n[_N_HAS_QM] = 1
         self.reason = st.reason
+        self.mode = int(st.mode)
         return self
 
     def snapshot(self) -> NCState:
@@ -182,9 +180,10 @@ class CompiledNC:
         return self.handle.load(state)
 
     def step(self, state: CompiledState, target, feedback):
-        ev = self._step(target, feedback.enc, feedback.strain)
-        if ev:
-            state.reason = _reason(ev, self._ev, self.params)
+        r = self._step(target, feedback.enc, feedback.strain)      # 16 * event + mode
+        state.mode = r & 15
+        if r >= 16:
+            state.reason = _reason(r >> 4, self._ev, self.params)
         return state.pulses, state
 
 

@@ -101,7 +101,7 @@ static PyObject *Core_step(CoreObject *self, PyObject *const *args, Py_ssize_t n
     PyBuffer_Release(&t);
     PyBuffer_Release(&e);
     PyBuffer_Release(&g);
-    return PyLong_FromLong(ev);
+    return PyLong_FromLong((long)ev * 16 + (long)((int64_t *)self->nbuf.buf)[NC_N_MODE]);
 }
 
 /* fk(q[5], P[3], R[9], dL[3] or None, T0[18], tip[3], axis[3], J[30], T[18], ev[6]) -> iterations >= 0
@@ -172,7 +172,7 @@ static PyObject *Core_static_strain(CoreObject *self, PyObject *const *args, Py_
 
 static PyMethodDef Core_methods[] = {
     {"step", (PyCFunction)(void (*)(void))Core_step, METH_FASTCALL,
-     "step(target, enc, strain) -> event: one NC tick on the state buffers"},
+     "step(target, enc, strain) -> 16 * event + mode: one NC tick on the state buffers"},
     {"fk", (PyCFunction)(void (*)(void))Core_fk, METH_FASTCALL,
      "fk(q, P, R, dL, T0, tip, axis, J, T, ev) -> Newton iterations, or -event on failure"},
     {"static_strain", (PyCFunction)(void (*)(void))Core_static_strain, METH_FASTCALL,
