@@ -39,4 +39,13 @@ ext = Extension(
     libraries=["m"] if os.name == "posix" else [],
 )
 
-setup(ext_modules=[ext], cmdclass={"build_ext": BuildExt})
+plant = Extension(          # the loopback sim plant's tick (pmctl.hal.sim), with the core's FK
+    "pmctl.hal._simplant",
+    sources=["src/pmctl/hal/simplant.c", f"{NCORE}/ncore.c"],
+    depends=[f"{NCORE}/ncore.h"],
+    include_dirs=[NCORE],
+    extra_compile_args=ext.extra_compile_args,
+    libraries=ext.libraries,
+)
+
+setup(ext_modules=[ext, plant], cmdclass={"build_ext": BuildExt})

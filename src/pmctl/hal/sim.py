@@ -14,7 +14,8 @@ Per axis (L1, L2, L3, X, Y):
   force k * y of the flexible mode (microstrain, tension positive);
 - **measurement noise**: Gaussian on encoders (mm) and strain (microstrain), seeded RNG.
 
-The true tool tip is FK(load-side joints) (:meth:`truth` gives them). Fault injection for tests:
+The true tool tip is FK(load-side joints) (:meth:`truth` gives them). The per-tick step is C
+(simplant.c, built at install with the compiled NC core, whose FK it uses for the gravity strain). Fault injection for tests:
 a stall (``read`` blocks, then times out) and lost steps (the motor slips by a given amount).
 """
 
@@ -112,41 +113,57 @@ class SimBackend(Backend):
         self._phi = phi
         self._strain_per_mm = machine.strain_gain * o.mode_stiffness_N_per_mm   # microstrain per mm of y
         self._rng = np.random.default_rng(o.seed)
-        # The per-tick path works on plain floats (5 axes: cheaper than numpy calls) and the
-        # compiled core's FK for the gravity strain (pmctl.motion.ncore).
-        self._ppm_l = [float(x) for x in self.ppm]
-        self._tau_on = bool(np.any(tau > 0))
-        self._tau_l = [float(x) for x in tau]
-        self._lag_l = [float(x) for x in self._lag]
-        self._ph = [[float(x) for x in (ph[0, 0], ph[0, 1], ph[1, 0], ph[1, 1])] for ph in phi]
-        self._spm_l = [float(x) for x in self._strain_per_mm]
-        self._n_enc = 5 if o.enc_noise_mm > 0 else 0
-        self._n_noise = self._n_enc + (3 if o.strain_noise_ue > 0 else 0)
-        self._noise, self._noise_i = [], 0
+        # The per-tick step runs in C (simplant.c, built at install with the NC core): drive, flexible
+        # modes, gravity strain (the core's FK, exact every gravity_update_ticks ticks, extrapolated
+        # between) and the feedback sample, on the buffers below.
+        from pmctl.hal import _simplant
+        from pmctl.motion.ncore import constants
+        self._fk_consts = constants(machine, None)
+        k = np.zeros(_simplant.K_LEN)
+        k[0:5] = self.ppm
+        k[5] = self.dt
+        k[6] = float(np.any(tau > 0))
+        k[7:12] = tau
+        k[12:17] = self._lag
+        k[17:29] = phi.reshape(3, 4).ravel()
+        k[29] = float(bool(o.flex))
+        k[30:33] = self._strain_per_mm
+        k[33] = float(o.lost_steps_at_tick)
+        k[34] = float(o.lost_steps_axis)
+        k[35] = float(o.lost_steps_mm)
+        k[36] = float(o.enc_noise_mm)
+        k[37] = float(o.strain_noise_ue)
+        k[38] = float(o.gravity_update_ticks)
+        k[39] = 5.0 if o.enc_noise_mm > 0 else 0.0
+        self._k = k
+        self._lib = _simplant
+        self._n_noise = (5 if o.enc_noise_mm > 0 else 0) + (3 if o.strain_noise_ue > 0 else 0)
+        self._noise, self._noise_i = None, 0
         self._fb = Feedback()
         self._fb.counts = np.zeros(5, np.int64)
         self._open = False
 
     # ---------------------------------------------------------------- Backend API
     def open(self, counts):
-        self.counts = np.array(counts, dtype=np.int64)
-        ppm = self._ppm_l
-        cl = self.counts.tolist()
-        self._cmd = [cl[i] / ppm[i] for i in range(5)]      # commanded position, mm
-        self._motor = list(self._cmd)                       # motor-side position
-        self._vm = [0.0] * 5                                # motor velocity over the last tick
-        self._y = [0.0] * 3                                 # load - motor deflection, chains
-        self._yd = [0.0] * 3
-        self.tick = 0
-        self._fb.seq = 0
-        self._open = True
+        from pmctl.core.errors import KinematicsError
         from pmctl.core.kinematics import forward_platform
-        from pmctl.motion.ncore import CompiledFK
-        q = self.truth()
-        P, R = forward_platform(q[:3], self.machine.geometry)
-        self._fk = CompiledFK(self.machine, P, R, q)         # the load-side pose, for the gravity strain
-        self._g_a = self._g_b = None            # last two exact (q, gravity strain) evaluations
-        self._sample()
+        L = self._lib
+        self.counts = np.array(counts, dtype=np.int64)
+        d = np.zeros(L.D_LEN)
+        d[L.D_CMD:L.D_CMD + 5] = self.counts / self.ppm          # commanded position, mm
+        d[L.D_MOTOR:L.D_MOTOR + 5] = d[L.D_CMD:L.D_CMD + 5]     # motor side = command at rest
+        P, R = forward_platform(d[L.D_MOTOR:L.D_MOTOR + 3], self.machine.geometry)
+        d[L.D_P:L.D_P + 3] = P
+        d[L.D_R:L.D_R + 9] = R.ravel()
+        self._d = d
+        self._q = d[L.D_Q:L.D_Q + 5]
+        self._plant = L.Plant(self._fk_consts, self._k, d, self.counts, self._fb.enc, self._fb.strain,
+                              self._fb.counts)
+        self._KinematicsError = KinematicsError
+        self.tick = 0
+        self._fb.seq = 1
+        self._open = True
+        self._check(self._plant.sample(self._draw(), 0))
 
     def read(self):
         if not self._open:
@@ -159,36 +176,19 @@ class SimBackend(Backend):
         return self._fb
 
     def write_pulses(self, pulses):
-        self.counts += pulses
-        cl = self.counts.tolist()
-        ppm, dt = self._ppm_l, self.dt
-        c_old, motor = self._cmd, self._motor
-        c_new = [cl[i] / ppm[i] for i in range(5)]
-        if self._tau_on:
-            # first-order lag, exact for the ramp the command makes inside the tick
-            m_new = [0.0] * 5
-            for i in range(5):
-                tv = self._tau_l[i] * ((c_new[i] - c_old[i]) / dt)
-                m_new[i] = c_new[i] - tv + (motor[i] - c_old[i] + tv) * self._lag_l[i]
-        else:
-            m_new = list(c_new)
-        if self.tick == self.opt.lost_steps_at_tick:
-            m_new[self.opt.lost_steps_axis] += self.opt.lost_steps_mm
-        vm = [(m_new[i] - motor[i]) / dt for i in range(5)]
-        if self.opt.flex:
-            y, yd0, vm0 = self._y, self._yd, self._vm
-            for i in range(3):
-                a, b, c, d = self._ph[i]
-                yd = yd0[i] - (vm[i] - vm0[i])          # velocity jump of the motor frame
-                y[i], yd0[i] = a * y[i] + b * yd, c * y[i] + d * yd
-        self._cmd, self._motor, self._vm = c_new, m_new, vm
+        nz = self._draw() if self._n_noise else None
+        try:
+            r = self._plant.step(pulses, nz, self.tick)
+        except (TypeError, ValueError):          # not a contiguous int64 array: convert (checked before any change)
+            r = self._plant.step(np.ascontiguousarray(pulses, np.int64), nz, self.tick)
         self.tick += 1
-        self._sample()
+        self._fb.seq += 1
+        if r:
+            self._check(r)
 
     def truth(self):
         """Load-side joints (mm): motor side plus the chains' deflection."""
-        m, y = self._motor, self._y
-        return np.array([m[0] + y[0], m[1] + y[1], m[2] + y[2], m[3], m[4]])
+        return self._q.copy()
 
     def status(self):
         return Status(True, "")
@@ -197,55 +197,18 @@ class SimBackend(Backend):
         self._open = False
 
     # ---------------------------------------------------------------- internals
-    def _gravity_strain(self):
-        """Static strain of the platform's weight at the true (load-side) pose (list of 3). Exact (FK
-        warm-started with the predictor) every ``gravity_update_ticks`` ticks; in between
-        extrapolated along the motion from the last two exact values (the strain changes by ~0.1
-        microstrain per mm)."""
-        m, y = self._motor, self._y
-        q = [m[0] + y[0], m[1] + y[1], m[2] + y[2], m[3], m[4]]
-        a, b = self._g_a, self._g_b
-        n = self.opt.gravity_update_ticks
-        if a is not None and n > 1 and self.tick % n:
-            if b is None:
-                return a[1]
-            qa, ga = a
-            qb, gb = b
-            d = [qa[i] - qb[i] for i in range(5)]
-            dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + d[3] * d[3] + d[4] * d[4]
-            if dd <= 0.0:
-                return ga
-            f = sum((q[i] - qa[i]) * d[i] for i in range(5)) / dd
-            return [ga[i] + (ga[i] - gb[i]) * f for i in range(3)]
-        fk = self._fk
-        fk.solve(np.array(q))
-        g = fk.static_strain().tolist()
-        self._g_b, self._g_a = self._g_a, (q, g)
-        return g
+    def _check(self, r):
+        if r:
+            raise self._KinematicsError(f"sim backend: the load-side pose is lost (forward kinematics, event {r})")
 
     def _draw(self):
-        """Next row of Gaussian noise (encoders, then gauges), drawn from the seeded RNG in blocks."""
-        if self._noise_i >= len(self._noise):
-            self._noise = self._rng.standard_normal((512, self._n_noise)).tolist()
+        """Next row of Gaussian noise (encoders, then gauges) from the seeded RNG, drawn in blocks."""
+        if not self._n_noise:
+            return None
+        if self._noise is None or self._noise_i >= len(self._noise):
+            self._noise = np.zeros((512, 8))
+            self._noise[:, :self._n_noise] = self._rng.standard_normal((512, self._n_noise))
             self._noise_i = 0
         r = self._noise[self._noise_i]
         self._noise_i += 1
         return r
-
-    def _sample(self):
-        fb, o = self._fb, self.opt
-        fb.seq += 1
-        fb.counts[:] = self.counts
-        nz = self._draw() if self._n_noise else None
-        if self._n_enc:
-            e, m = o.enc_noise_mm, self._motor
-            fb.enc[:] = [m[i] + e * nz[i] for i in range(5)]
-        else:
-            fb.enc[:] = self._motor
-        g = self._gravity_strain()
-        spm, y = self._spm_l, self._y
-        s = [spm[i] * y[i] + g[i] for i in range(3)]
-        if o.strain_noise_ue > 0:
-            k, e = self._n_enc, o.strain_noise_ue
-            s = [s[i] + e * nz[k + i] for i in range(3)]
-        fb.strain[:] = s
