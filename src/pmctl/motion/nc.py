@@ -21,6 +21,12 @@ The hot path (one pose per tick) has its own small single-pose kinematics (:clas
 batch functions of :mod:`pmctl.core.kinematics` cost ~0.3 ms per call in numpy overhead alone. It solves
 the same 6 loop equations with the same Newton scheme as ``kinematics.solve_platform`` and builds the
 same Jacobian as ``kinematics.jacobian_tool``; tests check both against kinematics.py.
+
+This file is the readable reference. The loop runs, by default, its C99 twin
+(:mod:`pmctl.motion.ncore`, ``nc.implementation`` in the service config), which does the same
+arithmetic in the same order; tests/test_ncore.py runs both on the same inputs. The one 6x6
+solve of ModelFK is therefore plain floats in a fixed order (:func:`_solve6`), not LAPACK, so that
+both compute the model pose to the last bit.
 """
 
 from __future__ import annotations
