@@ -7,8 +7,9 @@
   paused during the run (no collection pauses on the hot path).
 - Per-tick compute time and lateness in preallocated arrays; overruns counted, warned about
   (rate-limited), and N in a row stop the machine safely (decelerating stop).
-- A tick longer than the stall timeout, or a backend that does not answer, ends in a controlled
-  stop with a reason. The pulse counters are persisted by a writer thread every N ticks and at the
+- A tick longer than the stall timeout (in real time; offline, with ``realtime=False``, a slow tick
+  is only counted and reported), or a backend that does not answer, ends in a controlled stop with
+  a reason; any other exception inside the loop halts it with the reason, the counters true. The pulse counters are persisted by a writer thread every N ticks and at the
   stop (pmctl.motion.state_store).
 - Everything a run keeps (commands, encoders, strain, the simulated load side) goes into
   preallocated arrays; nothing is written to disk until the run ends.
