@@ -20,7 +20,7 @@ from pmctl.core.config import load_machine
 from pmctl.core.errors import ConfigError, KinematicsError
 from pmctl.hal.base import Feedback
 from pmctl.motion import ncore
-from pmctl.motion.nc import (DONE, HALTED, RUN, STOPPING, ModelFK, NCParams, PythonNC, counts_of,
+from pmctl.motion.nc import (DONE, HALTED, RUN, ModelFK, NCParams, PythonNC, counts_of,
                              initial_state, make_nc)
 from pmctl.motion.service_config import NCConfig, service_from_dict
 
