@@ -168,20 +168,71 @@ def test_stalled_backend_ends_in_a_controlled_stop_with_a_reason():
     assert res.ticks == 200
 
 
-def test_a_stalled_tick_stops_the_machine_with_a_braked_stop():
+def test_a_stalled_tick_stops_a_realtime_run_with_a_braked_stop():
     tr = line_traj([0, 0, 5], [10, 0, 5], rp(0, 0), rp(0, 0), 10.0, 1e-3)
-    cfg = LoopConfig(realtime=False, stall_timeout_s=1e-9)    # every tick "takes too long"
+    cfg = LoopConfig(realtime=True, lock_memory=False, stall_timeout_s=1e-9)    # every tick "takes too long"
     res, be, p, c0 = run(tr, cfg=cfg)
     assert res.status == "stopped" and res.reason.startswith("loop stalled")
     assert res.ticks < 100
     assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
 
 
+def test_a_slow_tick_without_realtime_is_counted_not_a_stall():
+    """Offline simulation (--no-realtime): nothing waits for the ticks, so a slow one harms nothing;
+    the run goes on to the end and reports how many ticks were over the stall limit."""
+    tr = line_traj([0, 0, 5], [3, 0, 5], rp(0, 0), rp(0, 0), 10.0, 1e-3)
+    cfg = LoopConfig(realtime=False, stall_timeout_s=1e-9)    # every tick "takes too long"
+    res, be, p, c0 = run(tr, cfg=cfg)
+    assert res.status == "done", res.reason
+    assert res.ticks > len(tr)
+    assert res.ticks - 1 <= res.timing.slow_ticks <= res.ticks      # the last tick ends the run first
+    assert res.timing.summary()["slow_ticks"] == res.timing.slow_ticks
+    assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
+
+
+@pytest.mark.parametrize("where", ["read", "write_pulses"])
+@pytest.mark.parametrize("impl", ["compiled", "python"])
+def test_any_exception_in_the_loop_halts_with_a_reason_and_keeps_the_counters_true(where, impl):
+    """Not only a HalError: an unexpected exception inside the tick (here a backend raising
+    ZeroDivisionError at tick 150) ends the run as a fault that names it, no exception escapes,
+    and the pulse counters the caller saves equal the pulses the plant actually took."""
+    from pmctl.hal.sim import SimBackend
+
+    class Broken(SimBackend):
+        def read(self):
+            if where == "read" and self.tick == 150:
+                raise ZeroDivisionError("injected")
+            return super().read()
+
+        def write_pulses(self, pulses):
+            if where == "write_pulses" and self.tick == 150:
+                raise ZeroDivisionError("injected")
+            super().write_pulses(pulses)
+
+    dt = 1e-3
+    tr = line_traj([0, 0, 5], [10, 0, 5], rp(0, 0), rp(0, 0), 10.0, dt)
+    params = NCParams.from_machine(M, dt, kv=400.0, implementation=impl)
+    tg = prepare(M, params, tr, dt)
+    c0 = counts_of(tg.q[0], params)
+    be = Broken(M, dt, {})
+    be.open(c0)
+    lp = ControlLoop(M, be, params, tg, LoopConfig(realtime=False), initial_state(M, c0), log=lambda m: None)
+    res = lp.run()
+    assert res.status == "fault" and not res.ok
+    assert res.reason == "loop error at tick 150: ZeroDivisionError: injected"
+    assert res.state.mode == 2 and res.state.reason == res.reason       # HALTED
+    assert res.ticks == 150
+    assert np.any(res.pulses_sent != 0)                                  # it was moving
+    assert np.array_equal(be.counts, res.state.counts)                   # what the plant took ...
+    assert np.array_equal(c0 + res.pulses_sent, res.state.counts)        # ... is what the counters say
+
+
 def test_missed_deadlines_stop_after_n_in_a_row():
-    """20 kHz is beyond this loop (tick work > 50 us): the policy stops it after N overruns in a row."""
+    """20 kHz is beyond the loop with the Python NC (its tick alone takes over 50 us): the policy
+    stops it after N overruns in a row. (The compiled NC could keep up on a quiet machine.)"""
     tr = line_traj([0, 0, 5], [2, 0, 5], rp(0, 0), rp(0, 0), 1.0, 5e-5)
     cfg = LoopConfig(rate_hz=20000.0, realtime=True, lock_memory=False, max_overruns_in_row=5, stall_timeout_s=1.0)
-    res, *_ = run(tr, rate=20000.0, cfg=cfg)
+    res, *_ = run(tr, rate=20000.0, cfg=cfg, implementation="python")
     assert res.status == "stopped" and "deadlines missed in a row" in res.reason
     assert res.timing.overruns >= 5 and res.timing.max_overruns_in_row >= 5
 

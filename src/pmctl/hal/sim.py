@@ -14,7 +14,8 @@ Per axis (L1, L2, L3, X, Y):
   force k * y of the flexible mode (microstrain, tension positive);
 - **measurement noise**: Gaussian on encoders (mm) and strain (microstrain), seeded RNG.
 
-The true tool tip is FK(load-side joints) (:meth:`truth` gives them). Fault injection for tests:
+The true tool tip is FK(load-side joints) (:meth:`truth` gives them). The per-tick step is C
+(simplant.c, built at install with the compiled NC core, whose FK it uses for the gravity strain). Fault injection for tests:
 a stall (``read`` blocks, then times out) and lost steps (the motor slips by a given amount).
 """
 
@@ -112,29 +113,57 @@ class SimBackend(Backend):
         self._phi = phi
         self._strain_per_mm = machine.strain_gain * o.mode_stiffness_N_per_mm   # microstrain per mm of y
         self._rng = np.random.default_rng(o.seed)
-        from pmctl.motion.nc import ModelFK
-        self._fk = ModelFK(machine)          # the load-side pose, for the gravity strain
+        # The per-tick step runs in C (simplant.c, built at install with the NC core): drive, flexible
+        # modes, gravity strain (the core's FK, exact every gravity_update_ticks ticks, extrapolated
+        # between) and the feedback sample, on the buffers below.
+        from pmctl.hal import _simplant
+        from pmctl.motion.ncore import constants
+        self._fk_consts = constants(machine, None)
+        k = np.zeros(_simplant.K_LEN)
+        k[0:5] = self.ppm
+        k[5] = self.dt
+        k[6] = float(np.any(tau > 0))
+        k[7:12] = tau
+        k[12:17] = self._lag
+        k[17:29] = phi.reshape(3, 4).ravel()
+        k[29] = float(bool(o.flex))
+        k[30:33] = self._strain_per_mm
+        k[33] = float(o.lost_steps_at_tick)
+        k[34] = float(o.lost_steps_axis)
+        k[35] = float(o.lost_steps_mm)
+        k[36] = float(o.enc_noise_mm)
+        k[37] = float(o.strain_noise_ue)
+        k[38] = float(o.gravity_update_ticks)
+        k[39] = 5.0 if o.enc_noise_mm > 0 else 0.0
+        self._k = k
+        self._lib = _simplant
+        self._n_noise = (5 if o.enc_noise_mm > 0 else 0) + (3 if o.strain_noise_ue > 0 else 0)
+        self._noise, self._noise_i = None, 0
         self._fb = Feedback()
         self._fb.counts = np.zeros(5, np.int64)
         self._open = False
 
     # ---------------------------------------------------------------- Backend API
     def open(self, counts):
-        self.counts = np.array(counts, dtype=np.int64)
-        self.cmd = self.counts / self.ppm          # commanded position, mm
-        self.motor = self.cmd.copy()               # motor-side position
-        self.vmotor = np.zeros(5)                  # motor velocity over the last tick
-        self.y = np.zeros(3)                       # load - motor deflection, chains
-        self.ydot = np.zeros(3)
-        self.tick = 0
-        self._fb.seq = 0
-        self._open = True
+        from pmctl.core.errors import KinematicsError
         from pmctl.core.kinematics import forward_platform
-        q = self.truth()
-        P, R = forward_platform(q[:3], self.machine.geometry)
-        self._pose = (P.tolist(), R.tolist(), None, q)
-        self._g_a = self._g_b = None            # last two exact (q, gravity strain) evaluations
-        self._sample()
+        L = self._lib
+        self.counts = np.array(counts, dtype=np.int64)
+        d = np.zeros(L.D_LEN)
+        d[L.D_CMD:L.D_CMD + 5] = self.counts / self.ppm          # commanded position, mm
+        d[L.D_MOTOR:L.D_MOTOR + 5] = d[L.D_CMD:L.D_CMD + 5]     # motor side = command at rest
+        P, R = forward_platform(d[L.D_MOTOR:L.D_MOTOR + 3], self.machine.geometry)
+        d[L.D_P:L.D_P + 3] = P
+        d[L.D_R:L.D_R + 9] = R.ravel()
+        self._d = d
+        self._q = d[L.D_Q:L.D_Q + 5]
+        self._plant = L.Plant(self._fk_consts, self._k, d, self.counts, self._fb.enc, self._fb.strain,
+                              self._fb.counts)
+        self._KinematicsError = KinematicsError
+        self.tick = 0
+        self._fb.seq = 1
+        self._open = True
+        self._check(self._plant.sample(self._draw(), 0))
 
     def read(self):
         if not self._open:
@@ -147,34 +176,19 @@ class SimBackend(Backend):
         return self._fb
 
     def write_pulses(self, pulses):
-        p = np.asarray(pulses)
-        self.counts += p
-        c_old = self.cmd
-        c_new = self.counts / self.ppm
-        v = (c_new - c_old) / self.dt
-        if self._tau.any():
-            tv = self._tau * v
-            m_new = c_new - tv + (self.motor - c_old + tv) * self._lag
-        else:
-            m_new = c_new
-        if self.tick == self.opt.lost_steps_at_tick:
-            m_new = m_new.copy()
-            m_new[self.opt.lost_steps_axis] += self.opt.lost_steps_mm
-        vm = (m_new - self.motor) / self.dt
-        if self.opt.flex:
-            yd = self.ydot - (vm[:3] - self.vmotor[:3])        # velocity jump of the motor frame
-            ph = self._phi
-            y = ph[:, 0, 0] * self.y + ph[:, 0, 1] * yd
-            self.ydot = ph[:, 1, 0] * self.y + ph[:, 1, 1] * yd
-            self.y = y
-        self.cmd, self.motor, self.vmotor = c_new, m_new, vm
+        nz = self._draw() if self._n_noise else None
+        try:
+            r = self._plant.step(pulses, nz, self.tick)
+        except (TypeError, ValueError):          # not a contiguous int64 array: convert (checked before any change)
+            r = self._plant.step(np.ascontiguousarray(pulses, np.int64), nz, self.tick)
         self.tick += 1
-        self._sample()
+        self._fb.seq += 1
+        if r:
+            self._check(r)
 
     def truth(self):
-        q = self.motor.copy()
-        q[:3] += self.y
-        return q
+        """Load-side joints (mm): motor side plus the chains' deflection."""
+        return self._q.copy()
 
     def status(self):
         return Status(True, "")
@@ -183,39 +197,18 @@ class SimBackend(Backend):
         self._open = False
 
     # ---------------------------------------------------------------- internals
-    def _gravity_strain(self):
-        """Static strain of the platform's weight at the true (load-side) pose. Exact (FK warm-started,
-        one Newton step) every ``gravity_update_ticks`` ticks; in between extrapolated along the
-        motion from the last two exact values (the strain changes by ~0.1 microstrain per mm)."""
-        q = self.truth()
-        a, b = self._g_a, self._g_b
-        n = self.opt.gravity_update_ticks
-        if a is not None and n > 1 and self.tick % n:
-            if b is None:
-                return a[1]
-            d = a[0] - b[0]
-            dd = float(d @ d)
-            if dd <= 0.0:
-                return a[1]
-            return a[1] + (a[1] - b[1]) * (float((q - a[0]) @ d) / dd)
-        P, R, T, q0 = self._pose
-        pred = None if T is None else ((q - q0)[:3], T)
-        P, R, _, _, _ = self._fk.solve_l(q, P, R, pred)
-        T = self._fk.last_T
-        self._pose = (P, R, T, q)
-        g = np.array(self._fk.static_strain(R, T))
-        self._g_b, self._g_a = self._g_a, (q, g)
-        return g
+    def _check(self, r):
+        if r:
+            raise self._KinematicsError(f"sim backend: the load-side pose is lost (forward kinematics, event {r})")
 
-    def _sample(self):
-        fb, o = self._fb, self.opt
-        fb.seq += 1
-        fb.counts[:] = self.counts
-        if o.enc_noise_mm > 0:
-            fb.enc[:] = self.motor + o.enc_noise_mm * self._rng.standard_normal(5)
-        else:
-            fb.enc[:] = self.motor
-        s = self._strain_per_mm * self.y + self._gravity_strain()
-        if o.strain_noise_ue > 0:
-            s = s + o.strain_noise_ue * self._rng.standard_normal(3)
-        fb.strain[:] = s
+    def _draw(self):
+        """Next row of Gaussian noise (encoders, then gauges) from the seeded RNG, drawn in blocks."""
+        if not self._n_noise:
+            return None
+        if self._noise is None or self._noise_i >= len(self._noise):
+            self._noise = np.zeros((512, 8))
+            self._noise[:, :self._n_noise] = self._rng.standard_normal((512, self._n_noise))
+            self._noise_i = 0
+        r = self._noise[self._noise_i]
+        self._noise_i += 1
+        return r

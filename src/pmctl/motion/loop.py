@@ -7,8 +7,9 @@
   paused during the run (no collection pauses on the hot path).
 - Per-tick compute time and lateness in preallocated arrays; overruns counted, warned about
   (rate-limited), and N in a row stop the machine safely (decelerating stop).
-- A tick longer than the stall timeout, or a backend that does not answer, ends in a controlled
-  stop with a reason. The pulse counters are persisted by a writer thread every N ticks and at the
+- A tick longer than the stall timeout (in real time; offline, with ``realtime=False``, a slow tick
+  is only counted and reported), or a backend that does not answer, ends in a controlled stop with
+  a reason; any other exception inside the loop halts it with the reason, the counters true. The pulse counters are persisted by a writer thread every N ticks and at the
   stop (pmctl.motion.state_store).
 - Everything a run keeps (commands, encoders, strain, the simulated load side) goes into
   preallocated arrays; nothing is written to disk until the run ends.
@@ -31,7 +32,7 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import Machine
 from pmctl.core.errors import KinematicsError, PmctlError, UnreachablePose
 from pmctl.hal import Backend, HalError, HalTimeout
-from pmctl.motion.nc import DONE, HALTED, RUN, STOPPING, ModelFK, NCParams, NCState, nc_step
+from pmctl.motion.nc import HALTED, RUN, STOPPING, NCParams, NCState, make_nc
 from pmctl.motion.service_config import LoopConfig
 from pmctl.motion.state_store import CounterWriter
 from pmctl.task.trajectory import Trajectory
@@ -226,6 +227,7 @@ class TimingStats:
     max_overruns_in_row: int
     realtime: bool
     messages: list
+    slow_ticks: int = 0         # ticks over the stall limit without real time (counted, not a stall)
 
     def summary(self) -> dict:
         c = self.compute_ns / 1e3
@@ -239,7 +241,8 @@ class TimingStats:
                 "compute_max_us": float(c.max()),
                 "late_median_us": float(np.median(lt)), "late_p99_us": float(np.percentile(lt, 99)),
                 "late_max_us": float(lt.max()), "overruns": int(self.overruns),
-                "max_overruns_in_row": int(self.max_overruns_in_row), "realtime": bool(self.realtime)}
+                "max_overruns_in_row": int(self.max_overruns_in_row), "realtime": bool(self.realtime),
+                "slow_ticks": int(self.slow_ticks)}
 
 
 @dataclass
@@ -279,7 +282,7 @@ class ControlLoop:
         self.targets, self.cfg, self.state0 = targets, cfg, state
         self.log = log or (lambda msg: print(f"pmctl: {msg}", file=sys.stderr))
         self.writer = writer
-        self.model = ModelFK(machine)
+        self.nc = make_nc(machine, params)      # params.implementation: "compiled" (C core) or "python"
         self.settle_ticks = int(round(cfg.settle_s * cfg.rate_hz))
         # budget: the targets, settling, and a full stop from top speed (plus margin)
         stop_ticks = int(math.ceil(float(np.max(params.vmax / params.amax)) * cfg.rate_hz)) + 10
@@ -315,9 +318,10 @@ class ControlLoop:
             for m in msgs:
                 self.log(m)
         sleeper = AbsoluteSleeper()
-        st = self.state0
+        st = self.nc.load(self.state0)
         status, reason = "done", ""
-        overruns = in_row = max_in_row = 0
+        overruns = in_row = max_in_row = slow = 0
+        pending = None                  # pulses computed but not yet taken by the backend
         last_warn = 0
         persist_every = cfg.persist_every_ticks
         gc_was = gc.isenabled()
@@ -369,17 +373,19 @@ class ControlLoop:
                 if has_truth:
                     truth[k] = be.truth()          # load side at this tick's start, like enc and counts
                 t_nc = mono()
-                pulses, st = nc_step(st, tg, fb, p, self.model)
+                pulses, st = self.nc.step(st, tg, fb)      # the one NC call site (compiled or Python)
                 ncns[k] = mono() - t_nc
+                pending = pulses
                 try:
                     be.write_pulses(pulses)
                 except HalError as e:
                     # the backend did not take this tick's pulses: the counters must not claim them
                     status, reason = "fault", f"backend fault: {e}"
-                    st = _halt(_executed(replace(st, counts=st.counts - pulses), e), reason)
+                    st = _halt(_executed(st.uncounted(pulses), e), reason)
+                    pending = None
                     break
                 sent += pulses
-                target[k] = tg[:6]
+                pending = None
                 if writer := self.writer:
                     if k % persist_every == 0:
                         writer.offer(st.counts, k)
@@ -396,9 +402,12 @@ class ControlLoop:
                     st = _done(st)
                     status, reason = "done", ""
                     break
-                if t1 - t0 > stall_ns and st.mode == RUN:
-                    st = _stopping(st, f"loop stalled: a tick took {(t1 - t0) / 1e6:.1f} ms "
-                                       f"(limit {cfg.stall_timeout_s * 1e3:g} ms)")
+                if t1 - t0 > stall_ns:
+                    if not cfg.realtime:
+                        slow += 1      # offline simulation: a slow tick harms nothing; counted, reported
+                    elif st.mode == RUN:
+                        st = _stopping(st, f"loop stalled: a tick took {(t1 - t0) / 1e6:.1f} ms "
+                                           f"(limit {cfg.stall_timeout_s * 1e3:g} ms)")
                 if cfg.realtime:
                     deadline += period
                     if t1 > deadline:
@@ -415,6 +424,11 @@ class ControlLoop:
                             st = _stopping(st, f"{in_row} deadlines missed in a row at {cfg.rate_hz:g} Hz")
                     else:
                         in_row = 0
+        except Exception as e:        # anything else (a bug, an unexpected error of a backend): halt, say why
+            status, reason = "fault", f"loop error at tick {k}: {type(e).__name__}: {e}"
+            if pending is not None:    # not known to be taken by the backend: the counters must not claim them
+                st = st.uncounted(pending)
+            st = _halt(st, reason)
         finally:
             sys.setswitchinterval(switch)
             if gc_was:
@@ -422,8 +436,15 @@ class ControlLoop:
             if cfg.realtime:
                 undo_realtime(cfg.lock_memory)
         n = k if status != "fault" else max(k, 0)
-        timing = TimingStats(comp[:n].copy(), late[:n].copy(), ncns[:n].copy(), overruns, max_in_row, cfg.realtime, msgs)
-        return LoopResult(status, reason, n, st, timing, 1.0 / cfg.rate_hz, counts[:n], enc[:n], strain[:n],
+        m = min(n, n_t)            # the targets of the ticks (filled here, not per tick)
+        target[:m] = rows[:m, :6]
+        target[m:n] = hold[:6]
+        if slow:
+            self.log(f"{slow} ticks took longer than the stall limit ({cfg.stall_timeout_s * 1e3:g} ms); "
+                     f"not a stall without real time")
+        timing = TimingStats(comp[:n].copy(), late[:n].copy(), ncns[:n].copy(), overruns, max_in_row, cfg.realtime, msgs,
+                             slow)
+        return LoopResult(status, reason, n, st.snapshot(), timing, 1.0 / cfg.rate_hz, counts[:n], enc[:n], strain[:n],
                           truth[:n], target[:n], sent, self.targets.job_start)
 
 
@@ -435,18 +456,15 @@ def _executed(st: NCState, e: HalError) -> NCState:
 
 
 def _halt(st: NCState, reason: str) -> NCState:
-    from dataclasses import replace
-    return replace(st, mode=HALTED, reason=reason, qdot=np.zeros(5), acc=np.zeros(5))
+    return st.halted(reason)
 
 
 def _stopping(st: NCState, reason: str) -> NCState:
-    from dataclasses import replace
-    return replace(st, mode=STOPPING, reason=reason)
+    return st.stopping(reason)
 
 
 def _done(st: NCState) -> NCState:
-    from dataclasses import replace
-    return replace(st, mode=DONE)
+    return st.done()
 
 
 def _was_stop(st: NCState) -> bool:

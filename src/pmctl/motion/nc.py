@@ -21,6 +21,12 @@ The hot path (one pose per tick) has its own small single-pose kinematics (:clas
 batch functions of :mod:`pmctl.core.kinematics` cost ~0.3 ms per call in numpy overhead alone. It solves
 the same 6 loop equations with the same Newton scheme as ``kinematics.solve_platform`` and builds the
 same Jacobian as ``kinematics.jacobian_tool``; tests check both against kinematics.py.
+
+This file is the readable reference. The loop runs, by default, its C99 twin
+(:mod:`pmctl.motion.ncore`, ``nc.implementation`` in the service config), which does the same
+arithmetic in the same order; tests/test_ncore.py runs both on the same inputs. The one 6x6
+solve of ModelFK is therefore plain floats in a fixed order (:func:`_solve6`), not LAPACK, so that
+both compute the model pose to the last bit.
 """
 
 from __future__ import annotations
@@ -37,15 +43,46 @@ from pmctl.core.kinematics import FK_MAX_ITER, FK_TOL_MM
 from pmctl.core.vf import vf_tick
 
 RUN, STOPPING, HALTED, DONE = 0, 1, 2, 3
+IMPLEMENTATIONS = ("compiled", "python")
 _ZERO5 = [0.0] * 5
 MODE_NAMES = {RUN: "run", STOPPING: "stopping", HALTED: "halted", DONE: "done"}
 
-def _solve(M, b):
-    """LAPACK dgesv without numpy.linalg's per-call overhead; raises KinematicsError if singular."""
-    _, _, x, info = lapack.dgesv(M, b)
-    if info != 0:
-        raise KinematicsError("forward kinematics: singular constraint Jacobian (a chain aligned with its plane normal)")
-    return x
+def _solve6(M, B):
+    """Solve M X = B in place (M: 6 lists of 6, B: 6 lists of nr floats) by Gaussian elimination
+    with partial pivoting (LAPACK dgesv's scheme), in plain floats and in the compiled core's
+    operation order, so that both NCs compute the same model pose to the last bit (the pose is
+    warm-started from tick to tick: differences would otherwise accumulate within the Newton
+    tolerance). Raises KinematicsError on an exactly zero pivot (dgesv's info > 0)."""
+    nr = len(B[0])
+    for k in range(6):
+        p, mx = k, abs(M[k][k])
+        for i in range(k + 1, 6):
+            if abs(M[i][k]) > mx:
+                p, mx = i, abs(M[i][k])
+        if M[p][k] == 0.0:
+            raise KinematicsError(FK_SINGULAR_TEXT)
+        if p != k:
+            M[k], M[p] = M[p], M[k]
+            B[k], B[p] = B[p], B[k]
+        Mk, Bk, piv = M[k], B[k], M[k][k]
+        for i in range(k + 1, 6):
+            Mi = M[i]
+            lf = Mi[k] / piv
+            if lf == 0.0:
+                continue
+            for j in range(k + 1, 6):
+                Mi[j] -= lf * Mk[j]
+            Bi = B[i]
+            for j in range(nr):
+                Bi[j] -= lf * Bk[j]
+    for k in range(5, -1, -1):
+        Mk, Bk = M[k], B[k]
+        for j in range(nr):
+            sm = Bk[j]
+            for i in range(k + 1, 6):
+                sm -= Mk[i] * B[i][j]
+            Bk[j] = sm / Mk[k]
+    return B
 
 
 def _rodrigues_l(wx, wy, wz):
@@ -59,6 +96,54 @@ def _rodrigues_l(wx, wy, wz):
     return [[1.0 - b * (wy * wy + wz * wz), -a * wz + b * wx * wy, a * wy + b * wx * wz],
             [a * wz + b * wx * wy, 1.0 - b * (wx * wx + wz * wz), -a * wx + b * wy * wz],
             [-a * wy + b * wx * wz, a * wx + b * wy * wz, 1.0 - b * (wx * wx + wy * wy)]]
+
+
+# ---------------------------------------------------------------- reason texts
+# One place for the words, so both implementations (this file and the compiled core, which reports
+# an event code and its numbers) say exactly the same thing.
+
+_NAMES = ("L1", "L2", "L3", "X", "Y")
+FK_SINGULAR_TEXT = "forward kinematics: singular constraint Jacobian (a chain aligned with its plane normal)"
+SVD_TEXT = "tool Jacobian SVD did not converge"
+
+
+def fk_noconv_text(L, res, it):
+    return (f"forward kinematics did not converge for L = {[round(x, 6) for x in L]} "
+            f"(residual {res:.3g} mm after {int(it)} iterations)")
+
+
+def fk_branch_text(L):
+    return f"forward kinematics left the assembly branch for L = {[round(x, 6) for x in L]}"
+
+
+def soft_limit_text(i, x, v, L):
+    return (f"soft limit: {_NAMES[i]} = {x:.4f} mm moving at {v:.3f} mm/s would pass "
+            f"[{L.lower[i]:g}, {L.upper[i]:g}] mm")
+
+
+def ferror_text(i, fe, lim, v):
+    return f"following error: {_NAMES[i]} off by {fe:.4f} mm (limit {lim:.4f} mm at {v:.2f} mm/s)"
+
+
+def encoder_fault_text(i, v):
+    return f"feedback fault: encoder {_NAMES[i]} reads {v}"
+
+
+def strain_fault_text(i, v):
+    return f"feedback fault: strain gauge {i + 1} reads {v}"
+
+
+def path_error_text(perr, params):
+    return (f"path error {perr:.4f} mm over {params.max_path_error_mm:g} mm "
+            f"(target not reachable within the joint limits)")
+
+
+def tilt_text(r22, params):
+    return (f"soft limit: tilt {math.degrees(math.acos(min(1.0, r22))):.3f} deg "
+            f"over {math.degrees(params.theta2_max_rad):g} deg")
+
+
+MODEL_LOST = "model pose lost: "
 
 
 class ModelFK:
@@ -93,8 +178,6 @@ class ModelFK:
         self._Cp = self.Cp.tolist()
         self._N = self.N.tolist()
         self._off = self.off.tolist()
-        self._rhs = np.zeros((6, 4))
-        self._rhs[:3, 1:] = np.eye(3)
 
     def _residual(self, P, R, L):
         """Loop equations at (P, R) in plain floats (one pose: cheaper than numpy calls).
@@ -120,7 +203,7 @@ class ModelFK:
         return f, rcs, ds, lns
 
     def _linearise(self, rcs, ds, lns):
-        """Constraint Jacobian d(loop equations)/d(P, w) (6x6), as kinematics.constraint_jacobian."""
+        """Constraint Jacobian d(loop equations)/d(P, w) (6 lists of 6), as kinematics.constraint_jacobian."""
         rows = [None] * 6
         for i in range(3):
             rx, ry, rz = rcs[i]
@@ -128,9 +211,9 @@ class ModelFK:
             ln = lns[i]
             ux, uy, uz = dx / ln, dy / ln, dz / ln
             nx, ny, nz = self._N[i]
-            rows[i] = (ux, uy, uz, ry * uz - rz * uy, rz * ux - rx * uz, rx * uy - ry * ux)
-            rows[3 + i] = (nx, ny, nz, ry * nz - rz * ny, rz * nx - rx * nz, rx * ny - ry * nx)
-        return np.array(rows)
+            rows[i] = [ux, uy, uz, ry * uz - rz * uy, rz * ux - rx * uz, rx * uy - ry * ux]
+            rows[3 + i] = [nx, ny, nz, ry * nz - rz * ny, rz * nx - rx * nz, rx * ny - ry * nx]
+        return rows
 
     def solve_l(self, q, P, R, pred=None):
         """:meth:`solve` on plain lists (the per-tick path): P, R, tip, axis and J as lists."""
@@ -142,7 +225,8 @@ class ModelFK:
         if pred is not None:
             dL, Tp = pred
             if dL[0] or dL[1] or dL[2]:
-                st = (Tp @ dL).tolist()
+                d0, d1, d2 = float(dL[0]), float(dL[1]), float(dL[2])
+                st = [r[0] * d0 + r[1] * d1 + r[2] * d2 for r in Tp.tolist()]    # Tp @ dL
                 P = [P[0] + st[0], P[1] + st[1], P[2] + st[2]]
                 E = _rodrigues_l(st[3], st[4], st[5])
                 R = [[E[r][0] * R[0][c] + E[r][1] * R[1][c] + E[r][2] * R[2][c] for c in range(3)] for r in range(3)]
@@ -152,18 +236,15 @@ class ModelFK:
         it = 0
         while not res < self.tol:
             if it >= self.max_iter or not math.isfinite(res):
-                raise KinematicsError(
-                    f"forward kinematics did not converge for L = {[round(x, 6) for x in L]} "
-                    f"(residual {res:.3g} mm after {it} iterations)")
+                raise KinematicsError(fk_noconv_text(L, res, it))
             M = self._linearise(rcs, ds, lns)
-            rhs = self._rhs
-            rhs[:, 0] = f
-            sol = _solve(M, rhs)
+            sol = _solve6(M, [[f[0], 1.0, 0.0, 0.0], [f[1], 0.0, 1.0, 0.0], [f[2], 0.0, 0.0, 1.0],
+                              [f[3], 0.0, 0.0, 0.0], [f[4], 0.0, 0.0, 0.0], [f[5], 0.0, 0.0, 0.0]])
             if T is None:
-                T = sol[:, 1:]
-            step = (-sol[:, 0]).tolist()
-            sp = math.sqrt(step[0] ** 2 + step[1] ** 2 + step[2] ** 2)
-            sr = math.sqrt(step[3] ** 2 + step[4] ** 2 + step[5] ** 2)
+                T = [row[1:] for row in sol]
+            step = [-row[0] for row in sol]
+            sp = math.sqrt(step[0] * step[0] + step[1] * step[1] + step[2] * step[2])
+            sr = math.sqrt(step[3] * step[3] + step[4] * step[4] + step[5] * step[5])
             sc = min(1.0, 50.0 / max(sp, 1e-300), 0.2 / max(sr, 1e-300))
             P = [P[0] + sc * step[0], P[1] + sc * step[1], P[2] + sc * step[2]]
             E = _rodrigues_l(sc * step[3], sc * step[4], sc * step[5])
@@ -172,16 +253,17 @@ class ModelFK:
             res = max(abs(x) for x in f)
             it += 1
         if not (P[2] > 0.0 and R[2][2] > self.cos_max_tilt):
-            raise KinematicsError(f"forward kinematics left the assembly branch for L = {[round(x, 6) for x in L]}")
+            raise KinematicsError(fk_branch_text(L))
         if T is None:           # already converged: linearise at the pose
-            T = _solve(self._linearise(rcs, ds, lns), self._rhs[:, 1:])
-        self.last_T = T
+            T = _solve6(self._linearise(rcs, ds, lns), [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0],
+                                                         [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+        self.last_T = np.array(T)
         # Tool pose and the 6x5 tool Jacobian (as kinematics.tool_of_platform / jacobian_tool), floats.
         tp, ap = self._tip_p, self._axis_p
         rt = [R[r][0] * tp[0] + R[r][1] * tp[1] + R[r][2] * tp[2] for r in range(3)]
         ax = [R[r][0] * ap[0] + R[r][1] * ap[1] + R[r][2] * ap[2] for r in range(3)]
         tip_w = [P[0] + rt[0] - ql[3], P[1] + rt[1] - ql[4], P[2] + rt[2] - self.z_table]
-        Tl = T.tolist()
+        Tl = T
         J = [[0.0] * 5 for _ in range(6)]
         for j in range(3):
             wx, wy, wz = Tl[3][j], Tl[4][j], Tl[5][j]
@@ -252,6 +334,7 @@ class NCParams:
     min_ferror_mm: float = 0.01        # floor at low speed (LinuxCNC MIN_FERROR)
     max_path_error_mm: float = 0.5     # model tool pose vs target (tip mm; axis weighted)
     static_strain_comp: bool = True    # subtract the model pose's gravity strain from the gauges
+    implementation: str = "compiled"   # the loop's NC: "compiled" (C core, pmctl.motion.ncore) or "python" (nc_step)
 
     def __post_init__(self):
         # Arrays are frozen too (use dataclasses.replace to change a limit), so the plain-float
@@ -260,6 +343,9 @@ class NCParams:
             a = np.array(getattr(self, f), float)
             a.setflags(write=False)
             object.__setattr__(self, f, a)
+        if self.implementation not in IMPLEMENTATIONS:
+            raise ValueError(f"NC implementation must be one of {', '.join(IMPLEMENTATIONS)}, "
+                             f"got {self.implementation!r}")
         object.__setattr__(self, "_l", _Lists(self))
         object.__setattr__(self, "_kth_on", bool(np.any(self.k_theta)))
 
@@ -299,6 +385,27 @@ class NCState:
     path_error: float = 0.0   # |e| of the last tick, mm (weighted)
     q_model: np.ndarray | None = None   # joints of the model pose (P, R)
     T: np.ndarray | None = None         # (6, 3) platform twist per unit chain-length change at (P, R)
+
+    # Mode changes from outside the step (the loop's stop request, a backend fault, the end of the
+    # job). The compiled core's state handle (pmctl.motion.ncore.CompiledState) has the same four
+    # methods and changes its buffers in place; these return a new state.
+    def halted(self, reason: str) -> "NCState":
+        """Halt at once: no more pulses, the sub-pulse residue dropped."""
+        return replace(self, mode=HALTED, reason=reason, qdot=np.zeros(5), acc=np.zeros(5))
+
+    def stopping(self, reason: str) -> "NCState":
+        """Decelerate to rest within the acceleration limits, then halt."""
+        return replace(self, mode=STOPPING, reason=reason)
+
+    def done(self) -> "NCState":
+        return replace(self, mode=DONE)
+
+    def uncounted(self, pulses) -> "NCState":
+        """The counters without ``pulses`` (a backend refused them)."""
+        return replace(self, counts=self.counts - np.asarray(pulses, np.int64))
+
+    def snapshot(self) -> "NCState":
+        return self
 
 
 def initial_state(machine: Machine, counts, model: ModelFK | None = None) -> NCState:
@@ -349,14 +456,11 @@ def limit_rates(qdot_des, qdot_prev, params: NCParams):
 def _damped_pinv_apply(J, x, params: NCParams):
     U, s, Vt, info = lapack.dgesdd(J, full_matrices=0)
     if info != 0:
-        raise KinematicsError("tool Jacobian SVD did not converge")
+        raise KinematicsError(SVD_TEXT)
     smin = s[-1]
     eps = params.sv_threshold
     lam2 = 0.0 if smin >= eps else params.damping ** 2 * (1.0 - (smin / eps) ** 2)
     return Vt.T @ ((s / (s * s + lam2)) * (U.T @ x))
-
-
-_NAMES = ("L1", "L2", "L3", "X", "Y")
 
 
 def _stopping_violation(q, qdot, L, dt):
@@ -368,8 +472,7 @@ def _stopping_violation(q, qdot, L, dt):
         s = abs(v) * (0.5 * T + 2.0 * dt)            # distance while braking, plus two ticks' margin
         x = q[i]
         if (v > 0 and x + s > L.upper[i]) or (v < 0 and x - s < L.lower[i]) or x > L.upper[i] or x < L.lower[i]:
-            return (f"soft limit: {_NAMES[i]} = {x:.4f} mm moving at {v:.3f} mm/s would pass "
-                    f"[{L.lower[i]:g}, {L.upper[i]:g}] mm")
+            return soft_limit_text(i, x, v, L)
     return ""
 
 
@@ -377,10 +480,10 @@ def _nonfinite_feedback(enc, strain):
     """Reason text if a feedback value is NaN or infinite (a lost or broken sensor), else ''."""
     for i, v in enumerate(enc):
         if not math.isfinite(v):
-            return f"feedback fault: encoder {_NAMES[i]} reads {v}"
+            return encoder_fault_text(i, v)
     for i, v in enumerate(strain):
         if not math.isfinite(v):
-            return f"feedback fault: strain gauge {i + 1} reads {v}"
+            return strain_fault_text(i, v)
     return ""
 
 
@@ -393,8 +496,7 @@ def _ferror_violation(q, enc, qdot, params: NCParams):
         if lim < params.min_ferror_mm:
             lim = params.min_ferror_mm
         if fe > lim:
-            return (f"following error: {_NAMES[i]} off by {fe:.4f} mm "
-                    f"(limit {lim:.4f} mm at {qdot[i]:.2f} mm/s)")
+            return ferror_text(i, fe, lim, qdot[i])
     return ""
 
 
@@ -446,7 +548,7 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
             qd = _damped_pinv_apply(np.array(J), x, params)
         except KinematicsError as e:
             return zero, replace(state, qdot=np.zeros(5), acc=np.zeros(5), mode=HALTED,
-                                 reason=f"model pose lost: {e}")
+                                 reason=f"{MODEL_LOST}{e}")
         if params._kth_on:
             sg = feedback.strain
             if params.static_strain_comp:          # the gauges also read the weight: keep the dynamic part
@@ -456,11 +558,9 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
             qd[:3] -= params.k_theta * defl
         qdot_des = qd.tolist()
         if perr > params.max_path_error_mm:
-            mode, reason = STOPPING, (f"path error {perr:.4f} mm over {params.max_path_error_mm:g} mm "
-                                      f"(target not reachable within the joint limits)")
+            mode, reason = STOPPING, path_error_text(perr, params)
         elif R[2][2] < math.cos(params.theta2_max_rad) - 1e-12:
-            mode, reason = STOPPING, (f"soft limit: tilt {math.degrees(math.acos(min(1.0, R[2][2]))):.3f} deg "
-                                      f"over {math.degrees(params.theta2_max_rad):g} deg")
+            mode, reason = STOPPING, tilt_text(R[2][2], params)
     if mode == STOPPING:
         qdot_des = _ZERO5
     qdot = _limit_rates_l(qdot_des, prev, L)
@@ -484,3 +584,33 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
     else:
         P, R, tip, axis = np.array(P), np.array(R), np.array(tip), np.array(axis)
     return pulses, NCState(state.counts + pulses, acc, qdot_a, P, R, tip, axis, mode, reason, perr, qm, Tm)
+
+
+class PythonNC:
+    """The loop's NC through the reference code (:func:`nc_step`): ``load(state)`` gives the state
+    handle, ``step(state, target, feedback)`` -> (pulses, state). Same interface as
+    pmctl.motion.ncore.CompiledNC."""
+
+    implementation = "python"
+
+    def __init__(self, machine: Machine, params: NCParams):
+        self.params = params
+        self.model = ModelFK(machine)
+
+    def load(self, state: NCState) -> NCState:
+        return state
+
+    def step(self, state: NCState, target, feedback):
+        return nc_step(state, target, feedback, self.params, self.model)
+
+
+def make_nc(machine: Machine, params: NCParams, implementation: str | None = None):
+    """The NC the loop runs: ``implementation`` (default ``params.implementation``) "compiled" ->
+    pmctl.motion.ncore.CompiledNC, "python" -> :class:`PythonNC`."""
+    impl = implementation or params.implementation
+    if impl == "python":
+        return PythonNC(machine, params)
+    if impl == "compiled":
+        from pmctl.motion.ncore import CompiledNC
+        return CompiledNC(machine, params)
+    raise ValueError(f"NC implementation must be one of {', '.join(IMPLEMENTATIONS)}, got {impl!r}")

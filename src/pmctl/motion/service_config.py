@@ -14,7 +14,7 @@ import numpy as np
 
 from pmctl.core.config import CONFIG_DIR, Machine, _Section
 from pmctl.core.errors import ConfigError
-from pmctl.motion.nc import NCParams
+from pmctl.motion.nc import IMPLEMENTATIONS, NCParams
 
 
 @dataclass
@@ -45,6 +45,7 @@ class NCConfig:
     ferror_mm: float = 1.0
     min_ferror_mm: float = 0.01
     max_path_error_mm: float = 0.5
+    implementation: str = "compiled"   # the loop's NC: "compiled" (C core) or "python" (the reference, nc.nc_step)
 
     def params(self, machine: Machine, dt: float, where="service config") -> NCParams:
         if self.kv_per_s * dt >= 1.0:
@@ -58,7 +59,7 @@ class NCConfig:
             machine, dt, max_pulses_per_tick=1 if self.pulse_mode == "single" else None,
             k_theta=kth, kv=self.kv_per_s, damping=self.damping, sv_threshold=self.sv_threshold,
             ferror_mm=self.ferror_mm, min_ferror_mm=self.min_ferror_mm,
-            max_path_error_mm=self.max_path_error_mm)
+            max_path_error_mm=self.max_path_error_mm, implementation=self.implementation)
 
 
 @dataclass
@@ -137,6 +138,10 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
     mode = s.string("pulse_mode", default=d.pulse_mode)
     if mode not in ("multi", "single"):
         raise ConfigError(path, "nc.pulse_mode", f"must be 'multi' or 'single', got {mode!r}")
+    impl = s.string("implementation", default=d.implementation)
+    if impl not in IMPLEMENTATIONS:
+        raise ConfigError(path, "nc.implementation",
+                          f"must be {' or '.join(repr(x) for x in IMPLEMENTATIONS)}, got {impl!r}")
     nc = NCConfig(
         kv_per_s=s.number("kv_per_s", default=d.kv_per_s, positive=True),
         damping=s.number("damping", default=d.damping, nonneg=True),
@@ -145,6 +150,7 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
         ferror_mm=s.number("ferror_mm", default=d.ferror_mm, positive=True),
         min_ferror_mm=s.number("min_ferror_mm", default=d.min_ferror_mm, positive=True),
         max_path_error_mm=s.number("max_path_error_mm", default=d.max_path_error_mm, positive=True),
+        implementation=impl,
     )
     if nc.min_ferror_mm > nc.ferror_mm:
         raise ConfigError(path, "nc.min_ferror_mm", "must not exceed nc.ferror_mm")

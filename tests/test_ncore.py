@@ -1,0 +1,305 @@
+"""The compiled NC core (pmctl.motion.ncore) against the Python reference (pmctl.motion.nc).
+
+Both run on the same inputs: closed loops against the loopback sim plant (each NC drives its own
+sim, same options and noise seed), with pulses compared tick for tick and the NC state at every
+tick to 1e-9; paths, rates, pulse modes, K_theta and non-nominal geometry (base/platform joints,
+revolute axes, length offsets, tool length and tilt) drawn by hypothesis. The supervision paths
+(soft limit, following error, path error, lost model pose, dead sensor) must end in the same mode
+with the same reason."""
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from pmctl import hal
+from pmctl.core import kinematics as K
+from pmctl.core.config import load_machine
+from pmctl.core.errors import ConfigError, KinematicsError
+from pmctl.hal.base import Feedback
+from pmctl.motion import ncore
+from pmctl.motion.nc import (DONE, HALTED, RUN, ModelFK, NCParams, PythonNC, counts_of,
+                             initial_state, make_nc)
+from pmctl.motion.service_config import NCConfig, service_from_dict
+
+M = load_machine()
+STATE_FIELDS = ("acc", "qdot", "P", "R", "tip", "axis", "path_error", "q_model", "T")
+
+
+def perturbed(seed: int, size: float):
+    """The machine with a calibrated-looking, non-nominal geometry: every joint moved by up to
+    ``size`` mm, revolute axes turned by up to size/100 rad, length offsets, tool length and tilt."""
+    if size == 0:
+        return M
+    rng = np.random.default_rng(seed)
+    g = M.geometry
+    n = g.revolute_axes + rng.uniform(-1, 1, (3, 3)) * size / 100
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    g2 = replace(g, base_joints=g.base_joints + rng.uniform(-1, 1, (3, 3)) * size,
+                 platform_joints=g.platform_joints + rng.uniform(-1, 1, (3, 3)) * size,
+                 revolute_axes=n, length_offsets=rng.uniform(-1, 1, 3) * size,
+                 tool_length=g.tool_length + float(rng.uniform(-1, 1)) * 10 * size,
+                 tool_tilt_deg=tuple(float(x) for x in rng.uniform(-1, 1, 2) * size), nominal=False)
+    return replace(M, geometry=g2)
+
+
+def joint_path(machine, params, dt, seconds, amp, freq, phase, q_off):
+    """Target rows (tip, axis, their forward differences) of a smooth joint-space motion around
+    home, by the FK of ``machine`` (no IK: valid for any geometry). Speeds stay within half the
+    limit."""
+    n = int(round(seconds / dt)) + 1
+    t = np.arange(n) * dt
+    home = np.array([machine.geometry.z_home] * 3 + [0.0, 0.0]) + q_off
+    w = 2 * np.pi * freq
+    a = np.minimum(np.minimum(amp, 0.4 * params.vmax / w), 0.2 * params.amax / w ** 2)
+    tr = min(0.5, seconds / 2)
+    u = np.minimum(np.minimum(t, t[-1] - t) / tr, 1.0)
+    ramp = u * u * (3 - 2 * u)                                 # smooth start from rest, smooth stop
+    q = home + ramp[:, None] * a * np.sin(w * t[:, None] + phase)
+    pose, ok = K.fk_batch(q, machine)
+    assert np.all(ok)
+    rows = np.zeros((n, 12))
+    rows[:, :3], rows[:, 3:6] = pose.tip, pose.axis
+    rows[:-1, 6:9] = np.diff(pose.tip, axis=0) / dt
+    rows[:-1, 9:12] = np.diff(pose.axis, axis=0) / dt
+    return rows, q
+
+
+def assert_same_state(a, b, tick):
+    """a: Python NCState, b: compiled snapshot."""
+    assert np.array_equal(a.counts, b.counts), f"tick {tick}: counters differ"
+    assert a.mode == b.mode and a.reason == b.reason, f"tick {tick}: {a.mode} {a.reason!r} vs {b.mode} {b.reason!r}"
+    for f in STATE_FIELDS:
+        x, y = getattr(a, f), getattr(b, f)
+        if x is None or y is None:
+            assert x is None and y is None, f"tick {tick}: {f}"
+            continue
+        d = float(np.max(np.abs(np.asarray(x, float) - np.asarray(y, float))))
+        assert d <= 1e-9, f"tick {tick}: {f} differs by {d:g}"
+
+
+def closed_loop(machine, params, rows, q0, sim_opt, *, every=1, inject=None):
+    """Each NC against its own sim; returns (ticks, final python state, final compiled snapshot,
+    pulses sent per axis in absolute value)."""
+    dt = params.dt
+    c0 = counts_of(q0, params)
+    st0 = initial_state(machine, c0)
+    py, cc = PythonNC(machine, params), make_nc(machine, params, "compiled")
+    assert isinstance(cc, ncore.CompiledNC)
+    sp, sc = py.load(st0), cc.load(st0)
+    sims = [hal.create("sim", machine, dt, dict(sim_opt)) for _ in range(2)]
+    for s in sims:
+        s.open(c0)
+    hold = rows[-1].copy()
+    hold[6:] = 0.0
+    n = len(rows) + int(0.05 / dt)
+    k = 0
+    moved = np.zeros(5, np.int64)
+    for k in range(n):
+        tg = rows[k] if k < len(rows) else hold
+        fa, fb = sims[0].read(), sims[1].read()
+        if inject is not None:
+            inject(k, fa)
+            inject(k, fb)
+        pa, sp = py.step(sp, tg, fa)
+        pb, sc = cc.step(sc, tg, fb)
+        assert np.array_equal(pa, pb), f"tick {k}: pulses {pa} vs {pb}"
+        assert sp.mode == sc.mode and sp.reason == sc.reason, f"tick {k}: {sp.reason!r} vs {sc.reason!r}"
+        if k % every == 0:
+            assert_same_state(sp, sc.snapshot(), k)
+        if sp.mode in (HALTED, DONE):
+            break
+        moved += np.abs(pa)
+        sims[0].write_pulses(pa)
+        sims[1].write_pulses(pb.copy())
+    assert_same_state(sp, sc.snapshot(), k)
+    assert np.array_equal(sims[0].counts, sims[1].counts)
+    return k + 1, sp, sc.snapshot(), moved
+
+
+# ---------------------------------------------------------------- closed loops, tick for tick
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(rate=st.sampled_from([500.0, 1000.0, 2000.0]),
+       multi=st.booleans(),
+       k_theta=st.sampled_from([0.0, 50.0, 200.0]),
+       geom_seed=st.integers(0, 10_000), geom_size=st.sampled_from([0.0, 0.5, 3.0]),
+       amp=st.lists(st.floats(0.0, 15.0), min_size=5, max_size=5),
+       freq=st.floats(0.2, 2.0), phase=st.lists(st.floats(0, 6.3), min_size=5, max_size=5),
+       q_off=st.lists(st.floats(-20.0, 20.0), min_size=5, max_size=5),
+       flex=st.booleans(), noise=st.booleans())
+def test_compiled_and_python_send_the_same_pulses_tick_for_tick(rate, multi, k_theta, geom_seed, geom_size,
+                                                                amp, freq, phase, q_off, flex, noise):
+    machine = perturbed(geom_seed, geom_size)
+    dt = 1.0 / rate
+    params = NCParams.from_machine(machine, dt, kv=min(400.0, 0.4 / dt), k_theta=k_theta,
+                                   max_pulses_per_tick=None if multi else 1)
+    rows, q = joint_path(machine, params, dt, 0.8, np.array(amp), freq, np.array(phase), np.array(q_off))
+    sim = {"flex": flex, "strain_noise_ue": 0.01 if noise else 0.0, "enc_noise_mm": 1e-5 if noise else 0.0,
+           "seed": geom_seed}
+    ticks, sp, sc, moved = closed_loop(machine, params, rows, q[0], sim, every=7)
+    assert sp.mode == RUN and ticks == len(rows) + int(0.05 / dt), sp.reason    # a feasible path: no stop
+
+
+def test_long_run_20000_ticks_same_pulses_and_state():
+    """A 10 s circle-like joint motion at 2 kHz with K_theta on the flexible, noisy sim plant."""
+    dt = 5e-4
+    params = NCParams.from_machine(M, dt, kv=400.0, k_theta=200.0)
+    rows, q = joint_path(M, params, dt, 10.0, np.array([20.0, 15.0, 10.0, 25.0, 25.0]), 0.3,
+                         np.array([0.0, 2.1, 4.2, 0.0, 1.57]), np.zeros(5))
+    ticks, sp, sc, moved = closed_loop(M, params, rows, q[0], {"flex": True, "strain_noise_ue": 0.01, "seed": 3},
+                                       every=50)
+    assert ticks > 20000 and sp.mode == RUN
+    assert np.all(moved > 100_000)          # every axis travelled over 50 mm
+
+
+# ---------------------------------------------------------------- supervision: same mode, same reason
+
+
+def _supervision_case(rows_fn, sim=None, inject=None, rate=1000.0, **kw):
+    dt = 1.0 / rate
+    params = NCParams.from_machine(M, dt, kv=400.0, **kw)
+    rows, q0 = rows_fn(params, dt)
+    return closed_loop(M, params, rows, q0, sim or {}, inject=inject)[:3]
+
+
+def _toward(q_end_fn, seconds=1.0):
+    def fn(params, dt):
+        q0 = np.array([M.geometry.z_home] * 3 + [0.0, 0.0])
+        q1 = q_end_fn(params, q0)
+        n = int(seconds / dt) + 1
+        s = 0.5 - 0.5 * np.cos(np.pi * np.arange(n) / (n - 1))
+        q = q0 + s[:, None] * (q1 - q0)
+        pose, ok = K.fk_batch(q, M)
+        rows = np.zeros((n, 12))
+        rows[:, :3], rows[:, 3:6] = pose.tip, pose.axis
+        rows[:-1, 6:9] = np.diff(pose.tip, axis=0) / dt
+        rows[:-1, 9:12] = np.diff(pose.axis, axis=0) / dt
+        return rows, q0
+    return fn
+
+
+def test_soft_limit_same_stop_and_reason():
+    def end(params, q0):
+        q1 = q0.copy()
+        q1[3] = params.upper[3] + 5.0          # X beyond its soft limit
+        return q1
+    ticks, sp, sc = _supervision_case(_toward(end, 3.0))
+    assert sp.mode == sc.mode == HALTED
+    assert sp.reason.startswith("soft limit: X") and sp.reason == sc.reason
+
+
+def test_following_error_same_halt_and_reason():
+    ticks, sp, sc = _supervision_case(_toward(lambda p, q0: q0 + [5.0, 0, 0, 10.0, 0]),
+                                      sim={"lost_steps_at_tick": 300, "lost_steps_axis": 1, "lost_steps_mm": 0.2})
+    assert sp.mode == sc.mode == HALTED and ticks == 302
+    assert sp.reason.startswith("following error: L2") and sp.reason == sc.reason
+
+
+def test_dead_sensor_same_halt_and_reason():
+    def inject(k, fb):
+        if k == 120:
+            fb.strain[2] = math.nan
+    ticks, sp, sc = _supervision_case(_toward(lambda p, q0: q0 + [2.0, 0, 0, 3.0, 0]), inject=inject)
+    assert sp.mode == sc.mode == HALTED and ticks == 121
+    assert sp.reason == sc.reason == "feedback fault: strain gauge 3 reads nan"
+
+
+def test_path_error_same_stop_and_reason():
+    def fn(params, dt):
+        rows, q0 = _toward(lambda p, q0: q0 + [1.0, 0, 0, 0, 0])(params, dt)
+        rows[200:, 0] += 2.0                 # the target jumps 2 mm
+        return rows, q0
+    ticks, sp, sc = _supervision_case(fn)
+    assert sp.mode == sc.mode == HALTED
+    assert sp.reason.startswith("path error") and sp.reason == sc.reason
+
+
+@pytest.mark.parametrize("jump", [[4_000_000, 0, 0, 0, 0], [-700_000, 0, 0, 0, 0], [0, 3_000_000, -500_000, 0, 0]])
+def test_model_pose_lost_same_halt_and_reason(jump):
+    """Counters that no pose of the platform matches (a chain far too long or short): both NCs halt
+    at once with the same 'model pose lost' reason."""
+    dt = 1e-3
+    params = NCParams.from_machine(M, dt, kv=400.0)
+    q0 = np.array([M.geometry.z_home] * 3 + [0.0, 0.0])
+    st0 = initial_state(M, counts_of(q0, params))
+    bad = replace(st0, counts=st0.counts + np.array(jump))
+    fb = Feedback()
+    fb.enc[:] = bad.counts / params.pulses_per_mm
+    tg = np.concatenate([st0.tip, st0.axis, np.zeros(6)])
+    pa, sp = PythonNC(M, params).step(bad, tg, fb)
+    cc = make_nc(M, params, "compiled")
+    pb, sc = cc.step(cc.load(bad), tg, fb)
+    assert sp.mode == sc.mode == HALTED
+    assert sp.reason.startswith("model pose lost: forward kinematics") and sp.reason == sc.reason
+    assert not pa.any() and not pb.any()
+    assert_same_state(sp, sc.snapshot(), 0)
+
+
+# ---------------------------------------------------------------- the FK alone, general geometry
+
+
+@settings(max_examples=40, deadline=None)
+@given(geom_seed=st.integers(0, 10_000), geom_size=st.sampled_from([0.0, 0.5, 3.0]),
+       dq=st.lists(st.floats(-60.0, 60.0), min_size=5, max_size=5),
+       step=st.lists(st.floats(-0.5, 0.5), min_size=3, max_size=3))
+def test_compiled_fk_equals_model_fk(geom_seed, geom_size, dq, step):
+    """Model FK with the predictor warm start: same pose, same Newton iterations, on non-nominal
+    geometry; FK(q) reproduces the chain lengths of the pose."""
+    machine = perturbed(geom_seed, geom_size)
+    q = np.array([machine.geometry.z_home] * 3 + [0.0, 0.0]) + np.array(dq)
+    P, R = K.forward_platform(q[:3], machine.geometry)
+    mf = ModelFK(machine)
+    mf.solve(q, P, R)
+    cf = ncore.CompiledFK(machine, P, R, q)
+    cf.solve(q)
+    q2 = q.copy()
+    q2[:3] += step
+    try:
+        P1, R1, tip1, ax1, J1 = mf.solve(q2, P, R, ((q2 - q)[:3], mf.last_T))
+    except KinematicsError as e:
+        with pytest.raises(KinematicsError) as ei:
+            cf.solve(q2)
+        assert str(ei.value) == str(e)
+        return
+    it = cf.solve(q2)
+    assert it >= 0
+    assert np.array_equal(P1, cf.P) and np.array_equal(R1.ravel(), cf.R)     # same arithmetic, same bits
+    assert np.array_equal(mf.last_T.ravel(), cf.T)
+    Cw = (R1 @ machine.geometry.platform_joints.T).T + P1
+    L = np.linalg.norm(Cw - machine.geometry.base_joints, axis=1) - machine.geometry.length_offsets
+    assert np.allclose(L, q2[:3], atol=1e-9)
+    assert np.allclose(cf.static_strain(), mf.static_strain(R1, mf.last_T), atol=1e-12, rtol=0)
+
+
+# ---------------------------------------------------------------- the switch
+
+
+def test_the_service_config_selects_the_implementation_strictly():
+    assert NCConfig().implementation == "compiled"
+    svc = service_from_dict({"nc": {"implementation": "python"}})
+    assert svc.nc.implementation == "python"
+    assert svc.nc.params(M, 1e-3).implementation == "python"
+    assert isinstance(make_nc(M, svc.nc.params(M, 1e-3)), PythonNC)
+    assert isinstance(make_nc(M, NCConfig().params(M, 1e-3)), ncore.CompiledNC)
+    for bad in ("fortran", "Compiled", 1, True):
+        with pytest.raises(ConfigError, match="nc.implementation"):
+            service_from_dict({"nc": {"implementation": bad}})
+    with pytest.raises(ValueError, match="implementation"):
+        NCParams.from_machine(M, 1e-3, implementation="numba")
+
+
+def test_core_rejects_wrong_buffers():
+    c = ncore.constants(M, NCParams.from_machine(M, 1e-3))
+    with pytest.raises(ValueError, match="consts"):
+        ncore._ncore.Core(c[:-1], np.zeros(ncore.S_LEN), np.zeros(ncore.N_LEN, np.int64))
+    with pytest.raises(ValueError, match="int64"):
+        ncore._ncore.Core(c, np.zeros(ncore.S_LEN), np.zeros(ncore.N_LEN))
+    core = ncore._ncore.Core(c, np.zeros(ncore.S_LEN), np.zeros(ncore.N_LEN, np.int64))
+    with pytest.raises(ValueError, match="target"):
+        core.step(np.zeros(11), np.zeros(5), np.zeros(3))
+    with pytest.raises(ValueError, match="float64"):
+        core.step(np.zeros(12), np.zeros(5, np.float32), np.zeros(3))
