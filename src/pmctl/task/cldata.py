@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core.errors import InputError
-from pmctl.task.job import LINE, RAPID, Job, Move, check_reach
+from pmctl.task.job import LINE, RAPID, Job, Move, check_reach, read_job_text
 
 AXIS_TOL = 1e-3                 # allowed | |V| - 1 |
 DEFAULT_FEED_MM_MIN = 600.0     # 10 mm/s
@@ -127,10 +127,7 @@ def parse_cl(text: str, path="<string>", *, vector="axis") -> CLData:
 def read_cl(path, machine, *, vector="axis") -> CLData:
     """Read and fully check a CL file (syntax, vectors, pass structure, reachability)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"cannot read: {e}") from None
+    text = read_job_text(path)
     cl = parse_cl(text, path, vector=vector)
     check_reach(cl.tip, cl.axis, cl.line, machine, path)
     return cl
