@@ -13,7 +13,8 @@ An optional header line (first content line, starting with ``Px``), blank lines 
 (V_z < 0); by default V is the tool axis as in APT ``GOTO/x,y,z,i,j,k``, so a downward vector is an
 error rather than silently flipped. Seed-style files are read with ``vector="normal"`` (axis = -V).
 
-Every line is parsed and checked before anything is returned: malformed lines, non-unit vectors
+Numbers are plain ASCII decimals (an exponent allowed), |P| <= ``MAX_COORD_MM`` and |V| components
+<= 2. Every line is parsed and checked before anything is returned: malformed lines, non-unit vectors
 (|V| off by more than ``AXIS_TOL``; within it V is normalised), tool axes pointing down or tilted
 beyond the config's theta2 limit, pass structure (``w``/``e`` outside a pass, ``s`` inside one, a
 pass never ended) and unreachable poses (``kinematics.ik_batch``) raise ``InputError`` naming the
@@ -41,6 +42,8 @@ DEFAULT_FEED_MM_MIN = 600.0     # 10 mm/s
 DEFAULT_CLEARANCE_MM = 5.0      # approach/retract distance along the tool axis
 FLAGS = ("s", "w", "e")
 _SPLIT = re.compile(r"[,\s]+")
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,3})?")
+MAX_COORD_MM = 1e5              # |Px|, |Py|, |Pz| at most (|V| components are at most 2)
 
 
 @dataclass(frozen=True)
@@ -55,12 +58,12 @@ class CLData:
         return len(self.tip)
 
 
-def _float(text):
-    try:
-        v = float(text)
-    except ValueError:
+def _float(text, limit):
+    """A plain ASCII decimal (optional exponent) with |v| <= limit, else None."""
+    if len(text) > 64 or not _DECIMAL.fullmatch(text):
         return None
-    return v if math.isfinite(v) else None
+    v = float(text)
+    return v if math.isfinite(v) and abs(v) <= limit else None
 
 
 def parse_cl(text: str, path="<string>", *, vector="axis") -> CLData:
@@ -87,9 +90,12 @@ def parse_cl(text: str, path="<string>", *, vector="axis") -> CLData:
             raise InputError(path, lineno, f"expected 7 fields Px,Py,Pz,Vx,Vy,Vz,flag, got {len(fields)}")
         vals = []
         for k, (name, f) in enumerate(zip(("Px", "Py", "Pz", "Vx", "Vy", "Vz"), fields[:6])):
-            v = _float(f)
+            lim = MAX_COORD_MM if k < 3 else 2.0
+            v = _float(f, lim)
             if v is None:
-                raise InputError(path, lineno, f"field {k + 1} ({name}): {f!r} is not a finite number")
+                show = f if len(f) <= 40 else f[:37] + "..."
+                raise InputError(path, lineno, f"field {k + 1} ({name}): {show!r} is not a decimal number "
+                                               f"within +-{lim:g}")
             vals.append(v)
         flag = fields[6].lower()
         if flag not in FLAGS:

@@ -35,7 +35,7 @@ KINDS = (RAPID, LINE, ARC, DWELL)
 
 GCODE_SUFFIXES = (".ngc", ".nc", ".gcode", ".tap")
 CL_SUFFIXES = (".cl", ".cls", ".txt", ".csv")
-MAX_JOB_BYTES = 64 * 2**20        # a job file larger than this is refused before it is parsed
+MAX_JOB_BYTES = 8 * 2**20         # a job file larger than this is refused before it is parsed (~300k lines)
 
 
 @dataclass(frozen=True)
