@@ -59,6 +59,7 @@ from pmctl.core.config import CONFIG_DIR, Machine, load_machine
 from pmctl.core.errors import InputError
 
 FORMAT = "pmctl-recording/1"
+MAX_META_BYTES = 16 * 2**20
 META_FILE = "recording.json"
 DATA_FILE = "data.csv"
 
@@ -188,12 +189,51 @@ def _key_line(text: str, key: str) -> int | None:
     return text.count("\n", 0, m.start()) + 1 if m else None
 
 
+def _json_object(text: str, mp: Path) -> dict:
+    """Parse recording.json (comments tolerated); InputError for anything that is not a JSON object,
+    including nesting too deep for the parser and numbers too long to convert."""
+    def parse(t):
+        return json.loads(t, parse_constant=_no_constant)
+    try:
+        try:
+            meta = parse(text)
+        except json.JSONDecodeError as e:
+            try:
+                meta = parse(_strip_json_comments(text))
+            except json.JSONDecodeError:
+                raise InputError(mp, e.lineno, f"not valid JSON: {e.msg}", column=e.colno) from None
+    except RecursionError:
+        raise InputError(mp, None, "not valid JSON: arrays or objects nested too deeply") from None
+    except ValueError as e:            # NaN/Infinity, or an integer of more than 4300 digits
+        raise InputError(mp, None, f"not valid JSON: {e}") from None
+    if not isinstance(meta, dict):
+        raise InputError(mp, 1, "must be a JSON object")
+    return meta
+
+
+def _no_constant(name):
+    raise ValueError(f"{name} is not a JSON number")
+
+
+def _finite_real(v) -> bool:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    if isinstance(v, int):
+        return abs(v) <= 2**53
+    return math.isfinite(v)
+
+
 def resolve_machine(ref: str, folder: Path) -> Path | None:
     """A config file for a recording's ``machine``: a path relative to the folder, else config/NAME.toml."""
+    if not isinstance(ref, str) or not ref or "\0" in ref:
+        return None
     p = Path(ref)
     cand = p if p.is_absolute() else folder / p
-    if ref and cand.is_file():
-        return cand
+    try:
+        if cand.is_file():
+            return cand
+    except (OSError, ValueError):       # a name too long for the file system
+        return None
     if ref and re.fullmatch(r"[A-Za-z0-9_.\-]+", ref):
         c = CONFIG_DIR / (ref if ref.endswith(".toml") else f"{ref}.toml")
         if c.is_file():
@@ -208,23 +248,19 @@ def read_meta(folder: str | Path) -> tuple[dict, Path, Path]:
     if not folder.is_dir():
         raise InputError(folder, None, "not a recording folder (no such directory)")
     try:
-        raw = mp.read_bytes()
+        with open(mp, "rb") as f:
+            raw = f.read(MAX_META_BYTES + 1)
     except OSError as e:
         raise InputError(mp, None, f"cannot read: {e.strerror or e}") from None
+    if len(raw) > MAX_META_BYTES:
+        raise InputError(mp, None, f"larger than {MAX_META_BYTES // 2**20} MiB: not a recording's metadata")
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as e:
         line = raw.count(b"\n", 0, e.start) + 1
-        raise InputError(mp, line, "not UTF-8 text") from None
-    try:
-        meta = json.loads(text)
-    except json.JSONDecodeError as e:
-        try:
-            meta = json.loads(_strip_json_comments(text))
-        except json.JSONDecodeError:
-            raise InputError(mp, e.lineno, f"not valid JSON: {e.msg}", column=e.colno) from None
-    if not isinstance(meta, dict):
-        raise InputError(mp, 1, "must be a JSON object")
+        col = e.start - (raw.rfind(b"\n", 0, e.start) + 1) + 1
+        raise InputError(mp, line, f"byte 0x{raw[e.start]:02x} is not UTF-8 text", column=col) from None
+    meta = _json_object(text, mp)
 
     def bad(key, reason):
         return InputError(mp, _key_line(text, key), f"{key}: {reason}")
@@ -235,16 +271,16 @@ def read_meta(folder: str | Path) -> tuple[dict, Path, Path]:
     if fmt != FORMAT:
         raise bad("format", f'{fmt!r} is not "{FORMAT}"')
     ref = meta.get("machine", "prototype")
-    if not isinstance(ref, str) or not ref.strip():
+    if not isinstance(ref, str) or not ref.strip() or "\0" in ref or len(ref) > 1024:
         raise bad("machine", "must be a config name or a path relative to the recording folder")
     machine_path = resolve_machine(ref, folder)
     if machine_path is None:
         raise bad("machine", f"unknown machine {ref!r}: neither config/{ref}.toml nor a file "
                              f"relative to {folder}")
     sr = meta.get("sample_rate_hz")
-    if sr is not None and (isinstance(sr, bool) or not isinstance(sr, (int, float))
-                           or not math.isfinite(sr) or sr <= 0):
-        raise bad("sample_rate_hz", f"must be a positive number, got {sr!r}")
+    if sr is not None and not (_finite_real(sr) and 0 < sr <= 1e9):
+        show = repr(sr) if len(repr(sr)) <= 40 else repr(sr)[:37] + "..."
+        raise bad("sample_rate_hz", f"must be a positive number up to 1e9, got {show}")
     if "description" in meta and not isinstance(meta["description"], str):
         raise bad("description", "must be a string")
     ch = meta.get("channels", {})
@@ -294,9 +330,15 @@ def _fill_empty(body: bytes) -> bytes:
     return body
 
 
+# Bytes the fast path may see: ASCII digits, signs, point, exponent, "nan" in any case, comma, space,
+# tab and newline. Anything else (a stray non-ASCII byte, a fullwidth digit, "inf", "_", a quote...)
+# goes to the strict scan, so that both paths always read a file the same way.
+_FAST_BYTES = b"0123456789+-.eEnNaA, \t\n"
+
+
 def _fast_parse(body: bytes, ncol: int) -> np.ndarray | None:
     """One C pass; None when anything is unusual (the slow scan then decides)."""
-    if b"_" in body or b"\r" in body:
+    if body.translate(None, _FAST_BYTES):
         return None
     if not body.strip():
         return np.zeros((0, ncol))
@@ -312,6 +354,9 @@ def _fast_parse(body: bytes, ncol: int) -> np.ndarray | None:
     return arr
 
 
+_BLANK = " \t"           # the only blanks around a cell (no Unicode spaces, no control characters)
+
+
 def _slow_parse(body: bytes, names: list[str], path: Path, first_line: int) -> tuple[np.ndarray, np.ndarray]:
     """Exact per-cell scan; returns (data, file line of each row) or raises at the first bad cell."""
     ncol = len(names)
@@ -319,7 +364,7 @@ def _slow_parse(body: bytes, names: list[str], path: Path, first_line: int) -> t
     for k, rawline in enumerate(body.split(b"\n")):
         lineno = first_line + k
         line = rawline.decode("utf-8", errors="replace").rstrip("\r")
-        if not line.strip():
+        if not line.strip(_BLANK):
             continue
         cells = line.split(",")
         if len(cells) != ncol:
@@ -328,7 +373,7 @@ def _slow_parse(body: bytes, names: list[str], path: Path, first_line: int) -> t
                              column=min(len(cells), ncol) + 1)
         vals = []
         for j, cell in enumerate(cells):
-            s = cell.strip()
+            s = cell.strip(_BLANK)
             if not s or _NAN_RE.match(s):
                 vals.append(math.nan)
             elif _NUM_RE.match(s):
