@@ -331,3 +331,12 @@ def test_non_utf8_job_file_names_line_and_column(tmp_path, machine):
     with pytest.raises(InputError) as e:
         read_gcode(p, machine)
     assert e.value.line == 2 and e.value.column == 11 and "0xff is not UTF-8" in e.value.reason
+
+
+def test_programs_beyond_the_move_bound_are_refused_at_the_crossing_line(monkeypatch):
+    import pmctl.task.gcode as G
+    monkeypatch.setattr(G, "MAX_MOVES", 10)
+    text = "G0 X0 Y0 Z90\nF600\n" + "\n".join(f"G1 X{i}" for i in range(1, 20))
+    e = error_of(text)
+    assert e.line == 12 and "more than 10 moves" in e.reason        # the 11th move is on line 12
+    assert len(parse("\n".join(text.split("\n")[:11])).moves) == 10

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core.errors import InputError
-from pmctl.task.job import LINE, RAPID, Job, Move, check_reach, read_job_text
+from pmctl.task.job import LINE, MAX_MOVES, RAPID, Job, Move, check_reach, read_job_text
 
 AXIS_TOL = 1e-3                 # allowed | |V| - 1 |
 DEFAULT_FEED_MM_MIN = 600.0     # 10 mm/s
@@ -77,6 +77,7 @@ def parse_cl(text: str, path="<string>", *, vector="axis") -> CLData:
     tips, axes, flags, lines = [], [], [], []
     seen_content = False
     open_pass = None       # line of the 's' of the pass in progress
+    n_pass = 0
     for lineno, raw in enumerate(text.split("\n"), 1):
         s = raw.strip()
         if not s or s.startswith("#") or s.startswith(";"):
@@ -119,6 +120,10 @@ def parse_cl(text: str, path="<string>", *, vector="axis") -> CLData:
             raise InputError(path, lineno, f"'{flag}' outside a pass (a pass starts with 's')")
         elif flag == "e":
             open_pass = None
+        n_pass += flag == "s"
+        if len(tips) + 1 + 2 * n_pass > MAX_MOVES:
+            raise InputError(path, lineno, f"more than {MAX_MOVES} moves (with the approach and retract of "
+                                           "each pass): longer than the batch planner takes (split the file)")
         tips.append(vals[:3])
         axes.append(v)
         flags.append(flag)

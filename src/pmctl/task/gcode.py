@@ -52,7 +52,7 @@ import numpy as np
 
 from pmctl.core import kinematics as K
 from pmctl.core.errors import InputError
-from pmctl.task.job import ARC, DWELL, LINE, RAPID, Job, Move, check_reach, home_pose, read_job_text
+from pmctl.task.job import ARC, DWELL, LINE, MAX_MOVES, RAPID, Job, Move, check_reach, home_pose, read_job_text
 
 MM_PER_INCH = 25.4
 ARC_RADIUS_TOL_MM = 0.005         # |r_end - r_start| allowed for I/J arcs (becomes a tiny spiral)
@@ -60,7 +60,7 @@ MAX_DWELL_S = 3600.0              # one G4 at most an hour
 MAX_ARC_TURNS = 1000              # G2/G3 P at most this many turns
 LETTERS = set("ABFGIJMNPQRSXYZ")
 # Largest |value| per word letter (program units: mm or inch, degrees, per minute, rpm, seconds).
-WORD_LIMITS = {"N": 99_999_999, "G": 999, "M": 999, "F": 1e6, "S": 1e6, "P": 1e6, "Q": 1e6,
+WORD_LIMITS = {"N": 99_999_999, "G": 999, "M": 999, "F": 1e6, "S": 1e6, "P": 1e12, "Q": 1e12,
                **{k: 1e5 for k in "XYZIJR"}, "A": 1e4, "B": 1e4}
 G_MOTION = {0, 10, 20, 30}        # G-codes times 10
 G_NOOP = {400, 490, 540, 610, 640, 800, 970}   # G40 G49 G54 G61 G64 G80 G97: hold anyway (see above)
@@ -237,6 +237,9 @@ def parse_gcode(text: str, path="<string>", start_tip=(0.0, 0.0, 0.0), start_axi
         if _execute_line(words, st, path, lineno, moves, points, point_lines):
             ended = True
             break
+        if len(moves) > MAX_MOVES:
+            raise InputError(path, lineno, f"more than {MAX_MOVES} moves: longer than the batch planner takes "
+                                           "(split the program)")
     if percent_line is not None and not ended:
         raise InputError(path, percent_line, "the program starts with '%' but has no closing '%' (nor M2/M30)")
     pts = np.array(points, float).reshape(-1, 3)

@@ -16,7 +16,8 @@ spindle speed during the move (0 = off).
 
 ``load_job(path, machine)`` reads a file of either format by its suffix; ``read_job_text(path)`` is how
 both readers get the text (UTF-8, at most ``MAX_JOB_BYTES``; a bad byte is reported with its line and
-column). ``Job.messages`` holds the program's operator messages (G-code ``(MSG, ...)`` comments) as
+column). A job holds at most ``MAX_MOVES`` moves (the batch planner's bound; the readers refuse the
+line that crosses it). ``Job.messages`` holds the program's operator messages (G-code ``(MSG, ...)`` comments) as
 (line, text) pairs, for the operator to see before the job runs.
 """
 
@@ -36,6 +37,8 @@ KINDS = (RAPID, LINE, ARC, DWELL)
 GCODE_SUFFIXES = (".ngc", ".nc", ".gcode", ".tap")
 CL_SUFFIXES = (".cl", ".cls", ".txt", ".csv")
 MAX_JOB_BYTES = 8 * 2**20         # a job file larger than this is refused before it is parsed (~300k lines)
+MAX_MOVES = 50_000                # moves in one job: the batch planner's bound (~12 s of planning), checked
+                                  # by the readers as they go (the line that crosses it is named)
 
 
 @dataclass(frozen=True)

@@ -43,7 +43,8 @@ How it works (all vectorised with numpy):
 
 Resource bounds: the planner holds the whole trajectory in memory (about 0.75 kB per sample at its
 peak), so it refuses, with the file, the line and the reason and before allocating anything large,
-a job of more than ``MAX_SAMPLES`` ticks (20 min at 1 kHz) or a path of more than
+a job of more than ``MAX_MOVES`` moves (pmctl.task.job), of more than ``MAX_SAMPLES`` ticks (20 min
+at 1 kHz) or a path of more than
 ``MAX_GRID_POINTS`` limit-grid points (500 m at the default 0.25 mm grid). The duration is checked
 three times: a lower bound (length / feed + dwells) before the limit grid, the grid size before
 it is built, and the profile's true duration before it is sampled. A typo such as ``F0.42`` or a
@@ -62,7 +63,7 @@ from scipy.interpolate import PchipInterpolator
 
 from pmctl.core import kinematics as K
 from pmctl.core.errors import InputError, PmctlError
-from pmctl.task.job import ARC, DWELL, RAPID, Job, home_pose, load_job  # noqa: F401  (re-exported)
+from pmctl.task.job import ARC, DWELL, MAX_MOVES, RAPID, Job, home_pose, load_job  # noqa: F401  (re-exported)
 from pmctl.task.trajectory import Trajectory
 
 __all__ = ["PlannerLimits", "plan", "home_pose", "load_job", "PlanningError"]
@@ -342,6 +343,9 @@ def plan(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: Pl
         raise PlanningError(f"feed override must be > 0, got {feed_override!r}")
     if start is None:
         start = home_pose(machine)
+    if len(job.moves) > MAX_MOVES:
+        raise InputError(job.source, int(job.moves[MAX_MOVES].line) or None,
+                         f"more than {MAX_MOVES} moves: longer than the batch planner takes (split the job)")
     path = _Path(job, start, limits, feed_override)
     T = max(2.0 * limits.tangential_accel / limits.jerk_mm_s3, 2.0 * dt)
     _check_size(path, job, dt, limits)

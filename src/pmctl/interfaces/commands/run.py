@@ -181,6 +181,8 @@ def run(args) -> int:
         if not os.access(folder, os.W_OK):
             raise PmctlError(f"--record {folder}: folder is not writable")
     job = load_job(args.job, machine, start=(st.tip, st.axis))
+    for line, text in job.messages:                  # G-code (MSG, ...): for the operator, before it runs
+        log(f"message from {Path(args.job).name} line {line}: {text}")
     plan_machine = machine
     if np.any(params.vmax < machine.limits.joint_speed - 1e-9):
         # the V-F converters cap the joint speed below the machine's (seed mode: one pulse per
