@@ -13,6 +13,7 @@ import os
 import re
 import sys
 import traceback
+import warnings
 
 from pmctl import __version__
 from pmctl.core.errors import PmctlError
@@ -75,6 +76,15 @@ def main(argv=None) -> int:
     may document its own codes, e.g. ``pmctl run``: 3 controlled stop, 4 fault); 2 usage (argparse);
     70 internal error (any other exception: ``pmctl: internal error: ...``, the traceback only with
     ``PMCTL_DEBUG=1``); 130 interrupted."""
+    with warnings.catch_warnings():
+        if os.environ.get("PMCTL_DEBUG") != "1":
+            # numeric warnings (overflow in a norm of an absurd input...) are not for the operator: the
+            # command still ends in its one line; PMCTL_DEBUG=1 shows them
+            warnings.simplefilter("ignore", RuntimeWarning)
+        return _main(argv)
+
+
+def _main(argv) -> int:
     try:
         parser = build_parser()
         args = parser.parse_args(_glue_negative_values(sys.argv[1:] if argv is None else list(argv)))
