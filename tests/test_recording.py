@@ -326,3 +326,18 @@ def test_hostile_recording_json_is_an_input_error(tmp, meta, words):
     with pytest.raises(InputError) as e:
         read_meta(d)
     assert words in str(e.value)
+
+
+def test_values_beyond_physical_bounds_are_refused_with_line_and_column(tmp):
+    cols = _columns(6, extra=("tip_x",))
+    write_recording(tmp / "r", cols, sample_rate_hz=100)
+    data = tmp / "r" / "data.csv"
+    lines = data.read_text().split("\n")
+    cells = lines[4].split(",")
+    names = lines[0].split(",")
+    cells[names.index("cmd_L2")] = "1e300"
+    data.write_text("\n".join(lines[:4] + [",".join(cells)] + lines[5:]))
+    with pytest.raises(InputError) as e:
+        read_recording(tmp / "r")
+    assert e.value.line == 5 and e.value.column == names.index("cmd_L2") + 1
+    assert "cmd_L2" in e.value.reason and "1e+300 is out of range (|value| <= 1e+09)" in e.value.reason

@@ -14,8 +14,8 @@ message). Checked: recording.json is a JSON object (``//`` and ``/* */`` comment
 file relative to the folder, ``sample_rate_hz`` > 0, ``description`` a string, ``channels`` an
 object; data.csv has the required channels (``t``, ``cmd_L1`` ``cmd_L2`` ``cmd_L3`` ``cmd_X``
 ``cmd_Y``), unique non-empty names, every row as long as the header, every cell a finite decimal
-number or empty/``nan``, and ``t`` present on every row and strictly increasing. Blank lines are
-skipped. Unknown columns are carried along and listed in ``Recording.unknown_columns``.
+number or empty/``nan`` with |value| <= ``MAX_ABS_VALUE`` (1e9), and ``t`` present on every row and
+strictly increasing. Blank lines are skipped. Unknown columns are carried along and listed in ``Recording.unknown_columns``.
 
 Large files: the text is parsed in one C pass (``numpy.loadtxt`` after empty cells are filled);
 only when that fails does a per-cell Python scan run, to find and report the first bad cell.
@@ -73,6 +73,7 @@ LOAD = ("load_fx", "load_fy", "load_fz")
 REQUIRED = ("t",) + CMD
 KNOWN_FIXED = REQUIRED + ENC + TIP + TOOL + STRAIN + LOAD
 
+MAX_ABS_VALUE = 1e9      # largest |value| of any cell (mm, s, microstrain, N...): beyond it, not a measurement
 _KIND = {"t": "time", **{c: "cmd" for c in CMD}, **{c: "enc" for c in ENC}, **{c: "tip" for c in TIP},
          **{c: "tool" for c in TOOL}, **{c: "strain" for c in STRAIN}, **{c: "load" for c in LOAD}}
 _TEMP_RE = re.compile(r"^temp_[A-Za-z0-9_.\-]+$")
@@ -430,6 +431,12 @@ def read_data(path: str | Path) -> tuple[list[str], np.ndarray, np.ndarray | Non
 
     if data.shape[0] == 0:
         raise InputError(path, 2, "no samples after the header")
+    with np.errstate(invalid="ignore"):
+        over = np.abs(data) > MAX_ABS_VALUE
+    if over.any():
+        r, j = (int(x) for x in np.argwhere(over)[0])
+        raise InputError(path, line_of(r), f"channel {names[j]!r}: {float(data[r, j])!r} is out of range "
+                                           f"(|value| <= {MAX_ABS_VALUE:g})", column=j + 1)
     jt = names.index("t")
     t = data[:, jt]
     nan_t = np.flatnonzero(np.isnan(t))
