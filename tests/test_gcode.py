@@ -340,3 +340,16 @@ def test_programs_beyond_the_move_bound_are_refused_at_the_crossing_line(monkeyp
     e = error_of(text)
     assert e.line == 12 and "more than 10 moves" in e.reason        # the 11th move is on line 12
     assert len(parse("\n".join(text.split("\n")[:11])).moves) == 10
+
+
+def test_job_files_beyond_the_size_bounds_are_refused_before_parsing(tmp_path, monkeypatch, machine):
+    import pmctl.task.job as J
+    p = tmp_path / "long.ngc"
+    p.write_text("N1\n" * 30)
+    monkeypatch.setattr(J, "MAX_JOB_LINES", 20)
+    with pytest.raises(InputError) as e:
+        load_job(p, machine)
+    assert e.value.line == 21 and "31 lines; the limit is 20" in e.value.reason
+    monkeypatch.setattr(J, "MAX_JOB_BYTES", 50)
+    with pytest.raises(InputError, match="larger than the limit"):
+        load_job(p, machine)
