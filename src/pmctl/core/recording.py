@@ -17,7 +17,7 @@ object; data.csv has the required channels (``t``, ``cmd_L1`` ``cmd_L2`` ``cmd_L
 number or empty/``nan`` with |value| <= ``MAX_ABS_VALUE`` (1e9), and ``t`` present on every row and
 strictly increasing. Blank lines are skipped. Unknown columns are carried along and listed in ``Recording.unknown_columns``.
 
-Large files: the text is parsed in one C pass (``numpy.loadtxt`` after empty cells are filled);
+Large files: data.csv may be up to ``MAX_DATA_BYTES`` (512 MiB); the text is parsed in one C pass (``numpy.loadtxt`` after empty cells are filled);
 only when that fails does a per-cell Python scan run, to find and report the first bad cell.
 10^6 rows x 20 channels read in a few seconds (``benchmarks/bench_recording.py``).
 
@@ -60,6 +60,7 @@ from pmctl.core.errors import InputError
 
 FORMAT = "pmctl-recording/1"
 MAX_META_BYTES = 16 * 2**20
+MAX_DATA_BYTES = 512 * 2**20    # data.csv read at most this large (the whole table is held in memory)
 META_FILE = "recording.json"
 DATA_FILE = "data.csv"
 
@@ -407,9 +408,13 @@ def read_data(path: str | Path) -> tuple[list[str], np.ndarray, np.ndarray | Non
     """Parse and validate data.csv -> (names, data (n, ncol) float64, row lines or None)."""
     path = Path(path)
     try:
-        raw = path.read_bytes()
+        with open(path, "rb") as f:
+            raw = f.read(MAX_DATA_BYTES + 1)
     except OSError as e:
         raise InputError(path, None, f"cannot read: {e.strerror or e}") from None
+    if len(raw) > MAX_DATA_BYTES:
+        raise InputError(path, None, f"larger than {MAX_DATA_BYTES // 2**20} MiB (about 2.5 million rows of 20 "
+                                     "channels): split the recording")
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]
     names, start = _header(raw, path)
