@@ -464,7 +464,7 @@ def _limit_grid(path: _Path, machine, limits: PlannerLimits, dt, T):
     sig = np.linalg.norm(d["tip1"], axis=-1)
     vmax = path.vmax[seg]
     rot = path.rot[seg]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         caps = [np.where(rot, vmax, vmax / sig),
                 limits.axis_rate_rad_s / np.linalg.norm(d["axis1"], axis=-1),
                 np.sqrt(limits.normal_accel / np.linalg.norm(d["tip2"], axis=-1)),
