@@ -125,7 +125,7 @@ def test_arc_centres_and_sweeps():
 
 @pytest.mark.parametrize("text,line,words", [
     ("G0 X1\nG1 X5", 2, "no F"),
-    ("G0 X1\nG0 X1 Q2", 2, "unknown word 'Q2'"),
+    ("G0 X1\nG0 X1 W2", 2, "unknown word 'W2': axis W"),
     ("G1 F100 X", 1, "missing value after 'X'"),
     ("G0 X1\n\nG18", 3, "unsupported G-code G18"),
     ("G0 X1 (abc", 1, "never closed"),
@@ -261,3 +261,95 @@ def test_junk_raises_only_input_error(text):
     else:
         for m in job.moves:
             assert np.all(np.isfinite(m.tip)) and np.all(np.isfinite(m.axis))
+
+
+# ---------------------------------------------------------------- numbers, refusals by name, %, M3, MSG
+
+@pytest.mark.parametrize("text,col,words", [
+    ("G0 X" + "9" * 400, 4, "X999"),                     # hundreds of digits: out of range, no OverflowError
+    ("N" + "1" * 300 + " G0 X1", 1, "out of range"),
+    ("G" + "1" * 300 + " X1", 1, "out of range"),
+    ("M" + "3" * 300, 1, "out of range"),
+    ("G0 X1\nG1 X2 F" + "1" * 401, 7, "out of range"),     # 1e400 would be infinity
+    ("S" + "9" * 401 + " M3", 1, "out of range"),
+    ("G4 P" + "9" * 400, 4, "out of range"),
+    ("G4 P100000", 4, "dwell P100000 must be within 0 .. 3600 s"),
+    ("G0 X10 Y0 Z100\nF60 G2 X10 Y0 I-10 P100000", 20, "arc turns P100000"),
+    ("G0 X1\nG1 F600 X2 Y[1+2]", 13, "expressions [...] are not supported"),
+    ("#1 = 5", 1, "parameters (#...) are not supported"),
+    ("G0 X#1", 5, "parameters (#...) are not supported"),
+    ("o100 sub", 1, "O-word subroutines and control flow are not supported"),
+    ("O<probe> call", 1, "O-word"),
+    ("G0 X0 Y0 Z100\nG81 X1 Y1 Z-1 R2 F100", 1, "G81: canned cycles are not supported"),
+    ("G18", 1, "only the XY plane (G17)"),
+    ("G42", 1, "cutter radius compensation"),
+    ("T1 M6", 1, "tool selection (T)"),
+    ("M4 S1000", 1, "M4"),
+    ("G0 X\u0661", 4, "missing value"),                   # an Arabic-Indic digit is not a digit here
+])
+def test_numbers_and_unsupported_features_are_refused_by_name(text, col, words):
+    e = error_of(text)
+    assert e.column == col and e.line == text.count("\n") + 1           # always the last line here
+    assert words in e.reason, e.reason
+
+
+def test_accepted_no_op_codes_change_nothing():
+    plain = parse("G0 X10 Y5 Z80\nF300 G1 X20")
+    preamble = parse("G17 G21 G90 G94 G40 G49 G54 G80 G97 G61\nG64 P0.01 Q0.01\nG0 X10 Y5 Z80\nF300 G1 X20\nM9")
+    assert [m.kind for m in plain.moves] == [m.kind for m in preamble.moves]
+    for a, b in zip(plain.moves, preamble.moves):
+        assert np.array_equal(a.tip, b.tip) and a.feed == b.feed
+
+
+def test_percent_delimited_program_stops_at_the_closing_percent():
+    job = parse("%\nG0 X1 Y1 Z90\n%\nthis is not G-code at all [#1]\n")
+    assert len(job.moves) == 1 and np.allclose(job.moves[0].tip, [1, 1, 90])
+    e = error_of("%\nG0 X1 Y1 Z90\n")
+    assert e.line == 1 and "no closing '%'" in e.reason
+    e = error_of("G0 X1 Y1 Z90\n%\nG0 X5\n")
+    assert e.line == 2 and "did not start with '%'" in e.reason
+    assert len(parse("%\nG0 X1 Y1 Z90\nM2\n").moves) == 1          # M2 ends it before any closing %
+
+
+def test_spindle_never_runs_at_zero_rpm_in_silence():
+    e = error_of("G0 X1 Y1 Z90\nM3\nF600 G1 X5")
+    assert e.line == 2 and e.column == 1 and "M3 with no spindle speed" in e.reason
+    e = error_of("S1000 M3\nS0")
+    assert e.line == 2 and "S0 while the spindle turns" in e.reason
+    job = parse("S1000 M3\nF600 G1 X5 Y0 Z90\nS0 M5\nG1 X6\nS500 M3\nG1 X7")
+    assert [m.spindle_rpm for m in job.moves] == [1000.0, 0.0, 500.0]
+
+
+def test_msg_comments_are_kept_for_the_operator():
+    job = parse("(MSG, clamp the part)\nG0 X1 Y1 Z90 (msg,check the tool)\n(not a message)\n;(MSG, behind ;)")
+    assert job.messages == ((1, "clamp the part"), (2, "check the tool"))
+
+
+def test_non_utf8_job_file_names_line_and_column(tmp_path, machine):
+    p = tmp_path / "bad.ngc"
+    p.write_bytes(b"G0 X1 Y1 Z90\nG1 F600 X2\xff\n")
+    with pytest.raises(InputError) as e:
+        read_gcode(p, machine)
+    assert e.value.line == 2 and e.value.column == 11 and "0xff is not UTF-8" in e.value.reason
+
+
+def test_programs_beyond_the_move_bound_are_refused_at_the_crossing_line(monkeypatch):
+    import pmctl.task.gcode as G
+    monkeypatch.setattr(G, "MAX_MOVES", 10)
+    text = "G0 X0 Y0 Z90\nF600\n" + "\n".join(f"G1 X{i}" for i in range(1, 20))
+    e = error_of(text)
+    assert e.line == 12 and "more than 10 moves" in e.reason        # the 11th move is on line 12
+    assert len(parse("\n".join(text.split("\n")[:11])).moves) == 10
+
+
+def test_job_files_beyond_the_size_bounds_are_refused_before_parsing(tmp_path, monkeypatch, machine):
+    import pmctl.task.job as J
+    p = tmp_path / "long.ngc"
+    p.write_text("N1\n" * 30)
+    monkeypatch.setattr(J, "MAX_JOB_LINES", 20)
+    with pytest.raises(InputError) as e:
+        load_job(p, machine)
+    assert e.value.line == 21 and "31 lines; the limit is 20" in e.value.reason
+    monkeypatch.setattr(J, "MAX_JOB_BYTES", 50)
+    with pytest.raises(InputError, match="larger than the limit"):
+        load_job(p, machine)

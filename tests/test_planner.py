@@ -305,3 +305,39 @@ def test_random_arcs(machine, prog):
         rad = np.hypot(traj.tip[on, 0] - cx, traj.tip[on, 1] - cy)
         assert np.abs(rad - r).max() < 1e-9
         assert np.allclose(traj.tip[on][-1], end, atol=1e-9)
+
+
+# ---------------------------------------------------------------- resource bounds
+
+@pytest.mark.parametrize("text,line,words", [
+    ("G0 X0 Y0 Z70\nG1 F0.0000001 X10", 2, "this move alone takes at least 6e+09 s"),
+    ("G0 X0 Y0 Z70\nG1 F0.42 X10\nG1 X20", 2, "this move alone takes at least 1429 s"),   # a tilt typed as F
+    ("G0 X10 Y0 Z70\nF600 G2 X10 Y0 I-10 P1000", 2, "6.283e+04 mm at 600 mm/min"),
+    ("G0 X0 Y0 Z70\nG4 P3600\nG4 P3600", 3, "of dwells"),       # dwells at one point add up
+    ("G4 P1500", 1, "of dwells"),                                  # a dwell-only job too
+    ("G0 X10 Y0 Z70\nF600 G1 X11\nG4 P600\nG1 X12\nG4 P700", 5, "of dwells"),
+])
+def test_jobs_beyond_the_batch_bound_are_refused_before_allocating(machine, text, line, words):
+    import resource
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    with pytest.raises(InputError) as e:
+        plan(gjob(machine, text), machine, DT)
+    assert e.value.line == line and e.value.path == "p.ngc"
+    assert words in e.value.reason and "at most 1200000 ticks" in e.value.reason, e.value.reason
+    # refused from the move list alone: the peak memory did not grow by the size of a trajectory
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 50_000      # kB
+
+
+def test_the_true_duration_is_checked_before_sampling(machine, monkeypatch):
+    import pmctl.task.planner as P
+    job = gjob(machine, "G0 X0 Y0 Z70\nF600 G1 X10\nG1 X20\nG1 X30")
+    full = len(plan(job, machine, DT))
+    # the lower bound (30 mm at 10 mm/s + the rapid) passes, the accelerations make it longer
+    monkeypatch.setattr(P, "MAX_SAMPLES", full - 50)
+    with pytest.raises(InputError, match="the planned job takes") as e:
+        plan(job, machine, DT)
+    assert e.value.line in (2, 3, 4)
+    monkeypatch.setattr(P, "MAX_GRID_POINTS", 470)
+    with pytest.raises(InputError, match="grid points") as e:
+        plan(job, machine, DT)
+    assert e.value.line == 3        # the rapid down 103 mm: 412 points, + 40 + 40: crossed on line 3

@@ -258,3 +258,86 @@ def test_streaming_writer_matches_whole_writer(tmp):
             w.append({k: v[:10] for k, v in cols.items()})
             w.append({k: v[:10] for k, v in cols.items()})
     assert not (tmp / "x" / "data.csv").exists()
+
+
+# ---------------------------------------------------------------- the fast and the strict path agree
+
+from pmctl.core.recording import _fast_parse, _slow_parse, read_meta  # noqa: E402
+
+NAMES = list(REQUIRED)
+_cell = st.one_of(
+    st.sampled_from(["", " ", "nan", "NaN", "-nan", "1", "-2.5", "+.5", "1e3", "1E-3", "5.", ".", "e", "1e",
+                     "1e400", "-1e999", "inf", "1_0", "0x1", "1 2", "\t3\t", "\u0661", "\uff11", "1\u00a0",
+                     "\x0b1", "1\x1c", "nan(1)", "na", "N", "--1", "1.5.5", '"1"']),
+    st.text(alphabet="0123456789+-.eEnaN \t\u00b2\u00e9", max_size=6))
+
+
+@st.composite
+def bodies(draw):
+    rows = draw(st.lists(st.lists(_cell, min_size=5, max_size=7), min_size=1, max_size=5))
+    sep = draw(st.sampled_from(["\n", "\n\n", "\n \n"]))
+    return sep.join(",".join(r) for r in rows).encode("utf-8")
+
+
+def _strict(body):
+    try:
+        return _slow_parse(body, NAMES, Path("d.csv"), 2)[0]
+    except InputError:
+        return None
+
+
+@settings(max_examples=300, deadline=None)
+@given(bodies())
+def test_fast_path_reads_exactly_what_the_strict_path_reads(body):
+    fast = _fast_parse(body, len(NAMES))
+    if fast is not None:               # the fast path only ever answers what the strict one would
+        strict = _strict(body)
+        assert strict is not None, body
+        assert fast.shape == strict.shape and np.array_equal(fast, strict, equal_nan=True), body
+
+
+def test_stray_non_ascii_byte_in_a_number_is_refused_by_both_paths(tmp):
+    write_recording(tmp / "r", _columns(5), sample_rate_hz=100)
+    data = tmp / "r" / "data.csv"
+    lines = data.read_bytes().split(b"\n")
+    for bad in (b"3\xc2\xb200.5", "３00.5".encode(), b"300\xa0.5", b"30\xff0.5"):
+        cells = lines[3].split(b",")
+        cells[1] = bad
+        data.write_bytes(b"\n".join(lines[:3] + [b",".join(cells)] + lines[4:]))
+        with pytest.raises(InputError) as e:
+            read_recording(tmp / "r")
+        assert e.value.line == 4 and e.value.column == 2 and "not a number" in e.value.reason
+        assert _fast_parse(b"\n".join(lines[1:3] + [b",".join(cells)]), 6) is None
+
+
+@pytest.mark.parametrize("meta,words", [
+    ('{"format": "pmctl-recording/1", "x": ' + "[" * 100_000 + "]" * 100_000 + "}", "nested too deeply"),
+    ('{"format": "pmctl-recording/1", "sample_rate_hz": ' + "9" * 5000 + "}", "not valid JSON"),
+    ('{"format": "pmctl-recording/1", "sample_rate_hz": ' + "9" * 400 + "}", "sample_rate_hz: must be a positive"),
+    ('{"format": "pmctl-recording/1", "sample_rate_hz": NaN}', "NaN is not a JSON number"),
+    ('{"format": "pmctl-recording/1", "machine": "a\\u0000b"}', "machine: must be a config name"),
+    ('{"format": "pmctl-recording/1", "machine": "' + "x" * 5000 + '"}', "machine: must be a config name"),
+    ('{"format": "pmctl-recording/1", "machine": "' + "x/" * 300 + '"}', "unknown machine"),
+])
+def test_hostile_recording_json_is_an_input_error(tmp, meta, words):
+    d = tmp / "r"
+    d.mkdir()
+    (d / "recording.json").write_text(meta)
+    with pytest.raises(InputError) as e:
+        read_meta(d)
+    assert words in str(e.value)
+
+
+def test_values_beyond_physical_bounds_are_refused_with_line_and_column(tmp):
+    cols = _columns(6, extra=("tip_x",))
+    write_recording(tmp / "r", cols, sample_rate_hz=100)
+    data = tmp / "r" / "data.csv"
+    lines = data.read_text().split("\n")
+    cells = lines[4].split(",")
+    names = lines[0].split(",")
+    cells[names.index("cmd_L2")] = "1e300"
+    data.write_text("\n".join(lines[:4] + [",".join(cells)] + lines[5:]))
+    with pytest.raises(InputError) as e:
+        read_recording(tmp / "r")
+    assert e.value.line == 5 and e.value.column == names.index("cmd_L2") + 1
+    assert "cmd_L2" in e.value.reason and "1e+300 is out of range (|value| <= 1e+09)" in e.value.reason

@@ -1,20 +1,21 @@
 """Machine configuration: TOML file -> typed, validated, immutable objects.
 
-Every value is checked on load. A bad file is rejected whole with the file, key and reason;
-nothing is half-applied. Units are part of the key names (``_mm``, ``_deg``, ...): a key with
-the wrong unit suffix is reported with the key that was expected.
+Every value is checked on load (pmctl.core.strict_toml: UTF-8, no unknown tables or keys, no
+coercion, every number finite and within the range its key allows). A bad file is rejected whole
+with the file, key and reason; nothing is half-applied. Units are part of the key names (``_mm``,
+``_deg``, ...): a key with the wrong unit suffix is reported with the key that was expected.
 """
 
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from pmctl.core.errors import ConfigError
+from pmctl.core.strict_toml import UNIT_SUFFIXES, Table, check_tables, read_toml  # noqa: F401
 
 CONFIG_DIR = Path(__file__).resolve().parents[3] / "config"
 
@@ -119,127 +120,34 @@ class Machine:
     mass: Mass
     strain_gain: float     # microstrain per N of chain tension
     stiffness: Stiffness
-    extra: dict = field(default_factory=dict)   # unknown top-level tables (service config etc.)
+    extra: dict = field(default_factory=dict)   # kept for compatibility: unknown tables are refused now
 
 
-UNIT_SUFFIXES = ("_ue_per_N", "_N_per_mm", "_mm_s2", "_mm_s", "_m_s2", "_mm", "_deg", "_kg", "_hz", "_s")
+# One strict TOML reader for every config (pmctl.core.strict_toml); _Section is its table reader.
+_Section = Table
 
 
-class _Section:
-    """Reads one TOML table, tracking which keys were used so leftovers can be reported."""
-
-    def __init__(self, path, data, name):
-        self.path, self.name = path, name
-        if not isinstance(data, dict):
-            raise ConfigError(path, name, "must be a table")
-        self.data = data
-        self.used: set[str] = set()
-
-    def _key(self, key):
-        return f"{self.name}.{key}"
-
-    def _missing(self, key):
-        stem = key
-        for unit in UNIT_SUFFIXES:
-            if key.endswith(unit):
-                stem = key[: -len(unit)]
-                break
-        near = [k for k in self.data if k != key and k.startswith(stem) and k not in self.used]
-        if near:
-            return ConfigError(self.path, self._key(near[0]),
-                               f"wrong unit or name: expected '{key}'")
-        return ConfigError(self.path, self._key(key), "missing")
-
-    def number(self, key, *, default=None, positive=False, nonneg=False):
-        if key not in self.data:
-            if default is None:
-                raise self._missing(key)
-            return float(default)
-        self.used.add(key)
-        v = self.data[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ConfigError(self.path, self._key(key), f"must be a number, got {type(v).__name__} {v!r}")
-        v = float(v)
-        if not math.isfinite(v):
-            raise ConfigError(self.path, self._key(key), "must be finite")
-        if positive and v <= 0:
-            raise ConfigError(self.path, self._key(key), f"must be > 0, got {v}")
-        if nonneg and v < 0:
-            raise ConfigError(self.path, self._key(key), f"must be >= 0, got {v}")
-        return v
-
-    def vector(self, key, n, *, default=None):
-        if key not in self.data:
-            if default is None:
-                raise self._missing(key)
-            return np.array(default, dtype=float)
-        self.used.add(key)
-        v = self.data[key]
-        if not isinstance(v, list) or len(v) != n or any(
-                isinstance(x, bool) or not isinstance(x, (int, float)) for x in v):
-            raise ConfigError(self.path, self._key(key), f"must be a list of {n} numbers, got {v!r}")
-        arr = np.array(v, dtype=float)
-        if not np.all(np.isfinite(arr)):
-            raise ConfigError(self.path, self._key(key), "must be finite")
-        return arr
-
-    def matrix3(self, key, default):
-        if key not in self.data:
-            return default
-        self.used.add(key)
-        v = self.data[key]
-        try:
-            arr = np.array(v, dtype=float)
-        except (TypeError, ValueError):
-            arr = None
-        if arr is None or arr.shape != (3, 3) or not np.all(np.isfinite(arr)):
-            raise ConfigError(self.path, self._key(key), "must be 3 rows of [x, y, z] numbers")
-        return arr
-
-    def range(self, key):
-        lo, hi = self.vector(key, 2)
-        if not lo < hi:
-            raise ConfigError(self.path, self._key(key), f"limits reversed or empty: [{lo}, {hi}]")
-        return (float(lo), float(hi))
-
-    def string(self, key, default=None):
-        if key not in self.data:
-            if default is None:
-                raise self._missing(key)
-            return default
-        self.used.add(key)
-        v = self.data[key]
-        if not isinstance(v, str):
-            raise ConfigError(self.path, self._key(key), "must be a string")
-        return v
-
-    def finish(self):
-        extra = set(self.data) - self.used
-        if extra:
-            k = sorted(extra)[0]
-            raise ConfigError(self.path, self._key(k), "unknown key")
+MM = 1e4            # bound of any length or position in the machine config, mm (10 m)
 
 
-def _geometry(path, s: _Section) -> Geometry:
-    r_in = s.number("base_radius_mm", positive=True)
-    r_out = s.number("platform_radius_mm", positive=True)
-    l_t = s.number("tool_length_mm", positive=True)
-    tilt = s.vector("tool_tilt_deg", 2, default=[0.0, 0.0])
-    if np.any(np.abs(tilt) > 10):
-        raise ConfigError(path, "geometry.tool_tilt_deg", "a tool tilt over 10 deg is not a calibration value")
-    z_home = s.number("z_home_mm", positive=True)
-    z_table = s.number("z_table_mm")
+def _geometry(path, s: Table) -> Geometry:
+    r_in = s.number("base_radius_mm", positive=True, hi=MM)
+    r_out = s.number("platform_radius_mm", positive=True, hi=MM)
+    l_t = s.number("tool_length_mm", positive=True, hi=MM)
+    tilt = s.vector("tool_tilt_deg", 2, default=[0.0, 0.0], lo=-10.0, hi=10.0)
+    z_home = s.number("z_home_mm", positive=True, hi=MM)
+    z_table = s.number("z_table_mm", lo=-MM, hi=MM)
     ideal_a = r_in * E_DIRS
     ideal_c = r_out * E_DIRS
     ideal_n = np.cross([0.0, 0.0, 1.0], E_DIRS)
-    a = s.matrix3("base_joints_mm", ideal_a)
-    c = s.matrix3("platform_joints_mm", ideal_c)
-    n = s.matrix3("revolute_axes", ideal_n)
+    a = s.matrix3("base_joints_mm", ideal_a, bound=MM)
+    c = s.matrix3("platform_joints_mm", ideal_c, bound=MM)
+    n = s.matrix3("revolute_axes", ideal_n, bound=1e3)
     norms = np.linalg.norm(n, axis=1)
     if np.any(norms < 1e-9):
         raise ConfigError(path, "geometry.revolute_axes", "an axis has zero length")
     n = n / norms[:, None]
-    off = s.vector("length_offsets_mm", 3, default=[0.0, 0.0, 0.0])
+    off = s.vector("length_offsets_mm", 3, default=[0.0, 0.0, 0.0], lo=-1e3, hi=1e3)
     nominal = (np.array_equal(a, ideal_a) and np.array_equal(c, ideal_c)
                and np.allclose(n, ideal_n, atol=1e-15, rtol=0) and not np.any(off) and not np.any(tilt))
     s.finish()
@@ -252,66 +160,63 @@ def load_machine(path: str | Path | None = None) -> Machine:
     if path is None:
         path = "prototype"
     p = Path(path)
-    if not p.suffix and not p.exists():
-        p = CONFIG_DIR / f"{p.name}.toml"
     try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as e:
-        raise ConfigError(p, "-", f"cannot read: {e.strerror or e}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(p, "-", f"not valid TOML: {e}") from None
-    return machine_from_dict(data, p)
+        if not p.suffix and not p.exists():
+            p = CONFIG_DIR / f"{p.name}.toml"
+    except (OSError, ValueError) as e:
+        raise ConfigError(p, "-", f"cannot read: {e}") from None
+    return machine_from_dict(read_toml(p), p)
+
+
+TABLES = ("machine", "geometry", "limits", "resolution", "mass", "sensors")
+OPTIONAL_TABLES = ("stiffness",)
 
 
 def machine_from_dict(data: dict, path="<dict>") -> Machine:
-    known = {"machine", "geometry", "limits", "resolution", "mass", "sensors", "stiffness"}
-    for sec in ("machine", "geometry", "limits", "resolution", "mass", "sensors"):
-        if sec not in data:
-            raise ConfigError(path, sec, "missing table")
-    m = _Section(path, data["machine"], "machine")
+    check_tables(path, data, TABLES, OPTIONAL_TABLES)
+    m = Table(path, data["machine"], "machine")
     name = m.string("name")
+    if not name.strip():
+        raise ConfigError(path, "machine.name", "must not be empty")
     desc = m.string("description", default="")
     m.finish()
-    geom = _geometry(path, _Section(path, data["geometry"], "geometry"))
+    geom = _geometry(path, Table(path, data["geometry"], "geometry"))
 
-    s = _Section(path, data["limits"], "limits")
+    s = Table(path, data["limits"], "limits")
     limits = Limits(
-        chain_length=s.range("chain_length_mm"),
-        table_x=s.range("table_x_mm"),
-        table_y=s.range("table_y_mm"),
-        theta2_deg=s.range("theta2_deg"),
-        spherical_swing_deg=s.number("spherical_swing_deg", positive=True),
-        chain_speed=s.number("chain_speed_mm_s", positive=True),
-        chain_accel=s.number("chain_accel_mm_s2", positive=True),
-        table_speed=s.number("table_speed_mm_s", positive=True),
-        table_accel=s.number("table_accel_mm_s2", positive=True),
+        chain_length=s.range("chain_length_mm", lo=0.0, hi=MM),
+        table_x=s.range("table_x_mm", lo=-MM, hi=MM),
+        table_y=s.range("table_y_mm", lo=-MM, hi=MM),
+        theta2_deg=s.range("theta2_deg", lo=-90.0, hi=90.0),
+        spherical_swing_deg=s.number("spherical_swing_deg", positive=True, hi=90.0),
+        chain_speed=s.number("chain_speed_mm_s", positive=True, hi=1e4),
+        chain_accel=s.number("chain_accel_mm_s2", positive=True, hi=1e6),
+        table_speed=s.number("table_speed_mm_s", positive=True, hi=1e4),
+        table_accel=s.number("table_accel_mm_s2", positive=True, hi=1e6),
     )
     if limits.chain_length[0] <= 0:
         raise ConfigError(path, "limits.chain_length_mm", "lower limit must be > 0")
     s.finish()
 
-    s = _Section(path, data["resolution"], "resolution")
-    res = Resolution(s.number("chain_pulses_per_mm", positive=True),
-                     s.number("table_pulses_per_mm", positive=True),
-                     s.number("screw_lead_mm", positive=True, default=5.0),
-                     s.number("table_screw_lead_mm", positive=True, default=5.0))
+    s = Table(path, data["resolution"], "resolution")
+    res = Resolution(s.number("chain_pulses_per_mm", positive=True, hi=1e7),
+                     s.number("table_pulses_per_mm", positive=True, hi=1e7),
+                     s.number("screw_lead_mm", positive=True, hi=1e3, default=5.0),
+                     s.number("table_screw_lead_mm", positive=True, hi=1e3, default=5.0))
     s.finish()
 
-    s = _Section(path, data["mass"], "mass")
-    mass = Mass(s.number("platform_kg", positive=True), s.vector("com_offset_mm", 3),
-                s.number("gravity_m_s2", positive=True))
+    s = Table(path, data["mass"], "mass")
+    mass = Mass(s.number("platform_kg", positive=True, hi=1e5), s.vector("com_offset_mm", 3, lo=-MM, hi=MM),
+                s.number("gravity_m_s2", positive=True, hi=100.0))
     s.finish()
 
-    s = _Section(path, data["sensors"], "sensors")
-    gain = s.number("strain_gain_ue_per_N", positive=True)
+    s = Table(path, data["sensors"], "sensors")
+    gain = s.number("strain_gain_ue_per_N", positive=True, hi=1e6)
     s.finish()
 
-    s = _Section(path, data.get("stiffness", {}), "stiffness")
-    stiff = Stiffness(s.number("chain_axial_N_per_mm", positive=True, default=20000.0),
-                      s.number("chain_lateral_N_per_mm", positive=True, default=2000.0))
+    s = Table(path, data.get("stiffness", {}), "stiffness")
+    stiff = Stiffness(s.number("chain_axial_N_per_mm", positive=True, hi=1e10, default=20000.0),
+                      s.number("chain_lateral_N_per_mm", positive=True, hi=1e10, default=2000.0))
     s.finish()
 
-    extra = {k: v for k, v in data.items() if k not in known}
-    return Machine(name, desc, str(path), geom, limits, res, mass, gain, stiff, extra)
+    return Machine(name, desc, str(path), geom, limits, res, mass, gain, stiff, {})

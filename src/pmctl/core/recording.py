@@ -14,10 +14,10 @@ message). Checked: recording.json is a JSON object (``//`` and ``/* */`` comment
 file relative to the folder, ``sample_rate_hz`` > 0, ``description`` a string, ``channels`` an
 object; data.csv has the required channels (``t``, ``cmd_L1`` ``cmd_L2`` ``cmd_L3`` ``cmd_X``
 ``cmd_Y``), unique non-empty names, every row as long as the header, every cell a finite decimal
-number or empty/``nan``, and ``t`` present on every row and strictly increasing. Blank lines are
-skipped. Unknown columns are carried along and listed in ``Recording.unknown_columns``.
+number or empty/``nan`` with |value| <= ``MAX_ABS_VALUE`` (1e9), and ``t`` present on every row and
+strictly increasing. Blank lines are skipped. Unknown columns are carried along and listed in ``Recording.unknown_columns``.
 
-Large files: the text is parsed in one C pass (``numpy.loadtxt`` after empty cells are filled);
+Large files: data.csv may be up to ``MAX_DATA_BYTES`` (512 MiB); the text is parsed in one C pass (``numpy.loadtxt`` after empty cells are filled);
 only when that fails does a per-cell Python scan run, to find and report the first bad cell.
 10^6 rows x 20 channels read in a few seconds (``benchmarks/bench_recording.py``).
 
@@ -64,6 +64,8 @@ from pmctl.core.config import CONFIG_DIR, Machine, load_machine
 from pmctl.core.errors import InputError
 
 FORMAT = "pmctl-recording/1"
+MAX_META_BYTES = 16 * 2**20
+MAX_DATA_BYTES = 512 * 2**20    # data.csv read at most this large (the whole table is held in memory)
 META_FILE = "recording.json"
 DATA_FILE = "data.csv"
 
@@ -77,6 +79,7 @@ LOAD = ("load_fx", "load_fy", "load_fz")
 REQUIRED = ("t",) + CMD
 KNOWN_FIXED = REQUIRED + ENC + TIP + TOOL + STRAIN + LOAD
 
+MAX_ABS_VALUE = 1e9      # largest |value| of any cell (mm, s, microstrain, N...): beyond it, not a measurement
 _KIND = {"t": "time", **{c: "cmd" for c in CMD}, **{c: "enc" for c in ENC}, **{c: "tip" for c in TIP},
          **{c: "tool" for c in TOOL}, **{c: "strain" for c in STRAIN}, **{c: "load" for c in LOAD}}
 _TEMP_RE = re.compile(r"^temp_[A-Za-z0-9_.\-]+$")
@@ -193,12 +196,51 @@ def _key_line(text: str, key: str) -> int | None:
     return text.count("\n", 0, m.start()) + 1 if m else None
 
 
+def _json_object(text: str, mp: Path) -> dict:
+    """Parse recording.json (comments tolerated); InputError for anything that is not a JSON object,
+    including nesting too deep for the parser and numbers too long to convert."""
+    def parse(t):
+        return json.loads(t, parse_constant=_no_constant)
+    try:
+        try:
+            meta = parse(text)
+        except json.JSONDecodeError as e:
+            try:
+                meta = parse(_strip_json_comments(text))
+            except json.JSONDecodeError:
+                raise InputError(mp, e.lineno, f"not valid JSON: {e.msg}", column=e.colno) from None
+    except RecursionError:
+        raise InputError(mp, None, "not valid JSON: arrays or objects nested too deeply") from None
+    except ValueError as e:            # NaN/Infinity, or an integer of more than 4300 digits
+        raise InputError(mp, None, f"not valid JSON: {e}") from None
+    if not isinstance(meta, dict):
+        raise InputError(mp, 1, "must be a JSON object")
+    return meta
+
+
+def _no_constant(name):
+    raise ValueError(f"{name} is not a JSON number")
+
+
+def _finite_real(v) -> bool:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    if isinstance(v, int):
+        return abs(v) <= 2**53
+    return math.isfinite(v)
+
+
 def resolve_machine(ref: str, folder: Path) -> Path | None:
     """A config file for a recording's ``machine``: a path relative to the folder, else config/NAME.toml."""
+    if not isinstance(ref, str) or not ref or "\0" in ref:
+        return None
     p = Path(ref)
     cand = p if p.is_absolute() else folder / p
-    if ref and cand.is_file():
-        return cand
+    try:
+        if cand.is_file():
+            return cand
+    except (OSError, ValueError):       # a name too long for the file system
+        return None
     if ref and re.fullmatch(r"[A-Za-z0-9_.\-]+", ref):
         c = CONFIG_DIR / (ref if ref.endswith(".toml") else f"{ref}.toml")
         if c.is_file():
@@ -213,23 +255,19 @@ def read_meta(folder: str | Path) -> tuple[dict, Path, Path]:
     if not folder.is_dir():
         raise InputError(folder, None, "not a recording folder (no such directory)")
     try:
-        raw = mp.read_bytes()
+        with open(mp, "rb") as f:
+            raw = f.read(MAX_META_BYTES + 1)
     except OSError as e:
         raise InputError(mp, None, f"cannot read: {e.strerror or e}") from None
+    if len(raw) > MAX_META_BYTES:
+        raise InputError(mp, None, f"larger than {MAX_META_BYTES // 2**20} MiB: not a recording's metadata")
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as e:
         line = raw.count(b"\n", 0, e.start) + 1
-        raise InputError(mp, line, "not UTF-8 text") from None
-    try:
-        meta = json.loads(text)
-    except json.JSONDecodeError as e:
-        try:
-            meta = json.loads(_strip_json_comments(text))
-        except json.JSONDecodeError:
-            raise InputError(mp, e.lineno, f"not valid JSON: {e.msg}", column=e.colno) from None
-    if not isinstance(meta, dict):
-        raise InputError(mp, 1, "must be a JSON object")
+        col = e.start - (raw.rfind(b"\n", 0, e.start) + 1) + 1
+        raise InputError(mp, line, f"byte 0x{raw[e.start]:02x} is not UTF-8 text", column=col) from None
+    meta = _json_object(text, mp)
 
     def bad(key, reason):
         return InputError(mp, _key_line(text, key), f"{key}: {reason}")
@@ -240,16 +278,16 @@ def read_meta(folder: str | Path) -> tuple[dict, Path, Path]:
     if fmt != FORMAT:
         raise bad("format", f'{fmt!r} is not "{FORMAT}"')
     ref = meta.get("machine", "prototype")
-    if not isinstance(ref, str) or not ref.strip():
+    if not isinstance(ref, str) or not ref.strip() or "\0" in ref or len(ref) > 1024:
         raise bad("machine", "must be a config name or a path relative to the recording folder")
     machine_path = resolve_machine(ref, folder)
     if machine_path is None:
         raise bad("machine", f"unknown machine {ref!r}: neither config/{ref}.toml nor a file "
                              f"relative to {folder}")
     sr = meta.get("sample_rate_hz")
-    if sr is not None and (isinstance(sr, bool) or not isinstance(sr, (int, float))
-                           or not math.isfinite(sr) or sr <= 0):
-        raise bad("sample_rate_hz", f"must be a positive number, got {sr!r}")
+    if sr is not None and not (_finite_real(sr) and 0 < sr <= 1e9):
+        show = repr(sr) if len(repr(sr)) <= 40 else repr(sr)[:37] + "..."
+        raise bad("sample_rate_hz", f"must be a positive number up to 1e9, got {show}")
     if "description" in meta and not isinstance(meta["description"], str):
         raise bad("description", "must be a string")
     ch = meta.get("channels", {})
@@ -299,9 +337,15 @@ def _fill_empty(body: bytes) -> bytes:
     return body
 
 
+# Bytes the fast path may see: ASCII digits, signs, point, exponent, "nan" in any case, comma, space,
+# tab and newline. Anything else (a stray non-ASCII byte, a fullwidth digit, "inf", "_", a quote...)
+# goes to the strict scan, so that both paths always read a file the same way.
+_FAST_BYTES = b"0123456789+-.eEnNaA, \t\n"
+
+
 def _fast_parse(body: bytes, ncol: int) -> np.ndarray | None:
     """One C pass; None when anything is unusual (the slow scan then decides)."""
-    if b"_" in body or b"\r" in body:
+    if body.translate(None, _FAST_BYTES):
         return None
     if not body.strip():
         return np.zeros((0, ncol))
@@ -317,6 +361,9 @@ def _fast_parse(body: bytes, ncol: int) -> np.ndarray | None:
     return arr
 
 
+_BLANK = " \t"           # the only blanks around a cell (no Unicode spaces, no control characters)
+
+
 def _slow_parse(body: bytes, names: list[str], path: Path, first_line: int) -> tuple[np.ndarray, np.ndarray]:
     """Exact per-cell scan; returns (data, file line of each row) or raises at the first bad cell."""
     ncol = len(names)
@@ -324,7 +371,7 @@ def _slow_parse(body: bytes, names: list[str], path: Path, first_line: int) -> t
     for k, rawline in enumerate(body.split(b"\n")):
         lineno = first_line + k
         line = rawline.decode("utf-8", errors="replace").rstrip("\r")
-        if not line.strip():
+        if not line.strip(_BLANK):
             continue
         cells = line.split(",")
         if len(cells) != ncol:
@@ -333,7 +380,7 @@ def _slow_parse(body: bytes, names: list[str], path: Path, first_line: int) -> t
                              column=min(len(cells), ncol) + 1)
         vals = []
         for j, cell in enumerate(cells):
-            s = cell.strip()
+            s = cell.strip(_BLANK)
             if not s or _NAN_RE.match(s):
                 vals.append(math.nan)
             elif _NUM_RE.match(s):
@@ -366,9 +413,13 @@ def read_data(path: str | Path) -> tuple[list[str], np.ndarray, np.ndarray | Non
     """Parse and validate data.csv -> (names, data (n, ncol) float64, row lines or None)."""
     path = Path(path)
     try:
-        raw = path.read_bytes()
+        with open(path, "rb") as f:
+            raw = f.read(MAX_DATA_BYTES + 1)
     except OSError as e:
         raise InputError(path, None, f"cannot read: {e.strerror or e}") from None
+    if len(raw) > MAX_DATA_BYTES:
+        raise InputError(path, None, f"larger than {MAX_DATA_BYTES // 2**20} MiB (about 2.5 million rows of 20 "
+                                     "channels): split the recording")
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]
     names, start = _header(raw, path)
@@ -390,6 +441,12 @@ def read_data(path: str | Path) -> tuple[list[str], np.ndarray, np.ndarray | Non
 
     if data.shape[0] == 0:
         raise InputError(path, 2, "no samples after the header")
+    with np.errstate(invalid="ignore"):
+        over = np.abs(data) > MAX_ABS_VALUE
+    if over.any():
+        r, j = (int(x) for x in np.argwhere(over)[0])
+        raise InputError(path, line_of(r), f"channel {names[j]!r}: {float(data[r, j])!r} is out of range "
+                                           f"(|value| <= {MAX_ABS_VALUE:g})", column=j + 1)
     jt = names.index("t")
     t = data[:, jt]
     nan_t = np.flatnonzero(np.isnan(t))

@@ -52,23 +52,45 @@ class SimOptions:
 
     @classmethod
     def from_dict(cls, d: dict, machine: Machine | None = None, where="sim"):
-        kw = {}
+        """Strictly validated options (the ``[hal.sim]`` table): every key known, every value of its
+        exact type (no string or bool for a number, no string for a bool) and within range; a vector
+        option takes one number for all axes or one per axis. ConfigError(where, key, reason)."""
+        import difflib
+
+        from pmctl.core.strict_toml import Table
+        if isinstance(d, SimOptions):
+            d = {f.name: getattr(d, f.name) for f in fields(cls)}
+        base = cls()
         if machine is not None:
-            kw["mode_stiffness_N_per_mm"] = (machine.stiffness.chain_axial,) * 3
-            kw["mode_mass_kg"] = (machine.mass.platform_kg / 3,) * 3
-        names = {f.name for f in fields(cls)}
-        for k, v in d.items():
+            base.mode_stiffness_N_per_mm = (machine.stiffness.chain_axial,) * 3
+            base.mode_mass_kg = (machine.mass.platform_kg / 3,) * 3
+        t = Table(where, d, "")
+        names = [f.name for f in fields(cls)]
+        for k in d:
             if k not in names:
-                raise ConfigError(where, k, "unknown sim option")
-            kw[k] = v
-        o = cls(**kw)
-        if isinstance(o.gravity_update_ticks, bool) or not isinstance(o.gravity_update_ticks, int) \
-                or o.gravity_update_ticks < 1:
-            raise ConfigError(where, "gravity_update_ticks", "must be an integer >= 1")
-        o.drive_tau_s = _vec(o.drive_tau_s, 5, where, "drive_tau_s", nonneg=True)
-        o.mode_stiffness_N_per_mm = _vec(o.mode_stiffness_N_per_mm, 3, where, "mode_stiffness_N_per_mm", pos=True)
-        o.mode_mass_kg = _vec(o.mode_mass_kg, 3, where, "mode_mass_kg", pos=True)
-        o.mode_damping_ratio = _vec(o.mode_damping_ratio, 3, where, "mode_damping_ratio", nonneg=True)
+                near = difflib.get_close_matches(str(k), names, n=1)
+                raise ConfigError(where, k, "unknown sim option" + (f" (did you mean '{near[0]}'?)" if near else ""))
+        big = 2**62
+        o = cls(
+            drive_tau_s=t.vector("drive_tau_s", 5, default=base.drive_tau_s, nonneg=True, hi=1e3, scalar_ok=True),
+            flex=t.boolean("flex", default=base.flex),
+            mode_stiffness_N_per_mm=t.vector("mode_stiffness_N_per_mm", 3, default=base.mode_stiffness_N_per_mm,
+                                             positive=True, hi=1e10, scalar_ok=True),
+            mode_mass_kg=t.vector("mode_mass_kg", 3, default=base.mode_mass_kg, positive=True, hi=1e5,
+                                  scalar_ok=True),
+            mode_damping_ratio=t.vector("mode_damping_ratio", 3, default=base.mode_damping_ratio, nonneg=True,
+                                        hi=100.0, scalar_ok=True),
+            enc_noise_mm=t.number("enc_noise_mm", default=base.enc_noise_mm, nonneg=True, hi=1e3),
+            strain_noise_ue=t.number("strain_noise_ue", default=base.strain_noise_ue, nonneg=True, hi=1e6),
+            seed=t.integer("seed", default=base.seed, lo=0, hi=2**63 - 1),
+            gravity_update_ticks=t.integer("gravity_update_ticks", default=base.gravity_update_ticks, lo=1, hi=10**6),
+            read_timeout_s=t.number("read_timeout_s", default=base.read_timeout_s, positive=True, hi=1.0),
+            stall_at_tick=t.integer("stall_at_tick", default=base.stall_at_tick, lo=-1, hi=big),
+            lost_steps_at_tick=t.integer("lost_steps_at_tick", default=base.lost_steps_at_tick, lo=-1, hi=big),
+            lost_steps_axis=t.integer("lost_steps_axis", default=base.lost_steps_axis, lo=0, hi=4),
+            lost_steps_mm=t.number("lost_steps_mm", default=base.lost_steps_mm, lo=-1e3, hi=1e3),
+        )
+        t.finish()
         return o
 
 

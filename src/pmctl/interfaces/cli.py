@@ -3,7 +3,11 @@
 
 Registering must stay light: no module imported while building the parser may import numpy,
 scipy or matplotlib at module level (``tests/test_cli_help.py`` checks it); heavy work is imported
-inside ``func`` or through :func:`lazy`."""
+inside ``func`` or through :func:`lazy`.
+
+Exit status (``main``): 0 done; 1 an error pmctl reports (bad input, config...); 2 usage; a
+command's own documented codes (``pmctl run``: 3 controlled stop, 4 fault); 70 internal error
+(one line, the traceback only with PMCTL_DEBUG=1); 130 interrupted."""
 
 from __future__ import annotations
 
@@ -12,6 +16,8 @@ import importlib
 import os
 import re
 import sys
+import traceback
+import warnings
 
 from pmctl import __version__
 from pmctl.core.errors import PmctlError
@@ -70,25 +76,58 @@ def _glue_negative_values(argv):
     return out
 
 
+EXIT_ERROR = 1          # an error pmctl reports: bad input, config, unreachable pose, ...
+EXIT_USAGE = 2          # command-line usage (argparse)
+EXIT_INTERNAL = 70      # an internal error (a bug): one line; the traceback with PMCTL_DEBUG=1 (EX_SOFTWARE)
+EXIT_INTERRUPTED = 130  # Ctrl-C
+
+
+def _one_line(text: str, limit: int = 2000) -> str:
+    text = "; ".join(part.strip() for part in str(text).splitlines() if part.strip())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(_glue_negative_values(sys.argv[1:] if argv is None else list(argv)))
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
+    """Run one pmctl command; every outcome ends in at most one line on stderr and an exit status:
+    0 done; 1 an error pmctl reports (``PmctlError``: bad input, config, unreachable pose...; a command
+    may document its own codes, e.g. ``pmctl run``: 3 controlled stop, 4 fault); 2 usage (argparse);
+    70 internal error (any other exception: ``pmctl: internal error: ...``, the traceback only with
+    ``PMCTL_DEBUG=1``); 130 interrupted."""
+    with warnings.catch_warnings():
+        if os.environ.get("PMCTL_DEBUG") != "1":
+            # numeric warnings (overflow in a norm of an absurd input...) are not for the operator: the
+            # command still ends in its one line; PMCTL_DEBUG=1 shows them
+            warnings.simplefilter("ignore", RuntimeWarning)
+        return _main(argv)
+
+
+def _main(argv) -> int:
     try:
+        parser = build_parser()
+        args = parser.parse_args(_glue_negative_values(sys.argv[1:] if argv is None else list(argv)))
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return EXIT_USAGE
         return int(args.func(args) or 0)
     except PmctlError as e:
-        print(f"pmctl: error: {e}", file=sys.stderr)
-        return 1
+        print(f"pmctl: error: {_one_line(e)}", file=sys.stderr)
+        return int(getattr(e, "exit_code", EXIT_ERROR))
     except KeyboardInterrupt:
         print("pmctl: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except BrokenPipeError:
         # stdout went away (e.g. piped into `head`): nothing left to say; keep Python from
         # complaining again when it flushes stdout at exit
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 1
+        return EXIT_ERROR
+    except Exception as e:       # noqa: BLE001 -- the last line of defence: never a bare traceback
+        if os.environ.get("PMCTL_DEBUG") == "1":
+            traceback.print_exc()
+        what = "out of memory" if isinstance(e, MemoryError) else f"{type(e).__name__}: {e}"
+        print(f"pmctl: internal error: {_one_line(what, 500)}"
+              + ("" if os.environ.get("PMCTL_DEBUG") == "1" else " (PMCTL_DEBUG=1 shows the traceback)"),
+              file=sys.stderr)
+        return EXIT_INTERNAL
 
 
 if __name__ == "__main__":

@@ -1,19 +1,23 @@
 """The service config (config/service.toml): the loop, the NC gains and the HAL backend with its
-options. Read strictly and validated whole on load: a bad value is reported with file, key and
-reason, and nothing is half-applied. Each ``[hal.<backend>]`` table is validated by its backend's
-``validate_options`` (pmctl.hal), whether or not that backend is the one selected."""
+options. Read strictly (pmctl.core.strict_toml: UTF-8, unknown tables and keys refused, no
+coercion, integers are TOML integers, every number finite and within its range) and validated
+whole on load: a bad value is reported with file, key and reason, and nothing is half-applied.
+Each ``[hal.<backend>]`` table is validated by its backend's ``validate_options`` (pmctl.hal),
+whether or not that backend is the one selected."""
 
 from __future__ import annotations
 
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from pmctl.core.config import CONFIG_DIR, Machine, _Section
+from pmctl.core.config import CONFIG_DIR, Machine
 from pmctl.core.errors import ConfigError
+from pmctl.core.strict_toml import Table, check_tables, read_toml
+
+_Section = Table        # the strict table reader (kept under its old name)
 from pmctl.motion.nc import IMPLEMENTATIONS, NCParams
 
 
@@ -76,90 +80,68 @@ class ServiceConfig:
         return self.backend_tables.get(self.backend, {})
 
 
-def _bool(s: _Section, key, default):
-    if key not in s.data:
-        return default
-    s.used.add(key)
-    v = s.data[key]
-    if not isinstance(v, bool):
-        raise ConfigError(s.path, s._key(key), f"must be true or false, got {v!r}")
-    return v
+def _bool(s: Table, key, default):
+    return s.boolean(key, default=default)
 
 
-def _int(s: _Section, key, default, minimum):
-    v = s.number(key, default=default)
-    if v != int(v) or v < minimum:
-        raise ConfigError(s.path, s._key(key), f"must be an integer >= {minimum}, got {v:g}")
-    return int(v)
+def _int(s: Table, key, default, minimum, maximum=10**9):
+    return s.integer(key, default=default, lo=minimum, hi=maximum)
 
 
 def load_service_config(path: str | Path | None = None) -> ServiceConfig:
     """Read and validate config/service.toml (file, key, reason on any problem; nothing half-applied)."""
     p = Path(path) if path else CONFIG_DIR / "service.toml"
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise ConfigError(p, "-", f"cannot read: {e.strerror or e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(p, "-", f"not valid TOML: {e}") from None
-    return service_from_dict(data, p)
+    return service_from_dict(read_toml(p), p)
 
 
 def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
-    for k in data:
-        if k not in ("loop", "nc", "hal"):
-            raise ConfigError(path, k, "unknown table")
-    s = _Section(path, data.get("loop", {}), "loop")
+    check_tables(path, data, (), ("loop", "nc", "hal"))
+    s = Table(path, data.get("loop", {}), "loop")
     d = LoopConfig()
     loop = LoopConfig(
-        rate_hz=s.number("rate_hz", default=d.rate_hz, positive=True),
+        rate_hz=s.number("rate_hz", default=d.rate_hz, lo=10.0, hi=20000.0),
         realtime=_bool(s, "realtime", d.realtime),
-        rt_priority=_int(s, "rt_priority", d.rt_priority, 1),
+        rt_priority=_int(s, "rt_priority", d.rt_priority, 1, 99),
         lock_memory=_bool(s, "lock_memory", d.lock_memory),
-        max_overruns_in_row=_int(s, "max_overruns_in_row", d.max_overruns_in_row, 1),
-        stall_timeout_s=s.number("stall_timeout_ms", default=d.stall_timeout_s * 1e3, positive=True) / 1e3,
-        settle_s=s.number("settle_ms", default=d.settle_s * 1e3, nonneg=True) / 1e3,
-        persist_every_ticks=_int(s, "persist_every_ticks", d.persist_every_ticks, 1),
-        spin_us=s.number("spin_us", default=d.spin_us, nonneg=True),
+        max_overruns_in_row=_int(s, "max_overruns_in_row", d.max_overruns_in_row, 1, 10**6),
+        stall_timeout_s=s.number("stall_timeout_ms", default=d.stall_timeout_s * 1e3, positive=True, hi=60e3) / 1e3,
+        settle_s=s.number("settle_ms", default=d.settle_s * 1e3, nonneg=True, hi=60e3) / 1e3,
+        persist_every_ticks=_int(s, "persist_every_ticks", d.persist_every_ticks, 1, 10**9),
+        spin_us=s.number("spin_us", default=d.spin_us, nonneg=True, hi=1e5),
         state_file=os.path.expanduser(s.string("state_file", default="")),
     )
-    if not 10 <= loop.rate_hz <= 20000:
-        raise ConfigError(path, "loop.rate_hz", f"must be within 10 .. 20000 Hz, got {loop.rate_hz:g}")
-    if loop.rt_priority > 99:
-        raise ConfigError(path, "loop.rt_priority", "must be 1 .. 99")
+    if loop.spin_us * 1e-6 >= loop.dt:
+        raise ConfigError(path, "loop.spin_us", f"must be shorter than the tick period ({loop.dt * 1e6:g} us), "
+                                                f"got {loop.spin_us:g}")
     s.finish()
 
-    s = _Section(path, data.get("nc", {}), "nc")
+    s = Table(path, data.get("nc", {}), "nc")
     d = NCConfig()
-    kth = s.vector("k_theta_per_s", 3, default=None) if isinstance(s.data.get("k_theta_per_s"), list) \
-        else np.full(3, s.number("k_theta_per_s", default=0.0, nonneg=True))
-    if np.any(kth < 0):
-        raise ConfigError(path, "nc.k_theta_per_s", "must be >= 0")
-    mode = s.string("pulse_mode", default=d.pulse_mode)
-    if mode not in ("multi", "single"):
-        raise ConfigError(path, "nc.pulse_mode", f"must be 'multi' or 'single', got {mode!r}")
-    impl = s.string("implementation", default=d.implementation)
-    if impl not in IMPLEMENTATIONS:
-        raise ConfigError(path, "nc.implementation",
-                          f"must be {' or '.join(repr(x) for x in IMPLEMENTATIONS)}, got {impl!r}")
+    kth = s.vector("k_theta_per_s", 3, default=[0.0] * 3, nonneg=True, hi=1e5, scalar_ok=True)
+    mode = s.string("pulse_mode", default=d.pulse_mode, choices=("multi", "single"))
+    impl = s.string("implementation", default=d.implementation, choices=IMPLEMENTATIONS)
     nc = NCConfig(
-        kv_per_s=s.number("kv_per_s", default=d.kv_per_s, positive=True),
-        damping=s.number("damping", default=d.damping, nonneg=True),
-        sv_threshold=s.number("sv_threshold", default=d.sv_threshold, positive=True),
+        kv_per_s=s.number("kv_per_s", default=d.kv_per_s, positive=True, hi=1e5),
+        damping=s.number("damping", default=d.damping, nonneg=True, hi=10.0),
+        sv_threshold=s.number("sv_threshold", default=d.sv_threshold, positive=True, hi=10.0),
         pulse_mode=mode, k_theta_per_s=tuple(float(x) for x in kth),
-        ferror_mm=s.number("ferror_mm", default=d.ferror_mm, positive=True),
-        min_ferror_mm=s.number("min_ferror_mm", default=d.min_ferror_mm, positive=True),
-        max_path_error_mm=s.number("max_path_error_mm", default=d.max_path_error_mm, positive=True),
+        ferror_mm=s.number("ferror_mm", default=d.ferror_mm, positive=True, hi=1e3),
+        min_ferror_mm=s.number("min_ferror_mm", default=d.min_ferror_mm, positive=True, hi=1e3),
+        max_path_error_mm=s.number("max_path_error_mm", default=d.max_path_error_mm, positive=True, hi=1e3),
         implementation=impl,
     )
     if nc.min_ferror_mm > nc.ferror_mm:
         raise ConfigError(path, "nc.min_ferror_mm", "must not exceed nc.ferror_mm")
+    for key, k in (("kv_per_s", nc.kv_per_s), ("k_theta_per_s", max(nc.k_theta_per_s))):
+        if k * loop.dt >= 1.0:        # checked again by NCConfig.params for the rate a run uses
+            raise ConfigError(path, f"nc.{key}", f"{k:g}/s at {loop.rate_hz:g} Hz gives {k * loop.dt:.2f} per tick; "
+                                                 "must be < 1 for a stable loop (lower the gain or raise the rate)")
     s.finish()
 
     h = data.get("hal", {})
     if not isinstance(h, dict):
         raise ConfigError(path, "hal", "must be a table")
-    s = _Section(path, {k: v for k, v in h.items() if not isinstance(v, dict)}, "hal")
+    s = Table(path, {k: v for k, v in h.items() if not isinstance(v, dict)}, "hal")
     backend = s.string("backend", default="sim")
     s.finish()
     from pmctl.hal import BACKENDS, validate_options

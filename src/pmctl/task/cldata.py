@@ -13,7 +13,8 @@ An optional header line (first content line, starting with ``Px``), blank lines 
 (V_z < 0); by default V is the tool axis as in APT ``GOTO/x,y,z,i,j,k``, so a downward vector is an
 error rather than silently flipped. Seed-style files are read with ``vector="normal"`` (axis = -V).
 
-Every line is parsed and checked before anything is returned: malformed lines, non-unit vectors
+Numbers are plain ASCII decimals (an exponent allowed), |P| <= ``MAX_COORD_MM`` and |V| components
+<= 2. Every line is parsed and checked before anything is returned: malformed lines, non-unit vectors
 (|V| off by more than ``AXIS_TOL``; within it V is normalised), tool axes pointing down or tilted
 beyond the config's theta2 limit, pass structure (``w``/``e`` outside a pass, ``s`` inside one, a
 pass never ended) and unreachable poses (``kinematics.ik_batch``) raise ``InputError`` naming the
@@ -35,12 +36,14 @@ import numpy as np
 
 from pmctl.core.errors import InputError
 from pmctl.core.tolerances import AXIS_TOL    # allowed | |V| - 1 |, the same as for pmctl kin --axis
-from pmctl.task.job import LINE, RAPID, Job, Move, check_reach
+from pmctl.task.job import LINE, MAX_MOVES, RAPID, Job, Move, check_reach, read_job_text
 
 DEFAULT_FEED_MM_MIN = 600.0     # 10 mm/s
 DEFAULT_CLEARANCE_MM = 5.0      # approach/retract distance along the tool axis
 FLAGS = ("s", "w", "e")
 _SPLIT = re.compile(r"[,\s]+")
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,3})?")
+MAX_COORD_MM = 1e5              # |Px|, |Py|, |Pz| at most (|V| components are at most 2)
 
 
 @dataclass(frozen=True)
@@ -55,12 +58,12 @@ class CLData:
         return len(self.tip)
 
 
-def _float(text):
-    try:
-        v = float(text)
-    except ValueError:
+def _float(text, limit):
+    """A plain ASCII decimal (optional exponent) with |v| <= limit, else None."""
+    if len(text) > 64 or not _DECIMAL.fullmatch(text):
         return None
-    return v if math.isfinite(v) else None
+    v = float(text)
+    return v if math.isfinite(v) and abs(v) <= limit else None
 
 
 def parse_cl(text: str, path="<string>", *, vector="axis") -> CLData:
@@ -74,6 +77,7 @@ def parse_cl(text: str, path="<string>", *, vector="axis") -> CLData:
     tips, axes, flags, lines = [], [], [], []
     seen_content = False
     open_pass = None       # line of the 's' of the pass in progress
+    n_pass = 0
     for lineno, raw in enumerate(text.split("\n"), 1):
         s = raw.strip()
         if not s or s.startswith("#") or s.startswith(";"):
@@ -87,9 +91,12 @@ def parse_cl(text: str, path="<string>", *, vector="axis") -> CLData:
             raise InputError(path, lineno, f"expected 7 fields Px,Py,Pz,Vx,Vy,Vz,flag, got {len(fields)}")
         vals = []
         for k, (name, f) in enumerate(zip(("Px", "Py", "Pz", "Vx", "Vy", "Vz"), fields[:6])):
-            v = _float(f)
+            lim = MAX_COORD_MM if k < 3 else 2.0
+            v = _float(f, lim)
             if v is None:
-                raise InputError(path, lineno, f"field {k + 1} ({name}): {f!r} is not a finite number")
+                show = f if len(f) <= 40 else f[:37] + "..."
+                raise InputError(path, lineno, f"field {k + 1} ({name}): {show!r} is not a decimal number "
+                                               f"within +-{lim:g}")
             vals.append(v)
         flag = fields[6].lower()
         if flag not in FLAGS:
@@ -113,6 +120,10 @@ def parse_cl(text: str, path="<string>", *, vector="axis") -> CLData:
             raise InputError(path, lineno, f"'{flag}' outside a pass (a pass starts with 's')")
         elif flag == "e":
             open_pass = None
+        n_pass += flag == "s"
+        if len(tips) + 1 + 2 * n_pass > MAX_MOVES:
+            raise InputError(path, lineno, f"more than {MAX_MOVES} moves (with the approach and retract of "
+                                           "each pass): longer than the batch planner takes (split the file)")
         tips.append(vals[:3])
         axes.append(v)
         flags.append(flag)
@@ -127,10 +138,7 @@ def parse_cl(text: str, path="<string>", *, vector="axis") -> CLData:
 def read_cl(path, machine, *, vector="axis") -> CLData:
     """Read and fully check a CL file (syntax, vectors, pass structure, reachability)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"cannot read: {e}") from None
+    text = read_job_text(path)
     cl = parse_cl(text, path, vector=vector)
     check_reach(cl.tip, cl.axis, cl.line, machine, path)
     return cl

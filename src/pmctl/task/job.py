@@ -14,7 +14,11 @@ The tool axis of every moving kind is interpolated by slerp from the start axis 
 ``line`` is the source line (1-based; 0 for moves the reader added), ``spindle_rpm`` the commanded
 spindle speed during the move (0 = off).
 
-``load_job(path, machine)`` reads a file of either format by its suffix.
+``load_job(path, machine)`` reads a file of either format by its suffix; ``read_job_text(path)`` is how
+both readers get the text (UTF-8, at most ``MAX_JOB_BYTES`` and ``MAX_JOB_LINES``; a bad byte is reported with its line and
+column). A job holds at most ``MAX_MOVES`` moves (the batch planner's bound; the readers refuse the
+line that crosses it). ``Job.messages`` holds the program's operator messages (G-code ``(MSG, ...)`` comments) as
+(line, text) pairs, for the operator to see before the job runs.
 """
 
 from __future__ import annotations
@@ -32,6 +36,10 @@ KINDS = (RAPID, LINE, ARC, DWELL)
 
 GCODE_SUFFIXES = (".ngc", ".nc", ".gcode", ".tap")
 CL_SUFFIXES = (".cl", ".cls", ".txt", ".csv")
+MAX_JOB_BYTES = 8 * 2**20         # a job file larger than this is refused before it is parsed (~300k lines)
+MAX_JOB_LINES = 200_000           # lines in a job file (4x the move bound: room for comments and modal lines)
+MAX_MOVES = 50_000                # moves in one job: the batch planner's bound (~12 s of planning), checked
+                                  # by the readers as they go (the line that crosses it is named)
 
 
 @dataclass(frozen=True)
@@ -53,9 +61,33 @@ class Job:
     source: str = ""
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # programmed tip points in W
     point_lines: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # their source lines
+    messages: tuple = ()             # (line, text) operator messages of the program, in order
 
     def __len__(self):
         return len(self.moves)
+
+
+def read_job_text(path) -> str:
+    """The text of a job file: UTF-8 (a leading BOM is dropped), at most ``MAX_JOB_BYTES``. InputError
+    with the line and column of the first byte that is not UTF-8."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:          # never more than the limit (a device, a growing file)
+            raw = f.read(MAX_JOB_BYTES + 1)
+    except OSError as e:
+        raise InputError(path, None, f"cannot read: {e.strerror or e}") from None
+    if len(raw) > MAX_JOB_BYTES:
+        raise InputError(path, None, f"job file is larger than the limit of {MAX_JOB_BYTES // 2**20} MiB")
+    lines = raw.count(b"\n") + 1
+    if lines > MAX_JOB_LINES:
+        raise InputError(path, MAX_JOB_LINES + 1, f"job file has {lines} lines; the limit is {MAX_JOB_LINES} "
+                                                  "(split the job)")
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = raw.count(b"\n", 0, e.start) + 1
+        col = e.start - (raw.rfind(b"\n", 0, e.start) + 1) + 1
+        raise InputError(path, line, f"byte 0x{raw[e.start]:02x} is not UTF-8 text", column=col) from None
 
 
 def home_pose(machine):

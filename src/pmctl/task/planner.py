@@ -41,6 +41,15 @@ How it works (all vectorised with numpy):
    by finite differences, and where one exceeds its limit by more than ``VIOLATION_TOL`` the caps around
    it are lowered and the profile is re-planned (``max_iterations``, else PlanningError).
 
+Resource bounds: the planner holds the whole trajectory in memory (about 0.75 kB per sample at its
+peak), so it refuses, with the file, the line and the reason and before allocating anything large,
+a job of more than ``MAX_MOVES`` moves (pmctl.task.job), of more than ``MAX_SAMPLES`` ticks (20 min
+at 1 kHz) or a path of more than
+``MAX_GRID_POINTS`` limit-grid points (500 m at the default 0.25 mm grid). The duration is checked
+three times: a lower bound (length / feed + dwells) before the limit grid, the grid size before
+it is built, and the profile's true duration before it is sampled. A typo such as ``F0.42`` or a
+``G4`` of days is refused this way in well under a second.
+
 Feeds are capped at ``rapid_mm_s``, the tool tip's top speed. Cost: a 10-minute 5-axis CL job
 (18 000 moves, 614 000 samples at 1 kHz) plans in about 4 s of CPU (benchmarks/bench_planner.py).
 """
@@ -54,13 +63,15 @@ from scipy.interpolate import PchipInterpolator
 
 from pmctl.core import kinematics as K
 from pmctl.core.errors import InputError, PmctlError
-from pmctl.task.job import ARC, DWELL, RAPID, Job, home_pose, load_job  # noqa: F401  (re-exported)
+from pmctl.task.job import ARC, DWELL, MAX_MOVES, RAPID, Job, home_pose, load_job  # noqa: F401  (re-exported)
 from pmctl.task.trajectory import Trajectory
 
 __all__ = ["PlannerLimits", "plan", "home_pose", "load_job", "PlanningError"]
 
 
 VIOLATION_TOL = 1e-6      # relative overshoot of a limit on the samples that triggers re-planning
+MAX_SAMPLES = 1_200_000   # ticks of one planned job (20 min at 1 kHz; ~0.9 GB at the planner's peak)
+MAX_GRID_POINTS = 2_000_000   # points of the limit grid along the path
 
 
 class PlanningError(PmctlError):
@@ -332,8 +343,12 @@ def plan(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: Pl
         raise PlanningError(f"feed override must be > 0, got {feed_override!r}")
     if start is None:
         start = home_pose(machine)
+    if len(job.moves) > MAX_MOVES:
+        raise InputError(job.source, int(job.moves[MAX_MOVES].line) or None,
+                         f"more than {MAX_MOVES} moves: longer than the batch planner takes (split the job)")
     path = _Path(job, start, limits, feed_override)
     T = max(2.0 * limits.tangential_accel / limits.jerk_mm_s3, 2.0 * dt)
+    _check_size(path, job, dt, limits)
     if path.n == 0:
         nt = int(np.ceil(path.dwell.sum() / dt)) + 1
         tip = np.repeat(path.start_tip[None], nt, 0)
@@ -356,6 +371,43 @@ def plan(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: Pl
         scale = np.minimum(scale, _range_min(len(scale), lo, hi, factor))
     raise PlanningError(f"{job.source}: could not meet the joint/feed limits after {limits.max_iterations} "
                         "re-planning iterations")
+
+
+def _too_long(job, line, what, dt):
+    return InputError(job.source, int(line) if line else None,
+                      f"{what}: the batch planner holds at most {MAX_SAMPLES} ticks "
+                      f"({MAX_SAMPLES * dt / 60:.0f} min at {1 / dt:g} Hz); check the feed (F is per minute), "
+                      f"dwells (G4 P is in seconds) and arc turns (P), or split the job")
+
+
+def _check_size(path: _Path, job, dt, limits: PlannerLimits):
+    """Refuse, before anything large is allocated, a job whose lower-bound duration or limit grid
+    exceeds the bounds; the line named is where the bound is crossed."""
+    # Lower bound of the duration at every boundary: each segment at its top speed, dwells in full.
+    seg_t = path.length / path.vmax if path.n else np.zeros(0)
+    t_b = np.cumsum(path.dwell) + np.concatenate([[0.0], np.cumsum(seg_t)])   # at boundary b (dwell incl.)
+    limit_t = MAX_SAMPLES * dt
+    if not t_b[-1] < limit_t:
+        b = int(np.argmax(~(t_b < limit_t)))
+        if b > 0 and t_b[b] - path.dwell[b] >= limit_t:          # crossed while moving into boundary b
+            line = path.line[b - 1]
+            what = (f"this move alone takes at least {seg_t[b - 1]:.4g} s ({path.length[b - 1]:.4g} mm at "
+                    f"{path.vmax[b - 1] * 60:.4g} mm/min)" if seg_t[b - 1] >= 0.5 * limit_t
+                    else f"the job takes at least {t_b[-1]:.4g} s, over the bound by this line")
+        else:                                                     # crossed during the dwell at b
+            line = path.dwell_line[b]
+            what = (f"the job takes at least {t_b[-1]:.4g} s, of which {path.dwell.sum():.4g} s of dwells; "
+                    "over the bound by this line")
+        raise _too_long(job, line, what, dt)
+    if path.n:
+        counts = np.maximum(2.0, np.ceil(path.length / limits.grid_mm))
+        cum = np.cumsum(counts)
+        if cum[-1] > MAX_GRID_POINTS:
+            i = int(np.argmax(cum > MAX_GRID_POINTS))
+            raise InputError(job.source, int(path.line[i]),
+                             f"the path is {path.total:.6g} mm long: more than the batch planner's "
+                             f"{MAX_GRID_POINTS} grid points of {limits.grid_mm:g} mm by this line "
+                             f"(check arc turns P and the coordinates, or split the job)")
 
 
 def _check_reachable(path, job, machine):
@@ -412,7 +464,7 @@ def _limit_grid(path: _Path, machine, limits: PlannerLimits, dt, T):
     sig = np.linalg.norm(d["tip1"], axis=-1)
     vmax = path.vmax[seg]
     rot = path.rot[seg]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         caps = [np.where(rot, vmax, vmax / sig),
                 limits.axis_rate_rad_s / np.linalg.norm(d["axis1"], axis=-1),
                 np.sqrt(limits.normal_accel / np.linalg.norm(d["tip2"], axis=-1)),
@@ -493,6 +545,11 @@ def _sample(path: _Path, grid, scale, machine, limits, dt, T, job):
             hi = np.where(below, hi, mid)
         tau[mv] = 0.5 * (lo + hi)
     gaps = np.diff(tau)
+    over = np.cumsum(gaps) / dt > MAX_SAMPLES - n - 1      # before anything of that size exists
+    if np.any(over):
+        b = int(np.argmax(over))
+        raise _too_long(job, path.line[b], f"the planned job takes {tau[-1] - tau[0]:.6g} s "
+                                           "(the joint and acceleration limits slow it down)", dt)
     ticks = np.maximum(1, np.ceil(gaps / dt - 1e-9).astype(int))
     K_b = np.concatenate([[0], np.cumsum(ticks)])
     # The warped clock lags real time by D(t) >= 0; D is a monotone (PCHIP) interpolant of its knot

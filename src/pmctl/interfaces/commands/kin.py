@@ -16,8 +16,8 @@ def _triple(text, n, what):
         vals = [float(x) for x in parts]
     except ValueError:
         vals = None
-    if vals is None or len(vals) != n or not all(math.isfinite(v) for v in vals):
-        raise PmctlError(f"{what} needs {n} comma-separated numbers, got {text!r}")
+    if vals is None or len(vals) != n or not all(math.isfinite(v) and abs(v) <= 1e5 for v in vals):
+        raise PmctlError(f"{what} needs {n} comma-separated numbers within +-1e5, got {text[:80]!r}")
     return np.array(vals)
 
 

@@ -270,6 +270,8 @@ def run(args) -> int:
     st = initial_state(machine, counts0)
 
     job = load_job(args.job, machine, start=(st.tip, st.axis))
+    for line, text in job.messages:                  # G-code (MSG, ...): for the operator, before it runs
+        log(f"message from {Path(args.job).name} line {line}: {text}")
     plan_machine = machine
     notes = []
     if np.any(params.vmax < machine.limits.joint_speed - 1e-9):
