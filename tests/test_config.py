@@ -137,12 +137,12 @@ SVC = (CONFIG_DIR / "service.toml").read_text()
     (lambda t: t.replace("seed = 1 ", 'seed = "" '), "seed", "must be an integer, got a string"),
     (lambda t: t.replace("mode_damping_ratio = [0.02, 0.02, 0.02]", 'mode_damping_ratio = "low"'),
      "mode_damping_ratio", "got a string ('low')"),
-    (lambda t: t + "read_timeout_s = -0.001\n", "read_timeout_s", "within (0, 1]"),
+    (lambda t: t.replace("[hal.sim]\n", "[hal.sim]\nread_timeout_s = -0.001\n"), "read_timeout_s", "within (0, 1]"),
     (lambda t: t.replace("flex = true", 'flex = "no"'), "flex", "true or false"),
     (lambda t: t.replace("flex = true", "flex = 1"), "flex", "true or false"),
     (lambda t: t.replace("enc_noise_mm = 0.0", "enc_noise_mm = false"), "enc_noise_mm", "must be a number"),
     (lambda t: t.replace("seed = 1 ", "seed = 1.5 "), "seed", "must be an integer"),
-    (lambda t: t + "stiffnes = 1\n", "stiffnes", "unknown sim option"),
+    (lambda t: t.replace("[hal.sim]\n", "[hal.sim]\nstiffnes = 1\n"), "stiffnes", "unknown sim option"),
 ])
 def test_strict_service_config_and_backend_options_at_load(tmp_path, edit, key, reason):
     p = tmp_path / "s.toml"

@@ -34,10 +34,12 @@ def _service(tmp_path, rate=1000, kv=400, k_theta=200):
     return p
 
 
-def _run_args(tmp_path, job="hemisphere.cl", record="rec", extra=(), **svc):
+def _run_args(tmp_path, job="hemisphere.cl", record="rec", extra=(), realtime=False, **svc):
+    """realtime=True paces the ticks (27 s for hemisphere.cl), so that a signal sent a second in
+    surely lands mid-run; back to back the compiled loop machines the job in well under a second."""
     return [*PMCTL, "run", "--job", str(JOBS / job), "--service", str(_service(tmp_path, **svc)),
             "--state", str(tmp_path / "state.json"), "--record", str(tmp_path / record),
-            "--no-realtime", *extra]
+            *([] if realtime else ["--no-realtime"]), *extra]
 
 
 def _start_and_wait_for_loop(args, **kw):
@@ -58,7 +60,7 @@ def _start_and_wait_for_loop(args, **kw):
 
 
 def test_sigterm_mid_run_is_a_controlled_stop_that_saves_a_clean_position(tmp_path):
-    p, _ = _start_and_wait_for_loop(_run_args(tmp_path, extra=["--quiet"]))
+    p, _ = _start_and_wait_for_loop(_run_args(tmp_path, extra=["--quiet"], realtime=True))
     time.sleep(1.0)
     p.send_signal(signal.SIGTERM)
     out, err = p.communicate(timeout=120)
@@ -85,7 +87,7 @@ def test_sigterm_mid_run_is_a_controlled_stop_that_saves_a_clean_position(tmp_pa
 
 
 def test_ctrl_c_before_the_job_starts_reports_no_tracking_figures(tmp_path):
-    p, _ = _start_and_wait_for_loop(_run_args(tmp_path, extra=["--quiet"]))
+    p, _ = _start_and_wait_for_loop(_run_args(tmp_path, extra=["--quiet"], realtime=True))
     p.send_signal(signal.SIGINT)
     out, err = p.communicate(timeout=120)
     assert p.returncode == 3, out + err
