@@ -18,6 +18,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from hypothesis import HealthCheck, event, settings
 from hypothesis import strategies as st
 
 from pmctl.core.config import CONFIG_DIR, Machine, load_machine
@@ -457,3 +458,16 @@ TARGETS = {
     "cli": (cli_args(), cli_target),
     "planner": (PLANNER_PROGRAM, planner_target),
 }
+
+
+# ---------------------------------------------------------------- shared by the tests/test_fuzz_*.py files
+
+FUZZ = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
+                                                      HealthCheck.filter_too_much])
+
+
+def check(name, x):
+    """Run target ``name`` on input x: a clean refusal or a valid result, never another exception."""
+    outcome = TARGETS[name][1](x)            # raises on anything but a clean refusal or a valid result
+    assert outcome in ("valid", "refused")
+    event(outcome)

@@ -3,18 +3,9 @@
 Strategies and targets in tests/fuzz_common.py; benchmarks/fuzz_counts.py runs them with large budgets
 and prints the counts (inputs tried, clean refusals, valid results, crashes)."""
 
-from hypothesis import HealthCheck, event, given, settings
+from hypothesis import given, settings
 
-from fuzz_common import TARGETS
-
-FUZZ = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
-                                                      HealthCheck.filter_too_much])
-
-
-def _check(name, x):
-    outcome = TARGETS[name][1](x)            # raises on anything but a clean refusal or a valid result
-    assert outcome in ("valid", "refused")
-    event(outcome)
+from fuzz_common import FUZZ, TARGETS, check as _check
 
 
 @settings(FUZZ, max_examples=100)
