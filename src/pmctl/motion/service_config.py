@@ -68,6 +68,7 @@ class ServiceConfig:
     backend: str = "sim"
     backend_options: dict = field(default_factory=dict)   # [hal.<backend>] table, validated by the backend
     source: str = "<defaults>"
+    hal_options: dict = field(default_factory=dict)       # every [hal.<name>] table (for --backend NAME)
 
 
 def _bool(s: _Section, key, default):
@@ -161,4 +162,5 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
         if isinstance(v, dict):
             validate_options(k, v, f"{path}: hal.{k}")
     opts = dict(h.get(backend, {}))
-    return ServiceConfig(loop, nc, backend, opts, str(path))
+    return ServiceConfig(loop, nc, backend, opts, str(path),
+                         hal_options={k: dict(v) for k, v in h.items() if isinstance(v, dict)})

@@ -156,8 +156,12 @@ def run(args) -> int:
     backend_name = args.backend or svc.backend
     state_file = cfg.state_file if args.state is None else args.state
     dt = cfg.dt
-    params = svc.nc.params(machine, dt, where=svc.source)
     log = lambda m: print(f"pmctl: {m}", file=sys.stderr)  # noqa: E731
+    strain_in_loop = getattr(hal.backend_class(backend_name), "strain_in_loop", True)
+    if not strain_in_loop and any(svc.nc.k_theta_per_s):
+        log(f"K_theta off: backend {backend_name} carries no strain gauges in its cyclic data")
+        svc.nc.k_theta_per_s = (0.0,) * 3
+    params = svc.nc.params(machine, dt, where=svc.source)
 
     # Where the machine is: saved counters, else home.
     lock = StateLock(state_file) if state_file else None      # held until the process exits
@@ -192,7 +196,7 @@ def run(args) -> int:
     traj = plan(job, plan_machine, dt, feed_override=args.feed_override, start=(st.tip, st.axis))
     targets = prepare(machine, params, traj, dt, counts0)
 
-    backend = hal.create(backend_name, machine, dt, svc.backend_options if backend_name == svc.backend else {})
+    backend = hal.create(backend_name, machine, dt, svc.hal_options.get(backend_name, {}))
     backend.open(counts0)
     writer = CounterWriter(state_file, machine=machine.name) if state_file else None
     lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer)
