@@ -222,6 +222,7 @@ class CanopenCSP(Backend):
         self._hb_task = None
         self._t_host_hb = 0.0
         self._targets = np.zeros(5, np.int64)
+        self._last_q = None
         self._cw = C.CW_SHUTDOWN
         self.frames_sent = 0
 
@@ -317,7 +318,7 @@ class CanopenCSP(Backend):
                 node = canopen.RemoteNode(nid, self._eds())
                 net.add_node(node)
                 node.sdo.RESPONSE_TIMEOUT = o.sdo_timeout_ms / 1e3
-                node.sdo.MAX_RETRIES = 0
+                node.sdo.MAX_RETRIES = 1          # one attempt (0 would retry forever)
                 self.drives.append(_Drive(nid, axis, node))
             self._probe()
             try:
@@ -560,6 +561,7 @@ class CanopenCSP(Backend):
             self._hb_task.stop()
             self._hb_task = None
         q = np.asarray(q_mm, float)
+        self._last_q = q
         if self._writes % self.cycle_ticks == 0:
             self._targets = np.rint(q * self.inc_per_mm).astype(np.int64)
             try:
@@ -618,9 +620,17 @@ class CanopenCSP(Backend):
     def close(self) -> None:
         if self.network is not None:
             if self._enabled:
-                # leave the drives powered down and ready (Shutdown), then pre-operational
+                # the last commanded position to the drives (a tick between SYNCs is not sent yet),
+                # until they report it; then powered down and ready (Shutdown), then pre-operational
                 self._enabled = False
                 try:
+                    if self._last_q is not None:
+                        self._targets = np.rint(self._last_q * self.inc_per_mm).astype(np.int64)
+                    for _ in range(max(10, int(0.2 / self.cycle_s))):
+                        self._send_cycle()
+                        self._wait_answers(0.2, "close")
+                        if self._fault or np.array_equal(self.positions(), self._targets):
+                            break
                     self._cw = C.CW_SHUTDOWN
                     self._send_cycle()
                     self._wait_answers(0.2, "close")

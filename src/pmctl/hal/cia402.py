@@ -163,12 +163,15 @@ def _crc15(bits) -> int:
     return crc
 
 
-def frame_bits_stuffed(can_id: int, data: bytes) -> int:
-    """Exact bits of this CAN 2.0A data frame on the wire: the nominal frame plus the stuff bits the
-    transmitter inserts after five equal bits in SOF .. CRC (stuff bits count in the run)."""
+def frame_bitstream(can_id: int, data: bytes) -> tuple[list[int], list[int]]:
+    """(bits SOF .. CRC before stuffing, the same bits as sent with stuff bits) of a CAN 2.0A data
+    frame: after five equal bits the transmitter inserts one of the opposite value (stuff bits count
+    in the next run)."""
     if not 0 <= can_id < 0x800:
         raise ValueError(f"11-bit identifier expected, got 0x{can_id:X}")
     n = len(data)
+    if n > 8:
+        raise ValueError(f"a CAN 2.0A frame carries 0..8 data bytes, not {n}")
     bits = [0]                                               # SOF
     bits += [(can_id >> (10 - i)) & 1 for i in range(11)]
     bits += [0, 0, 0]                                        # RTR (data frame), IDE, r0
@@ -177,17 +180,24 @@ def frame_bits_stuffed(can_id: int, data: bytes) -> int:
         bits += [(byte >> (7 - i)) & 1 for i in range(8)]
     crc = _crc15(bits)
     bits += [(crc >> (14 - i)) & 1 for i in range(15)]
-    stuffed = 0
+    out = []
     run_bit, run = None, 0
     for b in bits:
+        out.append(b)
         if b == run_bit:
             run += 1
         else:
             run_bit, run = b, 1
         if run == 5:
-            stuffed += 1
-            run_bit, run = 1 - b, 1                          # the stuff bit starts a new run
-    return frame_bits_nominal(n) + stuffed
+            out.append(1 - b)
+            run_bit, run = 1 - b, 1
+    return bits, out
+
+
+def frame_bits_stuffed(can_id: int, data: bytes) -> int:
+    """Exact bits of this CAN 2.0A data frame on the wire (nominal 47 + 8n plus its stuff bits)."""
+    bits, sent = frame_bitstream(can_id, data)
+    return frame_bits_nominal(len(data)) + len(sent) - len(bits)
 
 
 @dataclass

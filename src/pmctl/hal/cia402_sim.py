@@ -15,7 +15,7 @@ the heartbeat producer (0x1017) and the EMCY producer. What this module adds, as
 Fault injection for tests: ``fault(code, emcy=True)`` (statusword fault bit, 0x603F, EMCY),
 ``emcy(code)`` (an EMCY alone), ``following_error()`` (statusword bit 13 + EMCY 0x8611),
 ``silence_heartbeat()``, ``go_silent()`` (answers nothing at all), ``drop_tpdos(n)``; each can be
-scheduled on the drive's n-th SYNC with ``at_sync(n, fn)``.
+scheduled n SYNCs ahead with ``at_sync(n, fn)``.
 
 Buses: python-can ``virtual`` (one process; every can.Bus on the same channel name sees the
 others' frames) or ``slcan`` over a pty between processes.
@@ -68,9 +68,9 @@ class SimDrive:
 
     # ---------------------------------------------------------------- fault injection
     def at_sync(self, n: int, fn) -> None:
-        """Run ``fn()`` when this drive handles its n-th SYNC (counted while operational)."""
+        """Run ``fn()`` when this drive handles the n-th SYNC from now (counted while operational)."""
         with self._lock:
-            self._scheduled.append((int(n), fn))
+            self._scheduled.append((self.syncs + int(n), fn))
 
     def fault(self, code: int = 0x2310, emcy: bool = True) -> None:
         with self._lock:
@@ -92,6 +92,7 @@ class SimDrive:
         self.node.nmt.stop_heartbeat()
 
     def go_silent(self) -> None:
+        """Cut off: sends nothing and hears nothing (it then faults by itself on the host's lost heartbeat)."""
         self.silence_heartbeat()
         self.silent = True
 
@@ -126,6 +127,8 @@ class SimDrive:
 
     def _on_write(self, index, subindex, od, data):
         self._cache.clear()                # the SDO server stores the value after this callback
+        if index == C.OD_HB_CONSUMER:
+            self.last_host_hb = None       # the consumer starts with the next heartbeat it hears
         if index == C.OD_CONTROLWORD:
             cw, = struct.unpack("<H", data)
             self._apply_controlword(cw)
@@ -160,6 +163,7 @@ class SimDrive:
             new = C.next_state(self.state, cw, self.cw)
             if self.state == C.FAULT and new != C.FAULT:
                 self.fault_resets += 1
+                self.last_host_hb = None
                 self.error_code = 0
                 self.ferr_flag = False
                 self.node.emcy.reset()
@@ -262,7 +266,7 @@ class SimDrive:
     def check_host(self, now: float) -> None:
         """Heartbeat consumer (0x1016:01 = host node << 16 | time ms): a drive that stops hearing
         the host while enabled faults by itself (the host's ticks stopped)."""
-        if self.silent or self.state != C.OPERATION_ENABLED:
+        if self.state != C.OPERATION_ENABLED:
             return
         entry = self._get(C.OD_HB_CONSUMER, 1, 0) or 0
         ms = entry & 0xFFFF
@@ -321,7 +325,7 @@ class SimDriveSet:
         host = can_id - 0x700
         now = time.monotonic()
         for d in self.drives:
-            if ((d._get(C.OD_HB_CONSUMER, 1, 0) or 0) >> 16) & 0x7F == host:
+            if not d.silent and ((d._get(C.OD_HB_CONSUMER, 1, 0) or 0) >> 16) & 0x7F == host:
                 d.last_host_hb = now
 
     def _on_sync(self, can_id, data, ts):
