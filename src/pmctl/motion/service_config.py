@@ -69,6 +69,7 @@ class ServiceConfig:
     backend_options: dict = field(default_factory=dict)   # [hal.<backend>] table, validated by the backend
     source: str = "<defaults>"
     hal_options: dict = field(default_factory=dict)       # every [hal.<name>] table (for --backend NAME)
+    spindle: object = None      # [spindle]: pmctl.hal.modbus_vfd.VfdOptions, None = no spindle control
 
 
 def _bool(s: _Section, key, default):
@@ -102,7 +103,7 @@ def load_service_config(path: str | Path | None = None) -> ServiceConfig:
 
 def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
     for k in data:
-        if k not in ("loop", "nc", "hal"):
+        if k not in ("loop", "nc", "hal", "spindle"):
             raise ConfigError(path, k, "unknown table")
     s = _Section(path, data.get("loop", {}), "loop")
     d = LoopConfig()
@@ -162,5 +163,10 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
         if isinstance(v, dict):
             validate_options(k, v, f"{path}: hal.{k}")
     opts = dict(h.get(backend, {}))
+    spindle = None
+    if "spindle" in data:
+        from pmctl.hal.modbus_vfd import VfdOptions
+        spindle = VfdOptions.from_dict(data["spindle"], f"{path}: spindle")
     return ServiceConfig(loop, nc, backend, opts, str(path),
-                         hal_options={k: dict(v) for k, v in h.items() if isinstance(v, dict)})
+                         hal_options={k: dict(v) for k, v in h.items() if isinstance(v, dict)},
+                         spindle=spindle if spindle is not None and spindle.enabled else None)

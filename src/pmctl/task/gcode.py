@@ -9,10 +9,11 @@ Supported (LinuxCNC semantics unless noted):
   ``G94`` units per minute (the only feed mode);
 - words: ``X Y Z`` tool tip in W, ``A B`` tool tilt as roll / pitch in degrees (MACHINE.md §3: axis =
   Rx(A) Ry(B) z), ``F`` feed (mm/min or in/min), ``S`` spindle rpm, ``N`` line number;
-- ``M3`` spindle on (at S), ``M5`` off, ``M2``/``M30`` end of program (later lines are ignored);
+- ``M3`` spindle on clockwise (at S), ``M4`` counter-clockwise (the moves' spindle_rpm is negative), ``M5``
+  off, ``M2``/``M30`` end of program (later lines are ignored);
 - comments ``( ... )`` and ``;`` to the end of the line; spaces anywhere; a line holding only ``%``.
 
-Execution order inside a line is RS-274's: F, S, M3/M5, G4, G17/G20/G21/G90/G91/G94, motion, M2/M30.
+Execution order inside a line is RS-274's: F, S, M3/M4/M5, G4, G17/G20/G21/G90/G91/G94, motion, M2/M30.
 The whole program is parsed and checked before a job exists: an unknown or unsupported word, a missing
 or repeated value, two motion codes on a line, axis words without a motion mode, a feed move before any
 F, an arc whose end radius differs from its start radius by more than ``ARC_RADIUS_TOL_MM``, an R arc
@@ -40,7 +41,7 @@ ARC_RADIUS_TOL_MM = 0.005         # |r_end - r_start| allowed for I/J arcs (beco
 LETTERS = set("ABFGIJMNPRSXYZ")
 G_MOTION = {0, 10, 20, 30}        # G-codes times 10
 G_OTHER = {40, 170, 200, 210, 900, 910, 940}
-M_CODES = {2, 3, 5, 30}
+M_CODES = {2, 3, 4, 5, 30}
 _NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)")
 
 
@@ -151,7 +152,7 @@ def _execute_line(words, st: _State, path, lineno, moves, points, point_lines):
     motion = [g for g in codes if g in G_MOTION]
     if len(motion) > 1:
         raise err("two motion codes (G0/G1/G2/G3) on one line", gs[codes.index(motion[1])][1])
-    if (200 in codes and 210 in codes) or (900 in codes and 910 in codes) or (3 in mcodes and 5 in mcodes) \
+    if (200 in codes and 210 in codes) or (900 in codes and 910 in codes) or (len({3, 4, 5} & set(mcodes)) > 1) \
             or (2 in mcodes and 30 in mcodes):
         raise err("conflicting modal codes on one line")
     if "N" in vals:
@@ -173,11 +174,11 @@ def _execute_line(words, st: _State, path, lineno, moves, points, point_lines):
         if s < 0:
             raise err(f"spindle speed S{s:g} must be >= 0", col)
         st.s = s
-    if 3 in mcodes:
-        st.spindle_on = True
+    if 3 in mcodes or 4 in mcodes:
+        st.spindle_on = 1 if 3 in mcodes else -1
     if 5 in mcodes:
         st.spindle_on = False
-    rpm = st.s if st.spindle_on else 0.0
+    rpm = st.s * st.spindle_on if st.spindle_on else 0.0
     if 40 in codes:
         if motion or any(k in vals for k in "XYZABIJR"):
             raise err("G4 cannot share a line with motion or axis words")

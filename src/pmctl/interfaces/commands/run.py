@@ -196,8 +196,22 @@ def run(args) -> int:
     traj = plan(job, plan_machine, dt, feed_override=args.feed_override, start=(st.tip, st.axis))
     targets = prepare(machine, params, traj, dt, counts0)
 
+    from pmctl.hal.modbus_vfd import SpindleSession, job_speed
+    rpm_job, spindle = job_speed(traj.spindle_rpm), None
+    if rpm_job and svc.spindle is not None:
+        spindle = SpindleSession(svc.spindle, log).connect()       # the link answers before the drives enable
+    elif rpm_job:
+        log(f"no [spindle] in {svc.source}: the job's S{abs(rpm_job):g} M{3 if rpm_job > 0 else 4} is not executed")
     backend = hal.create(backend_name, machine, dt, svc.hal_options.get(backend_name, {}))
-    backend.open(counts0)
+    try:
+        backend.open(counts0)
+        if spindle is not None:
+            spindle.start(rpm_job)        # cutting waits for at speed
+    except BaseException:
+        backend.close()
+        if spindle is not None:
+            spindle.close()
+        raise
     writer = CounterWriter(state_file, machine=machine.name) if state_file else None
     lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer)
     mode = "multi-pulse" if params.max_pulses_per_tick > 1 else "one pulse per tick (seed)"
@@ -214,6 +228,8 @@ def run(args) -> int:
         signal.signal(signal.SIGINT, _sigint)
     prog.start()
     t_wall = time.monotonic()
+    if spindle is not None:               # polled by its own thread; a VFD fault or lost link stops the run
+        spindle.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
     try:
         res = lp.run()
     finally:
@@ -221,6 +237,8 @@ def run(args) -> int:
         if threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGINT, old)
         backend.close()
+        if spindle is not None:
+            spindle.close()               # M5
         if writer is not None:
             writer.stop()          # on a crash the last periodic snapshot (clean = false) stays
     wall = time.monotonic() - t_wall
@@ -242,6 +260,10 @@ def run(args) -> int:
         from pmctl.core.recording import write_recording
         folder = Path(args.record)
         cols, notes = record_columns(res, machine, params.pulses_per_mm)
+        if spindle is not None:
+            cols["spindle_rpm"] = spindle.per_tick(res.ticks)
+            notes["spindle_rpm"] = {"source": f"VFD speed register polled every {svc.spindle.poll_ms:g} ms by "
+                                              f"the supervisor, held between polls (negative: M4)"}
         desc = (f"pmctl run {Path(args.job).name} on backend {backend_name} at {cfg.rate_hz:g} Hz: {res.status}"
                 + (f" ({res.reason})" if res.reason else ""))
         write_recording(folder, cols, machine=_machine_ref(args.config, machine, folder),
