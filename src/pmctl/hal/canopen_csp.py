@@ -508,10 +508,21 @@ class CanopenCSP(Backend):
         if self._fault:
             self._stop_all()
             raise HalError(self._fault)
-        now = time.monotonic()
         lim = self.opt.heartbeat_timeout_ms / 1e3
-        for d in self.drives:
-            if d.t_hb is not None and now - d.t_hb > lim:
+        now = time.monotonic()
+        if any(d.t_hb is not None and now - d.t_hb > lim for d in self.drives):
+            # a heartbeat seems overdue: first let the receive thread work off what it has (after a
+            # pause of this process the frames are there, unread), at most read_timeout_ms
+            t_end = now + self.opt.read_timeout_ms / 1e3
+            with self._cond:
+                while True:
+                    now = time.monotonic()
+                    late = [d for d in self.drives if d.t_hb is not None and now - d.t_hb > lim]
+                    if not late or now >= t_end:
+                        break
+                    self._cond.wait(t_end - now)
+            if late:
+                d = late[0]
                 self._fault = (f"canopen {d.name}: heartbeat lost: none for {(now - d.t_hb) * 1e3:.0f} ms "
                                f"(timeout {self.opt.heartbeat_timeout_ms} ms)")
                 self._stop_all()

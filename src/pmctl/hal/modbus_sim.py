@@ -64,6 +64,7 @@ class ModbusSimServer:
         self._thread = None
         self._ready = threading.Event()
         self._error = None
+        self._stop_lock = threading.Lock()
 
     def start(self):
         self._thread = threading.Thread(target=self._run, daemon=True, name="pmctl-modbus-sim")
@@ -95,8 +96,12 @@ class ModbusSimServer:
         loop.close()
 
     def stop(self):
-        """Stop serving and close the connections (a lost link, seen from a client)."""
-        if self._loop is None or self._thread is None:
+        """Stop serving and close the connections (a lost link, seen from a client). Idempotent."""
+        with self._stop_lock:
+            self._stop_locked()
+
+    def _stop_locked(self):
+        if self._loop is None or self._thread is None or self._loop.is_closed():
             return
 
         async def down():
@@ -107,7 +112,10 @@ class ModbusSimServer:
             fut.result(5.0)
         except Exception:            # noqa: BLE001 -- already down
             pass
-        self._loop.call_soon_threadsafe(self._loop.stop)
+        try:
+            self._loop.call_soon_threadsafe(self._loop.stop)
+        except RuntimeError:         # the loop closed meanwhile
+            pass
         self._thread.join(5.0)
         self._thread = None
 

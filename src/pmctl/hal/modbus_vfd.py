@@ -176,6 +176,15 @@ class SpindleVFD:
         if abs(rpm) > self.opt.max_rpm:
             raise HalError(f"{self.device}: S{abs(rpm):g} exceeds the spindle's {self.opt.max_rpm:g} rpm")
         self.read_fault()
+        if self.rpm_cmd and (rpm > 0) != (self.rpm_cmd > 0):
+            # reversing: the speed register has no sign, so stop and see zero before the other way
+            self.stop()
+            t_end = time.monotonic() + self.opt.spinup_timeout_s
+            while self.read_rpm() > 0:
+                if time.monotonic() > t_end:
+                    raise HalError(f"{self.device}: not at rest {self.opt.spinup_timeout_s:g} s after stop "
+                                   f"(reversing), {self.r.name(self.r.speed_rpm)}")
+                time.sleep(self.opt.poll_ms / 1e3)
         sp = int(round(abs(rpm) / self.opt.max_rpm * 10000))
         self._write(self.r.setpoint, sp)
         self._write(self.r.command, self.r.run_forward if rpm > 0 else self.r.run_reverse)
