@@ -199,3 +199,109 @@ def test_pmctl_run_canopen_with_a_spindle_job_records_spindle_rpm(tmp_path):
     assert np.all(np.abs(d["spindle_rpm"] + 6000) <= 0.02 * 6000)       # M4: negative, at speed all along
     for a in ("L1", "L2", "L3", "X", "Y"):
         assert abs(d[f"enc_{a}"][-1] - d[f"cmd_{a}"][-1]) <= 1.0 / 2000 + 1e-9
+
+
+# ---------------------------------------------------------------- strain DAQ
+
+from pmctl.hal.modbus_daq import DaqOptions, DaqSession, StrainDAQ, chain_mode_hz, check_k_theta_source  # noqa: E402
+
+
+@pytest.fixture
+def daq():
+    strain = [12.34, -5.67, 300.0]
+    o = DaqOptions.from_dict({"simulate": True, "port": 0, "timeout_ms": 100.0, "poll_ms": 10.0,
+                              "max_age_ms": 60.0, "sim_sample_hz": 200.0})
+    ses = DaqSession(o, lambda: strain, log=lambda m: None).connect()
+    yield ses, strain
+    ses.close()
+
+
+def test_daq_registers_by_hand_and_by_pymodbus(daq):
+    ses, strain = daq
+    # function 04: read input registers 0..3 -> three signed gauges in 0.01 ue, then the counter
+    body = mbap_request(ses.opt.port, 1, struct.pack(">BHH", 4, 0x0000, 4))
+    fc, nbytes, g1, g2, g3, n1 = struct.unpack(">BBhhhH", body)
+    assert (fc, nbytes) == (4, 8) and (g1, g2, g3) == (1234, -567, 30000)
+    time.sleep(0.05)
+    n2 = struct.unpack(">BBhhhH", mbap_request(ses.opt.port, 1, struct.pack(">BHH", 4, 0x0000, 4)))[5]
+    assert n2 != n1                                          # the DAQ samples on its own
+    assert mbap_request(ses.opt.port, 1, struct.pack(">BHH", 4, 0x0004, 1)) == bytes([0x84, 0x02])
+    t, n, s = ses.daq.poll()
+    assert s == pytest.approx([12.34, -5.67, 300.0], abs=1e-9)
+
+
+def test_daq_stale_data_and_timeout_name_device_and_register(daq):
+    ses, strain = daq
+    ses.device.freeze()
+    with pytest.raises(HalError) as e:
+        for _ in range(50):
+            ses.daq.poll()
+            time.sleep(0.01)
+    assert f"strain DAQ 127.0.0.1:{ses.opt.port} (unit 1): stale data: input register 0x0003 (sample counter)" \
+        in str(e.value)
+    ses.device.frozen = False
+    ses.device.delay_s = 0.3                                 # answers after the 100 ms timeout
+    with pytest.raises(HalError) as e:
+        ses.daq.poll()
+    assert "input register 0x0000 (strain gauge 1)" in str(e.value)
+    assert "timeout" in str(e.value)
+
+
+def test_k_theta_source_too_slow_for_the_chain_mode_is_refused():
+    f = chain_mode_hz(M)
+    assert 200 < f < 300                                     # 20 N/um, 25 kg / 3: 246 Hz
+    slow = DaqOptions.from_dict({"port": 502, "k_theta_source": "daq", "poll_ms": 20.0})
+    with pytest.raises(ConfigError) as e:
+        check_k_theta_source(slow, (200.0,) * 3, M)
+    assert "k_theta_source" in str(e.value) and "50 Hz" in str(e.value) and f"{f:.0f} Hz" in str(e.value)
+    check_k_theta_source(slow, (0.0,) * 3, M)                # K_theta off: nothing to damp
+    check_k_theta_source(DaqOptions.from_dict({"port": 502, "poll_ms": 20.0}), (200.0,) * 3, M)   # backend source
+    fast = DaqOptions.from_dict({"port": 502, "k_theta_source": "daq", "poll_ms": 0.2, "max_age_ms": 1.0})
+    check_k_theta_source(fast, (200.0,) * 3, M)              # 5 kHz > 2 x 246 Hz
+
+
+def _daq_run(inject):
+    dt = 1e-3
+    tr = line_traj([-30, -20, 0], [30, 20, 5], rp(0, 0), rp(2, -1), 10.0, dt)
+    p = NCParams.from_machine(M, dt, kv=400.0)
+    tg = prepare(M, p, tr, dt, None)
+    c0 = counts_of(tg.q[0], p)
+    be = hal.create("sim", M, dt, {})
+    be.open(c0)
+    ses = DaqSession(DaqOptions.from_dict({"simulate": True, "port": 0, "timeout_ms": 100.0, "poll_ms": 10.0,
+                                           "max_age_ms": 60.0}), lambda: be._fb.strain.tolist(),
+                     log=lambda m: None).connect()
+    lp = ControlLoop(M, be, p, tg, LoopConfig(rate_hz=1000, realtime=False, stall_timeout_s=5.0),
+                     initial_state(M, c0), log=lambda m: None)
+    ses.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
+
+    def injector():
+        while lp.tick < 500:
+            time.sleep(0.001)
+        inject(ses.device)
+    threading.Thread(target=injector, daemon=True).start()
+    try:
+        res = lp.run()
+    finally:
+        ses.close()
+    return res, be, c0, ses
+
+
+def test_daq_stale_mid_job_is_a_controlled_stop_and_samples_follow_the_plant():
+    res, be, c0, ses = _daq_run(lambda dev: dev.freeze())
+    assert res.status == "stopped" and "stale data" in res.reason and "strain DAQ" in res.reason
+    assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
+    ds = ses.per_tick(res.ticks)
+    k = [tk for tk, _, _ in ses.daq.samples]
+    # a DAQ sample is the plant's gauge at about its tick (0.01 ue counts; the plant moves between)
+    i = len(k) // 2
+    assert np.all(np.isfinite(ds[k[i]:]))
+    assert abs(ds[k[i], 0] - res.strain[k[i], 0]) < 5.0
+
+
+def test_daq_timeout_mid_job_is_a_controlled_stop():
+    def slow(dev):
+        dev.delay_s = 0.3
+    res, be, c0, ses = _daq_run(slow)
+    assert res.status == "stopped" and "strain DAQ" in res.reason and "timeout" in res.reason
+    assert np.array_equal(c0 + res.pulses_sent, res.state.counts)

@@ -205,3 +205,45 @@ class SimVFD:
                 return False
             self.commands.append((addr, value))
         return True
+
+
+class SimDAQ:
+    """A strain DAQ: input registers ``base`` .. ``base + 2`` hold strain gauges 1-3 as signed 16-bit
+    counts of ``ue_per_count`` microstrain, ``base + 3`` a sample counter (mod 65536) that advances
+    at ``sample_hz``. ``source()`` gives the strain to serve (e.g. the sim plant's gauges).
+    Faults: ``freeze()`` (the counter and values stop: stale data while the link answers),
+    ``delay_s`` (answers later than the client's timeout)."""
+
+    def __init__(self, source, base=0x0000, ue_per_count=0.01, sample_hz=100.0):
+        self.source, self.base, self.scale, self.hz = source, int(base), float(ue_per_count), float(sample_hz)
+        self.frozen = False
+        self.delay_s = 0.0
+        self._t0 = time.monotonic()
+        self._held = None
+        self._held_n = 0
+
+    def freeze(self):
+        self._held_n = self._count()
+        self._held = self._values()
+        self.frozen = True
+
+    def _count(self):
+        return int((time.monotonic() - self._t0) * self.hz) & 0xFFFF
+
+    def _values(self):
+        s = list(self.source())
+        return [max(-32768, min(32767, int(round(v / self.scale)))) for v in s[:3]]
+
+    def read(self, addr):
+        if self.delay_s:
+            time.sleep(self.delay_s)
+        i = addr - self.base
+        if not 0 <= i <= 3:
+            return None
+        if i == 3:
+            return self._held_n if self.frozen else self._count()
+        v = (self._held if self.frozen else self._values())[i]
+        return v & 0xFFFF
+
+    def write(self, addr, value):
+        return False

@@ -70,6 +70,7 @@ class ServiceConfig:
     source: str = "<defaults>"
     hal_options: dict = field(default_factory=dict)       # every [hal.<name>] table (for --backend NAME)
     spindle: object = None      # [spindle]: pmctl.hal.modbus_vfd.VfdOptions, None = no spindle control
+    daq: object = None          # [daq]: pmctl.hal.modbus_daq.DaqOptions, None = no strain DAQ
 
 
 def _bool(s: _Section, key, default):
@@ -103,7 +104,7 @@ def load_service_config(path: str | Path | None = None) -> ServiceConfig:
 
 def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
     for k in data:
-        if k not in ("loop", "nc", "hal", "spindle"):
+        if k not in ("loop", "nc", "hal", "spindle", "daq"):
             raise ConfigError(path, k, "unknown table")
     s = _Section(path, data.get("loop", {}), "loop")
     d = LoopConfig()
@@ -167,6 +168,11 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
     if "spindle" in data:
         from pmctl.hal.modbus_vfd import VfdOptions
         spindle = VfdOptions.from_dict(data["spindle"], f"{path}: spindle")
+    daq = None
+    if "daq" in data:
+        from pmctl.hal.modbus_daq import DaqOptions
+        daq = DaqOptions.from_dict(data["daq"], f"{path}: daq")
     return ServiceConfig(loop, nc, backend, opts, str(path),
                          hal_options={k: dict(v) for k, v in h.items() if isinstance(v, dict)},
-                         spindle=spindle if spindle is not None and spindle.enabled else None)
+                         spindle=spindle if spindle is not None and spindle.enabled else None,
+                         daq=daq if daq is not None and daq.enabled else None)

@@ -133,6 +133,12 @@ def record_columns(res: LoopResult, machine, ppm) -> tuple[dict, dict]:
     return cols, notes
 
 
+def _strain_of(backend):
+    """The strain gauges the backend's last feedback holds (what a simulated DAQ serves)."""
+    fb = getattr(backend, "_fb", None)
+    return fb.strain.tolist() if fb is not None else [0.0, 0.0, 0.0]
+
+
 def run(args) -> int:
     from pmctl.task.planner import load_job, plan
 
@@ -157,6 +163,8 @@ def run(args) -> int:
     state_file = cfg.state_file if args.state is None else args.state
     dt = cfg.dt
     log = lambda m: print(f"pmctl: {m}", file=sys.stderr)  # noqa: E731
+    from pmctl.hal.modbus_daq import DaqSession, check_k_theta_source
+    check_k_theta_source(svc.daq, svc.nc.k_theta_per_s, machine, f"{svc.source}: daq")
     strain_in_loop = getattr(hal.backend_class(backend_name), "strain_in_loop", True)
     if not strain_in_loop and any(svc.nc.k_theta_per_s):
         log(f"K_theta off: backend {backend_name} carries no strain gauges in its cyclic data")
@@ -203,14 +211,19 @@ def run(args) -> int:
     elif rpm_job:
         log(f"no [spindle] in {svc.source}: the job's S{abs(rpm_job):g} M{3 if rpm_job > 0 else 4} is not executed")
     backend = hal.create(backend_name, machine, dt, svc.hal_options.get(backend_name, {}))
+    daq = None
     try:
         backend.open(counts0)
+        if svc.daq is not None:           # the simulated DAQ serves the backend's (plant's) strain gauges
+            daq = DaqSession(svc.daq, lambda: _strain_of(backend),
+                             log).connect()
         if spindle is not None:
             spindle.start(rpm_job)        # cutting waits for at speed
     except BaseException:
         backend.close()
-        if spindle is not None:
-            spindle.close()
+        for dev in (spindle, daq):
+            if dev is not None:
+                dev.close()
         raise
     writer = CounterWriter(state_file, machine=machine.name) if state_file else None
     lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer)
@@ -228,8 +241,9 @@ def run(args) -> int:
         signal.signal(signal.SIGINT, _sigint)
     prog.start()
     t_wall = time.monotonic()
-    if spindle is not None:               # polled by its own thread; a VFD fault or lost link stops the run
-        spindle.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
+    for dev in (spindle, daq):            # polled by their own threads; a fault or lost link stops the run
+        if dev is not None:
+            dev.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
     try:
         res = lp.run()
     finally:
@@ -237,8 +251,9 @@ def run(args) -> int:
         if threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGINT, old)
         backend.close()
-        if spindle is not None:
-            spindle.close()               # M5
+        for dev in (spindle, daq):
+            if dev is not None:
+                dev.close()               # the spindle: M5
         if writer is not None:
             writer.stop()          # on a crash the last periodic snapshot (clean = false) stays
     wall = time.monotonic() - t_wall
@@ -264,6 +279,12 @@ def run(args) -> int:
             cols["spindle_rpm"] = spindle.per_tick(res.ticks)
             notes["spindle_rpm"] = {"source": f"VFD speed register polled every {svc.spindle.poll_ms:g} ms by "
                                               f"the supervisor, held between polls (negative: M4)"}
+        if daq is not None:
+            ds = daq.per_tick(res.ticks)
+            for i in range(3):
+                cols[f"daq_strain_{i + 1}"] = ds[:, i]
+                notes[f"daq_strain_{i + 1}"] = {"source": f"strain DAQ over Modbus TCP polled every "
+                                                          f"{svc.daq.poll_ms:g} ms, held between polls, microstrain"}
         desc = (f"pmctl run {Path(args.job).name} on backend {backend_name} at {cfg.rate_hz:g} Hz: {res.status}"
                 + (f" ({res.reason})" if res.reason else ""))
         write_recording(folder, cols, machine=_machine_ref(args.config, machine, folder),
