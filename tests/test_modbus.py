@@ -188,8 +188,14 @@ def test_pmctl_run_canopen_with_a_spindle_job_records_spindle_rpm(tmp_path):
         M2
         """))
     rec = tmp_path / "rec"
+    # the shipped service config, except that a loaded CI host is no stall
+    from pmctl.core.config import CONFIG_DIR
+    svc = tmp_path / "service.toml"
+    text = (CONFIG_DIR / "service.toml").read_text()
+    assert "stall_timeout_ms = 50 " in text
+    svc.write_text(text.replace("stall_timeout_ms = 50 ", "stall_timeout_ms = 5000 "))
     r = subprocess.run([sys.executable, "-m", "pmctl.interfaces.cli", "run", "--backend", "canopen", "--job", str(job),
-                        "--record", str(rec), "--no-realtime", "--state", "", "--quiet"],
+                        "--record", str(rec), "--no-realtime", "--state", "", "--quiet", "--service", str(svc)],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "spindle M4 S6000: at speed" in r.stderr

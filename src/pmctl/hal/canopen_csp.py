@@ -95,8 +95,6 @@ class CanopenOptions:
         if o.interface not in INTERFACES:
             raise ConfigError(where, "interface", f"unknown python-can interface {o.interface!r}; known: "
                                                   f"{', '.join(INTERFACES)}")
-        if o.interface == "udp_multicast":
-            raise ConfigError(where, "interface", "udp_multicast is not a loopback bus")
         if not isinstance(o.channel, str) or not o.channel:
             raise ConfigError(where, "channel", "must be a non-empty string")
         o.bitrate = num("bitrate", integer=True, positive=True)
@@ -223,6 +221,7 @@ class CanopenCSP(Backend):
         self._t_host_hb = 0.0
         self._targets = np.zeros(5, np.int64)
         self._last_q = None
+        self._sent_last = self._sent_prev = None     # targets sent with the last two SYNCs, increments
         self._cw = C.CW_SHUTDOWN
         self.frames_sent = 0
 
@@ -459,6 +458,7 @@ class CanopenCSP(Backend):
 
     def _send_cycle(self):
         net = self.network
+        self._sent_prev, self._sent_last = self._sent_last, self._targets.copy()
         for i, d in enumerate(self.drives):
             rp = d.rpdo
             if rp is not None:
@@ -496,9 +496,19 @@ class CanopenCSP(Backend):
                              f"(frame lost or drive silent)")
 
     def _fill_feedback(self):
+        """Feedback at this tick. The TPDO answering SYNC s holds the drive's position at SYNC s,
+        while it followed the target of SYNC s-1; that sample is a cycle or more old by now. The
+        drive's own tracking error (target of SYNC s-1 - position at SYNC s) is applied to the last
+        commanded position: the transport delay of the cycle is not a following error, the drive's
+        lag is. ``positions()`` keeps the raw position actual."""
         fb = self._fb
+        prev = self._sent_prev
+        q = self._last_q
         for i, d in enumerate(self.drives):
-            fb.enc[i] = d.pos / self.inc_per_mm[i]
+            if prev is None or q is None:
+                fb.enc[i] = d.pos / self.inc_per_mm[i]
+            else:
+                fb.enc[i] = q[i] - (prev[i] - d.pos) / self.inc_per_mm[i]
         fb.seq += 1
 
     # ---------------------------------------------------------------- loop side

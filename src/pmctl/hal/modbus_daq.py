@@ -20,7 +20,7 @@ import time
 from dataclasses import dataclass, fields
 
 from pmctl.core.errors import ConfigError
-from pmctl.hal.base import HalError
+from pmctl.hal.base import HalError, HalTimeout
 
 K_THETA_SOURCES = ("backend", "daq")
 
@@ -36,6 +36,7 @@ class DaqOptions:
     timeout_ms: float = 200.0
     poll_ms: float = 20.0
     max_age_ms: float = 100.0
+    max_missed_polls: int = 3        # consecutive unanswered polls before it is a timeout fault
     k_theta_source: str = "backend"  # which strain feeds K_theta: the backend's cyclic data, or this DAQ
     simulate: bool = False           # serve the sim plant's strain from a simulated DAQ on host:port
     sim_sample_hz: float = 100.0
@@ -57,7 +58,8 @@ class DaqOptions:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise ConfigError(where, k, f"must be a number > 0, got {v!r}")
             setattr(o, k, float(v))
-        for k, lo, hi in (("port", 0, 65535), ("device_id", 0, 247), ("base", 0, 0xFFFC)):
+        for k, lo, hi in (("port", 0, 65535), ("device_id", 0, 247), ("base", 0, 0xFFFC),
+                          ("max_missed_polls", 1, 100)):
             v = getattr(o, k)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise ConfigError(where, k, f"must be an integer {lo} .. {hi}, got {v!r}")
@@ -135,13 +137,13 @@ class StrainDAQ:
         except (ModbusException, OSError) as e:
             what = "no answer within" if "timeout" in str(e).lower() or "no response" in str(e).lower() \
                 else "link lost"
-            raise HalError(f"{self.device}: {self.reg_name(0)} .. {self.reg_name(3)}: {what} "
+            raise HalTimeout(f"{self.device}: {self.reg_name(0)} .. {self.reg_name(3)}: {what} "
                            f"({self.opt.timeout_ms:g} ms timeout): {e}") from None
         if rr.isError():
             raise HalError(f"{self.device}: {self.reg_name(0)}: exception response {rr}")
         t = time.monotonic()
         if t - t_req > self.opt.timeout_ms / 1e3:
-            raise HalError(f"{self.device}: {self.reg_name(0)}: answered after {(t - t_req) * 1e3:.0f} ms, "
+            raise HalTimeout(f"{self.device}: {self.reg_name(0)}: answered after {(t - t_req) * 1e3:.0f} ms, "
                            f"over the {self.opt.timeout_ms:g} ms timeout")
         regs = rr.registers
         strain = [((v - 65536) if v >= 32768 else v) * self.opt.ue_per_count for v in regs[:3]]
@@ -156,10 +158,20 @@ class StrainDAQ:
 
     def watch(self, tick, on_fault):
         def run():
+            missed = 0
             while not self._stop.is_set():
                 try:
                     t, n, s = self.poll()
                     self.samples.append((int(tick()), t, s))
+                    missed = 0
+                except HalTimeout as e:      # one unanswered poll is no timeout fault yet
+                    missed += 1
+                    if missed < self.opt.max_missed_polls:
+                        self._stop.wait(self.opt.poll_ms / 1e3)
+                        continue
+                    self.fault = f"{e} ({missed} polls in a row)"
+                    on_fault(self.fault)
+                    return
                 except HalError as e:
                     self.fault = str(e)
                     on_fault(self.fault)

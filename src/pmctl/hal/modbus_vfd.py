@@ -21,7 +21,7 @@ import time
 from dataclasses import dataclass, field, fields
 
 from pmctl.core.errors import ConfigError
-from pmctl.hal.base import HalError
+from pmctl.hal.base import HalError, HalTimeout
 
 
 @dataclass
@@ -57,6 +57,7 @@ class VfdOptions:
     at_speed_tolerance: float = 0.02
     spinup_timeout_s: float = 10.0
     poll_ms: float = 50.0
+    max_missed_polls: int = 3        # consecutive unanswered polls before the link counts as lost
     simulate: bool = False           # serve a simulated VFD on host:port (loopback only)
     sim_ramp_rpm_per_s: float = 12000.0
     registers: VfdRegisters = field(default_factory=VfdRegisters)
@@ -92,7 +93,7 @@ class VfdOptions:
             setattr(o, k, float(v))
         if o.at_speed_tolerance >= 0.5:
             raise ConfigError(where, "at_speed_tolerance", "a fraction of the speed, e.g. 0.02 for 2 %")
-        for k, lo, hi in (("port", 0, 65535), ("device_id", 0, 247)):
+        for k, lo, hi in (("port", 0, 65535), ("device_id", 0, 247), ("max_missed_polls", 1, 100)):
             v = getattr(o, k)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise ConfigError(where, k, f"must be an integer {lo} .. {hi}, got {v!r}")
@@ -145,7 +146,7 @@ class SpindleVFD:
             try:
                 rr = self.client.read_holding_registers(addr, count=1, device_id=self.opt.device_id)
             except (ModbusException, OSError) as e:
-                raise HalError(f"{self.device}: {self.r.name(addr)}: link lost ({e})") from None
+                raise HalTimeout(f"{self.device}: {self.r.name(addr)}: link lost ({e})") from None
         if rr.isError():
             raise HalError(f"{self.device}: {self.r.name(addr)}: exception response {rr}")
         return rr.registers[0]
@@ -156,7 +157,7 @@ class SpindleVFD:
             try:
                 rr = self.client.write_register(addr, int(value), device_id=self.opt.device_id)
             except (ModbusException, OSError) as e:
-                raise HalError(f"{self.device}: {self.r.name(addr)} = {value}: link lost ({e})") from None
+                raise HalTimeout(f"{self.device}: {self.r.name(addr)} = {value}: link lost ({e})") from None
         if rr.isError():
             raise HalError(f"{self.device}: {self.r.name(addr)} = {value}: exception response {rr}")
 
@@ -229,11 +230,21 @@ class SpindleMonitor:
 
     def _run(self):
         period = self.vfd.opt.poll_ms / 1e3
+        missed = 0
         while not self._stop.is_set():
             try:
                 self.vfd.read_fault()
                 rpm = self.vfd.read_rpm()
                 self.samples.append((int(self.tick()), rpm))
+                missed = 0
+            except HalTimeout as e:          # one unanswered poll is no lost link yet
+                missed += 1
+                if missed < self.vfd.opt.max_missed_polls:
+                    self._stop.wait(period)
+                    continue
+                self.fault = f"{e} ({missed} polls in a row)"
+                self.on_fault(self.fault)
+                return
             except HalError as e:
                 self.fault = str(e)
                 self.on_fault(self.fault)
