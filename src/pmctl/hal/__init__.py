@@ -11,7 +11,7 @@ from pmctl.hal.base import AXES, Backend, Feedback, HalError, HalTimeout, Status
 BACKENDS = {
     "sim": "pmctl.hal.sim:SimBackend",
     "stepdir": "pmctl.hal.stepdir:StepDirBackend",
-    # "canopen": "pmctl.hal.canopen_csp:CanopenCSP",  (planned: CiA 402 drives in CSP mode)
+    "canopen": "pmctl.hal.canopen_csp:CanopenCSP",
 }
 
 

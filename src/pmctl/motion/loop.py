@@ -309,6 +309,7 @@ class ControlLoop:
         ncns = np.zeros(n_cap, np.int64)
         sent = np.zeros(5, np.int64)
         has_truth = be.truth() is not None
+        positions, ppm = be.accepts == "positions", p.pulses_per_mm     # CSP drives take joint targets, mm
         period = int(round(1e9 / cfg.rate_hz))
         stall_ns = int(cfg.stall_timeout_s * 1e9)
         spin_ns = int(cfg.spin_us * 1e3)
@@ -377,7 +378,10 @@ class ControlLoop:
                 ncns[k] = mono() - t_nc
                 pending = pulses
                 try:
-                    be.write_pulses(pulses)
+                    if positions:
+                        be.write_positions(st.counts / ppm)
+                    else:
+                        be.write_pulses(pulses)
                 except HalError as e:
                     # the backend did not take this tick's pulses: the counters must not claim them
                     status, reason = "fault", f"backend fault: {e}"

@@ -73,6 +73,8 @@ class ServiceConfig:
     backend: str = "sim"
     source: str = "<defaults>"
     backend_tables: dict = field(default_factory=dict)    # every [hal.<name>] table (for --backend NAME)
+    spindle: object = None      # [spindle]: pmctl.hal.modbus_vfd.VfdOptions, None = no spindle control
+    daq: object = None          # [daq]: pmctl.hal.modbus_daq.DaqOptions, None = no strain DAQ
 
     @property
     def backend_options(self) -> dict:
@@ -95,7 +97,7 @@ def load_service_config(path: str | Path | None = None) -> ServiceConfig:
 
 
 def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
-    check_tables(path, data, (), ("loop", "nc", "hal"))
+    check_tables(path, data, (), ("loop", "nc", "hal", "spindle", "daq"))
     s = Table(path, data.get("loop", {}), "loop")
     d = LoopConfig()
     loop = LoopConfig(
@@ -154,4 +156,14 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
         if isinstance(v, dict):
             validate_options(k, v, f"{path}: hal.{k}")
     tables = {k: dict(v) for k, v in h.items() if isinstance(v, dict)}
-    return ServiceConfig(loop, nc, backend, source=str(path), backend_tables=tables)
+    spindle = None
+    if "spindle" in data:
+        from pmctl.hal.modbus_vfd import VfdOptions
+        spindle = VfdOptions.from_dict(data["spindle"], f"{path}: spindle")
+    daq = None
+    if "daq" in data:
+        from pmctl.hal.modbus_daq import DaqOptions
+        daq = DaqOptions.from_dict(data["daq"], f"{path}: daq")
+    return ServiceConfig(loop, nc, backend, source=str(path), backend_tables=tables,
+                         spindle=spindle if spindle is not None and spindle.enabled else None,
+                         daq=daq if daq is not None and daq.enabled else None)

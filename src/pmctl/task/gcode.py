@@ -14,8 +14,9 @@ Supported (LinuxCNC semantics unless noted):
   active), ``M9`` (no coolant);
 - words: ``X Y Z`` tool tip in W, ``A B`` tool tilt as roll / pitch in degrees (docs/machine.md §3: axis =
   Rx(A) Ry(B) z), ``F`` feed (mm/min or in/min), ``S`` spindle rpm, ``N`` line number;
-- ``M3`` spindle on (at S: an ``M3`` while S is 0, or ``S0`` while the spindle turns, is refused: the
-  spindle never runs at 0 rpm in silence), ``M5`` off, ``M2``/``M30`` end of program (later lines are
+- ``M3`` spindle on clockwise, ``M4`` counter-clockwise (the moves' spindle_rpm is negative), at S: an
+  ``M3``/``M4`` while S is 0, or ``S0`` while the spindle turns, is refused (the spindle never runs at
+  0 rpm in silence); ``M5`` off, ``M2``/``M30`` end of program (later lines are
   ignored);
 - comments ``( ... )`` and ``;`` to the end of the line; spaces anywhere. ``(MSG, text)`` comments are
   operator messages: kept in ``Job.messages`` as (line, text) and shown by ``pmctl run``;
@@ -29,9 +30,9 @@ an arc at most ``MAX_ARC_TURNS`` turns. Beyond that: InputError with file, line,
 Not supported, and refused by name: expressions ``[...]``, parameters ``#...``, O-word subroutines
 and control flow, canned cycles (G73, G76, G81-G89), cutter compensation, tool length offsets and
 tool changes, other planes, coordinate-system offsets, inverse-time feed, threading, probing,
-splines, pauses (M0/M1), M4, coolant on, user M-codes...
+splines, pauses (M0/M1), coolant on, user M-codes...
 
-Execution order inside a line is RS-274's: F, S, M3/M5, G4, G17/G20/G21/G90/G91/G94, motion, M2/M30.
+Execution order inside a line is RS-274's: F, S, M3/M4/M5, G4, G17/G20/G21/G90/G91/G94, motion, M2/M30.
 The whole program is parsed and checked before a job exists: an unknown or unsupported word, a missing
 or repeated value, two motion codes on a line, axis words without a motion mode, a feed move before any
 F, an arc whose end radius differs from its start radius by more than ``ARC_RADIUS_TOL_MM``, an R arc
@@ -65,7 +66,7 @@ WORD_LIMITS = {"N": 99_999_999, "G": 999, "M": 999, "F": 1e6, "S": 1e6, "P": 1e1
 G_MOTION = {0, 10, 20, 30}        # G-codes times 10
 G_NOOP = {400, 490, 540, 610, 640, 800, 970}   # G40 G49 G54 G61 G64 G80 G97: hold anyway (see above)
 G_OTHER = {40, 170, 200, 210, 900, 910, 940} | G_NOOP
-M_CODES = {2, 3, 5, 9, 30}
+M_CODES = {2, 3, 4, 5, 9, 30}
 _NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)")
 
 _G_UNSUPPORTED = [          # (codes x 10, reason); first match wins
@@ -89,7 +90,6 @@ _G_UNSUPPORTED = [          # (codes x 10, reason); first match wins
 ]
 _M_UNSUPPORTED = [
     ({0, 1, 60}, "program pauses (M0/M1/M60) are not supported"),
-    ({4}, "counter-clockwise spindle (M4) is not supported"),
     ({6, 61}, "tool changes are not supported"),
     ({7, 8}, "coolant is not supported"),
     ({19}, "spindle orientation (M19) is not supported"),
@@ -275,7 +275,7 @@ def _execute_line(words, st: _State, path, lineno, moves, points, point_lines):
     motion = [g for g in codes if g in G_MOTION]
     if len(motion) > 1:
         raise err("two motion codes (G0/G1/G2/G3) on one line", gs[codes.index(motion[1])][1])
-    if (200 in codes and 210 in codes) or (900 in codes and 910 in codes) or (3 in mcodes and 5 in mcodes) \
+    if (200 in codes and 210 in codes) or (900 in codes and 910 in codes) or (len({3, 4, 5} & set(mcodes)) > 1) \
             or (2 in mcodes and 30 in mcodes):
         raise err("conflicting modal codes on one line")
     if "N" in vals:
@@ -299,14 +299,15 @@ def _execute_line(words, st: _State, path, lineno, moves, points, point_lines):
         if s == 0 and st.spindle_on and 5 not in mcodes:
             raise err("S0 while the spindle turns (M3): stop it with M5", col)
         st.s = s
-    if 3 in mcodes:
+    if 3 in mcodes or 4 in mcodes:
+        m = 3 if 3 in mcodes else 4
         if not st.s > 0:
-            raise err("M3 with no spindle speed: program S<rpm> (> 0) on this line or before",
-                      ms[mcodes.index(3)][1])
-        st.spindle_on = True
+            raise err(f"M{m} with no spindle speed: program S<rpm> (> 0) on this line or before",
+                      ms[mcodes.index(m)][1])
+        st.spindle_on = 1 if m == 3 else -1
     if 5 in mcodes:
         st.spindle_on = False
-    rpm = st.s if st.spindle_on else 0.0
+    rpm = st.s * st.spindle_on if st.spindle_on else 0.0
     if 40 in codes:
         if motion or any(k in vals for k in "XYZABIJR"):
             raise err("G4 cannot share a line with motion or axis words")

@@ -204,6 +204,12 @@ def tracking_window(res, stop_tick: int | None) -> tuple[int, int, str]:
     return j0, j0, f"not reported: the run {res.status} ({res.reason}); the figures would measure the stop, not the tracking"
 
 
+def _strain_of(backend):
+    """The strain gauges the backend's last feedback holds (what a simulated DAQ serves)."""
+    fb = getattr(backend, "_fb", None)
+    return fb.strain.tolist() if fb is not None else [0.0, 0.0, 0.0]
+
+
 def run(args) -> int:
     import numpy as np
 
@@ -253,6 +259,12 @@ def run(args) -> int:
     backend_name = args.backend or svc.backend
     state_file = cfg.state_file if args.state is None else args.state
     dt = cfg.dt
+    from pmctl.hal.modbus_daq import check_k_theta_source
+    check_k_theta_source(svc.daq, svc.nc.k_theta_per_s, machine, f"{svc.source}: daq")
+    strain_in_loop = getattr(hal.backend_class(backend_name), "strain_in_loop", True)
+    if not strain_in_loop and any(svc.nc.k_theta_per_s):
+        log(f"K_theta off: backend {backend_name} carries no strain gauges in its cyclic data")
+        svc.nc.k_theta_per_s = (0.0,) * 3
     params = svc.nc.params(machine, dt, where=svc.source)
 
     # Where the machine is: saved counters, else home (said only once everything has been checked).
@@ -305,11 +317,30 @@ def run(args) -> int:
             sig = getattr(signal, name, None)
             if sig is not None:
                 old[sig] = signal.signal(sig, _stop)
+    from pmctl.hal.modbus_daq import DaqSession
+    from pmctl.hal.modbus_vfd import SpindleSession, job_speed
+    rpm_job, spindle, daq = job_speed(traj.spindle_rpm), None, None
+    if rpm_job and svc.spindle is None:
+        notes.append(f"no [spindle] in {svc.source}: the job's S{abs(rpm_job):g} M{3 if rpm_job > 0 else 4} "
+                     f"is not executed")
     try:
         log(where)
         for m in notes:
             log(m)
-        backend.open(counts0)
+        try:
+            if rpm_job and svc.spindle is not None:
+                spindle = SpindleSession(svc.spindle, log).connect()   # the link answers before the drives enable
+            backend.open(counts0)
+            if svc.daq is not None:       # the simulated DAQ serves the backend's (plant's) strain gauges
+                daq = DaqSession(svc.daq, lambda: _strain_of(backend), log).connect()
+            if spindle is not None:
+                spindle.start(rpm_job)    # cutting waits for at speed
+        except BaseException:
+            backend.close()
+            for dev in (spindle, daq):
+                if dev is not None:
+                    dev.close()
+            raise
         writer = CounterWriter(state_file, machine=machine.name) if state_file else None
         lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer)
         holder["lp"] = lp
@@ -322,25 +353,31 @@ def run(args) -> int:
             f"{'real-time' if cfg.realtime else 'no real-time (ticks back to back)'}")
         prog = _Progress(lp, Path(args.job).name, dt, args.quiet, out)
         return _run_and_report(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt,
-                               counts0, backend_name, stop_tick, out)
+                               counts0, backend_name, stop_tick, out, spindle, daq, svc)
     finally:
         for sig, h in old.items():
             signal.signal(sig, h)
 
 
 def _run_and_report(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt, counts0,
-                    backend_name, stop_tick, out) -> int:
+                    backend_name, stop_tick, out, spindle, daq, svc) -> int:
     import numpy as np
 
     from pmctl.motion.loop import tracking_stats
     log = out.log
     prog.start()
     t_wall = time.monotonic()
+    for dev in (spindle, daq):            # polled by their own threads; a fault or lost link stops the run
+        if dev is not None:
+            dev.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
     try:
         res = lp.run()
     finally:
         prog.finish()
         backend.close()
+        for dev in (spindle, daq):
+            if dev is not None:
+                dev.close()               # the spindle: M5
         if writer is not None:
             writer.stop()          # on a crash the last periodic snapshot (clean = false) stays
     wall = time.monotonic() - t_wall
@@ -367,6 +404,16 @@ def _run_and_report(args, lp, prog, backend, writer, state_file, machine, params
         from pmctl.core.recording import write_recording
         folder = Path(args.record)
         cols, chan_notes = record_columns(res, machine, params.pulses_per_mm, cfg.rate_hz)
+        if spindle is not None:
+            cols["spindle_rpm"] = spindle.per_tick(res.ticks)
+            chan_notes["spindle_rpm"] = {"source": f"VFD speed register polled every {svc.spindle.poll_ms:g} ms by "
+                                              f"the supervisor, held between polls (negative: M4)"}
+        if daq is not None:
+            ds = daq.per_tick(res.ticks)
+            for i in range(3):
+                cols[f"daq_strain_{i + 1}"] = ds[:, i]
+                chan_notes[f"daq_strain_{i + 1}"] = {"source": f"strain DAQ over Modbus TCP polled every "
+                                                          f"{svc.daq.poll_ms:g} ms, held between polls, microstrain"}
         desc = (f"pmctl run {Path(args.job).name} on backend {backend_name} at {cfg.rate_hz:g} Hz: {res.status}"
                 + (f" ({res.reason})" if res.reason else ""))
         run_meta = {"job": str(args.job), "status": res.status, "reason": res.reason,

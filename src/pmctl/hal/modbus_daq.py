@@ -1,0 +1,236 @@
+"""The strain DAQ over Modbus TCP (pymodbus client), polled by the supervisor at its own rate,
+never in the tick.
+
+Input registers (function 04) from ``base``: strain gauges 1-3 as signed 16-bit counts of
+``ue_per_count`` microstrain, then the DAQ's sample counter. Each poll is time-stamped on arrival;
+a sample whose counter has not advanced for ``max_age_ms`` is stale (the DAQ froze while its link
+answers), a request without answer within ``timeout_ms`` is a timeout: both are faults naming the
+device and the register, and the run stops in a controlled way.
+
+Modbus cannot carry a 1 kHz feedback path: the DAQ feeds recordings, monitoring and slow
+compensation. ``check_k_theta_source`` refuses it as the K_theta source when it samples slower than
+twice the chain mode it would damp (Nyquist; the mode of the machine config).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, fields
+
+from pmctl.core.errors import ConfigError
+from pmctl.hal.base import HalError, HalTimeout
+
+K_THETA_SOURCES = ("backend", "daq")
+
+
+@dataclass
+class DaqOptions:
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: int = 502
+    device_id: int = 1
+    base: int = 0x0000               # first input register (gauge 1); gauge 2, 3, then the sample counter
+    ue_per_count: float = 0.01
+    timeout_ms: float = 200.0
+    poll_ms: float = 20.0
+    max_age_ms: float = 100.0
+    max_missed_polls: int = 3        # consecutive unanswered polls before it is a timeout fault
+    k_theta_source: str = "backend"  # which strain feeds K_theta: the backend's cyclic data, or this DAQ
+    simulate: bool = False           # serve the sim plant's strain from a simulated DAQ on host:port
+    sim_sample_hz: float = 100.0
+
+    @classmethod
+    def from_dict(cls, d: dict, where="daq") -> "DaqOptions":
+        if not isinstance(d, dict):
+            raise ConfigError(where, "-", "must be a table")
+        names = {f.name for f in fields(cls)}
+        for k in d:
+            if k not in names:
+                raise ConfigError(where, k, f"unknown daq option; known: {', '.join(sorted(names))}")
+        o = cls(**d)
+        for k in ("enabled", "simulate"):
+            if not isinstance(getattr(o, k), bool):
+                raise ConfigError(where, k, f"must be true or false, got {getattr(o, k)!r}")
+        for k in ("ue_per_count", "timeout_ms", "poll_ms", "max_age_ms", "sim_sample_hz"):
+            v = getattr(o, k)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise ConfigError(where, k, f"must be a number > 0, got {v!r}")
+            setattr(o, k, float(v))
+        for k, lo, hi in (("port", 0, 65535), ("device_id", 0, 247), ("base", 0, 0xFFFC),
+                          ("max_missed_polls", 1, 100)):
+            v = getattr(o, k)
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise ConfigError(where, k, f"must be an integer {lo} .. {hi}, got {v!r}")
+        if o.port == 0 and not o.simulate:
+            raise ConfigError(where, "port", "0 (any free port) only with simulate = true")
+        if o.simulate and not (o.host.startswith("127.") or o.host == "localhost"):
+            raise ConfigError(where, "host", f"a simulated DAQ listens on a loopback address, not {o.host}")
+        if o.k_theta_source not in K_THETA_SOURCES:
+            raise ConfigError(where, "k_theta_source", f"must be one of {', '.join(K_THETA_SOURCES)}, "
+                                                       f"got {o.k_theta_source!r}")
+        if o.max_age_ms <= o.poll_ms:
+            raise ConfigError(where, "max_age_ms", f"{o.max_age_ms:g} ms must exceed poll_ms = {o.poll_ms:g}")
+        return o
+
+    @property
+    def sample_hz(self):
+        return 1e3 / self.poll_ms
+
+
+def chain_mode_hz(machine) -> float:
+    """The chain's axial mode the K_theta feedback damps: sqrt(k / (m / 3)) / 2 pi."""
+    k = machine.stiffness.chain_axial * 1e3          # N/m
+    m = machine.mass.platform_kg / 3
+    return math.sqrt(k / m) / (2 * math.pi)
+
+
+def check_k_theta_source(opt: DaqOptions | None, k_theta, machine, where="daq"):
+    """Refuse the DAQ as the K_theta source when it samples slower than twice the mode it damps."""
+    if opt is None or opt.k_theta_source != "daq" or not any(k_theta):
+        return
+    f = chain_mode_hz(machine)
+    if opt.sample_hz < 2 * f:
+        raise ConfigError(where, "k_theta_source",
+                          f"the DAQ samples at {opt.sample_hz:g} Hz (poll_ms = {opt.poll_ms:g}); K_theta damps the "
+                          f"chain mode at {f:.0f} Hz and needs a strain source faster than {2 * f:.0f} Hz "
+                          f"(twice the mode): use k_theta_source = \"backend\" or K_theta = 0")
+
+
+class StrainDAQ:
+    """Client + poller. ``latest()`` gives (t_monotonic, counter, strain[3]) of the newest sample."""
+
+    def __init__(self, opt: DaqOptions):
+        self.opt = opt
+        self.client = None
+        self.samples: list[tuple[int, float, list[float]]] = []     # (tick, t, strain)
+        self.fault = ""
+        self._last = None             # (t, counter, strain)
+        self._t_counter = None        # when the counter last advanced
+        self._stop = threading.Event()
+        self._thread = None
+
+    @property
+    def device(self):
+        return f"strain DAQ {self.opt.host}:{self.opt.port} (unit {self.opt.device_id})"
+
+    def reg_name(self, i):
+        a = self.opt.base + i
+        return f"input register 0x{a:04X} ({'sample counter' if i == 3 else f'strain gauge {i + 1}'})"
+
+    def connect(self):
+        from pymodbus.client import ModbusTcpClient
+        self.client = ModbusTcpClient(self.opt.host, port=self.opt.port, timeout=self.opt.timeout_ms / 1e3,
+                                      retries=0, reconnect_delay=0)
+        if not self.client.connect():
+            raise HalError(f"{self.device}: cannot connect")
+        self.poll()
+        return self
+
+    def poll(self):
+        """One read of the four registers; checks the age. Returns (t, counter, strain)."""
+        from pymodbus.exceptions import ModbusException
+        t_req = time.monotonic()
+        try:
+            rr = self.client.read_input_registers(self.opt.base, count=4, device_id=self.opt.device_id)
+        except (ModbusException, OSError) as e:
+            what = "no answer within" if "timeout" in str(e).lower() or "no response" in str(e).lower() \
+                else "link lost"
+            raise HalTimeout(f"{self.device}: {self.reg_name(0)} .. {self.reg_name(3)}: {what} "
+                           f"({self.opt.timeout_ms:g} ms timeout): {e}") from None
+        if rr.isError():
+            raise HalError(f"{self.device}: {self.reg_name(0)}: exception response {rr}")
+        t = time.monotonic()
+        if t - t_req > self.opt.timeout_ms / 1e3:
+            raise HalTimeout(f"{self.device}: {self.reg_name(0)}: answered after {(t - t_req) * 1e3:.0f} ms, "
+                           f"over the {self.opt.timeout_ms:g} ms timeout")
+        regs = rr.registers
+        strain = [((v - 65536) if v >= 32768 else v) * self.opt.ue_per_count for v in regs[:3]]
+        n = regs[3]
+        if self._last is None or n != self._last[1]:
+            self._t_counter = t
+        elif (t - self._t_counter) * 1e3 > self.opt.max_age_ms:
+            raise HalError(f"{self.device}: stale data: {self.reg_name(3)} stuck at {n} for "
+                           f"{(t - self._t_counter) * 1e3:.0f} ms (max age {self.opt.max_age_ms:g} ms)")
+        self._last = (t, n, strain)
+        return self._last
+
+    def watch(self, tick, on_fault):
+        def run():
+            missed = 0
+            while not self._stop.is_set():
+                try:
+                    t, n, s = self.poll()
+                    self.samples.append((int(tick()), t, s))
+                    missed = 0
+                except HalTimeout as e:      # one unanswered poll is no timeout fault yet
+                    missed += 1
+                    if missed < self.opt.max_missed_polls:
+                        self._stop.wait(self.opt.poll_ms / 1e3)
+                        continue
+                    self.fault = f"{e} ({missed} polls in a row)"
+                    on_fault(self.fault)
+                    return
+                except HalError as e:
+                    self.fault = str(e)
+                    on_fault(self.fault)
+                    return
+                self._stop.wait(self.opt.poll_ms / 1e3)
+        self._thread = threading.Thread(target=run, daemon=True, name="pmctl-daq")
+        self._thread.start()
+
+    def per_tick(self, n):
+        """Strain (n, 3) per tick, each sample held until the next (NaN before the first)."""
+        import numpy as np
+        out = np.full((n, 3), np.nan)
+        for tk, _t, s in self.samples:
+            out[max(0, tk):] = s
+        return out
+
+    def close(self):
+        self._stop.set()
+        if self._thread is not None and self._thread.is_alive():
+            self._thread.join(5.0)
+        if self.client is not None:
+            self.client.close()
+            self.client = None
+
+
+class DaqSession:
+    """The DAQ for one run: (a simulated DAQ serving ``source()``,) connect, watch, record, close."""
+
+    def __init__(self, opt: DaqOptions, source=None, log=print):
+        from dataclasses import replace
+        self.opt = replace(opt)
+        self.source = source or (lambda: (0.0, 0.0, 0.0))
+        self.log = log
+        self.server = self.device = None
+        self.daq = None
+
+    def connect(self):
+        try:
+            if self.opt.simulate:
+                from pmctl.hal.modbus_sim import ModbusSimServer, SimDAQ
+                self.device = SimDAQ(self.source, self.opt.base, self.opt.ue_per_count, self.opt.sim_sample_hz)
+                self.server = ModbusSimServer(self.device, self.opt.host, self.opt.port, self.opt.device_id,
+                                              input_registers=True).start()
+                self.opt.port = self.server.port
+            self.daq = StrainDAQ(self.opt).connect()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def watch(self, tick, on_fault):
+        self.daq.watch(tick, on_fault)
+
+    def per_tick(self, n):
+        return self.daq.per_tick(n)
+
+    def close(self):
+        if self.daq is not None:
+            self.daq.close()
+        if self.server is not None:
+            self.server.stop()
+            self.server = None

@@ -1,0 +1,343 @@
+"""The spindle inverter (VFD) over Modbus TCP, with a pymodbus client.
+
+- ``M3``/``M4 S..`` -> set-point and run forward / reverse; ``M5`` -> stop (function codes 06 and 03).
+- ``wait_at_speed``: the measured speed within ``at_speed_tolerance`` (2 %) of the command, as
+  LinuxCNC's spindle-at-speed; cutting starts only then.
+- ``SpindleMonitor``: polls speed and fault in its own thread (never in the tick), keeps the samples
+  stamped with the loop's tick, and calls ``on_fault(reason)`` on a VFD fault or a lost link (the
+  run turns that into a controlled, decelerating stop).
+- The register map is config (``[spindle.registers]``); the default is the Huanyang GT map that
+  LinuxCNC's ``hy_gt_vfd`` speaks: 0x1000 command (1 forward, 2 reverse, 5 stop), 0x2000 set-point
+  0 .. 10000 of the maximum frequency, 0x3000 output frequency (0.01 Hz), 0x3005 speed (rpm),
+  0x5000 fault.
+Every error names the device (host:port, unit) and the register.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field, fields
+
+from pmctl.core.errors import ConfigError
+from pmctl.hal.base import HalError, HalTimeout
+
+
+@dataclass
+class VfdRegisters:
+    command: int = 0x1000
+    setpoint: int = 0x2000
+    output_freq: int = 0x3000
+    speed_rpm: int = 0x3005
+    fault: int = 0x5000
+    run_forward: int = 1
+    run_reverse: int = 2
+    stop: int = 5
+
+    NAMES = {"command": "command", "setpoint": "frequency set-point", "output_freq": "output frequency",
+             "speed_rpm": "speed, rpm", "fault": "fault"}
+
+    def name(self, addr):
+        for k, text in self.NAMES.items():
+            if getattr(self, k) == addr:
+                return f"register 0x{addr:04X} ({text})"
+        return f"register 0x{addr:04X}"
+
+
+@dataclass
+class VfdOptions:
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: int = 502                  # 0 with simulate = true: any free loopback port
+    device_id: int = 1
+    timeout_ms: float = 200.0
+    max_rpm: float = 24000.0         # speed at set-point 10000 (maximum frequency)
+    max_hz: float = 400.0
+    at_speed_tolerance: float = 0.02
+    spinup_timeout_s: float = 10.0
+    poll_ms: float = 50.0
+    max_missed_polls: int = 3        # consecutive unanswered polls before the link counts as lost
+    simulate: bool = False           # serve a simulated VFD on host:port (loopback only)
+    sim_ramp_rpm_per_s: float = 12000.0
+    registers: VfdRegisters = field(default_factory=VfdRegisters)
+
+    @classmethod
+    def from_dict(cls, d: dict, where="spindle") -> "VfdOptions":
+        if not isinstance(d, dict):
+            raise ConfigError(where, "-", "must be a table")
+        names = {f.name for f in fields(cls)}
+        kw = {}
+        for k, v in d.items():
+            if k not in names:
+                raise ConfigError(where, k, f"unknown spindle option; known: {', '.join(sorted(names))}")
+            kw[k] = v
+        regs = kw.pop("registers", {})
+        if not isinstance(regs, dict):
+            raise ConfigError(where, "registers", "must be a table")
+        rnames = {f.name for f in fields(VfdRegisters)}
+        for k, v in regs.items():
+            if k not in rnames:
+                raise ConfigError(where, f"registers.{k}", f"unknown register; known: {', '.join(sorted(rnames))}")
+            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 0xFFFF:
+                raise ConfigError(where, f"registers.{k}", f"must be a 16-bit register address or value, got {v!r}")
+        o = cls(**kw, registers=VfdRegisters(**regs))
+        for k in ("enabled", "simulate"):
+            if not isinstance(getattr(o, k), bool):
+                raise ConfigError(where, k, f"must be true or false, got {getattr(o, k)!r}")
+        for k in ("timeout_ms", "max_rpm", "max_hz", "at_speed_tolerance", "spinup_timeout_s", "poll_ms",
+                  "sim_ramp_rpm_per_s"):
+            v = getattr(o, k)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise ConfigError(where, k, f"must be a number > 0, got {v!r}")
+            setattr(o, k, float(v))
+        if o.at_speed_tolerance >= 0.5:
+            raise ConfigError(where, "at_speed_tolerance", "a fraction of the speed, e.g. 0.02 for 2 %")
+        for k, lo, hi in (("port", 0, 65535), ("device_id", 0, 247), ("max_missed_polls", 1, 100)):
+            v = getattr(o, k)
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise ConfigError(where, k, f"must be an integer {lo} .. {hi}, got {v!r}")
+        if o.port == 0 and not o.simulate:
+            raise ConfigError(where, "port", "0 (any free port) only with simulate = true")
+        if not isinstance(o.host, str) or not o.host:
+            raise ConfigError(where, "host", "must be a host name or address")
+        if o.simulate and not (o.host.startswith("127.") or o.host == "localhost"):
+            raise ConfigError(where, "host", f"a simulated VFD listens on a loopback address, not {o.host}")
+        r = o.registers
+        addrs = [r.command, r.setpoint, r.output_freq, r.speed_rpm, r.fault]
+        if len(set(addrs)) != len(addrs):
+            raise ConfigError(where, "registers", f"two roles share a register: {[hex(a) for a in addrs]}")
+        if len({r.run_forward, r.run_reverse, r.stop}) != 3:
+            raise ConfigError(where, "registers", "run_forward, run_reverse and stop codes must differ")
+        return o
+
+
+class SpindleVFD:
+    """Client of one inverter. Thread-safe (one request at a time)."""
+
+    def __init__(self, opt: VfdOptions):
+        self.opt = opt
+        self.r = opt.registers
+        self.client = None
+        self._lock = threading.Lock()
+        self.rpm_cmd = 0.0
+
+    @property
+    def device(self):
+        return f"spindle VFD {self.opt.host}:{self.opt.port} (unit {self.opt.device_id})"
+
+    def connect(self):
+        from pymodbus.client import ModbusTcpClient
+        self.client = ModbusTcpClient(self.opt.host, port=self.opt.port, timeout=self.opt.timeout_ms / 1e3,
+                                      retries=0, reconnect_delay=0)
+        if not self.client.connect():
+            raise HalError(f"{self.device}: cannot connect")
+        self.read_fault()              # the link answers and the inverter is healthy, before any command
+        return self
+
+    def close(self):
+        if self.client is not None:
+            self.client.close()
+            self.client = None
+
+    def _read(self, addr):
+        from pymodbus.exceptions import ModbusException
+        with self._lock:
+            try:
+                rr = self.client.read_holding_registers(addr, count=1, device_id=self.opt.device_id)
+            except (ModbusException, OSError) as e:
+                raise HalTimeout(f"{self.device}: {self.r.name(addr)}: link lost ({e})") from None
+        if rr.isError():
+            raise HalError(f"{self.device}: {self.r.name(addr)}: exception response {rr}")
+        return rr.registers[0]
+
+    def _write(self, addr, value):
+        from pymodbus.exceptions import ModbusException
+        with self._lock:
+            try:
+                rr = self.client.write_register(addr, int(value), device_id=self.opt.device_id)
+            except (ModbusException, OSError) as e:
+                raise HalTimeout(f"{self.device}: {self.r.name(addr)} = {value}: link lost ({e})") from None
+        if rr.isError():
+            raise HalError(f"{self.device}: {self.r.name(addr)} = {value}: exception response {rr}")
+
+    def read_fault(self):
+        code = self._read(self.r.fault)
+        if code:
+            raise HalError(f"{self.device}: fault code {code} in {self.r.name(self.r.fault)}")
+        return code
+
+    def read_rpm(self) -> float:
+        return float(self._read(self.r.speed_rpm))
+
+    def start(self, rpm: float):
+        """Positive rpm: forward (M3); negative: reverse (M4); 0: stop (M5)."""
+        if rpm == 0:
+            return self.stop()
+        if abs(rpm) > self.opt.max_rpm:
+            raise HalError(f"{self.device}: S{abs(rpm):g} exceeds the spindle's {self.opt.max_rpm:g} rpm")
+        self.read_fault()
+        if self.rpm_cmd and (rpm > 0) != (self.rpm_cmd > 0):
+            # reversing: the speed register has no sign, so stop and see zero before the other way
+            self.stop()
+            t_end = time.monotonic() + self.opt.spinup_timeout_s
+            while self.read_rpm() > 0:
+                if time.monotonic() > t_end:
+                    raise HalError(f"{self.device}: not at rest {self.opt.spinup_timeout_s:g} s after stop "
+                                   f"(reversing), {self.r.name(self.r.speed_rpm)}")
+                time.sleep(self.opt.poll_ms / 1e3)
+        sp = int(round(abs(rpm) / self.opt.max_rpm * 10000))
+        self._write(self.r.setpoint, sp)
+        self._write(self.r.command, self.r.run_forward if rpm > 0 else self.r.run_reverse)
+        self.rpm_cmd = float(rpm)
+
+    def stop(self):
+        self._write(self.r.command, self.r.stop)
+        self.rpm_cmd = 0.0
+
+    def at_speed(self, rpm_meas: float) -> bool:
+        want = abs(self.rpm_cmd)
+        return abs(rpm_meas - want) <= self.opt.at_speed_tolerance * want
+
+    def wait_at_speed(self, sleep=time.sleep) -> float:
+        t_end = time.monotonic() + self.opt.spinup_timeout_s
+        while True:
+            self.read_fault()
+            rpm = self.read_rpm()
+            if self.at_speed(rpm):
+                return rpm
+            if time.monotonic() > t_end:
+                raise HalError(f"{self.device}: not at speed after {self.opt.spinup_timeout_s:g} s: "
+                               f"{rpm:g} rpm of {abs(self.rpm_cmd):g} (tolerance "
+                               f"{self.opt.at_speed_tolerance * 100:g} %) in {self.r.name(self.r.speed_rpm)}")
+            sleep(self.opt.poll_ms / 1e3)
+
+
+class SpindleMonitor:
+    """Polls a running spindle in its own thread: rpm samples tagged with ``tick()`` (the loop's tick
+    when sampled), and ``on_fault(reason)`` once on a fault or a lost link."""
+
+    def __init__(self, vfd: SpindleVFD, tick, on_fault):
+        self.vfd, self.tick, self.on_fault = vfd, tick, on_fault
+        self.samples: list[tuple[int, float]] = []
+        self.fault = ""
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, daemon=True, name="pmctl-spindle")
+
+    def start(self):
+        self._t.start()
+        return self
+
+    def _run(self):
+        period = self.vfd.opt.poll_ms / 1e3
+        missed = 0
+        while not self._stop.is_set():
+            try:
+                self.vfd.read_fault()
+                rpm = self.vfd.read_rpm()
+                self.samples.append((int(self.tick()), rpm))
+                missed = 0
+            except HalTimeout as e:          # one unanswered poll is no lost link yet
+                missed += 1
+                if missed < self.vfd.opt.max_missed_polls:
+                    self._stop.wait(period)
+                    continue
+                self.fault = f"{e} ({missed} polls in a row)"
+                self.on_fault(self.fault)
+                return
+            except HalError as e:
+                self.fault = str(e)
+                self.on_fault(self.fault)
+                return
+            self._stop.wait(period)
+
+    def stop(self):
+        self._stop.set()
+        if self._t.is_alive():
+            self._t.join(5.0)
+
+    def per_tick(self, n_ticks: int):
+        """rpm per tick 0 .. n-1, holding each sample until the next (NaN before the first)."""
+        import numpy as np
+        out = np.full(n_ticks, np.nan)
+        for k, (tk, rpm) in enumerate(self.samples):
+            out[max(0, tk):] = rpm
+        return out
+
+
+def simulated(opt: VfdOptions):
+    """Start a simulated VFD for ``opt`` (simulate = true); returns (server, device). The chosen
+    port is written back to ``opt.port`` when it was 0."""
+    from pmctl.hal.modbus_sim import ModbusSimServer, SimVFD
+    dev = SimVFD(opt.registers, max_hz=opt.max_hz, rpm_per_hz=opt.max_rpm / opt.max_hz,
+                 ramp_hz_per_s=opt.sim_ramp_rpm_per_s * opt.max_hz / opt.max_rpm)
+    srv = ModbusSimServer(dev, opt.host, opt.port, opt.device_id).start()
+    opt.port = srv.port
+    return srv, dev
+
+
+def job_speed(spindle_rpm) -> float:
+    """The one spindle speed of a job (signed: negative = M4), 0 when the spindle stays off. A job
+    that changes speed or direction between its moves is refused: this first integration runs the
+    spindle at one speed for the whole job."""
+    import numpy as np
+    v = np.asarray(spindle_rpm, float)
+    on = np.unique(v[v != 0])
+    if len(on) > 1:
+        raise HalError(f"the job commands several spindle speeds ({', '.join(f'{x:g}' for x in on)} rpm); "
+                       f"one speed per job is supported (split the job)")
+    return float(on[0]) if len(on) else 0.0
+
+
+class SpindleSession:
+    """The spindle for one run: (simulated VFD,) connect, start and wait at speed, watch, stop."""
+
+    def __init__(self, opt: VfdOptions, log=print):
+        from dataclasses import replace
+        self.opt = replace(opt)            # the simulated port is written back into this copy
+        self.log = log
+        self.server = self.device = None
+        self.vfd = None
+        self.monitor = None
+        self.direction = 1.0
+
+    def connect(self):
+        try:
+            if self.opt.simulate:
+                self.server, self.device = simulated(self.opt)
+            self.vfd = SpindleVFD(self.opt).connect()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def start(self, rpm: float):
+        self.direction = 1.0 if rpm >= 0 else -1.0
+        self.vfd.start(rpm)
+        t0 = time.monotonic()
+        got = self.vfd.wait_at_speed()
+        self.log(f"spindle {'M3' if rpm > 0 else 'M4'} S{abs(rpm):g}: at speed ({got:g} rpm) after "
+                 f"{time.monotonic() - t0:.2f} s")
+
+    def watch(self, tick, on_fault):
+        self.monitor = SpindleMonitor(self.vfd, tick, on_fault).start()
+
+    def per_tick(self, n):
+        import numpy as np
+        if self.monitor is None:
+            return np.full(n, np.nan)
+        return self.monitor.per_tick(n) * self.direction
+
+    def close(self):
+        """M5 (when the link still answers), then the monitor and the simulated device go."""
+        if self.monitor is not None:
+            self.monitor.stop()
+        if self.vfd is not None:
+            try:
+                self.vfd.stop()
+            except HalError as e:
+                self.log(f"warning: {e} (M5 not acknowledged)")
+            self.vfd.close()
+        if self.server is not None:
+            self.server.stop()
+            self.server = None

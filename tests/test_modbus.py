@@ -1,0 +1,313 @@
+"""Spindle VFD over Modbus TCP against the simulated VFD (a real pymodbus server on 127.0.0.1):
+the register map checked with the pymodbus client and with a Modbus/TCP request built by hand on a
+raw socket; at speed; a VFD fault and a lost link mid-job end in a controlled stop with the reason;
+`pmctl run` with a spindle job records spindle_rpm."""
+
+import json
+import socket
+import struct
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from pmctl import hal
+from pmctl.core.config import load_machine
+from pmctl.core.errors import ConfigError
+from pmctl.hal import HalError
+from pmctl.hal.modbus_vfd import SpindleSession, SpindleVFD, VfdOptions, job_speed, simulated
+from pmctl.motion.loop import ControlLoop, prepare
+from pmctl.motion.nc import NCParams, counts_of, initial_state
+from pmctl.motion.service_config import LoopConfig, service_from_dict
+
+from test_loop import line_traj, rp
+
+M = load_machine()
+
+
+@pytest.fixture
+def vfd():
+    o = VfdOptions.from_dict({"simulate": True, "port": 0, "sim_ramp_rpm_per_s": 40000.0})
+    srv, dev = simulated(o)
+    yield o, dev, srv
+    srv.stop()
+
+
+def mbap_request(port, unit, pdu, tid=7):
+    """One Modbus/TCP transaction by hand: MBAP header (transaction, protocol 0, length, unit) + PDU."""
+    with socket.create_connection(("127.0.0.1", port), timeout=2.0) as s:
+        s.sendall(struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu)
+        head = b""
+        while len(head) < 7:
+            head += s.recv(7 - len(head))
+        t, proto, length, u = struct.unpack(">HHHB", head)
+        body = b""
+        while len(body) < length - 1:
+            body += s.recv(length - 1 - len(body))
+    assert (t, proto, u) == (tid, 0, unit)
+    return body
+
+
+def test_registers_by_hand_on_a_raw_socket(vfd):
+    o, dev, srv = vfd
+    # function 06: write single register 0x2000 = 5000 (half the maximum frequency); echo
+    assert mbap_request(o.port, 1, struct.pack(">BHH", 6, 0x2000, 5000)) == struct.pack(">BHH", 6, 0x2000, 5000)
+    assert dev.setpoint == 5000
+    assert mbap_request(o.port, 1, struct.pack(">BHH", 6, 0x1000, 1)) == struct.pack(">BHH", 6, 0x1000, 1)
+    assert dev.run == 1
+    t_end = time.monotonic() + 5
+    while time.monotonic() < t_end and dev.rpm < 12000:
+        time.sleep(0.02)
+    # function 03: read holding registers 0x3005 (rpm), 0x3000 (0.01 Hz), 0x5000 (fault)
+    body = mbap_request(o.port, 1, struct.pack(">BHH", 3, 0x3005, 1))
+    fc, nbytes, rpm = struct.unpack(">BBH", body)
+    assert (fc, nbytes, rpm) == (3, 2, 12000)                # 5000/10000 of 400 Hz at 60 rpm/Hz
+    fc, nbytes, f = struct.unpack(">BBH", mbap_request(o.port, 1, struct.pack(">BHH", 3, 0x3000, 1)))
+    assert f == 20000                                         # 200.00 Hz
+    assert mbap_request(o.port, 1, struct.pack(">BHH", 3, 0x5000, 1)) == struct.pack(">BBH", 3, 2, 0)
+    # the register below is not in the map: exception 0x83, code 2 (illegal data address) -- no off-by-one
+    assert mbap_request(o.port, 1, struct.pack(">BHH", 3, 0x3004, 1)) == bytes([0x83, 0x02])
+    assert mbap_request(o.port, 1, struct.pack(">BHH", 6, 0x1000, 5)) == struct.pack(">BHH", 6, 0x1000, 5)
+    assert dev.run == 0
+
+
+def test_pymodbus_client_m3_m4_m5_and_at_speed(vfd):
+    o, dev, srv = vfd
+    v = SpindleVFD(o).connect()
+    try:
+        v.start(8000)
+        assert dev.commands[-2:] == [(0x2000, 3333), (0x1000, 1)]
+        got = v.wait_at_speed()
+        assert abs(got - 8000) <= 0.02 * 8000
+        v.start(-6000)                                     # M4: reverse, through zero
+        assert dev.commands[-1] == (0x1000, 2)
+        got = v.wait_at_speed()
+        assert abs(got - 6000) <= 0.02 * 6000 and dev.direction == -1
+        v.stop()
+        assert dev.commands[-1] == (0x1000, 5)
+        with pytest.raises(HalError) as e:
+            v.start(30000)
+        assert "exceeds" in str(e.value)
+    finally:
+        v.close()
+
+
+def test_fault_and_link_loss_errors_name_device_and_register(vfd):
+    o, dev, srv = vfd
+    v = SpindleVFD(o).connect()
+    dev.fault(11)
+    with pytest.raises(HalError) as e:
+        v.start(8000)
+    assert f"spindle VFD 127.0.0.1:{o.port} (unit 1): fault code 11 in register 0x5000 (fault)" in str(e.value)
+    srv.stop()
+    with pytest.raises(HalError) as e:
+        v.read_rpm()
+    assert "register 0x3005 (speed, rpm): link lost" in str(e.value)
+    v.close()
+
+
+def test_config_errors_name_the_key():
+    for table, key in (({"port": 0}, "port"), ({"registers": {"speed": 1}}, "registers.speed"),
+                       ({"registers": {"fault": 0x1000}}, "registers"), ({"at_speed_tolerance": 2}, "at_speed_tolerance"),
+                       ({"simulate": True, "host": "10.0.0.5"}, "host"), ({"rpm": 1}, "rpm")):
+        with pytest.raises(ConfigError) as e:
+            VfdOptions.from_dict(table, "service.toml: spindle")
+        assert key in str(e.value)
+    with pytest.raises(ConfigError):
+        service_from_dict({"spindle": {"max_rpm": -1}})
+    assert service_from_dict({"spindle": {"enabled": False}}).spindle is None
+
+
+def test_job_speed():
+    assert job_speed([0, 0, 8000, 8000, 0]) == 8000
+    assert job_speed([0, -6000, -6000]) == -6000
+    assert job_speed([0, 0]) == 0
+    with pytest.raises(HalError):
+        job_speed([0, 8000, 6000])
+
+
+def _spindle_run(inject):
+    """A 6 s line on the sim backend with the spindle watched as pmctl run does; ``inject(dev, srv)``
+    once the loop is under way."""
+    dt = 1e-3
+    tr = line_traj([-30, -20, 0], [30, 20, 5], rp(0, 0), rp(2, -1), 10.0, dt)
+    p = NCParams.from_machine(M, dt, kv=400.0)
+    tg = prepare(M, p, tr, dt, None)
+    c0 = counts_of(tg.q[0], p)
+    be = hal.create("sim", M, dt, {})
+    be.open(c0)
+    sp = SpindleSession(VfdOptions.from_dict({"simulate": True, "port": 0, "poll_ms": 10.0,
+                                              "sim_ramp_rpm_per_s": 40000.0}), log=lambda m: None).connect()
+    sp.start(8000)
+    lp = ControlLoop(M, be, p, tg, LoopConfig(rate_hz=1000, realtime=False, stall_timeout_s=5.0),
+                     initial_state(M, c0), log=lambda m: None)
+    sp.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
+
+    def injector():
+        while lp.tick < 500:
+            time.sleep(0.001)
+        inject(sp.device, sp.server)
+    threading.Thread(target=injector, daemon=True).start()
+    try:
+        res = lp.run()
+    finally:
+        sp.close()
+    return res, be, c0, sp
+
+
+def test_vfd_fault_mid_job_is_a_controlled_stop():
+    res, be, c0, sp = _spindle_run(lambda dev, srv: dev.fault(7))
+    assert res.status == "stopped"                         # decelerated, not halted
+    assert "spindle VFD" in res.reason and "fault code 7 in register 0x5000" in res.reason
+    assert np.array_equal(c0 + res.pulses_sent, res.state.counts) and np.array_equal(be.counts, res.state.counts)
+    assert res.ticks < len(res.target) + 10_000
+    rpm = sp.per_tick(res.ticks)
+    assert np.nanmax(rpm) >= 0.98 * 8000
+
+
+def test_vfd_link_lost_mid_job_is_a_controlled_stop():
+    res, be, c0, sp = _spindle_run(lambda dev, srv: srv.stop())
+    assert res.status == "stopped"
+    assert "spindle VFD" in res.reason and "link lost" in res.reason
+    assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
+
+
+def test_pmctl_run_canopen_with_a_spindle_job_records_spindle_rpm(tmp_path):
+    job = tmp_path / "m4.ngc"
+    job.write_text(textwrap.dedent("""\
+        G17 G21 G90 G94
+        F600 S6000 M4
+        G0 X10 Y0 Z60
+        G1 X4
+        G1 Y3
+        M5
+        M2
+        """))
+    rec = tmp_path / "rec"
+    # the shipped service config, except that a loaded CI host is no stall
+    from pmctl.core.config import CONFIG_DIR
+    svc = tmp_path / "service.toml"
+    text = (CONFIG_DIR / "service.toml").read_text()
+    assert "stall_timeout_ms = 50 " in text
+    svc.write_text(text.replace("stall_timeout_ms = 50 ", "stall_timeout_ms = 5000 "))
+    r = subprocess.run([sys.executable, "-m", "pmctl.interfaces.cli", "run", "--backend", "canopen", "--job", str(job),
+                        "--record", str(rec), "--no-realtime", "--state", "", "--quiet", "--service", str(svc)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "spindle M4 S6000: at speed" in r.stderr
+    meta = json.loads((rec / "recording.json").read_text())
+    assert "spindle_rpm" in meta["channels"]
+    d = np.genfromtxt(rec / "data.csv", delimiter=",", names=True)
+    assert np.all(np.abs(d["spindle_rpm"] + 6000) <= 0.02 * 6000)       # M4: negative, at speed all along
+    for a in ("L1", "L2", "L3", "X", "Y"):
+        assert abs(d[f"enc_{a}"][-1] - d[f"cmd_{a}"][-1]) <= 1.0 / 2000 + 1e-9
+
+
+# ---------------------------------------------------------------- strain DAQ
+
+from pmctl.hal.modbus_daq import DaqOptions, DaqSession, StrainDAQ, chain_mode_hz, check_k_theta_source  # noqa: E402
+
+
+@pytest.fixture
+def daq():
+    strain = [12.34, -5.67, 300.0]
+    o = DaqOptions.from_dict({"simulate": True, "port": 0, "timeout_ms": 100.0, "poll_ms": 10.0,
+                              "max_age_ms": 60.0, "sim_sample_hz": 200.0})
+    ses = DaqSession(o, lambda: strain, log=lambda m: None).connect()
+    yield ses, strain
+    ses.close()
+
+
+def test_daq_registers_by_hand_and_by_pymodbus(daq):
+    ses, strain = daq
+    # function 04: read input registers 0..3 -> three signed gauges in 0.01 ue, then the counter
+    body = mbap_request(ses.opt.port, 1, struct.pack(">BHH", 4, 0x0000, 4))
+    fc, nbytes, g1, g2, g3, n1 = struct.unpack(">BBhhhH", body)
+    assert (fc, nbytes) == (4, 8) and (g1, g2, g3) == (1234, -567, 30000)
+    time.sleep(0.05)
+    n2 = struct.unpack(">BBhhhH", mbap_request(ses.opt.port, 1, struct.pack(">BHH", 4, 0x0000, 4)))[5]
+    assert n2 != n1                                          # the DAQ samples on its own
+    assert mbap_request(ses.opt.port, 1, struct.pack(">BHH", 4, 0x0004, 1)) == bytes([0x84, 0x02])
+    t, n, s = ses.daq.poll()
+    assert s == pytest.approx([12.34, -5.67, 300.0], abs=1e-9)
+
+
+def test_daq_stale_data_and_timeout_name_device_and_register(daq):
+    ses, strain = daq
+    ses.device.freeze()
+    with pytest.raises(HalError) as e:
+        for _ in range(50):
+            ses.daq.poll()
+            time.sleep(0.01)
+    assert f"strain DAQ 127.0.0.1:{ses.opt.port} (unit 1): stale data: input register 0x0003 (sample counter)" \
+        in str(e.value)
+    ses.device.frozen = False
+    ses.device.delay_s = 0.3                                 # answers after the 100 ms timeout
+    with pytest.raises(HalError) as e:
+        ses.daq.poll()
+    assert "input register 0x0000 (strain gauge 1)" in str(e.value)
+    assert "timeout" in str(e.value)
+
+
+def test_k_theta_source_too_slow_for_the_chain_mode_is_refused():
+    f = chain_mode_hz(M)
+    assert 200 < f < 300                                     # 20 N/um, 25 kg / 3: 246 Hz
+    slow = DaqOptions.from_dict({"port": 502, "k_theta_source": "daq", "poll_ms": 20.0})
+    with pytest.raises(ConfigError) as e:
+        check_k_theta_source(slow, (200.0,) * 3, M)
+    assert "k_theta_source" in str(e.value) and "50 Hz" in str(e.value) and f"{f:.0f} Hz" in str(e.value)
+    check_k_theta_source(slow, (0.0,) * 3, M)                # K_theta off: nothing to damp
+    check_k_theta_source(DaqOptions.from_dict({"port": 502, "poll_ms": 20.0}), (200.0,) * 3, M)   # backend source
+    fast = DaqOptions.from_dict({"port": 502, "k_theta_source": "daq", "poll_ms": 0.2, "max_age_ms": 1.0})
+    check_k_theta_source(fast, (200.0,) * 3, M)              # 5 kHz > 2 x 246 Hz
+
+
+def _daq_run(inject):
+    dt = 1e-3
+    tr = line_traj([-30, -20, 0], [30, 20, 5], rp(0, 0), rp(2, -1), 10.0, dt)
+    p = NCParams.from_machine(M, dt, kv=400.0)
+    tg = prepare(M, p, tr, dt, None)
+    c0 = counts_of(tg.q[0], p)
+    be = hal.create("sim", M, dt, {})
+    be.open(c0)
+    ses = DaqSession(DaqOptions.from_dict({"simulate": True, "port": 0, "timeout_ms": 100.0, "poll_ms": 10.0,
+                                           "max_age_ms": 60.0}), lambda: be._fb.strain.tolist(),
+                     log=lambda m: None).connect()
+    lp = ControlLoop(M, be, p, tg, LoopConfig(rate_hz=1000, realtime=False, stall_timeout_s=5.0),
+                     initial_state(M, c0), log=lambda m: None)
+    ses.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
+
+    def injector():
+        while lp.tick < 500:
+            time.sleep(0.001)
+        inject(ses.device)
+    threading.Thread(target=injector, daemon=True).start()
+    try:
+        res = lp.run()
+    finally:
+        ses.close()
+    return res, be, c0, ses
+
+
+def test_daq_stale_mid_job_is_a_controlled_stop_and_samples_follow_the_plant():
+    res, be, c0, ses = _daq_run(lambda dev: dev.freeze())
+    assert res.status == "stopped" and "stale data" in res.reason and "strain DAQ" in res.reason
+    assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
+    ds = ses.per_tick(res.ticks)
+    k = [tk for tk, _, _ in ses.daq.samples]
+    # a DAQ sample is the plant's gauge at about its tick (0.01 ue counts; the plant moves between)
+    i = len(k) // 2
+    assert np.all(np.isfinite(ds[k[i]:]))
+    assert abs(ds[k[i], 0] - res.strain[k[i], 0]) < 5.0
+
+
+def test_daq_timeout_mid_job_is_a_controlled_stop():
+    def slow(dev):
+        dev.delay_s = 0.3
+    res, be, c0, ses = _daq_run(slow)
+    assert res.status == "stopped" and "strain DAQ" in res.reason and "timeout" in res.reason
+    assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
