@@ -284,7 +284,6 @@ def test_junk_raises_only_input_error(text):
     ("G18", 1, "only the XY plane (G17)"),
     ("G42", 1, "cutter radius compensation"),
     ("T1 M6", 1, "tool selection (T)"),
-    ("M4 S1000", 1, "M4"),
     ("G0 X\u0661", 4, "missing value"),                   # an Arabic-Indic digit is not a digit here
 ])
 def test_numbers_and_unsupported_features_are_refused_by_name(text, col, words):

@@ -143,7 +143,9 @@ def _spindle_run(inject):
     sp = SpindleSession(VfdOptions.from_dict({"simulate": True, "port": 0, "poll_ms": 10.0,
                                               "sim_ramp_rpm_per_s": 40000.0}), log=lambda m: None).connect()
     sp.start(8000)
-    lp = ControlLoop(M, be, p, tg, LoopConfig(rate_hz=1000, realtime=False, stall_timeout_s=5.0),
+    # paced ticks: back to back the compiled loop would finish the 6 s line before a poll sees the fault
+    cfg = LoopConfig(rate_hz=1000, realtime=True, lock_memory=False, stall_timeout_s=5.0, max_overruns_in_row=10**6)
+    lp = ControlLoop(M, be, p, tg, cfg,
                      initial_state(M, c0), log=lambda m: None)
     sp.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
 
@@ -277,7 +279,9 @@ def _daq_run(inject):
     ses = DaqSession(DaqOptions.from_dict({"simulate": True, "port": 0, "timeout_ms": 100.0, "poll_ms": 10.0,
                                            "max_age_ms": 60.0}), lambda: be._fb.strain.tolist(),
                      log=lambda m: None).connect()
-    lp = ControlLoop(M, be, p, tg, LoopConfig(rate_hz=1000, realtime=False, stall_timeout_s=5.0),
+    # paced ticks: back to back the compiled loop would finish the 6 s line before a poll sees the fault
+    cfg = LoopConfig(rate_hz=1000, realtime=True, lock_memory=False, stall_timeout_s=5.0, max_overruns_in_row=10**6)
+    lp = ControlLoop(M, be, p, tg, cfg,
                      initial_state(M, c0), log=lambda m: None)
     ses.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
 
