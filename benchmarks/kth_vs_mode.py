@@ -42,51 +42,114 @@ from pmctl.task.planner import home_pose
 MASS, ZETA, KV, DT = 31.66, 0.02, 400.0, 1e-3
 
 
-def predict_continuous(f, kth, kv=KV, zeta=ZETA):
+def predict_continuous(f, kth, kv=KV, zeta=ZETA, leak=None):
+    """Mode (Hz, zeta) of eq. 3.1 with the plant damping. ``leak`` None: today's loop (the pose loop
+    pulls the feedback's motion back); a number: the proposed decoupled feedback (offset d' = K_theta y
+    - leak d, motor rate + kv d), characteristic (s + leak)(s + kv)(s^2 + 2 zeta w s + w^2)
+    + K_theta s^2 (s + leak + kv)."""
     w = 2 * math.pi * f
-    r = np.roots([1.0, kv + kth + 2 * zeta * w, w * w + 2 * zeta * w * kv, kv * w * w])
-    c = r[np.argmax(r.imag)]
-    if c.imag < 1e-9:                   # over-damped: no oscillating pole left
+    plant = np.array([1.0, 2 * zeta * w, w * w])
+    if leak is None:
+        poly = np.polyadd(np.polymul([1.0, kv], plant), [kth, 0.0, 0.0])
+    else:
+        poly = np.polyadd(np.polymul(np.polymul([1.0, leak], [1.0, kv]), plant), kth * np.array([1.0, leak + kv, 0.0, 0.0]))
+    r = np.roots(poly)
+    osc = r[r.imag > 1e-9]
+    if len(osc) == 0:                   # over-damped: no oscillating pole left
         return float("nan"), 1.0
+    c = osc[np.argmin(-osc.real / np.abs(osc))]
     return abs(c) / (2 * math.pi), -c.real / abs(c)
 
 
-def predict_sampled(f, kth, kv=KV, zeta=ZETA, dt=DT):
-    """Discrete model: state (x_m, y, y', v_prev); tick: v = -kv x_m + kth y; y' jumps by -(v - v_prev);
-    (y, y') propagate exactly for dt; x_m += v dt."""
+def predict_sampled(f, kth, kv=KV, zeta=ZETA, dt=DT, leak=None):
+    """The same loop sampled at dt, as the NC runs it: state (x_m, y, y', v_prev, d); each tick
+    v = -kv x_m + kv d + K_theta y (deflection read at the tick start; d = 0 without ``leak``), the
+    motor ramps by v dt (y' jumps by -(v - v_prev), then (y, y') propagate exactly), and
+    d += dt (K_theta y - leak d)."""
     w = 2 * math.pi * f
     Phi = expm(np.array([[0.0, 1.0], [-w * w, -2 * zeta * w]]) * dt)
-    Vrow = np.array([-kv, kth, 0.0, 0.0])
-    Jmp = np.eye(4)
-    Jmp[2] -= Vrow
-    Jmp[2, 3] += 1.0                     # y' - (v - v_prev)
-    Prop = np.eye(4)
-    Prop[1:3, 1:3] = Phi
-    Mv = np.eye(4)
-    Mv[0] += dt * Vrow
-    Mv[3] = Vrow
-    # x_m and v_prev update from the pre-jump state; y, y' from the jumped one
-    A = np.zeros((4, 4))
-    A[0] = Mv[0]
-    A[3] = Mv[3]
-    A[1:3] = (Prop @ Jmp)[1:3]
+    on = leak is not None
+    V = np.array([-kv, kth, 0.0, 0.0, kv if on else 0.0])
+    A = np.zeros((5, 5))
+    A[0] = np.eye(5)[0] + dt * V
+    J = np.eye(5)
+    J[2] -= V
+    J[2, 3] += 1.0
+    A[1:3] = Phi @ J[1:3]
+    A[3] = V
+    A[4] = np.eye(5)[4] + (dt * np.array([0.0, kth, 0.0, 0.0, -(leak or 0.0)]) if on else 0.0)
     z = np.linalg.eigvals(A)
     osc = z[z.imag > 1e-12]
     if len(osc) == 0:
         return float("nan"), 1.0
-    c = osc[np.argmax(np.abs(osc))]              # the mode pole (the slowest-decaying oscillating one)
-    lz = np.log(c)
-    return abs(lz.imag) / (2 * math.pi * dt), -lz.real / abs(lz)
+    lz = np.log(osc)
+    zs = -lz.real / np.abs(lz)
+    i = int(np.argmin(zs))                      # the least damped oscillating pole
+    return abs(lz[i].imag) / (2 * math.pi * dt), float(zs[i])
 
 
-def best_gain(f, kv=KV, dt=DT):
+def best_gain(f, kv=KV, dt=DT, leak=None):
+    """K_theta (1/s, K_theta dt < 0.95) giving the sampled model's mode the most damping."""
     g = np.linspace(0.0, 0.95 / dt, 400)
-    zs = np.array([predict_sampled(f, k, kv)[1] for k in g])
+    zs = np.array([predict_sampled(f, k, kv, leak=None if leak is None else leak) [1] for k in g])
     i = int(np.nanargmax(zs))
     return float(g[i]), float(zs[i])
 
 
-def simulate(f, kth, modal=True, y0_mm=0.05, duration=None, accel_scale=100.0):
+def feedback_step(kth, kv, keps_k, w, dt, *, leak=None, target_q=None, ff=False):
+    """nc_step with a changed K_theta term, by monkeypatching in this script only (nc.py is not
+    changed). nc.py adds K_theta y to the chain rates, y = load - motor deflection from the gauges
+    (gravity strain of the model pose removed); the replacement term reaches it through the strain it
+    reads: strain + k_eps k (y_eff - y) makes nc.py add K_theta y_eff = the rate wanted below.
+
+    - ``leak`` (1/s) not None: **decoupled** -- an offset d per chain integrates K_theta y_dyn - leak d
+      and the chain rates get K_theta y_dyn + kv d, so the pose loop (gain kv, closed on the
+      motor side) no longer pulls the feedback's own motion back;
+    - ``target_q`` (N, 5) joints of the targets: **quasi-static removal** -- y_dyn = y + a*/w^2 with
+      a* the targets' chain acceleration (second difference): the spring's stretch under the planned
+      acceleration is not vibration and is not fed back;
+    - ``ff``: **deflection feed-forward** -- the motor leads by a*/w^2 (offset o, rate kv o + o'),
+      so the load side, not the motor, follows the path.
+    Returns the replacement for pmctl.motion.loop.nc_step."""
+    d = np.zeros(3)
+    k = 0
+    if target_q is not None:
+        q = np.asarray(target_q, float)[:, :3]
+        qp = np.vstack([q[:1], q, q[-1:], q[-1:]])
+        acc = (qp[2:] - 2 * qp[1:-1] + qp[:-2]) / dt ** 2       # a*_k, k = 0 .. N
+    else:
+        acc = np.zeros((1, 3))
+
+    def a_at(i):
+        return acc[min(i, len(acc) - 1)]
+
+    def step(state, target, fb, p, model):
+        nonlocal d, k
+        s0 = np.array(model.static_strain(state.R, state.T)) if state.T is not None else fb.strain.copy()
+        y = (fb.strain - s0) / keps_k
+        a = a_at(k)
+        y_dyn = y + a / (w * w) if target_q is not None else y
+        rate = kth * y_dyn
+        if leak is not None:
+            rate = rate + kv * d
+        if ff:
+            o, o1 = a / (w * w), a_at(k + 1) / (w * w)
+            rate = rate + kv * o + (o1 - o) / dt
+        fb.strain[:] = fb.strain + keps_k * (rate / kth - y)
+        out = NC.nc_step(state, target, fb, p, model)
+        if leak is not None:
+            d = d + dt * (kth * y_dyn - leak * d)
+        k += 1
+        return out
+    return step
+
+
+def decoupled_step(kth, kv, leak, keps_k, dt, w=1.0):
+    """The decoupled K_theta alone (no quasi-static removal: the start is at rest)."""
+    return feedback_step(kth, kv, keps_k, w, dt, leak=leak)
+
+
+def simulate(f, kth, modal=True, y0_mm=0.05, duration=None, accel_scale=100.0, leak=None):
     """Fitted (frequency Hz, damping ratio, loop status) of the decay in the closed loop.
     ``accel_scale`` multiplies the NC's joint acceleration limit: the feedback alone needs
     K_theta w y0 (20 000 mm/s^2 at 40 Hz, 400/s, 50 um), far over the 2000 mm/s^2 limit, which clips
@@ -116,11 +179,17 @@ def simulate(f, kth, modal=True, y0_mm=0.05, duration=None, accel_scale=100.0):
         wp(p)
         ys.append(be.y[0])
     be.write_pulses = write
-    lp = L.ControlLoop(m, be, params, tg, LoopConfig(realtime=False, state_file="", settle_s=0.0), st, log=lambda s: None)
-    res = lp.run()
+    lp = L.ControlLoop(m, be, params, tg, LoopConfig(realtime=False, state_file="", settle_s=0.0, stall_timeout_s=60.0),
+                       st, log=lambda s: None)
+    if leak is not None and kth > 0:
+        L.nc_step = decoupled_step(kth, KV, leak, m.strain_gain * k, DT)
+    try:
+        res = lp.run()
+    finally:
+        L.nc_step = NC.nc_step
     y = np.array(ys)
     t = np.arange(len(y)) * DT
-    fd, zp = predict_sampled(f, kth if modal else kth / 10.0)
+    fd, zp = predict_sampled(f, kth if modal else kth / 10.0, leak=leak)
     w0 = 2 * math.pi * (fd if math.isfinite(fd) else f)
 
     def model(t, a, b, s, w, c):
@@ -138,34 +207,110 @@ def simulate(f, kth, modal=True, y0_mm=0.05, duration=None, accel_scale=100.0):
         return float("nan"), float("nan"), res.status
 
 
+def comb_run(job, kth, *, stiff=2000.0, mass=MASS, zeta=ZETA, modal=True, scheme=None, leak_frac=0.1):
+    """The comb job through planner, loop and sim (in-process, as ``pmctl run --no-realtime``).
+    scheme: None (nc.py as it is), or a dict of :func:`feedback_step` options ("leak", "qs", "ff").
+    Returns a dict: vibration = RMS of the chain deflection band-passed around the mode (0.6-1.6 f),
+    load-vs-motor tip RMS (what the issue measured), tool-tip error p99 (load side vs target) and
+    the job time."""
+    from scipy.signal import butter, sosfiltfilt
+    m = load_machine("prototype")
+    w = math.sqrt(stiff * 1e3 / mass)
+    params = NC.NCParams.from_machine(m, DT, k_theta=kth, kv=KV, modal_stiffness_N_per_mm=stiff if modal else None)
+    h_tip, h_axis = home_pose(m)
+    c0 = NC.counts_of(K.ik(h_tip, h_axis, m).q, params)
+    st = NC.initial_state(m, c0)
+    from pmctl.task.planner import load_job, plan
+    j = load_job(job, m, start=(st.tip, st.axis))
+    tg = L.prepare(m, params, plan(j, m, DT, start=(st.tip, st.axis)), DT, c0)
+    be = hal.create("sim", m, DT, dict(flex=True, mode_stiffness_N_per_mm=[stiff] * 3, mode_mass_kg=[mass] * 3,
+                                       mode_damping_ratio=[zeta] * 3))
+    be.open(c0)
+    lp = L.ControlLoop(m, be, params, tg, LoopConfig(realtime=False, state_file="", stall_timeout_s=60.0), st,
+                       log=lambda s: None)
+    if scheme is not None and kth > 0:
+        L.nc_step = feedback_step(kth, KV, m.strain_gain * stiff, w, DT,
+                                  leak=leak_frac * w if scheme.get("leak") else None,
+                                  target_q=tg.q if scheme.get("qs") else None, ff=bool(scheme.get("ff")))
+    try:
+        res = lp.run()
+    finally:
+        L.nc_step = NC.nc_step
+    i0 = res.job_start
+    pl, _ = K.fk_batch(res.truth[i0:], m)
+    pm, _ = K.fk_batch(res.enc[i0:], m)
+    y = res.truth[i0:, :3] - res.enc[i0:, :3]
+    f0 = w / (2 * math.pi)
+    sos = butter(2, [0.6 * f0, 1.6 * f0], "bandpass", fs=1 / DT, output="sos")
+    yb = sosfiltfilt(sos, y, axis=0)
+    e = np.linalg.norm(pl.tip - res.target[i0:, :3], axis=-1)
+    return dict(status=res.status, reason=res.reason, vib_um=1e3 * float(np.sqrt(np.mean(yb ** 2))),
+                lm_um=1e3 * float(np.sqrt(np.mean(np.sum((pl.tip - pm.tip) ** 2, -1)))),
+                err_p99_um=1e3 * float(np.percentile(e, 99)), job_s=(res.ticks - i0) * DT)
+
+
+def comb_table(job, gains=(200.0,)):
+    print(f"comb job {job}: sim chain mode 2000 N/mm, {MASS} kg ({math.sqrt(2e6 / MASS) / 2 / math.pi:.1f} Hz), "
+          f"{ZETA:g} damping; kv {KV:g}/s")
+    print(f"{'feedback':58s} {'vib 0.6-1.6f RMS':>17s} {'load-motor RMS':>15s} {'tip err p99':>12s} {'job':>7s}")
+    rows = [("none (K_theta 0)", 0.0, dict(modal=True))]
+    for g in gains:
+        rows += [(f"K_theta {g:g}, as shipped (scale from 20000 N/mm)", g, dict(modal=False)),
+                 (f"K_theta {g:g}, modal stiffness scale", g, dict(modal=True)),
+                 (f"K_theta {g:g}, + quasi-static removed", g, dict(scheme=dict(qs=True))),
+                 (f"K_theta {g:g}, + decoupled from the pose loop", g, dict(scheme=dict(qs=True, leak=True))),
+                 (f"K_theta {g:g}, + deflection feed-forward", g, dict(scheme=dict(qs=True, leak=True, ff=True)))]
+    for name, g, kw in rows:
+        r = comb_run(job, g, **kw)
+        st = "" if r["status"] == "done" else f"  {r['status']}: {r['reason']}"
+        print(f"{name:58s} {r['vib_um']:14.3f} um {r['lm_um']:12.3f} um {r['err_p99_um']:9.3f} um {r['job_s']:6.2f} s{st}")
+
+
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--freqs", type=float, nargs="+", default=[10, 20, 40, 80, 160, 250])
     import warnings
     warnings.filterwarnings("ignore", message="Covariance of the parameters")
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--freqs", type=float, nargs="+", default=[10, 20, 40, 80, 160, 250])
     ap.add_argument("--gains", type=float, nargs="+", default=[0, 100, 200, 400])
     ap.add_argument("--limits", action="store_true",
                     help="also run with the machine's own acceleration limit (2000 mm/s^2) to show it clipping the feedback")
+    ap.add_argument("--comb", metavar="JOB", default=None,
+                    help="instead: the table of feedback schemes on a comb job (examples/jobs/comb.ngc) on the 40 Hz sim")
+    ap.add_argument("--comb-gains", type=float, nargs="+", default=[200.0])
     a = ap.parse_args(argv)
-    print(f"kv {KV:g}/s, {1 / DT:g} Hz, plant damping {ZETA:g}; zeta: eq.3.1 continuous | eq.3.1 sampled | simulation")
+    if a.comb:
+        comb_table(a.comb, a.comb_gains)
+        return 0
+    print(f"kv {KV:g}/s, {1 / DT:g} Hz, plant damping {ZETA:g}, start deflection 50 um; "
+          f"mode damping ratio: eq.3.1 continuous | eq.3.1 sampled | closed-loop simulation")
+    print("  today = nc.py as it is (deflection scale from the modal stiffness); "
+          "decoupled = the proposed change (leak = 0.1 w), by monkeypatch")
     worst = 0.0
     for f in a.freqs:
+        leak = 0.1 * 2 * math.pi * f
         kb, zb = best_gain(f)
-        print(f"mode {f:6.1f} Hz: best K_theta (sampled model) {kb:6.0f}/s -> zeta {zb:.3f}")
-        for g in list(a.gains) + [round(kb)]:
-            _, zc = predict_continuous(f, g)
-            _, zd = predict_sampled(f, g)
-            fs, zs, status = simulate(f, g)
-            worst = max(worst, abs(zs - zd)) if math.isfinite(zs) else worst
-            print(f"   K_theta {g:6.0f}/s: {zc:7.3f} | {zd:7.3f} | {zs:7.3f}  (sim {fs:6.1f} Hz, {status})")
+        kd, zdb = best_gain(f, leak=leak)
+        print(f"mode {f:6.1f} Hz: best K_theta today {kb:6.0f}/s -> zeta {zb:.3f}; decoupled {kd:6.0f}/s -> zeta {zdb:.3f}")
+        gains = sorted(set(list(a.gains) + [round(kb), round(kd)]))
+        for g in gains:
+            row = []
+            for lk in (None, leak):
+                _, zc = predict_continuous(f, g, leak=lk)
+                _, zd = predict_sampled(f, g, leak=lk)
+                fs, zs, status = simulate(f, g, leak=lk)
+                if math.isfinite(zs) and math.isfinite(zd):
+                    worst = max(worst, abs(zs - zd))
+                row.append(f"{zc:6.3f} | {zd:6.3f} | {zs:6.3f}" + ("" if status == "done" else f" ({status})"))
+            print(f"   K_theta {g:6.0f}/s  today: {row[0]}   decoupled: {row[1]}")
         if a.limits:
             for g in (200.0, 400.0):
                 fs, zs, status = simulate(f, g, accel_scale=1.0)
-                print(f"   K_theta {g:6.0f}/s with the 2000 mm/s^2 joint acceleration limit, 50 um start: sim zeta "
+                print(f"   K_theta {g:6.0f}/s today with the 2000 mm/s^2 joint acceleration limit: sim zeta "
                       f"{zs:.3f} ({fs:.1f} Hz) vs sampled {predict_sampled(f, g)[1]:.3f}")
         _, zd = predict_sampled(f, 20.0)
         fs, zs, status = simulate(f, 200.0, modal=False)
-        print(f"   as today (K_theta 200/s, machine stiffness 20000 N/mm -> 20/s effective): sampled {zd:.3f} | sim {zs:.3f}")
+        print(f"   as shipped (K_theta 200/s, deflection scale from 20000 N/mm -> 20/s effective): "
+              f"sampled {zd:.3f} | sim {zs:.3f}")
     print(f"largest |zeta_sim - zeta_sampled| over the table: {worst:.3f}")
     return 0
 
