@@ -285,7 +285,7 @@ def main(argv=None):
           f"mode damping ratio: eq.3.1 continuous | eq.3.1 sampled | closed-loop simulation")
     print("  today = nc.py as it is (deflection scale from the modal stiffness); "
           "decoupled = the proposed change (leak = 0.1 w), by monkeypatch")
-    worst = 0.0
+    worst = worst_mod = 0.0
     for f in a.freqs:
         leak = 0.1 * 2 * math.pi * f
         kb, zb = best_gain(f)
@@ -300,6 +300,8 @@ def main(argv=None):
                 fs, zs, status = simulate(f, g, leak=lk)
                 if math.isfinite(zs) and math.isfinite(zd):
                     worst = max(worst, abs(zs - zd))
+                    if g * DT <= 0.4 and zd < 0.5:
+                        worst_mod = max(worst_mod, abs(zs - zd))
                 row.append(f"{zc:6.3f} | {zd:6.3f} | {zs:6.3f}" + ("" if status == "done" else f" ({status})"))
             print(f"   K_theta {g:6.0f}/s  today: {row[0]}   decoupled: {row[1]}")
         if a.limits:
@@ -307,11 +309,14 @@ def main(argv=None):
                 fs, zs, status = simulate(f, g, accel_scale=1.0)
                 print(f"   K_theta {g:6.0f}/s today with the 2000 mm/s^2 joint acceleration limit: sim zeta "
                       f"{zs:.3f} ({fs:.1f} Hz) vs sampled {predict_sampled(f, g)[1]:.3f}")
-        _, zd = predict_sampled(f, 20.0)
+        k_sim = MASS * (2 * math.pi * f) ** 2 / 1e3
+        eff = 200.0 * k_sim / load_machine("prototype").stiffness.chain_axial
+        _, zd = predict_sampled(f, eff)
         fs, zs, status = simulate(f, 200.0, modal=False)
-        print(f"   as shipped (K_theta 200/s, deflection scale from 20000 N/mm -> 20/s effective): "
-              f"sampled {zd:.3f} | sim {zs:.3f}")
-    print(f"largest |zeta_sim - zeta_sampled| over the table: {worst:.3f}")
+        print(f"   as shipped (K_theta 200/s, deflection scale from 20000 N/mm, chain {k_sim:.0f} N/mm -> "
+              f"{eff:.0f}/s effective): sampled {zd:.3f} | sim {zs:.3f}")
+    print(f"largest |zeta_sim - zeta_sampled|: {worst_mod:.3f} where K_theta dt <= 0.4 and zeta < 0.5; "
+          f"{worst:.3f} over the whole table (gains near 1/dt: fit and pulse quantisation)")
     return 0
 
 

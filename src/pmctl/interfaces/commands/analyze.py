@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pmctl.interfaces.cli import add_module_parsers
 
-ANALYSES = ["pmctl.tools.analysis.mechanism", "pmctl.tools.analysis.vibration"]
+ANALYSES = ["pmctl.tools.analysis.mechanism", "pmctl.tools.analysis.vibration", "pmctl.tools.analysis.resonance"]
 
 
 def add_parser(sub):
