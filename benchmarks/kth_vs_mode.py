@@ -12,12 +12,13 @@ patching nc.py*: the strain -> deflection scale uses the chain's modal stiffness
 the machine config's 20 000 N/mm. Column "as today" repeats K_theta = 200/s with the machine
 config's stiffness, as ``pmctl run --k-theta`` does.
 
-Predictions (kv = seed K_G K_v K_R, K_theta = seed K_theta K_v K_R, both 1/s):
+Predictions (kv = seed K_G K_v K_R, K_theta = seed K_theta K_v K_R, both 1/s), from
+pmctl.tools.analysis.resonance (predict_continuous, predict_sampled):
 - eq. 3.1 (continuous, with the plant damping added): s^3 + (kv + K_theta + 2 zeta w) s^2 +
   (w^2 + 2 zeta w kv) s + kv w^2 = 0 (pmctl.tools.analysis.vibration.eq31_roots when zeta = 0);
-- eq. 3.1 sampled: the same loop with the tick's zero-order hold and the one-tick delay of the
-  feedback (the motor rate of tick k uses the deflection read at its start), as a discrete-time
-  state matrix; its mode pole gives zeta = -ln|z| / |ln z|.
+- eq. 3.1 sampled: the same loop with the tick's ramp and the one-tick delay of the feedback (the
+  motor rate of tick k uses the deflection read at its start), as a discrete-time state matrix; its
+  least damped oscillating pole gives zeta = -ln|z| / |ln z|.
 The best gain per mode (largest mode damping of the sampled model, K_theta dt < 1) is printed too.
 """
 
@@ -38,54 +39,17 @@ from pmctl.motion import loop as L
 from pmctl.motion import nc as NC
 from pmctl.motion.service_config import LoopConfig
 from pmctl.task.planner import home_pose
+from pmctl.tools.analysis import resonance as R
 
 MASS, ZETA, KV, DT = 31.66, 0.02, 400.0, 1e-3
 
 
 def predict_continuous(f, kth, kv=KV, zeta=ZETA, leak=None):
-    """Mode (Hz, zeta) of eq. 3.1 with the plant damping. ``leak`` None: today's loop (the pose loop
-    pulls the feedback's motion back); a number: the proposed decoupled feedback (offset d' = K_theta y
-    - leak d, motor rate + kv d), characteristic (s + leak)(s + kv)(s^2 + 2 zeta w s + w^2)
-    + K_theta s^2 (s + leak + kv)."""
-    w = 2 * math.pi * f
-    plant = np.array([1.0, 2 * zeta * w, w * w])
-    if leak is None:
-        poly = np.polyadd(np.polymul([1.0, kv], plant), [kth, 0.0, 0.0])
-    else:
-        poly = np.polyadd(np.polymul(np.polymul([1.0, leak], [1.0, kv]), plant), kth * np.array([1.0, leak + kv, 0.0, 0.0]))
-    r = np.roots(poly)
-    osc = r[r.imag > 1e-9]
-    if len(osc) == 0:                   # over-damped: no oscillating pole left
-        return float("nan"), 1.0
-    c = osc[np.argmin(-osc.real / np.abs(osc))]
-    return abs(c) / (2 * math.pi), -c.real / abs(c)
+    return R.predict_continuous(f, kth, kv, zeta, leak)
 
 
 def predict_sampled(f, kth, kv=KV, zeta=ZETA, dt=DT, leak=None):
-    """The same loop sampled at dt, as the NC runs it: state (x_m, y, y', v_prev, d); each tick
-    v = -kv x_m + kv d + K_theta y (deflection read at the tick start; d = 0 without ``leak``), the
-    motor ramps by v dt (y' jumps by -(v - v_prev), then (y, y') propagate exactly), and
-    d += dt (K_theta y - leak d)."""
-    w = 2 * math.pi * f
-    Phi = expm(np.array([[0.0, 1.0], [-w * w, -2 * zeta * w]]) * dt)
-    on = leak is not None
-    V = np.array([-kv, kth, 0.0, 0.0, kv if on else 0.0])
-    A = np.zeros((5, 5))
-    A[0] = np.eye(5)[0] + dt * V
-    J = np.eye(5)
-    J[2] -= V
-    J[2, 3] += 1.0
-    A[1:3] = Phi @ J[1:3]
-    A[3] = V
-    A[4] = np.eye(5)[4] + (dt * np.array([0.0, kth, 0.0, 0.0, -(leak or 0.0)]) if on else 0.0)
-    z = np.linalg.eigvals(A)
-    osc = z[z.imag > 1e-12]
-    if len(osc) == 0:
-        return float("nan"), 1.0
-    lz = np.log(osc)
-    zs = -lz.real / np.abs(lz)
-    i = int(np.argmin(zs))                      # the least damped oscillating pole
-    return abs(lz[i].imag) / (2 * math.pi * dt), float(zs[i])
+    return R.predict_sampled(f, kth, kv, dt, zeta, leak)
 
 
 def best_gain(f, kv=KV, dt=DT, leak=None):
@@ -207,7 +171,24 @@ def simulate(f, kth, modal=True, y0_mm=0.05, duration=None, accel_scale=100.0, l
         return float("nan"), float("nan"), res.status
 
 
-def comb_run(job, kth, *, stiff=2000.0, mass=MASS, zeta=ZETA, modal=True, scheme=None, leak_frac=0.1):
+def shape_traj(traj, sh):
+    """The planner's trajectory with its time law shaped (pmctl.core.shaper.shape_time_law): same
+    path, later arrival; velocities by forward difference, line/spindle held at the end."""
+    from dataclasses import replace
+    from pmctl.core import shaper as S
+    tip, axis = S.shape_time_law(traj.tip, traj.axis, traj.dt, sh)
+    n, m = len(traj.tip), len(tip)
+    ext = lambda a: np.concatenate([a, np.repeat(a[-1:], m - n, 0)])  # noqa: E731
+    tv = np.zeros_like(tip)
+    av = np.zeros_like(axis)
+    tv[:-1] = np.diff(tip, axis=0) / traj.dt
+    av[:-1] = np.diff(axis, axis=0) / traj.dt
+    return replace(traj, tip=tip, axis=axis, tip_vel=tv, axis_vel=av, line=ext(np.asarray(traj.line)),
+                   spindle_rpm=ext(np.asarray(traj.spindle_rpm)))
+
+
+def comb_run(job, kth, *, stiff=2000.0, mass=MASS, zeta=ZETA, modal=True, scheme=None, leak_frac=0.1,
+             shaper=None):
     """The comb job through planner, loop and sim (in-process, as ``pmctl run --no-realtime``).
     scheme: None (nc.py as it is), or a dict of :func:`feedback_step` options ("leak", "qs", "ff").
     Returns a dict: vibration = RMS of the chain deflection band-passed around the mode (0.6-1.6 f),
@@ -222,7 +203,10 @@ def comb_run(job, kth, *, stiff=2000.0, mass=MASS, zeta=ZETA, modal=True, scheme
     st = NC.initial_state(m, c0)
     from pmctl.task.planner import load_job, plan
     j = load_job(job, m, start=(st.tip, st.axis))
-    tg = L.prepare(m, params, plan(j, m, DT, start=(st.tip, st.axis)), DT, c0)
+    traj = plan(j, m, DT, start=(st.tip, st.axis))
+    if shaper is not None:
+        traj = shape_traj(traj, shaper)
+    tg = L.prepare(m, params, traj, DT, c0)
     be = hal.create("sim", m, DT, dict(flex=True, mode_stiffness_N_per_mm=[stiff] * 3, mode_mass_kg=[mass] * 3,
                                        mode_damping_ratio=[zeta] * 3))
     be.open(c0)
@@ -242,28 +226,50 @@ def comb_run(job, kth, *, stiff=2000.0, mass=MASS, zeta=ZETA, modal=True, scheme
     y = res.truth[i0:, :3] - res.enc[i0:, :3]
     f0 = w / (2 * math.pi)
     sos = butter(2, [0.6 * f0, 1.6 * f0], "bandpass", fs=1 / DT, output="sos")
-    yb = sosfiltfilt(sos, y, axis=0)
-    e = np.linalg.norm(pl.tip - res.target[i0:, :3], axis=-1)
+    # the quasi-static stretch of the planned acceleration, -a*/w^2, is not vibration: take it off
+    q = tg.q[i0:, :3]
+    n = min(len(q), len(y))
+    a_t = np.zeros_like(y)
+    a_t[1:n - 1] = (q[2:n] - 2 * q[1:n - 1] + q[:n - 2]) / DT ** 2
+    yb = sosfiltfilt(sos, y + a_t / w ** 2, axis=0)
+    yb_raw = sosfiltfilt(sos, y, axis=0)
+    # path error: distance of the load-side tip from the programmed path (the job's polyline through
+    # the planner's samples), not from the (shaped, later) target of the same tick
+    from pmctl.core.shaper import path_error
+    e = path_error(pl.tip[::2], traj.tip[::1])
     return dict(status=res.status, reason=res.reason, vib_um=1e3 * float(np.sqrt(np.mean(yb ** 2))),
+                band_um=1e3 * float(np.sqrt(np.mean(yb_raw ** 2))),
                 lm_um=1e3 * float(np.sqrt(np.mean(np.sum((pl.tip - pm.tip) ** 2, -1)))),
                 err_p99_um=1e3 * float(np.percentile(e, 99)), job_s=(res.ticks - i0) * DT)
 
 
-def comb_table(job, gains=(200.0,)):
-    print(f"comb job {job}: sim chain mode 2000 N/mm, {MASS} kg ({math.sqrt(2e6 / MASS) / 2 / math.pi:.1f} Hz), "
-          f"{ZETA:g} damping; kv {KV:g}/s")
-    print(f"{'feedback':58s} {'vib 0.6-1.6f RMS':>17s} {'load-motor RMS':>15s} {'tip err p99':>12s} {'job':>7s}")
-    rows = [("none (K_theta 0)", 0.0, dict(modal=True))]
+def comb_table(job, gains=(200.0,), shaper_name="ZVD"):
+    from pmctl.core import shaper as S
+    f0 = math.sqrt(2e6 / MASS) / 2 / math.pi
+    print(f"comb job {job}: sim chain mode 2000 N/mm, {MASS} kg ({f0:.1f} Hz), {ZETA:g} damping; kv {KV:g}/s")
+    print("vibration = RMS of the chain deflection band-passed 0.6-1.6 x the mode; path error = distance of the "
+          "load-side tip from the programmed path; K_theta 'proposed' = modal scale + quasi-static removed + "
+          "decoupled + deflection feed-forward (monkeypatched)")
+    print(f"{'case':62s} {'vibration':>10s} {'load-motor':>11s} {'path p99':>9s} {'job':>7s}")
+    full = dict(qs=True, leak=True, ff=True)
+    rows = [("none (K_theta 0)", 0.0, {})]
     for g in gains:
         rows += [(f"K_theta {g:g}, as shipped (scale from 20000 N/mm)", g, dict(modal=False)),
-                 (f"K_theta {g:g}, modal stiffness scale", g, dict(modal=True)),
+                 (f"K_theta {g:g}, modal stiffness scale", g, {}),
                  (f"K_theta {g:g}, + quasi-static removed", g, dict(scheme=dict(qs=True))),
                  (f"K_theta {g:g}, + decoupled from the pose loop", g, dict(scheme=dict(qs=True, leak=True))),
-                 (f"K_theta {g:g}, + deflection feed-forward", g, dict(scheme=dict(qs=True, leak=True, ff=True)))]
+                 (f"K_theta {g:g}, + deflection feed-forward (= proposed)", g, dict(scheme=full))]
+    sh = S.make_shaper(shaper_name, f0, ZETA)
+    sh_off = S.make_shaper(shaper_name, f0 / 1.2, ZETA)
+    g = gains[-1]
+    rows += [(f"shaper {shaper_name} at {f0:.1f} Hz (time law)", 0.0, dict(shaper=sh)),
+             (f"shaper + K_theta {g:g} proposed", g, dict(shaper=sh, scheme=full)),
+             (f"shaper {shaper_name} at {f0 / 1.2:.1f} Hz (mode 20 % above it)", 0.0, dict(shaper=sh_off)),
+             (f"  + K_theta {g:g} proposed", g, dict(shaper=sh_off, scheme=full))]
     for name, g, kw in rows:
         r = comb_run(job, g, **kw)
         st = "" if r["status"] == "done" else f"  {r['status']}: {r['reason']}"
-        print(f"{name:58s} {r['vib_um']:14.3f} um {r['lm_um']:12.3f} um {r['err_p99_um']:9.3f} um {r['job_s']:6.2f} s{st}")
+        print(f"{name:62s} {r['vib_um']:7.3f} um {r['lm_um']:8.3f} um {r['err_p99_um']:6.3f} um {r['job_s']:6.2f} s{st}")
 
 
 def main(argv=None):
@@ -277,9 +283,10 @@ def main(argv=None):
     ap.add_argument("--comb", metavar="JOB", default=None,
                     help="instead: the table of feedback schemes on a comb job (examples/jobs/comb.ngc) on the 40 Hz sim")
     ap.add_argument("--comb-gains", type=float, nargs="+", default=[200.0])
+    ap.add_argument("--comb-shaper", default="ZVD")
     a = ap.parse_args(argv)
     if a.comb:
-        comb_table(a.comb, a.comb_gains)
+        comb_table(a.comb, a.comb_gains, a.comb_shaper)
         return 0
     print(f"kv {KV:g}/s, {1 / DT:g} Hz, plant damping {ZETA:g}, start deflection 50 um; "
           f"mode damping ratio: eq.3.1 continuous | eq.3.1 sampled | closed-loop simulation")
