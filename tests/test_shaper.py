@@ -90,9 +90,10 @@ def test_time_law_keeps_every_sample_on_the_path(name, f, mode, vel):
     assert S.path_error(p, corner).max() <= 1e-9
     np.testing.assert_allclose(p[0], tip[0], atol=1e-12)
     np.testing.assert_allclose(p[-1], tip[-1], atol=1e-12)
-    assert len(p) == len(tip) + math.ceil(sh.duration / dt - 1e-9)
+    pieces = 1 + len(S.corner_samples(tip, axis))
+    assert len(p) == len(tip) + pieces * math.ceil(sh.duration / dt - 1e-9)
     # the clock never runs backwards: the tool never reverses along the path
-    sig = S.shaped_clock(len(tip), dt, sh)
+    sig = S.shaped_clock(tip, axis, dt, sh)
     assert np.all(np.diff(sig) >= -1e-12)
 
 
@@ -118,3 +119,23 @@ def test_bad_input_is_refused():
         S.make_shaper("ZV", 0.0)
     with pytest.raises(ValueError, match="damping"):
         S.make_shaper("ZV", 40.0, 1.0)
+
+
+@pytest.mark.parametrize("name", S.SHAPERS)
+def test_time_law_at_a_stop_corner_keeps_the_acceleration_bounded(name):
+    """Shaped piece by piece, the tool still stops at the corner: the tip acceleration stays within
+    the original trajectory's (a convex combination of its accelerations); one clock shaped across
+    the corner would carry the tool through it at speed (a jump of velocity)."""
+    dt = 1e-3
+    tip, axis = S.corner_trajectory(50.0, 2000.0, 5.0, dt, stop=True)
+    sh = S.make_shaper(name, 40.0, 0.02)
+    acc0 = np.abs(np.diff(tip, 2, axis=0)).max() / dt ** 2
+    p, _ = S.shape_time_law(tip, axis, dt, sh)
+    acc = np.abs(np.diff(p, 2, axis=0)).max() / dt ** 2
+    assert acc <= acc0 * (1 + 1e-9)
+    p1, _ = S.shape_time_law(tip, axis, dt, sh, split_at_corners=False)
+    assert np.abs(np.diff(p1, 2, axis=0)).max() / dt ** 2 > 2 * acc0
+    # still on the path, and the corner point itself is a sample
+    corner = np.array([[-5.0, 0, 0], [0, 0, 0], [0, 5.0, 0]])
+    assert S.path_error(p, corner).max() <= 1e-9
+    assert np.min(np.linalg.norm(p, axis=1)) == 0.0

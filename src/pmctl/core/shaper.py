@@ -28,9 +28,10 @@ EI         (1+V)/4, (1-V)/2 K, (1+V)/4 K^2                     0, 1/2, 1
 
 **Applying a shaper without leaving the path.** Shaping the Cartesian targets (as 3-D printers do)
 averages points of different path segments, so a corner is cut: :func:`shape_cartesian`.
-Shaping the *time law* instead -- the path clock s(t) convolved with the impulses,
-sigma(t) = sum_i A_i s(t - t_i), and the pose looked up on the path at sigma(t) -- only changes
-*when* the tool is where; every sample stays on the programmed path: :func:`shape_time_law`.
+Shaping the *time law* instead -- the arc length along the path s(t) convolved with the impulses,
+s~(t) = sum_i A_i s(t - t_i), and the pose looked up on the path at s~(t) -- only changes *when* the
+tool is where; every sample stays on the programmed path: :func:`shape_time_law`. It is done piece
+by piece between corners, so the tool still stops where the planner stopped it.
 Both take a trajectory sampled at a fixed period dt (tip (N, 3) mm, axis (N, 3) unit) whose
 consecutive samples are joined by straight lines (the planner's G1 samples; corners are samples).
 :func:`path_error` measures the distance of shaped samples from that polyline.
@@ -136,21 +137,77 @@ def _lookup(tip, axis, sigma):
     return p, a / np.linalg.norm(a, axis=-1, keepdims=True)
 
 
-def shaped_clock(n: int, dt: float, shaper: Shaper):
-    """The shaped path clock: sigma_k = sum_i A_i clamp(k - t_i/dt, 0, n-1), as fractional sample
-    indices of the original trajectory, for k = 0 .. n - 1 + ceil(t_n/dt) (the motion ends later)."""
+def shaped_clock(tip, axis, dt: float, shaper: Shaper, axis_weight_mm: float = 100.0):
+    """The shaped time law as fractional sample indices of the input trajectory.
+
+    s_k = arc length along the sampled path up to sample k (tip mm, plus ``axis_weight_mm`` per unit
+    of tool-axis change, so a pure reorientation has a length too); s(t) is linear between samples
+    and held at both ends; the shaped law s~(t_k) = sum_i A_i s(t_k - t_i) for
+    k = 0 .. n - 1 + ceil(t_n/dt) (the motion ends later); each s~ is mapped back to the point of the
+    polyline at that arc length, as a fractional sample index."""
+    x = np.concatenate([np.asarray(tip, float), axis_weight_mm * np.asarray(axis, float)], 1)
+    n = len(x)
+    seg = np.linalg.norm(np.diff(x, axis=0), axis=1)
+    S = np.r_[0.0, np.cumsum(seg)]
     extra = int(math.ceil(shaper.duration / dt - 1e-9))
     k = np.arange(n + extra, dtype=float)
-    return np.sum(shaper.A[:, None] * np.clip(k[None, :] - shaper.T[:, None] / dt, 0.0, n - 1.0), 0)
+    s_sh = np.zeros(len(k))
+    idx = np.arange(n, dtype=float)
+    for Ai, ti in zip(shaper.A, shaper.T):
+        s_sh += Ai * np.interp(np.clip(k - ti / dt, 0.0, n - 1.0), idx, S)
+    s_sh = np.minimum(s_sh, S[-1])
+    j = np.clip(np.searchsorted(S, s_sh, side="right") - 1, 0, max(n - 2, 0))
+    if n < 2:
+        return np.zeros(len(k))
+    L = seg[j]
+    u = np.where(L > 0, (s_sh - S[j]) / np.where(L > 0, L, 1.0), 0.0)
+    sigma = j + np.clip(u, 0.0, 1.0)
+    sigma[s_sh >= S[-1]] = n - 1.0
+    return sigma
 
 
-def shape_time_law(tip, axis, dt: float, shaper: Shaper):
-    """Time-law shaping of a trajectory sampled every ``dt``: returns (tip, axis) of length
-    n + ceil(t_n/dt); every sample lies on the polyline of the input samples (the path is kept,
-    only the timing along it changes). The first and last samples are the input's first and last."""
+def corner_samples(tip, axis, corner_deg: float = 1.0, axis_weight_mm: float = 100.0):
+    """Indices of the samples where the motion turns by more than ``corner_deg`` (a corner: the
+    planner stops there, or slows to a junction speed) -- the tool-axis motion counted as
+    ``axis_weight_mm`` per unit of axis change."""
+    x = np.concatenate([np.asarray(tip, float), axis_weight_mm * np.asarray(axis, float)], 1)
+    d = np.diff(x, axis=0)
+    nrm = np.linalg.norm(d, axis=1)
+    moving = np.nonzero(nrm > 1e-12)[0]
+    out = []
+    c = math.cos(math.radians(corner_deg))
+    for i, j in zip(moving[:-1], moving[1:]):
+        # displacement i (samples i -> i+1) and the next moving one j: they meet at sample i+1 .. j
+        if float(d[i] @ d[j]) < c * nrm[i] * nrm[j]:
+            out.append(int(j))          # the sample where the new direction starts
+    return out
+
+
+def shape_time_law(tip, axis, dt: float, shaper: Shaper, *, split_at_corners: bool = True,
+                   corner_deg: float = 1.0):
+    """Time-law shaping of a trajectory sampled every ``dt``: every output sample lies on the
+    polyline of the input samples (the path is kept, only the timing along it changes); the first
+    and last samples are the input's first and last.
+
+    ``split_at_corners`` (default): the clock of each piece between corners (:func:`corner_samples`)
+    is shaped on its own, so the tool still comes to the corner point with the speed the planner gave
+    it and leaves from there -- one clock shaped across a corner would carry the tool through the
+    corner at speed, a jump of velocity. Each piece ends ceil(t_n/dt) samples later (the time cost).
+    Returns (tip, axis)."""
     tip = np.asarray(tip, float)
     axis = np.asarray(axis, float)
-    return _lookup(tip, axis, shaped_clock(len(tip), dt, shaper))
+    n = len(tip)
+    if not split_at_corners or n < 3:
+        return _lookup(tip, axis, shaped_clock(tip, axis, dt, shaper))
+    cuts = [0] + [c for c in corner_samples(tip, axis, corner_deg) if 0 < c < n - 1] + [n - 1]
+    P, A = [], []
+    for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
+        p, ax = _lookup(tip[a:b + 1], axis[a:b + 1], shaped_clock(tip[a:b + 1], axis[a:b + 1], dt, shaper))
+        if k:
+            p, ax = p[1:], ax[1:]         # the corner sample ends the previous piece
+        P.append(p)
+        A.append(ax)
+    return np.concatenate(P), np.concatenate(A)
 
 
 def shape_cartesian(tip, axis, dt: float, shaper: Shaper):
