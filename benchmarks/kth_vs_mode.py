@@ -212,7 +212,7 @@ def comb_run(job, kth, *, stiff=2000.0, mass=MASS, zeta=ZETA, modal=True, scheme
     be.open(c0)
     lp = L.ControlLoop(m, be, params, tg, LoopConfig(realtime=False, state_file="", stall_timeout_s=60.0), st,
                        log=lambda s: None)
-    if scheme is not None and kth > 0:
+    if scheme is not None and kth != 0:
         L.nc_step = feedback_step(kth, KV, m.strain_gain * stiff, w, DT,
                                   leak=leak_frac * w if scheme.get("leak") else None,
                                   target_q=tg.q if scheme.get("qs") else None, ff=bool(scheme.get("ff")))
@@ -256,6 +256,7 @@ def comb_table(job, gains=(200.0,), shaper_name="ZVD"):
     for g in gains:
         rows += [(f"K_theta {g:g}, as shipped (scale from 20000 N/mm)", g, dict(modal=False)),
                  (f"K_theta {g:g}, modal stiffness scale", g, {}),
+                 (f"K_theta {-g:g}, modal stiffness scale (wrong sign)", -g, {}),
                  (f"K_theta {g:g}, + quasi-static removed", g, dict(scheme=dict(qs=True))),
                  (f"K_theta {g:g}, + decoupled from the pose loop", g, dict(scheme=dict(qs=True, leak=True))),
                  (f"K_theta {g:g}, + deflection feed-forward (= proposed)", g, dict(scheme=full))]
