@@ -1,6 +1,11 @@
 """K_theta (strain-gauge feedback) against the chain mode: eq. 3.1's prediction vs the closed loop.
 
-    .venv/bin/python benchmarks/kth_vs_mode.py [--freqs 10 20 40 80 160 250] [--gains 0 100 200 400]
+    .venv/bin/python benchmarks/kth_vs_mode.py [--freqs 10 20 40 80 160 250] [--gains 0 100 200 400] [--limits]
+    .venv/bin/python benchmarks/kth_vs_mode.py --comb examples/jobs/comb.ngc [--comb-gains 200] [--comb-shaper ZVD]
+
+The second form is the comb table of docs/vibration.md: on the soft 40 Hz sim, the feedback as
+shipped, each part of the proposed change, a time-law input shaper (pmctl.core.shaper), a shaper
+20 % off the mode, and the combinations: vibration, load-vs-motor, path error p99 and job time.
 
 For each chain-mode frequency f (sim plant: modal mass 31.66 kg, stiffness m (2 pi f)^2, 2 % damping)
 and each K_theta, the real NC loop (pmctl.motion.loop.ControlLoop, nc_step, the sim backend with its
@@ -29,7 +34,6 @@ import math
 import sys
 
 import numpy as np
-from scipy.linalg import expm
 from scipy.optimize import curve_fit
 
 from pmctl import hal
