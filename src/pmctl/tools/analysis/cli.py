@@ -50,6 +50,27 @@ def add_vibration_parsers(sub):
     q.set_defaults(func=lazy(f"{mod}:cmd_vf"))
 
 
+def add_resonance_parser(sub):
+    """``resonance`` (pmctl.tools.analysis.resonance)."""
+    p = sub.add_parser("resonance", help="chain modes from the strain gauges: PSD, frequency and damping, "
+                       "input-shaper and K_theta advice (PNG); --make-job writes the test move",
+                       description="Resonance measurement from the strain gauges of a recorded test move.")
+    p.add_argument("recording", nargs="?", help="recording folder of the test move (pmctl run --record)")
+    p.add_argument("--make-job", metavar="OUT.ngc", help="write the impulse test move (G-code) and exit")
+    p.add_argument("--axis", default="z", help="test-move axis x, y or z (default z: all three chains)")
+    p.add_argument("--strokes", type=int, default=4, help="number of strokes (default 4)")
+    p.add_argument("--stroke-mm", type=float, default=1.0, help="stroke length, mm (default 1)")
+    p.add_argument("--dwell-s", type=float, default=0.5, help="dwell after each stroke, s (default 0.5)")
+    p.add_argument("--feed", type=float, default=3000.0, help="feed, mm/min (default 3000)")
+    p.add_argument("--fmin", type=float, default=5.0, help="lowest mode frequency searched, Hz (default 5)")
+    p.add_argument("--fmax", type=float, default=None, help="highest, Hz (default 0.45 x sample rate)")
+    p.add_argument("--modes", type=int, default=1, help="modes fitted per chain (default 1)")
+    p.add_argument("--kv", type=float, default=400.0, help="NC pose gain for the K_theta advice, 1/s (default 400)")
+    p.add_argument("--out", default="out/analyze", help="directory for resonance.png/json (default out/analyze)")
+    p.set_defaults(func=lazy("pmctl.tools.analysis.resonance:cmd_resonance"))
+
+
 def add_parsers(sub):
     add_mechanism_parsers(sub)
     add_vibration_parsers(sub)
+    add_resonance_parser(sub)

@@ -1,0 +1,287 @@
+"""Input shapers as pure math: impulse trains that cancel a mode's residual vibration, their analytic
+residual-vibration curves, and two ways to apply them to a sampled tool path.
+
+A shaper is a train of impulses (A_i, t_i), sum A_i = 1, t_0 = 0. Convolving a motion with it leaves a
+single lightly damped mode (frequency f, damping ratio zeta) with the fraction
+
+    V(f) = exp(-zeta w t_n) * |sum_i A_i exp(zeta w t_i) exp(j w_d t_i)|,  w = 2 pi f, w_d = w sqrt(1 - zeta^2)
+
+of the residual vibration the unshaped motion leaves (exact for any motion, by linearity: the free
+oscillation after the last impulse is the unshaped one summed with those weights and delays).
+
+Shapers (Singhose's closed forms; K = exp(-zeta pi / sqrt(1 - zeta^2)), T_d = 1 / (f sqrt(1 - zeta^2))):
+
+=========  ================================================  ==================================
+name       amplitudes (before normalising to sum 1)           times (x T_d)
+=========  ================================================  ==================================
+ZV         1, K                                               0, 1/2
+MZV        a, (sqrt2 - 1) K', a K'^2; a = 1 - 1/sqrt2,         0, 3/8, 3/4
+           K' = exp(-0.75 zeta pi / sqrt(1 - zeta^2))
+ZVD        1, 2K, K^2                                         0, 1/2, 1
+EI         (1+V)/4, (1-V)/2 K, (1+V)/4 K^2                     0, 1/2, 1
+2HUMP_EI   a1, (1/2 - a1) K, (1/2 - a1) K^2, a1 K^3           0, 1/2, 1, 3/2
+3HUMP_EI   a1, (1-V)/4 K, ((1+V)/2 - 2 a1) K^2, (1-V)/4 K^3,   0, 1/2, 1, 3/2, 2
+           a1 K^4
+=========  ================================================  ==================================
+
+(V = the EI shapers' tolerated vibration, 5 %.)
+
+**Applying a shaper without leaving the path.** Shaping the Cartesian targets (as 3-D printers do)
+averages points of different path segments, so a corner is cut: :func:`shape_cartesian`.
+Shaping the *time law* instead -- the arc length along the path s(t) convolved with the impulses,
+s~(t) = sum_i A_i s(t - t_i), and the pose looked up on the path at s~(t) -- only changes *when* the
+tool is where; every sample stays on the programmed path: :func:`shape_time_law`. It is done piece
+by piece between corners, so the tool still stops where the planner stopped it.
+Both take a trajectory sampled at a fixed period dt (tip (N, 3) mm, axis (N, 3) unit) whose
+consecutive samples are joined by straight lines (the planner's G1 samples; corners are samples).
+:func:`path_error` measures the distance of shaped samples from that polyline.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+SHAPERS = ("ZV", "MZV", "ZVD", "EI", "2HUMP_EI", "3HUMP_EI")
+EI_TOLERANCE = 0.05
+
+
+@dataclass(frozen=True)
+class Shaper:
+    name: str
+    freq_hz: float
+    damping: float
+    A: np.ndarray        # (n,) amplitudes, sum 1
+    T: np.ndarray        # (n,) times, s, T[0] = 0
+
+    @property
+    def duration(self) -> float:
+        return float(self.T[-1])
+
+    @property
+    def delay(self) -> float:
+        """Mean delay sum A_i t_i: how much later the shaped motion arrives, on average (s)."""
+        return float(self.A @ self.T)
+
+
+def make_shaper(name: str, freq_hz: float, damping: float = 0.1, tolerance: float = EI_TOLERANCE) -> Shaper:
+    """The shaper ``name`` (one of SHAPERS, case-insensitive) designed for ``freq_hz`` and ``damping``."""
+    key = str(name).upper()
+    if key not in SHAPERS:
+        raise ValueError(f"unknown shaper {name!r}: choose one of {', '.join(SHAPERS)}")
+    if not (math.isfinite(freq_hz) and freq_hz > 0):
+        raise ValueError(f"shaper frequency must be > 0 Hz, got {freq_hz!r}")
+    if not (0.0 <= damping < 1.0):
+        raise ValueError(f"shaper damping ratio must be within [0, 1), got {damping!r}")
+    z, v = float(damping), float(tolerance)
+    sq = math.sqrt(1.0 - z * z)
+    K = math.exp(-z * math.pi / sq)
+    td = 1.0 / (freq_hz * sq)
+    if key == "ZV":
+        A, T = [1.0, K], [0.0, 0.5]
+    elif key == "ZVD":
+        A, T = [1.0, 2.0 * K, K * K], [0.0, 0.5, 1.0]
+    elif key == "MZV":
+        k = math.exp(-0.75 * z * math.pi / sq)
+        a1 = 1.0 - 1.0 / math.sqrt(2.0)
+        A, T = [a1, (math.sqrt(2.0) - 1.0) * k, a1 * k * k], [0.0, 0.375, 0.75]
+    elif key == "EI":
+        a1 = 0.25 * (1.0 + v)
+        A, T = [a1, 0.5 * (1.0 - v) * K, a1 * K * K], [0.0, 0.5, 1.0]
+    elif key == "2HUMP_EI":
+        v2 = v * v
+        x = (v2 * (math.sqrt(1.0 - v2) + 1.0)) ** (1.0 / 3.0)
+        a1 = (3.0 * x * x + 2.0 * x + 3.0 * v2) / (16.0 * x)
+        a2 = (0.5 - a1) * K
+        A, T = [a1, a2, a2 * K, a1 * K ** 3], [0.0, 0.5, 1.0, 1.5]
+    else:  # 3HUMP_EI
+        k2 = K * K
+        a1 = 0.0625 * (1.0 + 3.0 * v + 2.0 * math.sqrt(2.0 * (v + 1.0) * v))
+        a2 = 0.25 * (1.0 - v) * K
+        a3 = (0.5 * (1.0 + v) - 2.0 * a1) * k2
+        A, T = [a1, a2, a3, a2 * k2, a1 * k2 * k2], [0.0, 0.5, 1.0, 1.5, 2.0]
+    A = np.array(A, float)
+    return Shaper(key, float(freq_hz), z, A / A.sum(), np.array(T, float) * td)
+
+
+def residual_vibration(shaper: Shaper, freq_hz, damping: float | None = None):
+    """Analytic residual vibration V (fraction of the unshaped motion's) of a mode at ``freq_hz``
+    (scalar or array) with damping ratio ``damping`` (default: the shaper's design damping)."""
+    z = shaper.damping if damping is None else float(damping)
+    f = np.asarray(freq_hz, float)
+    w = 2.0 * np.pi * f[..., None]
+    wd = w * math.sqrt(1.0 - z * z)
+    e = shaper.A * np.exp(z * w * shaper.T)
+    c = np.sum(e * np.cos(wd * shaper.T), -1)
+    s = np.sum(e * np.sin(wd * shaper.T), -1)
+    return np.exp(-z * w[..., 0] * shaper.duration) * np.hypot(c, s)
+
+
+# ---------------------------------------------------------------------------------------------
+# Applying a shaper to a sampled path
+# ---------------------------------------------------------------------------------------------
+
+def _lookup(tip, axis, sigma):
+    """Pose on the sampled polyline at fractional sample index sigma (linear between samples; the
+    axis by normalised linear interpolation, i.e. on the great circle between the two samples)."""
+    n = len(tip)
+    sigma = np.clip(sigma, 0.0, n - 1.0)
+    k = np.minimum(np.floor(sigma).astype(int), n - 2) if n > 1 else np.zeros(len(sigma), int)
+    u = (sigma - k)[:, None]
+    if n == 1:
+        return np.repeat(tip, len(sigma), 0), np.repeat(axis, len(sigma), 0)
+    p = tip[k] * (1.0 - u) + tip[k + 1] * u
+    a = axis[k] * (1.0 - u) + axis[k + 1] * u
+    return p, a / np.linalg.norm(a, axis=-1, keepdims=True)
+
+
+def shaped_clock(tip, axis, dt: float, shaper: Shaper, axis_weight_mm: float = 100.0):
+    """The shaped time law as fractional sample indices of the input trajectory.
+
+    s_k = arc length along the sampled path up to sample k (tip mm, plus ``axis_weight_mm`` per unit
+    of tool-axis change, so a pure reorientation has a length too); s(t) is linear between samples
+    and held at both ends; the shaped law s~(t_k) = sum_i A_i s(t_k - t_i) for
+    k = 0 .. n - 1 + ceil(t_n/dt) (the motion ends later); each s~ is mapped back to the point of the
+    polyline at that arc length, as a fractional sample index."""
+    x = np.concatenate([np.asarray(tip, float), axis_weight_mm * np.asarray(axis, float)], 1)
+    n = len(x)
+    seg = np.linalg.norm(np.diff(x, axis=0), axis=1)
+    S = np.r_[0.0, np.cumsum(seg)]
+    extra = int(math.ceil(shaper.duration / dt - 1e-9))
+    k = np.arange(n + extra, dtype=float)
+    s_sh = np.zeros(len(k))
+    idx = np.arange(n, dtype=float)
+    for Ai, ti in zip(shaper.A, shaper.T):
+        s_sh += Ai * np.interp(np.clip(k - ti / dt, 0.0, n - 1.0), idx, S)
+    s_sh = np.minimum(s_sh, S[-1])
+    j = np.clip(np.searchsorted(S, s_sh, side="right") - 1, 0, max(n - 2, 0))
+    if n < 2:
+        return np.zeros(len(k))
+    L = seg[j]
+    u = np.where(L > 0, (s_sh - S[j]) / np.where(L > 0, L, 1.0), 0.0)
+    sigma = j + np.clip(u, 0.0, 1.0)
+    sigma[s_sh >= S[-1]] = n - 1.0
+    return sigma
+
+
+def corner_samples(tip, axis, corner_deg: float = 1.0, axis_weight_mm: float = 100.0):
+    """Indices of the samples where the motion turns by more than ``corner_deg`` (a corner: the
+    planner stops there, or slows to a junction speed) -- the tool-axis motion counted as
+    ``axis_weight_mm`` per unit of axis change."""
+    x = np.concatenate([np.asarray(tip, float), axis_weight_mm * np.asarray(axis, float)], 1)
+    d = np.diff(x, axis=0)
+    nrm = np.linalg.norm(d, axis=1)
+    moving = np.nonzero(nrm > 1e-12)[0]
+    out = []
+    c = math.cos(math.radians(corner_deg))
+    for i, j in zip(moving[:-1], moving[1:]):
+        # displacement i (samples i -> i+1) and the next moving one j: they meet at sample i+1 .. j
+        if float(d[i] @ d[j]) < c * nrm[i] * nrm[j]:
+            out.append(int(j))          # the sample where the new direction starts
+    return out
+
+
+def shape_time_law(tip, axis, dt: float, shaper: Shaper, *, split_at_corners: bool = True,
+                   corner_deg: float = 1.0):
+    """Time-law shaping of a trajectory sampled every ``dt``: every output sample lies on the
+    polyline of the input samples (the path is kept, only the timing along it changes); the first
+    and last samples are the input's first and last.
+
+    ``split_at_corners`` (default): the clock of each piece between corners (:func:`corner_samples`)
+    is shaped on its own, so the tool still comes to the corner point with the speed the planner gave
+    it and leaves from there -- one clock shaped across a corner would carry the tool through the
+    corner at speed, a jump of velocity. Each piece ends ceil(t_n/dt) samples later (the time cost).
+    Returns (tip, axis)."""
+    tip = np.asarray(tip, float)
+    axis = np.asarray(axis, float)
+    n = len(tip)
+    if not split_at_corners or n < 3:
+        return _lookup(tip, axis, shaped_clock(tip, axis, dt, shaper))
+    cuts = [0] + [c for c in corner_samples(tip, axis, corner_deg) if 0 < c < n - 1] + [n - 1]
+    P, A = [], []
+    for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
+        p, ax = _lookup(tip[a:b + 1], axis[a:b + 1], shaped_clock(tip[a:b + 1], axis[a:b + 1], dt, shaper))
+        if k:
+            p, ax = p[1:], ax[1:]         # the corner sample ends the previous piece
+        P.append(p)
+        A.append(ax)
+    return np.concatenate(P), np.concatenate(A)
+
+
+def shape_cartesian(tip, axis, dt: float, shaper: Shaper):
+    """Cartesian (target) shaping, as printers do: each output sample is sum_i A_i pose(t - t_i)
+    (the axis renormalised). Cuts corners: compare with :func:`shape_time_law`."""
+    tip = np.asarray(tip, float)
+    axis = np.asarray(axis, float)
+    n = len(tip)
+    extra = int(math.ceil(shaper.duration / dt - 1e-9))
+    k = np.arange(n + extra, dtype=float)
+    p = np.zeros((len(k), 3))
+    a = np.zeros((len(k), 3))
+    for Ai, ti in zip(shaper.A, shaper.T):
+        pi, ai = _lookup(tip, axis, np.clip(k - ti / dt, 0.0, n - 1.0))
+        p += Ai * pi
+        a += Ai * ai
+    return p, a / np.linalg.norm(a, axis=-1, keepdims=True)
+
+
+def path_error(points, path_tip):
+    """Distance (mm) of each of ``points`` (M, 3) from the polyline through ``path_tip`` (N, 3)."""
+    P = np.asarray(points, float)
+    Q = np.asarray(path_tip, float)
+    a, b = Q[:-1], Q[1:]
+    d = b - a
+    L2 = np.einsum("ij,ij->i", d, d)
+    keep = L2 > 0
+    a, d, L2 = a[keep], d[keep], L2[keep]
+    if len(a) == 0:
+        return np.linalg.norm(P - Q[0], axis=-1)
+    best = np.full(len(P), np.inf)
+    for s in range(0, len(a), 256):          # blocks: memory stays bounded on long paths
+        aa, dd, ll = a[s:s + 256], d[s:s + 256], L2[s:s + 256]
+        u = np.clip(np.einsum("mij,ij->mi", P[:, None, :] - aa[None], dd) / ll, 0.0, 1.0)
+        r = np.linalg.norm(P[:, None, :] - (aa[None] + u[..., None] * dd[None]), axis=-1)
+        best = np.minimum(best, r.min(1))
+    return best
+
+
+def corner_trajectory(v_mm_s: float, accel_mm_s2: float, leg_mm: float, dt: float, stop: bool = True):
+    """A 90 degree corner (along +X into the origin, then along +Y) sampled every dt: trapezoidal speed
+    with an exact stop at the corner (``stop``) or at constant speed v through it. Returns (tip, axis)."""
+    def leg(stop_end, stop_start):
+        # distance as a function of time along one leg, trapezoid v/accel
+        ta = v_mm_s / accel_mm_s2
+        da = 0.5 * v_mm_s * ta
+        acc_in, acc_out = stop_start, stop_end
+        d_acc = da * acc_in + da * acc_out
+        cruise = max(leg_mm - d_acc, 0.0) / v_mm_s
+        T = ta * acc_in + cruise + ta * acc_out
+        t = np.arange(0.0, T, dt)
+        s = np.empty_like(t)
+        for i, ti in enumerate(t):
+            if acc_in and ti < ta:
+                s[i] = 0.5 * accel_mm_s2 * ti * ti
+            elif ti < ta * acc_in + cruise:
+                s[i] = da * acc_in + v_mm_s * (ti - ta * acc_in)
+            else:
+                r = T - ti
+                s[i] = leg_mm - 0.5 * accel_mm_s2 * r * r if acc_out else leg_mm - v_mm_s * r
+        return s
+    s1 = leg(stop, True)
+    s2 = leg(True, stop)
+    tip = np.concatenate([np.c_[s1 - leg_mm, 0 * s1, 0 * s1], [[0.0, 0.0, 0.0]], np.c_[0 * s2, s2, 0 * s2][1:],
+                          [[0.0, leg_mm, 0.0]]])
+    axis = np.tile([0.0, 0.0, 1.0], (len(tip), 1))
+    return tip, axis
+
+
+def smoothing_mm(shaper: Shaper, v_mm_s: float = 50.0, accel_mm_s2: float = 2000.0, dt: float = 1e-4) -> float:
+    """Smoothing of a shaper as the corner it cuts when applied to the Cartesian targets: the largest
+    distance from the programmed path on a 90 degree corner taken at constant speed ``v_mm_s`` (mm).
+    Time-law shaping cuts nothing (0 by construction); this is the cost it avoids."""
+    leg = max(5.0, 2.0 * v_mm_s * shaper.duration + v_mm_s ** 2 / accel_mm_s2)
+    tip, axis = corner_trajectory(v_mm_s, accel_mm_s2, leg, dt, stop=False)
+    p, _ = shape_cartesian(tip, axis, dt, shaper)
+    return float(path_error(p, np.array([[-leg, 0, 0], [0, 0, 0], [0, leg, 0]])).max())

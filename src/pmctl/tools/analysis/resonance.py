@@ -1,0 +1,422 @@
+"""Resonance measurement from the plate-link strain gauges (like a 3-D printer's accelerometer shaper
+calibration, but with the gauges the machine already has), and what to do about the modes found.
+
+    pmctl analyze resonance --make-job OUT.ngc [--axis z] [--strokes 4] [--stroke-mm 1] [--dwell-s 0.5]
+    pmctl run --job OUT.ngc --record REC ...          # the test move, recorded (strain_1..3, cmd_L1..3)
+    pmctl analyze resonance REC [--out DIR]          # PSD per chain, modes, shaper and K_theta advice, PNG
+
+**Test move.** An *impulse* job: short strokes at the top feed with sharp reversals, each followed by
+a dwell; every stop rings the chain modes and the dwell records their free decay. G91 (incremental),
+so it runs from wherever the tool is.
+
+**Analysis** (per chain i = 1..3, on strain_i with its slow part -- gravity, moving with the pose --
+removed by a zero-phase 2.5 Hz high-pass):
+- the modes' frequencies and damping ratios from an ARX fit of the gauge's strain to the chain's
+  motor-side length (encoders, else the pulse counters) over the whole recording (:func:`arx_modes`):
+  the gauge's input is known, so every motion is excitation -- including the pose loop's one-pulse
+  dithering at rest, which keeps ringing the mode during the dwells and spoils free-decay fits;
+- the PSD of the first 0.2 s of each dwell, per chain, for the figure (its peak is printed too);
+- shapers (pmctl.core.shaper) designed at the mode: residual vibration at the mode and the worst
+  within +-10 % (drift, mistuning), the time each stop costs (the shaper's duration) and the corner
+  it would cut if applied to the Cartesian targets at 50 mm/s (time-law shaping cuts none);
+  the recommendation is the shortest shaper whose worst residual within +-10 % is <= 5 %;
+- K_theta for the mode from the sampled eq. 3.1 model (:func:`predict_sampled`), for nc.py as it is
+  and for the decoupled feedback proposed in docs/vibration.md.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pmctl.core.errors import InputError, PmctlError
+
+DRIFT = 0.10            # frequency tolerance the recommendation must cover
+MAX_REMAINING = 0.05    # residual vibration allowed within the tolerance
+
+
+# ---------------------------------------------------------------------------------------------
+# The test move
+# ---------------------------------------------------------------------------------------------
+
+def make_impulse_job(axis: str = "z", strokes: int = 4, stroke_mm: float = 1.0, dwell_s: float = 0.5,
+                     feed_mm_min: float = 3000.0) -> str:
+    """G-code of the impulse test move: ``strokes`` back-and-forth strokes of ``stroke_mm`` along
+    ``axis`` (x, y or z), incremental (G91), each end followed by a ``dwell_s`` dwell."""
+    ax = str(axis).upper()
+    if ax not in ("X", "Y", "Z"):
+        raise InputError("--axis", None, f"must be x, y or z, got {axis!r}")
+    if not (strokes >= 1 and 0 < stroke_mm <= 20 and 0.05 <= dwell_s <= 10 and 0 < feed_mm_min <= 6000):
+        raise InputError("impulse job", None, "needs strokes >= 1, 0 < stroke <= 20 mm, dwell 0.05..10 s, "
+                         "0 < feed <= 6000 mm/min")
+    lines = [f"(pmctl resonance test: {strokes} strokes of {stroke_mm:g} mm along {ax} at F{feed_mm_min:g}, "
+             f"{dwell_s:g} s dwells for the free decay; incremental, runs from where the tool is)",
+             "G21 G91 G17", f"G4 P{dwell_s:g}"]
+    for i in range(strokes):
+        lines += [f"G1 {ax}{-stroke_mm:g} F{feed_mm_min:g}", f"G4 P{dwell_s:g}",
+                  f"G1 {ax}{stroke_mm:g}", f"G4 P{dwell_s:g}"]
+    lines.append("G90")
+    return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------------------------
+# Spectra and modes
+# ---------------------------------------------------------------------------------------------
+
+def dynamic_part(x, fs: float, cutoff_hz: float = 2.5):
+    """x through a zero-phase 2nd-order high-pass at ``cutoff_hz`` (removes the gravity strain, which
+    follows the pose slowly; flat above a few times the cut-off, so the peaks are not moved)."""
+    from scipy.signal import butter, sosfiltfilt
+    x = np.asarray(x, float)
+    sos = butter(2, cutoff_hz, "highpass", fs=fs, output="sos")
+    return sosfiltfilt(sos, x - x[0])
+
+
+def strain_psd(strain, fs: float, segments=None, nfft: int = 4096):
+    """PSD of each chain's dynamic strain, (freqs (F,), psd (C, F)) in µε²/Hz: the average of the
+    Hann-windowed periodograms of ``segments`` ((start, end) rows: the free decays of the dwells, so
+    the forced response of the strokes does not hide the modes), zero-padded to ``nfft`` points;
+    the whole recording as one segment when none is given."""
+    s = np.asarray(strain, float)
+    if s.ndim == 1:
+        s = s[:, None]
+    d = np.stack([dynamic_part(s[:, i], fs) for i in range(s.shape[1])])
+    segments = segments or [(0, d.shape[1])]
+    n = max(nfft, max(b - a for a, b in segments))
+    acc = 0.0
+    for a, b in segments:
+        x = d[:, a:b] - d[:, a:b].mean(1, keepdims=True)
+        win = np.hanning(b - a)
+        X = np.fft.rfft(x * win, n=n)
+        acc = acc + np.abs(X) ** 2 / (fs * np.sum(win ** 2))
+    p = 2.0 * acc / len(segments)
+    return np.fft.rfftfreq(n, 1.0 / fs), p
+
+
+def find_peaks_hz(freqs, psd, fmin: float, fmax: float, max_modes: int = 3, rel_prominence: float = 0.05):
+    """Frequencies of the most prominent peaks of one PSD within [fmin, fmax], strongest first."""
+    from scipy.signal import find_peaks
+    sel = (freqs >= fmin) & (freqs <= fmax)
+    if sel.sum() < 3:
+        return []
+    f, p = freqs[sel], psd[sel]
+    idx, props = find_peaks(p, prominence=rel_prominence * p.max())
+    order = np.argsort(props["prominences"])[::-1][:max_modes]
+    out = []
+    for i in idx[order]:
+        # parabolic interpolation of the peak on a log scale
+        if 0 < i < len(p) - 1 and p[i - 1] > 0 and p[i + 1] > 0:
+            a, b, c = np.log(p[i - 1]), np.log(p[i]), np.log(p[i + 1])
+            den = a - 2 * b + c
+            off = 0.5 * (a - c) / den if den != 0 else 0.0
+            out.append(float(f[i] + off * (f[1] - f[0])))
+        else:
+            out.append(float(f[i]))
+    return out
+
+
+def rest_segments(cmd, fs: float, min_s: float = 0.15, still_mm_s: float = 1.0):
+    """(start, end) row ranges where the commanded chain lengths move slower than ``still_mm_s``
+    (the pose loop's one-pulse corrections are not motion) for >= ``min_s``."""
+    c = np.asarray(cmd, float)
+    moving = np.any(np.abs(np.diff(c, axis=0)) * fs > still_mm_s, axis=1)
+    still = np.r_[~moving, False]
+    segs, i, n = [], 0, len(still)
+    while i < n:
+        if still[i]:
+            j = i
+            while j < n and still[j]:
+                j += 1
+            if j - i >= min_s * fs:
+                segs.append((i, j))
+            i = j
+        else:
+            i += 1
+    return segs
+
+
+@dataclass
+class Mode:
+    chain: int                  # 1..3
+    freq_hz: float
+    damping: float
+    psd_peak_hz: float          # strongest peak of the dwells' PSD (for comparison; nan if none)
+    fit_rms_ue: float           # RMS of the ARX fit's one-step residual, µε
+
+
+def arx_modes(u, y, fs: float, n_modes: int = 1, fmin: float = 0.0, fmax: float = float("inf")):
+    """Modes of the chain from its known input and measured output: ARX least squares
+    y_k = sum_{i=1..2n} a_i y_{k-i} + sum_{j=0..2n+1} b_j w_{k-j}, with w the second difference of
+    the motor-side chain length u (the mode answers the motor's acceleration: a constant velocity
+    leaves no deflection) and y the gauge strain, both high-passed; the poles of the AR part mapped to continuous time,
+    s = ln(z) fs. Unlike an accelerometer, the gauge's input is known (the encoders), so any motion
+    -- strokes, stops, the pose loop's one-pulse dithering at rest -- serves as excitation.
+    Returns ([(freq Hz, damping ratio)] sorted by frequency, residual RMS)."""
+    from scipy.signal import butter, sosfilt
+    u = np.asarray(u, float)
+    y = np.asarray(y, float)
+    w2 = np.r_[0.0, 0.0, u[2:] - 2.0 * u[1:-1] + u[:-2]]
+    # the same causal high-pass on both (exactly linear time-invariant, so the ARX relation between
+    # them is unchanged) takes off the gravity strain
+    sos = butter(2, 2.5, "highpass", fs=fs, output="sos")
+    u = sosfilt(sos, w2)
+    y = sosfilt(sos, y - y[0])
+    na, nb = 2 * n_modes, 2 * n_modes + 2
+    k0 = max(na, nb)
+    rows = len(y) - k0
+    if rows < 10 * (na + nb):
+        raise PmctlError(f"recording too short for the resonance fit ({len(y)} rows)")
+    X = np.empty((rows, na + nb))
+    for i in range(1, na + 1):
+        X[:, i - 1] = y[k0 - i: len(y) - i]
+    for j in range(nb):
+        X[:, na + j] = u[k0 - j: len(u) - j]
+    tgt = y[k0:]
+    scale = np.linalg.norm(X, axis=0)
+    scale[scale == 0] = 1.0
+    theta, *_ = np.linalg.lstsq(X / scale, tgt, rcond=None)
+    theta = theta / scale
+    res = tgt - X @ theta
+    z = np.roots(np.r_[1.0, -theta[:na]])
+    out = []
+    for zi in z:
+        if zi.imag <= 0 or abs(zi) >= 1.0:
+            continue
+        sz = np.log(zi) * fs
+        f, zeta = abs(sz) / (2 * math.pi), -sz.real / abs(sz)
+        if fmin <= f <= fmax:
+            out.append((float(f), float(zeta)))
+    return sorted(out), float(np.sqrt(np.mean(res ** 2)))
+
+
+def modes_of_chain(strain_i, u_i, cmd, fs: float, fmin: float, fmax: float, chain: int, n_modes: int = 1,
+                   decay_s: float = 0.2):
+    """Modes of one chain's gauge (ARX on the whole recording) and the dwells' PSD for the figure."""
+    segs = [(a, min(b, a + int(decay_s * fs))) for a, b in rest_segments(cmd, fs)]
+    freqs, p = strain_psd(np.asarray(strain_i, float), fs, segs)
+    peaks = find_peaks_hz(freqs, p[0], fmin, fmax, 1)
+    modes, rms = arx_modes(u_i, strain_i, fs, n_modes, fmin, fmax)
+    pk = peaks[0] if peaks else float("nan")
+    return [Mode(chain, f, z, pk, rms) for f, z in modes], (freqs, p[0])
+
+
+# ---------------------------------------------------------------------------------------------
+# What to do: shapers and K_theta
+# ---------------------------------------------------------------------------------------------
+
+@dataclass
+class ShaperAdvice:
+    name: str
+    freq_hz: float
+    damping: float
+    remaining_at_mode: float        # residual vibration fraction at the mode
+    remaining_worst: float          # worst within +-DRIFT
+    duration_ms: float              # extra time per stop (time-law shaping)
+    smoothing_mm: float             # corner cut if applied to the Cartesian targets at 50 mm/s
+
+
+def shaper_advice(freq_hz: float, damping: float, speed_mm_s: float = 50.0):
+    """Every shaper designed at the mode, and the recommended one (see the module docstring)."""
+    from pmctl.core import shaper as S
+    z = float(damping) if math.isfinite(damping) else 0.05
+    z = min(max(z, 0.0), 0.5)
+    band = np.linspace(1 - DRIFT, 1 + DRIFT, 81) * freq_hz
+    out = []
+    for name in S.SHAPERS:
+        sh = S.make_shaper(name, freq_hz, z)
+        out.append(ShaperAdvice(name, freq_hz, z, float(S.residual_vibration(sh, freq_hz, z)),
+                                float(np.max(S.residual_vibration(sh, band, z))), 1e3 * sh.duration,
+                                S.smoothing_mm(sh, speed_mm_s)))
+    ok = [a for a in out if a.remaining_worst <= MAX_REMAINING]
+    best = min(ok, key=lambda a: a.duration_ms) if ok else min(out, key=lambda a: a.remaining_worst)
+    return out, best
+
+
+def predict_continuous(f, kth, kv, zeta=0.0, leak=None):
+    """Mode (Hz, damping ratio) of seed eq. 3.1 in pmctl's gains (kv = K_G K_v K_R, K_theta =
+    K_theta K_v K_R, 1/s) with the plant damping zeta added. ``leak`` None: nc.py's loop (the pose loop
+    pulls the feedback's motion back): s^3 + (kv + K_theta + 2 zeta w) s^2 + (w^2 + 2 zeta w kv) s
+    + kv w^2; a number: the decoupled feedback (offset d' = K_theta y - leak d, rate + kv d):
+    (s + leak)(s + kv)(s^2 + 2 zeta w s + w^2) + K_theta s^2 (s + leak + kv)."""
+    w = 2 * math.pi * f
+    plant = np.array([1.0, 2 * zeta * w, w * w])
+    if leak is None:
+        poly = np.polyadd(np.polymul([1.0, kv], plant), [kth, 0.0, 0.0])
+    else:
+        poly = np.polyadd(np.polymul(np.polymul([1.0, leak], [1.0, kv]), plant),
+                          kth * np.array([1.0, leak + kv, 0.0, 0.0]))
+    r = np.roots(poly)
+    osc = r[r.imag > 1e-9]
+    if len(osc) == 0:
+        return float("nan"), 1.0
+    c = osc[np.argmin(-osc.real / np.abs(osc))]
+    return abs(c) / (2 * math.pi), -c.real / abs(c)
+
+
+def predict_sampled(f, kth, kv, dt, zeta=0.0, leak=None):
+    """The same loop sampled at dt as the NC runs it: state (x_m, y, y', v_prev, d); each tick
+    v = -kv x_m + kv d + K_theta y (deflection read at the tick start; d = 0 without ``leak``), the
+    motor ramps by v dt (y' jumps by -(v - v_prev), then (y, y') propagate exactly), and
+    d += dt (K_theta y - leak d). Returns the least damped oscillating pole as (Hz, damping ratio)."""
+    from scipy.linalg import expm
+    w = 2 * math.pi * f
+    Phi = expm(np.array([[0.0, 1.0], [-w * w, -2 * zeta * w]]) * dt)
+    on = leak is not None
+    V = np.array([-kv, kth, 0.0, 0.0, kv if on else 0.0])
+    A = np.zeros((5, 5))
+    A[0] = np.eye(5)[0] + dt * V
+    J = np.eye(5)
+    J[2] -= V
+    J[2, 3] += 1.0
+    A[1:3] = Phi @ J[1:3]
+    A[3] = V
+    A[4] = np.eye(5)[4] + (dt * np.array([0.0, kth, 0.0, 0.0, -(leak or 0.0)]) if on else 0.0)
+    z = np.linalg.eigvals(A)
+    osc = z[z.imag > 1e-12]
+    if len(osc) == 0:
+        return float("nan"), 1.0
+    lz = np.log(osc)
+    zs = -lz.real / np.abs(lz)
+    i = int(np.argmin(zs))
+    return abs(lz[i].imag) / (2 * math.pi * dt), float(zs[i])
+
+
+def k_theta_for_mode(f, kv, dt, zeta=0.02, leak=None, target=0.3, max_kdt=0.4):
+    """Smallest K_theta (1/s, K_theta dt <= max_kdt) giving the mode ``target`` damping in the
+    sampled model, else the one giving the most. Returns (K_theta, damping ratio reached)."""
+    g = np.linspace(0.0, max_kdt / dt, 161)
+    zs = np.array([predict_sampled(f, k, kv, dt, zeta, leak)[1] for k in g])
+    hit = np.nonzero(zs >= target)[0]
+    i = int(hit[0]) if len(hit) else int(np.nanargmax(zs))
+    return float(g[i]), float(zs[i])
+
+
+# ---------------------------------------------------------------------------------------------
+# The whole analysis of a recording
+# ---------------------------------------------------------------------------------------------
+
+def analyse(rec, fmin: float = 5.0, fmax: float | None = None, kv: float = 400.0, n_modes: int = 1):
+    """Modes per chain, shaper advice and K_theta per chain of a recording (pmctl.core.recording)."""
+    fs = rec.sample_rate_hz or 1.0 / float(np.median(np.diff(rec.t)))
+    need = [f"strain_{i}" for i in (1, 2, 3)] + [f"cmd_L{i}" for i in (1, 2, 3)]
+    miss = [c for c in need if c not in rec]
+    if miss:
+        raise InputError(rec.path, None, f"the resonance analysis needs the channels {', '.join(miss)} "
+                                         f"(record the test move with pmctl run --record)")
+    fmax = fmax or 0.45 * fs
+    cmd = np.stack([rec[f"cmd_L{i}"] for i in (1, 2, 3)], 1)
+    if not np.all(np.isfinite(cmd)):
+        raise InputError(rec.path, None, "cmd_L1..3 have missing values")
+    if all(f"enc_L{i}" in rec for i in (1, 2, 3)):
+        motor = np.stack([rec[f"enc_L{i}"] for i in (1, 2, 3)], 1)
+        if not np.all(np.isfinite(motor)):
+            motor = cmd
+    else:
+        motor = cmd
+    chains, spectra = [], []
+    for i in (1, 2, 3):
+        s = np.asarray(rec[f"strain_{i}"], float)
+        ok = np.isfinite(s)
+        if ok.sum() < 0.9 * len(s):
+            raise InputError(rec.path, None, f"strain_{i} is missing in more than 10 % of the rows")
+        s = np.where(ok, s, np.interp(np.arange(len(s)), np.nonzero(ok)[0], s[ok]))
+        modes, spec = modes_of_chain(s, motor[:, i - 1], cmd, fs, fmin, fmax, i, n_modes)
+        chains.append(modes)
+        spectra.append(spec)
+    result = {"sample_rate_hz": fs, "chains": []}
+    for i, modes in enumerate(chains, 1):
+        entry = {"chain": i, "modes": [asdict(m) for m in modes]}
+        if modes:
+            m0 = modes[0]
+            adv, best = shaper_advice(m0.freq_hz, m0.damping)
+            entry["shapers"] = [asdict(a) for a in adv]
+            entry["recommended_shaper"] = best.name
+            z = m0.damping if math.isfinite(m0.damping) else 0.02
+            k_now, z_now = k_theta_for_mode(m0.freq_hz, kv, 1.0 / fs, z)
+            k_dec, z_dec = k_theta_for_mode(m0.freq_hz, kv, 1.0 / fs, z, leak=0.2 * math.pi * m0.freq_hz)
+            entry["k_theta"] = {"nc_as_is": [k_now, z_now], "decoupled": [k_dec, z_dec]}
+        result["chains"].append(entry)
+    return result, spectra
+
+
+def _plot(result, spectra, path: Path, title: str):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from pmctl.core import shaper as S
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 8))
+    for (f, p), ch in zip(spectra, result["chains"]):
+        a1.semilogy(f[1:], p[1:], label=f"chain {ch['chain']}")
+        for m in ch["modes"]:
+            a1.axvline(m["freq_hz"], color="grey", lw=0.6, ls="--")
+    a1.set_xlabel("frequency (Hz)")
+    a1.set_ylabel("strain PSD in the dwells (µε²/Hz)")
+    a1.set_title(title)
+    a1.legend()
+    ch = next((c for c in result["chains"] if c["modes"]), None)
+    if ch:
+        m = ch["modes"][0]
+        fr = np.linspace(0.5, 1.6, 400) * m["freq_hz"]
+        z = ch["shapers"][0]["damping"]
+        for name in S.SHAPERS:
+            sh = S.make_shaper(name, m["freq_hz"], z)
+            a2.plot(fr, 100 * S.residual_vibration(sh, fr, z), label=f"{name} ({1e3 * sh.duration:.0f} ms)")
+        a2.axvspan((1 - DRIFT) * m["freq_hz"], (1 + DRIFT) * m["freq_hz"], color="0.9")
+        a2.axhline(100 * MAX_REMAINING, color="grey", lw=0.6)
+        a2.set_ylim(0, 100)
+        a2.set_xlabel("mode frequency (Hz)")
+        a2.set_ylabel("remaining vibration (%)")
+        a2.set_title(f"shapers at chain {ch['chain']}'s {m['freq_hz']:.1f} Hz, damping {z:.3f} "
+                     f"(recommended: {ch['recommended_shaper']})")
+        a2.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def cmd_resonance(args):
+    if args.make_job:
+        text = make_impulse_job(args.axis, args.strokes, args.stroke_mm, args.dwell_s, args.feed)
+        try:
+            Path(args.make_job).write_text(text, encoding="utf-8")
+        except OSError as e:
+            raise PmctlError(f"--make-job {args.make_job}: cannot write: {e.strerror or e}") from None
+        print(f"wrote {args.make_job}: record it with  pmctl run --job {args.make_job} --record DIR  "
+              f"then  pmctl analyze resonance DIR")
+        return 0
+    if not args.recording:
+        raise PmctlError("pmctl analyze resonance: give a RECORDING folder, or --make-job OUT.ngc for the test move")
+    from pmctl.core.recording import read_recording
+    rec = read_recording(args.recording)
+    result, spectra = analyse(rec, args.fmin, args.fmax, args.kv, args.modes)
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise PmctlError(f"--out {out}: cannot create the folder: {e.strerror or e}") from None
+    print(f"{rec.name}: {rec.n} rows at {result['sample_rate_hz']:g} Hz")
+    for ch in result["chains"]:
+        if not ch["modes"]:
+            print(f"chain {ch['chain']}: no mode found")
+            continue
+        for m in ch["modes"]:
+            print(f"chain {ch['chain']}: mode {m['freq_hz']:.2f} Hz, damping ratio {m['damping']:.4f} "
+                  f"(fit residual {m['fit_rms_ue']:.3g} µε RMS; dwells' PSD peak {m['psd_peak_hz']:.1f} Hz)")
+        print(f"  {'shaper':9s} {'at mode':>8s} {'worst +-10%':>12s} {'time/stop':>10s} {'Cartesian smoothing':>20s}")
+        for a in ch["shapers"]:
+            mark = "  <- recommended" if a["name"] == ch["recommended_shaper"] else ""
+            print(f"  {a['name']:9s} {100 * a['remaining_at_mode']:7.2f}% {100 * a['remaining_worst']:11.2f}% "
+                  f"{a['duration_ms']:8.1f} ms {1e3 * a['smoothing_mm']:15.1f} um at 50 mm/s{mark}")
+        k = ch["k_theta"]
+        print(f"  K_theta for this mode: {k['nc_as_is'][0]:.0f}/s -> damping {k['nc_as_is'][1]:.3f} with nc.py as it is; "
+              f"{k['decoupled'][0]:.0f}/s -> {k['decoupled'][1]:.3f} with the decoupled feedback (docs/vibration.md)")
+    png = out / "resonance.png"
+    _plot(result, spectra, png, f"{rec.name}: strain-gauge PSD per chain")
+    js = out / "resonance.json"
+    js.write_text(json.dumps(result, indent=1), encoding="utf-8")
+    print(f"wrote {png}\nwrote {js}")
+    return 0
