@@ -66,9 +66,11 @@ def test_cli_writes_the_recording_md_report_and_plots(tmp_path, capsys):
     out = capsys.readouterr().out
     assert out.index("WHERE") < out.index("WHY")          # where first, then why
     rep = json.loads(js.read_text())
-    assert set(rep) == {"recording", "verdict", "findings"}
+    assert set(rep) == {"recording", "verdict", "findings", "unexplained", "confidence_calibration"}
     f = rep["findings"][0]
-    assert set(f) == {"effect", "axis", "parameters", "where", "evidence", "rms_before", "rms_after", "heldout"}
+    assert set(f) == {"effect", "axis", "parameters", "where", "evidence", "rms_before", "rms_after", "heldout",
+                      "confidence"}
+    assert 0.5 < f["confidence"] <= 1.0
     assert set(f["where"]) >= {"channels", "time_windows_s", "direction_dependent", "frequency_hz"}
     assert f["effect"] == "backlash" and f["where"]["direction_dependent"] is True
     assert f["heldout"] is True and set(f["parameters"]) == {"width_mm"}

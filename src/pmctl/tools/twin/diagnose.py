@@ -35,10 +35,12 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core import kinematics as kin
+from pmctl.tools.twin import calibration
 from pmctl.tools.twin import effects as fx
 from pmctl.tools.twin import nominal
 from pmctl.tools.twin.effects import AXES, Context, Obs
 from pmctl.tools.twin.locate import channel_series, locate, noise_level, windows
+from pmctl.tools.twin.unexplained import unexplained
 
 N_BLOCKS = 24
 N_FOLDS = 3
@@ -175,7 +177,7 @@ class _Progress:
             sys.stderr.flush()
 
 
-def _cv_pred(cand, ctx, y, folds):
+def _cv_pred(cand, ctx, y, folds, fold_params=None):
     pred = np.zeros_like(y)
     for k in range(N_FOLDS):
         test = folds == k
@@ -185,7 +187,42 @@ def _cv_pred(cand, ctx, y, folds):
         if not f.ok:
             return None
         pred[test] = f.pred[test]
+        if fold_params is not None:
+            fold_params.append(f.params)
     return pred
+
+
+# how far a training fold's estimate may stray from the full fit, per parameter, before the
+# parameter counts as not identifiable: (scale of the parameter, allowed deviation / scale)
+DERIVED = {"t_ref_C", "screw_fixed_end_mm", "stribeck_speed_mm_s", "stribeck_mm", "channel"}
+
+
+def fold_spread(params, fold_params, ctx) -> float:
+    """Largest deviation of a fold's parameter from the full fit, in units of its tolerance
+    (> 1: not identifiable). Tolerances: a frequency or period 5 %, a step time 2 % of the run,
+    a gain deviation, an amplitude, width, stiffness or delay 50 % of its value."""
+    worst = 0.0
+    for k, v in params.items():
+        if k in DERIVED or isinstance(v, str):
+            continue
+        vv = np.atleast_1d(np.asarray(v, float))
+        if k == "t_s":
+            scale = 0.02 * max(ctx.duration, 1e-9)
+        elif k in ("freq_hz", "period_mm"):
+            scale = 0.05 * float(np.linalg.norm(vv))
+        elif k == "gain":
+            scale = 0.5 * float(np.abs(vv - 1).max())
+            vv = vv - 1
+        else:
+            scale = 0.5 * float(np.linalg.norm(vv))
+        for fp in fold_params:
+            if k not in fp:
+                return float("inf")
+            fv = np.atleast_1d(np.asarray(fp[k], float)) - (1 if k == "gain" else 0)
+            if fv.shape != vv.shape:
+                return float("inf")
+            worst = max(worst, float(np.linalg.norm(fv - vv)) / max(scale, 1e-300))
+    return worst
 
 
 def _affected(ctx, pred):
@@ -212,7 +249,8 @@ def evaluate(cand, ctx, y, folds):
     pen = full.nparams * math.log(max(N, 2))
     if d_in < max(MIN_DSSE, pen):
         return None
-    cv = _cv_pred(cand, ctx, y, folds)
+    fps = []
+    cv = _cv_pred(cand, ctx, y, folds, fps)
     if cv is None or not np.all(np.isfinite(cv)):
         return None
     aff = _affected(ctx, full.pred)
@@ -222,7 +260,23 @@ def evaluate(cand, ctx, y, folds):
     big = float(np.quantile(np.abs(full.pred[m]), 0.99)) if m.any() else 0.0
     return {"cand": cand, "fit": full, "cv": cv, "d_cv": d_cv, "d_in": d_in, "pen": pen, "big": big,
             "rel": d_cv / base if base > 0 else 0.0, "affected": aff,
-            "score": d_cv - 0.5 * pen}
+            "score": d_cv - 0.5 * pen, "fold_params": fps, "y": y}
+
+
+def own_checks(ev, ctx) -> list[str]:
+    """The effect's own checks plus identifiability across the training folds."""
+    c, f = ev["cand"], ev["fit"]
+    try:
+        probs = list(c.check(ctx, f, ev["y"]))
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
+        probs = [f"check failed: {e}"]
+    ev["spread"] = fold_spread(f.params, ev["fold_params"], ctx)
+    if ev["spread"] > 1.0:
+        probs.append("its parameters differ between time folds beyond tolerance (not identifiable)")
+    return probs
+
+
+BLOCK_RATIO = 1.5   # a refused effect this much stronger on the same channels blocks weaker names
 
 
 def accept(ev) -> bool:
@@ -235,11 +289,11 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
     folds = folds_of(ctx)
     cands = fx.catalogue(ctx) if candidates is None else candidates
     y = y0.copy()
-    accepted = []
+    accepted, rejected = [], []
     bar = _Progress(len(cands) * 2, progress)
     for rnd in range(max_findings):
-        best = None
         taken = {ev["cand"].key() for ev in accepted}
+        pool = []
         for c in cands:
             bar.step(c.label)
             if c.key() in taken:
@@ -247,8 +301,24 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
             if hasattr(c, "reset"):
                 c.reset()
             ev = evaluate(c, ctx, y, folds)
-            if ev is not None and accept(ev) and (best is None or ev["score"] > best["score"]):
-                best = ev
+            if ev is not None and accept(ev):
+                pool.append(ev)
+        pool.sort(key=lambda e: -e["score"])
+        best, refused = None, []
+        for ev in pool:
+            blocked = [r for r in refused if r["score"] > BLOCK_RATIO * ev["score"]
+                       and np.any(r["affected"] & ev["affected"])]
+            if blocked:
+                continue
+            ev["problems"] = own_checks(ev, ctx)
+            if ev["problems"]:
+                refused.append(ev)
+                continue
+            best = ev
+            break
+        for r in refused:
+            if r["cand"].key() not in {e["cand"].key() for e in rejected}:
+                rejected.append(r)
         if best is None:
             break
         accepted.append(best)
@@ -274,7 +344,9 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
         cv = _cv_pred(c, ctx, y0 - others, folds) if len(accepted) > 1 else ev["cv"]
         ev["cv"] = cv if cv is not None else ev["fit"].pred
     yfinal = y0 - sum((e["fit"].pred for e in accepted), np.zeros_like(y0))
-    return accepted, yfinal
+    for ev in accepted + rejected:
+        ev.pop("y", None)
+    return accepted, yfinal, rejected
 
 
 # ---------------------------------------------------------------- report
@@ -394,7 +466,7 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
     """Run the whole diagnosis. Returns (report per RECORDING.md §4, extras for text and plots)."""
     ctx = build_context(columns, machine, cap=cap)
     loc0 = locate(ctx)
-    accepted, yfinal = select_effects(ctx, progress=progress)
+    accepted, yfinal, rejected = select_effects(ctx, progress=progress)
     y0 = ctx.obs.y
     findings, cum, y_before = [], np.zeros_like(y0), y0.copy()
     for ev in accepted:
@@ -404,11 +476,20 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
         findings.append(item)
         cum = cum + ev["fit"].pred
         y_before = y0 - cum
-    report = {"recording": name,
-              "verdict": "unmodelled physics found" if findings else "consistent with the nominal twin",
-              "findings": findings}
+    for item, ev in zip(findings, accepted):
+        item["confidence"] = round(calibration.confidence(calibration.features(ev)), 2)
+    loc_after = locate(ctx, yfinal)
+    unexp = unexplained(ctx, yfinal, loc_after, rejected)
+    if unexp:
+        verdict = "unexplained mismatch"
+    elif findings:
+        verdict = "unmodelled physics found"
+    else:
+        verdict = "consistent with the nominal twin"
+    report = {"recording": name, "verdict": verdict, "findings": findings, "unexplained": unexp,
+              "confidence_calibration": calibration.DESCRIPTION}
     extras = {"ctx": ctx, "locate": loc0, "accepted": accepted, "y_final": yfinal,
-              "locate_after": locate(ctx, yfinal)}
+              "locate_after": loc_after, "rejected": rejected}
     return report, extras
 
 
