@@ -6,7 +6,10 @@ A finding's confidence is a logistic function of three numbers the selection mea
   (log10; 0 = just accepted);
 - ``spread``: how far the training folds' parameter estimates stray from the full fit, in units
   of their tolerance (0 = identical, 1 = at the identifiability limit);
-- ``rel``: the fraction of the residual energy of its channels that it removes on held-out data.
+- ``rel``: the fraction of the residual energy of its channels that it removes on held-out data;
+- ``share``: its in-sample gain over that of a flexible, physics-free description of its channels
+  (functions of time, of each axis' position, and of each axis' direction; see
+  :func:`pmctl.tools.twin.unexplained.flexible_gain`); below 0.3 the effect is refused.
 
 The coefficients come from ``benchmarks/eval_diagnosis.py --calibrate``: every finding of the
 blind runs is labelled right (its effect and locator are among the hidden ones, parameters within
@@ -19,8 +22,10 @@ from __future__ import annotations
 
 import math
 
+KEYS = ("snr", "spread", "rel", "share")
+
 # fitted by benchmarks/eval_diagnosis.py --calibrate (see CALIBRATION)
-COEF = {"const": 0.0, "snr": 2.0, "spread": -2.0, "rel": 2.0}
+COEF = {"const": 0.0, "snr": 2.0, "spread": -2.0, "rel": 2.0, "share": 2.0}
 CALIBRATION = {"cases": 0, "findings": 0, "right": 0, "bins": []}
 DESCRIPTION = ("logistic in held-out gain over threshold, fold spread of the parameters and "
                "explained fraction; not yet calibrated")
@@ -31,19 +36,20 @@ def features(ev) -> dict:
     thr = max(MIN_DSSE, ev["pen"])
     return {"snr": math.log10(max(ev["d_cv"] / thr, 1e-3)),
             "spread": float(min(ev.get("spread", 0.0), 5.0)),
-            "rel": float(min(max(ev["rel"], 0.0), 1.0))}
+            "rel": float(min(max(ev["rel"], 0.0), 1.0)),
+            "share": float(min(ev.get("share", 1.0), 1.5))}
 
 
 def confidence(feat: dict, coef: dict | None = None) -> float:
     c = COEF if coef is None else coef
-    z = c["const"] + sum(c[k] * feat[k] for k in ("snr", "spread", "rel"))
+    z = c["const"] + sum(c[k] * feat[k] for k in KEYS)
     return 1.0 / (1.0 + math.exp(-max(min(z, 40.0), -40.0)))
 
 
 def fit_logistic(rows, iters=200, l2=1e-2) -> dict:
     """Logistic regression (Newton, small ridge) of labels on features; rows = [(feat, bool)]."""
     import numpy as np
-    keys = ("snr", "spread", "rel")
+    keys = KEYS
     X = np.array([[1.0] + [f[k] for k in keys] for f, _ in rows])
     y = np.array([1.0 if ok else 0.0 for _, ok in rows])
     w = np.zeros(X.shape[1])

@@ -40,7 +40,7 @@ from pmctl.tools.twin import effects as fx
 from pmctl.tools.twin import nominal
 from pmctl.tools.twin.effects import AXES, Context, Obs
 from pmctl.tools.twin.locate import channel_series, locate, noise_level, windows
-from pmctl.tools.twin.unexplained import unexplained
+from pmctl.tools.twin.unexplained import flexible_gain, unexplained
 
 N_BLOCKS = 24
 N_FOLDS = 3
@@ -276,6 +276,18 @@ def own_checks(ev, ctx) -> list[str]:
     return probs
 
 
+SHARE_MIN = 0.3    # ... and it must describe at least this share of its channels' structure
+
+
+def _share(ev, ctx, y):
+    """The effect's in-sample gain on its channels over that of the flexible description."""
+    m = ev["affected"][ctx.obs.ch]
+    p = ev["fit"].pred
+    d_eff = float(y[m] @ y[m] - (y[m] - p[m]) @ (y[m] - p[m]))
+    d_flex = flexible_gain(ctx, y, ev["affected"])
+    return min(d_eff / d_flex, 2.0) if d_flex > 0 else 2.0
+
+
 BLOCK_RATIO = 1.5   # a refused effect this much stronger on the same channels blocks weaker names
 
 
@@ -311,6 +323,12 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
             if blocked:
                 continue
             ev["problems"] = own_checks(ev, ctx)
+            if not ev["problems"]:
+                ev["share"] = _share(ev, ctx, y)
+                if ev["share"] < SHARE_MIN:
+                    ev["problems"].append(
+                        f"it removes only {100 * ev['share']:.0f} % of what a flexible description of time, "
+                        "position and direction removes from its channels (a partial fit of something else)")
             if ev["problems"]:
                 refused.append(ev)
                 continue

@@ -378,6 +378,19 @@ def lead_harmonic(period, lead, tol=0.04):
     return 0
 
 
+def sample_travel(ctx: Context, a: int) -> float:
+    """Median travel of axis a between consecutive analysis samples of the channels that see it,
+    while it moves (mm): the shortest period in its position that those samples can resolve is
+    a few times this."""
+    g = axis_gain(ctx, a)
+    rows = np.unique(ctx.obs.row[g != 0])
+    if len(rows) < 3:
+        return float("inf")
+    dx = np.abs(np.diff(ctx.q_cmd[rows, a]))
+    mv = dx > 0
+    return float(np.median(dx[mv])) if mv.any() else float("inf")
+
+
 class PitchError(AxisSignal):
     """Screw lead error periodic in the screw position x: δq = A·sin(2πx/p + φ).
 
@@ -401,6 +414,10 @@ class PitchError(AxisSignal):
         span = float(np.ptp(ctx.q_cmd[:, self.a]))
         if span < 2 * p:
             return [f"the screw moved {span:.2f} mm, less than two periods of {p:.3f} mm"]
+        step = sample_travel(ctx, self.a)
+        if step > 0.25 * p:
+            return [f"the screw travels {step:.3f} mm between samples, too far to see a {p:.3f} mm period "
+                    "without aliasing"]
         return []
 
     def _start_periods(self, ctx, y):
@@ -505,6 +522,10 @@ class PeriodicError(PitchError):
         span = float(np.ptp(ctx.q_cmd[:, self.a]))
         if span < 2 * p:
             return [f"the screw moved {span:.2f} mm, less than two periods of {p:.3f} mm"]
+        step = sample_travel(ctx, self.a)
+        if step > 0.25 * p:
+            return [f"the screw travels {step:.3f} mm between samples, too far to see a {p:.3f} mm period "
+                    "without aliasing"]
         return []
 
 
@@ -667,7 +688,7 @@ class Friction(AxisSignal):
     effect = "friction"
     site = "motor"
     nparams = 3
-    VS = (0.5, 2.0, 8.0)
+    VS = (0.5, 1.0, 2.0, 3.5, 6.0, 10.0)
 
     def _cols(self, ctx, vs):
         x = ctx.q_cmd[:, self.a]
@@ -677,17 +698,49 @@ class Friction(AxisSignal):
         return np.stack([g * -d, g * -d * np.exp(-(v / vs) ** 2)], 1)
 
     def fit(self, ctx, y, train):
-        best = None
-        for vs in self.VS:
-            X = self._cols(ctx, vs)
+        def cost(lv):
+            # both terms are friction, never negative: non-negative least squares on 2 columns
+            X = self._cols(ctx, math.exp(lv))
             nz = train & np.any(X != 0, 1)
-            c = _lstsq(X[nz], y[nz])
-            if c[1] < 0:                      # Stribeck adds friction at low speed; else Coulomb only
-                c = np.array([_lstsq(X[nz][:, :1], y[nz])[0], 0.0])
-            r = y[nz] - X[nz] @ c
-            sse = float(r @ r)
+            Xs, ys = X[nz], y[nz]
+            G, b = Xs.T @ Xs, Xs.T @ ys
+            c = np.zeros(2)
+            for act in ((0, 1), (0,), (1,)):
+                a = list(act)
+                try:
+                    sol = np.linalg.solve(G[np.ix_(a, a)], b[a])
+                except np.linalg.LinAlgError:
+                    continue
+                if np.all(sol >= 0):
+                    c = np.zeros(2)
+                    c[a] = sol
+                    break
+            r = ys - Xs @ c
+            return float(r @ r), c, X
+
+        # the Stribeck term must fade within the motion, else it is the Coulomb term again: v_s at
+        # most 0.8 x the median moving speed
+        v = np.abs(np.gradient(ctx.q_cmd[:, self.a], ctx.t))
+        vmax = 0.8 * float(np.median(v[v > 1e-3 * max(v.max(), 1e-12)])) if np.any(v > 0) else 0.0
+        grid = [vs for vs in self.VS if vs <= vmax]
+        if not grid:
+            X = self._cols(ctx, 1.0)
+            X[:, 1] = 0.0
+            nz = train & (X[:, 0] != 0)
+            c0 = max(float(_lstsq(X[nz][:, :1], y[nz])[0]), 0.0)
+            return Fit({"coulomb_mm": c0, "stribeck_mm": 0.0, "stribeck_speed_mm_s": 0.0},
+                       X[:, 0] * c0, 1, ok=c0 > 0)
+        best = None
+        for vs in grid:
+            sse, c, X = cost(math.log(vs))
             if best is None or sse < best[0]:
                 best = (sse, vs, c, X)
+        # refine the Stribeck speed between the grid's neighbours (golden section on log v_s)
+        lv0 = math.log(best[1])
+        sol = optimize.minimize_scalar(lambda lv: cost(lv)[0], bounds=(lv0 - 0.7, min(lv0 + 0.7, math.log(vmax))),
+                                       method="bounded", options={"maxiter": 12, "xatol": 0.02})
+        sse, c, X = cost(float(sol.x))
+        best = (sse, math.exp(float(sol.x)), c, X) if sse < best[0] else best
         _, vs, c, X = best
         return Fit({"coulomb_mm": float(c[0]), "stribeck_mm": float(c[1]), "stribeck_speed_mm_s": vs},
                    X @ c, 3, ok=bool(c[0] > 0))

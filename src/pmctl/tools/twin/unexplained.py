@@ -17,6 +17,8 @@ N noisy samples give) gets an entry with
   * ``spectral line F Hz`` — a sinusoid at the strongest line of its spectrum;
   * ``drift`` — a slow trend (a 10-knot piecewise-linear function of time);
   * ``position-dependent`` — a smooth function of one axis' position;
+  * ``transient`` — a channel that is clean except in one stretch of the run (judged inside that
+    stretch, where a line there is still reported as a spectral line);
   a channel whose excess has none of these structures (none removes 30 %) is not reported: that
   is a noise model that is off (coloured noise, coarse quantisation), not physics,
 - ``evidence``: what was seen, the fractions, and the catalogue effects that were tried there and
@@ -32,7 +34,7 @@ import numpy as np
 from pmctl.tools.twin.effects import AXES, Context, direction, _line_frequencies, _lstsq
 from pmctl.tools.twin.locate import moving_rms, windows
 
-EXCESS_MIN = 0.5        # remaining rms ≥ 1.12 x noise ...
+EXCESS_MIN = 1.0        # remaining rms ≥ 1.41 x noise ...
 CHI_SIGMA = 8.0         # ... and Σ(y²) − N beyond 8 standard deviations of noise (√(2N))
 STRUCT_MIN = 0.3        # a signature must remove this fraction of the remaining energy
 
@@ -119,6 +121,38 @@ def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray) -> dict:
     return out
 
 
+def flexible_gain(ctx: Context, y: np.ndarray, channel_mask: np.ndarray) -> float:
+    """SSE that a flexible, physics-free description removes from y in the given channels (one
+    fit per channel): 10-knot piecewise-linear functions of time and of each moving axis'
+    position, plus a level per direction of motion of each axis. A named effect that removes only
+    a small share of this is a partial description of something else."""
+    o = ctx.obs
+    key = ("flex_basis",)
+    if key not in ctx.extra:
+        rows = ctx.rows
+        tt = ctx.t[rows]
+        cols = [_hat(tt, np.linspace(tt[0], tt[-1], 10))] if len(tt) and np.ptp(tt) > 0 else []
+        for a in range(len(AXES)):
+            x = ctx.q_cmd[rows, a]
+            if np.ptp(x) <= 0:
+                continue
+            cols.append(_hat(x, np.linspace(x.min(), x.max(), 8)))
+            cols.append(direction(ctx.q_cmd[:, a])[rows][:, None])
+        ctx.extra[key] = np.concatenate(cols, 1) if cols else np.ones((len(rows), 1))
+    B = ctx.extra[key]
+    gain = 0.0
+    for ci in np.flatnonzero(channel_mask):
+        m = o.ch == ci
+        if m.sum() <= B.shape[1] + 2:
+            continue
+        X = B[o.pos[m]]
+        yy = y[m]
+        c = _lstsq(X, yy)
+        r = yy - X @ c
+        gain += float(yy @ yy - r @ r)
+    return gain
+
+
 def _region(ctx, loc_regions, name):
     best = None
     for k, regs in loc_regions.items():
@@ -156,9 +190,27 @@ def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> li
         ss = float(y[m] @ y[m])
         ms = ss / n
         excess = math.sqrt(max(ms - 1.0, 0.0))
-        if excess < EXCESS_MIN or ss - n < CHI_SIGMA * math.sqrt(2 * n):
-            continue
-        sig = _signatures(ctx, name, m, y)
+        local = None
+        glob = excess >= EXCESS_MIN and ss - n >= CHI_SIGMA * math.sqrt(2 * n)
+        sig = _signatures(ctx, name, m, y) if glob else {}
+        if not glob or max((v[0] for v in sig.values()), default=0.0) < STRUCT_MIN:
+            # not over the whole record: a stretch of it? (the longest window above 2.5 x noise)
+            wins = loc_after["channels"].get(name, {}).get("windows_s", [])
+            tt_all = ctx.t[o.row]
+            for a, b in sorted(wins, key=lambda w: w[0] - w[1]):
+                mw = m & (tt_all >= a) & (tt_all <= b)
+                nw = int(mw.sum())
+                if nw < 20:
+                    continue
+                ssw = float(y[mw] @ y[mw])
+                exw = math.sqrt(max(ssw / nw - 1.0, 0.0))
+                if exw >= 1.5 and ssw - nw > CHI_SIGMA * math.sqrt(2 * nw) and (b - a) < 0.7 * ctx.duration:
+                    local = (a, b)
+                    m, excess = mw, exw
+                    break
+            if local is None:
+                continue
+            sig = _signatures(ctx, name, m, y)
         kind, frac, detail = "broadband", 0.0, None
         for k, (f, d) in sig.items():
             if f > frac:
@@ -178,7 +230,7 @@ def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> li
         else:
             label = kind
         info = loc_after["channels"].get(name, {})
-        tw = info.get("windows_s", [])
+        tw = [list(local)] if local else info.get("windows_s", [])
         region = _region(ctx, loc_after.get("regions", {}), name)
         if kind == "reversal-locked" and axis:
             region = f"{axis} reversals"
@@ -190,7 +242,10 @@ def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> li
                 c = ev["cand"]
                 tried.append(f"{c.effect} on {c.target_key} {c.target} ({'; '.join(ev['problems'])})")
         fr = ", ".join(f"{k} {100 * v[0]:.0f} %" for k, v in sorted(sig.items(), key=lambda kv: -kv[1][0]))
-        ev_text = (f"{name} keeps {excess:.1f} x its noise after the named effects; its structure: {fr} of "
+        where = f" between {local[0]:.1f} and {local[1]:.1f} s only" if local else ""
+        if local and kind == "drift":
+            label = "transient"
+        ev_text = (f"{name} keeps {excess:.1f} x its noise{where} after the named effects; its structure: {fr} of "
                    f"the remaining energy.")
         if tried:
             ev_text += " Refused by their own checks: " + "; ".join(dict.fromkeys(tried)) + "."
