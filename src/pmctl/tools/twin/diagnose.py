@@ -507,7 +507,8 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
     report = {"recording": name, "verdict": verdict, "findings": findings, "unexplained": unexp,
               "confidence_calibration": calibration.DESCRIPTION}
     extras = {"ctx": ctx, "locate": loc0, "accepted": accepted, "y_final": yfinal,
-              "locate_after": loc_after, "rejected": rejected}
+              "locate_after": loc_after, "rejected": rejected,
+              "features": [calibration.features(ev) for ev in accepted]}
     return report, extras
 
 
