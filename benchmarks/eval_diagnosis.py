@@ -5,7 +5,7 @@ Suites (``--suites``, comma list; default all):
 - every catalogue effect (pmctl.tools.twin.synth.EFFECTS): N random cases each (random axis or
   channel, magnitude, run, noise, tracker rate), at 1 kHz (even k) or 250 Hz (odd k) logs, with
   recording imperfections (dropped rows, time-stamp jitter, coloured noise, a tracker drop-out;
-  pmctl.tools.twin.synth.imperfect) in every third case;
+  pmctl.tools.twin.synth.imperfect) in cases k = 1, 4, 7, ... (so with --n 2: the 250 Hz case);
 - ``pitch_near``: pitch error of 2-3 µm on the 5 mm lead in 10-20 s runs (the near-threshold case);
 - ``thermal_2.5K``: thermal growth with a 2.5 K rise of the heated screw (10 min warm-up at 100 Hz);
 - ``pair``: two different random effects at once;
@@ -51,7 +51,7 @@ def make_case(suite, k, machine, duration, base):
     seed = _seed(suite, k, base)
     rng = np.random.default_rng(seed)
     rate = 1000.0 if k % 2 == 0 else 250.0
-    imp = k % 3 == 2
+    imp = k % 3 == 1
     kw = dict(machine=machine, seed=seed, duration_s=duration, rate_hz=rate, imperfections=imp)
     if suite in synth.EFFECTS:
         if suite == "thermal_growth":

@@ -291,12 +291,37 @@ def _share(ev, ctx, y):
 BLOCK_RATIO = 1.5   # a refused effect this much stronger on the same channels blocks weaker names
 
 
+LINE_RATIO = 5.0        # a screw-position line this far above the spectrum's median is located evidence
+
+
 def accept(ev) -> bool:
-    return ev["d_cv"] > max(MIN_DSSE, ev["pen"]) and ev["rel"] > REL_MIN and ev["big"] > MIN_PEAK
+    """Held-out gain beyond noise, a real share of its channels, and a peak above noise; the peak
+    rule is waived for a periodic error sitting on a line that the locate stage found against
+    that screw's position, and for a pitch error (a period known in advance: the lead) whose
+    held-out gain is 3 x the threshold: their many samples carry them, however small each is."""
+    peak_ok = ev["big"] > MIN_PEAK or ev.get("line_evidence", False) or \
+        (ev["cand"].effect == "pitch_error" and ev["d_cv"] > 3 * max(MIN_DSSE, ev["pen"]))
+    return ev["d_cv"] > max(MIN_DSSE, ev["pen"]) and ev["rel"] > REL_MIN and peak_ok
 
 
-def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, candidates=None):
-    """Greedy forward selection. Returns (accepted evaluations in order, final residual)."""
+def _line_evidence(ev, loc) -> bool:
+    c = ev["cand"]
+    if loc is None or c.effect not in ("pitch_error", "periodic_error"):
+        return False
+    info = loc["axes"].get(c.target, {})
+    spec = info.get("_screw_spectrum")
+    p = ev["fit"].params.get("period_mm")
+    if spec is None or not p:
+        return False
+    f, amp = spec
+    sel = (f > 0) & (np.abs(f * p - 1) < 0.03)
+    med = float(np.median(amp[f > 0])) if np.any(f > 0) else 0.0
+    return bool(sel.any() and med > 0 and amp[sel].max() >= LINE_RATIO * med)
+
+
+def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, candidates=None, loc=None):
+    """Greedy forward selection. Returns (accepted evaluations in order, final residual, refused
+    evaluations). ``loc``: the locate stage's breakdown (its screw-position lines are evidence)."""
     y0 = ctx.obs.y
     folds = folds_of(ctx)
     cands = fx.catalogue(ctx) if candidates is None else candidates
@@ -313,8 +338,10 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
             if hasattr(c, "reset"):
                 c.reset()
             ev = evaluate(c, ctx, y, folds)
-            if ev is not None and accept(ev):
-                pool.append(ev)
+            if ev is not None:
+                ev["line_evidence"] = _line_evidence(ev, loc)
+                if accept(ev):
+                    pool.append(ev)
         pool.sort(key=lambda e: -e["score"])
         best, refused = None, []
         for ev in pool:
@@ -484,7 +511,7 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
     """Run the whole diagnosis. Returns (report per RECORDING.md §4, extras for text and plots)."""
     ctx = build_context(columns, machine, cap=cap)
     loc0 = locate(ctx)
-    accepted, yfinal, rejected = select_effects(ctx, progress=progress)
+    accepted, yfinal, rejected = select_effects(ctx, progress=progress, loc=loc0)
     y0 = ctx.obs.y
     findings, cum, y_before = [], np.zeros_like(y0), y0.copy()
     for ev in accepted:
