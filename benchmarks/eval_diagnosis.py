@@ -194,6 +194,22 @@ def main(argv=None):
                     out.flush()
     rows = table(res)
     if a.calibrate and rows:
+        # held-out check of the calibration: fit on the cases of even k, judge on odd k, and back
+        held = []
+        for part in (0, 1):
+            fit_rows = [(f, ok) for r in res if r["k"] % 2 != part for f, ok in zip(r["features"], r["labels"])]
+            test_rows = [(f, ok) for r in res if r["k"] % 2 == part for f, ok in zip(r["features"], r["labels"])]
+            if fit_rows and test_rows and len({ok for _, ok in fit_rows}) == 2:
+                c = calibration.fit_logistic(fit_rows)
+                held += [({**f, "_p": calibration.confidence(f, c)}, ok) for f, ok in test_rows]
+        if held:
+            print("\nheld-out reliability (logistic fitted on the other half of the cases, by k parity):")
+            edges = (0.0, 0.5, 0.7, 0.85, 0.95, 1.0001)
+            for lo, hi in zip(edges, edges[1:]):
+                sel = [(f["_p"], ok) for f, ok in held if lo <= f["_p"] < hi]
+                if sel:
+                    print(f"  confidence {lo:.2f}-{min(hi, 1):.2f}: {len(sel):3d} findings, predicted "
+                          f"{sum(p for p, _ in sel) / len(sel):.2f}, right {sum(ok for _, ok in sel) / len(sel):.2f}")
         coef = calibration.fit_logistic(rows)
         print("\nfitted coefficients:", json.dumps({k: round(v, 3) for k, v in coef.items()}))
         for b in calibration.reliability(rows, coef):

@@ -199,15 +199,15 @@ DERIVED = {"t_ref_C", "screw_fixed_end_mm", "stribeck_speed_mm_s", "stribeck_mm"
 
 def fold_spread(params, fold_params, ctx) -> float:
     """Largest deviation of a fold's parameter from the full fit, in units of its tolerance
-    (> 1: not identifiable). Tolerances: a frequency or period 5 %, a step time 2 % of the run,
+    (> 1: not identifiable). Tolerances: a frequency or period 5 %, a step time 1.5 time blocks,
     a gain deviation, an amplitude, width, stiffness or delay 50 % of its value."""
     worst = 0.0
     for k, v in params.items():
         if k in DERIVED or isinstance(v, str):
             continue
         vv = np.atleast_1d(np.asarray(v, float))
-        if k == "t_s":
-            scale = 0.02 * max(ctx.duration, 1e-9)
+        if k == "t_s":       # a fold without the step's block can only place it at that block's edge
+            scale = 1.5 * max(ctx.duration, 1e-9) / N_BLOCKS
         elif k in ("freq_hz", "period_mm"):
             scale = 0.05 * float(np.linalg.norm(vv))
         elif k == "gain":
@@ -537,6 +537,21 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
               "locate_after": loc_after, "rejected": rejected,
               "features": [calibration.features(ev) for ev in accepted]}
     return report, extras
+
+
+def read_for_diagnosis(folder, *, progress=False):
+    """(name, machine, columns) of a recording folder read in bounded memory
+    (pmctl.core.recording_chunks: 16 MB blocks, only the channels the twin uses, measured channels
+    in float32), with a progress bar on stderr when ``progress``."""
+    from pmctl.core.recording_chunks import _folder, read_columns
+    bar = _Progress(1000, progress, "reading   ")
+
+    def cb(done, total):            # one redraw per 16 MB block
+        bar.k = int(1000 * done / max(total, 1)) - 1
+        bar.step()
+    meta, machine, cols = read_columns(folder, progress=cb if progress else None)
+    bar.done()
+    return _folder(folder).name, machine, cols
 
 
 def format_text(report, extras) -> str:

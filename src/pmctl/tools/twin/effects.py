@@ -877,6 +877,11 @@ class Resonance(Candidate):
     def fit(self, ctx, y, train):
         tu, dt, _ = self._uniform(ctx)
         nyq = 0.5 / dt
+        # the channels that see the mode may be sampled slower than the log (a 100 Hz tracker):
+        # above their Nyquist frequency a mode aliases, so the search stops below it
+        sup_rows = np.unique(ctx.obs.row[self._weights(ctx)[2]])
+        if len(sup_rows) > 2:
+            nyq = min(nyq, 0.5 / float(np.median(np.diff(ctx.t[sup_rows]))))
         if self._starts is None:
             grid = np.geomspace(1.0, 0.4 * nyq, 20) if nyq > 2.5 else np.array([])
             self._starts = [(f, z) for f in self._f_candidates(ctx, y) for z in (0.02, 0.1)] + \
