@@ -112,3 +112,20 @@ def test_unexplained_names_the_channel_and_the_signature_of_a_drift_nobody_fitte
 def test_a_clean_recording_leaves_nothing_unexplained():
     ctx, _ = _ctx(None, seed=8)
     assert unexplained(ctx, ctx.obs.y, locate(ctx)) == []
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(0.001, 0.2), st.integers(0, 10_000), st.sampled_from([-1.0, 0.0, 1.0]))
+def test_backlash_on_the_rows_and_turning_points_only_equals_backlash_on_the_whole_record(width, seed, start):
+    # the play operator is rate-independent, which the backlash fit uses to skip most samples
+    rng = np.random.default_rng(seed)
+    x = np.cumsum(np.repeat(rng.normal(0, 1, 30), 60)) * 0.01 + np.linspace(0, 0.5, 1800)
+    turn = np.flatnonzero(np.diff(fx.direction(x)) != 0)
+    rows = np.sort(rng.choice(len(x), 200, replace=False))
+    idx = np.unique(np.concatenate([[0], turn, turn + 1, rows, [len(x) - 1]]))
+    full = fx.play_error(x, width, start)[rows]
+    sub = fx.play_error(x[idx], width, start)[np.searchsorted(idx, rows)]
+    assert np.allclose(full, sub, atol=1e-12)

@@ -24,11 +24,20 @@ import math
 
 KEYS = ("snr", "spread", "rel", "share")
 
-# fitted by benchmarks/eval_diagnosis.py --calibrate (see CALIBRATION)
-COEF = {"const": 0.0, "snr": 2.0, "spread": -2.0, "rel": 2.0, "share": 2.0}
-CALIBRATION = {"cases": 0, "findings": 0, "right": 0, "bins": []}
-DESCRIPTION = ("logistic in held-out gain over threshold, fold spread of the parameters and "
-               "explained fraction; not yet calibrated")
+# fitted by benchmarks/eval_diagnosis.py --n 2 --duration 10 --cap 2000 --calibrate (seed base 0):
+# 40 blind cases (every catalogue effect x 2 at 1 kHz and 250 Hz, the 250 Hz one with recording
+# imperfections; near-threshold pitch, 2.5 K thermal, pairs, clean, out-of-catalogue), 39
+# findings, 32 right. Fitted bins: 0-0.5: 6 findings, 33 % right; 0.5-0.7: 3, 33 %; 0.7-0.85: 1,
+# 100 %; 0.85-0.95: 6, 83 %; 0.95-1: 23, 100 %. Fitted on one half of the cases and judged on the
+# other (by case parity), the top bin (≥ 0.95) held 32 findings of which 88 % were right.
+COEF = {"const": -6.83, "snr": 0.683, "spread": -3.95, "rel": 4.131, "share": 4.075}
+CALIBRATION = {"cases": 40, "findings": 39, "right": 32, "seed_base": 0,
+               "bins": [{"bin": [0.0, 0.5], "n": 6, "right": 0.33}, {"bin": [0.5, 0.7], "n": 3, "right": 0.33},
+                        {"bin": [0.7, 0.85], "n": 1, "right": 1.0}, {"bin": [0.85, 0.95], "n": 6, "right": 0.83},
+                        {"bin": [0.95, 1.0], "n": 23, "right": 1.0}]}
+DESCRIPTION = ("logistic in held-out gain over threshold, fold spread of the parameters, explained fraction and "
+               "share of the channels' structure; fitted on 39 findings of 40 blind synth cases "
+               "(benchmarks/eval_diagnosis.py --calibrate, seed base 0); small sample: read 0.9 as 'about 9 in 10'")
 
 
 def features(ev) -> dict:

@@ -258,7 +258,9 @@ def evaluate(cand, ctx, y, folds):
     base = float(y[m] @ y[m])
     d_cv = base - float((y[m] - cv[m]) @ (y[m] - cv[m]))
     big = float(np.quantile(np.abs(full.pred[m]), 0.99)) if m.any() else 0.0
+    enc_only = all(o.channels[i].startswith("enc_") for i in np.flatnonzero(aff))
     return {"cand": cand, "fit": full, "cv": cv, "d_cv": d_cv, "d_in": d_in, "pen": pen, "big": big,
+            "enc_only": enc_only,
             "rel": d_cv / base if base > 0 else 0.0, "affected": aff,
             "score": d_cv - 0.5 * pen, "fold_params": fps, "y": y}
 
@@ -291,16 +293,20 @@ def _share(ev, ctx, y):
 BLOCK_RATIO = 1.5   # a refused effect this much stronger on the same channels blocks weaker names
 
 
+STRONG = 3.0            # held-out gain over the threshold that counts as evidence by itself
 LINE_RATIO = 5.0        # a screw-position line this far above the spectrum's median is located evidence
 
 
 def accept(ev) -> bool:
     """Held-out gain beyond noise, a real share of its channels, and a peak above noise; the peak
     rule is waived for a periodic error sitting on a line that the locate stage found against
-    that screw's position, and for a pitch error (a period known in advance: the lead) whose
-    held-out gain is 3 x the threshold: their many samples carry them, however small each is."""
-    peak_ok = ev["big"] > MIN_PEAK or ev.get("line_evidence", False) or \
-        (ev["cand"].effect == "pitch_error" and ev["d_cv"] > 3 * max(MIN_DSSE, ev["pen"]))
+    that screw's position, and for any effect whose held-out gain is STRONG x the threshold:
+    many samples then carry it, however small each one is (a 2 µm pitch error, a 0.3 µm/s drift
+    under 1.5 µm of tracker noise). The own checks and the share rule still apply."""
+    # an encoder counts whole pulses: structure below its pulse is quantisation, never waived
+    enc_only = ev.get("enc_only", False)
+    peak_ok = ev["big"] > MIN_PEAK or (not enc_only and (
+        ev.get("line_evidence", False) or ev["d_cv"] > STRONG * max(MIN_DSSE, ev["pen"])))
     return ev["d_cv"] > max(MIN_DSSE, ev["pen"]) and ev["rel"] > REL_MIN and peak_ok
 
 

@@ -178,6 +178,22 @@ def direction(x, dead=0.0):
     return d
 
 
+def axis_velocity(ctx, a) -> np.ndarray:
+    """d cmd_a / dt at every row (mm/s), computed once per context."""
+    key = ("velocity", a)
+    if key not in ctx.extra:
+        ctx.extra[key] = np.gradient(ctx.q_cmd[:, a], ctx.t)
+    return ctx.extra[key]
+
+
+def axis_direction(ctx, a) -> np.ndarray:
+    """:func:`direction` of cmd_a at every row, computed once per context."""
+    key = ("direction", a)
+    if key not in ctx.extra:
+        ctx.extra[key] = direction(ctx.q_cmd[:, a])
+    return ctx.extra[key]
+
+
 def first_order_lag(t, u, tau):
     """Response of a first-order lag τ·y' + y = u to u, starting settled at u[0].
 
@@ -338,7 +354,7 @@ class Backlash(AxisSignal):
         g = self.gain(ctx)
         x = ctx.q_cmd[:, self.a]
         rows = ctx.obs.row
-        d = direction(x)
+        d = axis_direction(ctx, self.a)
         col = g * (-0.5 * d[rows])
         w0 = float(_lstsq(col[train, None], y[train])[0])
         if w0 <= 0:
@@ -346,12 +362,24 @@ class Backlash(AxisSignal):
 
         sel = train & (g != 0)
         gs, ys, rs = g[sel], y[sel], rows[sel]
+        # the play operator is rate-independent: its output at the analysis rows only depends on
+        # the motor positions there and at the turning points between them, so it runs exactly
+        # on that subsequence (a few thousand samples instead of the whole record)
+        key = ("play_idx", self.a)
+        if key not in ctx.extra:
+            dd = axis_direction(ctx, self.a)
+            turn = np.flatnonzero(np.diff(dd) != 0)
+            idx = np.unique(np.concatenate([[0], turn, turn + 1, rows, [len(x) - 1]]))
+            ctx.extra[key] = (idx, np.searchsorted(idx, np.arange(len(x))))
+        idx, where = ctx.extra[key]
+        xs = x[idx]
+        rsi = where[rs]
 
         # the load's place in the deadband at the start is unknown: middle, or either flank
         best = None
         for st0 in (0.0, -1.0, 1.0):
             def res(p, st0=st0):
-                return gs * play_error(x, p[0], st0)[rs] - ys
+                return gs * play_error(xs, p[0], st0)[rsi] - ys
 
             try:
                 sol = optimize.least_squares(res, [w0], bounds=([0.0], [np.inf]), x_scale=[max(w0, 1e-6)],
@@ -361,7 +389,7 @@ class Backlash(AxisSignal):
             if best is None or sol.cost < best[0].cost:
                 best = (sol, st0)
         w, st0 = (float(best[0].x[0]), best[1]) if best else (w0, 0.0)
-        pred = g * play_error(x, w, st0)[rows]
+        pred = g * play_error(xs, w, st0)[where[rows]]
         return Fit({"width_mm": w}, pred, 1, ok=w > 0, internal={"start": st0})
 
 
@@ -427,7 +455,7 @@ class PitchError(AxisSignal):
         if len(e) < 64:
             return []
         x = ctx.q_cmd[rows, self.a]
-        v = np.gradient(ctx.q_cmd[:, self.a], ctx.t)[rows]
+        v = axis_velocity(ctx, self.a)[rows]
         sp = spectrum_position(x, e, np.abs(v) > 1e-3 * max(np.abs(v).max(), 1e-12))
         if sp is None:
             return []
@@ -589,8 +617,11 @@ class ThermalGrowth(AxisSignal):
         # physical sanity: the temperature must really change (20 x its noise) and the growth
         # coefficient must be one of a solid (|α| below 1e-4 /K; steel 1.2e-5, aluminium 2.3e-5)
         from pmctl.tools.twin.locate import noise_level
-        Tfull = ctx.temps[self.channel]
-        dT_ok = np.ptp(Tfull) > 20 * max(noise_level(Tfull[np.isfinite(Tfull)]), 1e-3)
+        key = ("temp_ok", self.channel)
+        if key not in ctx.extra:
+            Tfull = ctx.temps[self.channel]
+            ctx.extra[key] = bool(np.ptp(Tfull) > 20 * max(noise_level(Tfull[np.isfinite(Tfull)]), 1e-3))
+        dT_ok = ctx.extra[key]
         f.ok = bool(f.internal["dsse_Tx"] > PRESCREEN and dT_ok and np.ptp(x) > 0
                     and abs(f.internal["coef"][0]) < MAX_ALPHA)
         return f
@@ -636,7 +667,7 @@ class ServoLag(AxisSignal):
         g = self.gain(ctx)
         u = ctx.q_cmd[:, self.a]
         rows = ctx.obs.row
-        v = np.gradient(u, ctx.t)
+        v = axis_velocity(ctx, self.a)
         col = g * -v[rows]
         tau0 = float(_lstsq(col[train, None], y[train])[0])
         if tau0 <= 0:
@@ -666,7 +697,7 @@ class ServoLag(AxisSignal):
         # a lag trails in proportion to speed; a constant trailing error that only flips at
         # reversals (friction) fits a lag too, but a sign-of-velocity column fits it better
         g = self.gain(ctx)
-        d = direction(ctx.q_cmd[:, self.a])[ctx.obs.row]
+        d = axis_direction(ctx, self.a)[ctx.obs.row]
         col = (g * -d)[:, None]
         c = _lstsq(col, y)
         r_sign = y - col @ c
@@ -691,9 +722,8 @@ class Friction(AxisSignal):
     VS = (0.5, 1.0, 2.0, 3.5, 6.0, 10.0)
 
     def _cols(self, ctx, vs):
-        x = ctx.q_cmd[:, self.a]
-        d = direction(x)[ctx.obs.row]
-        v = np.gradient(x, ctx.t)[ctx.obs.row]
+        d = axis_direction(ctx, self.a)[ctx.obs.row]
+        v = axis_velocity(ctx, self.a)[ctx.obs.row]
         g = self.gain(ctx)
         return np.stack([g * -d, g * -d * np.exp(-(v / vs) ** 2)], 1)
 
@@ -720,7 +750,7 @@ class Friction(AxisSignal):
 
         # the Stribeck term must fade within the motion, else it is the Coulomb term again: v_s at
         # most 0.8 x the median moving speed
-        v = np.abs(np.gradient(ctx.q_cmd[:, self.a], ctx.t))
+        v = np.abs(axis_velocity(ctx, self.a))
         vmax = 0.8 * float(np.median(v[v > 1e-3 * max(v.max(), 1e-12)])) if np.any(v > 0) else 0.0
         grid = [vs for vs in self.VS if vs <= vmax]
         if not grid:
@@ -883,7 +913,9 @@ class Resonance(Candidate):
         if len(sup_rows) > 2:
             nyq = min(nyq, 0.5 / float(np.median(np.diff(ctx.t[sup_rows]))))
         if self._starts is None:
-            grid = np.geomspace(1.0, 0.4 * nyq, 20) if nyq > 2.5 else np.array([])
+            # (a coarser start grid on long records: each start filters the whole record)
+            ng = 20 if len(ctx.t) <= 200_000 else 10
+            grid = np.geomspace(1.0, 0.4 * nyq, ng) if nyq > 2.5 else np.array([])
             self._starts = [(f, z) for f in self._f_candidates(ctx, y) for z in (0.02, 0.1)] + \
                 [(float(f), 0.05) for f in grid]
         fs = self._starts

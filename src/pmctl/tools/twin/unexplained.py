@@ -31,7 +31,7 @@ import math
 
 import numpy as np
 
-from pmctl.tools.twin.effects import AXES, Context, direction, _line_frequencies, _lstsq
+from pmctl.tools.twin.effects import AXES, Context, _line_frequencies, _lstsq, axis_direction
 from pmctl.tools.twin.locate import moving_rms, windows
 
 EXCESS_MIN = 1.0        # remaining rms ≥ 1.41 x noise ...
@@ -82,13 +82,15 @@ def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray) -> dict:
         x = ctx.q_cmd[:, a]
         if np.ptp(x) <= 0:
             continue
-        d = direction(x)
+        d = axis_direction(ctx, a)
         if not np.any(d):
             continue
         flips = np.flatnonzero(np.diff(d) != 0) + 1
         since = np.full(len(x), np.inf)
         if len(flips):
-            last = np.maximum.accumulate(np.where(np.isin(np.arange(len(x)), flips), np.arange(len(x)), 0))
+            mark = np.zeros(len(x), int)
+            mark[flips] = flips
+            last = np.maximum.accumulate(mark)
             since = np.where(last > 0, ctx.t - ctx.t[last], np.inf)
         s = since[rows]
         dd = d[rows]
@@ -137,7 +139,7 @@ def flexible_gain(ctx: Context, y: np.ndarray, channel_mask: np.ndarray) -> floa
             if np.ptp(x) <= 0:
                 continue
             cols.append(_hat(x, np.linspace(x.min(), x.max(), 8)))
-            cols.append(direction(ctx.q_cmd[:, a])[rows][:, None])
+            cols.append(axis_direction(ctx, a)[rows][:, None])
         ctx.extra[key] = np.concatenate(cols, 1) if cols else np.ones((len(rows), 1))
     B = ctx.extra[key]
     gain = 0.0
