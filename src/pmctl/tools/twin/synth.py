@@ -44,6 +44,18 @@ How a case is made (vectorised; a 60 s run at 1 kHz takes 1-2 s to simulate, ~0.
    µε); ``sensor_gain`` (measured = gain·true) / ``sensor_offset`` (measured = true + offset) on
    one channel; temperatures σ 0.02 K at 10 Hz, 0.01 K resolution; loads σ 0.3 N.
 
+Further effects (issue 12): ``friction`` (motor side trails cmd by sign(v)·(coulomb_mm + Stribeck
+term), 0 before the first move), ``periodic_error`` (as pitch, at a period 0.8-8 mm that is no lead
+harmonic), ``sensor_latency`` (the tracker, ``channel`` ``"tip_*"``, reports the pose of t − delay_s),
+``forced_vibration`` (a constant-amplitude line on an axis' load side or in a strain channel),
+``sensor_drift`` (measured += rate_per_s·(t − t_mid)); thermal growth draws its fixed-bearing end
+(``screw_fixed_end_mm``: one end of the screw or the other) and may be given the heated screw's
+rise (``details["rise_K"]``). Physics outside the catalogue (``ODDITIES``, ``synth_case(...,
+oddities=[...])``, listed under ``"oddities"`` in the answer, never under ``"effects"``): a bent
+table guide (``straightness``: tip_y bump over table X) and a ``chatter_burst`` (a line in tip_x for
+one stretch of the run). ``synth_case(..., imperfections=True)`` applies :func:`imperfect` (dropped
+rows, time-stamp jitter, coloured noise, a tracker drop-out).
+
 Sign conventions of the answer parameters: backlash ``width_mm`` is the whole deadband (the load
 side trails the motor by width/2 in the direction of motion); pitch ``amplitude_mm`` is the sine
 amplitude (not peak-to-peak); ``lost_steps`` ``offset_mm`` is added to the load-side position
