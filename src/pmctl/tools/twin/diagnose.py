@@ -604,7 +604,14 @@ def format_text(report, extras) -> str:
                  ", ".join(f"{k} = {v}" for k, v in f["parameters"].items()))
         L.append(f"     {f['evidence']}")
         L.append("     held-out rms: " + ", ".join(
-            f"{k} {f['rms_before'][k]:.3g} -> {f['rms_after'][k]:.3g}" for k in f["rms_before"]))
+            f"{k} {f['rms_before'][k]:.3g} -> {f['rms_after'][k]:.3g}" for k in f["rms_before"])
+            + (f"; confidence {f['confidence']:.2f}" if "confidence" in f else ""))
+    for u in report.get("unexplained", []):
+        where = u["region"] or ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in u["time_windows_s"][:3]) or "-"
+        L.append(f"  unexplained: {', '.join(u['channels'])}"
+                 f"{' (axis ' + u['axis'] + ')' if u['axis'] else ''}: {u['signature']}, "
+                 f"{u['excess_over_noise']:.1f} x noise, {where}")
+        L.append(f"     {u['evidence']}")
     if not ctx.obs.channels:
         L.append("  The recording carries no measured channel (enc_*, tip_*, tool_*, strain_*): nothing to compare.")
     elif not report["findings"]:
