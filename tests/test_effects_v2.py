@@ -129,3 +129,11 @@ def test_backlash_on_the_rows_and_turning_points_only_equals_backlash_on_the_who
     full = fx.play_error(x, width, start)[rows]
     sub = fx.play_error(x[idx], width, start)[np.searchsorted(idx, rows)]
     assert np.allclose(full, sub, atol=1e-12)
+
+
+def test_a_vibration_burst_is_not_a_steady_forced_vibration():
+    ctx, case = _ctx(None, seed=9, run="circle", duration=10.0, oddities=("chatter_burst",))
+    fv = fx.ForcedVibration("X", "axis")
+    f = fv.fit(ctx, ctx.obs.y, _all(ctx))
+    assert f.ok and abs(f.params["freq_hz"] - case.answer["oddities"][0]["freq_hz"]) < 0.3
+    assert any("not steady" in p for p in fv.check(ctx, f, ctx.obs.y))

@@ -1157,6 +1157,21 @@ class ForcedVibration(Candidate):
             return ["no line"]
         if f * ctx.duration < 10:
             return [f"{f:.2f} Hz completes fewer than 10 cycles in the record"]
+        # a steady source keeps its amplitude: fitted on each quarter of the record it must not
+        # vanish in one of them (a burst, chatter in one cut, is something else)
+        g = self._w(ctx)
+        t = ctx.t[ctx.obs.row]
+        edges = np.linspace(ctx.t[0], ctx.t[-1], 5)
+        amps = []
+        for a, b in zip(edges, edges[1:]):
+            m = (g != 0) & (t >= a) & (t <= b)
+            if m.sum() < 8:
+                continue
+            X = np.stack([g[m] * np.sin(2 * np.pi * f * t[m]), g[m] * np.cos(2 * np.pi * f * t[m])], 1)
+            amps.append(float(np.hypot(*_lstsq(X, y[m]))))
+        if len(amps) >= 3 and min(amps) < 0.33 * max(amps):
+            return [f"its amplitude is not steady over the record (quarters: "
+                    f"{', '.join(f'{x / max(amps):.2f}' for x in amps)} of the largest): a burst, not a steady source"]
         return []
 
 
