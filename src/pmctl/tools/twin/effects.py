@@ -440,8 +440,8 @@ class PitchError(AxisSignal):
         if p is None or not self._period_ok(ctx, p):
             return [f"period {p:.3f} mm is not the screw lead or one of its harmonics"] if p else ["no period"]
         span = float(np.ptp(ctx.q_cmd[:, self.a]))
-        if span < 2 * p:
-            return [f"the screw moved {span:.2f} mm, less than two periods of {p:.3f} mm"]
+        if span < p:        # the period is known in advance (the lead): one turn of travel shows it
+            return [f"the screw moved {span:.2f} mm, less than one period of {p:.3f} mm"]
         step = sample_travel(ctx, self.a)
         if step > 0.25 * p:
             return [f"the screw travels {step:.3f} mm between samples, too far to see a {p:.3f} mm period "
@@ -509,7 +509,7 @@ class PitchError(AxisSignal):
             c0, c1, c2 = cost[k - 1:k + 2]
             den = c0 - 2 * c1 + c2
             h = grid[1] - grid[0]
-            p = float(grid[k] + (0.5 * h * (c0 - c2) / den if den > 0 else 0.0))
+            p = float(np.clip(grid[k] + (0.5 * h * (c0 - c2) / den if den > 0 else 0.0), grid[0], grid[-1]))
             gains = []
             best = optimize.OptimizeResult(x=np.array([p]), cost=0.0)
         for _, p0 in gains:
