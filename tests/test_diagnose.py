@@ -66,9 +66,11 @@ def test_cli_writes_the_recording_md_report_and_plots(tmp_path, capsys):
     out = capsys.readouterr().out
     assert out.index("WHERE") < out.index("WHY")          # where first, then why
     rep = json.loads(js.read_text())
-    assert set(rep) == {"recording", "verdict", "findings"}
+    assert set(rep) == {"recording", "verdict", "findings", "unexplained", "confidence_calibration"}
     f = rep["findings"][0]
-    assert set(f) == {"effect", "axis", "parameters", "where", "evidence", "rms_before", "rms_after", "heldout"}
+    assert set(f) == {"effect", "axis", "parameters", "where", "evidence", "rms_before", "rms_after", "heldout",
+                      "confidence"}
+    assert 0.5 < f["confidence"] <= 1.0
     assert set(f["where"]) >= {"channels", "time_windows_s", "direction_dependent", "frequency_hz"}
     assert f["effect"] == "backlash" and f["where"]["direction_dependent"] is True
     assert f["heldout"] is True and set(f["parameters"]) == {"width_mm"}
@@ -94,3 +96,21 @@ def test_table_compliance_under_a_known_tip_force_is_found():
     rep, sc = _diagnose(case)
     assert sc["all_found"], (rep["findings"], sc)
     assert "tip force" in rep["findings"][0]["evidence"]
+
+
+def test_physics_outside_the_catalogue_is_located_as_unexplained_not_named():
+    rng = np.random.default_rng(8)
+    case = synth.synth_case(rng, [], machine=M, seed=8, duration_s=15.0, rate_hz=400.0, oddities=["straightness"])
+    rep, _ = diagnose(case.columns, M, cap=CAP)
+    assert rep["verdict"] == "unexplained mismatch"
+    u = [e for e in rep["unexplained"] if "tip_y" in e["channels"]]
+    assert u and u[0]["excess_over_noise"] > 1.0 and u[0]["signature"] == "position-dependent" and u[0]["axis"] == "X"
+    assert not any(f["effect"] == "sensor_offset" for f in rep["findings"])
+
+
+def test_a_steady_line_is_named_forced_vibration_not_a_resonance():
+    e = synth.Effect("forced_vibration", {"channel": "strain_1"}, {"freq_hz": 47.0, "amplitude": 3.0}, {"phase_rad": 0.2})
+    case = _case([e], 52, duration=10.0)
+    rep, sc = _diagnose(case)
+    assert sc["all_found"], rep["findings"]
+    assert not any(f["effect"] == "resonance" for f in rep["findings"])

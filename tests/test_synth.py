@@ -60,9 +60,12 @@ def test_layout_answer_key_apart_and_catalogue_names(tmp_path):
 
 CATALOGUE_PARAMS = {
     "backlash": {"width_mm"}, "pitch_error": {"period_mm", "amplitude_mm"},
-    "thermal_growth": {"alpha_per_K", "channel"}, "compliance": {"stiffness_N_per_mm"},
+    "thermal_growth": {"alpha_per_K", "channel", "screw_fixed_end_mm"}, "compliance": {"stiffness_N_per_mm"},
     "servo_lag": {"tau_s"}, "resonance": {"freq_hz", "damping_ratio"}, "lost_steps": {"t_s", "offset_mm"},
-    "sensor_gain": {"gain"}, "sensor_offset": {"offset"}}
+    "sensor_gain": {"gain"}, "sensor_offset": {"offset"},
+    "friction": {"coulomb_mm"}, "periodic_error": {"period_mm", "amplitude_mm"}, "sensor_latency": {"delay_s"},
+    "sensor_drift": {"rate_per_s"}}
+FORCED = ({"freq_hz", "amplitude_mm"}, {"freq_hz", "amplitude"})
 
 
 @pytest.mark.parametrize("name", S.EFFECTS)
@@ -76,6 +79,8 @@ def test_every_effect_uses_catalogue_names(name):
             assert e["chain"] in (1, 2, 3, "tool")
             assert set(e["parameters"]) in ({"length_offset_mm"}, {"tool_length_mm"},
                                             {"base_joint_radial_mm", "base_joint_z_mm"})
+        elif name == "forced_vibration":
+            assert set(e["parameters"]) == FORCED[0 if "axis" in e else 1]
         else:
             assert set(e["parameters"]) == CATALOGUE_PARAMS[name]
 
@@ -260,3 +265,25 @@ def test_magnitude_and_noise_scale():
     assert n0["tip_mm"] == 0.0 and n1["tip_mm"] > 0
     pred = N.predict_columns(c0, M)
     assert np.nanmax(np.abs(c0["tip_x"] - pred["tip_x"])) < 1e-9      # noiseless clean, no pulse quantisation = the twin
+
+
+def test_recording_imperfections_keep_a_valid_recording_and_the_noise_is_coloured():
+    rng = np.random.default_rng(4)
+    case = S.synth_case(rng, [], machine=M, seed=4, duration_s=6.0, rate_hz=250.0, imperfections=True)
+    t = case.columns["t"]
+    assert np.all(np.diff(t) > 0) and 0.97 * 1500 < len(t) < 1500      # rows dropped, still increasing
+    dt = np.diff(t)
+    assert np.ptp(dt) > 0.1 / 250                                          # jittered stamps
+    clean = S.synth_case(np.random.default_rng(4), [], machine=M, seed=4, duration_s=6.0, rate_hz=250.0)
+    assert case.answer["imperfections"] is True and "imperfections" not in clean.answer
+
+
+def test_an_oddity_is_kept_out_of_the_effects_of_the_answer_key():
+    rng = np.random.default_rng(6)
+    case = S.synth_case(rng, [], machine=M, seed=6, duration_s=6.0, rate_hz=250.0, oddities=["straightness"])
+    assert case.answer["effects"] == [] and case.answer["oddities"][0]["kind"] == "straightness"
+    base = S.synth_case(np.random.default_rng(6), [], machine=M, seed=6, duration_s=6.0, rate_hz=250.0)
+    d = case.columns["tip_y"] - base.columns["tip_y"]                    # same noise: only the bump differs
+    o = case.answer["oddities"][0]
+    assert np.nanmax(np.abs(d)) <= abs(o["amplitude_mm"]) + 1e-9 and np.nanmax(np.abs(d)) > 0.3 * abs(o["amplitude_mm"])
+    assert np.allclose(case.columns["tip_x"], base.columns["tip_x"], equal_nan=True)

@@ -178,6 +178,22 @@ def direction(x, dead=0.0):
     return d
 
 
+def axis_velocity(ctx, a) -> np.ndarray:
+    """d cmd_a / dt at every row (mm/s), computed once per context."""
+    key = ("velocity", a)
+    if key not in ctx.extra:
+        ctx.extra[key] = np.gradient(ctx.q_cmd[:, a], ctx.t)
+    return ctx.extra[key]
+
+
+def axis_direction(ctx, a) -> np.ndarray:
+    """:func:`direction` of cmd_a at every row, computed once per context."""
+    key = ("direction", a)
+    if key not in ctx.extra:
+        ctx.extra[key] = direction(ctx.q_cmd[:, a])
+    return ctx.extra[key]
+
+
 def first_order_lag(t, u, tau):
     """Response of a first-order lag τ·y' + y = u to u, starting settled at u[0].
 
@@ -263,6 +279,11 @@ class Candidate:
     def applicable(self, ctx: Context) -> bool:
         return True
 
+    def check(self, ctx: Context, fit: "Fit", y: np.ndarray) -> list[str]:
+        """The effect's own checks on its full fit (physical range, identifiability against its
+        nearest look-alike). Returns the reasons it fails; [] when it passes."""
+        return []
+
     # linear models: columns (N, k) of whitened obs; params from coefficients
     def design(self, ctx: Context):
         raise NotImplementedError
@@ -333,7 +354,7 @@ class Backlash(AxisSignal):
         g = self.gain(ctx)
         x = ctx.q_cmd[:, self.a]
         rows = ctx.obs.row
-        d = direction(x)
+        d = axis_direction(ctx, self.a)
         col = g * (-0.5 * d[rows])
         w0 = float(_lstsq(col[train, None], y[train])[0])
         if w0 <= 0:
@@ -341,12 +362,24 @@ class Backlash(AxisSignal):
 
         sel = train & (g != 0)
         gs, ys, rs = g[sel], y[sel], rows[sel]
+        # the play operator is rate-independent: its output at the analysis rows only depends on
+        # the motor positions there and at the turning points between them, so it runs exactly
+        # on that subsequence (a few thousand samples instead of the whole record)
+        key = ("play_idx", self.a)
+        if key not in ctx.extra:
+            dd = axis_direction(ctx, self.a)
+            turn = np.flatnonzero(np.diff(dd) != 0)
+            idx = np.unique(np.concatenate([[0], turn, turn + 1, rows, [len(x) - 1]]))
+            ctx.extra[key] = (idx, np.searchsorted(idx, np.arange(len(x))))
+        idx, where = ctx.extra[key]
+        xs = x[idx]
+        rsi = where[rs]
 
         # the load's place in the deadband at the start is unknown: middle, or either flank
         best = None
         for st0 in (0.0, -1.0, 1.0):
             def res(p, st0=st0):
-                return gs * play_error(x, p[0], st0)[rs] - ys
+                return gs * play_error(xs, p[0], st0)[rsi] - ys
 
             try:
                 sol = optimize.least_squares(res, [w0], bounds=([0.0], [np.inf]), x_scale=[max(w0, 1e-6)],
@@ -356,18 +389,64 @@ class Backlash(AxisSignal):
             if best is None or sol.cost < best[0].cost:
                 best = (sol, st0)
         w, st0 = (float(best[0].x[0]), best[1]) if best else (w0, 0.0)
-        pred = g * play_error(x, w, st0)[rows]
+        pred = g * play_error(xs, w, st0)[where[rows]]
         return Fit({"width_mm": w}, pred, 1, ok=w > 0, internal={"start": st0})
 
 
+def screw_lead(ctx: Context, a: int) -> float:
+    r = ctx.machine.resolution
+    return float(r.screw_lead if a < 3 else r.table_screw_lead)
+
+
+def lead_harmonic(period, lead, tol=0.04):
+    """k when period is lead/k (k = 1..4) within ``tol`` relative, else 0."""
+    for k in (1, 2, 3, 4):
+        if abs(period * k / lead - 1) <= tol:
+            return k
+    return 0
+
+
+def sample_travel(ctx: Context, a: int) -> float:
+    """Median travel of axis a between consecutive analysis samples of the channels that see it,
+    while it moves (mm): the shortest period in its position that those samples can resolve is
+    a few times this."""
+    g = axis_gain(ctx, a)
+    rows = np.unique(ctx.obs.row[g != 0])
+    if len(rows) < 3:
+        return float("inf")
+    dx = np.abs(np.diff(ctx.q_cmd[rows, a]))
+    mv = dx > 0
+    return float(np.median(dx[mv])) if mv.any() else float("inf")
+
+
 class PitchError(AxisSignal):
-    """Screw lead error periodic in the screw position x: δq = A·sin(2πx/p + φ)."""
+    """Screw lead error periodic in the screw position x: δq = A·sin(2πx/p + φ).
+
+    ``pitch_error`` is a period of the lead or one of its first harmonics (lead/2..lead/4: the
+    screw's thread, once per turn); :class:`PeriodicError` takes every other period (a bearing, a
+    gear or coupling between motor and screw)."""
 
     effect = "pitch_error"
     nparams = 3
 
     def reset(self):
         self._starts = None
+
+    def _period_ok(self, ctx, p):
+        return lead_harmonic(p, screw_lead(ctx, self.a)) > 0
+
+    def check(self, ctx, fit, y):
+        p = fit.params.get("period_mm")
+        if p is None or not self._period_ok(ctx, p):
+            return [f"period {p:.3f} mm is not the screw lead or one of its harmonics"] if p else ["no period"]
+        span = float(np.ptp(ctx.q_cmd[:, self.a]))
+        if span < p:        # the period is known in advance (the lead): one turn of travel shows it
+            return [f"the screw moved {span:.2f} mm, less than one period of {p:.3f} mm"]
+        step = sample_travel(ctx, self.a)
+        if step > 0.25 * p:
+            return [f"the screw travels {step:.3f} mm between samples, too far to see a {p:.3f} mm period "
+                    "without aliasing"]
+        return []
 
     def _start_periods(self, ctx, y):
         """Strongest lines of the axis-equivalent residual against screw position (binned, FFT)."""
@@ -376,7 +455,7 @@ class PitchError(AxisSignal):
         if len(e) < 64:
             return []
         x = ctx.q_cmd[rows, self.a]
-        v = np.gradient(ctx.q_cmd[:, self.a], ctx.t)[rows]
+        v = axis_velocity(ctx, self.a)[rows]
         sp = spectrum_position(x, e, np.abs(v) > 1e-3 * max(np.abs(v).max(), 1e-12))
         if sp is None:
             return []
@@ -389,8 +468,15 @@ class PitchError(AxisSignal):
         pk, _ = signal.find_peaks(ao)
         if len(pk) == 0:
             pk = np.array([int(np.argmax(ao))])
-        pk = pk[np.argsort(ao[pk])[::-1]][:3]
-        return [1.0 / float(fo[k]) for k in pk]
+        pk = pk[np.argsort(ao[pk])[::-1]]
+        per = [1.0 / float(fo[k]) for k in pk]
+        if self.effect == "pitch_error":
+            # the lead's own lines are always candidates (a weak line at the lead is still the
+            # likeliest place of a pitch error), then the strongest peaks that are lead harmonics
+            lead = screw_lead(ctx, self.a)
+            mine = [lead / k for k in (1, 2, 3, 4) if 1.5 / max(span, 1e-9) < k / lead < 5.0]
+            return mine + [q for q in per if self._period_ok(ctx, q)][:2]
+        return [q for q in per if not lead_harmonic(q, screw_lead(ctx, self.a), 0.06)][:3]
 
     def fit(self, ctx, y, train):
         g = self.gain(ctx)
@@ -412,12 +498,25 @@ class PitchError(AxisSignal):
 
         base = float(ys @ ys)
         gains = [(base - float(r @ r), p0) for p0 in self._starts for r in [res([p0])]]
-        gains = [gp for gp in sorted(gains, reverse=True)[:1] if gp[0] > 3 * PRESCREEN]
+        gains = [gp for gp in sorted(gains, reverse=True)[:1] if gp[0] > PRESCREEN]
         best = None
+        if self.effect == "pitch_error" and gains:
+            # the period is a lead harmonic: a grid of ±2 % around it, refined by a parabola
+            p0 = gains[0][1]
+            grid = p0 * np.linspace(0.98, 1.02, 9)
+            cost = np.array([float(r @ r) for r in (res([q]) for q in grid)])
+            k = int(np.clip(np.argmin(cost), 1, len(grid) - 2))
+            c0, c1, c2 = cost[k - 1:k + 2]
+            den = c0 - 2 * c1 + c2
+            h = grid[1] - grid[0]
+            p = float(np.clip(grid[k] + (0.5 * h * (c0 - c2) / den if den > 0 else 0.0), grid[0], grid[-1]))
+            gains = []
+            best = optimize.OptimizeResult(x=np.array([p]), cost=0.0)
         for _, p0 in gains:
+            lo, hi = (0.5 * p0, 2 * p0)
             try:
                 sol = optimize.least_squares(res, [p0], x_scale=[p0 * 1e-3], diff_step=[1e-6], max_nfev=20,
-                                             bounds=([0.5 * p0], [2 * p0]))
+                                             bounds=([lo], [hi]))
             except ValueError:
                 continue
             if best is None or sol.cost < best.cost:
@@ -430,6 +529,32 @@ class PitchError(AxisSignal):
         amp = float(np.hypot(*c))
         return Fit({"period_mm": p, "amplitude_mm": amp}, pred, 3,
                    internal={"phase_rad": float(math.atan2(c[1], c[0]))})
+
+
+class PeriodicError(PitchError):
+    """A load-side error periodic in the screw position at a period that is not the lead's:
+    a bearing (balls orbit at ~0.4 of the screw turn), a gear or belt stage between motor and
+    screw (once per motor or pulley turn), a coupling. Same model as the pitch error,
+    δq = A·sin(2πx/p + φ); identifiable when the screw travels at least two periods and the
+    period is not a lead harmonic (else it is a pitch error)."""
+
+    effect = "periodic_error"
+
+    def _period_ok(self, ctx, p):
+        return 0.2 <= p and not lead_harmonic(p, screw_lead(ctx, self.a), 0.06)
+
+    def check(self, ctx, fit, y):
+        p = fit.params.get("period_mm")
+        if p is None or not self._period_ok(ctx, p):
+            return [f"period {p:.3f} mm is a lead harmonic (a pitch error) or below 0.2 mm"] if p else ["no period"]
+        span = float(np.ptp(ctx.q_cmd[:, self.a]))
+        if span < 2 * p:
+            return [f"the screw moved {span:.2f} mm, less than two periods of {p:.3f} mm"]
+        step = sample_travel(ctx, self.a)
+        if step > 0.25 * p:
+            return [f"the screw travels {step:.3f} mm between samples, too far to see a {p:.3f} mm period "
+                    "without aliasing"]
+        return []
 
 
 class ThermalGrowth(AxisSignal):
@@ -473,7 +598,8 @@ class ThermalGrowth(AxisSignal):
         out = {"alpha_per_K": al, "channel": self.channel}
         if al != 0:
             # α(T−Tm)(x−xm) + c1(T−Tm) + c2(x−xm) = α(T − Tm + c2/α)(x − xm + c1/α) + const
-            self.refs = {"t_ref_C": float(np.mean(T) - c[2] / al), "screw_fixed_end_mm": float(np.mean(x) - c[1] / al)}
+            out["screw_fixed_end_mm"] = float(np.mean(x) - c[1] / al)
+            out["t_ref_C"] = float(np.mean(T) - c[2] / al)
         return out
 
     def fit(self, ctx, y, train):
@@ -491,8 +617,11 @@ class ThermalGrowth(AxisSignal):
         # physical sanity: the temperature must really change (20 x its noise) and the growth
         # coefficient must be one of a solid (|α| below 1e-4 /K; steel 1.2e-5, aluminium 2.3e-5)
         from pmctl.tools.twin.locate import noise_level
-        Tfull = ctx.temps[self.channel]
-        dT_ok = np.ptp(Tfull) > 20 * max(noise_level(Tfull[np.isfinite(Tfull)]), 1e-3)
+        key = ("temp_ok", self.channel)
+        if key not in ctx.extra:
+            Tfull = ctx.temps[self.channel]
+            ctx.extra[key] = bool(np.ptp(Tfull) > 20 * max(noise_level(Tfull[np.isfinite(Tfull)]), 1e-3))
+        dT_ok = ctx.extra[key]
         f.ok = bool(f.internal["dsse_Tx"] > PRESCREEN and dT_ok and np.ptp(x) > 0
                     and abs(f.internal["coef"][0]) < MAX_ALPHA)
         return f
@@ -538,7 +667,7 @@ class ServoLag(AxisSignal):
         g = self.gain(ctx)
         u = ctx.q_cmd[:, self.a]
         rows = ctx.obs.row
-        v = np.gradient(u, ctx.t)
+        v = axis_velocity(ctx, self.a)
         col = g * -v[rows]
         tau0 = float(_lstsq(col[train, None], y[train])[0])
         if tau0 <= 0:
@@ -560,6 +689,96 @@ class ServoLag(AxisSignal):
                 pass
         pred = g * (first_order_lag(ctx.t, u, tau) - u)[rows]
         return Fit({"tau_s": tau}, pred, 1)
+
+    def check(self, ctx, fit, y):
+        tau = fit.params.get("tau_s", 0.0)
+        if not 1e-4 <= tau <= 0.5:
+            return [f"τ = {tau * 1000:.3g} ms is outside a drive's 0.1-500 ms"]
+        # a lag trails in proportion to speed; a constant trailing error that only flips at
+        # reversals (friction) fits a lag too, but a sign-of-velocity column fits it better
+        g = self.gain(ctx)
+        d = axis_direction(ctx, self.a)[ctx.obs.row]
+        col = (g * -d)[:, None]
+        c = _lstsq(col, y)
+        r_sign = y - col @ c
+        r_lag = y - fit.pred
+        if float(r_sign @ r_sign) < float(r_lag @ r_lag):
+            return ["the trailing error is constant in speed and flips at reversals (friction-like), "
+                    "not proportional to speed"]
+        return []
+
+
+class Friction(AxisSignal):
+    """Coulomb + Stribeck friction seen as the drive's following error: the motor side trails the
+    command by e(v) = sign(v)·(e_c + e_s·exp(−(v/v_s)²)) (the friction force over the position
+    loop's stiffness), held through stops, flipping at every reversal. Motor-side: the encoder sees
+    it, and the tool too where the axis has no encoder. Parameters: ``coulomb_mm`` (e_c > 0),
+    ``stribeck_mm`` (extra at low speed, ≥ 0), ``stribeck_speed_mm_s`` (v_s, from a grid). A lag
+    trails in proportion to speed, backlash is load-side (the encoder does not see it)."""
+
+    effect = "friction"
+    site = "motor"
+    nparams = 3
+    VS = (0.5, 1.0, 2.0, 3.5, 6.0, 10.0)
+
+    def _cols(self, ctx, vs):
+        d = axis_direction(ctx, self.a)[ctx.obs.row]
+        v = axis_velocity(ctx, self.a)[ctx.obs.row]
+        g = self.gain(ctx)
+        return np.stack([g * -d, g * -d * np.exp(-(v / vs) ** 2)], 1)
+
+    def fit(self, ctx, y, train):
+        def cost(lv):
+            # both terms are friction, never negative: non-negative least squares on 2 columns
+            X = self._cols(ctx, math.exp(lv))
+            nz = train & np.any(X != 0, 1)
+            Xs, ys = X[nz], y[nz]
+            G, b = Xs.T @ Xs, Xs.T @ ys
+            c = np.zeros(2)
+            for act in ((0, 1), (0,), (1,)):
+                a = list(act)
+                try:
+                    sol = np.linalg.solve(G[np.ix_(a, a)], b[a])
+                except np.linalg.LinAlgError:
+                    continue
+                if np.all(sol >= 0):
+                    c = np.zeros(2)
+                    c[a] = sol
+                    break
+            r = ys - Xs @ c
+            return float(r @ r), c, X
+
+        # the Stribeck term must fade within the motion, else it is the Coulomb term again: v_s at
+        # most 0.8 x the median moving speed
+        v = np.abs(axis_velocity(ctx, self.a))
+        vmax = 0.8 * float(np.median(v[v > 1e-3 * max(v.max(), 1e-12)])) if np.any(v > 0) else 0.0
+        grid = [vs for vs in self.VS if vs <= vmax]
+        if not grid:
+            X = self._cols(ctx, 1.0)
+            X[:, 1] = 0.0
+            nz = train & (X[:, 0] != 0)
+            c0 = max(float(_lstsq(X[nz][:, :1], y[nz])[0]), 0.0)
+            return Fit({"coulomb_mm": c0, "stribeck_mm": 0.0, "stribeck_speed_mm_s": 0.0},
+                       X[:, 0] * c0, 1, ok=c0 > 0)
+        best = None
+        for vs in grid:
+            sse, c, X = cost(math.log(vs))
+            if best is None or sse < best[0]:
+                best = (sse, vs, c, X)
+        # refine the Stribeck speed between the grid's neighbours (golden section on log v_s)
+        lv0 = math.log(best[1])
+        sol = optimize.minimize_scalar(lambda lv: cost(lv)[0], bounds=(lv0 - 0.7, min(lv0 + 0.7, math.log(vmax))),
+                                       method="bounded", options={"maxiter": 12, "xatol": 0.02})
+        sse, c, X = cost(float(sol.x))
+        best = (sse, math.exp(float(sol.x)), c, X) if sse < best[0] else best
+        _, vs, c, X = best
+        return Fit({"coulomb_mm": float(c[0]), "stribeck_mm": float(c[1]), "stribeck_speed_mm_s": vs},
+                   X @ c, 3, ok=bool(c[0] > 0))
+
+    def check(self, ctx, fit, y):
+        if fit.params.get("coulomb_mm", 0) <= 0:
+            return ["the error leads the command (friction can only make the drive trail)"]
+        return []
 
 
 class LostSteps(AxisSignal):
@@ -688,8 +907,15 @@ class Resonance(Candidate):
     def fit(self, ctx, y, train):
         tu, dt, _ = self._uniform(ctx)
         nyq = 0.5 / dt
+        # the channels that see the mode may be sampled slower than the log (a 100 Hz tracker):
+        # above their Nyquist frequency a mode aliases, so the search stops below it
+        sup_rows = np.unique(ctx.obs.row[self._weights(ctx)[2]])
+        if len(sup_rows) > 2:
+            nyq = min(nyq, 0.5 / float(np.median(np.diff(ctx.t[sup_rows]))))
         if self._starts is None:
-            grid = np.geomspace(1.0, 0.4 * nyq, 20) if nyq > 2.5 else np.array([])
+            # (a coarser start grid on long records: each start filters the whole record)
+            ng = 20 if len(ctx.t) <= 200_000 else 10
+            grid = np.geomspace(1.0, 0.4 * nyq, ng) if nyq > 2.5 else np.array([])
             self._starts = [(f, z) for f in self._f_candidates(ctx, y) for z in (0.02, 0.1)] + \
                 [(float(f), 0.05) for f in grid]
         fs = self._starts
@@ -718,7 +944,7 @@ class Resonance(Candidate):
                 try:
                     sol = optimize.least_squares(
                         res, [math.log(f0), z0],
-                        bounds=([math.log(0.2), 1e-3], [math.log(0.9 * nyq), 0.9]),
+                        bounds=([math.log(1.0), 1e-3], [math.log(0.9 * nyq), 0.9]),
                         diff_step=[1e-4, 1e-3], max_nfev=15)
                 except ValueError:
                     continue
@@ -730,7 +956,223 @@ class Resonance(Candidate):
         X = self._bases(ctx, f, z)
         c = _lstsq(X[sel], yt)
         return Fit({"freq_hz": f, "damping_ratio": z}, X @ c, 2 + X.shape[1],
-                   internal={"gains": c.tolist()})
+                   internal={"gains": c.tolist(), "nyq": nyq})
+
+    def check(self, ctx, fit, y):
+        f, z = fit.params.get("freq_hz"), fit.params.get("damping_ratio")
+        if f is None:
+            return ["no mode"]
+        out = []
+        if z <= 0.003:
+            out.append(f"damping ratio {z:.4f} at its lower bound: a steady line, not a ringing mode")
+        if z >= 0.8:
+            out.append(f"damping ratio {z:.2f}: overdamped, nothing rings")
+        if f < 2.0:
+            out.append(f"{f:.2f} Hz is below any structural mode of the machine (a slow error or a "
+                       "transient at reversals, not ringing)")
+        if f > 0.85 * fit.internal.get("nyq", np.inf):
+            out.append(f"{f:.1f} Hz at the Nyquist limit of the log")
+        if out:
+            return out
+        # ringing decays after each acceleration; a line of constant amplitude at the same
+        # frequency (forced vibration) must not explain as much
+        _, W, sup = self._weights(ctx)
+        t = ctx.t[ctx.obs.row]
+        X = np.concatenate([(W * np.sin(2 * np.pi * f * t)).T, (W * np.cos(2 * np.pi * f * t)).T], 1)
+        c = _lstsq(X[sup], y[sup])
+        r_line = y[sup] - X[sup] @ c
+        r_mode = y[sup] - fit.pred[sup]
+        gain_line = float(y[sup] @ y[sup] - r_line @ r_line)
+        gain_mode = float(y[sup] @ y[sup] - r_mode @ r_mode)
+        if gain_line > 0.7 * gain_mode:
+            out.append(f"a steady {f:.2f} Hz line of constant amplitude explains it as well: forced "
+                       "vibration, not a mode excited by the motion")
+        return out
+
+
+def channel_group(ctx: Context, target: str) -> list[str]:
+    """Channels of a latency/drift target: ``tip_*`` is the tracker (tip_* and tool_*)."""
+    if target == "tip_*":
+        return [c for c in ctx.obs.channels if c.startswith(("tip_", "tool_"))]
+    return [target] if target in ctx.obs.channels else []
+
+
+class SensorLatency(Candidate):
+    """A channel (or the tracker, ``tip_*`` = tip_* and tool_*) is time-stamped late by d: it
+    reads the true value of t − d, so its residual is −d·(d prediction / dt). Linear in d for
+    delays much shorter than the motion's time scale. Parameter ``delay_s`` (positive: late).
+    Identifiable when the channel's prediction moves (its residual follows the speed, in every
+    channel of the group with the one delay)."""
+
+    effect = "sensor_latency"
+    target_key = "channel"
+
+    def applicable(self, ctx):
+        return bool(channel_group(ctx, self.target))
+
+    def design(self, ctx):
+        o = ctx.obs
+        col = np.zeros(len(o.y))
+        for c in channel_group(ctx, self.target):
+            m = np.flatnonzero(o.ch == o.channels.index(c))
+            order = m[np.argsort(o.row[m], kind="stable")]
+            tt, pp = ctx.t[o.row[order]], o.pred[order]
+            if len(tt) < 3:
+                continue
+            dp = np.gradient(pp, tt)
+            # a gap in the channel (tracker drop-out) is no derivative: no leverage there
+            dt = np.diff(tt)
+            med = float(np.median(dt))
+            gap = np.zeros(len(tt), bool)
+            gap[1:] |= dt > 3 * med
+            gap[:-1] |= dt > 3 * med
+            col[order] = np.where(gap, 0.0, -dp * o.w[order])
+        return col[:, None]
+
+    def params_of(self, c, ctx):
+        return {"delay_s": float(c[0])}
+
+    def check(self, ctx, fit, y):
+        d = fit.params.get("delay_s", 0.0)
+        if not 0 < abs(d) <= 0.2:
+            return [f"delay {d * 1000:.3g} ms outside 0-200 ms"]
+        return []
+
+
+class SensorDrift(Candidate):
+    """A channel's zero creeps linearly in time: measured = true + r·(t − t_mid). Parameter
+    ``rate_per_s`` (channel units per second). Identifiable against thermal growth and geometry
+    because it does not depend on pose or on a temperature; against an offset because it changes
+    sign over the record."""
+
+    effect = "sensor_drift"
+    target_key = "channel"
+
+    def applicable(self, ctx):
+        return self.target in ctx.obs.channels and ctx.duration > 0
+
+    def design(self, ctx):
+        o = ctx.obs
+        t = ctx.t[o.row]
+        tm = 0.5 * (ctx.t[0] + ctx.t[-1])
+        return np.where(o.mask_of(self.target), o.w * (t - tm), 0.0)[:, None]
+
+    def params_of(self, c, ctx):
+        return {"rate_per_s": float(c[0])}
+
+
+def _line_frequencies(tt, sig, fmin=0.5, k=3, ratio_min=6.0):
+    """Peaks of the Welch spectrum of an (irregular) series, strongest first, above fmin."""
+    if len(sig) < 32:
+        return []
+    dt = float(np.median(np.diff(tt)))
+    if dt <= 0:
+        return []
+    tu = np.arange(tt[0], tt[-1], dt)
+    su = np.interp(tu, tt, sig)
+    fq, p = signal.welch(su - su.mean(), fs=1 / dt, nperseg=min(len(su), 4096))
+    base = signal.medfilt(p, 31) if len(p) > 31 else np.full_like(p, np.median(p))
+    ratio = p / np.maximum(base, 1e-300)
+    ratio[fq < fmin] = 0
+    pk, _ = signal.find_peaks(ratio)
+    pk = pk[np.argsort(ratio[pk])[::-1]][:k]
+    return [float(fq[j]) for j in pk if ratio[j] > ratio_min]
+
+
+class ForcedVibration(Candidate):
+    """A steady vibration from a source that does not care how the machine moves (a spindle, a
+    pump, the floor): a line of constant amplitude A·sin(2πft + φ) on an axis (load side, seen by
+    the tool) or in one channel. Parameters ``freq_hz``, ``amplitude_mm`` (axis) or ``amplitude``
+    (channel units). Identifiable against a resonance because its amplitude does not follow the
+    accelerations (the same in every time fold)."""
+
+    effect = "forced_vibration"
+    nparams = 3
+
+    def __init__(self, target, key):
+        super().__init__(target)
+        self.target_key = key
+        self._starts = None
+
+    def reset(self):
+        self._starts = None
+
+    def _w(self, ctx):
+        o = ctx.obs
+        if self.target_key == "axis":
+            return axis_gain(ctx, AXES.index(self.target))
+        return np.where(o.ch == o.channels.index(self.target), o.w, 0.0)
+
+    def applicable(self, ctx):
+        if self.target_key == "axis":
+            return bool(np.any(axis_gain(ctx, AXES.index(self.target)) != 0))
+        return self.target in ctx.obs.channels
+
+    def _series(self, ctx, y):
+        o = ctx.obs
+        g = self._w(ctx)
+        m = g != 0
+        num = np.bincount(o.row[m], g[m] * y[m], minlength=len(ctx.t))
+        den = np.bincount(o.row[m], g[m] ** 2, minlength=len(ctx.t))
+        ok = den > 0
+        return ctx.t[ok], num[ok] / den[ok]
+
+    def fit(self, ctx, y, train):
+        if self._starts is None:
+            tt, sig = self._series(ctx, y)
+            self._starts = _line_frequencies(tt, sig, fmin=1.0) if len(tt) else []
+        if not self._starts:
+            return Fit({}, np.zeros_like(y), 3, ok=False)
+        g = self._w(ctx)
+        t = ctx.t[ctx.obs.row]
+        sel = train & (g != 0)
+        gs, ys, ts = g[sel], y[sel], t[sel]
+
+        def res(p):
+            X = np.stack([gs * np.sin(2 * np.pi * p[0] * ts), gs * np.cos(2 * np.pi * p[0] * ts)], 1)
+            return X @ _lstsq(X, ys) - ys
+
+        best = None
+        df = 1.0 / max(ctx.duration, 1e-9)
+        for f0 in self._starts[:2]:
+            try:
+                sol = optimize.least_squares(res, [f0], bounds=([max(f0 - 3 * df, 1e-3)], [f0 + 3 * df]),
+                                             x_scale=[df * 0.1], diff_step=[1e-7], max_nfev=20)
+            except ValueError:
+                continue
+            if best is None or sol.cost < best.cost:
+                best = sol
+        if best is None:
+            return Fit({}, np.zeros_like(y), 3, ok=False)
+        f = float(best.x[0])
+        X = np.stack([g * np.sin(2 * np.pi * f * t), g * np.cos(2 * np.pi * f * t)], 1)
+        c = _lstsq(X[sel], ys)
+        amp = float(np.hypot(*c))
+        key = "amplitude_mm" if self.target_key == "axis" else "amplitude"
+        return Fit({"freq_hz": f, key: amp}, X @ c, 3)
+
+    def check(self, ctx, fit, y):
+        f = fit.params.get("freq_hz")
+        if f is None:
+            return ["no line"]
+        if f * ctx.duration < 10:
+            return [f"{f:.2f} Hz completes fewer than 10 cycles in the record"]
+        # a steady source keeps its amplitude: fitted on each quarter of the record it must not
+        # vanish in one of them (a burst, chatter in one cut, is something else)
+        g = self._w(ctx)
+        t = ctx.t[ctx.obs.row]
+        edges = np.linspace(ctx.t[0], ctx.t[-1], 5)
+        amps = []
+        for a, b in zip(edges, edges[1:]):
+            m = (g != 0) & (t >= a) & (t <= b)
+            if m.sum() < 8:
+                continue
+            X = np.stack([g[m] * np.sin(2 * np.pi * f * t[m]), g[m] * np.cos(2 * np.pi * f * t[m])], 1)
+            amps.append(float(np.hypot(*_lstsq(X, y[m]))))
+        if len(amps) >= 3 and min(amps) < 0.33 * max(amps):
+            return [f"its amplitude is not steady over the record (quarters: "
+                    f"{', '.join(f'{x / max(amps):.2f}' for x in amps)} of the largest): a burst, not a steady source"]
+        return []
 
 
 class Geometry(Candidate):
@@ -813,12 +1255,14 @@ def catalogue(ctx: Context) -> list[Candidate]:
     for grp in ctx.geo:
         cands.append(Geometry(grp))
     for ax in AXES:
-        cands += [Backlash(ax), PitchError(ax), ServoLag(ax), LostSteps(ax), Resonance(ax, "axis")]
+        cands += [Backlash(ax), PitchError(ax), PeriodicError(ax), ServoLag(ax), Friction(ax), LostSteps(ax),
+                  Resonance(ax, "axis"), ForcedVibration(ax, "axis")]
         cands.append(Compliance(ax))
         for tc in ctx.temps:
             cands.append(ThermalGrowth(ax, tc))
     for c in ctx.obs.channels:
         if c.startswith("strain_"):
-            cands.append(Resonance(c, "channel"))
-        cands += [SensorGain(c), SensorOffset(c)]
+            cands += [Resonance(c, "channel"), ForcedVibration(c, "channel"), SensorLatency(c)]
+        cands += [SensorGain(c), SensorOffset(c), SensorDrift(c)]
+    cands.append(SensorLatency("tip_*"))
     return [c for c in cands if c.applicable(ctx)]

@@ -21,7 +21,7 @@ import math
 import numpy as np
 from scipy import signal
 
-from pmctl.tools.twin.effects import AXES, Context, axis_gain
+from pmctl.tools.twin.effects import AXES, Context, axis_gain, axis_velocity
 
 MAD_K = 1.4826
 
@@ -167,7 +167,7 @@ def locate(ctx: Context, y=None) -> dict:
         if len(e):
             info["tool_equiv_rms_mm"] = float(np.sqrt(np.mean(e * e)))
             x = ctx.q_cmd[rows, a]
-            v = np.gradient(ctx.q_cmd[:, a], ctx.t)[rows]
+            v = axis_velocity(ctx, a)[rows]
             vs = np.abs(v) > 1e-3 * max(np.max(np.abs(v)), 1e-12)
             plus, minus = vs & (v > 0), vs & (v < 0)
             if plus.sum() > 3 and minus.sum() > 3:

@@ -44,6 +44,18 @@ How a case is made (vectorised; a 60 s run at 1 kHz takes 1-2 s to simulate, ~0.
    µε); ``sensor_gain`` (measured = gain·true) / ``sensor_offset`` (measured = true + offset) on
    one channel; temperatures σ 0.02 K at 10 Hz, 0.01 K resolution; loads σ 0.3 N.
 
+Further effects (issue 12): ``friction`` (motor side trails cmd by sign(v)·(coulomb_mm + Stribeck
+term), 0 before the first move), ``periodic_error`` (as pitch, at a period 0.8-8 mm that is no lead
+harmonic), ``sensor_latency`` (the tracker, ``channel`` ``"tip_*"``, reports the pose of t − delay_s),
+``forced_vibration`` (a constant-amplitude line on an axis' load side or in a strain channel),
+``sensor_drift`` (measured += rate_per_s·(t − t_mid)); thermal growth draws its fixed-bearing end
+(``screw_fixed_end_mm``: one end of the screw or the other) and may be given the heated screw's
+rise (``details["rise_K"]``). Physics outside the catalogue (``ODDITIES``, ``synth_case(...,
+oddities=[...])``, listed under ``"oddities"`` in the answer, never under ``"effects"``): a bent
+table guide (``straightness``: tip_y bump over table X) and a ``chatter_burst`` (a line in tip_x for
+one stretch of the run). ``synth_case(..., imperfections=True)`` applies :func:`imperfect` (dropped
+rows, time-stamp jitter, coloured noise, a tracker drop-out).
+
 Sign conventions of the answer parameters: backlash ``width_mm`` is the whole deadband (the load
 side trails the motor by width/2 in the direction of motion); pitch ``amplitude_mm`` is the sine
 amplitude (not peak-to-peak); ``lost_steps`` ``offset_mm`` is added to the load-side position
@@ -90,7 +102,7 @@ from pmctl.core.errors import InputError
 from pmctl.core.kinematics import axis_from_roll_pitch, ik_batch, roll_pitch_from_axis
 from pmctl.core.recording import AXES, CMD, ENC, LOAD, STRAIN, TIP, TOOL, write_recording
 from pmctl.core.statics import chain_forces, strain_of_axial
-from pmctl.tools.twin.catalogue import EFFECTS, RUNS  # names shared with the command line
+from pmctl.tools.twin.catalogue import EFFECTS, ODDITIES, RUNS  # names shared with the command line
 from pmctl.tools.twin.nominal import pose_of_joints
 
 # Which runs make an effect observable (thermal needs minutes; compliance needs force changes).
@@ -98,6 +110,7 @@ RUNS_FOR = {"thermal_growth": ("warmup",), "compliance": ("calibration",)}
 TEMP_CHANNELS = ("temp_screw1", "temp_screw2", "temp_screw3", "temp_screwX", "temp_screwY")
 T_CAL_C = 20.0                     # geometry was calibrated at 20 °C
 SCREW_FIXED = np.array([150.0, 150.0, 150.0, -75.0, -75.0])   # fixed-bearing end of each screw
+SCREW_FREE = np.array([480.0, 480.0, 480.0, 75.0, 75.0])      # ... or it is mounted the other way round
 PULSE_MM = 1.0 / 2000.0
 
 
@@ -130,7 +143,8 @@ def scale_effect(e: Effect, s: float) -> Effect:
     """The same effect ``s`` times as strong (stiffness divided, gain deviation multiplied)."""
     p, d = dict(e.parameters), dict(e.details)
     for k in ("width_mm", "amplitude_mm", "alpha_per_K", "tau_s", "offset_mm", "offset",
-              "length_offset_mm", "base_joint_radial_mm", "base_joint_z_mm", "tool_length_mm"):
+              "length_offset_mm", "base_joint_radial_mm", "base_joint_z_mm", "tool_length_mm",
+              "coulomb_mm", "delay_s", "amplitude", "rate_per_s"):
         if k in p:
             p[k] = p[k] * s
     if "stiffness_N_per_mm" in p:
@@ -160,9 +174,35 @@ def _draw_effect(name: str, rng, *, duration_s: float, axis: str | None) -> Effe
         return Effect(name, {"axis": ax}, {"period_mm": 5.0, "amplitude_mm": rng.uniform(0.004, 0.015)},
                       {"phase_rad": rng.uniform(0, 2 * np.pi)})
     if name == "thermal_growth":
+        j = AXES.index(ax)
+        fixed = float(SCREW_FIXED[j] if rng.random() < 0.5 else SCREW_FREE[j])
         return Effect(name, {"axis": ax}, {"alpha_per_K": rng.uniform(8e-6, 18e-6),
-                                           "channel": "temp_screw" + ax.lstrip("L")},
-                      {"t_ref_C": T_CAL_C, "screw_fixed_end_mm": float(SCREW_FIXED[AXES.index(ax)])})
+                                           "channel": "temp_screw" + ax.lstrip("L"), "screw_fixed_end_mm": fixed},
+                      {"t_ref_C": T_CAL_C})
+    if name == "friction":
+        c = rng.uniform(0.004, 0.02)
+        return Effect(name, {"axis": ax}, {"coulomb_mm": c},
+                      {"stribeck_mm": c * rng.uniform(0.0, 1.0), "stribeck_speed_mm_s": rng.uniform(1.0, 5.0)})
+    if name == "periodic_error":
+        while True:
+            per = float(np.exp(rng.uniform(np.log(0.8), np.log(8.0))))
+            if all(abs(per * k / 5.0 - 1) > 0.08 for k in (1, 2, 3, 4)):
+                break
+        return Effect(name, {"axis": ax}, {"period_mm": per, "amplitude_mm": rng.uniform(0.004, 0.012)},
+                      {"phase_rad": rng.uniform(0, 2 * np.pi)})
+    if name == "sensor_latency":
+        return Effect(name, {"channel": "tip_*"}, {"delay_s": rng.uniform(0.001, 0.006)})
+    if name == "forced_vibration":
+        if axis is None and rng.random() < 0.5:
+            ch = str(rng.choice(STRAIN))
+            return Effect(name, {"channel": ch}, {"freq_hz": rng.uniform(10, 90), "amplitude": rng.uniform(1.5, 5.0)},
+                          {"phase_rad": rng.uniform(0, 2 * np.pi)})
+        return Effect(name, {"axis": ax}, {"freq_hz": rng.uniform(4, 20), "amplitude_mm": rng.uniform(0.003, 0.01)},
+                      {"phase_rad": rng.uniform(0, 2 * np.pi)})
+    if name == "sensor_drift":
+        ch = str(rng.choice(STRAIN + TIP))
+        r = rng.uniform(0.05, 0.3) if ch.startswith("strain") else rng.uniform(1e-4, 6e-4)
+        return Effect(name, {"channel": ch}, {"rate_per_s": _sgn(rng) * r})
     if name == "compliance":
         k = rng.uniform(1500, 6000) if ax.startswith("L") else rng.uniform(2000, 8000)
         return Effect(name, {"axis": ax}, {"stiffness_N_per_mm": k})
@@ -453,8 +493,9 @@ def mode_response(accel, freq_hz, zeta, dt):
     return signal.lfilter(b, a, accel)
 
 
-def screw_temperatures(run: Run, rng, heated_axis: int | None, warm: bool):
-    """Friction-heated screw temperatures (n, 5) and the room (n,), °C."""
+def screw_temperatures(run: Run, rng, heated_axis: int | None, warm: bool, rise_K=None):
+    """Friction-heated screw temperatures (n, 5) and the room (n,), °C (``rise``: the heated
+    screw's rise in K, else drawn)."""
     t, dt = run.t, 1.0 / run.rate_hz
     n = len(t)
     room = rng.uniform(19.0, 22.5) + rng.uniform(-0.3, 0.6) * t / 600.0 + 0.05 * np.sin(2 * np.pi * t / 900 + rng.uniform(0, 6))
@@ -465,6 +506,8 @@ def screw_temperatures(run: Run, rng, heated_axis: int | None, warm: bool):
         rise = rng.uniform(3, 12) if warm else rng.uniform(0.5, 3)
         if heated_axis == j:
             rise = max(rise, rng.uniform(6, 12))
+            if rise_K is not None:       # a given rise (the draws above keep the rng sequence)
+                rise = rise_K
         mean_speed = max(speed[:, j].mean(), 1e-9)
         u = rise * speed[:, j] / mean_speed
         t0 = room[0] + rng.uniform(0, 1.0)
@@ -507,8 +550,62 @@ def _true_machine(machine: Machine, effects) -> Machine:
     return dataclasses.replace(machine, geometry=dataclasses.replace(g, nominal=False, **changes))
 
 
+def _direction(x):
+    """+1/-1: direction of the last motion, held through stops (0 before the first move)."""
+    dx = np.diff(x, prepend=x[0])
+    s = np.sign(dx)
+    idx = np.where(s != 0, np.arange(len(s)), 0)
+    np.maximum.accumulate(idx, out=idx)
+    d = s[idx]
+    first = np.flatnonzero(s)
+    d[: first[0] if len(first) else len(d)] = 0.0      # settled before the first move: no error
+    return d
+
+
+def make_oddity(kind: str, rng, run: Run) -> dict:
+    """A random instance of physics outside the catalogue (see ODDITIES)."""
+    if kind == "straightness":
+        x = run.q[:, 3]
+        return {"kind": kind, "channels": ["tip_y"], "center_mm": float(rng.uniform(np.quantile(x, 0.3), np.quantile(x, 0.7))),
+                "width_mm": float(max(np.ptp(x), 1.0) * rng.uniform(0.08, 0.2)),
+                "amplitude_mm": float(_sgn(rng) * rng.uniform(0.008, 0.02))}
+    if kind == "chatter_burst":
+        T = float(run.t[-1])
+        ln = T * rng.uniform(0.1, 0.2)
+        return {"kind": kind, "channels": ["tip_x"], "t0_s": float(rng.uniform(0.2, 0.7) * T), "length_s": ln,
+                "freq_hz": float(rng.uniform(6, 15)), "amplitude_mm": float(rng.uniform(0.008, 0.02))}
+    raise InputError("--oddities", None, f"unknown {kind!r}; known: {', '.join(ODDITIES)}")
+
+
+def imperfect(cols: dict, rng, rate_hz: float) -> dict:
+    """Recording imperfections of real loggers: 1 % of the rows dropped, timestamp jitter (±10 %
+    of a step), coloured (AR(1), ρ 0.95) noise of half the white level on tip_* and strain_*, and a
+    longer tracker drop-out."""
+    n = len(cols["t"])
+    keep = rng.random(n) > 0.01
+    keep[0] = keep[-1] = True
+    out = {k: np.asarray(v, float)[keep].copy() for k, v in cols.items()}
+    m = int(keep.sum())
+    dt = 1.0 / rate_hz
+    out["t"] = out["t"] + rng.uniform(-0.1, 0.1, m) * dt
+    out["t"][0] = cols["t"][0]
+    for c in TIP + STRAIN:
+        if c in out:
+            x = out[c]
+            ok = np.isfinite(x)
+            lvl = 0.5 * (0.0015 if c.startswith("tip") else 0.5)
+            e = signal.lfilter([np.sqrt(1 - 0.95 ** 2)], [1, -0.95], rng.normal(0, lvl, m))
+            out[c] = np.where(ok, x + e, np.nan)
+    s = int(rng.integers(0, max(m - 1, 1)))
+    ln = int(rng.uniform(1.0, 2.0) * rate_hz)
+    for c in TIP + TOOL:
+        if c in out:
+            out[c][s:s + ln] = np.nan
+    return out
+
+
 def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, tracker_div=10,
-             noise_scale=1.0):
+             noise_scale=1.0, oddities=()):
     """Inject ``effects`` as machine physics into ``run``, measure; returns (columns, noise)."""
     t, n, dt = run.t, len(run.t), 1.0 / run.rate_hz
     by = {}
@@ -523,11 +620,18 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
     for e in by.get("servo_lag", []):
         j = ai[e.locator["axis"]]
         q_mot[:, j] = first_order_lag(q_cmd[:, j], e.parameters["tau_s"], dt)
+    for e in by.get("friction", []):       # following error of the position loop against friction
+        j = ai[e.locator["axis"]]
+        v = np.gradient(q_cmd[:, j], dt)
+        d = _direction(q_cmd[:, j])
+        d_ = e.details
+        q_mot[:, j] -= d * (e.parameters["coulomb_mm"] + d_["stribeck_mm"] * np.exp(-(v / d_["stribeck_speed_mm_s"]) ** 2))
 
     # temperatures
     th = by.get("thermal_growth", [])
     temps, room = screw_temperatures(run, rng, ai[th[0].locator["axis"]] if th else None,
-                                     warm=run.kind == "warmup")
+                                     warm=run.kind == "warmup",
+                                     rise_K=th[0].details.get("rise_K") if th else None)
 
     # load side
     q_load = q_mot.copy()
@@ -540,7 +644,17 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
         q_load[:, j] += p["amplitude_mm"] * np.sin(2 * np.pi * q_mot[:, j] / p["period_mm"] + e.details["phase_rad"])
     for e in th:
         j = ai[e.locator["axis"]]
-        q_load[:, j] += e.parameters["alpha_per_K"] * (temps[:, j] - T_CAL_C) * (q_mot[:, j] - SCREW_FIXED[j])
+        fixed = e.parameters.get("screw_fixed_end_mm", SCREW_FIXED[j])
+        q_load[:, j] += e.parameters["alpha_per_K"] * (temps[:, j] - e.details.get("t_ref_C", T_CAL_C)) * (q_mot[:, j] - fixed)
+    for e in by.get("periodic_error", []):
+        j = ai[e.locator["axis"]]
+        p = e.parameters
+        q_load[:, j] += p["amplitude_mm"] * np.sin(2 * np.pi * q_mot[:, j] / p["period_mm"] + e.details["phase_rad"])
+    for e in by.get("forced_vibration", []):
+        if "axis" in e.locator:
+            j = ai[e.locator["axis"]]
+            p = e.parameters
+            q_load[:, j] += p["amplitude_mm"] * np.sin(2 * np.pi * p["freq_hz"] * t + e.details["phase_rad"])
     for e in by.get("lost_steps", []):
         j = ai[e.locator["axis"]]
         q_load[:, j] += np.where(t >= e.parameters["t_s"], e.parameters["offset_mm"], 0.0)
@@ -560,6 +674,11 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
             i = STRAIN.index(e.locator["channel"])
             d = mode_response(accel[:, i], p["freq_hz"], p["damping_ratio"], dt)
             strain_extra[:, i] += e.details["peak_ue"] * d / max(np.abs(d).max(), 1e-12)
+    for e in by.get("forced_vibration", []):
+        if "channel" in e.locator:
+            i = STRAIN.index(e.locator["channel"])
+            p = e.parameters
+            strain_extra[:, i] += p["amplitude"] * np.sin(2 * np.pi * p["freq_hz"] * t + e.details["phase_rad"])
 
     true_m = _true_machine(machine, by.get("geometry", []))
     force = run.force
@@ -597,8 +716,22 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
     for _ in range(int(rng.integers(0, 3))):                       # and a few longer breaks
         s = int(rng.integers(0, n))
         tracked[s:s + int(rng.uniform(0.2, 1.0) * run.rate_hz)] = False
-    tip = pose.tip + rng.normal(0, noise["tip_mm"], (n, 3))
-    ax = pose.axis + rng.normal(0, noise["tool"], (n, 3))
+    tip_true, axis_true = pose.tip, pose.axis
+    for e in by.get("sensor_latency", []):    # the tracker reports the pose of t − delay
+        ts = t - e.parameters["delay_s"]
+        tip_true = np.stack([np.interp(ts, t, tip_true[:, k]) for k in range(3)], 1)
+        axis_true = np.stack([np.interp(ts, t, axis_true[:, k]) for k in range(3)], 1)
+    for o in oddities:
+        if o["kind"] == "straightness":          # a bent table guide: the part moves in y with X
+            xx = q_load[:, 3]
+            tip_true = tip_true.copy()
+            tip_true[:, 1] += o["amplitude_mm"] * np.exp(-((xx - o["center_mm"]) / o["width_mm"]) ** 2)
+        elif o["kind"] == "chatter_burst":       # a vibration in one stretch of the run only
+            tip_true = tip_true.copy()
+            on = (t >= o["t0_s"]) & (t < o["t0_s"] + o["length_s"])
+            tip_true[:, 0] += np.where(on, o["amplitude_mm"] * np.sin(2 * np.pi * o["freq_hz"] * t), 0.0)
+    tip = tip_true + rng.normal(0, noise["tip_mm"], (n, 3))
+    ax = axis_true + rng.normal(0, noise["tool"], (n, 3))
     ax /= np.linalg.norm(ax, axis=-1, keepdims=True)
     meas = {}
     for j, c in enumerate(TIP):
@@ -614,6 +747,9 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
     for e in by.get("sensor_offset", []):
         c = e.locator["channel"]
         meas[c] = meas[c] + e.parameters["offset"]
+    for e in by.get("sensor_drift", []):
+        c = e.locator["channel"]
+        meas[c] = meas[c] + e.parameters["rate_per_s"] * (t - 0.5 * (t[0] + t[-1]))
     for c in TIP + (TOOL if tool else ()):
         cols[c] = np.where(tracked, meas[c], np.nan)
     for c in STRAIN:
@@ -644,8 +780,10 @@ def _pick_run(names, rng, run=None):
 
 
 def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, machine=None,
-               seed=None, magnitude_scale=1.0, noise_scale=1.0) -> Case:
-    """One case: ``effects`` a list of catalogue names (each drawn at random) or Effect objects."""
+               seed=None, magnitude_scale=1.0, noise_scale=1.0, oddities=(), imperfections=False) -> Case:
+    """One case: ``effects`` a list of catalogue names (each drawn at random) or Effect objects;
+    ``oddities``: names from ODDITIES (physics outside the catalogue, listed apart in the answer);
+    ``imperfections``: drop rows, jitter the time stamps, colour the noise (:func:`imperfect`)."""
     machine = machine or load_machine()
     names = [e.effect if isinstance(e, Effect) else e for e in effects]
     kind = _pick_run(names, rng, run)
@@ -672,8 +810,12 @@ def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, mach
     tool = rng.random() < 0.75
     tracker_hz = float(rng.choice([50.0, 100.0, 100.0, 200.0])) if rate_hz >= 400 else min(100.0, rate_hz / 2)
     tracker_div = max(1, int(round(rate_hz / tracker_hz)))
+    orng = np.random.default_rng([0 if seed is None else int(seed), 77])   # apart: same noise as without
+    odd = [o if isinstance(o, dict) else make_oddity(o, orng, r) for o in oddities]
     cols, noise = simulate(r, effs, rng, machine, enc=enc, tool=tool, tracker_div=tracker_div,
-                           noise_scale=noise_scale)
+                           noise_scale=noise_scale, oddities=odd)
+    if imperfections:
+        cols = imperfect(cols, orng, rate_hz)
     descr = {"raster": "pocket milling, zig-zag passes in layers",
              "circle": "cone-frustum circle test (5-axis contouring)",
              "calibration": "point-to-point calibration sweep with laser tracker",
@@ -690,6 +832,10 @@ def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, mach
             "channel_notes": notes}
     answer = {"run": kind, "seed": seed, "duration_s": duration_s, "sample_rate_hz": rate_hz,
               "effects": [e.answer() for e in effs], "noise": noise}
+    if odd:
+        answer["oddities"] = odd
+    if imperfections:
+        answer["imperfections"] = True
     return Case(cols, meta, answer)
 
 

@@ -1,0 +1,274 @@
+"""What the named effects leave unexplained: the report's ``unexplained`` block. Pure math.
+
+After the selection, the residual of every channel (measured − nominal − accepted effects) is
+compared with that channel's noise. A channel whose remaining residual is clearly above noise
+(``excess_over_noise`` = √(rms² − σ²)/σ ≥ EXCESS_MIN, and the chi-square excess far beyond what
+N noisy samples give) gets an entry with
+
+- ``channels``, ``axis`` (the axis whose reversals, position or encoder carries it; else null),
+- ``time_windows_s`` (where its moving RMS exceeds 2.5 x noise) and ``region`` (the pose tercile
+  or axis position range where it is largest, when it is concentrated there),
+- ``excess_over_noise``,
+- ``signature``: the structure that explains most of it, measured by the fraction of the residual
+  energy that a simple description of that kind removes:
+  * ``delay`` — proportional to the time derivative of the channel's prediction (a time offset);
+  * ``reversal-locked`` — a level that flips with an axis' direction of motion, or a transient
+    after its reversals;
+  * ``spectral line F Hz`` — a sinusoid at the strongest line of its spectrum;
+  * ``drift`` — a slow trend (a 10-knot piecewise-linear function of time);
+  * ``position-dependent`` — a smooth function of one axis' position;
+  * ``transient`` — a channel that is clean except in one stretch of the run (judged inside that
+    stretch, where a line there is still reported as a spectral line);
+  a channel whose excess has none of these structures (none removes 30 %) is not reported: that
+  is a noise model that is off (coloured noise, coarse quantisation), not physics,
+- ``evidence``: what was seen, the fractions, and the catalogue effects that were tried there and
+  why they were refused (their own checks), so that a reader does not chase the nearest name.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pmctl.tools.twin.effects import AXES, Context, _line_frequencies, _lstsq, axis_direction
+from pmctl.tools.twin.locate import moving_rms, windows
+
+EXCESS_MIN = 1.0        # remaining rms ≥ 1.41 x noise ...
+CHI_SIGMA = 8.0         # ... and Σ(y²) − N beyond 8 standard deviations of noise (√(2N))
+STRUCT_MIN = 0.3        # a signature must remove this fraction of the remaining energy
+
+
+def _frac(X, y):
+    """Fraction of y's energy that least squares on the columns X removes."""
+    if X.shape[0] < X.shape[1] + 2:
+        return 0.0
+    c = _lstsq(X, y)
+    r = y - X @ c
+    e = float(y @ y)
+    return max(0.0, 1.0 - float(r @ r) / e) if e > 0 else 0.0
+
+
+def _hat(t, knots):
+    """Piecewise-linear (hat function) basis in t with the given knots."""
+    B = np.zeros((len(t), len(knots)))
+    for k, c in enumerate(knots):
+        lo = knots[k - 1] if k > 0 else c - 1e-12
+        hi = knots[k + 1] if k + 1 < len(knots) else c + 1e-12
+        up = (t - lo) / max(c - lo, 1e-12)
+        dn = (hi - t) / max(hi - c, 1e-12)
+        B[:, k] = np.clip(np.minimum(up if k > 0 else 1.0, dn if k + 1 < len(knots) else 1.0), 0, 1)
+    return B
+
+
+def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray) -> dict:
+    """Fraction of the channel's remaining (whitened) energy each kind of structure removes."""
+    o = ctx.obs
+    idx = np.flatnonzero(m)
+    idx = idx[np.argsort(o.row[idx], kind="stable")]
+    yy = y[idx]
+    rows = o.row[idx]
+    tt = ctx.t[rows]
+    w = o.w[idx]
+    out = {}
+    # delay: residual ∝ d(prediction)/dt
+    pr = o.pred[idx]
+    if len(tt) > 3 and np.ptp(tt) > 0:
+        dp = np.gradient(pr, tt) * w
+        out["delay"] = (_frac(dp[:, None], yy), float(_lstsq(-dp[:, None], yy)[0]) if np.any(dp) else 0.0)
+    # reversal-locked, per axis: a level flipping with the direction, and a decaying transient
+    best = (0.0, None)
+    for a, ax in enumerate(AXES):
+        x = ctx.q_cmd[:, a]
+        if np.ptp(x) <= 0:
+            continue
+        d = axis_direction(ctx, a)
+        if not np.any(d):
+            continue
+        flips = np.flatnonzero(np.diff(d) != 0) + 1
+        since = np.full(len(x), np.inf)
+        if len(flips):
+            mark = np.zeros(len(x), int)
+            mark[flips] = flips
+            last = np.maximum.accumulate(mark)
+            since = np.where(last > 0, ctx.t - ctx.t[last], np.inf)
+        s = since[rows]
+        dd = d[rows]
+        X = np.stack([dd, dd * np.exp(-s / 0.05), dd * np.exp(-s / 0.3), np.ones(len(rows))], 1)
+        f = _frac(X, yy) - _frac(X[:, 3:], yy)
+        if f > best[0]:
+            best = (f, ax)
+    out["reversal-locked"] = best
+    # spectral line
+    fl = _line_frequencies(tt, yy, fmin=0.5, k=1, ratio_min=10.0)
+    if fl:
+        f0 = fl[0]
+        X = np.stack([np.sin(2 * np.pi * f0 * tt), np.cos(2 * np.pi * f0 * tt)], 1)
+        out["spectral line"] = (_frac(X, yy), f0)
+    # drift: slow trend in time
+    if np.ptp(tt) > 0:
+        knots = np.linspace(tt[0], tt[-1], 10)
+        out["drift"] = (_frac(_hat(tt, knots), yy), None)
+    # position-dependent: a smooth function of one axis' position (10 knots over its range)
+    bestp = (0.0, None)
+    for a, ax in enumerate(AXES):
+        x = ctx.q_cmd[rows, a]
+        if np.ptp(x) <= 0:
+            continue
+        knots = np.linspace(x.min(), x.max(), 10)
+        f = _frac(_hat(x, knots), yy)
+        if f > bestp[0]:
+            bestp = (f, ax)
+    out["position-dependent"] = bestp
+    return out
+
+
+def flexible_gain(ctx: Context, y: np.ndarray, channel_mask: np.ndarray) -> float:
+    """SSE that a flexible, physics-free description removes from y in the given channels (one
+    fit per channel): 10-knot piecewise-linear functions of time and of each moving axis'
+    position, plus a level per direction of motion of each axis. A named effect that removes only
+    a small share of this is a partial description of something else."""
+    o = ctx.obs
+    key = ("flex_basis",)
+    if key not in ctx.extra:
+        rows = ctx.rows
+        tt = ctx.t[rows]
+        cols = [_hat(tt, np.linspace(tt[0], tt[-1], 10))] if len(tt) and np.ptp(tt) > 0 else []
+        for a in range(len(AXES)):
+            x = ctx.q_cmd[rows, a]
+            if np.ptp(x) <= 0:
+                continue
+            cols.append(_hat(x, np.linspace(x.min(), x.max(), 8)))
+            cols.append(axis_direction(ctx, a)[rows][:, None])
+        ctx.extra[key] = np.concatenate(cols, 1) if cols else np.ones((len(rows), 1))
+    B = ctx.extra[key]
+    gain = 0.0
+    for ci in np.flatnonzero(channel_mask):
+        m = o.ch == ci
+        if m.sum() <= B.shape[1] + 2:
+            continue
+        X = B[o.pos[m]]
+        yy = y[m]
+        c = _lstsq(X, yy)
+        r = yy - X @ c
+        gain += float(yy @ yy - r @ r)
+    return gain
+
+
+def _region(ctx, loc_regions, name):
+    best = None
+    for k, regs in loc_regions.items():
+        if len(regs) < 3:
+            continue
+        v = [r["rms_over_noise"] for r in regs]
+        ratio = max(v) / max(min(v), 1e-12)
+        if ratio > 2.0 and (best is None or ratio > best[0]):
+            r = regs[int(np.argmax(v))]
+            best = (ratio, f"{k[:-3] if k.endswith('_mm') or k.endswith('_deg') else k} in "
+                           f"[{r['range'][0]:.1f}, {r['range'][1]:.1f}] {k.split('_')[-1]}")
+    return best[1] if best else None
+
+
+def _axis_of_channel(name):
+    if name.startswith("enc_"):
+        return name[4:]
+    if name.startswith("strain_"):
+        return f"L{name[-1]}"
+    return None
+
+
+def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> list[dict]:
+    """Entries for the channels the accepted effects leave clearly above noise (see module doc).
+
+    ``rejected``: evaluations of catalogue effects refused by their own checks, with
+    ``problems`` (list of reasons); named in the evidence of the channels they touched."""
+    o = ctx.obs
+    out = []
+    for ci, name in enumerate(o.channels):
+        m = o.ch == ci
+        n = int(m.sum())
+        if n < 20:
+            continue
+        ss = float(y[m] @ y[m])
+        ms = ss / n
+        excess = math.sqrt(max(ms - 1.0, 0.0))
+        local = None
+        glob = excess >= EXCESS_MIN and ss - n >= CHI_SIGMA * math.sqrt(2 * n)
+        sig = _signatures(ctx, name, m, y) if glob else {}
+        if not glob or max((v[0] for v in sig.values()), default=0.0) < STRUCT_MIN:
+            # not over the whole record: a stretch of it? (the longest window above 2.5 x noise)
+            wins = loc_after["channels"].get(name, {}).get("windows_s", [])
+            tt_all = ctx.t[o.row]
+            for a, b in sorted(wins, key=lambda w: w[0] - w[1]):
+                mw = m & (tt_all >= a) & (tt_all <= b)
+                nw = int(mw.sum())
+                if nw < 20:
+                    continue
+                ssw = float(y[mw] @ y[mw])
+                exw = math.sqrt(max(ssw / nw - 1.0, 0.0))
+                if exw >= 1.5 and ssw - nw > CHI_SIGMA * math.sqrt(2 * nw) and (b - a) < 0.7 * ctx.duration:
+                    local = (a, b)
+                    m, excess = mw, exw
+                    break
+            if local is None:
+                continue
+            sig = _signatures(ctx, name, m, y)
+        kind, frac, detail = "broadband", 0.0, None
+        for k, (f, d) in sig.items():
+            if f > frac:
+                kind, frac, detail = k, f, d
+        if frac < STRUCT_MIN:
+            # excess without any structure is a noise model that is off (coloured noise, a
+            # channel quantised coarser than its noise), not physics: not reported
+            continue
+        axis = _axis_of_channel(name)
+        if kind == "spectral line":
+            label = f"spectral line {detail:.2f} Hz"
+        elif kind == "delay":
+            label = f"delay {1000 * detail:.2f} ms"
+        elif kind in ("reversal-locked", "position-dependent"):
+            label = kind
+            axis = detail or axis
+        else:
+            label = kind
+        info = loc_after["channels"].get(name, {})
+        tw = [list(local)] if local else info.get("windows_s", [])
+        region = _region(ctx, loc_after.get("regions", {}), name)
+        if kind == "reversal-locked" and axis:
+            region = f"{axis} reversals"
+        elif kind == "position-dependent" and axis:
+            region = f"{axis} position"
+        tried = []
+        for ev in rejected:
+            if ev["affected"][ci]:
+                c = ev["cand"]
+                tried.append(f"{c.effect} on {c.target_key} {c.target} ({'; '.join(ev['problems'])})")
+        fr = ", ".join(f"{k} {100 * v[0]:.0f} %" for k, v in sorted(sig.items(), key=lambda kv: -kv[1][0]))
+        where = f" between {local[0]:.1f} and {local[1]:.1f} s only" if local else ""
+        if local and kind == "drift":
+            label = "transient"
+        ev_text = (f"{name} keeps {excess:.1f} x its noise{where} after the named effects; its structure: {fr} of "
+                   f"the remaining energy.")
+        if tried:
+            ev_text += " Refused by their own checks: " + "; ".join(dict.fromkeys(tried)) + "."
+        else:
+            ev_text += " No catalogued effect improved the held-out fit of this channel beyond noise."
+        out.append({"channels": [name], "axis": axis,
+                    "time_windows_s": [[round(a, 3), round(b, 3)] for a, b in tw],
+                    "region": region,
+                    "excess_over_noise": round(excess, 2),
+                    "signature": label,
+                    "structure_fraction": round(frac, 3),
+                    "evidence": ev_text})
+    # merge channels of one sensor with one signature (e.g. tip_x, tip_y with the same line)
+    merged = []
+    for e in sorted(out, key=lambda e: -e["excess_over_noise"]):
+        for g in merged:
+            same = g["signature"].split(" ")[0] == e["signature"].split(" ")[0] and g["axis"] == e["axis"]
+            if same and g["channels"][0][:4] == e["channels"][0][:4]:
+                g["channels"].append(e["channels"][0])
+                g["time_windows_s"] = sorted(g["time_windows_s"] + e["time_windows_s"])[:6]
+                break
+        else:
+            merged.append(e)
+    return merged
