@@ -563,10 +563,10 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
 
 
 def read_for_diagnosis(folder, *, progress=False):
-    """(name, machine, columns) of a recording folder read in bounded memory
+    """(meta, machine, columns) of a recording folder read in bounded memory
     (pmctl.core.recording_chunks: 16 MB blocks, only the channels the twin uses, measured channels
     in float32), with a progress bar on stderr when ``progress``."""
-    from pmctl.core.recording_chunks import _folder, read_columns
+    from pmctl.core.recording_chunks import read_columns
     bar = _Progress(1000, progress, "reading   ")
 
     def cb(done, total):            # one redraw per 16 MB block
@@ -574,7 +574,7 @@ def read_for_diagnosis(folder, *, progress=False):
         bar.step()
     meta, machine, cols = read_columns(folder, progress=cb if progress else None)
     bar.done()
-    return _folder(folder).name, machine, cols
+    return meta, machine, cols
 
 
 def format_text(report, extras) -> str:
@@ -724,19 +724,21 @@ def plant_notes(report, meta) -> list[str]:
 
 def _run(args) -> int:
     from pmctl.core.config import load_machine
-    from pmctl.core.recording import read_recording
     folder = find_recording(args.folder)
     if Path(folder) != Path(args.folder) and not Path(args.folder).is_file():
         print(f"pmctl: {args.folder} holds one recording, in {folder}: diagnosing that", file=sys.stderr)
-    rec = read_recording(folder)
-    if rec.meta.get("complete") is False:
-        why = rec.meta.get("incomplete_reason") or "the run that wrote it did not finish"
+    data = Path(folder) / "data.csv"
+    big = data.is_file() and data.stat().st_size >= 16 << 20        # ~10^5 rows and more: show progress
+    meta, rec_machine, columns = read_for_diagnosis(folder, progress=big and not args.no_progress)
+    n = len(columns["t"])
+    if meta.get("complete") is False:
+        why = meta.get("incomplete_reason") or "the run that wrote it did not finish"
         print(f"pmctl: warning: {folder} is an incomplete recording ({why}); diagnosing the "
-              f"{rec.n} samples it holds", file=sys.stderr)
-    machine = load_machine(args.config) if args.config else rec.machine
-    prog = (not args.no_progress) and rec.n >= 100_000
-    report, extras = diagnose(rec.columns, machine, name=_display_name(folder), progress=prog, cap=args.cap)
-    notes = plant_notes(report, rec.meta)
+              f"{n} samples it holds", file=sys.stderr)
+    machine = load_machine(args.config) if args.config else rec_machine
+    prog = (not args.no_progress) and n >= 100_000
+    report, extras = diagnose(columns, machine, name=_display_name(folder), progress=prog, cap=args.cap)
+    notes = plant_notes(report, meta)
     print(format_text(report, extras))
     if notes:
         print("\n  Simulated recording: " + "; ".join(notes) + ". The findings are the simulation's flexible "
