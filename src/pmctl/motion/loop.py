@@ -294,7 +294,8 @@ class ControlLoop:
 
     def __init__(self, machine: Machine, backend: Backend, params: NCParams, targets: Targets | None,
                  cfg: LoopConfig, state: NCState, *, log=None, writer: CounterWriter | None = None,
-                 follower=None, records=None, recorder=None, hook=None, exit_when_done: bool = True):
+                 follower=None, records=None, recorder=None, hook=None, exit_when_done: bool = True,
+                 setup_rt: bool | None = None):
         from pmctl.motion.recorder import REC_CAPACITY, REC_WIDTH, Recorder
         from pmctl.motion.ring import ArraySource, Ring
         from pmctl.motion.timescale import PathFollower
@@ -314,6 +315,10 @@ class ControlLoop:
         self.recorder = recorder if recorder is not None else Recorder(self.records)
         self.hook = hook
         self.exit_when_done = exit_when_done
+        self.setup_rt = cfg.realtime if setup_rt is None else bool(setup_rt)   # SCHED_FIFO + mlockall
+        self.last_late_ns = self.last_compute_ns = 0
+        self.quit_reason = ""
+        self.last_fb = None
         self.tick = 0
         self.n_ticks = (len(targets.rows) if targets is not None else 0) + self.settle_ticks
         self.mode = RUN
@@ -339,9 +344,10 @@ class ControlLoop:
         ncns = np.zeros(TIMING_WINDOW, np.int64)
         msgs = []
         if cfg.realtime:
-            msgs = setup_realtime(cfg.rt_priority, cfg.lock_memory)
-            for m in msgs:
-                self.log(m)
+            if self.setup_rt:
+                msgs = setup_realtime(cfg.rt_priority, cfg.lock_memory)
+                for m in msgs:
+                    self.log(m)
             recorder.start()
         sleeper = AbsoluteSleeper()
         st = self.state0
@@ -412,7 +418,7 @@ class ControlLoop:
                 row = [k, fol.s_total, fol.scaler.sigma, fol.line, st.mode, fol.state] + row
                 row += tg[:6].tolist()
                 if not rec.push_row(row):
-                    if cfg.realtime:
+                    if cfg.realtime or not getattr(recorder, "inline", True):
                         self.dropped += 1
                     else:
                         recorder.drain()
@@ -422,6 +428,9 @@ class ControlLoop:
                         writer.offer(st.counts, k)
                 t1 = mono()
                 comp[w] = t1 - t0
+                self.last_compute_ns = t1 - t0
+                self.last_late_ns = late[w]
+                self.last_fb = fb
                 # ---- end of hot path
                 self.tick = k
                 self.mode = st.mode
@@ -430,7 +439,7 @@ class ControlLoop:
                     st = self.hook(self, k, st)
                 if self.quit:
                     status, reason = ("stopped" if st.mode != HALTED or _was_stop(st) else "fault"), \
-                        (st.reason or "quit")
+                        (self.quit_reason or st.reason or "quit")
                     break
                 if self.exit_when_done:
                     if st.mode == HALTED:
@@ -467,13 +476,13 @@ class ControlLoop:
                     else:
                         in_row = 0
         finally:
+            self.state = st
             sys.setswitchinterval(switch)
             if gc_was:
                 gc.enable()
-            if cfg.realtime:
+            if cfg.realtime and self.setup_rt:
                 undo_realtime(cfg.lock_memory)
             recorder.stop()
-        self.state = st
         n = k
         m = min(n, TIMING_WINDOW)
         order = np.arange(n - m, n) % TIMING_WINDOW
