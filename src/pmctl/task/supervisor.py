@@ -244,17 +244,32 @@ class Supervisor:
         with self._lock:
             return len(self.items)
 
+    def command(self, code, a1=0.0) -> int:
+        """Queue a command for the rt side; returns its sequence number (see wait_ack)."""
+        with self._lock:
+            self.ch.command(code, a1)
+            return self.ch._cmd_seq
+
+    def wait_ack(self, seq, timeout_s=5.0) -> bool:
+        """Wait until the rt side has applied command ``seq`` (it acknowledges in its status)."""
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout_s and not self.rt_dead:
+            if self.raw()[C.ST_CMD_ACK] >= seq:
+                return True
+            time.sleep(0.002)
+        return False
+
     def hold(self):
-        self.ch.command(C.C_HOLD)
+        self.command(C.C_HOLD)
 
     def resume(self):
-        self.ch.command(C.C_RESUME)
+        self.command(C.C_RESUME)
 
     def feed_override(self, f: float):
-        self.ch.command(C.C_FEED_OV, float(f))
+        self.command(C.C_FEED_OV, float(f))
 
     def rapid_override(self, r: float):
-        self.ch.command(C.C_RAPID_OV, float(r))
+        self.command(C.C_RAPID_OV, float(r))
 
     def soft_reset(self, timeout_s=10.0):
         """Stop now on the path, drop everything queued, keep the position (grbl ctrl-X)."""
@@ -269,9 +284,10 @@ class Supervisor:
             except queue.Empty:
                 break
         if self.ch is not None and not self.rt_dead:
-            self.ch.command(C.C_RESET)
+            seq = self.command(C.C_RESET)
             t0 = time.monotonic()
-            while time.monotonic() - t0 < timeout_s:
+            self.wait_ack(seq, timeout_s)
+            while time.monotonic() - t0 < timeout_s and not self.rt_dead:
                 s = self.raw()
                 if s[C.ST_QUEUED] == 0 and s[C.ST_SIGMA] == 0 and not s[C.ST_HOLD]:
                     break
@@ -285,7 +301,7 @@ class Supervisor:
             self.items.clear()
             self._gen += 1
         if self.ch is not None and not self.rt_dead:
-            self.ch.command(C.C_ESTOP)
+            self.command(C.C_ESTOP)
             self._ended_base = int(self.raw()[C.ST_ENDED])
         self.raise_alarm(ALARM_ESTOP, reason)
         self._abort.clear()
@@ -296,7 +312,7 @@ class Supervisor:
             counts = self.ch.st[C.ST_COUNTS:C.ST_COUNTS + 5].astype(np.int64).copy()
             self._spawn(counts, 60.0)
         elif self.ch is not None:
-            self.ch.command(C.C_UNLOCK)
+            self.wait_ack(self.command(C.C_UNLOCK))
             t0 = time.monotonic()
             while time.monotonic() - t0 < 5.0 and self.raw()[C.ST_MODE] != RUN:
                 time.sleep(0.005)
