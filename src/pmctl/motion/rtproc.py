@@ -220,8 +220,12 @@ def rt_main(spec: dict) -> int:
             ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = final.counts.tolist()
             ch.set_reason(getattr(lp, "quit_reason", "") or (res.reason if res else "rt process error"))
             ch.st[C.ST_PHASE] = C.PH_EXITED
+            fb = lp.last_fb
+            sent_ok = bool(np.array_equal(counts + lp.sent, final.counts))
+            dev_ok = fb is None or fb.counts is None or bool(np.array_equal(fb.counts, final.counts))
             log(f"stopped: {getattr(lp, 'quit_reason', '') or (res.reason if res else '')}; counters "
-                f"{final.counts.tolist()} saved")
+                f"{final.counts.tolist()} saved; pulses sent = counter change: {'yes' if sent_ok else 'NO'}; "
+                f"device counters = counters: {'yes' if dev_ok else 'NO'}")
     return 0
 
 

@@ -343,6 +343,7 @@ class GrblConsole:
             if sup.check_mode:
                 sup.check_mode = False
                 self.write("[MSG:Disabled]")
+                self.write("ok")               # the answer to $C, then grbl's automatic reset
                 self.soft_reset()
             elif not idle_like or sup.alarm:
                 raise LineError(8, "$C only when idle")
