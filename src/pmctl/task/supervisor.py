@@ -175,8 +175,21 @@ class Supervisor:
         return self.raw()[C.ST_COUNTS:C.ST_COUNTS + 5].astype(np.int64)
 
     def pose(self):
+        """Tool tip and axis in W of the pulse counters (FK; the status block's model pose is the
+        one at the start of the rt side's last tick, one tick behind the counters)."""
         s = self.raw()
-        return s[C.ST_TIP:C.ST_TIP + 3].copy(), s[C.ST_AXIS:C.ST_AXIS + 3].copy()
+        counts = s[C.ST_COUNTS:C.ST_COUNTS + 5]
+        key = counts.tobytes()
+        if self._pose_cache is not None and self._pose_cache[0] == key:
+            return self._pose_cache[1][0].copy(), self._pose_cache[1][1].copy()
+        pose, ok = K.fk_batch((counts / self.machine.resolution.pulses_per_mm)[None], self.machine)
+        if not ok[0]:
+            return s[C.ST_TIP:C.ST_TIP + 3].copy(), s[C.ST_AXIS:C.ST_AXIS + 3].copy()
+        out = (pose.tip[0].copy(), pose.axis[0] / np.linalg.norm(pose.axis[0]))
+        self._pose_cache = (key, out)
+        return out[0].copy(), out[1].copy()
+
+    _pose_cache = None
 
     def busy(self) -> bool:
         """Motion queued or under way (items not finished, samples queued, or moving)."""
