@@ -89,6 +89,10 @@ class Daemon:
         if alarm:
             sup.raise_alarm(*alarm)
         self.journal.save(running=False)
+        if self.socket_path:
+            from pmctl.interfaces.console.control import ControlServer
+            self.ctl = ControlServer(self, self.socket_path)
+            self.ctl.start()
         if self.console_spec:
             from pmctl.interfaces.console.grbl import GrblConsole
             from pmctl.interfaces.console.port import ConsolePort
@@ -97,10 +101,6 @@ class Daemon:
             self.console = GrblConsole(sup, self.port.fd, self.journal, log=self.log, jogger=make_jogger(sup))
             self.console.start()
             self.log(f"console on {self.port.device}" + (f" (link {self.port.link})" if self.port.link else ""))
-        if self.socket_path:
-            from pmctl.interfaces.console.control import ControlServer
-            self.ctl = ControlServer(self, self.socket_path)
-            self.ctl.start()
         from pmctl.task.notify import sd_notify
         sd_notify(f"READY=1\nSTATUS={sup.state_name()}: {self.position_note}\nMAINPID={os.getpid()}")
 

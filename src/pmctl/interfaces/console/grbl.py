@@ -271,6 +271,13 @@ class GrblConsole:
         if state == "Jog":
             raise LineError(9, "G-code locked out while jogging")
         self.seq += 1
+        if not self.batch:
+            # motion from elsewhere (a jog, a job from the control socket, a hold) may have moved
+            # the machine: the parser continues from where the queued motion ends
+            with self.sup._lock:
+                last = self.sup.items[-1].kind if self.sup.items else None
+            if last != "gcode":
+                self.interp.sync(*self.sup.end_pose())
         moves, n_word, flags = self.interp.execute(text, self.seq)
         if flags.get("sync"):
             self._persist()
