@@ -417,6 +417,8 @@ class ControlLoop:
                 sent += pulses
                 row = [k, fol.s_total, fol.scaler.sigma, fol.line, st.mode, fol.state] + row
                 row += tg[:6].tolist()
+                row.append(late[w])
+                row.append(self.last_compute_ns)
                 if not rec.push_row(row):
                     if cfg.realtime or not getattr(recorder, "inline", True):
                         self.dropped += 1
