@@ -143,3 +143,21 @@ def test_jog_and_jog_cancel_decelerate_on_the_line(daemon):
     time.sleep(0.3)
     assert np.allclose(s.status()["pos"], st["pos"], atol=2e-3)   # and stays there
     assert s.send("G21") == "ok"
+
+
+def test_soft_reset_during_motion_stops_on_the_line_and_keeps_position(daemon):
+    s, *_ = daemon
+    p0 = np.array(s.status()["pos"])
+    assert s.send("G21 G91 G1 F300 X-10") == "ok"
+    assert s.send("G90") == "ok"
+    assert s.wait_state(("Run",), 30)["state"] == "Run"
+    time.sleep(0.8)
+    pushed = s.reset()
+    assert "Grbl 1.1h ['$' for help]" in pushed and not any(x.startswith("ALARM") for x in pushed)
+    st = s.wait_state(("Idle",), 30)
+    p1 = np.array(st["pos"])
+    assert -10 < p1[0] - p0[0] < -0.05                       # stopped part-way ...
+    assert np.allclose((p1 - p0)[1:], 0, atol=1.5e-3)        # ... on the line
+    time.sleep(0.5)
+    assert np.allclose(s.status()["pos"], p1, atol=2e-3)     # the queue is gone: nothing moves
+    assert s.send("$G") == "ok" and any("G90" in x for x in s.pushed[-2:])

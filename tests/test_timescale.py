@@ -189,7 +189,7 @@ def test_scaler_respects_rate_and_joint_acceleration_limits(f0, fgoal, qt, qtt):
     sc.sigma = f0 * cap
     goal = fgoal * cap
     prev = sc.sigma
-    for _ in range(300):
+    for _ in range(1500):
         s = sc.step(goal, qt, qtt)
         assert s >= 0.0
         ds = (s - prev) / DT

@@ -146,11 +146,15 @@ class ControlServer:
                 if not 0.1 <= f <= 2.0:
                     return {"ok": False, "error": "feed override must be within 0.1 .. 2.0"}
                 sup.feed_override(f)
+                if getattr(self.daemon, "console", None) is not None:
+                    self.daemon.console.feed_ov = int(round(f * 100))     # the console's +/- steps start here
             if "rapid" in req:
                 r = float(req["rapid"])
                 if r not in (0.25, 0.5, 1.0):
                     return {"ok": False, "error": "rapid override is 0.25, 0.5 or 1.0"}
                 sup.rapid_override(r)
+                if getattr(self.daemon, "console", None) is not None:
+                    self.daemon.console.rapid_ov = int(round(r * 100))
         elif cmd == "stop":
             sup.soft_reset()
         elif cmd == "estop":

@@ -136,7 +136,12 @@ class GrblConsole:
             if b == RT_STATUS:
                 self.write(self.status_report())
             elif b == RT_HOLD:
-                self.sup.hold()
+                state = self.sup.state_name()
+                if state == "Run":
+                    self.sup.hold()
+                elif state == "Jog":          # grbl: a feed hold during a jog cancels the jog
+                    self.jog_cancel()
+                # Idle, Alarm, Check, Hold: nothing to hold
             elif b == RT_START:
                 self.sup.resume()
             elif b == RT_RESET:
@@ -223,7 +228,11 @@ class GrblConsole:
         line = sup.current_line()
         if line > 0 and state not in ("Idle", "Alarm", "Jog"):
             parts.append(f"Ln:{line}")
-        parts.append(f"Ov:{self.feed_ov},{self.rapid_ov},{self.spindle_ov}")
+        from pmctl.motion import channel as C
+        raw = sup.raw()
+        fo = int(round(raw[C.ST_FEED_OV] * 100)) or self.feed_ov
+        ro = int(round(raw[C.ST_RAPID_OV] * 100)) or self.rapid_ov
+        parts.append(f"Ov:{fo},{ro},{self.spindle_ov}")
         parts.append("WCO:" + ",".join(f"{v:.3f}" for v in wco))
         return "<" + "|".join(parts) + ">"
 
