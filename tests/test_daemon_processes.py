@@ -128,3 +128,31 @@ def test_supervisor_killed_the_rt_process_holds_on_the_path_saves_counters_and_e
     u = np.dot(tip - a, b - a) / np.dot(b - a, b - a)
     assert 0.0 < u < 1.0
     assert np.linalg.norm(a + u * (b - a) - tip) < 2e-3
+
+
+def test_estop_input_latches_alarm_10_until_it_clears_and_unlock(tmp_path):
+    from pathlib import Path
+    from pmctl.task.supervisor import ALARM_ESTOP
+    svc = tmp_path / "service.toml"
+    base = (Path(__file__).resolve().parents[1] / "config" / "service.toml").read_text()
+    svc.write_text(base + "\nestop_from_tick = 400\nestop_to_tick = 2500\n")      # appended to [hal.sim]
+    s = Supervisor("prototype", service=str(svc), realtime=False)
+    tip, ax = home_pose(s.machine)
+    s.start(counts_of(K.ik(tip, ax, s.machine).q, s.params))
+    try:
+        t0 = time.time()
+        while s.alarm != ALARM_ESTOP and time.time() - t0 < 60:
+            time.sleep(0.02)
+        assert s.alarm == ALARM_ESTOP and "E-stop input" in s.alarm_msg and s.state_name() == "Alarm"
+        if s.raw()[C.ST_TICK] < 2300:
+            with pytest.raises(MotionRefused):
+                s.unlock()                          # latched while the input is pressed
+            assert s.alarm == ALARM_ESTOP
+        while s.raw()[C.ST_TICK] < 2600:
+            time.sleep(0.05)
+        s.unlock()
+        assert s.state_name() == "Idle"
+        s.submit(job_from(s, "G21 G91 G1 F1200 X1\n"))
+        assert s.wait_idle(60) and not s.alarm
+    finally:
+        s.shutdown()

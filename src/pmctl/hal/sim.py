@@ -29,7 +29,7 @@ from scipy.linalg import expm
 
 from pmctl.core.config import Machine
 from pmctl.core.errors import ConfigError
-from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Status
+from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Inputs, Status
 
 
 @dataclass
@@ -48,6 +48,9 @@ class SimOptions:
     lost_steps_at_tick: int = -1        # >= 0: at this tick the motor of lost_steps_axis slips
     lost_steps_axis: int = 0
     lost_steps_mm: float = 0.0
+    estop_from_tick: int = -1           # >= 0: the E-stop input reads pressed from this tick ...
+    estop_to_tick: int = -1             # ... until this tick (-1: for ever)
+    home_switch_mm: tuple | None = None  # per axis: the home switch closes at motor position >= this
 
     @classmethod
     def from_dict(cls, d: dict, machine: Machine | None = None, where="sim"):
@@ -68,6 +71,8 @@ class SimOptions:
         o.mode_stiffness_N_per_mm = _vec(o.mode_stiffness_N_per_mm, 3, where, "mode_stiffness_N_per_mm", pos=True)
         o.mode_mass_kg = _vec(o.mode_mass_kg, 3, where, "mode_mass_kg", pos=True)
         o.mode_damping_ratio = _vec(o.mode_damping_ratio, 3, where, "mode_damping_ratio", nonneg=True)
+        if o.home_switch_mm is not None:
+            o.home_switch_mm = _vec(o.home_switch_mm, 5, where, "home_switch_mm")
         return o
 
 
@@ -170,6 +175,14 @@ class SimBackend(Backend):
         self.cmd, self.motor, self.vmotor = c_new, m_new, vm
         self.tick += 1
         self._sample()
+
+    def inputs(self):
+        o = self.opt
+        est = 0 <= o.estop_from_tick <= self.tick and (o.estop_to_tick < 0 or self.tick < o.estop_to_tick)
+        home = None
+        if o.home_switch_mm is not None:
+            home = tuple(bool(self.motor[i] >= o.home_switch_mm[i]) for i in range(5))
+        return Inputs(home, est)
 
     def truth(self):
         q = self.motor.copy()

@@ -66,12 +66,16 @@ class RtHook:
             elif code == C.C_ESTOP:
                 st = _halt(st, "E-stop (software)")
             elif code == C.C_UNLOCK:
+                if lp.backend.inputs().estop:
+                    continue                  # latched: the E-stop input must clear first
                 if st.mode != RUN:
                     st = _restart(st, self.machine, lp)
                     self.faulted = False
                 fol.clear()
                 fol._rest = st.tip.tolist() + st.axis.tolist()
                 sc.hold = False
+        if st.mode != HALTED and lp.backend.inputs().estop:
+            st = _halt(st, "E-stop input pressed")
         if self.term and not self.quitting:
             self.quitting = "SIGTERM"
             sc.hold = True

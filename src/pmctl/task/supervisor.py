@@ -327,8 +327,10 @@ class Supervisor:
         elif self.ch is not None:
             self.wait_ack(self.command(C.C_UNLOCK))
             t0 = time.monotonic()
-            while time.monotonic() - t0 < 5.0 and self.raw()[C.ST_MODE] != RUN:
+            while time.monotonic() - t0 < 1.0 and self.raw()[C.ST_MODE] != RUN:
                 time.sleep(0.005)
+            if self.raw()[C.ST_MODE] != RUN:
+                raise MotionRefused(f"cannot unlock: {self.ch.reason() or 'the rt side stays halted'}", 9)
         self.alarm, self.alarm_msg = 0, ""
 
     def raise_alarm(self, code: int, msg: str):
