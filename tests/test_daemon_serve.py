@@ -4,6 +4,7 @@ restart on the same state; SIGKILL of the rt process and of the supervisor; syst
 Physical facts: the tool stays on the programmed path (recording vs the planned path), pulses
 counted = pulses sent, position equal after a restart."""
 
+import json
 import os
 import signal
 import socket
@@ -127,7 +128,11 @@ def test_sigkill_of_the_rt_process_and_of_the_supervisor(tmp_path):
         # now kill the supervisor mid-move: the rt process holds on the path, saves, exits
         assert s.send("G1 Y8") == "ok"
         s.wait_state(("Run",), 60)
-        time.sleep(0.8)
+        journal = tmp_path / "state.json.journal"
+        t0 = time.time()                 # the journal has recorded the running job (an fsync on a busy disk)
+        while not json.loads(journal.read_text()).get("running") and time.time() - t0 < 20:
+            time.sleep(0.05)
+        time.sleep(0.3)
         rt = rt_pid_of(p.pid)
         p.send_signal(signal.SIGKILL)
         p.wait(10)
