@@ -17,7 +17,9 @@ import numpy as np
 from pmctl.core.errors import ConfigError
 from pmctl.core.strict_toml import UNIT_SUFFIXES, Table, check_tables, read_toml  # noqa: F401
 
-CONFIG_DIR = Path(__file__).resolve().parents[3] / "config"
+_SRC_CONFIG = Path(__file__).resolve().parents[3] / "config"      # a source checkout (editable install)
+_PKG_CONFIG = Path(__file__).resolve().parents[1] / "config"      # shipped as package data
+CONFIG_DIR = _SRC_CONFIG if (_SRC_CONFIG / "prototype.toml").is_file() else _PKG_CONFIG
 
 # Unit directions of the three chain planes (docs/machine.md §2).
 E_DIRS = np.array([[0.0, -1.0, 0.0],

@@ -6,7 +6,7 @@ from __future__ import annotations
 import importlib
 
 from pmctl.core.errors import ConfigError
-from pmctl.hal.base import AXES, Backend, Feedback, HalError, HalTimeout, Status
+from pmctl.hal.base import AXES, Backend, Feedback, HalError, HalTimeout, Inputs, Status
 
 BACKENDS = {
     "sim": "pmctl.hal.sim:SimBackend",
@@ -33,4 +33,4 @@ def create(name: str, machine, dt: float, options: dict | None = None, **kw) -> 
     return backend_class(name)(machine, dt, options or {}, **kw)
 
 
-__all__ = ["AXES", "BACKENDS", "Backend", "Feedback", "HalError", "HalTimeout", "Status", "backend_class", "create", "validate_options"]
+__all__ = ["AXES", "BACKENDS", "Backend", "Feedback", "HalError", "HalTimeout", "Inputs", "Status", "backend_class", "create", "validate_options"]

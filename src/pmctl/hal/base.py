@@ -45,6 +45,21 @@ class Feedback:
         self.counts = None
 
 
+class Inputs:
+    """Switch inputs, sampled with the last ``read``: ``home`` a tuple of 5 booleans (the home
+    switch of each axis L1 L2 L3 X Y closed), or None when the backend has no home switches;
+    ``estop`` True while the E-stop is pressed."""
+
+    __slots__ = ("home", "estop")
+
+    def __init__(self, home=None, estop=False):
+        self.home = home
+        self.estop = estop
+
+
+NO_INPUTS = Inputs()
+
+
 @dataclass
 class Status:
     ok: bool = True
@@ -89,6 +104,10 @@ class Backend(ABC):
 
     def status(self) -> Status:
         return Status()
+
+    def inputs(self) -> Inputs:
+        """Home switches and E-stop (see :class:`Inputs`). Default: a backend without either."""
+        return NO_INPUTS
 
     def truth(self) -> np.ndarray | None:
         """Load-side joint positions (mm), known only to a simulation; None for hardware."""

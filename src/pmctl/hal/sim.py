@@ -30,7 +30,7 @@ from scipy.linalg import expm
 
 from pmctl.core.config import Machine
 from pmctl.core.errors import ConfigError
-from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Status
+from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Inputs, Status
 
 
 @dataclass
@@ -49,6 +49,9 @@ class SimOptions:
     lost_steps_at_tick: int = -1        # >= 0: at this tick the motor of lost_steps_axis slips
     lost_steps_axis: int = 0
     lost_steps_mm: float = 0.0
+    estop_from_tick: int = -1           # >= 0: the E-stop input reads pressed from this tick ...
+    estop_to_tick: int = -1             # ... until this tick (-1: for ever)
+    home_switch_mm: tuple | None = None  # per axis: the home switch closes at motor position >= this
 
     @classmethod
     def from_dict(cls, d: dict, machine: Machine | None = None, where="sim"):
@@ -89,6 +92,10 @@ class SimOptions:
             lost_steps_at_tick=t.integer("lost_steps_at_tick", default=base.lost_steps_at_tick, lo=-1, hi=big),
             lost_steps_axis=t.integer("lost_steps_axis", default=base.lost_steps_axis, lo=0, hi=4),
             lost_steps_mm=t.number("lost_steps_mm", default=base.lost_steps_mm, lo=-1e3, hi=1e3),
+            estop_from_tick=t.integer("estop_from_tick", default=base.estop_from_tick, lo=-1, hi=big),
+            estop_to_tick=t.integer("estop_to_tick", default=base.estop_to_tick, lo=-1, hi=big),
+            home_switch_mm=(t.vector("home_switch_mm", 5, default=[0.0] * 5, lo=-1e4, hi=1e4, scalar_ok=True)
+                            if "home_switch_mm" in d else None),
         )
         t.finish()
         return o
@@ -207,6 +214,14 @@ class SimBackend(Backend):
         self._fb.seq += 1
         if r:
             self._check(r)
+
+    def inputs(self):
+        o = self.opt
+        est = 0 <= o.estop_from_tick <= self.tick and (o.estop_to_tick < 0 or self.tick < o.estop_to_tick)
+        home = None
+        if o.home_switch_mm is not None:
+            home = tuple(bool(self.motor[i] >= o.home_switch_mm[i]) for i in range(5))
+        return Inputs(home, est)
 
     def truth(self):
         """Load-side joints (mm): motor side plus the chains' deflection."""

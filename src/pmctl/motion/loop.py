@@ -5,14 +5,18 @@
   (tests, CI, offline simulation).
 - SCHED_FIFO and mlockall when permitted, with a clear message when not; the garbage collector is
   paused during the run (no collection pauses on the hot path).
-- Per-tick compute time and lateness in preallocated arrays; overruns counted, warned about
+- Targets come from a PathFollower (pmctl.motion.timescale): planned samples followed at a feed
+  factor sigma limited in rate and jerk within the joint limits; feed hold stops on the path, feed
+  and rapid overrides scale it, an empty queue decelerates along the path.
+- Per-tick compute time and lateness in a bounded window; overruns counted, warned about
   (rate-limited), and N in a row stop the machine safely (decelerating stop).
 - A tick longer than the stall timeout (in real time; offline, with ``realtime=False``, a slow tick
   is only counted and reported), or a backend that does not answer, ends in a controlled stop with
   a reason; any other exception inside the loop halts it with the reason, the counters true. The pulse counters are persisted by a writer thread every N ticks and at the
   stop (pmctl.motion.state_store).
-- Everything a run keeps (commands, encoders, strain, the simulated load side) goes into
-  preallocated arrays; nothing is written to disk until the run ends.
+- Per-tick records (commands, encoders, strain, the simulated load side, sigma, line) go into a
+  bounded ring (pmctl.motion.recorder) that a recorder drains: the loop's memory does not grow
+  with the job.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ import math
 import os
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -32,7 +36,8 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import Machine
 from pmctl.core.errors import KinematicsError, PmctlError, UnreachablePose
 from pmctl.hal import Backend, HalError, HalTimeout
-from pmctl.motion.nc import HALTED, RUN, STOPPING, NCParams, NCState, make_nc
+from pmctl.motion.nc import HALTED, RUN, NCParams, NCState, make_nc
+from pmctl.motion.timescale import HOLDING
 from pmctl.motion.service_config import LoopConfig
 from pmctl.motion.state_store import CounterWriter
 from pmctl.task.trajectory import Trajectory
@@ -217,6 +222,8 @@ def approach_path(q0, q1, dt, params: NCParams, machine: Machine, frac=0.5):
 
 # ---------------------------------------------------------------- the loop
 
+TIMING_WINDOW = 1 << 16          # ticks of timing kept (the last ~65 s at 1 kHz): bounded memory
+
 
 @dataclass
 class TimingStats:
@@ -260,6 +267,10 @@ class LoopResult:
     target: np.ndarray          # (ticks, 6) target tip + axis
     pulses_sent: np.ndarray     # (5,) sum of all pulses written
     job_start: int = 0
+    sigma: np.ndarray | None = None     # (ticks,) feed factor of the time-scaling
+    path_s: np.ndarray | None = None    # (ticks,) path clock, samples passed
+    line: np.ndarray | None = None      # (ticks,) job line of the target
+    dropped: int = 0                    # records the recorder could not take (realtime only)
 
     @property
     def t(self):
@@ -271,53 +282,77 @@ class LoopResult:
 
 
 class ControlLoop:
-    """Runs targets through the NC against a backend. ``run()`` returns a LoopResult.
+    """Runs the NC against a backend, its targets taken from a :class:`PathFollower` that
+    time-scales planned samples. ``run()`` returns a LoopResult.
+
+    ``targets``: a :class:`Targets` (a one-shot job: followed at sigma = 1 and the loop ends when it
+    is done), or None with ``follower`` given (a stream: the daemon's rt process).
+    ``records``: the per-tick record ring (default a private one of REC_CAPACITY rows); ``recorder``
+    drains it (default: one that keeps the rows for the LoopResult). ``hook(loop, k, state)`` runs
+    at the end of every tick and returns the state (the daemon's command/status exchange).
+    ``exit_when_done=False``: run until ``quit`` is set (halts and job ends do not end the loop).
 
     Attributes ``tick``, ``n_ticks`` and ``mode`` are updated every tick for a progress display
     running in another thread."""
 
-    def __init__(self, machine: Machine, backend: Backend, params: NCParams, targets: Targets,
-                 cfg: LoopConfig, state: NCState, *, log=None, writer: CounterWriter | None = None):
+    def __init__(self, machine: Machine, backend: Backend, params: NCParams, targets: Targets | None,
+                 cfg: LoopConfig, state: NCState, *, log=None, writer: CounterWriter | None = None,
+                 follower=None, records=None, recorder=None, hook=None, exit_when_done: bool = True,
+                 setup_rt: bool | None = None):
+        from pmctl.motion.recorder import REC_CAPACITY, REC_WIDTH, Recorder
+        from pmctl.motion.ring import ArraySource, Ring
+        from pmctl.motion.timescale import PathFollower
         self.machine, self.backend, self.params = machine, backend, params
         self.targets, self.cfg, self.state0 = targets, cfg, state
         self.log = log or (lambda msg: print(f"pmctl: {msg}", file=sys.stderr))
         self.writer = writer
         self.nc = make_nc(machine, params)      # params.implementation: "compiled" (C core) or "python"
         self.settle_ticks = int(round(cfg.settle_s * cfg.rate_hz))
-        # budget: the targets, settling, and a full stop from top speed (plus margin)
-        stop_ticks = int(math.ceil(float(np.max(params.vmax / params.amax)) * cfg.rate_hz)) + 10
-        self.capacity = len(targets.rows) + self.settle_ticks + stop_ticks + 2
+        if follower is None:
+            if targets is None:
+                raise PmctlError("ControlLoop needs targets or a follower")
+            follower = PathFollower(ArraySource(target_samples(targets, cfg.dt, params)), params, cfg.dt)
+            follower.scaler.sigma = 1.0       # a one-shot job is replayed as planned from its first sample
+        self.follower = follower
+        self.records = records if records is not None else Ring(REC_CAPACITY, REC_WIDTH)
+        self.recorder = recorder if recorder is not None else Recorder(self.records)
+        self.hook = hook
+        self.exit_when_done = exit_when_done
+        self.setup_rt = cfg.realtime if setup_rt is None else bool(setup_rt)   # SCHED_FIFO + mlockall
+        self.last_late_ns = self.last_compute_ns = 0
+        self.quit_reason = ""
+        self.last_fb = None
         self.tick = 0
-        self.n_ticks = len(targets.rows) + self.settle_ticks
+        self.n_ticks = (len(targets.rows) if targets is not None else 0) + self.settle_ticks
         self.mode = RUN
-        self.stop_request = ""          # set from another thread to stop (e.g. Ctrl-C handler)
+        self.stop_request = ""          # set from another thread: hold on the path, then stop
+        self.quit = False
+        self.dropped = 0
+        self.sent = np.zeros(5, np.int64)
 
     def run(self) -> LoopResult:
         cfg, p, be = self.cfg, self.params, self.backend
-        n_cap = self.capacity
-        rows = self.targets.rows
-        n_t = len(rows)
-        hold = rows[-1].copy()
-        hold[6:] = 0.0
-        counts = np.zeros((n_cap, 5), np.int64)
-        enc = np.zeros((n_cap, 5))
-        strain = np.zeros((n_cap, 3))
-        truth = np.full((n_cap, 5), np.nan)
-        target = np.zeros((n_cap, 6))
-        comp = np.zeros(n_cap, np.int64)
-        late = np.zeros(n_cap, np.int64)
-        ncns = np.zeros(n_cap, np.int64)
-        sent = np.zeros(5, np.int64)
+        fol = self.follower
+        rec = self.records
+        recorder = self.recorder
+        sent = self.sent
         has_truth = be.truth() is not None
         positions, ppm = be.accepts == "positions", p.pulses_per_mm     # CSP drives take joint targets, mm
+        nan5 = [math.nan] * 5
         period = int(round(1e9 / cfg.rate_hz))
         stall_ns = int(cfg.stall_timeout_s * 1e9)
         spin_ns = int(cfg.spin_us * 1e3)
+        # timing statistics in a bounded window (the last TIMING_WINDOW ticks)
+        comp = np.zeros(TIMING_WINDOW, np.int64)
+        late = np.zeros(TIMING_WINDOW, np.int64)
+        ncns = np.zeros(TIMING_WINDOW, np.int64)
         msgs = []
         if cfg.realtime:
-            msgs = setup_realtime(cfg.rt_priority, cfg.lock_memory)
-            for m in msgs:
-                self.log(m)
+            if self.setup_rt:
+                msgs = setup_realtime(cfg.rt_priority, cfg.lock_memory)
+                for m in msgs:
+                    self.log(m)
+            recorder.start()
         sleeper = AbsoluteSleeper()
         st = self.nc.load(self.state0)
         status, reason = "done", ""
@@ -330,17 +365,17 @@ class ControlLoop:
         gc.disable()
         switch = sys.getswitchinterval()
         if cfg.realtime:
-            # a helper thread (progress, counter writer) holding the GIL when the tick wakes is
-            # asked to let go after 100 us instead of 5 ms
+            # a helper thread (progress, counter writer, recorder) holding the GIL when the tick
+            # wakes is asked to let go after 100 us instead of 5 ms
             sys.setswitchinterval(1e-4)
         mono = time.monotonic_ns
         k = 0
+        done_at = -1
+        stop_from_hold = False
         deadline = mono() + period
         try:
             while True:
-                if k >= n_cap:
-                    status, reason = "stopped", "tick budget exhausted before the machine came to rest"
-                    break
+                w = k % TIMING_WINDOW
                 if cfg.realtime:
                     if spin_ns:
                         sleeper.until(deadline - spin_ns)
@@ -349,7 +384,7 @@ class ControlLoop:
                     else:
                         sleeper.until(deadline)
                     t0 = mono()
-                    late[k] = t0 - deadline
+                    late[w] = t0 - deadline
                 else:
                     t0 = mono()
                 # ---- hot path
@@ -358,24 +393,25 @@ class ControlLoop:
                 except HalTimeout as e:
                     status, reason = "fault", f"backend not answering: {e}"
                     st = _halt(_executed(st, e), reason)
-                    comp[k] = mono() - t0
+                    comp[w] = mono() - t0
                     break
                 except HalError as e:
                     status, reason = "fault", f"backend fault: {e}"
                     st = _halt(_executed(st, e), reason)
-                    comp[k] = mono() - t0
+                    comp[w] = mono() - t0
                     break
-                if self.stop_request and st.mode == RUN:
-                    st = _stopping(st, self.stop_request)
-                tg = rows[k] if k < n_t else hold
-                counts[k] = st.counts
-                enc[k] = fb.enc                    # copies: the backend reuses its feedback object
-                strain[k] = fb.strain
-                if has_truth:
-                    truth[k] = be.truth()          # load side at this tick's start, like enc and counts
+                if self.stop_request and st.mode == RUN and not stop_from_hold:
+                    fol.scaler.hold = True          # a stop is a feed hold on the path, then a halt
+                    stop_from_hold = True
+                tg = fol.next_target()
+                # the tick's start: copies (the backend reuses its feedback object)
+                row = st.counts.tolist()
+                row += fb.enc.tolist()
+                row += fb.strain.tolist()
+                row += be.truth().tolist() if has_truth else nan5
                 t_nc = mono()
                 pulses, st = self.nc.step(st, tg, fb)      # the one NC call site (compiled or Python)
-                ncns[k] = mono() - t_nc
+                ncns[w] = mono() - t_nc
                 pending = pulses
                 try:
                     if positions:
@@ -390,22 +426,49 @@ class ControlLoop:
                     break
                 sent += pulses
                 pending = None
+                row = [k, fol.s_total, fol.scaler.sigma, fol.line, st.mode, fol.state] + row
+                row += tg[:6].tolist()
+                row.append(late[w])
+                row.append(self.last_compute_ns)
+                if not rec.push_row(row):
+                    if cfg.realtime or not getattr(recorder, "inline", True):
+                        self.dropped += 1
+                    else:
+                        recorder.drain()
+                        rec.push_row(row)
                 if writer := self.writer:
                     if k % persist_every == 0:
                         writer.offer(st.counts, k)
                 t1 = mono()
-                comp[k] = t1 - t0
+                comp[w] = t1 - t0
+                self.last_compute_ns = t1 - t0
+                self.last_late_ns = late[w]
+                self.last_fb = fb
                 # ---- end of hot path
                 self.tick = k
                 self.mode = st.mode
                 k += 1
-                if st.mode == HALTED:
-                    status, reason = ("stopped" if _was_stop(st) else "fault"), st.reason
+                if self.hook is not None:
+                    st = self.hook(self, k, st)
+                if self.quit:
+                    status, reason = ("stopped" if st.mode != HALTED or _was_stop(st) else "fault"), \
+                        (self.quit_reason or st.reason or "quit")
                     break
-                if st.mode == RUN and k >= n_t + self.settle_ticks:
-                    st = _done(st)
-                    status, reason = "done", ""
-                    break
+                if self.exit_when_done:
+                    if st.mode == HALTED:
+                        status, reason = ("stopped" if _was_stop(st) else "fault"), st.reason
+                        break
+                    if stop_from_hold and st.mode == RUN and fol.sigma == 0.0 and not any(st.qdot.tolist()):
+                        st = _halt(st, self.stop_request)
+                        status, reason = "stopped", self.stop_request
+                        break
+                    if st.mode == RUN and fol.at_end and fol.src.count() <= 1 and fol.state != HOLDING:
+                        if done_at < 0:
+                            done_at = k
+                        if k - done_at >= self.settle_ticks:
+                            st = _done(st)
+                            status, reason = "done", ""
+                            break
                 if t1 - t0 > stall_ns:
                     if not cfg.realtime:
                         slow += 1      # offline simulation: a slow tick harms nothing; counted, reported
@@ -434,29 +497,35 @@ class ControlLoop:
                 st = st.uncounted(pending)
             st = _halt(st, reason)
         finally:
+            self.state = st
             sys.setswitchinterval(switch)
             if gc_was:
                 gc.enable()
-            if cfg.realtime:
+            if cfg.realtime and self.setup_rt:
                 undo_realtime(cfg.lock_memory)
-        n = k if status != "fault" else max(k, 0)
-        m = min(n, n_t)            # the targets of the ticks (filled here, not per tick)
-        target[:m] = rows[:m, :6]
-        target[m:n] = hold[:6]
+            recorder.stop()
+        n = k
+        m = min(n, TIMING_WINDOW)
+        order = np.arange(n - m, n) % TIMING_WINDOW
         if slow:
             self.log(f"{slow} ticks took longer than the stall limit ({cfg.stall_timeout_s * 1e3:g} ms); "
                      f"not a stall without real time")
-        timing = TimingStats(comp[:n].copy(), late[:n].copy(), ncns[:n].copy(), overruns, max_in_row, cfg.realtime, msgs,
-                             slow)
-        return LoopResult(status, reason, n, st.snapshot(), timing, 1.0 / cfg.rate_hz, counts[:n], enc[:n], strain[:n],
-                          truth[:n], target[:n], sent, self.targets.job_start)
+        timing = TimingStats(comp[order].copy(), late[order].copy(), ncns[order].copy(), overruns, max_in_row,
+                             cfg.realtime, msgs, slow)
+        from pmctl.motion.recorder import R_COUNTS, R_ENC, R_LINE, R_S, R_SIGMA, R_STRAIN, R_TARGET, R_TRUTH
+        a = recorder.arrays() if recorder.keep else np.zeros((0, self.records.width))
+        return LoopResult(status, reason, n, st.snapshot(), timing, 1.0 / cfg.rate_hz,
+                          a[:, R_COUNTS:R_COUNTS + 5].astype(np.int64), a[:, R_ENC:R_ENC + 5],
+                          a[:, R_STRAIN:R_STRAIN + 3], a[:, R_TRUTH:R_TRUTH + 5], a[:, R_TARGET:R_TARGET + 6],
+                          sent.copy(), self.targets.job_start if self.targets is not None else 0,
+                          a[:, R_SIGMA], a[:, R_S], a[:, R_LINE].astype(int), self.dropped)
 
 
 def _executed(st: NCState, e: HalError) -> NCState:
     """A backend that knows what the device executed (a step/dir bridge's counters) puts it on the
     error as ``counts``: the controller's counters follow the device, not the commands."""
     c = getattr(e, "counts", None)
-    return st if c is None else replace(st, counts=np.array(c, np.int64))
+    return st if c is None else st.with_counts(c)
 
 
 def _halt(st: NCState, reason: str) -> NCState:
@@ -477,6 +546,16 @@ def _was_stop(st: NCState) -> bool:
 
 
 # ---------------------------------------------------------------- convenience
+
+
+def target_samples(tg: Targets, dt: float, params: NCParams, *, rapid=None, rapid_mm_s: float = 50.0):
+    """Sample rows (pmctl.motion.timescale) of preflighted targets: their joint rates come from the
+    IK the preflight already did; caps looked ahead by the backward pass; the last row ends the job."""
+    from pmctl.motion.timescale import backward_pass, make_rows, scaling_limits, S_CAP
+    rows = make_rows(tg.rows[:, :3], tg.rows[:, 3:6], tg.q, tg.line, dt, params, rapid=rapid,
+                     rapid_mm_s=rapid_mm_s, end=True)
+    rows[:, S_CAP] = backward_pass(rows[:, S_CAP], dt, 0.5 * scaling_limits(params)[0])
+    return rows
 
 
 def prepare(machine: Machine, params: NCParams, traj: Trajectory, dt: float, counts0=None) -> Targets:

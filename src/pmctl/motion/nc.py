@@ -407,6 +407,10 @@ class NCState:
     def snapshot(self) -> "NCState":
         return self
 
+    def with_counts(self, counts) -> "NCState":
+        """The counters set to what a device reports it executed (after a backend fault)."""
+        return replace(self, counts=np.array(counts, np.int64))
+
 
 def initial_state(machine: Machine, counts, model: ModelFK | None = None) -> NCState:
     """State at given pulse counters: model pose by a cold-start FK (raises KinematicsError)."""

@@ -93,12 +93,15 @@ class CompiledState:
     NCState (``counts``, ``mode``, ``reason``) and the same mode-change methods, which change the
     buffers in place and return the handle. :meth:`snapshot` copies it out as an NCState."""
 
-    __slots__ = ("s", "n", "counts", "pulses", "reason", "mode", "_params")
+    __slots__ = ("s", "n", "counts", "pulses", "qdot", "tip", "axis", "reason", "mode", "_params")
 
     def __init__(self, s: np.ndarray, n: np.ndarray, params: NCParams):
         self.s, self.n, self._params = s, n, params
         self.counts = n[_N_COUNTS:_N_COUNTS + 5]       # views: always current
         self.pulses = n[_N_PULSES:_N_PULSES + 5]
+        self.qdot = s[_S_QDOT:_S_QDOT + 5]             # joint rates, mm/s (read them; the core writes)
+        self.tip = s[_S_TIP:_S_TIP + 3]                # model tool tip and axis in W
+        self.axis = s[_S_AXIS:_S_AXIS + 3]
         self.reason = ""
         self.mode = int(n[_N_MODE])            # a copy of n[NC_N_MODE], kept in step by every change
 
@@ -125,6 +128,11 @@ class CompiledState:
 
     def uncounted(self, pulses):
         self.counts -= np.asarray(pulses, np.int64)
+        return self
+
+    def with_counts(self, counts):
+        """The counters set to what a device reports it executed (after a backend fault)."""
+        self.counts[:] = np.asarray(counts, np.int64)
         return self
 
     def load(self, st: NCState):

@@ -1,0 +1,75 @@
+"""`pmctl ctl`: talk to a running `pmctl serve` through its control socket (JSON lines).
+
+    pmctl ctl --socket PATH status | hold | resume | stop | estop | unlock
+    pmctl ctl --socket PATH override [--feed F] [--rapid R]
+    pmctl ctl --socket PATH queue add FILE | queue list
+    pmctl ctl --socket PATH subscribe [--period S]
+"""
+
+from __future__ import annotations
+
+
+def add_parser(sub):
+    p = sub.add_parser("ctl", help="control a running `pmctl serve` through its control socket",
+                       description="Send one request to the control socket of `pmctl serve` and print the answer.")
+    p.add_argument("--socket", required=True, metavar="PATH", help="the control socket (pmctl serve --socket)")
+    p.add_argument("what", choices=("status", "hold", "resume", "stop", "estop", "unlock", "override", "queue",
+                                    "subscribe"))
+    p.add_argument("args", nargs="*", help="queue: 'add FILE' or 'list'")
+    p.add_argument("--feed", type=float, default=None, help="override: feed factor 0.1 .. 2.0")
+    p.add_argument("--rapid", type=float, default=None, help="override: rapid factor 0.25, 0.5 or 1.0")
+    p.add_argument("--period", type=float, default=0.5, help="subscribe: seconds between status lines")
+    p.set_defaults(func=run)
+
+
+def request(path, req: dict, *, stream=False, timeout=30.0):
+    import json
+    import socket
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.settimeout(timeout)
+    s.connect(str(path))
+    f = s.makefile("rwb")
+    f.write((json.dumps(req) + "\n").encode())
+    f.flush()
+    if stream:
+        return s, f
+    line = f.readline()
+    s.close()
+    return json.loads(line)
+
+
+def run(args) -> int:
+    import json
+    import os
+
+    from pmctl.core.errors import PmctlError
+    req = {"cmd": args.what}
+    if args.what == "queue":
+        if args.args[:1] == ["add"] and len(args.args) == 2:
+            req["add"] = os.path.abspath(args.args[1])
+        elif args.args == ["list"]:
+            req["list"] = True
+        else:
+            raise PmctlError("queue: use 'queue add FILE' or 'queue list'")
+    elif args.what == "override":
+        if args.feed is not None:
+            req["feed"] = args.feed
+        if args.rapid is not None:
+            req["rapid"] = args.rapid
+    try:
+        if args.what == "subscribe":
+            req["period_s"] = args.period
+            s, f = request(args.socket, req, stream=True, timeout=None)
+            try:
+                for line in f:
+                    print(line.decode().strip(), flush=True)
+            except KeyboardInterrupt:
+                pass
+            finally:
+                s.close()
+            return 0
+        ans = request(args.socket, req)
+    except OSError as e:
+        raise PmctlError(f"--socket {args.socket}: {e.strerror or e}") from None
+    print(json.dumps(ans))
+    return 0 if ans.get("ok") else 1

@@ -1,0 +1,166 @@
+"""The control socket: a Unix stream socket (mode 0660: owner and group only; no TCP) speaking
+JSON lines, for scripts and a future UI. One request per line, one JSON answer per line:
+
+    {"cmd": "status"}                          -> {"ok": true, "state": "Idle", "mpos": [...], ...}
+    {"cmd": "queue", "add": "FILE"}            -> {"ok": true, "index": n}   (checked before it is queued)
+    {"cmd": "queue", "list": true}             -> {"ok": true, "items": [{"index", "kind", "name", "planned"}]}
+    {"cmd": "hold"} / {"cmd": "resume"}        -> {"ok": true}
+    {"cmd": "override", "feed": 1.2, "rapid": 0.5}
+    {"cmd": "stop"}                            -> soft reset: stop on the path, queue dropped, position kept
+    {"cmd": "estop"}                           -> immediate halt, Alarm 10 until unlock
+    {"cmd": "unlock"}
+    {"cmd": "subscribe", "period_s": 0.2}      -> a status line every period until the client leaves
+Errors: {"ok": false, "error": "..."}.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import threading
+import time
+
+
+class ControlServer:
+    def __init__(self, daemon, path: str):
+        self.daemon = daemon
+        self.sup = daemon.sup
+        self.path = str(path)
+        self._stop = threading.Event()
+        self._threads = []
+        if os.path.exists(self.path):
+            os.unlink(self.path)
+        os.makedirs(os.path.dirname(os.path.abspath(self.path)), exist_ok=True)
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        old = os.umask(0o117)
+        try:
+            self.sock.bind(self.path)
+        finally:
+            os.umask(old)
+        os.chmod(self.path, 0o660)
+        self.sock.listen(8)
+        self.sock.settimeout(0.2)
+
+    def start(self):
+        t = threading.Thread(target=self._accept, name="pmctl-control", daemon=True)
+        t.start()
+        self._threads.append(t)
+
+    def stop(self):
+        self._stop.set()
+        try:
+            self.sock.close()
+        except OSError:
+            pass
+        try:
+            os.unlink(self.path)
+        except OSError:
+            pass
+
+    def _accept(self):
+        while not self._stop.is_set():
+            try:
+                conn, _ = self.sock.accept()
+            except (socket.timeout, OSError):
+                continue
+            t = threading.Thread(target=self._client, args=(conn,), name="pmctl-control-client", daemon=True)
+            t.start()
+
+    def _client(self, conn):
+        f = conn.makefile("rwb")
+        try:
+            for raw in f:
+                if self._stop.is_set():
+                    break
+                if len(raw) > 65536:
+                    self._send(f, {"ok": False, "error": "request too long"})
+                    continue
+                try:
+                    req = json.loads(raw)
+                    if not isinstance(req, dict):
+                        raise ValueError("a request is a JSON object")
+                except ValueError as e:
+                    self._send(f, {"ok": False, "error": f"bad request: {e}"})
+                    continue
+                if req.get("cmd") == "subscribe":
+                    period = min(10.0, max(0.05, float(req.get("period_s", 0.2))))
+                    while not self._stop.is_set():
+                        self._send(f, self.status())
+                        time.sleep(period)
+                    break
+                try:
+                    self._send(f, self.handle(req))
+                except Exception as e:
+                    self._send(f, {"ok": False, "error": f"{type(e).__name__}: {e}"})
+        except (OSError, ValueError):
+            pass
+        finally:
+            try:
+                f.close()
+                conn.close()
+            except OSError:
+                pass
+
+    @staticmethod
+    def _send(f, obj):
+        f.write((json.dumps(obj) + "\n").encode())
+        f.flush()
+
+    def status(self) -> dict:
+        from pmctl.motion import channel as C
+        from pmctl.task.supervisor import roll_pitch_deg
+        sup = self.sup
+        s = sup.raw()
+        tip, axis = sup.pose()
+        a, b = roll_pitch_deg(axis)
+        return {"ok": True, "state": sup.state_name(), "mpos": [*map(float, tip), a, b],
+                "counts": [int(x) for x in s[C.ST_COUNTS:C.ST_COUNTS + 5]], "line": sup.current_line(),
+                "sigma": float(s[C.ST_SIGMA]), "feed_override": float(s[C.ST_FEED_OV]),
+                "rapid_override": float(s[C.ST_RAPID_OV]), "queued_items": sup.queued_items(),
+                "alarm": sup.alarm, "alarm_msg": sup.alarm_msg, "rt_alive": not sup.rt_dead,
+                "tick": int(s[C.ST_TICK]), "dropped_records": int(s[C.ST_DROPPED])}
+
+    def handle(self, req) -> dict:
+        from pmctl.task.planner import load_job
+        sup = self.sup
+        cmd = req.get("cmd")
+        if cmd == "status":
+            return self.status()
+        if cmd == "queue":
+            if "add" in req:
+                path = str(req["add"])
+                job = load_job(path, sup.machine, start=sup.end_pose())
+                it = sup.submit(job, kind="job", name=os.path.basename(path))
+                return {"ok": True, "index": it.index}
+            with sup._lock:
+                items = [{"index": i.index, "kind": i.kind, "name": i.name, "planned": i.planned} for i in sup.items]
+            return {"ok": True, "items": items}
+        if cmd == "hold":
+            sup.hold()
+        elif cmd == "resume":
+            sup.resume()
+        elif cmd == "override":
+            if "feed" in req:
+                f = float(req["feed"])
+                if not 0.1 <= f <= 2.0:
+                    return {"ok": False, "error": "feed override must be within 0.1 .. 2.0"}
+                sup.feed_override(f)
+                if getattr(self.daemon, "console", None) is not None:
+                    self.daemon.console.feed_ov = int(round(f * 100))     # the console's +/- steps start here
+            if "rapid" in req:
+                r = float(req["rapid"])
+                if r not in (0.25, 0.5, 1.0):
+                    return {"ok": False, "error": "rapid override is 0.25, 0.5 or 1.0"}
+                sup.rapid_override(r)
+                if getattr(self.daemon, "console", None) is not None:
+                    self.daemon.console.rapid_ov = int(round(r * 100))
+        elif cmd == "stop":
+            sup.soft_reset()
+        elif cmd == "estop":
+            sup.estop("E-stop from the control socket")
+        elif cmd == "unlock":
+            sup.unlock()
+        else:
+            return {"ok": False, "error": f"unknown command {cmd!r}"}
+        return {"ok": True}

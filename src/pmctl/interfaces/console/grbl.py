@@ -1,0 +1,418 @@
+"""The operator console: grbl 1.1's serial protocol on a pty or a serial device.
+
+Two threads:
+- the reader takes bytes as they come. Realtime bytes act at once, also in the middle of a line:
+  ``?`` status report, ``!`` feed hold, ``~`` cycle start, 0x18 soft reset, 0x85 jog cancel,
+  0x90-0x94 feed override (100 %, +10, -10, +1, -1; 10-200 %), 0x95-0x97 rapid override (100, 50,
+  25 %), 0x99-0x9D spindle override (reported only: no spindle drive here). Other bytes collect into
+  lines (``\\n`` or ``\\r`` ends one); a line longer than ``LINE_MAX`` is dropped whole with error:11.
+- the worker executes lines in order and answers each with ``ok`` or ``error:N``. A motion line is
+  answered once it is checked (reader, reachability) and queued; when the motion queue is full the
+  answer waits (grbl's full planner buffer), so a character-counting sender with its 128-byte budget
+  is paced by the machine. Motion lines are collected into batches that the supervisor plans as one
+  job (a batch goes when it is large, when the sender pauses, or at M2/M30).
+
+A bad line changes nothing: not the queued motion, not the parser state, not the next line.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import select
+import threading
+import time
+
+import numpy as np
+
+from pmctl import __version__
+from pmctl.task.interp import AXES, WCS_NAMES, LineError, LineInterpreter, moves_job
+from pmctl.task.supervisor import MotionRefused, roll_pitch_deg
+
+RX_BUFFER = 128
+LINE_MAX = 256
+BATCH_MOVES = 200
+BATCH_IDLE_S = 0.08
+MAX_QUEUED_ITEMS = 3
+BANNER = "Grbl 1.1h ['$' for help]"
+HELP = "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $C $X $H ~ ! ? ctrl-x]"
+
+RT_STATUS, RT_HOLD, RT_START, RT_RESET = 0x3F, 0x21, 0x7E, 0x18
+RT_DOOR, RT_JOG_CANCEL = 0x84, 0x85
+
+
+class GrblConsole:
+    def __init__(self, sup, fd: int, journal, *, log=None, homing=None, jogger=None):
+        self.sup = sup
+        self.fd = fd
+        self.journal = journal
+        self.log = log or (lambda m: None)
+        self.homing = homing                  # callable() -> (ok, msg) for $H, or None
+        self.jogger = jogger
+        tip, axis = sup.pose()
+        self.interp = LineInterpreter(sup.machine, tip, axis, journal.data.get("offsets"))
+        self.settings = {10: int(journal.data.get("settings", {}).get("10", 1))}
+        self.lines: queue.Queue = queue.Queue()
+        self._wlock = threading.Lock()
+        self._stop = threading.Event()
+        self._reset_gen = 0
+        self.batch: list = []
+        self.batch_lines: dict = {}
+        self.batch_t = 0.0
+        self.seq = 0
+        self.spindle_ov = 100
+        self.feed_ov = 100
+        self.rapid_ov = 100
+        self._buf = bytearray()
+        self._overflow = False
+        self._last_tip = None
+        self._last_t = 0.0
+        self.speed = 0.0
+        self.threads = []
+        sup.listeners.append(self._on_event)
+
+    # ------------------------------------------------------------ output
+    def write(self, text: str):
+        data = (text + "\r\n").encode("ascii", "replace")
+        with self._wlock:
+            try:
+                while data:
+                    n = os.write(self.fd, data)
+                    data = data[n:]
+            except (BlockingIOError, OSError):
+                pass                       # nobody listening (a disconnected sender): drop it
+
+    def _on_event(self, event, detail):
+        if event == "alarm":
+            self.write(f"ALARM:{detail['code']}")
+            self.write(f"[MSG:{detail['msg']}]")
+        elif event == "error":
+            self.write(f"[MSG:{detail['msg']}]")
+
+    # ------------------------------------------------------------ life
+    def start(self):
+        self.welcome()
+        for name, fn in (("pmctl-console-rx", self._reader), ("pmctl-console-lines", self._worker)):
+            t = threading.Thread(target=fn, name=name, daemon=True)
+            t.start()
+            self.threads.append(t)
+
+    def stop(self):
+        self._stop.set()
+        for t in self.threads:
+            t.join(2.0)
+
+    def welcome(self):
+        self.write("")
+        self.write(BANNER)
+        if self.sup.alarm:
+            self.write("[MSG:'$H'|'$X' to unlock]")
+
+    # ------------------------------------------------------------ reader
+    def _reader(self):
+        while not self._stop.is_set():
+            try:
+                r, _, _ = select.select([self.fd], [], [], 0.05)
+            except (OSError, ValueError):
+                time.sleep(0.05)
+                continue
+            if not r:
+                continue
+            try:
+                data = os.read(self.fd, 4096)
+            except BlockingIOError:
+                continue
+            except OSError:                 # the sender closed the port: wait for the next one
+                time.sleep(0.05)
+                continue
+            if not data:
+                time.sleep(0.05)
+                continue
+            self.feed(data)
+
+    def feed(self, data: bytes):
+        """Bytes from the sender (the reader thread; tests may call it directly)."""
+        for b in data:
+            if b == RT_STATUS:
+                self.write(self.status_report())
+            elif b == RT_HOLD:
+                state = self.sup.state_name()
+                if state == "Run":
+                    self.sup.hold()
+                elif state == "Jog":          # grbl: a feed hold during a jog cancels the jog
+                    self.jog_cancel()
+                # Idle, Alarm, Check, Hold: nothing to hold
+            elif b == RT_START:
+                self.sup.resume()
+            elif b == RT_RESET:
+                self.soft_reset()
+            elif b == RT_JOG_CANCEL:
+                self.jog_cancel()
+            elif b >= 0x80:
+                self._override(b)
+            elif b in (0x0A, 0x0D):
+                if self._overflow:
+                    self.lines.put((self._reset_gen, None))      # error:11 in order with the others
+                elif self._buf or b == 0x0A:
+                    self.lines.put((self._reset_gen, bytes(self._buf)))
+                self._buf.clear()
+                self._overflow = False
+            else:
+                if len(self._buf) >= LINE_MAX:
+                    self._overflow = True
+                    self._buf.clear()
+                elif not self._overflow:
+                    self._buf.append(b)
+
+    def _override(self, b):
+        if 0x90 <= b <= 0x94:
+            f = self.feed_ov
+            f = {0x90: 100, 0x91: f + 10, 0x92: f - 10, 0x93: f + 1, 0x94: f - 1}[b]
+            self.feed_ov = min(200, max(10, f))
+            self.sup.feed_override(self.feed_ov / 100.0)
+        elif 0x95 <= b <= 0x97:
+            self.rapid_ov = {0x95: 100, 0x96: 50, 0x97: 25}[b]
+            self.sup.rapid_override(self.rapid_ov / 100.0)
+        elif 0x99 <= b <= 0x9D:
+            s = self.spindle_ov
+            s = {0x99: 100, 0x9A: s + 10, 0x9B: s - 10, 0x9C: s + 1, 0x9D: s - 1}[b]
+            self.spindle_ov = min(200, max(10, s))
+        # 0x84 door, 0x9E spindle stop, 0xA0/0xA1 coolant: no such hardware here; others: not commands
+
+    def soft_reset(self):
+        self._reset_gen += 1
+        self._buf.clear()
+        self._overflow = False
+        while not self.lines.empty():
+            try:
+                self.lines.get_nowait()
+            except queue.Empty:
+                break
+        self.batch, self.batch_lines = [], {}
+        self.sup.soft_reset()
+        self.interp.reset_modal()
+        self.interp.sync(*self.sup.pose())
+        if self.interp.changed:
+            self._persist()
+        self.feed_ov = self.rapid_ov = self.spindle_ov = 100
+        self.sup.feed_override(1.0)
+        self.sup.rapid_override(1.0)
+        self.welcome()
+
+    def jog_cancel(self):
+        if self.sup.state_name() == "Jog":
+            self.sup.soft_reset()
+            self.interp.sync(*self.sup.pose())
+
+    # ------------------------------------------------------------ status
+    def status_report(self) -> str:
+        sup = self.sup
+        state = sup.state_name()
+        tip, axis = sup.pose()
+        a, b = roll_pitch_deg(axis)
+        m = [float(tip[0]), float(tip[1]), float(tip[2]), a, b]
+        now = time.monotonic()
+        if self._last_tip is not None and now - self._last_t > 1e-3:
+            self.speed = float(np.linalg.norm(tip - self._last_tip)) / (now - self._last_t) * 60.0
+        self._last_tip, self._last_t = tip, now
+        if state in ("Idle", "Hold:0", "Alarm"):
+            self.speed = 0.0
+        wco = self.interp.wco()
+        if self.settings[10] & 1:
+            pos = "MPos:" + ",".join(f"{v:.3f}" for v in m)
+        else:
+            pos = "WPos:" + ",".join(f"{m[i] - wco[i]:.3f}" for i in range(5))
+        parts = [state, pos, f"FS:{self.speed:.0f},0"]
+        if self.settings[10] & 2:
+            parts.append(f"Bf:{max(0, 15 - sup.queued_items())},{RX_BUFFER}")
+        line = sup.current_line()
+        if line > 0 and state not in ("Idle", "Alarm", "Jog"):
+            parts.append(f"Ln:{line}")
+        from pmctl.motion import channel as C
+        raw = sup.raw()
+        fo = int(round(raw[C.ST_FEED_OV] * 100)) or self.feed_ov
+        ro = int(round(raw[C.ST_RAPID_OV] * 100)) or self.rapid_ov
+        parts.append(f"Ov:{fo},{ro},{self.spindle_ov}")
+        parts.append("WCO:" + ",".join(f"{v:.3f}" for v in wco))
+        return "<" + "|".join(parts) + ">"
+
+    # ------------------------------------------------------------ lines
+    def _worker(self):
+        while not self._stop.is_set():
+            try:
+                gen, raw = self.lines.get(timeout=0.02)
+            except queue.Empty:
+                if self.batch and time.monotonic() - self.batch_t > BATCH_IDLE_S:
+                    self._flush()
+                continue
+            if gen != self._reset_gen:
+                continue
+            if raw is None:
+                self.write("error:11")
+                continue
+            try:
+                text = raw.decode("ascii")
+            except UnicodeDecodeError:
+                self.write("error:1")
+                continue
+            try:
+                self.execute(text.strip(), gen)
+                if gen == self._reset_gen:
+                    self.write("ok")
+            except LineError as e:
+                self.write(f"error:{e.code}")
+            except MotionRefused as e:
+                self.write(f"error:{e.code}")
+            except Exception as e:              # a bug must not kill the console
+                self.log(f"console: {type(e).__name__}: {e}")
+                self.write("error:20")
+
+    def execute(self, text: str, gen: int = 0):
+        if not text:
+            return
+        if "".join(text.split()).startswith("$"):
+            return self._system("".join(text.split()).upper())
+        if any(ord(c) < 0x20 and c != "\t" for c in text):
+            raise LineError(1, "control characters in the line")
+        state = self.sup.state_name()
+        if state == "Alarm":
+            raise LineError(9, "G-code locked out during alarm")
+        if state == "Jog":
+            raise LineError(9, "G-code locked out while jogging")
+        self.seq += 1
+        if not self.batch:
+            # motion from elsewhere (a jog, a job from the control socket, a hold) may have moved
+            # the machine: the parser continues from where the queued motion ends
+            with self.sup._lock:
+                last = self.sup.items[-1].kind if self.sup.items else None
+            if last != "gcode":
+                self.interp.sync(*self.sup.end_pose())
+        moves, n_word, flags = self.interp.execute(text, self.seq)
+        if flags.get("sync"):
+            self._persist()
+        if self.sup.check_mode or not moves:
+            if flags.get("end"):
+                self._flush(gen)
+                self.write("[MSG:Pgm End]")
+            return
+        if not self.batch:
+            self.batch_t = time.monotonic()
+        self.batch.extend(moves)
+        self.batch_lines[self.seq] = n_word
+        self.batch_t = time.monotonic()
+        if len(self.batch) >= BATCH_MOVES or flags.get("end"):
+            self._flush(gen)          # waits (the answer with it) while the motion queue is full
+        if flags.get("end"):
+            self.write("[MSG:Pgm End]")
+
+    def _flush(self, gen=None):
+        if not self.batch:
+            return
+        while self.sup.queued_items() >= MAX_QUEUED_ITEMS:
+            if (gen is not None and gen != self._reset_gen) or self._stop.is_set() or self.sup.alarm:
+                self.batch, self.batch_lines = [], {}
+                return
+            time.sleep(0.01)
+        batch, lines = self.batch, self.batch_lines
+        self.batch, self.batch_lines = [], {}
+        try:
+            self.sup.submit(moves_job(batch, "console"), kind="gcode", name="console", lines=lines)
+        except MotionRefused:
+            pass
+
+    def _persist(self):
+        self.interp.changed = False
+        self.journal.save(offsets=self.interp.offsets(), settings={str(k): v for k, v in self.settings.items()})
+
+    # ------------------------------------------------------------ $ commands
+    def _system(self, cmd: str):
+        sup = self.sup
+        idle_like = sup.state_name() in ("Idle", "Alarm", "Check")
+        if cmd == "$":
+            self.write(HELP)
+        elif cmd == "$$":
+            for k, v in self._settings_list():
+                self.write(f"${k}={v}")
+        elif cmd == "$#":
+            for n in WCS_NAMES:
+                self.write(f"[{n}:" + ",".join(f"{v:.3f}" for v in self.interp.wcs[n]) + "]")
+            z = ",".join(["0.000"] * 5)
+            self.write(f"[G28:{z}]")
+            self.write(f"[G30:{z}]")
+            self.write("[G92:" + ",".join(f"{v:.3f}" for v in self.interp.g92) + "]")
+            self.write("[TLO:0.000]")
+            self.write(f"[PRB:{z}:0]")
+        elif cmd == "$G":
+            self.write(f"[GC:{self.interp.parser_state()}]")
+        elif cmd == "$I":
+            self.write(f"[VER:1.1h.pmctl-{__version__}:{sup.machine.name}]")
+            self.write(f"[OPT:VN,15,{RX_BUFFER}]")
+        elif cmd == "$N":
+            self.write("$N0=")
+            self.write("$N1=")
+        elif cmd == "$X":
+            if sup.alarm or sup.rt_dead:
+                sup.unlock()
+                self.interp.sync(*sup.pose())
+                self.write("[MSG:Caution: Unlocked]")
+        elif cmd == "$C":
+            if sup.check_mode:
+                sup.check_mode = False
+                self.write("[MSG:Disabled]")
+                self.write("ok")               # the answer to $C, then grbl's automatic reset
+                self.soft_reset()
+            elif not idle_like or sup.alarm:
+                raise LineError(8, "$C only when idle")
+            else:
+                sup.check_mode = True
+                self.write("[MSG:Enabled]")
+        elif cmd == "$H":
+            if self.homing is None:
+                raise LineError(5, "homing is not available on this backend")
+            if sup.state_name() not in ("Idle", "Alarm"):
+                raise LineError(8, "$H only when idle")
+            ok, msg = self.homing()
+            if not ok:
+                return
+            self.interp.sync(*sup.pose())
+            self._persist()
+        elif cmd.startswith("$J="):
+            if sup.state_name() not in ("Idle", "Jog"):
+                raise LineError(8 if not sup.alarm else 9, "jog only when idle or jogging")
+            if self.jogger is None:
+                raise LineError(3, "jogging not available")
+            self.jogger(cmd[3:], self.interp)
+        elif cmd.startswith("$") and "=" in cmd:
+            k, _, v = cmd[1:].partition("=")
+            try:
+                k, v = int(k), float(v)
+            except ValueError:
+                raise LineError(3, "bad $ setting") from None
+            if k != 10:
+                raise LineError(3, f"${k} is read-only on pmctl")
+            if v != int(v) or not 0 <= v <= 255:
+                raise LineError(4, "$10 is a mask 0..255")
+            self.settings[10] = int(v)
+            self._persist()
+        elif cmd in ("$SLP", "$RST=$", "$RST=#", "$RST=*"):
+            raise LineError(3, "not supported")
+        else:
+            raise LineError(3, "unknown $ command")
+
+    def _settings_list(self):
+        m, p = self.sup.machine, self.sup.params
+        out = [(10, self.settings[10]), (13, 0), (20, 1), (21, 0), (22, 1 if self.homing else 0)]
+        ppm = m.resolution.pulses_per_mm
+        for i in range(5):
+            out.append((100 + i, f"{ppm[i]:.3f}"))
+        for i in range(5):
+            out.append((110 + i, f"{p.vmax[i] * 60:.3f}"))
+        for i in range(5):
+            out.append((120 + i, f"{p.amax[i]:.3f}"))
+        for i in range(5):
+            out.append((130 + i, f"{p.upper[i] - p.lower[i]:.3f}"))
+        return out
+
+
+def axis_index(letter: str) -> int:
+    return AXES.index(letter)

@@ -1,0 +1,238 @@
+"""The rt motion process: the control loop, the NC step and the backend, fed through the channel.
+
+Started by the supervisor (pmctl.task.supervisor) as a separate process; everything it needs comes
+in ``spec`` (a dict of plain values). Per tick, after the NC step, its hook:
+- applies the commands queued by the supervisor (hold, resume, overrides, soft reset, quit,
+  E-stop, unlock) -- reading a ring, never waiting;
+- writes the status block (counters, model pose, sigma, line, phase, timing) under a sequence
+  counter;
+- every 50 ticks checks that the supervisor is still its parent: if it died, the machine is
+  brought to a feed hold on the path, the counters are saved (clean) and the process exits.
+A fault (NC halt) or an NC stop drops the queued samples: motion resumes only after an unlock.
+SIGTERM is a quit: hold on the path, save the counters, exit.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+
+import numpy as np
+
+from pmctl.motion import channel as C
+
+
+class RtHook:
+    def __init__(self, ch: C.Channel, machine, params, ppid: int, log):
+        self.ch, self.machine, self.params = ch, machine, params
+        self.ppid = ppid
+        self.log = log
+        self.resetting = False
+        self.quitting = ""
+        self.last_ack = 0.0
+        self.ontime = 0
+        self.period_ns = int(round(params.dt * 1e9))
+        self.st = ch.st
+        self.faulted = False
+        self.term = False
+        self.rest_ticks = 0
+
+    def __call__(self, lp, k, st):
+        from pmctl.motion.nc import HALTED, RUN, STOPPING
+        ch, fol = self.ch, lp.follower
+        sc = fol.scaler
+        cmds = ch.commands
+        while cmds.count():
+            seq, code, a1, _ = cmds.row(0).tolist()
+            cmds.advance(1)
+            code = int(code)
+            self.last_ack = seq
+            if code == C.C_HOLD:
+                sc.hold = True
+            elif code == C.C_RESUME:
+                if not (self.resetting or self.quitting):
+                    sc.hold = False
+            elif code == C.C_FEED_OV:
+                sc.set_feed_override(a1)
+            elif code == C.C_RAPID_OV:
+                sc.set_rapid_override(a1)
+            elif code == C.C_RESET:
+                self.resetting = True
+                sc.hold = True
+            elif code == C.C_QUIT:
+                self.quitting = "stopped by the supervisor"
+                sc.hold = True
+            elif code == C.C_ESTOP:
+                st = _halt(st, "E-stop (software)")
+            elif code == C.C_UNLOCK:
+                if lp.backend.inputs().estop:
+                    continue                  # latched: the E-stop input must clear first
+                if st.mode != RUN:
+                    st = _restart(st, self.machine, lp)
+                    self.faulted = False
+                fol.clear()
+                fol._rest = st.tip.tolist() + st.axis.tolist()
+                sc.hold = False
+        if st.mode != HALTED and lp.backend.inputs().estop:
+            st = _halt(st, "E-stop input pressed")
+        if self.term and not self.quitting:
+            self.quitting = "SIGTERM"
+            sc.hold = True
+        if k % 50 == 0 and os.getppid() != self.ppid and not self.quitting:
+            self.quitting = "the supervisor died: feed hold on the path, counters saved"
+            self.log(self.quitting)
+            sc.hold = True
+        if st.mode in (STOPPING, HALTED):
+            if not self.faulted:
+                self.faulted = True
+                fol.clear()
+                ch.set_reason(st.reason)
+                ch.st[C.ST_FAULT] = C.F_FAULT if st.mode == HALTED and not _was_stop(st) else C.F_STOP
+        # at rest: the path clock stopped (not still braking) for 50 ticks; the NC then only closes
+        # the sub-pulse residue (kv x half a pulse ~ 0.1 mm/s)
+        self.rest_ticks = self.rest_ticks + 1 if (sc.sigma == 0.0 and fol.state != 2) else 0     # 2 = HOLDING
+        at_rest = self.rest_ticks >= 50
+        if self.resetting and at_rest:
+            fol.clear()
+            sc.hold = False
+            self.resetting = False
+        if self.quitting and (at_rest or st.mode == HALTED):
+            lp.quit = True
+            lp.quit_reason = self.quitting
+        late = getattr(lp, "last_late_ns", 0)
+        comp = getattr(lp, "last_compute_ns", 0)
+        self.ontime = self.ontime + 1 if (late + comp) < self.period_ns else 0
+        s = self.st
+        s[C.ST_SEQ] += 1.0
+        s[C.ST_TICK:C.ST_COUNTS] = (k, _wall(), st.mode, fol.state, sc.sigma, fol.line, fol.s_total,
+                                     sc.feed_override, sc.rapid_override, 1.0 if sc.hold else 0.0)
+        s[C.ST_COUNTS:C.ST_ENDED] = st.counts.tolist() + st.tip.tolist() + st.axis.tolist()
+        s[C.ST_ENDED] = fol.ended_jobs
+        s[C.ST_DROPPED] = lp.dropped
+        s[C.ST_LATE_NS] = late
+        s[C.ST_COMPUTE_NS] = comp
+        s[C.ST_CMD_ACK] = self.last_ack
+        s[C.ST_ONTIME] = self.ontime
+        s[C.ST_QUEUED] = fol.src.count()
+        s[C.ST_MONO] = _mono()
+        s[C.ST_SENT:C.ST_SENT + 5] = lp.sent.tolist()
+        fb = lp.last_fb
+        if fb is not None and fb.counts is not None:
+            s[C.ST_DEV_COUNTS:C.ST_DEV_COUNTS + 5] = fb.counts.tolist()
+        s[C.ST_SEQ] += 1.0
+        return st
+
+
+def _wall():
+    import time
+    return time.time()
+
+
+def _mono():
+    import time
+    return time.monotonic()
+
+
+def _halt(st, reason):
+    from dataclasses import replace
+
+    from pmctl.motion.nc import HALTED
+    return replace(st, mode=HALTED, reason=reason, qdot=np.zeros(5), acc=np.zeros(5))
+
+
+def _was_stop(st) -> bool:
+    r = st.reason
+    return not (r.startswith("following error") or r.startswith("model pose lost") or r.startswith("backend"))
+
+
+def _restart(st, machine, lp):
+    from pmctl.motion.nc import initial_state
+    return lp.nc.load(initial_state(machine, st.counts))
+
+
+def rt_main(spec: dict) -> int:
+    """Entry point of the rt process (multiprocessing, spawn)."""
+    from pmctl import hal
+    from pmctl.core.config import load_machine
+    from pmctl.motion.loop import ControlLoop
+    from pmctl.motion.nc import HALTED, initial_state
+    from pmctl.motion.recorder import Recorder
+    from pmctl.motion.service_config import load_service_config
+    from pmctl.motion.state_store import CounterWriter, save_counters
+    from pmctl.motion.timescale import PathFollower
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)          # the supervisor handles Ctrl-C
+    log = lambda m: print(f"pmctl rt: {m}", file=sys.stderr, flush=True)  # noqa: E731
+    ch = C.Channel(spec["shm"])
+    ch.st[C.ST_PID] = os.getpid()
+    ch.st[C.ST_COUNTS0:C.ST_COUNTS0 + 5] = [float(c) for c in spec["counts"]]
+    ch.st[C.ST_DEV_COUNTS:C.ST_DEV_COUNTS + 5] = float("nan")
+    machine = load_machine(spec["config"])
+    svc = load_service_config(spec.get("service"))
+    cfg = svc.loop
+    cfg.rate_hz = float(spec.get("rate_hz") or cfg.rate_hz)
+    realtime = bool(spec.get("realtime", cfg.realtime))
+    cfg.realtime = True                   # the daemon always keeps time (deadlines)
+    if not realtime:
+        cfg.lock_memory = False
+        cfg.stall_timeout_s = max(cfg.stall_timeout_s, 5.0)
+        cfg.max_overruns_in_row = 1 << 30
+    dt = cfg.dt
+    params = svc.nc.params(machine, dt, where=svc.source)
+    counts = np.array(spec["counts"], np.int64)
+    be = hal.create(spec["backend"], machine, dt, svc.backend_options if spec["backend"] == svc.backend else {})
+    be.open(counts)
+    st = initial_state(machine, counts)
+    fol = PathFollower(ch.samples, params, dt, pose=st.tip.tolist() + st.axis.tolist())
+    state_file = spec.get("state_file") or ""
+    writer = CounterWriter(state_file, machine=machine.name) if state_file else None
+
+    class _Null(Recorder):           # the supervisor drains the record ring
+        inline = False
+
+        def drain(self):
+            return 0
+
+        def start(self, period_s=0.02):
+            pass
+
+        def stop(self):
+            pass
+
+    hook = RtHook(ch, machine, params, int(spec["ppid"]), log)
+
+    def _term(signum, frame):
+        hook.term = True
+    signal.signal(signal.SIGTERM, _term)
+    lp = ControlLoop(machine, be, params, None, cfg, st, log=log, writer=writer, follower=fol,
+                     records=ch.records, recorder=_Null(ch.records, keep=False), hook=hook,
+                     exit_when_done=False, setup_rt=realtime)
+    ch.st[C.ST_PHASE] = C.PH_RUNNING
+    res = None
+    try:
+        res = lp.run()
+    finally:
+        final = lp.state if hasattr(lp, "state") else st
+        clean = res is not None and final.mode != HALTED or (res is not None and _was_stop(final))
+        try:
+            be.close()
+        finally:
+            if writer is not None:
+                writer.stop()
+                save_counters(state_file, final.counts, machine=machine.name, clean=bool(clean), tick=lp.tick)
+            ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = final.counts.tolist()
+            ch.set_reason(getattr(lp, "quit_reason", "") or (res.reason if res else "rt process error"))
+            ch.st[C.ST_PHASE] = C.PH_EXITED
+            fb = lp.last_fb
+            sent_ok = bool(np.array_equal(counts + lp.sent, final.counts))
+            dev_ok = fb is None or fb.counts is None or bool(np.array_equal(fb.counts, final.counts))
+            log(f"stopped: {getattr(lp, 'quit_reason', '') or (res.reason if res else '')}; counters "
+                f"{final.counts.tolist()} saved; pulses sent = counter change: {'yes' if sent_ok else 'NO'}; "
+                f"device counters = counters: {'yes' if dev_ok else 'NO'}")
+    return 0
+
+
+if __name__ == "__main__":
+    import json
+    sys.exit(rt_main(json.loads(sys.argv[1])))

@@ -1,0 +1,353 @@
+"""Time-scaling of a planned path: the loop follows planned samples at a feed factor sigma.
+
+The planner samples a job at nominal time tau (period ``dt_plan``). The loop keeps its own path
+clock s (in samples) and advances it every tick by sigma * dt / dt_plan. The target of a tick is
+the pose at s (linear interpolation between the two neighbouring samples, axis renormalised); its
+feed-forward is the difference to the pose at the next tick's s, so the pulses of a tick carry the
+model exactly to the next target. At sigma = 1 and dt = dt_plan this is the planned trajectory
+itself, sample for sample.
+
+What moves sigma (each tick, :class:`TimeScaler`):
+- its goal: the feed override (10-200 %) on feed moves, the rapid override (25/50/100 %) on rapids,
+  0 while a feed hold (or a stop) is requested;
+- a cap per sample (``S_CAP``): joint speeds sigma |q_tau| <= vmax, joint accelerations from the
+  path's curvature sigma^2 |q_tautau| <= amax, the tool-tip speed <= the rapid speed; a backward pass
+  along the samples lowers it ahead of a tighter point, so sigma is already down when it gets there;
+- starvation: with the end of the queued samples ahead and no job end among them, sigma is held to
+  what can still stop before the last queued sample (a feed hold with a reason, not a jerk);
+- limits on sigma itself: |sigma'| <= ``accel`` and |sigma''| <= ``jerk``, and sigma' inside the
+  interval that keeps every joint's acceleration q'' = sigma' q_tau + sigma^2 q_tautau within its
+  limit at the current sample.
+Every target is a point of the planned path: a hold stops ON the path, never by dropping targets.
+
+Sample rows (``WIDTH`` floats): tip (3), axis (3), tip_tau (3), axis_tau (3), q_tau (5),
+q_tautau (5), cap, line, flags (``FLAG_RAPID``, ``FLAG_END`` = last sample of a job, at rest).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+S_TIP, S_AXIS, S_TIPT, S_AXT, S_QT, S_QTT, S_CAP, S_LINE, S_FLAGS = 0, 3, 6, 9, 12, 17, 22, 23, 24
+WIDTH = 25
+FLAG_RAPID, FLAG_END = 1, 2
+
+FEED_OVERRIDE_RANGE = (0.10, 2.00)
+RAPID_OVERRIDES = (0.25, 0.50, 1.00)
+SIGMA_MAX = 2.0
+JOINT_SHARE = 0.95            # share of the joint limits the time-scaling may use
+
+
+def scaling_limits(params) -> tuple[float, float]:
+    """Default (accel, jerk) of sigma for NC limits ``params``: at sigma' = accel a joint moving at
+    its speed limit accelerates at 45 % of its acceleration limit; the jerk ramps that in 50 ms."""
+    accel = 0.45 * float(np.min(np.asarray(params.amax) / np.asarray(params.vmax)))
+    return accel, accel / 0.05
+
+
+def sample_caps(q_t, q_tt, tip_t, params, rapid_mm_s: float) -> np.ndarray:
+    """Per-sample sigma cap (joint speed, joint acceleration from curvature, tip speed), <= SIGMA_MAX."""
+    vmax = np.asarray(params.vmax) * JOINT_SHARE
+    amax = np.asarray(params.amax) * JOINT_SHARE
+    with np.errstate(divide="ignore"):
+        cv = np.min(vmax / np.maximum(np.abs(q_t), 1e-12), axis=1)
+        ca = np.sqrt(np.min(amax / np.maximum(np.abs(q_tt), 1e-12), axis=1))
+        ct = rapid_mm_s / np.maximum(np.linalg.norm(tip_t, axis=1), 1e-12)
+    return np.minimum(np.minimum(cv, ca), np.minimum(ct, SIGMA_MAX))
+
+
+def backward_pass(cap, dt_plan: float, decel: float, end_allowed: float = SIGMA_MAX) -> np.ndarray:
+    """allowed_i = min(cap_i, sqrt(allowed_{i+1}^2 + 2 decel dt_plan)), closed form: sigma can come
+    down from allowed_i to every later cap with sigma' >= -decel (d(sigma^2)/dtau = 2 sigma').
+    ``end_allowed``: what is allowed just after the last sample (the next chunk's first value)."""
+    n = len(cap)
+    if n == 0:
+        return cap
+    tau = np.arange(n + 1) * dt_plan
+    c2 = np.concatenate([np.asarray(cap, float) ** 2, [end_allowed ** 2]]) + 2 * decel * tau
+    m = np.minimum.accumulate(c2[::-1])[::-1]
+    return np.sqrt(np.maximum(m[:n] - 2 * decel * tau[:n], 0.0))
+
+
+def derivatives(q, dt_plan: float, q_before=None, q_after=None):
+    """q_tau, q_tautau of samples q (n, k) by central differences; the neighbours outside the chunk
+    (or, at a job's ends, a linear extension) close the ends."""
+    q = np.asarray(q, float)
+    lin = lambda x, y: (2 * x - y)[None] if len(q) > 1 else x[None]     # noqa: E731  (linear extension)
+    a = lin(q[0], q[1 % len(q)]) if q_before is None else np.asarray(q_before, float).reshape(1, -1)
+    b = lin(q[-1], q[-2]) if q_after is None else np.asarray(q_after, float).reshape(1, -1)
+    ext = np.concatenate([a, q, b])
+    qt = (ext[2:] - ext[:-2]) / (2 * dt_plan)
+    qtt = (ext[2:] - 2 * ext[1:-1] + ext[:-2]) / dt_plan ** 2
+    return qt, qtt
+
+
+def make_rows(tip, axis, q, line, dt_plan, params, *, rapid=None, rapid_mm_s=50.0, end=True,
+              neighbours=((None, None, None), (None, None, None))) -> np.ndarray:
+    """Sample rows of one stretch of path (no backward pass yet: S_CAP holds the raw caps).
+    ``neighbours`` = ((tip, axis, q) before, (tip, axis, q) after) the stretch, or Nones at a job end."""
+    (tb, ab, qb), (ta, aa, qa) = neighbours
+    n = len(tip)
+    rows = np.zeros((n, WIDTH))
+    rows[:, S_TIP:S_TIP + 3] = tip
+    rows[:, S_AXIS:S_AXIS + 3] = axis
+    rows[:, S_TIPT:S_TIPT + 3] = derivatives(tip, dt_plan, tb, ta)[0]
+    rows[:, S_AXT:S_AXT + 3] = derivatives(axis, dt_plan, ab, aa)[0]
+    qt, qtt = derivatives(q, dt_plan, qb, qa)
+    rows[:, S_QT:S_QT + 5] = qt
+    rows[:, S_QTT:S_QTT + 5] = qtt
+    rows[:, S_CAP] = sample_caps(qt, qtt, rows[:, S_TIPT:S_TIPT + 3], params, rapid_mm_s)
+    rows[:, S_LINE] = line
+    if rapid is not None:
+        rows[:, S_FLAGS] = np.where(np.asarray(rapid, bool), FLAG_RAPID, 0)
+    if end:
+        rows[-1, S_FLAGS] += FLAG_END
+    return rows
+
+
+def iter_job_rows(traj, machine, params, *, rapid=None, rapid_mm_s=50.0, chunk=2000, decel=None):
+    """Sample rows of a planned Trajectory, chunk by chunk (IK and derivatives per chunk: memory
+    O(chunk), not O(job)). The backward pass of a chunk runs once the next chunk's first allowed
+    value is known, so caps are looked ahead across chunk boundaries (chunks must be longer than a
+    stop from SIGMA_MAX, which 2000 samples at 1 kHz are)."""
+    from pmctl.core import kinematics as K
+    dtp = traj.dt
+    decel = decel if decel is not None else 0.5 * scaling_limits(params)[0]
+    n = len(traj)
+    pending = None
+    for a in range(0, n, chunk):
+        b = min(n, a + chunk)
+        lo, hi = max(0, a - 1), min(n, b + 1)
+        tip, axis = np.asarray(traj.tip[lo:hi], float), np.asarray(traj.axis[lo:hi], float)
+        q = K.ik_batch(tip, axis, machine, check_limits=False).q
+        i0 = a - lo
+        i1 = i0 + (b - a)
+        nb = lambda i: (tip[i], axis[i], q[i])           # noqa: E731
+        rows = make_rows(tip[i0:i1], axis[i0:i1], q[i0:i1], np.asarray(traj.line[a:b]), dtp, params,
+                         rapid=None if rapid is None else rapid[a:b], rapid_mm_s=rapid_mm_s, end=b == n,
+                         neighbours=(nb(i0 - 1) if i0 > 0 else (None,) * 3, nb(i1) if i1 < len(tip) else (None,) * 3))
+        own = backward_pass(rows[:, S_CAP], dtp, decel)
+        if pending is not None:
+            pending[:, S_CAP] = backward_pass(pending[:, S_CAP], dtp, decel, float(own[0]))
+            yield pending
+        pending = rows
+    if pending is not None:
+        pending[:, S_CAP] = backward_pass(pending[:, S_CAP], dtp, decel)
+        yield pending
+
+
+# ---------------------------------------------------------------- the per-tick part
+
+
+class TimeScaler:
+    """sigma, its rate ``dsigma`` and the operator's requests (hold, overrides), per tick."""
+
+    def __init__(self, params, dt: float, accel: float | None = None, jerk: float | None = None):
+        a, j = scaling_limits(params)
+        self.accel = float(accel or a)
+        self.jerk = float(jerk or j)
+        self.dt = float(dt)
+        self.amax = [float(x) * JOINT_SHARE for x in params.amax]
+        self.sigma = 0.0
+        self.dsigma = 0.0
+        self.feed_override = 1.0
+        self.rapid_override = 1.0
+        self.hold = False
+
+    def set_feed_override(self, f: float) -> float:
+        lo, hi = FEED_OVERRIDE_RANGE
+        self.feed_override = min(hi, max(lo, float(f)))
+        return self.feed_override
+
+    def set_rapid_override(self, r: float) -> float:
+        self.rapid_override = min(RAPID_OVERRIDES, key=lambda x: abs(x - float(r)))
+        return self.rapid_override
+
+    def step(self, goal: float, qt, qtt) -> float:
+        """Move sigma one tick towards ``goal`` (already capped); returns the new sigma."""
+        dt, A, J = self.dt, self.accel, self.jerk
+        s, ds = self.sigma, self.dsigma
+        e = goal - s
+        if abs(e) < 1e-9 and abs(ds) < J * dt:
+            self.sigma, self.dsigma = max(goal, 0.0), 0.0
+            return self.sigma
+        # the rate that still lets sigma' come back to 0 at the goal under the jerk limit
+        v = math.sqrt(2.0 * J * 0.8 * abs(e))
+        v = min(v, A, 0.5 * abs(e) / dt)
+        v = v if e > 0 else -v
+        dds = (v - ds) / dt
+        if dds > J:
+            dds = J
+        elif dds < -J:
+            dds = -J
+        ds = ds + dds * dt
+        if ds > A:
+            ds = A
+        elif ds < -A:
+            ds = -A
+        # joint accelerations: |ds qt_j + s^2 qtt_j| <= amax_j  ->  an interval for ds
+        lo, hi = -math.inf, math.inf
+        s2 = s * s
+        amax = self.amax
+        for j in range(5):
+            t = qt[j]
+            if abs(t) > 1e-9:
+                b1 = (amax[j] - s2 * qtt[j]) / t
+                b2 = (-amax[j] - s2 * qtt[j]) / t
+                if b1 > b2:
+                    b1, b2 = b2, b1
+                if b1 > lo:
+                    lo = b1
+                if b2 < hi:
+                    hi = b2
+        if lo <= hi:
+            if ds < lo:
+                ds = lo
+            elif ds > hi:
+                ds = hi
+        else:
+            ds = 0.5 * (lo + hi)
+        s = s + ds * dt
+        if s <= 0.0:
+            s, ds = 0.0, 0.0
+        self.sigma, self.dsigma = s, ds
+        return s
+
+
+IDLE, MOVING, HOLDING, HELD, STARVED = 0, 1, 2, 3, 4
+FOLLOW_NAMES = {IDLE: "idle", MOVING: "moving", HOLDING: "holding", HELD: "held", STARVED: "starved"}
+
+
+class PathFollower:
+    """Follows the samples of a source (a Ring or an ArraySource) with a TimeScaler.
+
+    ``next_target()`` once per tick returns the NC target (a reused (12,) array: tip, axis, tip_vel, axis_vel)
+    and leaves ``line``, ``state``, ``reason`` and ``s_total`` (samples passed since the start) for
+    the status. ``ended_jobs`` counts the job ends (FLAG_END) passed. ``hold`` and
+    ``scaler.set_*_override`` are the operator's requests; ``stop_request`` holds and then reports
+    ``stopped`` once at rest."""
+
+    def __init__(self, source, params, dt: float, dt_plan: float | None = None, *, scaler=None, pose=None):
+        self.src = source
+        self.dt = float(dt)
+        self.k = self.dt / float(dt_plan or dt)          # samples per tick at sigma = 1
+        self.scaler = scaler or TimeScaler(params, dt)
+        self.frac = 0.0                                   # position between row 0 and row 1
+        self.line = 0
+        self.state = IDLE
+        self.reason = ""
+        self.s_total = 0.0
+        self.ended_jobs = 0
+        self.at_end = False                               # resting on a job's last sample
+        self._rest = list(pose) if pose is not None else None   # pose when nothing is queued (tip + axis)
+        self._zero6 = [0.0] * 6
+        self._tg = np.zeros(12)              # the target handed to the NC (reused every tick)
+
+    @property
+    def sigma(self) -> float:
+        return self.scaler.sigma
+
+    def _pose(self, i, f):
+        r0 = self.src.row(i)
+        if f <= 0.0:
+            return r0[:6].tolist()
+        r1 = self.src.row(i + 1)
+        a = r0[:6].tolist()
+        b = r1[:6].tolist()
+        p = [a[m] + f * (b[m] - a[m]) for m in range(6)]
+        nrm = math.sqrt(p[3] * p[3] + p[4] * p[4] + p[5] * p[5])
+        p[3] /= nrm
+        p[4] /= nrm
+        p[5] /= nrm
+        return p
+
+    def clear(self):
+        """Drop every queued sample (soft reset), keeping the current pose as the rest pose."""
+        n = self.src.count()
+        if n:
+            self._rest = self._pose(0, self.frac) if (n > 1 or self.frac == 0.0) else self.src.row(0)[:6].tolist()
+        self.src.clear()
+        self.frac = 0.0
+        self.scaler.sigma = self.scaler.dsigma = 0.0
+        self.state = IDLE
+
+    def next_target(self):
+        src, sc = self.src, self.scaler
+        n = src.count()
+        if n == 0:
+            self.state = HELD if sc.hold else IDLE
+            sc.sigma = sc.dsigma = 0.0
+            self._tg[:] = (self._rest or [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]) + self._zero6
+            return self._tg
+        r0 = src.row(0)
+        flags = int(r0[S_FLAGS])
+        self.line = int(r0[S_LINE])
+        f = self.frac
+        if flags & FLAG_END and f == 0.0:
+            # resting on a job's last sample: pass it on to the next job, if one is queued
+            pose = r0[:6].tolist()
+            if n == 1:
+                if not self.at_end:
+                    self.at_end = True
+                    self.ended_jobs += 1
+                self._rest = pose
+                self.state = HELD if sc.hold else IDLE
+                self._tg[:] = pose + self._zero6
+                return self._tg
+            if not self.at_end:
+                self.ended_jobs += 1
+            self.at_end = False
+            src.advance(1)
+            n -= 1
+            r0 = src.row(0)
+            flags = int(r0[S_FLAGS])
+        self.at_end = False
+        pose = self._pose(0, f) if n > 1 else r0[:6].tolist()
+        # ---- sigma's goal
+        goal = 0.0 if sc.hold else (sc.rapid_override if flags & FLAG_RAPID else sc.feed_override)
+        r1 = src.row(1) if n > 1 else r0
+        cap = min(r0[S_CAP], r1[S_CAP])
+        if goal > cap:
+            goal = cap
+        starving = False
+        last = src.row(n - 1)
+        if not int(last[S_FLAGS]) & FLAG_END:
+            remain = max(0.0, (n - 1 - f)) * self.dt / self.k        # tau left in the queue, s
+            g = math.sqrt(2.0 * 0.5 * sc.accel * remain) * 0.9
+            if g < goal:
+                goal = g
+                starving = True
+        qt = r0[S_QT:S_QT + 5].tolist()
+        qtt = r0[S_QTT:S_QTT + 5].tolist()
+        if sc.sigma == 0.0 and self.state == IDLE and goal > 0.0 and \
+                all(abs(qt[j]) * goal <= 0.5 * sc.amax[j] * self.dt for j in range(5)):
+            sc.sigma = goal        # leaving a rest point of the path: a velocity step within one tick's accel
+        sigma = sc.step(goal, qt, qtt)
+        # ---- advance the path clock to the next tick's target
+        f2 = f + sigma * self.k
+        adv = int(f2)
+        if adv >= n - 1:                   # the queue ends here (a job end or starvation)
+            adv, f2 = n - 1, 0.0
+            if not int(last[S_FLAGS]) & FLAG_END and sigma > 0:
+                self.reason = "sample queue ran dry"
+            sc.sigma = sc.dsigma = 0.0
+        else:
+            f2 -= adv
+        self.s_total += (adv + f2) - f
+        if adv:
+            src.advance(adv)
+        self.frac = f2
+        nxt = self._pose(0, f2) if src.count() > 1 else src.row(0)[:6].tolist()
+        inv = 1.0 / self.dt
+        ff = [(nxt[m] - pose[m]) * inv for m in range(6)]
+        if sc.sigma > 0.0 or any(ff):
+            self.state = HOLDING if sc.hold else (STARVED if starving else MOVING)
+            if starving:
+                self.reason = "waiting for planned samples (queue starved)"
+        else:
+            self.state = HELD if sc.hold else (STARVED if starving else IDLE)
+        self._rest = nxt
+        self._tg[:] = pose + ff
+        return self._tg

@@ -1,0 +1,226 @@
+"""`pmctl serve`: the supervisor side of the daemon put together.
+
+Start-up: read the counter file and the journal; decide where the machine is and whether that can
+be trusted (a clean stop: yes; a periodic snapshot left by a crash or a power cut: Alarm 11 with the
+age of the position, until ``$X`` confirms it or ``$H`` homes); start the rt process there; open the
+recording, the console and the control socket; tell systemd READY. Then watch: the watchdog is
+pinged only while the rt side reports ticks on time; the journal follows the job and line.
+Shutdown (SIGTERM, SIGINT): feed hold on the path, the rt process saves its counters and exits, the
+recording and the journal are finalised.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pmctl.core import kinematics as K
+from pmctl.motion import channel as C
+
+
+class Daemon:
+    def __init__(self, *, config="prototype", service=None, backend=None, state_file="", record_dir=None,
+                 console=None, realtime=True, rate_hz=None, socket_path=None, log=None):
+        self.config, self.service, self.backend = config, service, backend
+        self.state_file = state_file
+        self.record_dir = record_dir
+        self.console_spec = console
+        self.realtime = realtime
+        self.rate_hz = rate_hz
+        self.socket_path = socket_path
+        self.log = log or (lambda m: print(f"pmctl serve: {m}", file=sys.stderr, flush=True))
+        self._stop = threading.Event()
+        self.stop_reason = ""
+        self.rec = None
+        self.port = None
+        self.console = None
+        self.ctl = None
+        self.sup = None
+        self.lock = None
+
+    # ------------------------------------------------------------ start
+    def start(self):
+        from pmctl.motion.nc import counts_of
+        from pmctl.motion.state_store import StateLock, load_counters
+        from pmctl.task.journal import Journal, journal_path
+        from pmctl.task.job import home_pose
+        from pmctl.task.supervisor import ALARM_HOMING_REQUIRED, Supervisor
+
+        sup = Supervisor(self.config, service=self.service, backend=self.backend, state_file=self.state_file,
+                         realtime=self.realtime, rate_hz=self.rate_hz, log=self.log)
+        self.sup = sup
+        m = sup.machine
+        if self.state_file:
+            self.lock = StateLock(self.state_file)
+        self.journal = Journal(journal_path(self.state_file) if self.state_file else None, m.name).load()
+        saved = load_counters(self.state_file, machine=m.name) if self.state_file else None
+        alarm = None
+        if saved is None:
+            tip, axis = home_pose(m)
+            counts = counts_of(K.ik(tip, axis, m).q, sup.params)
+            self.position_note = "no saved position: starting at the home pose"
+        else:
+            counts = saved.counts
+            age = max(0.0, time.time() - saved.wall_time)
+            if saved.clean:
+                self.position_note = f"position from {self.state_file}, saved at a clean stop {age:.0f} s ago: trusted"
+            else:
+                self.position_note = (f"position from {self.state_file} is {age:.0f} s old and NOT trusted (the last "
+                                      f"write was a periodic snapshot: a crash or power cut may have lost up to one "
+                                      f"persist interval of motion): confirm with $X or home with $H")
+                alarm = (ALARM_HOMING_REQUIRED, self.position_note)
+        job = self.journal.data.get("job")
+        if self.journal.data.get("running") and job:
+            self.position_note += f"; job {job} was interrupted at line {self.journal.data.get('line', 0)}"
+            if alarm is None:
+                alarm = (ALARM_HOMING_REQUIRED, f"job {job} was interrupted at line "
+                                                f"{self.journal.data.get('line', 0)}: confirm the position with $X")
+        self.log(self.position_note)
+        if self.record_dir:
+            self._open_recording()
+        sup.start(counts)
+        if alarm:
+            sup.raise_alarm(*alarm)
+        self.journal.save(running=False)
+        if self.socket_path:
+            from pmctl.interfaces.console.control import ControlServer
+            self.ctl = ControlServer(self, self.socket_path)
+            self.ctl.start()
+        if self.console_spec:
+            from pmctl.interfaces.console.grbl import GrblConsole
+            from pmctl.interfaces.console.port import ConsolePort
+            from pmctl.task.jog import make_jogger
+            self.port = ConsolePort(self.console_spec)
+            self.console = GrblConsole(sup, self.port.fd, self.journal, log=self.log, jogger=make_jogger(sup))
+            self.console.start()
+            self.log(f"console on {self.port.device}" + (f" (link {self.port.link})" if self.port.link else ""))
+        from pmctl.task.notify import sd_notify
+        sd_notify(f"READY=1\nSTATUS={sup.state_name()}: {self.position_note}\nMAINPID={os.getpid()}")
+
+    # ------------------------------------------------------------ recording
+    def _open_recording(self):
+        from pmctl.core.recording import RecordingWriter
+        from pmctl.motion.recorder import R_COUNTS, R_ENC, R_LINE, R_SIGMA, R_STRAIN, R_TICK, R_TRUTH
+        sup = self.sup
+        names = ("L1", "L2", "L3", "X", "Y")
+        chans = (["t"] + [f"cmd_{a}" for a in names] + [f"enc_{a}" for a in names]
+                 + ["tip_x", "tip_y", "tip_z", "tool_i", "tool_j", "tool_k"]
+                 + [f"strain_{i}" for i in (1, 2, 3)] + ["line", "sigma"])
+        folder = Path(self.record_dir)
+        notes = {f"cmd_{a}": {"source": "pulse counter x resolution at the tick start"} for a in names}
+        notes["line"] = {"source": "line of the job or console stream being executed (console lines are counted)"}
+        notes["sigma"] = {"source": "feed factor of the time-scaling (1 = as planned)"}
+        folder.mkdir(parents=True, exist_ok=True)
+        machine_ref = str(self.config)
+        if machine_ref.endswith(".toml"):
+            from pmctl.core.config import CONFIG_DIR
+            p = Path(machine_ref).resolve()
+            machine_ref = p.stem if p.parent == CONFIG_DIR.resolve() else os.path.relpath(p, folder.resolve())
+        self.rec = RecordingWriter(folder, chans, machine=machine_ref, sample_rate_hz=sup.rate_hz,
+                                   description=f"pmctl serve session on backend {sup.backend}", channel_notes=notes)
+        self.rec.__enter__()
+        ppm = sup.machine.resolution.pulses_per_mm
+        dt = sup.dt
+        st = {"off": 0.0, "last": -math.inf}
+
+        def sink(rows):
+            t = rows[:, R_TICK] * dt + st["off"]
+            if t[0] <= st["last"]:                     # a restarted rt process counts from 0 again
+                st["off"] += st["last"] + dt - t[0]
+                t = rows[:, R_TICK] * dt + st["off"]
+            st["last"] = float(t[-1])
+            truth = rows[:, R_TRUTH:R_TRUTH + 5]
+            if np.all(np.isfinite(truth)):
+                pose, ok = K.fk_batch(truth, sup.machine)
+                tip = np.where(ok[:, None], pose.tip, np.nan)
+                ax = np.where(ok[:, None], pose.axis, np.nan)
+            else:
+                tip = ax = np.full((len(rows), 3), np.nan)
+            out = np.column_stack([t, rows[:, R_COUNTS:R_COUNTS + 5] / ppm, rows[:, R_ENC:R_ENC + 5], tip, ax,
+                                   rows[:, R_STRAIN:R_STRAIN + 3], rows[:, R_LINE], rows[:, R_SIGMA]])
+            self.rec.append(out)
+        sup.record_sink = sink
+
+    # ------------------------------------------------------------ run
+    def serve_forever(self):
+        from pmctl.task.notify import sd_notify, watchdog_period_s
+        for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+            signal.signal(sig, self._on_signal)
+        wd = watchdog_period_s()
+        try:
+            self._watch(wd)
+        except Exception as e:             # a supervisor bug: stop the machine properly, say why
+            self.log(f"supervisor error: {type(e).__name__}: {e}")
+            self.stop_reason = f"supervisor error: {e}"
+        return self.shutdown()
+
+    def _watch(self, wd):
+        from pmctl.task.notify import sd_notify
+        last_ping = 0.0
+        last_line = None
+        last_status = ""
+        last_save = 0.0
+        while not self._stop.wait(0.05):
+            sup = self.sup
+            now = time.monotonic()
+            if wd and now - last_ping >= wd and self.rt_on_time():
+                sd_notify("WATCHDOG=1")
+                last_ping = now
+            state = sup.state_name()
+            if state != last_status:
+                sd_notify(f"STATUS={state}" + (f" (alarm {sup.alarm}: {sup.alarm_msg})" if sup.alarm else ""))
+                last_status = state
+            running = bool(sup.busy())
+            line = int(sup.current_line()) if running else 0
+            if (running, line) != last_line and (last_line is None or running != last_line[0]
+                                                  or now - last_save > 0.5):
+                last_save = now
+                try:
+                    self.journal.save(running=running, line=line, job="console" if running else None)
+                except OSError as e:
+                    self.log(f"journal write failed: {e}")
+                last_line = (running, line)
+
+    def rt_on_time(self) -> bool:
+        """The rt side is alive and its last ticks were on time (the watchdog's condition)."""
+        sup = self.sup
+        if sup.rt_dead or sup.ch is None:
+            return False
+        s = sup.raw()
+        fresh = time.monotonic() - s[C.ST_MONO] < 0.5
+        return bool(fresh and (s[C.ST_ONTIME] > 0 or not self.realtime))
+
+    def _on_signal(self, signum, frame):
+        self.stop_reason = signal.Signals(signum).name
+        self._stop.set()
+
+    def request_stop(self, reason="stop requested"):
+        self.stop_reason = reason
+        self._stop.set()
+
+    def shutdown(self) -> int:
+        from pmctl.task.notify import sd_notify
+        sd_notify("STOPPING=1")
+        self.log(f"stopping ({self.stop_reason or 'shutdown'}): feed hold on the path, saving the position")
+        if self.console is not None:
+            self.console.stop()
+        if self.ctl is not None:
+            self.ctl.stop()
+        counts = self.sup.shutdown(self.stop_reason)
+        if self.rec is not None:
+            try:
+                self.rec.__exit__(None, None, None)
+            except Exception as e:
+                self.log(f"recording not finalised: {e}")
+        self.journal.save(running=False)
+        if self.port is not None:
+            self.port.close()
+        self.log(f"stopped; counters {None if counts is None else counts.tolist()}")
+        return 0

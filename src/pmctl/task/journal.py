@@ -1,0 +1,91 @@
+"""The state journal: what the controller must remember across a restart besides the pulse
+counters (which the rt process keeps in its own counter file, pmctl.motion.state_store).
+
+``<state file>.journal`` holds, as one JSON object written atomically (temp file, fsync, rename,
+fsync of the folder): the work offsets (G54-G59, G92, the active system), the console settings
+($10), whether the machine was homed, the job and line in progress, and when it was written. A
+damaged journal is an error naming the file: the daemon does not guess offsets.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+from pmctl.core.errors import InputError
+
+FORMAT = "pmctl-journal/1"
+
+
+def journal_path(state_file) -> Path:
+    return Path(str(state_file) + ".journal")
+
+
+def atomic_write(path: Path, text: str) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    try:
+        os.write(fd, text.encode())
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    os.replace(tmp, path)
+    try:
+        dfd = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(dfd)
+        finally:
+            os.close(dfd)
+    except OSError:
+        pass
+
+
+class Journal:
+    """In-memory journal with ``save()``; ``path`` None keeps it in memory only."""
+
+    def __init__(self, path, machine: str):
+        self.path = Path(path) if path else None
+        self.machine = machine
+        self.data = {"format": FORMAT, "machine": machine, "offsets": {}, "settings": {"10": 1},
+                     "homed": False, "job": None, "line": 0, "running": False, "wall_time": 0.0}
+        self.loaded = False
+
+    def load(self):
+        if self.path is None:
+            return self
+        try:
+            text = self.path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            return self
+        except OSError as e:
+            raise InputError(self.path, None, f"cannot read the journal: {e.strerror or e}") from None
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as e:
+            raise InputError(self.path, e.lineno, f"journal is not valid JSON: {e.msg}", column=e.colno) from None
+        if not isinstance(d, dict) or d.get("format") != FORMAT:
+            raise InputError(self.path, 1, f"format: expected {FORMAT!r}")
+        if d.get("machine") != self.machine:
+            raise InputError(self.path, 1, f"machine: journal is for {d.get('machine')!r}, not {self.machine!r}")
+        off = d.get("offsets", {})
+        if not isinstance(off, dict):
+            raise InputError(self.path, 1, "offsets: expected an object")
+        for k, v in off.get("wcs", {}).items():
+            if not (isinstance(v, list) and len(v) == 5 and all(isinstance(x, (int, float)) for x in v)):
+                raise InputError(self.path, 1, f"offsets.wcs.{k}: expected 5 numbers")
+        g92 = off.get("g92", [0.0] * 5)
+        if not (isinstance(g92, list) and len(g92) == 5):
+            raise InputError(self.path, 1, "offsets.g92: expected 5 numbers")
+        self.data.update(d)
+        self.loaded = True
+        return self
+
+    def save(self, **changes):
+        self.data.update(changes)
+        self.data["wall_time"] = time.time()
+        if self.path is not None:
+            atomic_write(self.path, json.dumps(self.data) + "\n")

@@ -1,0 +1,481 @@
+"""The supervisor: everything of the daemon except the loop (the rt process, pmctl.motion.rtproc).
+
+It creates the channel (shared memory), starts the rt process and then, in its own threads:
+- plans queued motion (jobs, console G-code, jogs) with the path planner, from where the previous
+  item ends, and streams the samples (pmctl.motion.timescale rows) into the sample ring as room
+  frees up -- the rt side never waits on it: an empty ring is a deceleration on the path;
+- drains the per-tick record ring (into the recording, if one is open);
+- watches the rt process: its status block and whether it is alive. If it dies, the supervisor
+  raises an alarm, saves the last counters it reported (not trusted: the drives stopped on their
+  own watchdog) and refuses motion until an unlock restarts it.
+
+The machine state (grbl's: Idle, Run, Hold:0/1, Jog, Home, Alarm, Check) is derived here from
+the rt status and the supervisor's own flags. Operator requests (hold, resume, overrides, soft
+reset, E-stop, unlock) go to the rt side as commands on the channel's command ring.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import os
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pmctl.core import kinematics as K
+from pmctl.core.errors import PmctlError
+from pmctl.motion import channel as C
+from pmctl.motion.nc import HALTED, RUN, STOPPING
+from pmctl.motion.timescale import FOLLOW_NAMES, HELD, HOLDING, MOVING, STARVED
+
+# grbl alarm codes (grbl 1.1; 10, 11, 17 as grblHAL numbers them)
+ALARM_HARD_LIMIT, ALARM_SOFT_LIMIT, ALARM_ABORT, ALARM_HOMING_RESET = 1, 2, 3, 6
+ALARM_HOMING_PULLOFF, ALARM_HOMING_APPROACH, ALARM_ESTOP, ALARM_HOMING_REQUIRED, ALARM_MOTOR_FAULT = 8, 9, 10, 11, 17
+
+
+class MotionRefused(PmctlError):
+    """Motion is not allowed now (alarm, rt process down); ``code`` is the grbl error code."""
+
+    def __init__(self, msg, code=9):
+        super().__init__(msg)
+        self.code = code
+
+
+@dataclass
+class Item:
+    """One planned piece of motion: a job file, a batch of console lines, a jog, a homing move."""
+    kind: str                       # "job" | "gcode" | "jog" | "home"
+    job: object                     # pmctl.task.job.Job
+    start: tuple                    # (tip, axis) it starts from
+    end: tuple                      # (tip, axis) it ends at
+    name: str = ""
+    index: int = 0
+    planned: bool = False
+    error: str = ""
+    lines: dict = field(default_factory=dict)    # sample line -> reported line (console N words)
+    gen: int = 0                                 # queue generation: a reset or fault drops older items
+
+
+class Supervisor:
+    def __init__(self, config="prototype", *, service=None, backend=None, state_file="", realtime=False,
+                 rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY):
+        from pmctl.core.config import load_machine
+        from pmctl.motion.service_config import load_service_config
+        self.config = config
+        self.service = service
+        self.machine = load_machine(config)
+        self.svc = load_service_config(service)
+        self.backend = backend or self.svc.backend
+        self.rate_hz = float(rate_hz or self.svc.loop.rate_hz)
+        self.dt = 1.0 / self.rate_hz
+        self.params = self.svc.nc.params(self.machine, self.dt, where=self.svc.source)
+        self.state_file = state_file
+        self.realtime = bool(realtime)
+        self.log = log or (lambda m: None)
+        self.sample_capacity = sample_capacity
+        self.ch: C.Channel | None = None
+        self.proc = None
+        self.alarm = 0
+        self.alarm_msg = ""
+        self.check_mode = False
+        self.homing = False
+        self.rt_dead = False
+        self.items: collections.deque[Item] = collections.deque()   # submitted, not finished
+        self.n_submitted = 0
+        self._gen = 0
+        self._plan_q: queue.Queue = queue.Queue()
+        self._abort = threading.Event()
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._threads = []
+        self.record_sink = None           # callable(rows) for drained records
+        self.listeners = []               # callables(event: str, detail: dict)
+        self._last_status = None
+        self._fault_seen = 0.0
+        self.started_at = time.time()
+        self.counts0 = None
+        self.exited_reason = ""
+
+    # ------------------------------------------------------------ lifecycle
+    def start(self, counts0, timeout_s: float = 60.0):
+        """Create the channel, start the rt process at pulse counters ``counts0`` and the threads."""
+        self.counts0 = np.asarray(counts0, np.int64)
+        self.ch = C.Channel(create=True, sample_capacity=self.sample_capacity)
+        self._spawn(self.counts0, timeout_s)
+        for name, fn in (("pmctl-planner", self._planner), ("pmctl-monitor", self._monitor)):
+            t = threading.Thread(target=fn, name=name, daemon=True)
+            t.start()
+            self._threads.append(t)
+
+    def _spawn(self, counts, timeout_s):
+        ch = self.ch
+        ch.st[:] = 0.0                    # nothing of a previous rt process's status may count
+        ch.st[C.ST_PHASE] = C.PH_STARTING
+        ch.samples.clear()
+        ch.records.clear()
+        ch.commands.clear()
+        ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = np.asarray(counts, float)
+        spec = {"shm": ch.name, "config": str(self.config), "service": self.service, "backend": self.backend,
+                "state_file": self.state_file, "rate_hz": self.rate_hz, "realtime": self.realtime,
+                "counts": [int(c) for c in counts], "ppid": os.getpid()}
+        import json
+        import subprocess
+        import sys
+        self.proc = _RtProc(subprocess.Popen([sys.executable, "-m", "pmctl.motion.rtproc", json.dumps(spec)],
+                                             stdin=subprocess.DEVNULL))
+        t0 = time.monotonic()
+        while ch.st[C.ST_PHASE] != C.PH_RUNNING:
+            if not self.proc.is_alive():
+                raise PmctlError(f"the rt motion process failed to start (exit code {self.proc.exitcode})")
+            if time.monotonic() - t0 > timeout_s:
+                self.proc.kill()
+                raise PmctlError(f"the rt motion process did not start within {timeout_s:g} s")
+            time.sleep(0.01)
+        while self.ch.st[C.ST_TICK] < 2 and self.proc.is_alive():
+            time.sleep(0.005)
+        self.rt_dead = False
+        self._ended_base = 0
+        self._fault_seen = self.ch.st[C.ST_REASON_SEQ]
+
+    @property
+    def rt_pid(self):
+        return self.proc.pid if self.proc is not None else None
+
+    def shutdown(self, reason="stopped", timeout_s=30.0) -> np.ndarray:
+        """Hold on the path, let the rt side save its counters and exit; returns the final counters."""
+        self._abort.set()
+        counts = None
+        if self.proc is not None and self.proc.is_alive():
+            self.ch.command(C.C_QUIT)
+            self.proc.join(timeout_s)
+            if self.proc.is_alive():
+                self.proc.terminate()
+                self.proc.join(5)
+        if self.ch is not None:
+            counts = self.ch.st[C.ST_COUNTS:C.ST_COUNTS + 5].astype(np.int64).copy()
+            self.exited_reason = self.ch.reason()
+        self._stop.set()
+        for t in self._threads:
+            t.join(2.0)
+        self._drain_records()
+        if self.ch is not None:
+            self.ch.close(unlink=True)
+            self.ch = None
+        return counts
+
+    # ------------------------------------------------------------ status
+    def raw(self) -> np.ndarray:
+        return self.ch.status()
+
+    def counts(self) -> np.ndarray:
+        return self.raw()[C.ST_COUNTS:C.ST_COUNTS + 5].astype(np.int64)
+
+    def pose(self):
+        """Tool tip and axis in W of the pulse counters (FK; the status block's model pose is the
+        one at the start of the rt side's last tick, one tick behind the counters)."""
+        s = self.raw()
+        counts = s[C.ST_COUNTS:C.ST_COUNTS + 5]
+        key = counts.tobytes()
+        if self._pose_cache is not None and self._pose_cache[0] == key:
+            return self._pose_cache[1][0].copy(), self._pose_cache[1][1].copy()
+        pose, ok = K.fk_batch((counts / self.machine.resolution.pulses_per_mm)[None], self.machine)
+        if not ok[0]:
+            return s[C.ST_TIP:C.ST_TIP + 3].copy(), s[C.ST_AXIS:C.ST_AXIS + 3].copy()
+        out = (pose.tip[0].copy(), pose.axis[0] / np.linalg.norm(pose.axis[0]))
+        self._pose_cache = (key, out)
+        return out[0].copy(), out[1].copy()
+
+    _pose_cache = None
+
+    def busy(self) -> bool:
+        """Motion queued or under way (items not finished, samples queued, or moving)."""
+        with self._lock:
+            if self.items:
+                return True
+        s = self.raw()
+        return s[C.ST_QUEUED] > 1 or s[C.ST_FOLLOW] in (MOVING, HOLDING, STARVED) or s[C.ST_SIGMA] > 0
+
+    def state_name(self) -> str:
+        """grbl machine state: Idle Run Hold:0 Hold:1 Jog Home Alarm Check."""
+        if self.alarm or self.rt_dead:
+            return "Alarm"
+        if self.homing:
+            return "Home"
+        s = self.raw()
+        fol = s[C.ST_FOLLOW]
+        if s[C.ST_HOLD] and (self.busy() or fol in (HOLDING, HELD)):
+            return "Hold:0" if (fol == HELD or (s[C.ST_SIGMA] == 0 and fol != HOLDING)) else "Hold:1"
+        if self.check_mode:
+            return "Check"
+        if self.busy():
+            with self._lock:
+                cur = self.items[0] if self.items else None
+            return "Jog" if cur is not None and cur.kind == "jog" else "Run"
+        return "Idle"
+
+    def current_line(self) -> int:
+        s = self.raw()
+        line = int(s[C.ST_LINE])
+        with self._lock:
+            for it in self.items:
+                if line in it.lines:
+                    return it.lines[line]
+        return line
+
+    # ------------------------------------------------------------ motion requests
+    def _check_motion_allowed(self):
+        if self.rt_dead:
+            raise MotionRefused("the rt motion process is down: unlock ($X) or reset to restart it", 9)
+        if self.alarm:
+            raise MotionRefused(f"alarm {self.alarm} active: unlock ($X) or home ($H)", 9)
+
+    def end_pose(self):
+        """Where the last submitted motion ends (the current pose when nothing is queued)."""
+        with self._lock:
+            if self.items:
+                return self.items[-1].end
+        return self.pose()
+
+    def submit(self, job, kind="job", name="", lines=None) -> Item:
+        """Queue a Job (planned from where the previous item ends). Raises MotionRefused in alarm."""
+        self._check_motion_allowed()
+        moves = [m for m in job.moves if m.kind != "dwell"]
+        with self._lock:
+            start = self.end_pose()
+            end = (np.asarray(moves[-1].tip, float), np.asarray(moves[-1].axis, float)) if moves else start
+            it = Item(kind, job, start, end, name, self.n_submitted, lines=dict(lines or {}), gen=self._gen)
+            self.n_submitted += 1
+            self.items.append(it)
+        self._plan_q.put(it)
+        return it
+
+    def queued_items(self) -> int:
+        with self._lock:
+            return len(self.items)
+
+    def command(self, code, a1=0.0) -> int:
+        """Queue a command for the rt side; returns its sequence number (see wait_ack)."""
+        with self._lock:
+            self.ch.command(code, a1)
+            return self.ch._cmd_seq
+
+    def wait_ack(self, seq, timeout_s=5.0) -> bool:
+        """Wait until the rt side has applied command ``seq`` (it acknowledges in its status)."""
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout_s and not self.rt_dead:
+            if self.raw()[C.ST_CMD_ACK] >= seq:
+                return True
+            time.sleep(0.002)
+        return False
+
+    def hold(self):
+        self.command(C.C_HOLD)
+
+    def resume(self):
+        self.command(C.C_RESUME)
+
+    def feed_override(self, f: float):
+        self.command(C.C_FEED_OV, float(f))
+
+    def rapid_override(self, r: float):
+        self.command(C.C_RAPID_OV, float(r))
+
+    def soft_reset(self, timeout_s=10.0):
+        """Stop now on the path, drop everything queued, keep the position (grbl ctrl-X)."""
+        self._abort.set()
+        with self._lock:
+            self.items.clear()
+            self._gen += 1
+        # the planner thread drops what it holds once it sees the abort
+        while not self._plan_q.empty():
+            try:
+                self._plan_q.get_nowait()
+            except queue.Empty:
+                break
+        if self.ch is not None and not self.rt_dead:
+            seq = self.command(C.C_RESET)
+            t0 = time.monotonic()
+            self.wait_ack(seq, timeout_s)
+            while time.monotonic() - t0 < timeout_s and not self.rt_dead:
+                s = self.raw()
+                if s[C.ST_QUEUED] == 0 and s[C.ST_SIGMA] == 0 and not s[C.ST_HOLD]:
+                    break
+                time.sleep(0.005)
+            self._ended_base = int(self.raw()[C.ST_ENDED])
+        self._abort.clear()
+
+    def estop(self, reason="E-stop"):
+        self._abort.set()
+        with self._lock:
+            self.items.clear()
+            self._gen += 1
+        if self.ch is not None and not self.rt_dead:
+            self.command(C.C_ESTOP)
+            self._ended_base = int(self.raw()[C.ST_ENDED])
+        self.raise_alarm(ALARM_ESTOP, reason)
+        self._abort.clear()
+
+    def unlock(self):
+        """$X: clear the alarm; restart the rt process if it died; re-arm the NC after a fault."""
+        if self.rt_dead:
+            counts = self.ch.st[C.ST_COUNTS:C.ST_COUNTS + 5].astype(np.int64).copy()
+            self._spawn(counts, 60.0)
+        elif self.ch is not None:
+            self.wait_ack(self.command(C.C_UNLOCK))
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 1.0 and self.raw()[C.ST_MODE] != RUN:
+                time.sleep(0.005)
+            if self.raw()[C.ST_MODE] != RUN:
+                raise MotionRefused(f"cannot unlock: {self.ch.reason() or 'the rt side stays halted'}", 9)
+        self.alarm, self.alarm_msg = 0, ""
+
+    def raise_alarm(self, code: int, msg: str):
+        first = not self.alarm
+        self.alarm, self.alarm_msg = code, msg
+        if first:
+            self._emit("alarm", {"code": code, "msg": msg})
+
+    def _emit(self, event, detail):
+        for fn in list(self.listeners):
+            try:
+                fn(event, detail)
+            except Exception:
+                pass
+
+    def wait_idle(self, timeout_s=600.0, poll=0.01) -> bool:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout_s:
+            if not self.busy() or self.alarm or self.rt_dead:
+                return True
+            time.sleep(poll)
+        return False
+
+    # ------------------------------------------------------------ threads
+    def _planner(self):
+        from pmctl.motion.timescale import iter_job_rows
+        from pmctl.task.job import RAPID
+        from pmctl.task.planner import PlannerLimits, plan
+        rapid_mm_s = PlannerLimits().rapid_mm_s
+        while not self._stop.is_set():
+            try:
+                it = self._plan_q.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            if self._abort.is_set() or it.gen != self._gen:
+                continue
+            try:
+                traj = plan(it.job, self.machine, self.dt, start=it.start)
+                rapid_lines = [m.line for m in it.job.moves if m.kind == RAPID]
+                rapid = np.isin(np.asarray(traj.line), rapid_lines) if rapid_lines else None
+                it.planned = True
+                for rows in iter_job_rows(traj, self.machine, self.params, rapid=rapid, rapid_mm_s=rapid_mm_s):
+                    i = 0
+                    while i < len(rows):
+                        if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
+                            raise _Aborted()
+                        n = self.ch.samples.push(rows[i:])
+                        i += n
+                        if n == 0:
+                            time.sleep(0.005)
+            except _Aborted:
+                continue
+            except PmctlError as e:
+                it.error = str(e)
+                with self._lock:
+                    if it in self.items:
+                        self.items.remove(it)
+                self.log(f"planning {it.name or it.kind} failed: {e}")
+                self._emit("error", {"msg": f"planning failed: {e}"})
+
+    def _drain_records(self):
+        if self.ch is None:
+            return
+        rows = self.ch.records.pop()
+        if len(rows) and self.record_sink is not None:
+            try:
+                self.record_sink(rows)
+            except Exception as e:
+                self.log(f"recording failed: {e}")
+                self.record_sink = None
+
+    def _monitor(self):
+        while not self._stop.wait(0.01):
+            ch = self.ch
+            if ch is None:
+                continue
+            self._drain_records()
+            if self.proc is not None and not self.proc.is_alive() and not self.rt_dead and not self._stop.is_set():
+                self.rt_dead = True
+                with self._lock:
+                    self.items.clear()
+                    self._gen += 1
+                code = self.proc.exitcode
+                self.raise_alarm(ALARM_MOTOR_FAULT, f"rt motion process died (exit code {code}); last counters "
+                                                    f"kept, not trusted until homed or confirmed")
+                self._emit("rt_dead", {"exitcode": code})
+                continue
+            s = ch.status()
+            self._last_status = s
+            if s[C.ST_REASON_SEQ] != self._fault_seen and s[C.ST_FAULT] != C.F_NONE:
+                self._fault_seen = s[C.ST_REASON_SEQ]
+                reason = ch.reason()
+                with self._lock:
+                    self.items.clear()
+                    self._gen += 1
+                    self._ended_base = int(s[C.ST_ENDED])
+                code = ALARM_SOFT_LIMIT if reason.startswith(("soft limit", "path error")) else (
+                    ALARM_ESTOP if reason.startswith("E-stop") else ALARM_MOTOR_FAULT)
+                if not self.alarm:
+                    self.raise_alarm(code, reason)
+            # retire finished items: the rt side counts the job ends it passed
+            ended = int(s[C.ST_ENDED])
+            with self._lock:
+                while self.items and self.items[0].planned and self._ended_base + 1 <= ended:
+                    self._ended_base += 1
+                    done = self.items.popleft()
+                    self._emit("item_done", {"kind": done.kind, "name": done.name, "index": done.index})
+
+    _ended_base = 0
+
+
+class _Aborted(Exception):
+    pass
+
+
+class _RtProc:
+    """The rt process as a child (subprocess.Popen) with multiprocessing.Process's few methods."""
+
+    def __init__(self, popen):
+        self.popen = popen
+        self.pid = popen.pid
+
+    def is_alive(self):
+        return self.popen.poll() is None
+
+    @property
+    def exitcode(self):
+        return self.popen.poll()
+
+    def join(self, timeout=None):
+        import subprocess
+        try:
+            self.popen.wait(timeout)
+        except subprocess.TimeoutExpired:
+            pass
+
+    def terminate(self):
+        if self.is_alive():
+            self.popen.terminate()
+
+    def kill(self):
+        if self.is_alive():
+            self.popen.kill()
+
+
+def roll_pitch_deg(axis) -> tuple[float, float]:
+    a, b = K.roll_pitch_from_axis(np.asarray(axis, float))
+    return math.degrees(float(a)), math.degrees(float(b))

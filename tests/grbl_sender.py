@@ -1,0 +1,155 @@
+"""A small grbl 1.1 sender for the tests: runs `pmctl serve` on the sim with its console on a real
+pty and talks to it as a character-counting sender does (grbl's stream.py protocol)."""
+
+from __future__ import annotations
+
+import os
+import re
+import select
+import signal
+import subprocess
+import sys
+import time
+import tty
+from pathlib import Path
+
+RX_BUFFER = 128
+STATUS = re.compile(r"<([^|>]+)\|(MPos|WPos):([^|>]+)(.*)>")
+
+
+def start_serve(tmp: Path, *, state=None, record=None, env=None, extra=()):
+    link = tmp / "tty"
+    if link.exists() or link.is_symlink():
+        link.unlink()
+    cmd = [sys.executable, "-m", "pmctl.interfaces.cli", "serve", "--config", "config/prototype.toml", "--backend",
+           "sim", "--console", f"pty:{link}", "--state", str(state or tmp / "state.json"), "--no-realtime", *extra]
+    if record:
+        cmd += ["--record", str(record)]
+    err = open(tmp / "serve.err", "ab")
+    e = dict(os.environ)
+    e.update(env or {})
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, cwd=Path(__file__).resolve().parents[1], env=e)
+    t0 = time.time()
+    while not link.exists():
+        if p.poll() is not None:
+            raise RuntimeError(f"pmctl serve exited ({p.returncode}): {(tmp / 'serve.err').read_text()[-2000:]}")
+        if time.time() - t0 > 120:
+            p.kill()
+            raise RuntimeError("pmctl serve did not open its console")
+        time.sleep(0.05)
+    return p, link
+
+
+def stop_serve(p, sig=signal.SIGTERM, timeout=60):
+    if p.poll() is None:
+        p.send_signal(sig)
+        try:
+            p.wait(timeout)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+    return p.returncode
+
+
+class Sender:
+    def __init__(self, link):
+        self.fd = os.open(str(link), os.O_RDWR | os.O_NOCTTY)
+        tty.setraw(self.fd)
+        self.buf = b""
+        self.pending = []             # lengths of lines sent and not yet answered
+        self.answers = []             # ok / error:N in order
+        self.pushed = []              # everything else
+        self.reports = []
+
+    def close(self):
+        os.close(self.fd)
+
+    def _pump(self, timeout=0.05):
+        r, _, _ = select.select([self.fd], [], [], timeout)
+        if not r:
+            return
+        try:
+            self.buf += os.read(self.fd, 65536)
+        except OSError:
+            return
+        while b"\n" in self.buf:
+            line, self.buf = self.buf.split(b"\n", 1)
+            s = line.decode("ascii", "replace").strip()
+            if not s:
+                continue
+            if s == "ok" or s.startswith("error:"):
+                self.answers.append(s)
+                if self.pending:
+                    self.pending.pop(0)
+            elif s.startswith("<"):
+                self.reports.append(s)
+            else:
+                self.pushed.append(s)
+
+    def wait_for(self, pred, timeout=60.0):
+        t0 = time.time()
+        while time.time() - t0 < timeout:
+            if pred():
+                return True
+            self._pump()
+        return pred()
+
+    def realtime(self, b: bytes):
+        os.write(self.fd, b)
+
+    def send(self, line: str, wait=True, timeout=60.0):
+        """Send one line (character counting); with wait, return its answer."""
+        data = (line.strip() + "\n").encode()
+        n0 = len(self.answers)
+        self.wait_for(lambda: sum(self.pending) + len(data) <= RX_BUFFER, timeout)
+        self.pending.append(len(data))
+        os.write(self.fd, data)
+        if wait:
+            self.wait_for(lambda: len(self.answers) > n0, timeout)
+            return self.answers[n0] if len(self.answers) > n0 else None
+        return None
+
+    def stream(self, lines, timeout=600.0, during=None):
+        """Character-counting stream of ``lines``; ``during(i)`` runs after each line is sent."""
+        n0 = len(self.answers)
+        for i, line in enumerate(lines):
+            self.send(line, wait=False, timeout=timeout)
+            if during:
+                during(i)
+        self.wait_for(lambda: len(self.answers) - n0 >= len(lines), timeout)
+        return self.answers[n0:]
+
+    def status(self, timeout=10.0):
+        n0 = len(self.reports)
+        self.realtime(b"?")
+        self.wait_for(lambda: len(self.reports) > n0, timeout)
+        return parse_status(self.reports[-1]) if len(self.reports) > n0 else None
+
+    def wait_state(self, states, timeout=120.0, poll=0.1):
+        t0 = time.time()
+        st = None
+        while time.time() - t0 < timeout:
+            st = self.status()
+            if st and st["state"] in states:
+                return st
+            time.sleep(poll)
+        return st
+
+    def reset(self, timeout=30.0):
+        n0 = len(self.pushed)
+        self.pending.clear()
+        self.realtime(b"\x18")
+        self.wait_for(lambda: any(s.startswith("Grbl ") for s in self.pushed[n0:]), timeout)
+        return [s for s in self.pushed[n0:]]
+
+
+def parse_status(s):
+    m = STATUS.match(s)
+    if not m:
+        return None
+    out = {"state": m.group(1), "kind": m.group(2), "pos": [float(x) for x in m.group(3).split(",")]}
+    for f in m.group(4).split("|"):
+        if ":" in f:
+            k, v = f.split(":", 1)
+            out[k] = v
+    return out
