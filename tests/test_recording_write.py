@@ -144,7 +144,7 @@ def test_times_print_shortest_round_trip(tmp_path):
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=1, max_size=30))
+@given(st.lists(st.floats(-1e9, 1e9, allow_nan=False, allow_infinity=False, width=64), min_size=1, max_size=30))
 def test_exact_channels_read_back_bit_for_bit(tmp_path_factory, values):
     d = tmp_path_factory.mktemp("rt") / "r"
     n = len(values)
@@ -154,3 +154,10 @@ def test_exact_channels_read_back_bit_for_bit(tmp_path_factory, values):
     np.testing.assert_array_equal(rec["tip_x"], np.array(values))
     np.testing.assert_array_equal(rec.t, cols["t"])
     assert not os.path.exists(str(d) + ".partial")
+
+
+def test_values_the_reader_would_refuse_are_refused_at_write_time(tmp_path):
+    cols = {"t": np.arange(3) / 1000.0, **{c: np.zeros(3) for c in CMD}, "tip_x": np.array([0.0, 2e9, 0.0])}
+    with pytest.raises(InputError, match=r"tip_x.*row 1.*out of range"):
+        write_recording(tmp_path / "r", cols, sample_rate_hz=1000)
+    assert not (tmp_path / "r").exists() and not (tmp_path / "r.partial").exists()

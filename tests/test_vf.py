@@ -35,7 +35,9 @@ def test_pulses_plus_residue_equal_the_integral(run):
         p, acc = vf.vf_step(acc, row, dt, threshold, n_max)
         assert p.dtype == np.int64
         assert np.all(np.abs(p) <= n_max)
-        assert np.all(np.abs(acc) < threshold)           # the residue is always below one pulse
+        # the residue stays within one pulse (equal only where the pulse count is clamped to n_max
+        # and rounding puts the accumulator exactly on the threshold)
+        assert np.all(np.abs(acc) <= threshold)
         total += p
     integral = (u * dt).sum(axis=0)
     scale = np.abs(u * dt).sum(axis=0) + threshold

@@ -499,6 +499,12 @@ def _check_rows(arr, channels, last_t, row0, folder):
     if np.isinf(arr).any():
         r, c = np.argwhere(np.isinf(arr))[0]
         raise InputError(folder, None, f"channel {channels[c]!r} row {row0 + r}: infinite value")
+    with np.errstate(invalid="ignore"):
+        over = np.abs(arr) > MAX_ABS_VALUE
+    if over.any():            # the reader refuses these: never write what cannot be read back
+        r, c = np.argwhere(over)[0]
+        raise InputError(folder, None, f"channel {channels[c]!r} row {row0 + r}: {arr[r, c]!r} is out of range "
+                                       f"(|value| <= {MAX_ABS_VALUE:g})")
 
 
 def _json_default(o):

@@ -408,7 +408,7 @@ class StepDirBackend(Backend):
         in_flight = self.next_tick - s.next_tick
         extra = ""
         if s.faults & bp.F_WATCHDOG:
-            extra = (f" [the bridge had no valid tick for {(s.fault_us - s.last_tick_rx_us) / 1e3:.1f} ms; the host "
+            extra = (f" [the bridge had no valid tick for {((s.fault_us - s.last_tick_rx_us) % 2**32) / 1e3:.1f} ms; the host "
                      f"sent its last tick frame {(time.monotonic() - self.t_send) * 1e3:.1f} ms ago]")
         return BridgeFault(
             f"step/dir bridge stopped: {s.fault_text()}{extra} (tick {s.done} of {self.next_tick} sent); not executed: "

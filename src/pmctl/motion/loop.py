@@ -372,6 +372,7 @@ class ControlLoop:
         k = 0
         done_at = -1
         stop_from_hold = False
+        held_at = -1                    # tick at which a stop's feed hold reached sigma = 0
         deadline = mono() + period
         try:
             while True:
@@ -458,10 +459,15 @@ class ControlLoop:
                     if st.mode == HALTED:
                         status, reason = ("stopped" if _was_stop(st) else "fault"), st.reason
                         break
-                    if stop_from_hold and st.mode == RUN and fol.sigma == 0.0 and not any(st.qdot.tolist()):
-                        st = _halt(st, self.stop_request)
-                        status, reason = "stopped", self.stop_request
-                        break
+                    if stop_from_hold and st.mode == RUN and fol.sigma == 0.0:
+                        # held on the path: halt once the joints are still, or after the settling
+                        # time (strain feedback and sensor noise may keep a pulse of dither going)
+                        if held_at < 0:
+                            held_at = k
+                        if not any(st.qdot.tolist()) or k - held_at >= self.settle_ticks:
+                            st = _halt(st, self.stop_request)
+                            status, reason = "stopped", self.stop_request
+                            break
                     if st.mode == RUN and fol.at_end and fol.src.count() <= 1 and fol.state != HOLDING:
                         if done_at < 0:
                             done_at = k
