@@ -177,6 +177,27 @@ def test_a_stalled_tick_stops_a_realtime_run_with_a_braked_stop():
     assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
 
 
+def test_a_late_wake_up_is_a_stall_too_not_only_a_slow_tick():
+    """The drives see the gap between two commands: a process descheduled for longer than the
+    stall limit stops a real-time run, though the tick itself computed fast."""
+    tr = line_traj([0, 0, 5], [10, 0, 5], rp(0, 0), rp(0, 0), 10.0, 1e-3)
+    p = NCParams.from_machine(M, 1e-3, kv=400.0)
+    tg = prepare(M, p, tr, 1e-3, None)
+    c0 = counts_of(tg.q[0], p)
+    be = hal.create("sim", M, 1e-3, {})
+    be.open(c0)
+
+    def hook(loop, k, st):                   # after tick 300 the process "sleeps" 60 ms
+        if k == 300:
+            time.sleep(0.06)
+        return st
+    cfg = LoopConfig(realtime=True, lock_memory=False, stall_timeout_s=0.03, max_overruns_in_row=10**6)
+    res = ControlLoop(M, be, p, tg, cfg, initial_state(M, c0), log=lambda m: None, hook=hook).run()
+    assert res.status == "stopped" and "between two commands" in res.reason, res.reason
+    assert res.ticks < len(tg.rows)
+    assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
+
+
 def test_a_slow_tick_without_realtime_is_counted_not_a_stall():
     """Offline simulation (--no-realtime): nothing waits for the ticks, so a slow one harms nothing;
     the run goes on to the end and reports how many ticks were over the stall limit."""

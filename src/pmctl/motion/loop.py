@@ -374,6 +374,7 @@ class ControlLoop:
         stop_from_hold = False
         held_at = -1                    # tick at which a stop's feed hold reached sigma = 0
         deadline = mono() + period
+        t1_prev = deadline - period     # end of the previous tick: the last command sent
         try:
             while True:
                 w = k % TIMING_WINDOW
@@ -475,12 +476,16 @@ class ControlLoop:
                             st = _done(st)
                             status, reason = "done", ""
                             break
-                if t1 - t0 > stall_ns:
-                    if not cfg.realtime:
+                if not cfg.realtime:
+                    if t1 - t0 > stall_ns:
                         slow += 1      # offline simulation: a slow tick harms nothing; counted, reported
-                    elif st.mode == RUN:
-                        st = _stopping(st, f"loop stalled: a tick took {(t1 - t0) / 1e6:.1f} ms "
-                                           f"(limit {cfg.stall_timeout_s * 1e3:g} ms)")
+                elif t1 - t1_prev > stall_ns and st.mode == RUN:
+                    # the device went this long without a command: a slow tick, or a late wake-up
+                    # (the process descheduled), both count
+                    st = _stopping(st, f"loop stalled: {(t1 - t1_prev) / 1e6:.1f} ms between two commands, "
+                                       f"{(t1 - t0) / 1e6:.1f} ms of it computing "
+                                       f"(limit {cfg.stall_timeout_s * 1e3:g} ms)")
+                t1_prev = t1
                 if cfg.realtime:
                     deadline += period
                     if t1 > deadline:
