@@ -235,6 +235,7 @@ class RunSink:
         self.spindle, self.daq, self.writer = spindle, daq, writer
         self.track = TrackingAccumulator(job_start, expect) if has_truth else None
         self.rows = 0
+        self.chunks = 0
         self.last_tick = -1
 
     def channels(self) -> tuple[list, dict]:
@@ -306,6 +307,7 @@ class RunSink:
         if self.writer is not None:
             self.writer.append(cols)
         self.rows += n
+        self.chunks += 1
         self.last_tick = int(ticks[-1])
 
 
