@@ -7,9 +7,9 @@ Checks every input first (job, record target, backend, state file), then plans t
 the machine is (saved pulse counters, else home), runs the loop, shows progress, prints
 tracking-error and timing statistics. With --record the run is written as a recording
 (docs/recording.md) while it runs, chunk by chunk from the loop's bounded record ring, into
-``<DIR>.partial/``, renamed to DIR at the end: memory does not grow with the job, and a run that is
-killed (kill -9, power loss) leaves ``<DIR>.partial/`` with the samples up to about a second before,
-readable as an incomplete recording.
+``<DIR>.partial/``, renamed to DIR at the end: memory does not grow with the job, and a run that
+is killed (kill -9, power loss) leaves ``<DIR>.partial/`` with the samples up to the last chunk
+drained (every 20 ms in real time), readable as an incomplete recording.
 
 Ctrl-C, SIGTERM (``systemctl stop``) and SIGHUP all ask for a controlled stop: the machine
 decelerates along its path, the counters are saved as a clean stop and the recording is written.
