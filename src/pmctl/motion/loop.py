@@ -372,6 +372,9 @@ class ControlLoop:
         k = 0
         done_at = -1
         stop_from_hold = False
+        # held on the path, the servo dithers within a pulse or two of the target (K_v x a pulse's
+        # worth of error): that is at rest; qdot is never exactly zero there
+        rest_rate = (2.0 * p.kv / p.pulses_per_mm).tolist()
         deadline = mono() + period
         try:
             while True:
@@ -458,7 +461,8 @@ class ControlLoop:
                     if st.mode == HALTED:
                         status, reason = ("stopped" if _was_stop(st) else "fault"), st.reason
                         break
-                    if stop_from_hold and st.mode == RUN and fol.sigma == 0.0 and not any(st.qdot.tolist()):
+                    if stop_from_hold and st.mode == RUN and fol.sigma == 0.0 and all(
+                            abs(v) <= r for v, r in zip(st.qdot.tolist(), rest_rate)):
                         st = _halt(st, self.stop_request)
                         status, reason = "stopped", self.stop_request
                         break
