@@ -648,9 +648,11 @@ class RecordingWriter:
         self._done = True
         _remove_recording_dir(self.partial, missing_ok=True)
 
-    def finish(self, *, complete=True, reason=""):
+    def finish(self, *, complete=True, reason="", extra_meta=None):
         """Close the recording and rename it into place. ``complete=False`` keeps what was
-        written, marked ``"complete": false`` (with ``incomplete_reason``). Returns the folder."""
+        written, marked ``"complete": false`` (with ``incomplete_reason``). ``extra_meta``: keys
+        of recording.json to set or replace now (what is known only at the end, e.g. a run's
+        status and figures; not the format keys). Returns the folder."""
         if self._done:
             return self.folder
         self._fh.close()
@@ -659,6 +661,9 @@ class RecordingWriter:
         if self._rows == 0:
             _remove_recording_dir(self.partial, missing_ok=True)
             raise InputError(self.folder, None, "no samples to write")
+        for k, v in (extra_meta or {}).items():
+            if k not in ("format", "machine", "sample_rate_hz", "complete", "incomplete_reason"):
+                self.meta[k] = v
         self.meta["complete"] = bool(complete)
         if not complete and reason:
             self.meta["incomplete_reason"] = str(reason)

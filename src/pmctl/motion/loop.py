@@ -373,6 +373,9 @@ class ControlLoop:
         done_at = -1
         stop_from_hold = False
         held_at = -1                    # tick at which a stop's feed hold reached sigma = 0
+        # held on the path, the servo dithers within a pulse or two of the target (K_v x a pulse's
+        # worth of error): that is at rest; qdot is never exactly zero there
+        rest_rate = (2.0 * p.kv / p.pulses_per_mm).tolist()
         deadline = mono() + period
         t1_prev = deadline - period     # end of the previous tick: the last command sent
         try:
@@ -461,11 +464,12 @@ class ControlLoop:
                         status, reason = ("stopped" if _was_stop(st) else "fault"), st.reason
                         break
                     if stop_from_hold and st.mode == RUN and fol.sigma == 0.0:
-                        # held on the path: halt once the joints are still, or after the settling
-                        # time (strain feedback and sensor noise may keep a pulse of dither going)
+                        # held on the path: halt once the joints are at rest (within a pulse or two
+                        # of dither), or at the latest after the settling time
                         if held_at < 0:
                             held_at = k
-                        if not any(st.qdot.tolist()) or k - held_at >= self.settle_ticks:
+                        if all(abs(v) <= r for v, r in zip(st.qdot.tolist(), rest_rate)) \
+                                or k - held_at >= self.settle_ticks:
                             st = _halt(st, self.stop_request)
                             status, reason = "stopped", self.stop_request
                             break

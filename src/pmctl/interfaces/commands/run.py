@@ -5,7 +5,11 @@
 
 Checks every input first (job, record target, backend, state file), then plans the job from where
 the machine is (saved pulse counters, else home), runs the loop, shows progress, prints
-tracking-error and timing statistics, and writes the run as a recording (docs/recording.md).
+tracking-error and timing statistics. With --record the run is written as a recording
+(docs/recording.md) while it runs, chunk by chunk from the loop's bounded record ring, into
+``<DIR>.partial/``, renamed to DIR at the end: memory does not grow with the job, and a run that
+is killed (kill -9, power loss) leaves ``<DIR>.partial/`` with the samples up to the last chunk
+drained (every 20 ms in real time), readable as an incomplete recording.
 
 Ctrl-C, SIGTERM (``systemctl stop``) and SIGHUP all ask for a controlled stop: the machine
 decelerates along its path, the counters are saved as a clean stop and the recording is written.
@@ -142,37 +146,169 @@ class _Progress:
                 self.out.write("\r" + self._line() + "\n", err=True)
 
 
-def record_columns(res, machine, ppm, rate_hz: float | None = None) -> tuple[dict, dict]:
-    """Recording channels of a run: commands (pulse counters), encoders, the simulated load-side
-    tool pose, and the strain gauges as read. ``t`` is tick / rate, so it prints as 1.263, not as
-    the 1.2630000000000001 of tick x period."""
+AXES = ("L1", "L2", "L3", "X", "Y")
+_TRUTH_NOTE = "simulation: FK of the load-side joints (after drive lag and flexible mode)"
+_STRAIN_NOTE = "simulation: gravity strain of the true pose + flexible-mode spring strain + gauge noise"
+
+
+def _held(samples, ticks, value):
+    """Per-tick values of a device polled by its own thread: each sample ``(tick, ...)`` held from
+    its tick until the next (NaN before the first), for the given (increasing) ticks."""
     import numpy as np
-    from pmctl.core import kinematics as K
-    t = np.arange(res.ticks) / rate_hz if rate_hz else res.t
-    cols = {"t": t}
-    names = ("L1", "L2", "L3", "X", "Y")
-    q_cmd = res.counts / ppm
-    for i, a in enumerate(names):
-        cols[f"cmd_{a}"] = q_cmd[:, i]
-    for i, a in enumerate(names):
-        cols[f"enc_{a}"] = res.enc[:, i]
-    notes = {f"cmd_{a}": {"source": "pulse counter x resolution at the tick start"} for a in names}
-    if np.all(np.isfinite(res.truth)) and len(res.truth):
-        pose, ok = K.fk_batch(res.truth, machine)
-        tip = np.where(ok[:, None], pose.tip, np.nan)
-        axis = np.where(ok[:, None], pose.axis, np.nan)
-        for i, c in enumerate(("tip_x", "tip_y", "tip_z")):
-            cols[c] = tip[:, i]
-        for i, c in enumerate(("tool_i", "tool_j", "tool_k")):
-            cols[c] = axis[:, i]
-        for c in ("tip_x", "tip_y", "tip_z", "tool_i", "tool_j", "tool_k"):
-            notes[c] = {"source": "simulation: FK of the load-side joints (after drive lag and flexible mode)"}
+    snap = list(samples)                  # appended by the polling thread: a snapshot
+    if not snap:
+        return None
+    tk = np.maximum(np.fromiter((s[0] for s in snap), np.int64, len(snap)), 0)
+    idx = np.searchsorted(tk, ticks, side="right") - 1
+    vals = np.array([value(s) for s in snap], float)
+    out = vals[np.maximum(idx, 0)]
+    out[idx < 0] = np.nan
+    return out
+
+
+class TrackingAccumulator:
+    """The tool-tip and tool-axis error of every tick from the job's start, as two compact float32
+    arrays indexed by tick (8 bytes a tick: a 10-minute job at 1 kHz holds 4.8 MB, the planner's
+    longest job ~10 MB), so the figures of :func:`pmctl.motion.loop.tracking_stats` can be computed
+    over a window known only at the end. A tick the recorder never saw (a dropped record) is -1;
+    a failed FK is NaN; a non-finite load side is +inf (no figures, as tracking_stats)."""
+
+    def __init__(self, job_start: int, expect: int = 0):
+        import numpy as np
+        self.j0 = int(job_start)
+        self.n = 0
+        self.tip = np.full(max(int(expect), 1024), -1.0, np.float32)
+        self.ang = self.tip.copy()
+
+    @property
+    def nbytes(self) -> int:
+        return self.tip.nbytes + self.ang.nbytes
+
+    def add(self, ticks, e_tip, e_ang):
+        import numpy as np
+        keep = ticks >= self.j0
+        if not keep.any():
+            return
+        i = ticks[keep] - self.j0
+        end = int(i[-1]) + 1
+        if end > len(self.tip):
+            size = max(end, 2 * len(self.tip))
+            for nm in ("tip", "ang"):
+                a = np.full(size, -1.0, np.float32)
+                a[:self.n] = getattr(self, nm)[:self.n]
+                setattr(self, nm, a)
+        self.tip[i] = e_tip[keep]
+        self.ang[i] = e_ang[keep]
+        self.n = max(self.n, end)
+
+    def stats(self, i0: int, i1: int) -> dict:
+        """tracking_stats over ticks [i0, i1): the same keys and formulas."""
+        import numpy as np
+        a, b = max(i0 - self.j0, 0), max(min(i1 - self.j0, self.n), 0)
+        e = self.tip[a:b].astype(np.float64)
+        ang = self.ang[a:b].astype(np.float64)
+        seen = e != -1.0
+        e, ang = e[seen], ang[seen]
+        if len(e) == 0 or np.isinf(e).any():
+            return {}
+        ok = np.isfinite(e)
+        if not ok.any():
+            return {"samples": int(len(e)), "fk_failures": int(len(e))}
+        return {"samples": int(len(e)), "tip_rms_um": float(np.sqrt(np.nanmean(e ** 2)) * 1e3),
+                "tip_max_um": float(np.nanmax(e) * 1e3), "tip_p99_um": float(np.nanpercentile(e, 99) * 1e3),
+                "axis_rms_urad": float(np.sqrt(np.nanmean(ang ** 2)) * 1e6),
+                "axis_max_urad": float(np.nanmax(ang) * 1e6), "fk_failures": int(np.sum(~ok))}
+
+
+class RunSink:
+    """What ``pmctl run`` does with every chunk of record rows the recorder drains (layout R_* in
+    pmctl.motion.recorder): converts it to the recording's channels, vectorised (one fk_batch a
+    chunk for the load-side tool pose), appends them to a RecordingWriter (when recording), and
+    adds the chunk's tool-tip errors to a TrackingAccumulator. Nothing else is kept: the memory
+    of a run is the ring, one chunk and the accumulator."""
+
+    def __init__(self, machine, ppm, rate_hz: float, has_truth: bool, job_start: int, expect: int = 0,
+                 spindle=None, daq=None, writer=None):
+        import numpy as np
+        self.machine, self.ppm, self.rate_hz = machine, np.asarray(ppm, float), float(rate_hz)
+        self.has_truth = bool(has_truth)
+        self.spindle, self.daq, self.writer = spindle, daq, writer
+        self.track = TrackingAccumulator(job_start, expect) if has_truth else None
+        self.rows = 0
+        self.chunks = 0
+        self.last_tick = -1
+
+    def channels(self) -> tuple[list, dict]:
+        """Channel names and notes of the recording (as record_columns, plus the devices)."""
+        names = ["t"] + [f"cmd_{a}" for a in AXES] + [f"enc_{a}" for a in AXES]
+        notes = {f"cmd_{a}": {"source": "pulse counter x resolution at the tick start"} for a in AXES}
+        if self.has_truth:
+            names += ["tip_x", "tip_y", "tip_z", "tool_i", "tool_j", "tool_k"]
+            for c in ("tip_x", "tip_y", "tip_z", "tool_i", "tool_j", "tool_k"):
+                notes[c] = {"source": _TRUTH_NOTE}
+            for i in range(3):
+                notes[f"strain_{i + 1}"] = {"source": _STRAIN_NOTE}
+        names += [f"strain_{i + 1}" for i in range(3)]
+        if self.spindle is not None:
+            names.append("spindle_rpm")
+            notes["spindle_rpm"] = {"source": f"VFD speed register polled every {self.spindle.opt.poll_ms:g} ms "
+                                              f"by the supervisor, held between polls (negative: M4)"}
+        if self.daq is not None:
+            for i in range(3):
+                names.append(f"daq_strain_{i + 1}")
+                notes[f"daq_strain_{i + 1}"] = {"source": f"strain DAQ over Modbus TCP polled every "
+                                                          f"{self.daq.opt.poll_ms:g} ms, held between polls, "
+                                                          f"microstrain"}
+        return names, notes
+
+    def __call__(self, rows):
+        import numpy as np
+
+        from pmctl.core import kinematics as K
+        from pmctl.motion.recorder import R_COUNTS, R_ENC, R_STRAIN, R_TARGET, R_TICK, R_TRUTH
+        ticks = rows[:, R_TICK].astype(np.int64)
+        n = len(ticks)
+        cols = {"t": ticks / self.rate_hz}
+        q_cmd = np.rint(rows[:, R_COUNTS:R_COUNTS + 5]) / self.ppm
+        for i, a in enumerate(AXES):
+            cols[f"cmd_{a}"] = q_cmd[:, i]
+            cols[f"enc_{a}"] = rows[:, R_ENC + i]
+        if self.has_truth:
+            truth = rows[:, R_TRUTH:R_TRUTH + 5]
+            fin = np.all(np.isfinite(truth), axis=1)
+            tip = np.full((n, 3), np.nan)
+            axis = np.full((n, 3), np.nan)
+            ok = np.zeros(n, bool)
+            if fin.any():
+                pose, ok_f = K.fk_batch(truth[fin], self.machine)
+                tip[fin], axis[fin], ok[fin] = pose.tip, pose.axis, ok_f
+            tip[~ok] = np.nan
+            axis[~ok] = np.nan
+            for i, c in enumerate(("tip_x", "tip_y", "tip_z")):
+                cols[c] = tip[:, i]
+            for i, c in enumerate(("tool_i", "tool_j", "tool_k")):
+                cols[c] = axis[:, i]
+            tg = rows[:, R_TARGET:R_TARGET + 6]
+            e = np.linalg.norm(tip - tg[:, :3], axis=-1)
+            ang = np.arccos(np.clip(np.sum(axis * tg[:, 3:6], -1), -1.0, 1.0))
+            e[~fin] = np.inf
+            self.track.add(ticks, e.astype(np.float32), ang.astype(np.float32))
         for i in range(3):
-            notes[f"strain_{i + 1}"] = {"source": "simulation: gravity strain of the true pose + "
-                                                  "flexible-mode spring strain + gauge noise"}
-    for i in range(3):
-        cols[f"strain_{i + 1}"] = res.strain[:, i]
-    return cols, notes
+            cols[f"strain_{i + 1}"] = rows[:, R_STRAIN + i]
+        if self.spindle is not None:
+            mon = self.spindle.monitor
+            v = _held(mon.samples, ticks, lambda s: s[1]) if mon is not None else None
+            cols["spindle_rpm"] = np.full(n, np.nan) if v is None else v * self.spindle.direction
+        if self.daq is not None:
+            d = self.daq.daq
+            for i in range(3):
+                v = _held(d.samples, ticks, lambda s, i=i: s[2][i]) if d is not None else None
+                cols[f"daq_strain_{i + 1}"] = np.full(n, np.nan) if v is None else v
+        if self.writer is not None:
+            self.writer.append(cols)
+        self.rows += n
+        self.chunks += 1
+        self.last_tick = int(ticks[-1])
 
 
 def _plant_meta(backend) -> dict:
@@ -342,7 +478,24 @@ def run(args) -> int:
                     dev.close()
             raise
         writer = CounterWriter(state_file, machine=machine.name) if state_file else None
-        lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer)
+        # the records stream out of the loop's bounded ring chunk by chunk: into the recording
+        # (written as it goes, so a killed run leaves <DIR>.partial) and into the tracking figures
+        from pmctl.motion.recorder import REC_CAPACITY, REC_WIDTH, Recorder
+        from pmctl.motion.ring import Ring
+        sink = RunSink(machine, params.pulses_per_mm, cfg.rate_hz, backend.truth() is not None,
+                       targets.job_start, len(targets.rows) - targets.job_start, spindle, daq)
+        rec_writer = None
+        if args.record:
+            rec_writer = _open_recording(args, machine, backend, backend_name, cfg, sink, targets.job_start)
+            sink.writer = rec_writer
+        try:
+            ring = Ring(REC_CAPACITY, REC_WIDTH)
+            lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer, records=ring,
+                             recorder=Recorder(ring, keep=False, sink=sink))
+        except BaseException:
+            if rec_writer is not None:
+                rec_writer._discard()       # nothing ran: nothing is left under any name
+            raise
         holder["lp"] = lp
         if pending:
             stop_tick.append(0)
@@ -353,17 +506,48 @@ def run(args) -> int:
             f"{'real-time' if cfg.realtime else 'no real-time (ticks back to back)'}")
         prog = _Progress(lp, Path(args.job).name, dt, args.quiet, out)
         return _run_and_report(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt,
-                               counts0, backend_name, stop_tick, out, spindle, daq, svc)
+                               counts0, backend_name, stop_tick, out, spindle, daq, sink, rec_writer)
     finally:
         for sig, h in old.items():
             signal.signal(sig, h)
 
 
-def _run_and_report(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt, counts0,
-                    backend_name, stop_tick, out, spindle, daq, svc) -> int:
-    import numpy as np
+def _open_recording(args, machine, backend, backend_name, cfg, sink, job_start):
+    """The recording, opened before the loop starts: ``<DIR>.partial/`` marked incomplete, with the
+    run's metadata as far as it is known (status "running"; the rest is written at the end)."""
+    from pmctl.core.recording import RecordingWriter
+    folder = Path(args.record)
+    names, notes = sink.channels()
+    run_meta = {"job": str(args.job), "status": "running", "reason": "", "job_start_row": int(job_start),
+                "backend": backend_name}
+    plant = _plant_meta(backend)
+    if plant:
+        run_meta["plant"] = plant
+    desc = f"pmctl run {Path(args.job).name} on backend {backend_name} at {cfg.rate_hz:g} Hz: running"
+    w = RecordingWriter(folder, names, machine=_machine_ref(args.config, machine, folder),
+                        sample_rate_hz=cfg.rate_hz, description=desc, channel_notes=notes,
+                        extra_meta={"run": run_meta}, overwrite=args.force)
+    return w.__enter__()
 
-    from pmctl.motion.loop import tracking_stats
+
+def _run_and_report(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt, counts0,
+                    backend_name, stop_tick, out, spindle, daq, sink, rec) -> int:
+    try:
+        return _run_and_report_1(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt,
+                                 counts0, backend_name, stop_tick, out, spindle, daq, sink, rec)
+    except BaseException as e:
+        # whatever went wrong after the loop ended, the rows written so far are kept, marked incomplete
+        if rec is not None and not rec._done and rec.rows:
+            try:
+                rec.finish(complete=False, reason=f"pmctl run ended by {type(e).__name__}: {e}")
+            except Exception:
+                pass
+        raise
+
+
+def _run_and_report_1(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt, counts0,
+                      backend_name, stop_tick, out, spindle, daq, sink, rec) -> int:
+    import numpy as np
     log = out.log
     prog.start()
     t_wall = time.monotonic()
@@ -371,7 +555,7 @@ def _run_and_report(args, lp, prog, backend, writer, state_file, machine, params
         if dev is not None:
             dev.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
     try:
-        res = lp.run()
+        res = lp.run()                    # its recorder has drained the last rows into the sink
     finally:
         prog.finish()
         backend.close()
@@ -394,43 +578,48 @@ def _run_and_report(args, lp, prog, backend, writer, state_file, machine, params
 
     # ---- the recording first (the run's data must not depend on stdout staying open), then the report
     sent_ok = bool(np.all(counts0 + res.pulses_sent == res.state.counts))
+    rec_error = lp.recorder.error
+    if rec_error:
+        log(f"warning: the recorder stopped at row {sink.rows}: {rec_error}")
     i0, i1, track_note = tracking_window(res, stop_tick[0] if stop_tick else None)
     ts = {}
-    if i1 > i0:
-        from dataclasses import replace
-        ts = tracking_stats(replace(res, truth=res.truth[:i1], target=res.target[:i1]), machine, from_tick=i0)
+    if i1 > i0 and sink.track is not None and not rec_error:
+        ts = sink.track.stats(i0, i1)
     tm = res.timing.summary()
-    if args.record:
-        from pmctl.core.recording import write_recording
-        folder = Path(args.record)
-        cols, chan_notes = record_columns(res, machine, params.pulses_per_mm, cfg.rate_hz)
-        if spindle is not None:
-            cols["spindle_rpm"] = spindle.per_tick(res.ticks)
-            chan_notes["spindle_rpm"] = {"source": f"VFD speed register polled every {svc.spindle.poll_ms:g} ms by "
-                                              f"the supervisor, held between polls (negative: M4)"}
-        if daq is not None:
-            ds = daq.per_tick(res.ticks)
-            for i in range(3):
-                cols[f"daq_strain_{i + 1}"] = ds[:, i]
-                chan_notes[f"daq_strain_{i + 1}"] = {"source": f"strain DAQ over Modbus TCP polled every "
-                                                          f"{svc.daq.poll_ms:g} ms, held between polls, microstrain"}
+    dropped = int(res.dropped)
+    rec_rows = None
+    if rec is not None:
         desc = (f"pmctl run {Path(args.job).name} on backend {backend_name} at {cfg.rate_hz:g} Hz: {res.status}"
                 + (f" ({res.reason})" if res.reason else ""))
-        run_meta = {"job": str(args.job), "status": res.status, "reason": res.reason,
-                    "tracking": ts, "timing": tm, "job_start_row": res.job_start, "backend": backend_name}
-        plant = _plant_meta(backend)
-        if plant:
-            run_meta["plant"] = plant
+        run_meta = dict(rec.meta.get("run", {}))
+        run_meta.update({"status": res.status, "reason": res.reason, "tracking": ts, "timing": tm})
         if track_note:
             run_meta["tracking_note"] = track_note
-        write_recording(folder, cols, machine=_machine_ref(args.config, machine, folder),
-                        sample_rate_hz=cfg.rate_hz, description=desc, channel_notes=chan_notes,
-                        extra_meta={"run": run_meta}, overwrite=args.force)
-        # a stopped run is a complete recording of what happened: "complete" is about the file
+        if dropped:
+            run_meta["dropped_rows"] = dropped
+        # a stopped run is a complete recording of what happened: "complete" is about the file;
+        # rows the recorder missed (dropped, or a recording error) make it incomplete
+        missing = dropped or rec_error or rec.rows != res.ticks
+        why = (f"{dropped} rows dropped (the recorder fell behind the loop)" if dropped
+               else f"recording error: {rec_error}" if rec_error
+               else f"{rec.rows} rows for {res.ticks} ticks")
+        if rec._done:
+            log(f"warning: the recording {args.record} was abandoned during the run ({rec_error})")
+        else:
+            try:
+                rec_rows = rec.rows
+                rec.finish(complete=not missing, reason=why if missing else "",
+                           extra_meta={"description": desc, "run": run_meta})
+            except Exception as e:
+                log(f"warning: the recording {args.record} could not be finished: {e}")
+                rec_rows = None
     say = out.say
     say(f"result: {res.status}" + (f" ({res.reason})" if res.reason else ""))
     say(f"  ticks {res.ticks} ({res.ticks * dt:.2f} s machine time, {wall:.2f} s wall), "
         f"pulses sent = pulse counters: {'yes' if sent_ok else 'NO'}")
+    if dropped:
+        say(f"  records dropped: {dropped} (the recorder fell behind the loop; the recording and the "
+            f"tracking figures miss those ticks)")
     if ts:
         say(f"  tool-tip error (load side vs target, job part{', ' + track_note if track_note else ''}): "
             f"RMS {ts['tip_rms_um']:.3f} um, p99 {ts['tip_p99_um']:.3f} um, max {ts['tip_max_um']:.3f} um; "
@@ -446,6 +635,6 @@ def _run_and_report(args, lp, prog, backend, writer, state_file, machine, params
                else "; lateness n/a (--no-realtime)"))
     if state_file:
         say(f"  counters: {state_file} ({'clean stop' if res.status != 'fault' else 'NOT a clean stop'})")
-    if args.record:
-        say(f"  recording: {args.record} ({res.ticks} rows)")
+    if rec_rows is not None:
+        say(f"  recording: {args.record} ({rec_rows} rows)")
     return {"done": EXIT_DONE, "stopped": EXIT_STOPPED}.get(res.status, EXIT_FAULT)
