@@ -554,16 +554,29 @@ def _run_and_report_1(args, lp, prog, backend, writer, state_file, machine, para
     for dev in (spindle, daq):            # polled by their own threads; a fault or lost link stops the run
         if dev is not None:
             dev.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
+    close_errors = []
     try:
         res = lp.run()                    # its recorder has drained the last rows into the sink
     finally:
         prog.finish()
-        backend.close()
-        for dev in (spindle, daq):
+        # each device is closed whatever the others do: the spindle first (M5), then the drives
+        for dev in (spindle, daq, backend):
             if dev is not None:
-                dev.close()               # the spindle: M5
+                try:
+                    dev.close()
+                except Exception as e:    # noqa: BLE001 (kept, reported, the run ends as a fault)
+                    close_errors.append((dev, e))
         if writer is not None:
             writer.stop()          # on a crash the last periodic snapshot (clean = false) stays
+    if close_errors:
+        # e.g. a step/dir bridge whose final counters disagree: the device's counters are the truth
+        from dataclasses import replace
+        st = res.state
+        for dev, e in close_errors:
+            if dev is backend and getattr(e, "counts", None) is not None:
+                st = st.with_counts(e.counts)
+        why = "; ".join(f"closing {getattr(d, 'name', type(d).__name__)}: {e}" for d, e in close_errors)
+        res = replace(res, status="fault", state=st, reason=(res.reason + "; " if res.reason else "") + why)
     wall = time.monotonic() - t_wall
     if writer is not None and writer.error:
         log(f"warning: periodic writes of {state_file} failed during the run ({writer.error}); "
