@@ -68,10 +68,19 @@ def save_counters(path, counts, *, machine: str, clean: bool, tick: int = 0) -> 
     path.parent.mkdir(parents=True, exist_ok=True)
     data = {"format": FORMAT, "machine": machine, "counts": [int(c) for c in counts],
             "clean": bool(clean), "tick": int(tick), "wall_time": time.time()}
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    atomic_write(path, json.dumps(data) + "\n")
+
+
+def atomic_write(path, text: str) -> None:
+    """Write ``text`` to ``path`` so that a crash or power cut leaves the old file or the new one,
+    never a mix: a temporary sibling (named per process and thread, so two writers never share
+    one), fsync, rename, fsync of the folder."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     try:
-        os.write(fd, (json.dumps(data) + "\n").encode())
+        os.write(fd, text.encode())
         os.fsync(fd)
     finally:
         os.close(fd)

@@ -10,39 +10,17 @@ damaged journal is an error naming the file: the daemon does not guess offsets.
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 
 from pmctl.core.errors import InputError
+from pmctl.motion.state_store import atomic_write      # shared with the pulse counters
 
 FORMAT = "pmctl-journal/1"
 
 
 def journal_path(state_file) -> Path:
     return Path(str(state_file) + ".journal")
-
-
-def atomic_write(path: Path, text: str) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    try:
-        os.write(fd, text.encode())
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    os.replace(tmp, path)
-    try:
-        dfd = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(dfd)
-        finally:
-            os.close(dfd)
-    except OSError:
-        pass
-
 
 class Journal:
     """In-memory journal with ``save()``; ``path`` None keeps it in memory only."""
