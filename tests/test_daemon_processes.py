@@ -135,7 +135,8 @@ def test_estop_input_latches_alarm_10_until_it_clears_and_unlock(tmp_path):
     from pmctl.task.supervisor import ALARM_ESTOP
     svc = tmp_path / "service.toml"
     base = (Path(__file__).resolve().parents[1] / "config" / "service.toml").read_text()
-    svc.write_text(base + "\nestop_from_tick = 400\nestop_to_tick = 2500\n")      # appended to [hal.sim]
+    assert "[hal.sim]\n" in base
+    svc.write_text(base.replace("[hal.sim]\n", "[hal.sim]\nestop_from_tick = 400\nestop_to_tick = 2500\n"))
     s = Supervisor("prototype", service=str(svc), realtime=False)
     tip, ax = home_pose(s.machine)
     s.start(counts_of(K.ik(tip, ax, s.machine).q, s.params))

@@ -29,8 +29,6 @@ M = load_machine()
 DT = 1e-3
 
 
-@pytest.fixture
-
 def _us32(t_ns) -> int:
     """An edge-log time (CLOCK_MONOTONIC, ns, 64 bit) on the bridge's clock (us, 32 bit: wraps
     every 71.6 minutes of uptime)."""
@@ -42,6 +40,8 @@ def _dt_us(a_us: int, b_us: int) -> int:
     d = (int(a_us) - int(b_us)) % 2**32
     return d - 2**32 if d >= 2**31 else d
 
+
+@pytest.fixture
 def bridge(tmp_path):
     b = Bridge(tmp_path)
     yield b

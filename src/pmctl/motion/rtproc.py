@@ -135,10 +135,7 @@ def _mono():
 
 
 def _halt(st, reason):
-    from dataclasses import replace
-
-    from pmctl.motion.nc import HALTED
-    return replace(st, mode=HALTED, reason=reason, qdot=np.zeros(5), acc=np.zeros(5))
+    return st.halted(reason)          # NCState or the compiled core's state handle
 
 
 def _was_stop(st) -> bool:
