@@ -82,7 +82,7 @@ class CanopenOptions:
 
         def num(key, lo=None, integer=False, positive=False):
             v = getattr(o, key)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or abs(v) > 1e15 or not math.isfinite(v):
                 raise ConfigError(where, key, f"must be a number, got {v!r}")
             if integer and v != int(v):
                 raise ConfigError(where, key, f"must be an integer, got {v!r}")

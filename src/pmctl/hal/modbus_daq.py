@@ -55,7 +55,7 @@ class DaqOptions:
                 raise ConfigError(where, k, f"must be true or false, got {getattr(o, k)!r}")
         for k in ("ue_per_count", "timeout_ms", "poll_ms", "max_age_ms", "sim_sample_hz"):
             v = getattr(o, k)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or abs(v) > 1e15 or not math.isfinite(v) or v <= 0:
                 raise ConfigError(where, k, f"must be a number > 0, got {v!r}")
             setattr(o, k, float(v))
         for k, lo, hi in (("port", 0, 65535), ("device_id", 0, 247), ("base", 0, 0xFFFC),
@@ -65,6 +65,9 @@ class DaqOptions:
                 raise ConfigError(where, k, f"must be an integer {lo} .. {hi}, got {v!r}")
         if o.port == 0 and not o.simulate:
             raise ConfigError(where, "port", "0 (any free port) only with simulate = true")
+        for k in ("host", "k_theta_source"):
+            if not isinstance(getattr(o, k), str) or not getattr(o, k):
+                raise ConfigError(where, k, f"must be a non-empty string, got {getattr(o, k)!r}")
         if o.simulate and not (o.host.startswith("127.") or o.host == "localhost"):
             raise ConfigError(where, "host", f"a simulated DAQ listens on a loopback address, not {o.host}")
         if o.k_theta_source not in K_THETA_SOURCES:

@@ -88,7 +88,7 @@ class VfdOptions:
         for k in ("timeout_ms", "max_rpm", "max_hz", "at_speed_tolerance", "spinup_timeout_s", "poll_ms",
                   "sim_ramp_rpm_per_s"):
             v = getattr(o, k)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or abs(v) > 1e15 or not math.isfinite(v) or v <= 0:
                 raise ConfigError(where, k, f"must be a number > 0, got {v!r}")
             setattr(o, k, float(v))
         if o.at_speed_tolerance >= 0.5:
