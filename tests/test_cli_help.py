@@ -107,6 +107,4 @@ def test_docs_index_and_readme_links_resolve():
         for target in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", page.read_text(encoding="utf-8")):
             if target.startswith(("http://", "https://")):
                 continue
-            if target in ("console.md", "service.md"):      # written with `pmctl serve`
-                continue
             assert (page.parent / target).exists(), f"{page.name} links to missing {target}"
