@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core.errors import ConfigError
-from pmctl.core.strict_toml import UNIT_SUFFIXES, Table, check_tables, read_toml  # noqa: F401
+from pmctl.core.strict_toml import Table, check_tables, read_toml
 
 _SRC_CONFIG = Path(__file__).resolve().parents[3] / "config"      # a source checkout (editable install)
 _PKG_CONFIG = Path(__file__).resolve().parents[1] / "config"      # shipped as package data
@@ -125,8 +125,6 @@ class Machine:
     extra: dict = field(default_factory=dict)   # kept for compatibility: unknown tables are refused now
 
 
-# One strict TOML reader for every config (pmctl.core.strict_toml); _Section is its table reader.
-_Section = Table
 
 
 MM = 1e4            # bound of any length or position in the machine config, mm (10 m)

@@ -265,7 +265,7 @@ class CanopenCSP(Backend):
         st = data[0] & 0x7F
         with self._cond:
             d.t_hb = time.monotonic()
-            prev, d.hb_state = d.hb_state, st
+            d.hb_state = st
             if self._enabled and not self._fault:
                 if st == 0:
                     self._fault = f"canopen {d.name}: rebooted (boot-up message) while enabled"

@@ -101,17 +101,6 @@ class SimOptions:
         return o
 
 
-def _vec(v, n, where, key, pos=False, nonneg=False):
-    a = np.broadcast_to(np.asarray(v, float), (n,)).copy() if np.ndim(v) == 0 or len(v) == n else None
-    if a is None or not np.all(np.isfinite(a)):
-        raise ConfigError(where, key, f"must be a number or a list of {n} numbers, got {v!r}")
-    if pos and np.any(a <= 0):
-        raise ConfigError(where, key, "must be > 0")
-    if nonneg and np.any(a < 0):
-        raise ConfigError(where, key, "must be >= 0")
-    return a
-
-
 class SimBackend(Backend):
     name = "sim"
     accepts = "pulses"

@@ -17,7 +17,6 @@ from pmctl.core.config import CONFIG_DIR, Machine
 from pmctl.core.errors import ConfigError
 from pmctl.core.strict_toml import Table, check_tables, read_toml
 
-_Section = Table        # the strict table reader (kept under its old name)
 from pmctl.motion.nc import IMPLEMENTATIONS, NCParams
 
 

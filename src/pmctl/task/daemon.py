@@ -150,7 +150,7 @@ class Daemon:
 
     # ------------------------------------------------------------ run
     def serve_forever(self):
-        from pmctl.task.notify import sd_notify, watchdog_period_s
+        from pmctl.task.notify import watchdog_period_s
         for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
             signal.signal(sig, self._on_signal)
         wd = watchdog_period_s()

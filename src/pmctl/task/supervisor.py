@@ -29,8 +29,8 @@ import numpy as np
 from pmctl.core import kinematics as K
 from pmctl.core.errors import PmctlError
 from pmctl.motion import channel as C
-from pmctl.motion.nc import HALTED, RUN, STOPPING
-from pmctl.motion.timescale import FOLLOW_NAMES, HELD, HOLDING, MOVING, STARVED
+from pmctl.motion.nc import RUN
+from pmctl.motion.timescale import HELD, HOLDING, MOVING, STARVED
 
 # grbl alarm codes (grbl 1.1; 10, 11, 17 as grblHAL numbers them)
 ALARM_HARD_LIMIT, ALARM_SOFT_LIMIT, ALARM_ABORT, ALARM_HOMING_RESET = 1, 2, 3, 6

@@ -40,7 +40,7 @@ from pmctl.tools.twin import effects as fx
 from pmctl.tools.twin import nominal
 from pmctl.tools.twin.catalogue import DEFAULT_CAP
 from pmctl.tools.twin.effects import AXES, Context, Obs
-from pmctl.tools.twin.locate import channel_series, locate, noise_level, windows
+from pmctl.tools.twin.locate import locate, noise_level, windows
 from pmctl.tools.twin.unexplained import flexible_gain, unexplained
 
 N_BLOCKS = 24

@@ -37,7 +37,7 @@ import numpy as np
 
 from pmctl.core.config import Machine
 from pmctl.core.kinematics import expm_so3, solve_platform, tool_of_platform
-from pmctl.core.recording import AXES, CMD, ENC, LOAD, STRAIN, TIP, TOOL
+from pmctl.core.recording import AXES, ENC, LOAD, STRAIN, TIP, TOOL
 from pmctl.core.statics import chain_forces, strain_of_axial
 
 PREDICTABLE = ENC + TIP + TOOL + STRAIN

@@ -11,7 +11,6 @@ two effects on the same channels cannot cut them alone).
 
 from __future__ import annotations
 
-import math
 
 LOCATORS = ("axis", "channel", "chain")
 

@@ -32,7 +32,6 @@ import math
 import numpy as np
 
 from pmctl.tools.twin.effects import AXES, Context, _line_frequencies, _lstsq, axis_direction
-from pmctl.tools.twin.locate import moving_rms, windows
 
 EXCESS_MIN = 1.0        # remaining rms ≥ 1.41 x noise ...
 CHI_SIGMA = 8.0         # ... and Σ(y²) − N beyond 8 standard deviations of noise (√(2N))
