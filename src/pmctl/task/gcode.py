@@ -14,6 +14,12 @@ Supported (LinuxCNC semantics unless noted):
   active), ``M9`` (no coolant);
 - words: ``X Y Z`` tool tip in W, ``A B`` tool tilt as roll / pitch in degrees (docs/machine.md §3: axis =
   Rx(A) Ry(B) z), ``F`` feed (mm/min or in/min), ``S`` spindle rpm, ``N`` line number;
+- probing: ``G38.2`` probe toward the target, an error if the move ends without contact, ``G38.3`` the
+  same without the error (grbl semantics); it needs an axis word and a feed (``F`` on the line or
+  before; the inverse of ``G0``), is a straight feed line otherwise (modal like G1), and makes a
+  ``LINE`` move with ``probe`` = 2 / 3: the control loop stops it on contact (pmctl.motion.probe). Its
+  A/B must not change (the tool axis stays put while probing). ``G38.4``/``G38.5`` (probe away) are
+  refused; a reader whose state says ``probe_ok = False`` (the operator console) refuses G38 too;
 - ``M3`` spindle on clockwise, ``M4`` counter-clockwise (the moves' spindle_rpm is negative), at S: an
   ``M3``/``M4`` while S is 0, or ``S0`` while the spindle turns, is refused (the spindle never runs at
   0 rpm in silence); ``M5`` off, ``M2``/``M30`` end of program (later lines are
@@ -30,7 +36,7 @@ an arc at most ``MAX_ARC_TURNS`` turns. Beyond that: InputError with file, line,
 Not supported, and refused by name: expressions ``[...]``, parameters ``#...``, O-word subroutines
 and control flow, canned cycles (G73, G76, G81-G89), cutter compensation, tool length offsets and
 tool changes, other planes, coordinate-system offsets, inverse-time feed, threading, probing,
-splines, pauses (M0/M1), coolant on, user M-codes...
+probing away from the workpiece (G38.4/G38.5), splines, pauses (M0/M1), coolant on, user M-codes...
 
 Execution order inside a line is RS-274's: F, S, M3/M4/M5, G4, G17/G20/G21/G90/G91/G94, motion, M2/M30.
 The whole program is parsed and checked before a job exists: an unknown or unsupported word, a missing
@@ -63,7 +69,8 @@ LETTERS = set("ABFGIJMNPQRSXYZ")
 # Largest |value| per word letter (program units: mm or inch, degrees, per minute, rpm, seconds).
 WORD_LIMITS = {"N": 99_999_999, "G": 999, "M": 999, "F": 1e6, "S": 1e6, "P": 1e12, "Q": 1e12,
                **{k: 1e5 for k in "XYZIJR"}, "A": 1e4, "B": 1e4}
-G_MOTION = {0, 10, 20, 30}        # G-codes times 10
+G_MOTION = {0, 10, 20, 30, 382, 383}   # G-codes times 10 (382/383: G38.2/G38.3 probing)
+G_PROBE = {382: 2, 383: 3}
 G_NOOP = {400, 490, 540, 610, 640, 800, 970}   # G40 G49 G54 G61 G64 G80 G97: hold anyway (see above)
 G_OTHER = {40, 170, 200, 210, 900, 910, 940} | G_NOOP
 M_CODES = {2, 3, 4, 5, 9, 30}
@@ -76,7 +83,7 @@ _G_UNSUPPORTED = [          # (codes x 10, reason); first match wins
     ({171, 180, 181, 190, 191}, "only the XY plane (G17) is supported"),
     ({280, 281, 300, 301}, "G28/G30 (go to a stored position) are not supported"),
     ({330, 331, 760}, "threading (G33/G76) is not supported"),
-    ({382, 383, 384, 385}, "probing (G38) is not supported"),
+    ({384, 385}, "probing away from the workpiece (G38.4/G38.5) is not supported"),
     ({410, 411, 420, 421}, "cutter radius compensation (G41/G42) is not supported"),
     ({430, 431, 432}, "tool length offsets (G43) are not supported: the tool length is in the machine config"),
     ({520, 920, 921, 922, 923}, "coordinate system offsets (G52/G92) are not supported"),
@@ -206,6 +213,7 @@ class _State:
         self.feed = None            # mm/s
         self.s = 0.0                # rpm
         self.spindle_on = False
+        self.probe_ok = True        # G38.2/G38.3 accepted (a reader without stop-on-contact says False)
 
 
 def parse_gcode(text: str, path="<string>", start_tip=(0.0, 0.0, 0.0), start_axis=(0.0, 0.0, 1.0)) -> Job:
@@ -253,6 +261,9 @@ def _execute_line(words, st: _State, path, lineno, moves, points, point_lines):
     for letter, v, col in words:
         if letter == "G":
             code = round(v * 10)
+            if code in G_PROBE and abs(v * 10 - code) <= 1e-9 and not st.probe_ok:
+                raise err(f"unsupported G-code G{v:g}: probing is not available here (it runs in "
+                          f"'pmctl run', which stops on contact)", col)
             if abs(v * 10 - code) > 1e-9 or code not in G_MOTION | G_OTHER:
                 why = _unsupported_reason(_G_UNSUPPORTED, code) if abs(v * 10 - code) <= 1e-9 else None
                 raise err(f"unsupported G-code G{v:g}" + (f": {why}" if why else ""), col)
@@ -274,7 +285,7 @@ def _execute_line(words, st: _State, path, lineno, moves, points, point_lines):
     mcodes = [c for c, _ in ms]
     motion = [g for g in codes if g in G_MOTION]
     if len(motion) > 1:
-        raise err("two motion codes (G0/G1/G2/G3) on one line", gs[codes.index(motion[1])][1])
+        raise err("two motion codes (G0/G1/G2/G3/G38) on one line", gs[codes.index(motion[1])][1])
     if (200 in codes and 210 in codes) or (900 in codes and 910 in codes) or (len({3, 4, 5} & set(mcodes)) > 1) \
             or (2 in mcodes and 30 in mcodes):
         raise err("conflicting modal codes on one line")
@@ -330,10 +341,12 @@ def _execute_line(words, st: _State, path, lineno, moves, points, point_lines):
     if motion:
         st.motion = motion[0]
     axis_words = [k for k in "XYZAB" if k in vals]
+    if motion and motion[0] in G_PROBE and not axis_words:
+        raise err(f"G38.{motion[0] - 380} needs an axis word (the probe target)", gs[codes.index(motion[0])][1])
     arc_words = [k for k in "IJR" if k in vals]
     if axis_words:
         if st.motion is None:
-            raise err("axis words with no motion mode (G0/G1/G2/G3) active", vals[axis_words[0]][1])
+            raise err("axis words with no motion mode (G0/G1/G2/G3/G38) active", vals[axis_words[0]][1])
         _move(st, vals, rpm, err, lineno, moves, points, point_lines)
     elif arc_words:
         raise err(f"'{arc_words[0]}' without an arc end point (X/Y)", vals[arc_words[0]][1])
@@ -348,8 +361,13 @@ def _axis(st):
     return K.axis_from_roll_pitch(math.radians(st.a), math.radians(st.b))
 
 
+def _axis_of(ab):
+    return K.axis_from_roll_pitch(math.radians(ab[0]), math.radians(ab[1]))
+
+
 def _move(st: _State, vals, rpm, err, lineno, moves, points, point_lines):
     start = st.pos.copy()
+    start_ab = (st.a, st.b)
     target = start.copy()
     for i, k in enumerate("XYZ"):
         if k in vals:
@@ -367,7 +385,16 @@ def _move(st: _State, vals, rpm, err, lineno, moves, points, point_lines):
     else:
         if st.feed is None:
             raise err("feed move with no F (set a feed rate first)")
-        if st.motion == 10:
+        if st.motion in G_PROBE:
+            if any(k in vals for k in "IJR"):
+                raise err("I/J/R words need G2/G3")
+            if np.linalg.norm(axis - _axis_of(start_ab)) > 1e-12:
+                raise err(f"G38.{st.motion - 380} with A/B changing: the tool axis must stay put while probing")
+            if np.linalg.norm(target - start) < 1e-9:
+                raise err(f"G38.{st.motion - 380} target is the current position (no probing direction)")
+            moves.append(Move(LINE, target, axis, line=lineno, feed=st.feed, spindle_rpm=rpm,
+                              probe=G_PROBE[st.motion]))
+        elif st.motion == 10:
             if any(k in vals for k in "IJR"):
                 raise err("I/J/R words need G2/G3")
             moves.append(Move(LINE, target, axis, line=lineno, feed=st.feed, spindle_rpm=rpm))

@@ -10,6 +10,10 @@ from where the previous one ended (the first from the planner's start pose) to i
              the start radius to the end radius (a tolerated mismatch becomes a tiny spiral), z linearly;
 - ``DWELL``  no motion for ``dwell`` seconds (G4).
 
+A probing move (G38.2 / G38.3) is a ``LINE`` with ``probe`` = 2 or 3: planned like any feed line to
+its target, it is where the control loop stops on contact (pmctl.motion.probe); ``probe`` = 2 makes a
+move that ends without contact an error (grbl's probe-fail alarm), 3 does not.
+
 The tool axis of every moving kind is interpolated by slerp from the start axis to the end axis.
 ``line`` is the source line (1-based; 0 for moves the reader added), ``spindle_rpm`` the commanded
 spindle speed during the move (0 = off).
@@ -53,6 +57,7 @@ class Move:
     center: np.ndarray | None = None  # ARC: centre (x, y) in W
     sweep: float = 0.0               # ARC: signed sweep angle, rad (+ = counter-clockwise from +z)
     dwell: float = 0.0               # DWELL: seconds
+    probe: int = 0                   # LINE: 0, or 2 / 3 for a G38.2 / G38.3 probing move
 
 
 @dataclass(frozen=True)
