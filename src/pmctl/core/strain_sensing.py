@@ -191,3 +191,21 @@ def simulate_probe(P, R, machine: Machine, *, start, direction, surface_mm: floa
         return ProbeResult(False, -1, np.full(3, np.nan), start + x * d, max(0.0, x - surface_mm))
     cp, _ = contact_point(np.array(pos), np.array(dep), k_detect, noise_N)
     return ProbeResult(True, k_detect, cp, start + x * d, x - surface_mm)
+
+
+def tip_load_of_joints(strain, q, machine: Machine):
+    """:func:`tip_load` in batch at the poses of joint positions ``q`` (..., 5) (the model's: the
+    commanded joints), gravity taken off; NaN where the forward kinematics fails. (..., 3) N."""
+    from pmctl.core import kinematics as K
+    q = np.asarray(q, float)
+    strain = np.asarray(strain, float)
+    out = np.full(q.shape[:-1] + (3,), np.nan)
+    fin = np.all(np.isfinite(q), -1) & np.all(np.isfinite(strain), -1)
+    if not fin.any():
+        return out
+    pose, ok = K.fk_batch(q[fin], machine)
+    f = np.full((int(fin.sum()), 3), np.nan)
+    if ok.any():
+        f[ok] = tip_load(strain[fin][ok], pose.P[ok], pose.R[ok], machine)
+    out[fin] = f
+    return out

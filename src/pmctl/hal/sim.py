@@ -12,7 +12,13 @@ Per axis (L1, L2, L3, X, Y):
 - **strain gauge** on each plate link: strain = k_eps * tension, tension = the static gravity
   load of the true (load-side) platform pose (pmctl.core.statics, docs/diagnosis-report.md §1) plus the spring
   force k * y of the flexible mode (microstrain, tension positive);
-- **measurement noise**: Gaussian on encoders (mm) and strain (microstrain), seeded RNG.
+- **measurement noise**: Gaussian on encoders (mm) and strain (microstrain), seeded RNG;
+- **contact and applied load** (off by default): a plane z = ``contact_z_mm`` in W that pushes back on
+  the tool tip with ``contact_stiffness_N_per_mm`` times the depth the tip has entered it, and a
+  constant force ``tip_force_N`` (base axes) on the tip. Their sum goes through the statics
+  (pmctl.core.statics, the tip force at the load-side pose) into the three strains, per tick, in
+  Python after the C step (about 0.1-0.3 ms a tick while on). It does not deflect the chains' modes
+  nor stop the tip: a surface stiff against the probing feed, read by the gauges.
 
 The true tool tip is FK(load-side joints) (:meth:`truth` gives them). The per-tick step is C
 (simplant.c, built at install with the compiled NC core, whose FK it uses for the gravity strain). Fault injection for tests:
@@ -52,6 +58,10 @@ class SimOptions:
     estop_from_tick: int = -1           # >= 0: the E-stop input reads pressed from this tick ...
     estop_to_tick: int = -1             # ... until this tick (-1: for ever)
     home_switch_mm: tuple | None = None  # per axis: the home switch closes at motor position >= this
+    # ---- contact and applied load (a surface to probe, a known force at the tool tip)
+    contact_z_mm: float | None = None   # a plane z = this (tool tip in W, mm) resisting the tip below it
+    contact_stiffness_N_per_mm: float = 2000.0
+    tip_force_N: tuple = (0.0, 0.0, 0.0)   # constant force on the tool tip, N, base axes
 
     @classmethod
     def from_dict(cls, d: dict, machine: Machine | None = None, where="sim"):
@@ -97,6 +107,12 @@ class SimOptions:
             home_switch_mm=(t.vector("home_switch_mm", 5, default=[0.0] * 5, lo=-1e4, hi=1e4, scalar_ok=True)
                             if "home_switch_mm" in d else None),
         )
+        # ---- contact and applied load
+        if d.get("contact_z_mm") is not None:
+            o.contact_z_mm = t.number("contact_z_mm", lo=-1e4, hi=1e4)
+        o.contact_stiffness_N_per_mm = t.number("contact_stiffness_N_per_mm", default=base.contact_stiffness_N_per_mm,
+                                                positive=True, hi=1e9)
+        o.tip_force_N = tuple(float(x) for x in t.vector("tip_force_N", 3, default=base.tip_force_N, lo=-1e6, hi=1e6))
         t.finish()
         return o
 
@@ -160,6 +176,9 @@ class SimBackend(Backend):
         self._fb = Feedback()
         self._fb.counts = np.zeros(5, np.int64)
         self._open = False
+        # ---- contact and applied load
+        self._load_on = o.contact_z_mm is not None or any(o.tip_force_N)
+        self._per_N, self._per_N_tick = None, -1
 
     # ---------------------------------------------------------------- Backend API
     def open(self, counts):
@@ -182,6 +201,8 @@ class SimBackend(Backend):
         self._fb.seq = 1
         self._open = True
         self._check(self._plant.sample(self._draw(), 0))
+        if self._load_on:
+            self._add_load()
 
     def read(self):
         if not self._open:
@@ -203,6 +224,8 @@ class SimBackend(Backend):
         self._fb.seq += 1
         if r:
             self._check(r)
+        if self._load_on:
+            self._add_load()
 
     def inputs(self):
         o = self.opt
@@ -221,6 +244,35 @@ class SimBackend(Backend):
 
     def close(self):
         self._open = False
+
+    # ---------------------------------------------------------------- contact and applied load
+    def tip_force(self):
+        """The force on the tool tip this tick (N, base axes): the applied one plus the contact's."""
+        return self._tip_force_now.copy() if self._load_on else np.zeros(3)
+
+    def _add_load(self):
+        """Add the strain of this tick's tip force (contact + applied) at the load-side pose."""
+        from pmctl.core import statics
+        from pmctl.core.kinematics import forward_platform, tool_of_platform
+        o, g = self.opt, self.machine.geometry
+        q = self._q
+        P, R = forward_platform(q[:3], g)
+        f = np.array(o.tip_force_N, float)
+        if o.contact_z_mm is not None:
+            tip_w, _ = tool_of_platform(P, R, q[3:5], g)
+            depth = o.contact_z_mm - float(tip_w[2])
+            if depth > 0.0:
+                f[2] += o.contact_stiffness_N_per_mm * depth
+        self._tip_force_now = f
+        if not f.any():
+            return
+        if self._per_N is None or self.tick - self._per_N_tick >= o.gravity_update_ticks:
+            # strain per N of tip force (3 x 3), refreshed with the gravity strain's period
+            s0 = statics.static_strain(P, R, self.machine)
+            Pb, Rb = np.broadcast_to(P, (3, 3)), np.broadcast_to(R, (3, 3, 3))
+            self._per_N = (statics.static_strain(Pb, Rb, self.machine, tip_force=np.eye(3)) - s0).T
+            self._per_N_tick = self.tick
+        self._fb.strain += self._per_N @ f
 
     # ---------------------------------------------------------------- internals
     def _check(self, r):

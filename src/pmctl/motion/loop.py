@@ -291,6 +291,7 @@ class ControlLoop:
     drains it (default: one that keeps the rows for the LoopResult). ``hook(loop, k, state)`` runs
     at the end of every tick and returns the state (the daemon's command/status exchange).
     ``exit_when_done=False``: run until ``quit`` is set (halts and job ends do not end the loop).
+    ``probe``: a :class:`pmctl.motion.probe.ProbeMonitor` that stops probing moves on contact (per tick).
 
     Attributes ``tick``, ``n_ticks`` and ``mode`` are updated every tick for a progress display
     running in another thread."""
@@ -298,7 +299,7 @@ class ControlLoop:
     def __init__(self, machine: Machine, backend: Backend, params: NCParams, targets: Targets | None,
                  cfg: LoopConfig, state: NCState, *, log=None, writer: CounterWriter | None = None,
                  follower=None, records=None, recorder=None, hook=None, exit_when_done: bool = True,
-                 setup_rt: bool | None = None):
+                 setup_rt: bool | None = None, probe=None):
         from pmctl.motion.recorder import REC_CAPACITY, REC_WIDTH, Recorder
         from pmctl.motion.ring import ArraySource, Ring
         from pmctl.motion.timescale import PathFollower
@@ -317,6 +318,7 @@ class ControlLoop:
         self.records = records if records is not None else Ring(REC_CAPACITY, REC_WIDTH)
         self.recorder = recorder if recorder is not None else Recorder(self.records)
         self.hook = hook
+        self.probe = probe              # pmctl.motion.probe.ProbeMonitor: stop on contact (G38.2/G38.3), or None
         self.exit_when_done = exit_when_done
         self.setup_rt = cfg.realtime if setup_rt is None else bool(setup_rt)   # SCHED_FIFO + mlockall
         self.last_late_ns = self.last_compute_ns = 0
@@ -335,6 +337,7 @@ class ControlLoop:
         fol = self.follower
         rec = self.records
         recorder = self.recorder
+        probe = self.probe
         sent = self.sent
         has_truth = be.truth() is not None
         positions, ppm = be.accepts == "positions", p.pulses_per_mm     # CSP drives take joint targets, mm
@@ -409,6 +412,8 @@ class ControlLoop:
                     fol.scaler.hold = True          # a stop is a feed hold on the path, then a halt
                     stop_from_hold = True
                 tg = fol.next_target()
+                if probe is not None:
+                    probe.tick(fol, tg, fb.strain, k)      # strain as read: the plant at this target
                 # the tick's start: copies (the backend reuses its feedback object)
                 row = st.counts.tolist()
                 row += fb.enc.tolist()

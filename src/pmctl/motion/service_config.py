@@ -74,6 +74,7 @@ class ServiceConfig:
     backend_tables: dict = field(default_factory=dict)    # every [hal.<name>] table (for --backend NAME)
     spindle: object = None      # [spindle]: pmctl.hal.modbus_vfd.VfdOptions, None = no spindle control
     daq: object = None          # [daq]: pmctl.hal.modbus_daq.DaqOptions, None = no strain DAQ
+    probe: object = None        # [probe]: pmctl.motion.probe.ProbeConfig (stop on contact, G38.2/G38.3)
 
     @property
     def backend_options(self) -> dict:
@@ -96,7 +97,7 @@ def load_service_config(path: str | Path | None = None) -> ServiceConfig:
 
 
 def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
-    check_tables(path, data, (), ("loop", "nc", "hal", "spindle", "daq"))
+    check_tables(path, data, (), ("loop", "nc", "hal", "spindle", "daq", "probe"))
     s = Table(path, data.get("loop", {}), "loop")
     d = LoopConfig()
     loop = LoopConfig(
@@ -163,6 +164,8 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
     if "daq" in data:
         from pmctl.hal.modbus_daq import DaqOptions
         daq = DaqOptions.from_dict(data["daq"], f"{path}: daq")
+    from pmctl.motion.probe import ProbeConfig
+    probe = ProbeConfig.from_dict(data.get("probe", {}), path)
     return ServiceConfig(loop, nc, backend, source=str(path), backend_tables=tables,
                          spindle=spindle if spindle is not None and spindle.enabled else None,
-                         daq=daq if daq is not None and daq.enabled else None)
+                         daq=daq if daq is not None and daq.enabled else None, probe=probe)

@@ -149,6 +149,18 @@ class _Progress:
 AXES = ("L1", "L2", "L3", "X", "Y")
 _TRUTH_NOTE = "simulation: FK of the load-side joints (after drive lag and flexible mode)"
 _STRAIN_NOTE = "simulation: gravity strain of the true pose + flexible-mode spring strain + gauge noise"
+LOAD_CHANNELS = ("load_fx", "load_fy", "load_fz")
+LOAD_NOTE = ("estimate: force at the tool tip from the three strains and the statics at the commanded pose, "
+             "the platform's weight taken off (pmctl.core.strain_sensing.tip_load; a moment at the tool is not "
+             "observable, platform inertia reads as load while accelerating)")
+
+
+def load_columns(strain, q_cmd, machine) -> dict:
+    """The load_fx/fy/fz channels of a chunk of records, vectorised (recording sinks of pmctl run and
+    pmctl serve)."""
+    from pmctl.core.strain_sensing import tip_load_of_joints
+    f = tip_load_of_joints(strain, q_cmd, machine)
+    return {c: f[:, i] for i, c in enumerate(LOAD_CHANNELS)}
 
 
 def _held(samples, ticks, value):
@@ -228,9 +240,10 @@ class RunSink:
     of a run is the ring, one chunk and the accumulator."""
 
     def __init__(self, machine, ppm, rate_hz: float, has_truth: bool, job_start: int, expect: int = 0,
-                 spindle=None, daq=None, writer=None):
+                 spindle=None, daq=None, writer=None, load: bool = False):
         import numpy as np
         self.machine, self.ppm, self.rate_hz = machine, np.asarray(ppm, float), float(rate_hz)
+        self.load = bool(load)        # load_fx/fy/fz from the gauges (a backend with strain in its cyclic data)
         self.has_truth = bool(has_truth)
         self.spindle, self.daq, self.writer = spindle, daq, writer
         self.track = TrackingAccumulator(job_start, expect) if has_truth else None
@@ -249,6 +262,10 @@ class RunSink:
             for i in range(3):
                 notes[f"strain_{i + 1}"] = {"source": _STRAIN_NOTE}
         names += [f"strain_{i + 1}" for i in range(3)]
+        if self.load:
+            names += list(LOAD_CHANNELS)
+            for c in LOAD_CHANNELS:
+                notes[c] = {"source": LOAD_NOTE}
         if self.spindle is not None:
             names.append("spindle_rpm")
             notes["spindle_rpm"] = {"source": f"VFD speed register polled every {self.spindle.opt.poll_ms:g} ms "
@@ -295,6 +312,8 @@ class RunSink:
             self.track.add(ticks, e.astype(np.float32), ang.astype(np.float32))
         for i in range(3):
             cols[f"strain_{i + 1}"] = rows[:, R_STRAIN + i]
+        if self.load:
+            cols.update(load_columns(rows[:, R_STRAIN:R_STRAIN + 3], q_cmd, self.machine))
         if self.spindle is not None:
             mon = self.spindle.monitor
             v = _held(mon.samples, ticks, lambda s: s[1]) if mon is not None else None
@@ -420,6 +439,11 @@ def run(args) -> int:
     job = load_job(args.job, machine, start=(st.tip, st.axis))
     for line, text in job.messages:                  # G-code (MSG, ...): for the operator, before it runs
         log(f"message from {Path(args.job).name} line {line}: {text}")
+    probe_segs = []
+    if any(m.probe for m in job.moves):
+        from pmctl.motion.probe import check_probe_job, probe_segments
+        check_probe_job(job, svc.probe, args.job)
+        probe_segs = probe_segments(job, machine, st.tip)
     plan_machine = machine
     notes = []
     if np.any(params.vmax < machine.limits.joint_speed - 1e-9):
@@ -483,7 +507,12 @@ def run(args) -> int:
         from pmctl.motion.recorder import REC_CAPACITY, REC_WIDTH, Recorder
         from pmctl.motion.ring import Ring
         sink = RunSink(machine, params.pulses_per_mm, cfg.rate_hz, backend.truth() is not None,
-                       targets.job_start, len(targets.rows) - targets.job_start, spindle, daq)
+                       targets.job_start, len(targets.rows) - targets.job_start, spindle, daq,
+                       load=strain_in_loop)
+        probe = None
+        if probe_segs:
+            from pmctl.motion.probe import ProbeMonitor
+            probe = ProbeMonitor(machine, probe_segs, svc.probe, dt, params)
         rec_writer = None
         if args.record:
             rec_writer = _open_recording(args, machine, backend, backend_name, cfg, sink, targets.job_start)
@@ -491,7 +520,7 @@ def run(args) -> int:
         try:
             ring = Ring(REC_CAPACITY, REC_WIDTH)
             lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer, records=ring,
-                             recorder=Recorder(ring, keep=False, sink=sink))
+                             recorder=Recorder(ring, keep=False, sink=sink), probe=probe)
         except BaseException:
             if rec_writer is not None:
                 rec_writer._discard()       # nothing ran: nothing is left under any name
@@ -589,6 +618,12 @@ def _run_and_report_1(args, lp, prog, backend, writer, state_file, machine, para
         save_counters(state_file, res.state.counts, machine=machine.name, clean=res.status != "fault",
                       tick=res.ticks)
 
+    probes = [r for r in lp.probe.results] if lp.probe is not None else []
+    probe_err = next((r.error for r in probes if r.error), "")
+    if probe_err and res.status == "done":     # G38.2 without contact: grbl's probe-fail alarm
+        from dataclasses import replace
+        res = replace(res, status="fault", reason=probe_err)
+
     # ---- the recording first (the run's data must not depend on stdout staying open), then the report
     sent_ok = bool(np.all(counts0 + res.pulses_sent == res.state.counts))
     rec_error = lp.recorder.error
@@ -610,6 +645,8 @@ def _run_and_report_1(args, lp, prog, backend, writer, state_file, machine, para
             run_meta["tracking_note"] = track_note
         if dropped:
             run_meta["dropped_rows"] = dropped
+        if probes:
+            run_meta["probe"] = [r.as_dict() for r in probes]
         # a stopped run is a complete recording of what happened: "complete" is about the file;
         # rows the recorder missed (dropped, or a recording error) make it incomplete
         missing = dropped or rec_error or rec.rows != res.ticks
@@ -639,6 +676,15 @@ def _run_and_report_1(args, lp, prog, backend, writer, state_file, machine, para
             f"tool axis RMS {ts['axis_rms_urad']:.2f} urad, max {ts['axis_max_urad']:.2f} urad")
     elif track_note:
         say(f"  tool-tip error: {track_note}")
+    for r in probes:
+        if r.contact:
+            say(f"  probe G38.{r.mode} (line {r.line}): contact at X{r.point[0]:.4f} Y{r.point[1]:.4f} "
+                f"Z{r.point[2]:.4f} mm (tool tip in W); stopped {r.overtravel_mm * 1e3:.1f} um past it, "
+                f"{r.after_trigger_mm * 1e3:.1f} um past the trigger (bound {r.bound_mm * 1e3:.1f} um)")
+        else:
+            say(f"  probe G38.{r.mode} (line {r.line}): no contact; at the target X{r.stop[0]:.4f} "
+                f"Y{r.stop[1]:.4f} Z{r.stop[2]:.4f} mm")
+        say(f"  {r.prb()}")
     if tm:
         say(f"  timing: tick compute median {tm['compute_median_us']:.0f} us, p99 {tm['compute_p99_us']:.0f} us, "
             f"max {tm['compute_max_us']:.0f} us (NC step median {tm['nc_median_us']:.0f} us, "
