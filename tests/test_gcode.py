@@ -352,3 +352,63 @@ def test_job_files_beyond_the_size_bounds_are_refused_before_parsing(tmp_path, m
     monkeypatch.setattr(J, "MAX_JOB_BYTES", 50)
     with pytest.raises(InputError, match="larger than the limit"):
         load_job(p, machine)
+
+
+# ---------------------------------------------------------------- G38.2 / G38.3 probing
+
+@settings(max_examples=60, deadline=None)
+@given(mode=st.sampled_from([2, 3]), target=st.lists(st.floats(-50, 50).map(lambda v: round(v, 3)), min_size=1,
+                                                     max_size=3),
+       axes=st.permutations("XYZ"), feed=st.floats(1, 3000).map(lambda v: round(v, 2)),
+       feed_first=st.booleans(), inch=st.booleans())
+def test_g38_is_a_probing_feed_line_to_its_target(mode, target, axes, feed, feed_first, inch):
+    u = 25.4 if inch else 1.0
+    words = " ".join(f"{a}{v:g}" for a, v in zip(axes, target))
+    if all(abs(v * u - START["XYZ".index(a)]) < 1e-6 for a, v in zip(axes, target)):
+        return                                             # the target is the start: refused (tested below)
+    pre = ("G20" if inch else "G21") + " G90\n" + (f"F{feed:g}\n" if feed_first else "")
+    job = parse(pre + f"G38.{mode} {words}" + ("" if feed_first else f" F{feed:g}") + "\n")
+    (m,) = job.moves
+    expect = np.array(START, float)
+    for a, v in zip(axes, target):
+        expect["XYZ".index(a)] = v * u
+    assert m.kind == LINE and m.probe == mode and m.line == (3 if feed_first else 2)
+    np.testing.assert_allclose(m.tip, expect, atol=1e-9)
+    assert m.feed == pytest.approx(feed * u / 60.0)
+    np.testing.assert_allclose(m.axis, [0, 0, 1], atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(mode=st.sampled_from([2, 3]), pre_lines=st.integers(0, 5), z=st.floats(-50, 50).map(lambda v: round(v, 2)))
+def test_g38_needs_an_axis_word_and_a_feed_and_names_the_line(mode, pre_lines, z):
+    pre = "(comment)\n" * pre_lines
+    e = error_of(pre + f"G38.{mode} F100\n")
+    assert e.path == "t.ngc" and e.line == pre_lines + 1 and "needs an axis word" in e.reason
+    e = error_of(pre + f"G38.{mode} Z{z + 200:g}\n")
+    assert e.line == pre_lines + 1 and "no F" in e.reason
+    assert str(e).startswith(f"t.ngc:{pre_lines + 1}:")
+
+
+@pytest.mark.parametrize("text,words", [
+    ("G38.4 Z1 F10", "G38.4/G38.5"),
+    ("G38.5 Z1 F10", "G38.4/G38.5"),
+    ("G38.2 G1 Z1 F10", "two motion codes"),
+    ("G38.2 Z99 A5 F10", "tool axis must stay put"),
+    ("G38.3 Z100 F10", "target is the current position"),
+    ("G38.2 X5 Y5 I1 J1 F10", "I/J/R words need G2/G3"),
+])
+def test_g38_refusals_are_named(text, words):
+    e = error_of(text)
+    assert e.line == 1 and words in e.reason, e.reason
+
+
+def test_g38_is_modal_and_refused_where_there_is_no_stop_on_contact():
+    job = parse("G38.3 Z90 F60\nZ80\nG1 Z70\n")
+    assert [m.probe for m in job.moves] == [3, 3, 0]
+    from pmctl.task.interp import LineError, LineInterpreter
+    it = LineInterpreter(load_machine(), START, (0.0, 0.0, 1.0))
+    it.st.probe_ok = False                        # as the operator console has it
+    with pytest.raises(LineError) as e:
+        it.execute("G38.2 Z90 F60", 1)
+    assert e.value.code == 20 and "probing is not available here" in str(e.value)
+    assert it.execute("G1 Z90 F60", 2)[0][0].probe == 0      # the failed line changed nothing

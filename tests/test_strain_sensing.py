@@ -96,3 +96,26 @@ def test_no_contact_no_detection_and_bad_threshold():
     assert not r.detected
     with pytest.raises(ValueError):
         SS.detect_contact(np.zeros((5, 3)), 0.0)
+
+
+def test_tip_load_of_joints_batch_with_gravity_and_nan_rows():
+    """The recording sinks' form: joints in, load out, gravity off, NaN where the inputs are NaN."""
+    rng = np.random.default_rng(5)
+    tip, axis = home_pose(M)
+    qs, fs, ss = [], [], []
+    for _ in range(6):
+        q = ik(np.asarray(tip, float) + [rng.uniform(-10, 10), rng.uniform(-10, 10), rng.uniform(-60, -10)],
+               axis, M).q
+        P, R = forward_platform(q[:3], M.geometry)
+        f = rng.uniform(-200, 200, 3)
+        qs.append(q)
+        fs.append(f)
+        ss.append(statics.static_strain(P, R, M, tip_force=f))
+    qs, fs, ss = np.array(qs), np.array(fs), np.array(ss)
+    qs[2] = np.nan
+    ss[4, 1] = np.nan
+    est = SS.tip_load_of_joints(ss, qs, M)
+    bad = np.zeros(6, bool)
+    bad[[2, 4]] = True
+    assert np.all(np.isnan(est[bad]))
+    np.testing.assert_allclose(est[~bad], fs[~bad], atol=1e-6)

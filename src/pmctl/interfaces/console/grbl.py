@@ -51,6 +51,9 @@ class GrblConsole:
         self.jogger = jogger
         tip, axis = sup.pose()
         self.interp = LineInterpreter(sup.machine, tip, axis, journal.data.get("offsets"))
+        # G38.2/G38.3: refused here (error:20) until the daemon's stream stops on contact; they run
+        # in pmctl run (pmctl.motion.probe), and $# reports no probe ([PRB:...:0])
+        self.interp.st.probe_ok = False
         self.settings = {10: int(journal.data.get("settings", {}).get("10", 1))}
         self.lines: queue.Queue = queue.Queue()
         self._wlock = threading.Lock()
