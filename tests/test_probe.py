@@ -199,3 +199,26 @@ def test_recorded_load_equals_a_known_tip_force(tmp_path, flex):
         # the chain modes the pulses excite ring through the gauges (tens of N); on average the
         # estimate is the applied force
         assert np.abs(load.mean(0) - f).max() < 1.0
+
+
+def test_serve_record_has_the_load_estimate_of_a_known_tip_force(tmp_path):
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from grbl_sender import Sender, start_serve, stop_serve
+    f = np.array([-25.0, 40.0, 60.0])
+    svc = _service(tmp_path, "flex = false\nstrain_noise_ue = 0.01\ntip_force_N = [-25.0, 40.0, 60.0]")
+    rec = tmp_path / "serve-rec"
+    p, link = start_serve(tmp_path, record=rec, extra=("--service", str(svc)))
+    s = Sender(link)
+    try:
+        s.reset()
+        assert s.send(f"G1 Z{HOME_Z - 2:.3f} F120") == "ok"        # 1 s of motion
+        s.wait_state(("Run",), 60)
+        assert s.wait_state(("Idle",), 120)["state"] == "Idle"
+    finally:
+        s.close()
+        assert stop_serve(p) == 0
+    r = read_recording(rec)
+    load = np.column_stack([r[c] for c in ("load_fx", "load_fy", "load_fz")])
+    assert r.n > 100 and np.all(np.isfinite(load))
+    assert np.abs(load.mean(0) - f).max() < 0.05 and np.abs(load - f).max() < 0.5
+    assert np.ptp(r["tip_z"]) > 0.9                  # it moved: the estimate follows the pose

@@ -209,3 +209,20 @@ def tip_load_of_joints(strain, q, machine: Machine):
         f[ok] = tip_load(strain[fin][ok], pose.P[ok], pose.R[ok], machine)
     out[fin] = f
     return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The recordings' load channels (pmctl run and pmctl serve --record)
+# ---------------------------------------------------------------------------------------------
+
+LOAD_CHANNELS = ("load_fx", "load_fy", "load_fz")
+LOAD_NOTE = ("estimate: force at the tool tip from the three strains and the statics at the commanded pose, "
+             "the platform's weight taken off (pmctl.core.strain_sensing.tip_load; a moment at the tool is not "
+             "observable, platform inertia reads as load while accelerating)")
+
+
+def load_columns(strain, q_cmd, machine: Machine) -> dict:
+    """The load_fx/fy/fz channels of a chunk of drained records (strain (n, 3) µε, commanded joints
+    (n, 5) mm), vectorised."""
+    f = tip_load_of_joints(strain, q_cmd, machine)
+    return {c: f[:, i] for i, c in enumerate(LOAD_CHANNELS)}

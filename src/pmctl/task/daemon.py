@@ -113,10 +113,16 @@ class Daemon:
         chans = (["t"] + [f"cmd_{a}" for a in names] + [f"enc_{a}" for a in names]
                  + ["tip_x", "tip_y", "tip_z", "tool_i", "tool_j", "tool_k"]
                  + [f"strain_{i}" for i in (1, 2, 3)] + ["line", "sigma"])
+        from pmctl import hal
+        from pmctl.core.strain_sensing import LOAD_CHANNELS, LOAD_NOTE, load_columns
+        load = getattr(hal.backend_class(sup.backend), "strain_in_loop", True)   # gauges in the cyclic data
+        if load:
+            chans += list(LOAD_CHANNELS)
         folder = Path(self.record_dir)
         notes = {f"cmd_{a}": {"source": "pulse counter x resolution at the tick start"} for a in names}
         notes["line"] = {"source": "line of the job or console stream being executed (console lines are counted)"}
         notes["sigma"] = {"source": "feed factor of the time-scaling (1 = as planned)"}
+        notes.update({c: {"source": LOAD_NOTE} for c in (LOAD_CHANNELS if load else ())})
         folder.mkdir(parents=True, exist_ok=True)
         machine_ref = str(self.config)
         if machine_ref.endswith(".toml"):
@@ -143,8 +149,13 @@ class Daemon:
                 ax = np.where(ok[:, None], pose.axis, np.nan)
             else:
                 tip = ax = np.full((len(rows), 3), np.nan)
-            out = np.column_stack([t, rows[:, R_COUNTS:R_COUNTS + 5] / ppm, rows[:, R_ENC:R_ENC + 5], tip, ax,
-                                   rows[:, R_STRAIN:R_STRAIN + 3], rows[:, R_LINE], rows[:, R_SIGMA]])
+            cols = [t, rows[:, R_COUNTS:R_COUNTS + 5] / ppm, rows[:, R_ENC:R_ENC + 5], tip, ax,
+                    rows[:, R_STRAIN:R_STRAIN + 3], rows[:, R_LINE], rows[:, R_SIGMA]]
+            if load:         # batch over the drained rows, at the commanded (model) pose
+                f = load_columns(rows[:, R_STRAIN:R_STRAIN + 3], np.rint(rows[:, R_COUNTS:R_COUNTS + 5]) / ppm,
+                                 sup.machine)
+                cols += [f[c] for c in LOAD_CHANNELS]
+            out = np.column_stack(cols)
             self.rec.append(out)
         sup.record_sink = sink
 

@@ -149,18 +149,6 @@ class _Progress:
 AXES = ("L1", "L2", "L3", "X", "Y")
 _TRUTH_NOTE = "simulation: FK of the load-side joints (after drive lag and flexible mode)"
 _STRAIN_NOTE = "simulation: gravity strain of the true pose + flexible-mode spring strain + gauge noise"
-LOAD_CHANNELS = ("load_fx", "load_fy", "load_fz")
-LOAD_NOTE = ("estimate: force at the tool tip from the three strains and the statics at the commanded pose, "
-             "the platform's weight taken off (pmctl.core.strain_sensing.tip_load; a moment at the tool is not "
-             "observable, platform inertia reads as load while accelerating)")
-
-
-def load_columns(strain, q_cmd, machine) -> dict:
-    """The load_fx/fy/fz channels of a chunk of records, vectorised (recording sinks of pmctl run and
-    pmctl serve)."""
-    from pmctl.core.strain_sensing import tip_load_of_joints
-    f = tip_load_of_joints(strain, q_cmd, machine)
-    return {c: f[:, i] for i, c in enumerate(LOAD_CHANNELS)}
 
 
 def _held(samples, ticks, value):
@@ -263,6 +251,7 @@ class RunSink:
                 notes[f"strain_{i + 1}"] = {"source": _STRAIN_NOTE}
         names += [f"strain_{i + 1}" for i in range(3)]
         if self.load:
+            from pmctl.core.strain_sensing import LOAD_CHANNELS, LOAD_NOTE
             names += list(LOAD_CHANNELS)
             for c in LOAD_CHANNELS:
                 notes[c] = {"source": LOAD_NOTE}
@@ -313,6 +302,7 @@ class RunSink:
         for i in range(3):
             cols[f"strain_{i + 1}"] = rows[:, R_STRAIN + i]
         if self.load:
+            from pmctl.core.strain_sensing import load_columns
             cols.update(load_columns(rows[:, R_STRAIN:R_STRAIN + 3], q_cmd, self.machine))
         if self.spindle is not None:
             mon = self.spindle.monitor
