@@ -119,3 +119,15 @@ def test_tip_load_of_joints_batch_with_gravity_and_nan_rows():
     bad[[2, 4]] = True
     assert np.all(np.isnan(est[bad]))
     np.testing.assert_allclose(est[~bad], fs[~bad], atol=1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(c=st.floats(-3.0, 20.0), slope=st.floats(0.5, 20.0), window=st.integers(1, 12),
+       signs=st.lists(st.sampled_from([-1.0, 1.0]), min_size=3, max_size=3))
+def test_contact_onset_recovers_the_ramp_start_through_the_moving_average(c, slope, window, signs):
+    n = 32
+    k = np.arange(-window + 1, n)
+    raw = np.maximum(0.0, k - c)[:, None] * slope * np.array(signs) * np.array([1.0, 0.6, 0.3])
+    filt = np.stack([np.convolve(raw[:, i], np.ones(window) / window, mode="valid") for i in range(3)], -1)
+    assert filt.shape == (n, 3)
+    assert SS.contact_onset(filt, window) == pytest.approx(c, abs=0.03)

@@ -121,6 +121,32 @@ def contact_point(positions, departure, k_detect: int, noise_N: float, window: i
     return pos[i] * (1.0 - u) + pos[j] * u, kc
 
 
+def contact_onset(filtered, window: int, resolution: float = 0.05) -> float:
+    """Where a force ramp began, from departures seen through a ``window``-tick moving average.
+
+    After contact at (fractional) tick c the raw force of each chain grows as a_i (k - c) (constant
+    speed into a linear surface); its moving average is that ramp convolved with the box, quadratic
+    for ``window`` ticks, then linear. ``filtered`` (n, 3) holds the averaged departures of the last
+    n ticks; the onset c (index into them, may be < 0) and the slopes a_i are fitted by least
+    squares: a coarse search over whole ticks, then a fine one at ``resolution`` around the best.
+    Robust against the ringing a straight-line extrapolation picks up when the ramp is short."""
+    y = np.asarray(filtered, float)
+    n = len(y)
+    j = (np.arange(n)[:, None] - np.arange(window)[None, :]).astype(float)     # raw ticks under each average
+    yy = float((y * y).sum())
+
+    def best(cands):
+        B = np.maximum(0.0, j[None] - cands[:, None, None]).mean(-1)            # (C, n)
+        bb = (B * B).sum(-1)
+        by = B @ y                                                              # (C, 3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            resid = np.where(bb > 0, yy - (by * by).sum(-1) / bb, np.inf)
+        return float(cands[int(np.argmin(resid))])
+
+    c = best(np.arange(-float(window), n - 1.0))
+    return best(np.arange(c - 1.0, c + 1.0 + 1e-9, resolution))
+
+
 def overtravel_bound(speed_mm_s: float, decel_mm_s2: float, dt: float, threshold_N: float,
                      contact_stiffness_N_per_mm: float, debounce: int = 2, latency_ticks: int = 1,
                      noise_N: float = 0.0, noise_sigmas: float = 5.0, share: float = 1.0) -> float:

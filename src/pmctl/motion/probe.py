@@ -14,7 +14,9 @@ loop, pmctl.motion.loop) compares the three plate-link strains the backend repor
   probe deceleration ``decel_mm_s2`` (sigma's rate and jerk raised for the stop only): the stop is
   along the programmed line, never off it. At rest the rest of the move is dropped (the follower's
   queue cleared, the job counted as ended) and the result kept: the contact point, tool tip in W,
-  back-extrapolated to zero force (strain_sensing.contact_point) over the ticks before the detection.
+  where the force ramp began, fitted once at rest through the moving average
+  (strain_sensing.contact_onset) over the ticks up to the detection. The gauges read the plant after
+  the previous tick's pulses: a tick's strain belongs to the previous tick's target.
 
 Overtravel: past the point where the force crossed the threshold, the tool goes at most
 ``(debounce + 5) ticks x feed + feed^2 / (2 decel)`` (the debounce, one tick to act, two of the
@@ -230,6 +232,7 @@ class ProbeMonitor:
         self.k_first = -1
         self.s_first = 0.0
         self.noise_N = 0.0
+        self.s_prev = 0.0
 
     def _finish(self, contact: bool, tip, **kw):
         from pmctl.core import kinematics as K
@@ -263,6 +266,7 @@ class ProbeMonitor:
         sc = fol.scaler
         d, o = self.d, self.o
         s = (tg[0] - o[0]) * d[0] + (tg[1] - o[1]) * d[1] + (tg[2] - o[2]) * d[2]
+        s_prev, self.s_prev = self.s_prev, s
         if state == STOPPING:
             if sc.sigma == 0.0:
                 sc.accel, sc.jerk = self._saved
@@ -271,6 +275,7 @@ class ProbeMonitor:
                 fol.at_end = True
                 if not self._held_before:
                     sc.hold = False
+                self.s_contact = self._onset()
                 p0 = seg.start + self.s_contact * seg.direction
                 self._finish(True, tg, point=p0, tick=self.k_detect, speed_mm_s=self.v_detect,
                              overtravel_mm=float(s - self.s_contact), after_trigger_mm=float(s - self.s_first),
@@ -321,7 +326,7 @@ class ProbeMonitor:
         f1 = -(a1 - t[1]) / g
         f2 = -(a2 - t[2]) / g
         hs, hd = self.hist_s, self.hist_dep
-        hs.append(s)
+        hs.append(s_prev)                 # the gauges lag the target by a tick (the plant after its pulses)
         hd.append((f0, f1, f2))
         if len(hs) > HISTORY:
             del hs[0]
@@ -337,19 +342,10 @@ class ProbeMonitor:
             self._contact(fol, k, s)
 
     def _contact(self, fol, k, s):
-        from pmctl.core.strain_sensing import contact_point
         sc = fol.scaler
         seg = self.seg
         self.k_detect = k
         self.v_detect = sc.sigma * seg.feed
-        # the moving average lags the raw force by (W - 1) / 2 ticks: fit the filtered ramp against
-        # the positions of the ticks it is centred on
-        hs = np.array(self.hist_s)
-        idx = np.arange(len(hs), dtype=float)
-        centre = np.interp(idx - 0.5 * (self.cfg.filter_ticks - 1), idx, hs,
-                           left=hs[0] - 0.5 * (self.cfg.filter_ticks - 1) * (hs[1] - hs[0] if len(hs) > 1 else 0.0))
-        cp, _ = contact_point(centre[:, None], np.array(self.hist_dep), len(hs) - 1, self.noise_N)
-        self.s_contact = float(cp[0])
         # the stop: a feed hold on the path at the probe deceleration
         self._held_before = sc.hold
         self._saved = (sc.accel, sc.jerk)
@@ -358,3 +354,15 @@ class ProbeMonitor:
         sc.jerk = max(sc.jerk, sc.accel / (2.0 * self.dt))
         sc.hold = True
         self.state = STOPPING
+
+    def _onset(self) -> float:
+        """Travel (mm from the move's start) where the contact force began: fitted once at rest
+        (strain_sensing.contact_onset, ~0.1 ms) on the departures up to the detection."""
+        from pmctl.core.strain_sensing import contact_onset
+        hs = np.array(self.hist_s)
+        c = contact_onset(np.array(self.hist_dep), self.cfg.filter_ticks)
+        if len(hs) < 2:
+            return float(hs[-1])
+        if c <= 0.0:
+            return float(hs[0] + c * (hs[1] - hs[0]))
+        return float(np.interp(c, np.arange(len(hs), dtype=float), hs))
