@@ -15,8 +15,14 @@ Ctrl-C, SIGTERM (``systemctl stop``) and SIGHUP all ask for a controlled stop: t
 decelerates along its path, the counters are saved as a clean stop and the recording is written.
 Output to a closed pipe (``pmctl run ... | head``) is dropped; the run goes on and is saved.
 
+A probing move (G38.2/G38.3, the job's last motion) is stopped on contact by the strain monitor
+(pmctl.motion.probe, [probe] in the service config); the contact point is printed as grbl's
+``[PRB:x,y,z,a,b:1]`` and kept in recording.json's run block. Recordings of a backend with gauges in
+its cyclic data carry load_fx/fy/fz (the tool-tip force estimated from the strains, per chunk).
+
 Exit codes: 0 done; 3 controlled stop (soft limit, path error, missed deadlines, stall, Ctrl-C,
-SIGTERM); 4 fault (following error, backend not answering, model pose lost); 1 bad input.
+SIGTERM); 4 fault (following error, backend not answering, model pose lost, G38.2 without contact);
+1 bad input.
 """
 
 from __future__ import annotations
@@ -41,7 +47,8 @@ def add_parser(sub):
                                    "Ctrl-C or SIGTERM stops the machine in a controlled way and saves the run. "
                                    "Exit status: 0 done, 3 controlled stop, 4 fault, 1 bad input.",
                        epilog="The recording format is described in docs/recording.md; the state file and "
-                              "what stops a run in README.md.")
+                              "what stops a run in README.md; probing (G38.2/G38.3, stopped on contact by the "
+                              "strain gauges) and the load_fx/fy/fz channels in docs/vibration.md section 4.")
     p.add_argument("--config", default="prototype", help="machine config (default: config/prototype.toml)")
     p.add_argument("--service", default=None, help="service config (default: config/service.toml)")
     p.add_argument("--backend", default=None, help="HAL backend, e.g. 'sim' (default: [hal] backend of the service config)")
