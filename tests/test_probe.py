@@ -223,3 +223,20 @@ def test_serve_record_has_the_load_estimate_of_a_known_tip_force(tmp_path):
     assert r.n > 100 and np.all(np.isfinite(load))
     assert np.abs(load.mean(0) - f).max() < 0.05 and np.abs(load - f).max() < 0.5
     assert np.ptp(r["tip_z"]) > 0.9                  # it moved: the estimate follows the pose
+
+
+def test_a_probe_started_too_close_is_still_stopped_on_contact():
+    """Contact while the monitor is still taking its reference (20 um in, at F60): the growing force
+    is seen against the running reference (twice the threshold) and the move stops within the bounds."""
+    cfg = ProbeConfig()
+    zc = HOME_Z - 1.0
+    res, mon, be = probe_run(f"G21 G90\nG0 Z{zc + 0.02:.4f}\nG38.2 Z{zc - 1:.4f} F60\n",
+                             {"flex": True, "strain_noise_ue": 0.01, "contact_z_mm": zc,
+                              "contact_stiffness_N_per_mm": KC})
+    (r,) = mon.results
+    assert res.status == "done" and r.contact
+    rest = K.fk(be.truth(), M).tip
+    v = 1.0
+    bound_true = 2 * cfg.threshold_N / (_z_share() * KC) + 0.5 * (cfg.filter_ticks - 1) * v * DT + r.bound_mm
+    assert 0 < zc - rest[2] <= bound_true
+    assert abs(r.point[2] - zc) < 10e-3          # the reference holds some of the contact: less certain

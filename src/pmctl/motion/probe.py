@@ -42,6 +42,7 @@ from pmctl.core.errors import ConfigError
 IDLE, TARE, ARMED, STOPPING = 0, 1, 2, 3
 GRID = 9                        # model points along a probing line
 HISTORY = 32                    # ticks kept for the contact-point fit
+TARE_GUARD = 8                  # reference ticks before a contact during the tare is watched for
 
 
 @dataclass
@@ -299,6 +300,9 @@ class ProbeMonitor:
         old[0], old[1], old[2] = e0, e1, e2
         self.n_ring += 1
         a0, a1, a2 = acc[0] / W, acc[1] / W, acc[2] / W
+        hs, hd = self.hist_s, self.hist_dep
+        g = self.gain
+        thr = self.cfg.threshold_N
         if state == TARE:
             if sc.sigma > 0.0 and sc.dsigma == 0.0 and self.n_ring >= W:     # at feed: a reference tick
                 self.sum[0] += e0
@@ -312,27 +316,24 @@ class ProbeMonitor:
                 fs2[1] += a1 * a1
                 fs2[2] += a2 * a2
                 self.n_tare += 1
-                if self.n_tare >= self.cfg.tare_ticks:
-                    n = self.n_tare
-                    self.tare = [x / n for x in self.sum]
-                    var = [max(0.0, fs2[i] / n - (fs[i] / n) ** 2) for i in range(3)]
-                    self.noise_N = math.sqrt(sum(var) / 3.0) / self.gain
-                    self.state = ARMED
+                n = self.n_tare
+                self._push(hs, hd, s_prev, a0, a1, a2)
+                if n >= self.cfg.tare_ticks:
+                    self._arm()
+                elif n >= TARE_GUARD:
+                    # started too close: a force growing already while taring is a contact too
+                    # (against the running reference; its point is less certain)
+                    t = [x / n for x in self.sum]
+                    if max(abs(a0 - t[0]), abs(a1 - t[1]), abs(a2 - t[2])) / g > 2.0 * thr:
+                        self._arm()
+                        self.run = self.cfg.debounce_ticks
+                        self.k_first, self.s_first = k, s
+                        self._contact(fol, k, s)
             return
         # ARMED: filtered axial-force departures (N, compression positive)
-        g = self.gain
         t = self.tare
-        f0 = -(a0 - t[0]) / g
-        f1 = -(a1 - t[1]) / g
-        f2 = -(a2 - t[2]) / g
-        hs, hd = self.hist_s, self.hist_dep
-        hs.append(s_prev)                 # the gauges lag the target by a tick (the plant after its pulses)
-        hd.append((f0, f1, f2))
-        if len(hs) > HISTORY:
-            del hs[0]
-            del hd[0]
-        thr = self.cfg.threshold_N
-        if abs(f0) > thr or abs(f1) > thr or abs(f2) > thr:
+        self._push(hs, hd, s_prev, a0, a1, a2)    # the gauges lag the target by a tick (the plant after its pulses)
+        if abs(a0 - t[0]) / g > thr or abs(a1 - t[1]) / g > thr or abs(a2 - t[2]) / g > thr:
             if self.run == 0:
                 self.k_first, self.s_first = k, s
             self.run += 1
@@ -340,6 +341,22 @@ class ProbeMonitor:
             self.run = 0
         if self.run >= self.cfg.debounce_ticks:
             self._contact(fol, k, s)
+
+    @staticmethod
+    def _push(hs, hd, s, a0, a1, a2):
+        hs.append(s)
+        hd.append((a0, a1, a2))
+        if len(hs) > HISTORY:
+            del hs[0]
+            del hd[0]
+
+    def _arm(self):
+        n = self.n_tare
+        fs, fs2 = self.fsum, self.fsum2
+        self.tare = [x / n for x in self.sum]
+        var = [max(0.0, fs2[i] / n - (fs[i] / n) ** 2) for i in range(3)]
+        self.noise_N = math.sqrt(sum(var) / 3.0) / self.gain
+        self.state = ARMED
 
     def _contact(self, fol, k, s):
         sc = fol.scaler
@@ -360,7 +377,8 @@ class ProbeMonitor:
         (strain_sensing.contact_onset, ~0.1 ms) on the departures up to the detection."""
         from pmctl.core.strain_sensing import contact_onset
         hs = np.array(self.hist_s)
-        c = contact_onset(np.array(self.hist_dep), self.cfg.filter_ticks)
+        dep = -(np.array(self.hist_dep) - np.array(self.tare)) / self.gain       # N, the averaged departures
+        c = contact_onset(dep, self.cfg.filter_ticks)
         if len(hs) < 2:
             return float(hs[-1])
         if c <= 0.0:
