@@ -122,6 +122,10 @@ def test_pmctl_run_refuses_a_fast_probe_and_motion_after_a_probe():
     fast = parse_gcode("G21 G90\nG38.2 Z150 F200\n", "p.ngc", t, a)
     with pytest.raises(InputError, match=r"p.ngc:2: .*faster than the probing limit"):
         check_probe_job(fast, cfg, "p.ngc")
+    slow = parse_gcode("G21 G90\nG38.2 Z150 F80\n", "p.ngc", t, a)
+    check_probe_job(slow, cfg, "p.ngc")
+    with pytest.raises(InputError, match=r"p.ngc:2: .*feed override x1.5"):
+        check_probe_job(slow, cfg, "p.ngc", 1.5)
     after = parse_gcode("G21 G90\nG38.3 Z150 F50\nG4 P1\nG0 Z160\n", "p.ngc", t, a)
     with pytest.raises(InputError, match=r"p.ngc:4: motion after the probing move of line 2"):
         check_probe_job(after, cfg, "p.ngc")

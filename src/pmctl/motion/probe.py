@@ -148,8 +148,9 @@ def probe_segments(job, machine, start_tip) -> list[ProbeSegment]:
     return out
 
 
-def check_probe_job(job, cfg: ProbeConfig, path):
-    """What ``pmctl run`` can do with a job's probing moves: each at most ``max_feed_mm_min``, and
+def check_probe_job(job, cfg: ProbeConfig, path, feed_factor: float = 1.0):
+    """What ``pmctl run`` can do with a job's probing moves: each at most ``max_feed_mm_min`` (times
+    the run's feed override ``feed_factor``, which the plan applies), and
     the probe the last motion of the job (the job ends at the contact: motion after it would start
     from a position nobody planned). InputError naming the line."""
     from pmctl.core.errors import InputError
@@ -157,8 +158,9 @@ def check_probe_job(job, cfg: ProbeConfig, path):
     for i, m in enumerate(moves):
         if not m.probe:
             continue
-        if m.feed * 60.0 > cfg.max_feed_mm_min * (1 + 1e-9):
-            raise InputError(path, m.line, f"G38.{m.probe} at F{m.feed * 60:g} mm/min is faster than the probing "
+        if m.feed * feed_factor * 60.0 > cfg.max_feed_mm_min * (1 + 1e-9):
+            why = f" with the feed override x{feed_factor:g}" if feed_factor != 1.0 else ""
+            raise InputError(path, m.line, f"G38.{m.probe} at F{m.feed * 60:g} mm/min{why} is faster than the probing "
                                            f"limit probe.max_feed_mm_min = {cfg.max_feed_mm_min:g}")
         after = [n for n in moves[i + 1:] if n.kind != "dwell"]
         if after:

@@ -439,7 +439,7 @@ def run(args) -> int:
     probe_segs = []
     if any(m.probe for m in job.moves):
         from pmctl.motion.probe import check_probe_job, probe_segments
-        check_probe_job(job, svc.probe, args.job)
+        check_probe_job(job, svc.probe, args.job, args.feed_override)
         probe_segs = probe_segments(job, machine, st.tip)
     plan_machine = machine
     notes = []
