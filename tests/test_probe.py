@@ -3,7 +3,6 @@ recordings, on the sim plant: the whole loop, ticks back to back."""
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from pathlib import Path
