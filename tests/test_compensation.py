@@ -1,4 +1,4 @@
-"""Per-axis backlash and screw compensation (pmctl.core.compensation, docs/machine.md §7): the
+"""Per-axis backlash and screw compensation (pmctl.core.compensation, docs/machine.md §6): the
 [compensation] table read strictly, its tick function, the NC applying it in a closed loop against
 a plant with play and pitch error, and the table written from a diagnosis.
 
@@ -24,7 +24,9 @@ from pmctl.motion.loop import ControlLoop, prepare, tracking_stats
 from pmctl.motion.nc import NCParams, counts_of, initial_state
 from pmctl.motion.service_config import LoopConfig
 from pmctl.task.trajectory import Trajectory
+from pmctl.tools.twin import effects as fx
 from pmctl.tools.twin.effects import play_error
+from pmctl.tools.twin.fix import compensation_from_findings, write_compensation
 
 M = load_machine()
 PROTO = M.source
@@ -221,16 +223,26 @@ PLANT = dict(backlash=[0.02, 0.015, 0.025, 0.02, 0.01], amp=[0.006, 0.004, 0.005
              period=5.0, phase=[0.3, 1.2, 2.0, -0.7, 2.8])
 
 
+def findings_of(plant):
+    """The diagnosis' accepted findings (as pmctl.tools.twin.diagnose returns them) that name the
+    plant's play and pitch error exactly, in the twin's conventions (effects.Backlash, PitchError)."""
+    acc = []
+    for a, name in enumerate(("L1", "L2", "L3", "X", "Y")):
+        if plant["backlash"][a]:
+            acc.append({"cand": fx.Backlash(name), "fit": fx.Fit({"width_mm": plant["backlash"][a]}, None, 1)})
+        if plant["amp"][a]:
+            acc.append({"cand": fx.PitchError(name),
+                        "fit": fx.Fit({"period_mm": plant["period"], "amplitude_mm": abs(plant["amp"][a])}, None, 3,
+                                      internal={"phase_rad": plant["phase"][a] + (math.pi if plant["amp"][a] < 0
+                                                                                   else 0.0)})})
+    return acc
+
+
 def plant_table(machine, plant) -> Compensation:
-    """The exact table of the plant: its play as backlash, its pitch sampled at lead/16."""
-    axes = []
-    for a in range(5):
-        lo, hi = machine.limits.joint_lower[a] - 5, machine.limits.joint_upper[a] + 5
-        x = np.arange(lo, hi + 1e-9, 5.0 / 16)
-        e = np.broadcast_to(plant["amp"], (5,))[a] * np.sin(2 * np.pi * x / plant["period"]
-                                                             + np.broadcast_to(plant["phase"], (5,))[a])
-        axes.append(AxisComp(float(plant["backlash"][a]), 50.0, tuple(x), tuple(e), tuple(e)))
-    return Compensation(tuple(axes))
+    """The table `pmctl twin diagnose --write-compensation` writes for findings that match the plant
+    exactly (pmctl.tools.twin.fix)."""
+    comp, notes = compensation_from_findings(machine, findings_of(plant))
+    return comp
 
 
 def there_and_back(dt, feed=15.0):
@@ -286,9 +298,44 @@ def test_the_table_of_another_plant_does_not_help():
     """A table with the wrong sign (a compensation that doubles the error) makes the tip worse: the
     correction acts in the direction the convention says."""
     bad = plant_table(M, dict(PLANT, backlash=[0.0] * 5, amp=[-a for a in PLANT["amp"]]))
+    assert bad.axes[0].backlash_mm == 0.0
     off, _, _ = run_on_plant(M, "compiled")
     worse, _, _ = run_on_plant(replace(M, compensation=bad), "compiled")
     assert worse["tip_rms_um"] > off["tip_rms_um"]
+
+
+# ---------------------------------------------------------------- the writer
+
+
+def test_the_writer_turns_findings_into_a_table_that_reads_back(tmp_path):
+    """Backlash -> backlash_mm; a pitch error A sin(2 pi x / p + phi) -> a screw table over the
+    axis' travel that reproduces it within the linear interpolation's error (lead/16 spacing:
+    < 2 % of A); geometry and other effects are named and left out; an existing table is added to."""
+    plant = dict(backlash=[0.0, 0.0, 0.02, 0.0, 0.0], amp=[0.0, 0.0, 0.0, 0.007, 0.0], period=5.0,
+                 phase=[0.0, 0.0, 0.0, 1.09, 0.0])
+    acc = findings_of(plant) + [
+        {"cand": fx.ServoLag("Y"), "fit": fx.Fit({"tau_s": 0.002}, None, 1)}]
+    geo = type("Geo", (), {"effect": "geometry", "target": "L2", "target_key": "axis"})()
+    acc.append({"cand": geo, "fit": fx.Fit({}, None, 1)})
+    comp, notes = compensation_from_findings(M, acc)
+    assert comp.axes[2].backlash_mm == 0.02 and comp.axes[2].positions_mm == ()
+    x = np.linspace(M.limits.table_x[0], M.limits.table_x[1], 997)
+    want = 0.007 * np.sin(2 * np.pi * x / 5.0 + 1.09)
+    for d in (1.0, -1.0, 0.0):
+        assert np.max(np.abs(comp.screw_error(3, x, d) - want)) < 0.02 * 0.007
+    assert any("pmctl calibrate from-twin" in n for n in notes)
+    assert any("servo_lag" in n and "not written" in n for n in notes)
+    path = tmp_path / "out" / "comp.toml"
+    text = write_compensation(path, comp, recording="rec", machine_source="m.toml", notes=notes)
+    assert 'file = "comp.toml"' in text
+    back = read_compensation_file(path)
+    assert back.axes[2] == comp.axes[2] and back.axes[3] == comp.axes[3]
+    # a second diagnosis (of a compensated run) adds what is left
+    more, _ = compensation_from_findings(M, findings_of(dict(plant, backlash=[0, 0, 0.003, 0, 0.004],
+                                                             amp=[0.0, 0.0, 0.0, 0.001, 0.0])), back)
+    assert more.axes[2].backlash_mm == pytest.approx(0.023) and more.axes[4].backlash_mm == 0.004
+    assert np.max(np.abs(more.screw_error(3, x) - want * 8 / 7)) < 0.02 * 0.008
+    assert compensation_from_findings(M, acc[-2:])[0] is None          # nothing compensable
 
 
 # ---------------------------------------------------------------- end to end through the sim's own effects
@@ -313,15 +360,15 @@ def test_run_diagnose_write_table_rerun_removes_the_mismatch(tmp_path):
                    "pitch_error_period_mm = 5.0\npitch_error_phase_rad = [0.3, 1.2, 2.0, -0.7, 2.8]\n",
                    encoding="utf-8")
     job = tmp_path / "job.ngc"
-    job.write_text("G21 G90\nG0 X-12 Y-8 Z3\nG1 F900 X12 Y9 Z7\nX-6 Y10 Z1\nX10 Y-9 Z6\nX-12 Y-8 Z3\n"
-                   "X12 Y9 Z7\nX-6 Y10 Z1\nX10 Y-9 Z6\nX-12 Y-8 Z3\nM2\n", encoding="utf-8")
+    job.write_text("G21 G90 G17\nG0 X-12 Y-8 Z60\nG1 F900 X12 Y9 Z62\nX-6 Y10 Z57\nX10 Y-9 Z61\nX-12 Y-8 Z60\n"
+                   "X12 Y9 Z62\nX-6 Y10 Z57\nX10 Y-9 Z61\nX-12 Y-8 Z60\nM2\n", encoding="utf-8")
     machine = tmp_path / "machine.toml"
     shutil.copy(PROTO, machine)
 
     def run_and_diagnose(tag, extra=()):
         rec = tmp_path / f"rec-{tag}"
-        assert main(["run", str(job), "--config", str(machine), "--service", str(svc), "--record", str(rec),
-                     "--state", str(tmp_path / f"state-{tag}.json")]) == 0
+        assert main(["run", "--job", str(job), "--config", str(machine), "--service", str(svc), "--record",
+                     str(rec), "--state", "", "--no-realtime", "--quiet"]) == 0
         rep = tmp_path / f"diag-{tag}.json"
         assert main(["twin", "diagnose", str(rec), "--json", str(rep), "--no-progress", *extra]) == 0
         return json.loads((rec / "recording.json").read_text()), json.loads(rep.read_text())

@@ -1,4 +1,4 @@
-"""Per-axis backlash and screw compensation (docs/machine.md §7): the table, its strict reading,
+"""Per-axis backlash and screw compensation (docs/machine.md §6): the table, its strict reading,
 and its per-tick evaluation.
 
 The NC's model joints are q = counts x resolution + c, where the compensation c of an axis is

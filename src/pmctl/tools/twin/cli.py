@@ -23,7 +23,7 @@ def add_diagnose_parser(sub):
     p.add_argument("--write-compensation", metavar="FILE",
                    help="write the backlash and screw compensation table of the accepted per-axis findings "
                         "(backlash, pitch and periodic errors) to FILE, for the machine config's [compensation] "
-                        "(docs/machine.md §7); geometry findings go to 'pmctl calibrate from-twin'")
+                        "(docs/machine.md §6); geometry findings go to 'pmctl calibrate from-twin'")
     p.set_defaults(func=lazy("pmctl.tools.twin.diagnose:_run"))
     return p
 

@@ -1,5 +1,5 @@
 """From diagnosis to fix: the compensation table of the per-axis findings
-(``pmctl twin diagnose REC --write-compensation FILE``, docs/diagnosis-report.md §6).
+(``pmctl twin diagnose REC --write-compensation FILE``, docs/diagnosis-report.md, "From diagnosis to fix").
 
 Only findings the diagnosis accepted (they passed their own checks) are used:
 
@@ -94,7 +94,7 @@ def write_compensation(path, comp: Compensation, *, recording: str, machine_sour
     head = (f"Backlash and screw compensation from `pmctl twin diagnose {recording}`\n"
             f"(machine config {machine_source}). Use it with the machine config's\n"
             f"  [compensation]\n  file = \"{Path(path).name}\"\n"
-            f"or paste the tables below into it (docs/machine.md §7).\n"
+            f"or paste the tables below into it (docs/machine.md §6).\n"
             + "\n".join(notes))
     text = comp.to_toml(head)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
