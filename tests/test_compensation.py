@@ -182,6 +182,28 @@ def test_replay_of_a_recorded_motion_matches_the_play_operator():
     assert compensated_columns(cols, None) is cols
 
 
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), b=st.sampled_from([0.0, 0.004, 0.05]), rate=st.floats(0.5, 30.0),
+       points=st.sampled_from([0, 2, 9]))
+def test_replay_is_the_tick_function_in_closed_form(seed, b, rate, points):
+    """replay (vectorised) = comp_tick run sample by sample with the position increments as rates,
+    on a motion with stops, reversals, uneven sampling and the table ends crossed."""
+    rng = np.random.default_rng(seed)
+    n = 600
+    t = np.cumsum(rng.uniform(5e-4, 2e-3, n))
+    v = np.repeat(rng.choice([-1.0, 0.0, 1.0], 30) * rng.uniform(0.5, 20.0, 30), n // 30)
+    x = np.cumsum(v * np.diff(t, prepend=t[0]))[:, None] + np.zeros((1, 5))
+    pos = tuple(np.sort(rng.uniform(-5, 5, points)).tolist())
+    f = tuple(rng.uniform(-0.01, 0.01, points).tolist())
+    comp = Compensation(tuple(AxisComp(b, rate, pos, f, tuple(-np.array(f))) for _ in range(5)))
+    d, bl, ref = [0.0] * 5, [0.0] * 5, []
+    for k in range(n):
+        c, d, bl = comp_tick(comp, x[k].tolist(), (x[k] - x[k - 1] if k else np.zeros(5)).tolist(), d, bl,
+                             float(t[k] - t[k - 1]) if k else 0.0)
+        ref.append(c)
+    assert np.allclose(replay(comp, t, x), np.array(ref), atol=1e-12, rtol=0)
+
+
 # ---------------------------------------------------------------- the closed loop against play and pitch
 
 

@@ -28,6 +28,7 @@ layout of :meth:`Compensation.flat`. Pure math; no I/O except :func:`read_compen
 
 from __future__ import annotations
 
+import math
 import re
 from bisect import bisect_right
 from dataclasses import dataclass
@@ -165,20 +166,35 @@ def comp_tick(comp: Compensation, x, qdot_prev, d, b, dt):
 
 def replay(comp: Compensation, t, x) -> np.ndarray:
     """The compensation the NC applied along a recorded motion: x (n, 5) commanded (motor-side)
-    positions at times t (n,). The direction comes from the position increments (the NC uses the
-    commanded rate, of the same sign); the backlash term is rate-limited over each interval."""
+    positions at times t (n,). :func:`comp_tick` in closed form, vectorised (10^7 rows in seconds):
+    the direction is the sign of the last nonzero position increment (the NC uses the commanded
+    rate, of the same sign), the backlash term moves toward its side at its rate over the time
+    elapsed since the previous sample of the other direction, the screw table is interpolated."""
     x = np.asarray(x, float)
     t = np.asarray(t, float)
+    n = len(x)
     out = np.zeros_like(x)
-    d, b = [0.0] * 5, [0.0] * 5
-    prev = x[0].tolist() if len(x) else [0.0] * 5
-    for k in range(len(x)):
-        xk = x[k].tolist()
-        rate = [xk[i] - prev[i] for i in range(5)]
-        dt = float(t[k] - t[k - 1]) if k else 0.0
-        c, d, b = comp_tick(comp, xk, rate, d, b, dt)
-        out[k] = c
-        prev = xk
+    if n == 0:
+        return out
+    ar = np.arange(n)
+    for i, a in enumerate(comp.axes):
+        s = np.sign(np.diff(x[:, i], prepend=x[0, i]))
+        last = np.maximum.accumulate(np.where(s != 0, ar, -1))
+        d = np.where(last >= 0, s[np.maximum(last, 0)], 0.0)
+        if a.backlash_mm:
+            tgt = -0.5 * a.backlash_mm * d
+            starts = np.flatnonzero(np.diff(d, prepend=d[0] - 1.0) != 0)     # first row of each run of d
+            ends = np.append(starts[1:], n)
+            b_prev, t_prev = 0.0, t[0]
+            for s0, e in zip(starts, ends):
+                gap = b_prev - tgt[s0]
+                left = np.maximum(abs(gap) - a.backlash_rate_mm_s * (t[s0:e] - t_prev), 0.0)
+                out[s0:e, i] = tgt[s0] + math.copysign(1.0, gap) * left
+                b_prev, t_prev = out[e - 1, i], t[e - 1]
+        if a.positions_mm:
+            f = np.interp(x[:, i], a.positions_mm, a.forward_mm)
+            r = np.interp(x[:, i], a.positions_mm, a.reverse_mm)
+            out[:, i] += np.where(d > 0, f, np.where(d < 0, r, 0.5 * (f + r)))
     return out
 
 
