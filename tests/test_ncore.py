@@ -212,8 +212,11 @@ def test_compiled_and_python_same_pulses_with_compensation(rate, multi, seed, ba
         assert np.any(sp.comp_bl != 0.0)          # the backlash term is in play
 
 
+@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(amp=st.lists(st.floats(1.0, 12.0), min_size=5, max_size=5),
+       phase=st.lists(st.floats(0, 6.3), min_size=5, max_size=5), flex=st.booleans())
 @pytest.mark.parametrize("impl", ["python", "compiled"])
-def test_zero_compensation_is_todays_nc_bit_for_bit(impl):
+def test_zero_compensation_is_todays_nc_bit_for_bit(impl, amp, phase, flex):
     """An all-zero table (backlash 0, screw errors 0) goes through the compensation code and
     changes nothing: the same pulses and the same model pose to the last bit as no table."""
     dt = 1e-3
@@ -223,10 +226,9 @@ def test_zero_compensation_is_todays_nc_bit_for_bit(impl):
     runs = []
     for comp in (None, zero):
         params = NCParams.from_machine(M, dt, kv=400.0, compensation=comp)
-        rows, q = joint_path(M, params, dt, 1.0, np.array([8.0, 6.0, 4.0, 10.0, 10.0]), 1.0,
-                             np.array([0.0, 1.0, 2.0, 3.0, 4.0]), np.zeros(5))
+        rows, q = joint_path(M, params, dt, 1.0, np.array(amp), 1.0, np.array(phase), np.zeros(5))
         nc = make_nc(M, params, impl)
-        sim = hal.create("sim", M, dt, {"flex": True, "seed": 1})
+        sim = hal.create("sim", M, dt, {"flex": flex, "seed": 1})
         c0 = counts_of(q[0], params)
         sim.open(c0)
         st = nc.load(initial_state(M, c0))
@@ -236,7 +238,7 @@ def test_zero_compensation_is_todays_nc_bit_for_bit(impl):
             out.append((p.copy(), st.snapshot().P.copy(), st.snapshot().tip.copy()))
             sim.write_pulses(p.copy())
         runs.append(out)
-    assert sum(int(np.abs(p).sum()) for p, _, _ in runs[0]) > 10_000
+    assert sum(int(np.abs(p).sum()) for p, _, _ in runs[0]) > 2_000
     for k, (a, b) in enumerate(zip(*runs)):
         assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2]), k
 
