@@ -16,6 +16,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from pmctl import hal
 from pmctl.core import kinematics as K
+from pmctl.core.compensation import AxisComp, Compensation
 from pmctl.core.config import load_machine
 from pmctl.core.errors import ConfigError, KinematicsError
 from pmctl.hal.base import Feedback
@@ -26,6 +27,7 @@ from pmctl.motion.service_config import NCConfig, service_from_dict
 
 M = load_machine()
 STATE_FIELDS = ("acc", "qdot", "P", "R", "tip", "axis", "path_error", "q_model", "T")
+COMP_FIELDS = ("comp_dir", "comp_bl", "comp")
 
 
 def perturbed(seed: int, size: float):
@@ -78,6 +80,13 @@ def assert_same_state(a, b, tick):
             continue
         d = float(np.max(np.abs(np.asarray(x, float) - np.asarray(y, float))))
         assert d <= 1e-9, f"tick {tick}: {f} differs by {d:g}"
+    for f in COMP_FIELDS:      # the compensation state: None (none yet) reads as zeros in the core
+        x, y = getattr(a, f), getattr(b, f)
+        if x is None and y is None:
+            continue
+        x = np.zeros(5) if x is None else x
+        y = np.zeros(5) if y is None else y
+        assert np.array_equal(x, y), f"tick {tick}: {f} {x} vs {y}"
 
 
 def closed_loop(machine, params, rows, q0, sim_opt, *, every=1, inject=None):
@@ -154,6 +163,94 @@ def test_long_run_20000_ticks_same_pulses_and_state():
                                        every=50)
     assert ticks > 20000 and sp.mode == RUN
     assert np.all(moved > 100_000)          # every axis travelled over 50 mm
+
+
+# ---------------------------------------------------------------- compensation (pmctl.core.compensation)
+
+
+def random_compensation(seed, backlash, pitch, points, home):
+    """Backlash per axis, a screw table of ``points`` irregular positions around ``home`` (the path
+    crosses its ends too) with different forward and reverse errors, random take-up rates."""
+    rng = np.random.default_rng(seed)
+    axes = []
+    for a in range(5):
+        if points:
+            pos = np.sort(home[a] + rng.uniform(-12.0, 12.0, points))
+            pos = np.unique(pos)
+            fwd = pitch * np.sin(2 * np.pi * pos / 5.0 + rng.uniform(0, 6.3)) + rng.uniform(-1, 1, len(pos)) * 1e-3
+            rev = fwd + rng.uniform(-1, 1, len(pos)) * pitch
+            tab = (tuple(pos.tolist()), tuple(fwd.tolist()), tuple(rev.tolist()))
+        else:
+            tab = ((), (), ())
+        axes.append(AxisComp(float(backlash * rng.uniform(0.2, 1.0)), float(rng.uniform(0.5, 20.0)), *tab))
+    return Compensation(tuple(axes))
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(rate=st.sampled_from([500.0, 1000.0, 2000.0]), multi=st.booleans(),
+       seed=st.integers(0, 10_000), backlash=st.sampled_from([0.0, 0.005, 0.05]),
+       pitch=st.sampled_from([0.0, 0.003, 0.02]), points=st.sampled_from([0, 2, 7, 60]),
+       amp=st.lists(st.floats(0.0, 15.0), min_size=5, max_size=5),
+       freq=st.floats(0.3, 2.0), phase=st.lists(st.floats(0, 6.3), min_size=5, max_size=5),
+       k_theta=st.sampled_from([0.0, 100.0]), geom_size=st.sampled_from([0.0, 1.0]))
+def test_compiled_and_python_same_pulses_with_compensation(rate, multi, seed, backlash, pitch, points, amp,
+                                                           freq, phase, k_theta, geom_size):
+    """Backlash and screw tables (both directions, irregular positions, the path crossing the
+    table ends, reversals on every axis): the two NCs send the same pulses and hold the same
+    compensation state, tick for tick."""
+    machine = perturbed(seed, geom_size)
+    dt = 1.0 / rate
+    home = np.array([machine.geometry.z_home] * 3 + [0.0, 0.0])
+    comp = random_compensation(seed, backlash, pitch, points, home)
+    params = NCParams.from_machine(machine, dt, kv=min(400.0, 0.4 / dt), k_theta=k_theta,
+                                   max_pulses_per_tick=None if multi else 1, compensation=comp)
+    rows, q = joint_path(machine, params, dt, 0.8, np.array(amp), freq, np.array(phase), np.zeros(5))
+    ticks, sp, sc, moved = closed_loop(machine, params, rows, q[0], {"seed": seed}, every=5)
+    assert sp.mode == RUN, sp.reason
+    assert sp.comp is not None and np.array_equal(sp.comp, sc.comp)
+    if backlash and np.any(moved[np.array(amp) > 1.0] > 0):
+        assert np.any(sp.comp_bl != 0.0)          # the backlash term is in play
+
+
+@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(amp=st.lists(st.floats(1.0, 12.0), min_size=5, max_size=5),
+       phase=st.lists(st.floats(0, 6.3), min_size=5, max_size=5), flex=st.booleans())
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+def test_zero_compensation_is_todays_nc_bit_for_bit(impl, amp, phase, flex):
+    """An all-zero table (backlash 0, screw errors 0) goes through the compensation code and
+    changes nothing: the same pulses and the same model pose to the last bit as no table."""
+    dt = 1e-3
+    home = np.array([M.geometry.z_home] * 3 + [0.0, 0.0])
+    zero = Compensation(tuple(AxisComp(0.0, 3.0, (h - 30.0, h, h + 30.0), (0.0,) * 3, (0.0,) * 3)
+                              for h in home))
+    runs = []
+    for comp in (None, zero):
+        params = NCParams.from_machine(M, dt, kv=400.0, compensation=comp)
+        rows, q = joint_path(M, params, dt, 1.0, np.array(amp), 1.0, np.array(phase), np.zeros(5))
+        nc = make_nc(M, params, impl)
+        sim = hal.create("sim", M, dt, {"flex": flex, "seed": 1})
+        c0 = counts_of(q[0], params)
+        sim.open(c0)
+        st = nc.load(initial_state(M, c0))
+        out = []
+        for k in range(len(rows)):
+            p, st = nc.step(st, rows[k], sim.read())
+            out.append((p.copy(), st.snapshot().P.copy(), st.snapshot().tip.copy()))
+            sim.write_pulses(p.copy())
+        runs.append(out)
+    assert sum(int(np.abs(p).sum()) for p, _, _ in runs[0]) > 2_000
+    for k, (a, b) in enumerate(zip(*runs)):
+        assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2]), k
+
+
+def test_core_rejects_a_bad_compensation_layout():
+    params = NCParams.from_machine(M, 1e-3)
+    c = ncore.constants(M, params)
+    good = Compensation(tuple(AxisComp(0.01, 5.0, (0.0, 1.0), (0.0, 0.001), (0.0, 0.001)) for _ in range(5))).flat()
+    ncore._ncore.Core(c, np.zeros(ncore.S_LEN), np.zeros(ncore.N_LEN, np.int64), good)
+    for bad in (good[:-1], np.where(np.arange(len(good)) == 20, 2.0, good), good[:10]):
+        with pytest.raises(ValueError, match="comp"):
+            ncore._ncore.Core(c, np.zeros(ncore.S_LEN), np.zeros(ncore.N_LEN, np.int64), bad)
 
 
 # ---------------------------------------------------------------- supervision: same mode, same reason

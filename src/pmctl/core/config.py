@@ -123,6 +123,7 @@ class Machine:
     strain_gain: float     # microstrain per N of chain tension
     stiffness: Stiffness
     extra: dict = field(default_factory=dict)   # kept for compatibility: unknown tables are refused now
+    compensation: object = None    # [compensation]: pmctl.core.compensation.Compensation, None = none
 
 
 
@@ -169,7 +170,7 @@ def load_machine(path: str | Path | None = None) -> Machine:
 
 
 TABLES = ("machine", "geometry", "limits", "resolution", "mass", "sensors")
-OPTIONAL_TABLES = ("stiffness",)
+OPTIONAL_TABLES = ("stiffness", "compensation")
 
 
 def machine_from_dict(data: dict, path="<dict>") -> Machine:
@@ -219,4 +220,9 @@ def machine_from_dict(data: dict, path="<dict>") -> Machine:
                       s.number("chain_lateral_N_per_mm", positive=True, hi=1e10, default=2000.0))
     s.finish()
 
-    return Machine(name, desc, str(path), geom, limits, res, mass, gain, stiff, {})
+    comp = None
+    if "compensation" in data:
+        from pmctl.core.compensation import parse_compensation
+        comp = parse_compensation(path, data["compensation"])
+
+    return Machine(name, desc, str(path), geom, limits, res, mass, gain, stiff, {}, comp)

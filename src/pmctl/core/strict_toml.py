@@ -243,6 +243,26 @@ class Table:
                 raise self.error(key, f"every value must be {_range_text(lo, hi, lo_open, False)}, got {x:g}")
         return arr
 
+    def number_list(self, key, *, default=None, min_len=0, max_len=None, lo=None, hi=None):
+        """A list of finite numbers (any length in [min_len, max_len]) within [lo, hi], as a tuple
+        of floats; ``default`` when absent."""
+        present, v = self._get(key, default, False)
+        if not present:
+            return default
+        if not isinstance(v, list):
+            raise self.error(key, f"must be a list of numbers, got {_kind(v)}")
+        if len(v) < min_len or (max_len is not None and len(v) > max_len):
+            raise self.error(key, f"must hold {min_len} to {max_len} numbers, got {len(v)}")
+        out = []
+        for i, x in enumerate(v):
+            r = _real(x)
+            if r is None:
+                raise self.error(key, f"item {i} must be a number, got {_kind(x)}")
+            if not math.isfinite(r) or not self._check_real(r, lo, hi, False, False):
+                raise self.error(key, f"item {i} must be {_range_text(lo, hi, False, False)}, got {r:g}")
+            out.append(r)
+        return tuple(out)
+
     def matrix3(self, key, default, *, bound=None) -> np.ndarray:
         """3 rows of 3 finite numbers (|x| <= bound)."""
         self.asked.add(key)

@@ -10,6 +10,10 @@ Each tick:
      (LinuxCNC FERROR scaled with speed, floor MIN_FERROR) and path error stop motion with a reason;
   6. V-F converters (pmctl.core.vf.vf_tick, the per-tick form of vf_step) -> signed pulses per axis; pulse counters += pulses.
 
+With a compensation (``NCParams.compensation``, the machine config's [compensation]), the joints of
+step 1 (and of the soft limits) are counts x resolution + the per-axis backlash and screw
+correction (pmctl.core.compensation.comp_tick); the following error stays on the motor side.
+
 Units: mm, s, rad. Joint rates in mm/s; V-F input in pulses/s, threshold one pulse.
 
 Gains, in the seed's terms (eq. 3.1): the seed's V-F input is u = K_G(theta0 - theta_m) - K_theta
@@ -37,6 +41,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.linalg import lapack
 
+from pmctl.core.compensation import comp_tick
 from pmctl.core.config import Machine
 from pmctl.core.errors import KinematicsError
 from pmctl.core.kinematics import FK_MAX_ITER, FK_TOL_MM
@@ -335,6 +340,9 @@ class NCParams:
     max_path_error_mm: float = 0.5     # model tool pose vs target (tip mm; axis weighted)
     static_strain_comp: bool = True    # subtract the model pose's gravity strain from the gauges
     implementation: str = "compiled"   # the loop's NC: "compiled" (C core, pmctl.motion.ncore) or "python" (nc_step)
+    # per-axis backlash and screw compensation (pmctl.core.compensation; None = none): the model
+    # joints are counts x resolution + its correction
+    compensation: object = field(default=None, compare=False)
 
     def __post_init__(self):
         # Arrays are frozen too (use dataclasses.replace to change a limit), so the plain-float
@@ -366,6 +374,7 @@ class NCParams:
         kth = np.broadcast_to(np.asarray(k_theta, float), (3,)).copy()
         dpu = np.broadcast_to(1.0 / (machine.strain_gain * np.asarray(k, float)), (3,)).copy()
         kw.setdefault("orient_weight_mm", machine.geometry.tool_length)
+        kw.setdefault("compensation", getattr(machine, "compensation", None))
         return cls(dt=dt, pulses_per_mm=ppm, vmax=vmax, amax=lim.joint_accel, lower=lim.joint_lower,
                    upper=lim.joint_upper, theta2_max_rad=math.radians(max(abs(x) for x in lim.theta2_deg)),
                    k_theta=kth, deflection_per_ue=dpu, max_pulses_per_tick=max_pulses_per_tick, **kw)
@@ -385,6 +394,10 @@ class NCState:
     path_error: float = 0.0   # |e| of the last tick, mm (weighted)
     q_model: np.ndarray | None = None   # joints of the model pose (P, R)
     T: np.ndarray | None = None         # (6, 3) platform twist per unit chain-length change at (P, R)
+    # compensation (pmctl.core.compensation.comp_tick; None before the first compensated tick):
+    comp_dir: np.ndarray | None = None  # (5,) direction per axis (+1, -1, 0 before the first move)
+    comp_bl: np.ndarray | None = None   # (5,) backlash term, mm
+    comp: np.ndarray | None = None      # (5,) correction of the last tick, mm (model joint - motor)
 
     # Mode changes from outside the step (the loop's stop request, a backend fault, the end of the
     # job). The compiled core's state handle (pmctl.motion.ncore.CompiledState) has the same four
@@ -527,12 +540,20 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
     fe = _ferror_violation(ql, enc, prev, params)
     if fe:
         return zero, replace(state, qdot=np.zeros(5), acc=np.zeros(5), mode=HALTED, reason=fe)
+    comp = params.compensation
+    if comp is not None:      # model joints = motor side + correction (pmctl.core.compensation)
+        cd = _ZERO5 if state.comp_dir is None else state.comp_dir.tolist()
+        cb = _ZERO5 if state.comp_bl is None else state.comp_bl.tolist()
+        cc, cd, cb = comp_tick(comp, ql, prev, cd, cb, params.dt)
+        qj = [ql[i] + cc[i] for i in range(5)]
+    else:
+        qj = ql
     mode, reason = state.mode, state.reason
     P, R, tip, axis, perr = state.P, state.R, state.tip, state.axis, state.path_error
     qdot_des = _ZERO5
     if mode == RUN:
         try:
-            qa = np.array(ql)
+            qa = np.array(qj)
             pred = None if state.q_model is None else ((qa - state.q_model)[:3], state.T)
             P, R, tip, axis, J = model.solve_l(qa, P, R, pred)
             Tm, qm = model.last_T, qa
@@ -570,7 +591,7 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
     qdot = _limit_rates_l(qdot_des, prev, L)
     if mode == RUN:
         dt = params.dt
-        why = _stopping_violation([ql[i] + qdot[i] * dt for i in range(5)], qdot, L, dt)
+        why = _stopping_violation([qj[i] + qdot[i] * dt for i in range(5)], qdot, L, dt)
         if why:
             mode, reason = STOPPING, why
             qdot = _limit_rates_l(_ZERO5, prev, L)
@@ -587,7 +608,11 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
         Tm, qm = state.T, state.q_model
     else:
         P, R, tip, axis = np.array(P), np.array(R), np.array(tip), np.array(axis)
-    return pulses, NCState(state.counts + pulses, acc, qdot_a, P, R, tip, axis, mode, reason, perr, qm, Tm)
+    if comp is not None:
+        cs = (np.array(cd), np.array(cb), np.array(cc))
+    else:
+        cs = (state.comp_dir, state.comp_bl, state.comp)
+    return pulses, NCState(state.counts + pulses, acc, qdot_a, P, R, tip, axis, mode, reason, perr, qm, Tm, *cs)
 
 
 class PythonNC:

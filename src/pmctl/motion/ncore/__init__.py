@@ -31,6 +31,7 @@ S_LEN, N_LEN = _ncore.NC_S_LEN, _ncore.NC_N_LEN
 _S_ACC, _S_QDOT, _S_P, _S_R = _ncore.NC_S_ACC, _ncore.NC_S_QDOT, _ncore.NC_S_P, _ncore.NC_S_R
 _S_TIP, _S_AXIS, _S_PERR, _S_QM, _S_T, _S_EV = (_ncore.NC_S_TIP, _ncore.NC_S_AXIS, _ncore.NC_S_PERR,
                                                 _ncore.NC_S_QM, _ncore.NC_S_T, _ncore.NC_S_EV)
+_S_CDIR, _S_CBL, _S_COMP = _ncore.NC_S_CDIR, _ncore.NC_S_CBL, _ncore.NC_S_COMP
 _N_COUNTS, _N_PULSES, _N_MODE, _N_EVENT, _N_HAS_QM, _N_ITER = (
     _ncore.NC_N_COUNTS, _ncore.NC_N_PULSES, _ncore.NC_N_MODE, _ncore.NC_N_EVENT, _ncore.NC_N_HAS_QM,
     _ncore.NC_N_ITER)
@@ -152,6 +153,10 @@ class CompiledState:
             s[_S_QM:_S_QM + 5] = st.q_model
             s[_S_T:_S_T + 18] = np.asarray(st.T, float).ravel()
             n[_N_HAS_QM] = 1
+        for f, at in (("comp_dir", _S_CDIR), ("comp_bl", _S_CBL), ("comp", _S_COMP)):
+            v = getattr(st, f, None)
+            if v is not None:
+                s[at:at + 5] = v
         self.reason = st.reason
         self.mode = int(st.mode)
         return self
@@ -159,11 +164,13 @@ class CompiledState:
     def snapshot(self) -> NCState:
         s, n = self.s, self.n
         has = bool(n[_N_HAS_QM])
+        comp = ((s[_S_CDIR:_S_CDIR + 5].copy(), s[_S_CBL:_S_CBL + 5].copy(), s[_S_COMP:_S_COMP + 5].copy())
+                if self._params.compensation is not None else (None, None, None))
         return NCState(n[_N_COUNTS:_N_COUNTS + 5].copy(), s[_S_ACC:_S_ACC + 5].copy(),
                        s[_S_QDOT:_S_QDOT + 5].copy(), s[_S_P:_S_P + 3].copy(), s[_S_R:_S_R + 9].reshape(3, 3).copy(),
                        s[_S_TIP:_S_TIP + 3].copy(), s[_S_AXIS:_S_AXIS + 3].copy(), int(n[_N_MODE]), self.reason,
                        float(s[_S_PERR]), s[_S_QM:_S_QM + 5].copy() if has else None,
-                       s[_S_T:_S_T + 18].reshape(6, 3).copy() if has else None)
+                       s[_S_T:_S_T + 18].reshape(6, 3).copy() if has else None, *comp)
 
 
 class CompiledNC:
@@ -179,7 +186,9 @@ class CompiledNC:
         self.params = params
         self.s = np.zeros(S_LEN) if s is None else s
         self.n = np.zeros(N_LEN, np.int64) if n is None else n
-        self.core = _ncore.Core(constants(machine, params), self.s, self.n)
+        # the flat compensation table (pmctl.core.compensation), kept here: the core reads it every tick
+        self.comp = None if params.compensation is None else params.compensation.flat()
+        self.core = _ncore.Core(constants(machine, params), self.s, self.n, self.comp)
         self.handle = CompiledState(self.s, self.n, params)
         self._step = self.core.step
         self._ev = self.s[_S_EV:_S_EV + 6]

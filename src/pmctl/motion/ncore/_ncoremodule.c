@@ -10,8 +10,8 @@
 typedef struct {
     PyObject_HEAD
     nc_const c;
-    Py_buffer sbuf, nbuf;
-    int have_s, have_n;
+    Py_buffer sbuf, nbuf, cbuf;
+    int have_s, have_n, have_c;
 } CoreObject;
 
 /* A C-contiguous buffer of exactly n items of 8 bytes with format code `code` ('d' or 'q'/'l'). */
@@ -35,10 +35,11 @@ static int get_buf(PyObject *o, Py_buffer *v, Py_ssize_t n, int writable, int is
 
 static int Core_init(CoreObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *co, *so, *no;
+    PyObject *co, *so, *no, *tab = Py_None;
     Py_buffer cb;
-    static char *kwlist[] = {"consts", "s", "n", NULL};
-    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO", kwlist, &co, &so, &no))
+    int fmt_ok = 0;
+    static char *kwlist[] = {"consts", "s", "n", "comp", NULL};
+    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO|O", kwlist, &co, &so, &no, &tab))
         return -1;
     if (get_buf(co, &cb, NC_C_LEN, 0, 0, "consts") < 0)
         return -1;
@@ -50,6 +51,26 @@ static int Core_init(CoreObject *self, PyObject *args, PyObject *kw)
     PyBuffer_Release(&cb);
     if (self->have_s) { PyBuffer_Release(&self->sbuf); self->have_s = 0; }
     if (self->have_n) { PyBuffer_Release(&self->nbuf); self->have_n = 0; }
+    if (self->have_c) { PyBuffer_Release(&self->cbuf); self->have_c = 0; }
+    if (tab != Py_None) {          /* the compensation table (pinned: the core reads it every tick) */
+        if (PyObject_GetBuffer(tab, &self->cbuf, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+            return -1;
+        self->have_c = 1;
+        {
+            const char *f = self->cbuf.format ? self->cbuf.format : "B";
+            if (*f == '<' || *f == '=' || *f == '@')
+                f++;
+            fmt_ok = strcmp(f, "d") == 0;
+        }
+        if (self->cbuf.itemsize != 8 || !fmt_ok ||
+            self->cbuf.len / 8 > 0x7fffffff ||
+            nc_setup_comp(&self->c, (const double *)self->cbuf.buf, (int)(self->cbuf.len / 8)) != 0) {
+            PyBuffer_Release(&self->cbuf);
+            self->have_c = 0;
+            PyErr_SetString(PyExc_ValueError, "comp: wrong layout (see pmctl.core.compensation.Compensation.flat)");
+            return -1;
+        }
+    }
     if (get_buf(so, &self->sbuf, NC_S_LEN, 1, 0, "s") < 0)
         return -1;
     self->have_s = 1;
@@ -63,6 +84,7 @@ static void Core_dealloc(CoreObject *self)
 {
     if (self->have_s) PyBuffer_Release(&self->sbuf);
     if (self->have_n) PyBuffer_Release(&self->nbuf);
+    if (self->have_c) PyBuffer_Release(&self->cbuf);
     Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
@@ -184,7 +206,8 @@ static PyTypeObject CoreType = {
     .tp_name = "pmctl.motion.ncore._ncore.Core",
     .tp_basicsize = sizeof(CoreObject),
     .tp_flags = Py_TPFLAGS_DEFAULT,
-    .tp_doc = "Core(consts, s, n): the compiled NC tick on caller-owned state buffers",
+    .tp_doc = "Core(consts, s, n, comp=None): the compiled NC tick on caller-owned state buffers "
+              "(comp: the flat compensation table, pmctl.core.compensation)",
     .tp_new = PyType_GenericNew,
     .tp_init = (initproc)Core_init,
     .tp_dealloc = (destructor)Core_dealloc,
@@ -210,7 +233,7 @@ PyMODINIT_FUNC PyInit__ncore(void)
 #define C(name) PyModule_AddIntConstant(m, #name, name)
     C(NC_C_LEN); C(NC_S_LEN); C(NC_N_LEN);
     C(NC_S_ACC); C(NC_S_QDOT); C(NC_S_P); C(NC_S_R); C(NC_S_TIP); C(NC_S_AXIS); C(NC_S_PERR);
-    C(NC_S_QM); C(NC_S_T); C(NC_S_EV);
+    C(NC_S_QM); C(NC_S_T); C(NC_S_EV); C(NC_S_CDIR); C(NC_S_CBL); C(NC_S_COMP);
     C(NC_N_COUNTS); C(NC_N_PULSES); C(NC_N_MODE); C(NC_N_EVENT); C(NC_N_HAS_QM); C(NC_N_ITER);
     C(NC_EV_NONE); C(NC_EV_ENC_NONFINITE); C(NC_EV_STRAIN_NONFINITE); C(NC_EV_FERROR); C(NC_EV_FK_NOCONV);
     C(NC_EV_FK_BRANCH); C(NC_EV_FK_SINGULAR); C(NC_EV_SVD); C(NC_EV_PATH_ERROR); C(NC_EV_TILT);

@@ -33,7 +33,98 @@ int nc_setup(nc_const *c, const double *f, int n)
     TAKE(c->max_pulses); TAKE(c->ferror); TAKE(c->min_ferror); TAKE(c->max_path_error);
     TAKE(c->static_comp); TAKE(c->kth_on);
 #undef TAKE
+    c->comp = NULL;
     return k == NC_C_LEN ? 0 : -1;
+}
+
+int nc_setup_comp(nc_const *c, const double *t, int n)
+{
+    int a, i;
+    c->comp = NULL;
+    if (t == NULL)
+        return 0;
+    if (n < 20)
+        return -1;
+    for (a = 0; a < 5; a++) {
+        double bl = t[4 * a], rate = t[4 * a + 1], np_ = t[4 * a + 2], off = t[4 * a + 3];
+        int m, o;
+        if (!(bl >= 0.0 && isfinite(bl) && rate > 0.0 && isfinite(rate)))
+            return -1;
+        if (!(np_ >= 0.0 && np_ <= 1e6 && np_ == floor(np_) && np_ != 1.0 && off >= 20.0 && off <= n &&
+              off == floor(off)))
+            return -1;
+        m = (int)np_;
+        o = (int)off;
+        if (o + 3 * m > n)
+            return -1;
+        for (i = 0; i < 3 * m; i++)
+            if (!isfinite(t[o + i]))
+                return -1;
+        for (i = 1; i < m; i++)
+            if (!(t[o + i] > t[o + i - 1]))
+                return -1;
+    }
+    c->comp = t;
+    return 0;
+}
+
+/* ------------------------------------------------------------------ compensation */
+
+/* Linear interpolation in the strictly increasing P (n >= 2), end values beyond the ends
+ * (compensation._interp: bisect_right, then the same formula). */
+static double comp_interp(const double *P, const double *Y, int n, double x)
+{
+    int lo = 0, hi = n, k;
+    if (!(x > P[0]))
+        return Y[0];
+    if (!(x < P[n - 1]))
+        return Y[n - 1];
+    while (lo < hi) {
+        int mid = (lo + hi) / 2;
+        if (x < P[mid])
+            hi = mid;
+        else
+            lo = mid + 1;
+    }
+    k = lo - 1;
+    return Y[k] + (x - P[k]) * ((Y[k + 1] - Y[k]) / (P[k + 1] - P[k]));
+}
+
+/* compensation.comp_tick: x motor positions, prev last commanded rates, d0/b0 the last direction
+ * and backlash term; writes this tick's correction cc, direction d and backlash term b. */
+static void comp_tick(const nc_const *c, const double x[5], const double prev[5], const double d0[5],
+                      const double b0[5], double cc[5], double d[5], double b[5])
+{
+    const double *t = c->comp;
+    int i;
+    for (i = 0; i < 5; i++) {
+        double di = d0[i], v = prev[i], bl = t[4 * i], step = t[4 * i + 1] * c->dt, tgt, bi, sc = 0.0;
+        int m = (int)t[4 * i + 2];
+        const double *P = t + (int)t[4 * i + 3];
+        if (v > 0.0)
+            di = 1.0;
+        else if (v < 0.0)
+            di = -1.0;
+        tgt = -0.5 * bl * di;
+        bi = b0[i];
+        if (tgt - bi > step)
+            bi = bi + step;
+        else if (bi - tgt > step)
+            bi = bi - step;
+        else
+            bi = tgt;
+        if (m > 0) {
+            if (di > 0)
+                sc = comp_interp(P, P + m, m, x[i]);
+            else if (di < 0)
+                sc = comp_interp(P, P + 2 * m, m, x[i]);
+            else
+                sc = 0.5 * (comp_interp(P, P + m, m, x[i]) + comp_interp(P, P + 2 * m, m, x[i]));
+        }
+        cc[i] = bi + sc;
+        d[i] = di;
+        b[i] = bi;
+    }
 }
 
 /* ------------------------------------------------------------------ small linear algebra */
@@ -374,6 +465,7 @@ static int halt_now(double *s, int64_t *n, int ev)
 int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const double *enc, const double *strain)
 {
     double ql[5], prev[5], qd_des[5] = {0, 0, 0, 0, 0}, qdot[5], *ev = s + NC_S_EV;
+    double qj[5], cc[5], cd[5], cb[5];
     int64_t mode0 = n[NC_N_MODE], mode = mode0;
     int i, event = NC_EV_NONE;
 
@@ -408,6 +500,13 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
             return halt_now(s, n, NC_EV_FERROR);
         }
     }
+    if (c->comp != NULL) {      /* model joints = motor side + correction (pmctl/core/compensation.py) */
+        comp_tick(c, ql, prev, s + NC_S_CDIR, s + NC_S_CBL, cc, cd, cb);
+        for (i = 0; i < 5; i++)
+            qj[i] = ql[i] + cc[i];
+    } else {
+        memcpy(qj, ql, sizeof ql);
+    }
     if (mode == NC_RUN) {
         double P[3], R[9], tip[3], axis[3], J[30], T[18], x[6], e[6], qd[5], w = c->w, kv = c->kv;
         double dLb[3], *dL = NULL, cc, perr;
@@ -417,10 +516,10 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
         memcpy(R, s + NC_S_R, sizeof R);
         if (n[NC_N_HAS_QM]) {
             for (i = 0; i < 3; i++)
-                dLb[i] = ql[i] - s[NC_S_QM + i];
+                dLb[i] = qj[i] - s[NC_S_QM + i];
             dL = dLb;
         }
-        k = nc_fk(c, ql, P, R, dL, s + NC_S_T, tip, axis, J, T, &iters, ev);
+        k = nc_fk(c, qj, P, R, dL, s + NC_S_T, tip, axis, J, T, &iters, ev);
         if (k)
             return halt_now(s, n, k);
         /* position error; axis error = component of the target axis normal to the model axis */
@@ -453,7 +552,7 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
         memcpy(s + NC_S_TIP, tip, sizeof tip);
         memcpy(s + NC_S_AXIS, axis, sizeof axis);
         memcpy(s + NC_S_T, T, sizeof T);
-        memcpy(s + NC_S_QM, ql, sizeof ql);
+        memcpy(s + NC_S_QM, qj, sizeof qj);
         s[NC_S_PERR] = perr;
         n[NC_N_HAS_QM] = 1;
         n[NC_N_ITER] = iters;
@@ -479,7 +578,7 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
             if (fabs(qdot[i]) / c->amax[i] > Tb)
                 Tb = fabs(qdot[i]) / c->amax[i];
         for (i = 0; i < 5; i++) {
-            double v = qdot[i], sd = fabs(v) * (0.5 * Tb + 2.0 * dt), xq = ql[i] + qdot[i] * dt;
+            double v = qdot[i], sd = fabs(v) * (0.5 * Tb + 2.0 * dt), xq = qj[i] + qdot[i] * dt;
             if ((v > 0 && xq + sd > c->upper[i]) || (v < 0 && xq - sd < c->lower[i]) || xq > c->upper[i] ||
                 xq < c->lower[i]) {
                 double zero[5] = {0, 0, 0, 0, 0};
@@ -521,6 +620,11 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
     }
     for (i = 0; i < 5; i++)
         n[NC_N_COUNTS + i] += n[NC_N_PULSES + i];
+    if (c->comp != NULL) {
+        memcpy(s + NC_S_CDIR, cd, sizeof cd);
+        memcpy(s + NC_S_CBL, cb, sizeof cb);
+        memcpy(s + NC_S_COMP, cc, sizeof cc);
+    }
     n[NC_N_MODE] = mode;
     n[NC_N_EVENT] = event;
     return event;

@@ -42,7 +42,10 @@
 #define NC_S_QM 29      /* 5: joints of the model pose */
 #define NC_S_T 34       /* 18: (6, 3) twist map d(P, w)/dL at the model pose, row-major */
 #define NC_S_EV 52      /* 6: event arguments */
-#define NC_S_LEN 58
+#define NC_S_CDIR 58    /* 5: compensation: direction per axis (+1, -1, 0 before the first move) */
+#define NC_S_CBL 63     /* 5: compensation: backlash term, mm */
+#define NC_S_COMP 68    /* 5: compensation of the last tick, mm (model joint - motor position) */
+#define NC_S_LEN 73
 
 /* int64 state buffer layout */
 #define NC_N_COUNTS 0   /* 5: pulse counters */
@@ -62,12 +65,21 @@ typedef struct {
     double dt, ppm[5], vmax[5], amax[5], adt[5], lower[5], upper[5];
     double cos_theta2_max, kv, damping, sv_threshold, w, k_theta[3], dpu[3];
     double max_pulses, ferror, min_ferror, max_path_error, static_comp, kth_on;
+    /* per-axis backlash and screw compensation (pmctl/core/compensation.py): the caller's flat
+     * table (nc_setup_comp), NULL = none */
+    const double *comp;
 } nc_const;
 
 #define NC_C_LEN 93      /* model 45 (27 + 9 + 5 + 3 + 1), params 48 (1 + 30 + 5 + 3 + 3 + 6) */
 
 /* Returns 0, or -1 if n != NC_C_LEN. */
 int nc_setup(nc_const *c, const double *flat, int n);
+
+/* Compensation table (pmctl.core.compensation.Compensation.flat): 5 x (backlash mm, take-up rate
+ * mm/s, points, offset), then per axis positions, forward and reverse errors (points each) from
+ * offset. The caller keeps the buffer alive. Returns 0, or -1 on a bad layout (then none is used).
+ * comp = NULL: no compensation. */
+int nc_setup_comp(nc_const *c, const double *comp, int n);
 
 /* Single-pose FK (ModelFK.solve_l): Newton on the 6 loop equations for the joints q (5) from the
  * warm start (P, R); dL (3) / T0 (6x3) the predictor (dL = NULL: none). On success writes P, R,

@@ -20,6 +20,10 @@ def add_diagnose_parser(sub):
     p.add_argument("--cap", type=int, default=DEFAULT_CAP,
                    help=f"max analysis samples per channel (default {DEFAULT_CAP})")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--write-compensation", metavar="FILE",
+                   help="write the backlash and screw compensation table of the accepted per-axis findings "
+                        "(backlash, pitch and periodic errors) to FILE, for the machine config's [compensation] "
+                        "(docs/machine.md §6); geometry findings go to 'pmctl calibrate from-twin'")
     p.set_defaults(func=lazy("pmctl.tools.twin.diagnose:_run"))
     return p
 

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core import kinematics as kin
+from pmctl.core.compensation import compensated_columns
 from pmctl.tools.twin import calibration
 from pmctl.tools.twin import effects as fx
 from pmctl.tools.twin import nominal
@@ -532,6 +533,7 @@ def _finding(ev, ctx, y_before, y0, y_after_cum, loc_before):
 def diagnose(columns: dict, machine, *, name="recording", progress=False,
              cap=DEFAULT_CAP) -> tuple[dict, dict]:
     """Run the whole diagnosis. Returns (report per docs/diagnosis-report.md, extras for text and plots)."""
+    columns = compensated_columns(columns, getattr(machine, "compensation", None))     # the NC's joints
     ctx = build_context(columns, machine, cap=cap)
     loc0 = locate(ctx)
     accepted, yfinal, rejected = select_effects(ctx, progress=progress, loc=loc0)
@@ -746,8 +748,23 @@ def _run(args) -> int:
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(report, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+    if getattr(args, "write_compensation", None):
+        _write_compensation(args, report, extras, machine, folder)
     if args.plots:
         from pmctl.tools.twin.plots import write_plots
         for pth in write_plots(report, extras, args.plots):
             print(f"plot: {pth}")
     return 0
+
+
+def _write_compensation(args, report, extras, machine, folder):
+    """--write-compensation FILE (pmctl.tools.twin.fix)."""
+    from pmctl.tools.twin.fix import compensation_from_findings, write_compensation
+    comp, notes = compensation_from_findings(machine, extras["accepted"], getattr(machine, "compensation", None))
+    if comp is None:
+        print(f"\n  No backlash, pitch or periodic error was found: {args.write_compensation} not written."
+              + "".join(f"\n    {n}" for n in notes), file=sys.stderr)
+        return
+    write_compensation(args.write_compensation, comp, recording=_display_name(folder),
+                       machine_source=getattr(machine, "source", "?"), notes=notes)
+    print(f"\n  Compensation table written to {args.write_compensation}:" + "".join(f"\n    {n}" for n in notes))
