@@ -248,7 +248,7 @@ def test_play_operator_is_a_deadband(xs, width):
 def test_first_order_lag_trails_a_ramp_by_tau_times_speed():
     dt, tau, v = 1e-3, 0.02, 30.0
     t = np.arange(5000) * dt
-    y = S.first_order_lag(v * t, tau, dt)
+    y = S.first_order_lag(t, v * t, tau)
     assert np.mean(v * t[-1000:] - y[-1000:]) == pytest.approx(v * tau, rel=0.01)
 
 

@@ -82,7 +82,9 @@ Python API: ``EFFECTS``, ``RUNS``, ``make_effect(name, rng, ...) -> Effect``,
 ``make_run(kind, rng, machine, duration_s, rate_hz, loads) -> Run``, ``simulate(run, effects, rng,
 machine, *, enc=True, tool=True, tracker_div=10) -> (columns, noise)`` (rng consumption does not
 depend on the effects, so the same seed with and without effects gives the same noise),
-``play(x, width)`` (backlash operator), ``first_order_lag``, ``mode_response``, ``synth_case(rng, effects=..., ...) -> Case``,
+the physics itself (``play``, ``first_order_lag``, ``mode_response``, ...) is
+:mod:`pmctl.core.plant_effects`, shared with the sim backend and the diagnosis models,
+``synth_case(rng, effects=..., ...) -> Case``,
 ``write_case(out_dir, name, case)``, ``generate(out_dir, count, ...) -> list[Path]``.
 """
 
@@ -100,6 +102,8 @@ from scipy import signal
 from pmctl.core.config import Machine, load_machine
 from pmctl.core.errors import InputError
 from pmctl.core.kinematics import axis_from_roll_pitch, ik_batch, roll_pitch_from_axis
+from pmctl.core.plant_effects import (first_order_lag, friction_offset, mode_response, periodic_error, play,
+                                      step_offset, thermal_growth)
 from pmctl.core.recording import AXES, CMD, ENC, LOAD, STRAIN, TIP, TOOL, write_recording
 from pmctl.core.statics import chain_forces, strain_of_axial
 from pmctl.tools.twin.catalogue import EFFECTS, ODDITIES, RUNS  # names shared with the command line
@@ -458,41 +462,6 @@ def make_run(kind: str, rng, machine: Machine, duration_s: float, rate_hz: float
 
 # ---------------------------------------------------------------- physics
 
-def play(x, width):
-    """Backlash (play operator) of a motor-side position series: the load side stays put until
-    the motor has crossed the deadband ``width``, then follows it width/2 behind. At the start
-    the load sits on the side that the first motion pushes."""
-    x = np.asarray(x, float)
-    h = width / 2.0
-    moved = np.flatnonzero(x != x[0])
-    yk = x[0] - h * (np.sign(x[moved[0]] - x[0]) if moved.size else 0.0)
-    out = []
-    for xk in x.tolist():
-        if yk < xk - h:
-            yk = xk - h
-        elif yk > xk + h:
-            yk = xk + h
-        out.append(yk)
-    return np.array(out)
-
-
-def first_order_lag(x, tau, dt):
-    """tau·y' + y = x for samples x every dt, x linear between samples (so a ramp at speed v is
-    trailed by exactly tau·v); starts at rest at x[0]."""
-    a = np.exp(-dt / tau)
-    b, den = [(1 - a) / 2, (1 - a) / 2], [1.0, -a]
-    y, _ = signal.lfilter(b, den, x, zi=signal.lfilter_zi(b, den) * x[0])
-    return y
-
-
-def mode_response(accel, freq_hz, zeta, dt):
-    """Response of δ'' + 2ζωδ' + ω²δ = −a(t) (base excitation), zero initial state."""
-    w = 2 * np.pi * freq_hz
-    sysd = signal.cont2discrete(([-1.0], [1.0, 2 * zeta * w, w * w]), dt, method="zoh")
-    b, a = np.asarray(sysd[0]).ravel(), np.asarray(sysd[1]).ravel()
-    return signal.lfilter(b, a, accel)
-
-
 def screw_temperatures(run: Run, rng, heated_axis: int | None, warm: bool, rise_K=None):
     """Friction-heated screw temperatures (n, 5) and the room (n,), °C (``rise``: the heated
     screw's rise in K, else drawn)."""
@@ -550,18 +519,6 @@ def _true_machine(machine: Machine, effects) -> Machine:
     return dataclasses.replace(machine, geometry=dataclasses.replace(g, nominal=False, **changes))
 
 
-def _direction(x):
-    """+1/-1: direction of the last motion, held through stops (0 before the first move)."""
-    dx = np.diff(x, prepend=x[0])
-    s = np.sign(dx)
-    idx = np.where(s != 0, np.arange(len(s)), 0)
-    np.maximum.accumulate(idx, out=idx)
-    d = s[idx]
-    first = np.flatnonzero(s)
-    d[: first[0] if len(first) else len(d)] = 0.0      # settled before the first move: no error
-    return d
-
-
 def make_oddity(kind: str, rng, run: Run) -> dict:
     """A random instance of physics outside the catalogue (see ODDITIES)."""
     if kind == "straightness":
@@ -613,19 +570,17 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
         by.setdefault(e.effect, []).append(e)
     ai = {a: j for j, a in enumerate(AXES)}
     q_cmd = run.q
-    accel = np.gradient(np.gradient(q_cmd, dt, axis=0), dt, axis=0)
 
     # motor side
     q_mot = q_cmd.copy()
     for e in by.get("servo_lag", []):
         j = ai[e.locator["axis"]]
-        q_mot[:, j] = first_order_lag(q_cmd[:, j], e.parameters["tau_s"], dt)
+        q_mot[:, j] = first_order_lag(t, q_cmd[:, j], e.parameters["tau_s"])
     for e in by.get("friction", []):       # following error of the position loop against friction
         j = ai[e.locator["axis"]]
-        v = np.gradient(q_cmd[:, j], dt)
-        d = _direction(q_cmd[:, j])
         d_ = e.details
-        q_mot[:, j] -= d * (e.parameters["coulomb_mm"] + d_["stribeck_mm"] * np.exp(-(v / d_["stribeck_speed_mm_s"]) ** 2))
+        q_mot[:, j] += friction_offset(q_cmd[:, j], dt, e.parameters["coulomb_mm"], d_["stribeck_mm"],
+                                       d_["stribeck_speed_mm_s"])
 
     # temperatures
     th = by.get("thermal_growth", [])
@@ -641,15 +596,16 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
     for e in by.get("pitch_error", []):
         j = ai[e.locator["axis"]]
         p = e.parameters
-        q_load[:, j] += p["amplitude_mm"] * np.sin(2 * np.pi * q_mot[:, j] / p["period_mm"] + e.details["phase_rad"])
+        q_load[:, j] += periodic_error(q_mot[:, j], p["amplitude_mm"], p["period_mm"], e.details["phase_rad"])
     for e in th:
         j = ai[e.locator["axis"]]
         fixed = e.parameters.get("screw_fixed_end_mm", SCREW_FIXED[j])
-        q_load[:, j] += e.parameters["alpha_per_K"] * (temps[:, j] - e.details.get("t_ref_C", T_CAL_C)) * (q_mot[:, j] - fixed)
+        q_load[:, j] += thermal_growth(q_mot[:, j], e.parameters["alpha_per_K"],
+                                       temps[:, j] - e.details.get("t_ref_C", T_CAL_C), fixed)
     for e in by.get("periodic_error", []):
         j = ai[e.locator["axis"]]
         p = e.parameters
-        q_load[:, j] += p["amplitude_mm"] * np.sin(2 * np.pi * q_mot[:, j] / p["period_mm"] + e.details["phase_rad"])
+        q_load[:, j] += periodic_error(q_mot[:, j], p["amplitude_mm"], p["period_mm"], e.details["phase_rad"])
     for e in by.get("forced_vibration", []):
         if "axis" in e.locator:
             j = ai[e.locator["axis"]]
@@ -657,14 +613,14 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
             q_load[:, j] += p["amplitude_mm"] * np.sin(2 * np.pi * p["freq_hz"] * t + e.details["phase_rad"])
     for e in by.get("lost_steps", []):
         j = ai[e.locator["axis"]]
-        q_load[:, j] += np.where(t >= e.parameters["t_s"], e.parameters["offset_mm"], 0.0)
+        q_load[:, j] += step_offset(t, e.parameters["t_s"], e.parameters["offset_mm"])
     strain_extra = np.zeros((n, 3))
     m_eff = machine.mass.platform_kg / 3.0
     for e in by.get("resonance", []):
         p = e.parameters
         if "axis" in e.locator:
             j = ai[e.locator["axis"]]
-            d = mode_response(accel[:, j], p["freq_hz"], p["damping_ratio"], dt)
+            d = mode_response(q_cmd[:, j], dt, p["freq_hz"], p["damping_ratio"])
             gamma = e.details["peak_mm"] / max(np.abs(d).max(), 1e-12)
             e.details["participation"] = gamma
             q_load[:, j] += gamma * d
@@ -672,7 +628,7 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
                 strain_extra[:, j] += machine.strain_gain * m_eff * (2 * np.pi * p["freq_hz"]) ** 2 * 1e-3 * gamma * d
         else:
             i = STRAIN.index(e.locator["channel"])
-            d = mode_response(accel[:, i], p["freq_hz"], p["damping_ratio"], dt)
+            d = mode_response(q_cmd[:, i], dt, p["freq_hz"], p["damping_ratio"])
             strain_extra[:, i] += e.details["peak_ue"] * d / max(np.abs(d).max(), 1e-12)
     for e in by.get("forced_vibration", []):
         if "channel" in e.locator:
