@@ -34,6 +34,10 @@ import numpy as np
 from scipy import signal
 from scipy.linalg import expm
 
+# Where each screw of the prototype (L1 L2 L3 X Y) has its fixed bearing, mm of screw position:
+# thermal growth is zero there and grows with the distance from it.
+SCREW_FIXED_END_MM = (150.0, 150.0, 150.0, -75.0, -75.0)
+
 
 # ---------------------------------------------------------------- backlash
 
@@ -93,7 +97,7 @@ class Play:
         return self.y - self.x
 
     def step(self, x):
-        self.x = np.asarray(x, float)
+        self.x = np.array(x, float)          # a copy: the caller may reuse its buffer
         self.y = np.minimum(np.maximum(self.y, self.x - self.h), self.x + self.h)
         return self.y - self.x
 
@@ -145,7 +149,7 @@ class Direction:
         self.dead = dead
 
     def step(self, x):
-        x = np.asarray(x, float)
+        x = np.array(x, float)               # a copy: the caller may reuse its buffer
         dx = x - self.x
         self.d = np.where(dx > self.dead, 1.0, np.where(dx < -self.dead, -1.0, self.d))
         self.x = x
@@ -182,7 +186,7 @@ class Friction:
         self.c, self.cs, self.vs = coulomb_mm, stribeck_mm, stribeck_speed_mm_s
 
     def step(self, x):
-        x = np.asarray(x, float)
+        x = np.array(x, float)
         v = (x - self.dir.x) / self.dt
         return friction_force_offset(self.dir.step(x), v, self.c, self.cs, self.vs)
 
@@ -236,7 +240,7 @@ class FirstOrderLag:
         self.b0, self.b1 = 1 - self.a - c, c
 
     def step(self, u):
-        u = np.asarray(u, float)
+        u = np.array(u, float)
         u0 = self.u0           # the same arithmetic as the batch filter, which runs on u − u0
         y = self.a * (self.y - u0) + self.b0 * (u - u0) + self.b1 * (self.u - u0) + u0
         self.y, self.u = y, u
@@ -284,7 +288,7 @@ class Mode:
         self.yd = np.zeros(n)
 
     def step(self, x):
-        x = np.asarray(x, float)
+        x = np.array(x, float)
         v = (x - self.x) / self.dt
         yd = self.yd - (v - self.v)
         p = self.ph

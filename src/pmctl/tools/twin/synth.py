@@ -102,8 +102,8 @@ from scipy import signal
 from pmctl.core.config import Machine, load_machine
 from pmctl.core.errors import InputError
 from pmctl.core.kinematics import axis_from_roll_pitch, ik_batch, roll_pitch_from_axis
-from pmctl.core.plant_effects import (first_order_lag, friction_offset, mode_response, periodic_error, play,
-                                      step_offset, thermal_growth)
+from pmctl.core.plant_effects import (SCREW_FIXED_END_MM, first_order_lag, friction_offset, mode_response,
+                                      periodic_error, play, step_offset, thermal_growth)
 from pmctl.core.recording import AXES, CMD, ENC, LOAD, STRAIN, TIP, TOOL, write_recording
 from pmctl.core.statics import chain_forces, strain_of_axial
 from pmctl.tools.twin.catalogue import EFFECTS, ODDITIES, RUNS  # names shared with the command line
@@ -113,7 +113,7 @@ from pmctl.tools.twin.nominal import pose_of_joints
 RUNS_FOR = {"thermal_growth": ("warmup",), "compliance": ("calibration",)}
 TEMP_CHANNELS = ("temp_screw1", "temp_screw2", "temp_screw3", "temp_screwX", "temp_screwY")
 T_CAL_C = 20.0                     # geometry was calibrated at 20 °C
-SCREW_FIXED = np.array([150.0, 150.0, 150.0, -75.0, -75.0])   # fixed-bearing end of each screw
+SCREW_FIXED = np.array(SCREW_FIXED_END_MM)                   # fixed-bearing end of each screw
 SCREW_FREE = np.array([480.0, 480.0, 480.0, 75.0, 75.0])      # ... or it is mounted the other way round
 PULSE_MM = 1.0 / 2000.0
 
