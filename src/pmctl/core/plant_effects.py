@@ -106,12 +106,23 @@ class Play:
 
 def periodic_error(s, amplitude, period, phase=0.0):
     """Periodic error of the screw position s (pitch error at the lead, or a bearing/gear/coupling
-    period): A·sin(2π·s/P + φ). Scalars, per-axis vectors or arrays (broadcast); P > 0 where A ≠ 0;
+    period): A·sin(2π/P·s + φ). Scalars, per-axis vectors or arrays (broadcast); P > 0 where A ≠ 0;
     an axis with P = 0 (and A = 0) gives 0."""
-    s = np.asarray(s, float)
     period = np.asarray(period, float)
-    safe = np.where(period > 0, period, 1.0)
-    return np.where(period > 0, amplitude * np.sin(2 * np.pi * s / safe + phase), 0.0)
+    k = np.where(period > 0, 2 * np.pi / np.where(period > 0, period, 1.0), 0.0)
+    return amplitude * np.sin(k * np.asarray(s, float) + phase)
+
+
+class PeriodicError:
+    """:func:`periodic_error` per tick with its constants prepared (the same arithmetic)."""
+
+    def __init__(self, amplitude, period, phase=0.0):
+        period = np.asarray(period, float)
+        self.k = np.where(period > 0, 2 * np.pi / np.where(period > 0, period, 1.0), 0.0)
+        self.a, self.phase = np.asarray(amplitude, float), np.asarray(phase, float)
+
+    def __call__(self, s):
+        return self.a * np.sin(self.k * s + self.phase)
 
 
 def thermal_growth(s, alpha_per_K, delta_K, fixed_end_mm):
@@ -183,12 +194,17 @@ class Friction:
     def __init__(self, x0, dt, coulomb_mm, stribeck_mm=0.0, stribeck_speed_mm_s=1.0):
         self.dir = Direction(x0)
         self.dt = dt
-        self.c, self.cs, self.vs = coulomb_mm, stribeck_mm, stribeck_speed_mm_s
+        self.c, self.cs = np.asarray(coulomb_mm, float), np.asarray(stribeck_mm, float)
+        self.vs = np.where(np.asarray(stribeck_speed_mm_s, float) > 0, stribeck_speed_mm_s, 1.0)
+        self.stribeck = bool(np.any(self.cs != 0))
 
     def step(self, x):
         x = np.array(x, float)
         v = (x - self.dir.x) / self.dt
-        return friction_force_offset(self.dir.step(x), v, self.c, self.cs, self.vs)
+        d = self.dir.step(x)
+        if not self.stribeck:
+            return -d * self.c
+        return -d * (self.c + self.cs * np.exp(-(v / self.vs) ** 2))
 
 
 # ---------------------------------------------------------------- servo lag

@@ -269,17 +269,22 @@ class SimBackend(Backend):
 
     # ---------------------------------------------------------------- internals
     def _start_effects(self, d):
-        """The effects' state at the opening position (pmctl.core.plant_effects, per tick)."""
+        """The effects' state at the opening position (pmctl.core.plant_effects, per tick); only the
+        effects that are set take time in the tick."""
         o, L = self.opt, self._lib
         self._moff = d[L.D_MOFF:L.D_MOFF + 5]
         self._loff = d[L.D_LOFF:L.D_LOFF + 5]
         self._cmd = d[L.D_CMD:L.D_CMD + 5]
         self._mot = d[L.D_MOTOR:L.D_MOTOR + 5]
-        self._play = PE.Play(o.backlash_mm, self._mot, o.backlash_start)
+        self._play = PE.Play(o.backlash_mm, self._mot, o.backlash_start) if np.any(o.backlash_mm) else None
         self._friction = (PE.Friction(self._cmd, self.dt, o.friction_coulomb_mm, o.friction_stribeck_mm,
                                       o.friction_stribeck_speed_mm_s)
                           if np.any(o.friction_coulomb_mm) or np.any(o.friction_stribeck_mm) else None)
-        self._set_offsets(self._play.error, np.zeros(5))
+        self._pitch = (PE.PeriodicError(o.pitch_error_amp_mm, o.pitch_error_period_mm, o.pitch_error_phase_rad)
+                       if np.any(o.pitch_error_amp_mm) else None)
+        self._thermal = np.any(o.thermal_delta_K) and np.any(o.thermal_alpha_per_K)
+        self._zero5 = np.zeros(5)
+        self._set_offsets(self._play.error if self._play is not None else 0.0, self._zero5)
 
     def _set_offsets(self, play_err, moff):
         """Motor side = drive + friction (the encoders see it); load side = that + play + screw
@@ -287,9 +292,12 @@ class SimBackend(Backend):
         o = self.opt
         s = self._mot + moff
         self._moff[:] = moff
-        self._loff[:] = (play_err + PE.periodic_error(s, o.pitch_error_amp_mm, o.pitch_error_period_mm,
-                                                      o.pitch_error_phase_rad)
-                         + PE.thermal_growth(s, o.thermal_alpha_per_K, o.thermal_delta_K, o.thermal_fixed_end_mm))
+        loff = play_err
+        if self._pitch is not None:
+            loff = loff + self._pitch(s)
+        if self._thermal:
+            loff = loff + PE.thermal_growth(s, o.thermal_alpha_per_K, o.thermal_delta_K, o.thermal_fixed_end_mm)
+        self._loff[:] = loff
 
     def _step_effects(self, pulses, nz):
         """One tick with the effects: the C step moves drive and modes, the effects follow the new
@@ -298,8 +306,8 @@ class SimBackend(Backend):
             self._plant.step(pulses, None, self.tick, True)
         except (TypeError, ValueError):
             self._plant.step(np.ascontiguousarray(pulses, np.int64), None, self.tick, True)
-        moff = self._friction.step(self._cmd) if self._friction is not None else np.zeros(5)
-        self._set_offsets(self._play.step(self._mot + moff), moff)
+        moff = self._friction.step(self._cmd) if self._friction is not None else self._zero5
+        self._set_offsets(self._play.step(self._mot + moff) if self._play is not None else 0.0, moff)
         self.tick += 1
         self._fb.seq += 1
         self._check(self._plant.sample(nz, self.tick))
