@@ -10,7 +10,7 @@ effects are one function that takes scalars, per-axis vectors or whole arrays al
 
 Positions in mm, times in s. ``s`` is the screw (motor-side) position of an axis.
 
-- backlash, the play operator (:func:`play_error`, :class:`Play`): the load stays within ±w/2 of
+- backlash, the play operator (:func:`play_load`, :func:`play_error`, :class:`Play`): the load stays within ±w/2 of
   the motor and moves only when the motor drags it at an edge of the deadband;
 - periodic screw error, pitch error at the lead or any other period (:func:`periodic_error`):
   A·sin(2π·s/P + φ);
@@ -41,32 +41,37 @@ SCREW_FIXED_END_MM = (150.0, 150.0, 150.0, -75.0, -75.0)
 
 # ---------------------------------------------------------------- backlash
 
-def play_error(x, width, start=0.0):
-    """Backlash as a play operator, batch: e = x_load − x_motor for the motor positions ``x``.
+def play_load(x, width, start=0.0):
+    """Backlash as a play operator, batch: the load positions behind the motor positions ``x``.
     The load stays within ±width/2 of the motor and only moves when dragged; ``start`` in [-1, 1]
-    is where in the deadband it rests at the first sample (e[0] = start·width/2). Exact, segment-wise."""
+    is where in the deadband it rests at the first sample (y[0] = x[0] + start·width/2). Exact,
+    segment-wise: on a monotone stretch y = clip(y0, x − w/2, x + w/2)."""
     h = 0.5 * abs(width)
     x = np.asarray(x, float)
-    e = np.zeros_like(x)
-    if len(x) == 0 or h == 0:
-        return e
-    e0 = float(np.clip(start, -1, 1)) * h
-    e[:] = e0
-    if len(x) < 2:
-        return e
+    if len(x) == 0:
+        return x.copy()
+    y0 = x[0] + float(np.clip(start, -1, 1)) * h
+    y = np.full_like(x, y0)
     dx = np.diff(x)
     nz = np.nonzero(dx)[0]
     if len(nz) == 0:
-        return e
+        return y
     s = np.sign(dx[nz])
     rev = nz[1:][s[1:] != s[:-1]]          # the increment index where direction changes
     starts = np.concatenate([[0], rev])    # segment k starts at sample starts[k]
     ends = np.concatenate([rev, [len(x) - 1]])
     for a, b in zip(starts, ends):
-        seg = np.clip(e0 - (x[a:b + 1] - x[a]), -h, h)
-        e[a:b + 1] = seg
-        e0 = seg[-1]
-    return e
+        xs = x[a:b + 1]
+        seg = np.minimum(np.maximum(y0, xs - h), xs + h)
+        y[a:b + 1] = seg
+        y0 = seg[-1]
+    return y
+
+
+def play_error(x, width, start=0.0):
+    """:func:`play_load` as e = x_load − x_motor (e[0] = start·width/2)."""
+    x = np.asarray(x, float)
+    return play_load(x, width, start) - x
 
 
 def first_direction(x) -> float:
@@ -79,8 +84,7 @@ def first_direction(x) -> float:
 def play(x, width):
     """Load-side positions behind the play operator when the load starts on the side that the
     first motion pushes (it follows at once, width/2 behind)."""
-    x = np.asarray(x, float)
-    return x + play_error(x, width, -first_direction(x))
+    return play_load(x, width, -first_direction(x))
 
 
 class Play:

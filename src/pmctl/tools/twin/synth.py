@@ -561,15 +561,23 @@ def imperfect(cols: dict, rng, rate_hz: float) -> dict:
     return out
 
 
-def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, tracker_div=10,
-             noise_scale=1.0, oddities=()):
-    """Inject ``effects`` as machine physics into ``run``, measure; returns (columns, noise)."""
-    t, n, dt = run.t, len(run.t), 1.0 / run.rate_hz
+def _by_effect(effects) -> dict:
     by = {}
     for e in effects:
         by.setdefault(e.effect, []).append(e)
+    return by
+
+
+def plant_batch(q_cmd, t, effects, temps=None, machine: Machine | None = None):
+    """The axis effects over a whole run (the fast batch path; pmctl.core.plant_effects):
+    commanded joints (n, 5) at times t -> (q_mot, q_load, strain_extra). Motor side = cmd through
+    servo lag and friction; load side = motor side + backlash, pitch and periodic error, thermal
+    growth (``temps``: screw temperatures (n, 5), °C), forced vibration and resonance of an axis,
+    lost steps; strain_extra: the axis modes' spring force at the gauges."""
+    by = _by_effect(effects)
     ai = {a: j for j, a in enumerate(AXES)}
-    q_cmd = run.q
+    n, dt = len(t), float(t[1] - t[0]) if len(t) > 1 else 1.0
+    q_cmd = np.asarray(q_cmd, float)
 
     # motor side
     q_mot = q_cmd.copy()
@@ -582,30 +590,20 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
         q_mot[:, j] += friction_offset(q_cmd[:, j], dt, e.parameters["coulomb_mm"], d_["stribeck_mm"],
                                        d_["stribeck_speed_mm_s"])
 
-    # temperatures
-    th = by.get("thermal_growth", [])
-    temps, room = screw_temperatures(run, rng, ai[th[0].locator["axis"]] if th else None,
-                                     warm=run.kind == "warmup",
-                                     rise_K=th[0].details.get("rise_K") if th else None)
-
     # load side
     q_load = q_mot.copy()
     for e in by.get("backlash", []):
         j = ai[e.locator["axis"]]
         q_load[:, j] += play(q_mot[:, j], e.parameters["width_mm"]) - q_mot[:, j]
-    for e in by.get("pitch_error", []):
+    for e in by.get("pitch_error", []) + by.get("periodic_error", []):
         j = ai[e.locator["axis"]]
         p = e.parameters
         q_load[:, j] += periodic_error(q_mot[:, j], p["amplitude_mm"], p["period_mm"], e.details["phase_rad"])
-    for e in th:
+    for e in by.get("thermal_growth", []):
         j = ai[e.locator["axis"]]
         fixed = e.parameters.get("screw_fixed_end_mm", SCREW_FIXED[j])
         q_load[:, j] += thermal_growth(q_mot[:, j], e.parameters["alpha_per_K"],
                                        temps[:, j] - e.details.get("t_ref_C", T_CAL_C), fixed)
-    for e in by.get("periodic_error", []):
-        j = ai[e.locator["axis"]]
-        p = e.parameters
-        q_load[:, j] += periodic_error(q_mot[:, j], p["amplitude_mm"], p["period_mm"], e.details["phase_rad"])
     for e in by.get("forced_vibration", []):
         if "axis" in e.locator:
             j = ai[e.locator["axis"]]
@@ -615,7 +613,6 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
         j = ai[e.locator["axis"]]
         q_load[:, j] += step_offset(t, e.parameters["t_s"], e.parameters["offset_mm"])
     strain_extra = np.zeros((n, 3))
-    m_eff = machine.mass.platform_kg / 3.0
     for e in by.get("resonance", []):
         p = e.parameters
         if "axis" in e.locator:
@@ -625,8 +622,36 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
             e.details["participation"] = gamma
             q_load[:, j] += gamma * d
             if j < 3:   # the mode's spring force reaches the gauge: k = m ω², N/mm
+                m_eff = machine.mass.platform_kg / 3.0
                 strain_extra[:, j] += machine.strain_gain * m_eff * (2 * np.pi * p["freq_hz"]) ** 2 * 1e-3 * gamma * d
-        else:
+    return q_mot, q_load, strain_extra
+
+
+def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, tracker_div=10,
+             noise_scale=1.0, oddities=(), plant=None):
+    """Inject ``effects`` as machine physics into ``run``, measure; returns (columns, noise).
+    ``plant``: (q_cmd, q_mot, q_load) from the control loop (:func:`loop_plant`), which then stands
+    for the axis effects of :func:`plant_batch`; channel effects, geometry, compliance and the
+    measurement are the same for both paths."""
+    t, n, dt = run.t, len(run.t), 1.0 / run.rate_hz
+    by = _by_effect(effects)
+    ai = {a: j for j, a in enumerate(AXES)}
+
+    # temperatures
+    th = by.get("thermal_growth", [])
+    temps, room = screw_temperatures(run, rng, ai[th[0].locator["axis"]] if th else None,
+                                     warm=run.kind == "warmup",
+                                     rise_K=th[0].details.get("rise_K") if th else None)
+
+    if plant is None:
+        q_cmd = run.q
+        q_mot, q_load, strain_extra = plant_batch(q_cmd, t, effects, temps, machine)
+    else:
+        q_cmd, q_mot, q_load = (np.array(x, float) for x in plant)
+        strain_extra = np.zeros((n, 3))
+    for e in by.get("resonance", []):
+        if "channel" in e.locator:
+            p = e.parameters
             i = STRAIN.index(e.locator["channel"])
             d = mode_response(q_cmd[:, i], dt, p["freq_hz"], p["damping_ratio"])
             strain_extra[:, i] += e.details["peak_ue"] * d / max(np.abs(d).max(), 1e-12)
