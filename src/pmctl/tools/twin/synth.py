@@ -103,7 +103,7 @@ from pmctl.core.config import Machine, load_machine
 from pmctl.core.errors import InputError
 from pmctl.core.kinematics import axis_from_roll_pitch, ik_batch, roll_pitch_from_axis
 from pmctl.core.plant_effects import (SCREW_FIXED_END_MM, first_order_lag, friction_offset, mode_response,
-                                      periodic_error, play, step_offset, thermal_growth)
+                                      periodic_error, play, play_load, step_offset, thermal_growth)
 from pmctl.core.recording import AXES, CMD, ENC, LOAD, STRAIN, TIP, TOOL, write_recording
 from pmctl.core.statics import chain_forces, strain_of_axial
 from pmctl.tools.twin.catalogue import EFFECTS, ODDITIES, RUNS  # names shared with the command line
@@ -594,7 +594,9 @@ def plant_batch(q_cmd, t, effects, temps=None, machine: Machine | None = None):
     q_load = q_mot.copy()
     for e in by.get("backlash", []):
         j = ai[e.locator["axis"]]
-        q_load[:, j] += play(q_mot[:, j], e.parameters["width_mm"]) - q_mot[:, j]
+        st = e.details.get("start")    # where the load rests in the play (default: pushed by the first move)
+        q_load[:, j] += (play(q_mot[:, j], e.parameters["width_mm"]) if st is None
+                         else play_load(q_mot[:, j], e.parameters["width_mm"], st)) - q_mot[:, j]
     for e in by.get("pitch_error", []) + by.get("periodic_error", []):
         j = ai[e.locator["axis"]]
         p = e.parameters
@@ -625,6 +627,105 @@ def plant_batch(q_cmd, t, effects, temps=None, machine: Machine | None = None):
                 m_eff = machine.mass.platform_kg / 3.0
                 strain_extra[:, j] += machine.strain_gain * m_eff * (2 * np.pi * p["freq_hz"]) ** 2 * 1e-3 * gamma * d
     return q_mot, q_load, strain_extra
+
+
+# Effects the sim backend carries (pmctl.hal.sim [hal.sim] options), so a case with only these
+# (plus the channel effects, geometry and compliance of the shared stage) can come from the loop.
+LOOP_EFFECTS = ("backlash", "pitch_error", "periodic_error", "friction", "servo_lag")
+SHARED_EFFECTS = ("geometry", "compliance", "sensor_gain", "sensor_offset", "sensor_latency", "sensor_drift")
+PLANTS = ("batch", "loop")
+
+
+def loop_supports(effects) -> str:
+    """'' when the control loop on the sim can make a case with ``effects``, else why not."""
+    axes_periodic = set()
+    for e in effects:
+        if e.effect in ("resonance", "forced_vibration") and "channel" in e.locator:
+            continue
+        if e.effect in ("pitch_error", "periodic_error"):
+            if e.locator["axis"] in axes_periodic:
+                return f"two periodic errors on axis {e.locator['axis']} (the sim has one per axis)"
+            axes_periodic.add(e.locator["axis"])
+        if e.effect not in LOOP_EFFECTS + SHARED_EFFECTS:
+            where = e.locator.get("axis", e.locator.get("channel", ""))
+            return f"the sim plant does not carry {e.effect} {where}".rstrip()
+    return ""
+
+
+def sim_options(effects, q_cmd) -> dict:
+    """[hal.sim] options of the axis effects (rigid chains, no sim noise: the measurement stage adds
+    the noise); the play starts on the side that the first motion pushes, as in :func:`play`."""
+    from pmctl.core.plant_effects import first_direction
+    z = [0.0] * 5
+    o = {"flex": False, "backlash_mm": list(z), "backlash_start": [-first_direction(q_cmd[:, j]) for j in range(5)],
+         "pitch_error_amp_mm": list(z), "pitch_error_period_mm": [5.0] * 5, "pitch_error_phase_rad": list(z),
+         "friction_coulomb_mm": list(z), "friction_stribeck_mm": list(z), "friction_stribeck_speed_mm_s": [1.0] * 5,
+         "drive_tau_s": list(z)}
+    for e in effects:
+        if e.effect not in LOOP_EFFECTS:
+            continue
+        j, p = AXES.index(e.locator["axis"]), e.parameters
+        if e.effect == "backlash":     # recorded in the answer: where the loop's load started in the play
+            e.details.setdefault("start", o["backlash_start"][j])
+            o["backlash_mm"][j] = p["width_mm"]
+            o["backlash_start"][j] = e.details["start"]
+        elif e.effect in ("pitch_error", "periodic_error"):
+            o["pitch_error_amp_mm"][j] = p["amplitude_mm"]
+            o["pitch_error_period_mm"][j] = p["period_mm"]
+            o["pitch_error_phase_rad"][j] = e.details["phase_rad"]
+        elif e.effect == "friction":
+            o["friction_coulomb_mm"][j] = p["coulomb_mm"]
+            o["friction_stribeck_mm"][j] = e.details["stribeck_mm"]
+            o["friction_stribeck_speed_mm_s"][j] = e.details["stribeck_speed_mm_s"]
+        elif e.effect == "servo_lag":
+            o["drive_tau_s"][j] = p["tau_s"]
+    return o
+
+
+def loop_plant(run: Run, effects, machine: Machine, *, service=None):
+    """Run ``run`` as a job through the real controller: the NC and ControlLoop of the service config
+    (no real time, ticks back to back) on the sim backend carrying ``effects``, at the run's rate.
+    Returns (run_as_machined, (q_cmd, q_mot, q_load)): the pulse counters x resolution, the encoders
+    and the sim's load side at every tick. The loop's path follower may take longer than the run
+    (it caps speeds and accelerations below the run's own); the returned Run has the loop's ticks,
+    with the tool pose and the tip force at the path position the loop had reached. The
+    following-error limits are widened (friction and servo lag are part of the case, not a fault
+    to stop on)."""
+    from pmctl import hal
+    from pmctl.motion.loop import ControlLoop, build_targets
+    from pmctl.motion.nc import counts_of, initial_state
+    from pmctl.motion.service_config import load_service_config
+
+    why = loop_supports(effects)
+    if why:
+        raise InputError("--plant loop", None, f"{why}; use --plant batch")
+    dt = 1.0 / run.rate_hz
+    svc = service or load_service_config()
+    ncc = dataclasses.replace(svc.nc, kv_per_s=min(svc.nc.kv_per_s, 0.4 / dt), ferror_mm=max(svc.nc.ferror_mm, 5.0),
+                              min_ferror_mm=max(svc.nc.min_ferror_mm, 0.5))
+    params = ncc.params(machine, dt)
+    n = len(run.t)
+    tg = build_targets(run.tip, run.axis, np.ones(n, int), dt, machine, params)
+    c0 = counts_of(tg.q[0], params)
+    be = hal.create("sim", machine, dt, sim_options(effects, run.q))
+    be.open(c0)
+    cfg = dataclasses.replace(svc.loop, rate_hz=run.rate_hz, realtime=False, stall_timeout_s=60.0, settle_s=0.0,
+                              state_file="")
+    res = ControlLoop(machine, be, params, tg, cfg, initial_state(machine, c0), log=lambda m: None).run()
+    if res.status != "done":
+        raise RuntimeError(f"the control loop did not finish the {run.kind} run: {res.status}, {res.reason}")
+    m = res.ticks
+    ps = np.clip(res.path_s[:m] if res.path_s is not None else np.arange(m, dtype=float), 0, n - 1)
+    k = np.arange(n)
+
+    def at_path(x):
+        return None if x is None else np.stack([np.interp(ps, k, x[:, i]) for i in range(x.shape[1])], 1)
+
+    axis = at_path(run.axis)
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    q_cmd = res.counts[:m] / params.pulses_per_mm
+    machined = Run(run.kind, np.arange(m) * dt, q_cmd, at_path(run.tip), axis, at_path(run.force), run.rate_hz)
+    return machined, (q_cmd, res.enc[:m].copy(), res.truth[:m].copy())
 
 
 def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, tracker_div=10,
@@ -761,10 +862,13 @@ def _pick_run(names, rng, run=None):
 
 
 def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, machine=None,
-               seed=None, magnitude_scale=1.0, noise_scale=1.0, oddities=(), imperfections=False) -> Case:
+               seed=None, magnitude_scale=1.0, noise_scale=1.0, oddities=(), imperfections=False,
+               plant="batch") -> Case:
     """One case: ``effects`` a list of catalogue names (each drawn at random) or Effect objects;
     ``oddities``: names from ODDITIES (physics outside the catalogue, listed apart in the answer);
-    ``imperfections``: drop rows, jitter the time stamps, colour the noise (:func:`imperfect`)."""
+    ``imperfections``: drop rows, jitter the time stamps, colour the noise (:func:`imperfect`);
+    ``plant``: "batch" (the axis effects as arrays, :func:`plant_batch`) or "loop" (the run machined
+    by the control loop on the sim backend carrying the effects, :func:`loop_plant`)."""
     machine = machine or load_machine()
     names = [e.effect if isinstance(e, Effect) else e for e in effects]
     kind = _pick_run(names, rng, run)
@@ -793,8 +897,13 @@ def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, mach
     tracker_div = max(1, int(round(rate_hz / tracker_hz)))
     orng = np.random.default_rng([0 if seed is None else int(seed), 77])   # apart: same noise as without
     odd = [o if isinstance(o, dict) else make_oddity(o, orng, r) for o in oddities]
+    plant_cols = None
+    if plant == "loop":
+        r, plant_cols = loop_plant(r, effs, machine)
+    elif plant != "batch":
+        raise InputError("--plant", None, f"unknown plant {plant!r}; one of {', '.join(PLANTS)}")
     cols, noise = simulate(r, effs, rng, machine, enc=enc, tool=tool, tracker_div=tracker_div,
-                           noise_scale=noise_scale, oddities=odd)
+                           noise_scale=noise_scale, oddities=odd, plant=plant_cols)
     if imperfections:
         cols = imperfect(cols, orng, rate_hz)
     descr = {"raster": "pocket milling, zig-zag passes in layers",
@@ -811,7 +920,7 @@ def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, mach
         notes.update({c: {"source": "test load / cutting-force estimate"} for c in LOAD})
     meta = {"sample_rate_hz": rate_hz, "description": f"{descr}, {duration_s:g} s",
             "channel_notes": notes}
-    answer = {"run": kind, "seed": seed, "duration_s": duration_s, "sample_rate_hz": rate_hz,
+    answer = {"run": kind, "seed": seed, "duration_s": duration_s, "sample_rate_hz": rate_hz, "plant": plant,
               "effects": [e.answer() for e in effs], "noise": noise}
     if odd:
         answer["oddities"] = odd
@@ -852,9 +961,10 @@ def parse_effects(text: str) -> list[str] | str:
 
 def generate(out_dir, count=1, *, effects="random", seed=0, clean=False, max_effects=1, run=None,
              duration_s=None, rate_hz=None, progress=None, magnitude_scale=1.0,
-             noise_scale=1.0, overwrite=False) -> list[Path]:
+             noise_scale=1.0, overwrite=False, plant="batch") -> list[Path]:
     """Write ``count`` cases to OUT_DIR/case-NNN; returns their folders. Existing cases are refused
-    (before anything is written) unless ``overwrite``."""
+    (before anything is written) unless ``overwrite``. ``plant="loop"``: each case machined by the
+    control loop on the sim (random effects then come from those the sim carries)."""
     from pmctl.core.recording import check_target
     for k in range(count):
         check_target(Path(out_dir) / f"case-{k:03d}" / "recording", overwrite=overwrite)
@@ -867,12 +977,13 @@ def generate(out_dir, count=1, *, effects="random", seed=0, clean=False, max_eff
             names = []
         elif effects == "random":
             m = int(rng.integers(1, max_effects + 1))
-            names = [str(x) for x in rng.choice(EFFECTS, size=m, replace=False)]
+            pool = EFFECTS if plant == "batch" else [e for e in EFFECTS if e in LOOP_EFFECTS + SHARED_EFFECTS]
+            names = [str(x) for x in rng.choice(pool, size=min(m, len(pool)), replace=False)]
         else:
             names = list(effects)
         case = synth_case(rng, names, run=run, duration_s=duration_s, rate_hz=rate_hz,
                           magnitude_scale=magnitude_scale, noise_scale=noise_scale,
-                          machine=machine, seed=case_seed)
+                          machine=machine, seed=case_seed, plant=plant)
         out.append(write_case(out_dir, f"case-{k:03d}", case, overwrite=overwrite))
         if progress:
             progress(k, out[-1], case)
@@ -896,6 +1007,11 @@ def _cmd(args) -> int:
         raise InputError("--rate", None, "must be 20..20000 Hz")
     if not 0 < args.magnitude_scale <= 100 or not 0 <= args.noise_scale <= 100:
         raise InputError("--magnitude-scale/--noise-scale", None, "must be > 0 (noise >= 0) and <= 100")
+    plant = getattr(args, "plant", "batch")
+    if plant == "loop" and args.rate is not None and not 200 <= args.rate <= 5000:
+        raise InputError("--rate", None, "with --plant loop must be 200..5000 Hz (the control loop's tick rate)")
+    if plant == "loop" and args.run == "warmup":
+        raise InputError("--run", None, "warmup runs heat the screws; the sim carries no thermal model: use --plant batch")
     if args.clean and args.effects != "random":
         raise InputError("--clean", None, f"contradicts --effects {args.effects}: a clean case hides no effect")
     eff = parse_effects(args.effects)
@@ -908,7 +1024,7 @@ def _cmd(args) -> int:
     generate(args.out_dir, args.count, effects=eff, seed=args.seed, clean=args.clean,
              max_effects=args.max_effects, run=args.run, duration_s=args.duration, rate_hz=args.rate,
              magnitude_scale=args.magnitude_scale, noise_scale=args.noise_scale,
-             progress=progress, overwrite=args.force)
+             progress=progress, overwrite=args.force, plant=plant)
     print(f"{args.count} case(s) in {time.perf_counter() - t0:.1f} s; answer keys are beside, not in, "
           f"each recording folder")
     return 0
