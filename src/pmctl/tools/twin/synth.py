@@ -2,7 +2,7 @@
 
 ``pmctl twin synth OUT_DIR [--effects backlash,pitch_error,...|random] [--count N] [--seed S]
 [--clean] [--run raster|circle|calibration|warmup] [--duration S] [--rate HZ]
-[--magnitude-scale F] [--noise-scale F]`` writes
+[--magnitude-scale F] [--noise-scale F] [--plant batch|loop]`` writes
 
     OUT_DIR/case-000/recording/{recording.json,data.csv}    the data (pmctl-recording/1)
     OUT_DIR/case-000/answer.json                             the answer key, outside the recording
@@ -43,6 +43,15 @@ How a case is made (vectorised; a 60 s run at 1 kHz takes 1-2 s to simulate, ~0.
    400 Hz) with a random phase and beam drop-outs (empty cells); strain_* every row (σ 0.3–0.7
    µε); ``sensor_gain`` (measured = gain·true) / ``sensor_offset`` (measured = true + offset) on
    one channel; temperatures σ 0.02 K at 10 Hz, 0.01 K resolution; loads σ 0.3 N.
+
+Two plants (``--plant``): ``batch`` (default) computes the axis effects over the whole run at once
+(:func:`plant_batch`): the whole catalogue, fast enough for blind sets of hundreds of cases.
+``loop`` machines the run's tool path through the real controller, the NC and ControlLoop (no real
+time) on the sim backend carrying the effects (:func:`loop_plant`; backlash, pitch and periodic
+error, friction, servo lag: :data:`LOOP_EFFECTS`); the channel effects, geometry, compliance and the
+measurement (step 3) are the same code for both. The batch path stays the default because it
+carries every effect (thermal warm-ups, resonance, lost steps, forced vibration of an axis are not
+in the sim) and is 5-20x faster; both share pmctl.core.plant_effects and agree on the same commands.
 
 Further effects (issue 12): ``friction`` (motor side trails cmd by sign(v)·(coulomb_mm + Stribeck
 term), 0 before the first move), ``periodic_error`` (as pitch, at a period 0.8-8 mm that is no lead
@@ -1015,6 +1024,12 @@ def _cmd(args) -> int:
     if args.clean and args.effects != "random":
         raise InputError("--clean", None, f"contradicts --effects {args.effects}: a clean case hides no effect")
     eff = parse_effects(args.effects)
+    if plant == "loop" and eff != "random":
+        bad = [nm for nm in eff if nm not in LOOP_EFFECTS + SHARED_EFFECTS + ("resonance", "forced_vibration")]
+        if bad:
+            raise InputError("--effects", None, f"the sim plant does not carry {', '.join(bad)}; use --plant batch "
+                             f"(--plant loop: {', '.join(LOOP_EFFECTS + SHARED_EFFECTS)}, and resonance or "
+                             f"forced vibration in a strain channel)")
     t0 = time.perf_counter()
 
     def progress(k, d, case):
