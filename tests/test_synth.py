@@ -331,3 +331,19 @@ def test_the_loop_path_refuses_effects_the_sim_does_not_carry():
     r = S.make_run("circle", np.random.default_rng(1), M, 1.0, 1000.0, False)
     with pytest.raises(InputError, match="does not carry thermal_growth"):
         S.loop_plant(r, [S.Effect("thermal_growth", {"axis": "X"}, {"alpha_per_K": 1e-5})], M)
+
+
+def test_a_drawn_periodic_error_is_identifiable_in_its_run():
+    """Identifiability rule: the screw travels >= 3 periods, and moves <= 1/4 period between the
+    laser tracker's samples (the only channel that sees the load side)."""
+    for seed in range(4):
+        c = S.synth_case(np.random.default_rng(seed), ["periodic_error"], machine=M, seed=seed, duration_s=5.0,
+                         rate_hz=500.0)
+        e = c.answer["effects"][0]
+        p, j = e["parameters"]["period_mm"], "cmd_" + e["axis"]
+        assert e["details"]["identifiable"] and 0.8 <= p <= 8.0
+        assert np.ptp(c.columns[j]) >= 3 * p - 1e-9
+        tracked = np.isfinite(c.columns["tip_x"])
+        ds = np.abs(np.diff(c.columns[j][tracked]))
+        assert np.median(ds[ds > 1e-9]) <= 0.3 * p             # tracker drop-outs aside, within the rule
+        assert all(abs(p * k / 5.0 - 1) > 0.08 for k in (1, 2, 3, 4))   # not a lead harmonic (a pitch error)

@@ -57,7 +57,10 @@ Further effects (issue 12): ``friction`` (motor side trails cmd by sign(v)·(cou
 term), 0 before the first move), ``periodic_error`` (as pitch, at a period 0.8-8 mm that is no lead
 harmonic), ``sensor_latency`` (the tracker, ``channel`` ``"tip_*"``, reports the pose of t − delay_s),
 ``forced_vibration`` (a constant-amplitude line on an axis' load side or in a strain channel),
-``sensor_drift`` (measured += rate_per_s·(t − t_mid)); thermal growth draws its fixed-bearing end
+``sensor_drift`` (measured += rate_per_s·(t − t_mid)); a drawn periodic error gets a period (and
+if need be an axis) that the run can identify (:func:`periodic_window`: the screw travels at least 3
+periods, and at most a quarter period between laser-tracker samples; the cycles and the step are in
+the answer's details); thermal growth draws its fixed-bearing end
 (``screw_fixed_end_mm``: one end of the screw or the other) and may be given the heated screw's
 rise (``details["rise_K"]``). Physics outside the catalogue (``ODDITIES``, ``synth_case(...,
 oddities=[...])``, listed under ``"oddities"`` in the answer, never under ``"effects"``): a bent
@@ -870,6 +873,50 @@ def _pick_run(names, rng, run=None):
     return str(rng.choice(sorted(allowed))) if allowed else "calibration"
 
 
+PERIODIC_MIN_CYCLES = 3.0     # the screw must travel this many periods of a periodic error ...
+PERIODIC_MAX_STEP = 0.25      # ... and move at most this fraction of a period between tracker samples
+
+
+def periodic_window(run: Run, j: int, tracker_div: int) -> tuple[float, float, float, float]:
+    """(lo, hi, span, step): the periods (mm) of a periodic error on axis j that ``run`` can
+    identify. The identifiability rule: the screw travels at least PERIODIC_MIN_CYCLES periods
+    (span = its position range) and, while it moves, at most PERIODIC_MAX_STEP of a period between
+    two samples of the laser tracker, which alone sees the load side (step = the median travel
+    between tracker samples while moving): lo = step / 0.25, hi = span / 3."""
+    s = run.q[::max(1, int(tracker_div)), j]
+    ds = np.abs(np.diff(s))
+    step = float(np.median(ds[ds > 1e-9])) if np.any(ds > 1e-9) else float("inf")
+    span = float(np.ptp(run.q[:, j]))
+    return step / PERIODIC_MAX_STEP, span / PERIODIC_MIN_CYCLES, span, step
+
+
+def identifiable_periodic(e: Effect, run: Run, tracker_div: int, rng, *, taken=()) -> Effect:
+    """``e`` (a drawn periodic_error) with a period, and if need be an axis, that ``run`` can
+    identify (:func:`periodic_window`), drawn log-uniform in 0.8-8 mm within the window, away from
+    the lead harmonics (±8 %). Kept as drawn when it already is identifiable; when no axis has a
+    window, kept too (``details["identifiable"] = False``)."""
+    axes = [e.locator["axis"]] + [a for a in AXES if a != e.locator["axis"]
+                                  and ("periodic_error", (("axis", a),)) not in taken]
+    for a in axes:
+        lo, hi, span, step = periodic_window(run, AXES.index(a), tracker_div)
+        lo, hi = max(lo, 0.8), min(hi, 8.0)
+        if lo > hi:
+            continue
+        p = e.parameters["period_mm"]
+        if a == e.locator["axis"] and lo <= p <= hi:
+            per = p
+        else:
+            for _ in range(50):
+                per = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+                if all(abs(per * k / 5.0 - 1) > 0.08 for k in (1, 2, 3, 4)):
+                    break
+            else:
+                continue
+        d = dict(e.details, cycles=span / per, tracker_step_mm=step, identifiable=True)
+        return Effect(e.effect, {"axis": a}, dict(e.parameters, period_mm=per), d)
+    return Effect(e.effect, dict(e.locator), dict(e.parameters), dict(e.details, identifiable=False))
+
+
 def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, machine=None,
                seed=None, magnitude_scale=1.0, noise_scale=1.0, oddities=(), imperfections=False,
                plant="batch") -> Case:
@@ -906,6 +953,11 @@ def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, mach
     tracker_div = max(1, int(round(rate_hz / tracker_hz)))
     orng = np.random.default_rng([0 if seed is None else int(seed), 77])   # apart: same noise as without
     odd = [o if isinstance(o, dict) else make_oddity(o, orng, r) for o in oddities]
+    prng = np.random.default_rng([0 if seed is None else int(seed), 53])   # apart: the other draws unchanged
+    drawn = [i for i, e in enumerate(effects) if not isinstance(e, Effect)]
+    for i in drawn:
+        if effs[i].effect == "periodic_error":
+            effs[i] = identifiable_periodic(effs[i], r, tracker_div, prng, taken=used)
     plant_cols = None
     if plant == "loop":
         r, plant_cols = loop_plant(r, effs, machine)
