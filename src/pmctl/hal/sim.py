@@ -12,7 +12,13 @@ Per axis (L1, L2, L3, X, Y):
 - **strain gauge** on each plate link: strain = k_eps * tension, tension = the static gravity
   load of the true (load-side) platform pose (pmctl.core.statics, docs/diagnosis-report.md §1) plus the spring
   force k * y of the flexible mode (microstrain, tension positive);
-- **measurement noise**: Gaussian on encoders (mm) and strain (microstrain), seeded RNG.
+- **measurement noise**: Gaussian on encoders (mm) and strain (microstrain), seeded RNG;
+- **the effect catalogue** (a misbehaving machine; pmctl.core.plant_effects, docs/service.md):
+  friction adds the position loop's following error to the motor side (the encoders see it);
+  backlash (play operator), periodic screw error (pitch) and thermal growth of the screw position
+  sit between motor and load (only the load side, so the true tip and the gauges, see them).
+  With all of them zero the tick is the C step alone; else the C step moves drive and modes, the
+  effects follow the new motor position in Python, and the C sample reads the feedback.
 
 The true tool tip is FK(load-side joints) (:meth:`truth` gives them). The per-tick step is C
 (simplant.c, built at install with the compiled NC core, whose FK it uses for the gravity strain). Fault injection for tests:
