@@ -11,7 +11,9 @@ mode on unless --no-flex); kv is capped at 0.4/dt for high rates.
    loop with an ideal plant, same targets, pulses compared tick for tick): median / p99 per call, CPU
    time per call (the loop's timer around the call included), and the Python/compiled ratio.
 2. Whole tick (read sim -> NC -> write sim -> record), ticks back to back (realtime=False), for
-   each implementation.
+   each implementation; 2b: the same with the sim's effect catalogue on (backlash, pitch error,
+   thermal growth, friction on every axis: the effects' per-tick Python between the C step and
+   sample).
 3. Real time at --rt-rate Hz for --duration seconds (SCHED_FIFO + mlockall when permitted).
 4. Each rate of --rates for --duration seconds in real time. A rate is held when the run finishes
    (the service's max_overruns_in_row stop did not trigger), the whole-tick compute p99 is
@@ -107,8 +109,14 @@ def bench_nc(m, rate, n):
     return out["compiled"][0], out["python"][0], out["compiled"][1], out["python"][1], same, params
 
 
-def run_loop(m, rate, seconds, realtime, flex=True, impl=None, spin_us=0.0):
-    """The service config's NC and loop policy (max_overruns_in_row, stall limit) on the sim plant."""
+# [hal.sim] effects for the 2b line: every catalogue effect of the sim on every axis
+SIM_EFFECTS = {"backlash_mm": 0.01, "pitch_error_amp_mm": 0.003, "thermal_delta_K": 2.0,
+               "friction_coulomb_mm": 0.004, "friction_stribeck_mm": 0.002}
+
+
+def run_loop(m, rate, seconds, realtime, flex=True, impl=None, spin_us=0.0, effects=None):
+    """The service config's NC and loop policy (max_overruns_in_row, stall limit) on the sim plant
+    (``effects``: more [hal.sim] options)."""
     svc, params = service(m, rate, impl)
     dt = 1.0 / rate
     tr = circle(dt, seconds)
@@ -116,6 +124,7 @@ def run_loop(m, rate, seconds, realtime, flex=True, impl=None, spin_us=0.0):
     c0 = counts_of(tg.q[0], params)
     opts = dict(svc.backend_options)
     opts["flex"] = flex
+    opts.update(effects or {})
     be = hal.create("sim", m, dt, opts)
     be.open(c0)
     cfg = svc.loop
@@ -161,6 +170,11 @@ def main(argv=None):
               f"{s['compute_median_us']:6.1f} us, p99 {s['compute_p99_us']:6.1f} us, max {s['compute_max_us']:7.1f} us "
               f"(NC median {s['nc_median_us']:.1f} us); tracking max {tracking_stats(res, m)['tip_max_um']:.3f} um; "
               f"load average {la[0]:.2f} -> {la[1]:.2f}")
+    res, _, cpu_frac, la = run_loop(m, rate, 10.0, realtime=False, flex=flex, effects=SIM_EFFECTS)
+    s = res.timing.summary()
+    print(f"2b. whole tick, back to back, compiled, sim with the effect catalogue on every axis ({s['ticks']} ticks): "
+          f"compute median {s['compute_median_us']:6.1f} us, p99 {s['compute_p99_us']:6.1f} us; "
+          f"load average {la[0]:.2f} -> {la[1]:.2f}")
 
     res, msgs, cpu_frac, la = run_loop(m, rate, a.duration, realtime=True, flex=flex, spin_us=a.spin_us)
     s = res.timing.summary()

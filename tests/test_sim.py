@@ -166,3 +166,67 @@ def test_extrapolated_gravity_strain_stays_below_the_gauge_noise():
         b.write_pulses(p)
         worst = max(worst, np.abs(a.read().strain - b.read().strain).max())
     assert worst < 0.02
+
+
+# ---------------------------------------------------------------- the effect catalogue on the sim
+
+def _effect_run(s, n=1500, seed=3):
+    """Random pulse bursts with reversals and holds; per tick: commanded, encoder, load side."""
+    rng = np.random.default_rng(seed)
+    cmd, enc, load = [], [], []
+    v = rng.integers(-60, 61, 5)
+    for k in range(n):
+        if k % 100 == 0:
+            v = rng.integers(-60, 61, 5) * (rng.random(5) < 0.8)
+        s.write_pulses(v + rng.integers(-3, 4, 5))
+        fb = s.read()
+        cmd.append(fb.counts / 2000.0)
+        enc.append(fb.enc.copy())
+        load.append(s.truth())
+    return np.array(cmd), np.array(enc), np.array(load)
+
+
+def test_sim_effects_are_the_catalogue_physics_tick_for_tick():
+    """The sim's load side = motor side + play + pitch + thermal growth of the screw position, the
+    encoders = drive + friction following error: the batch functions of pmctl.core.plant_effects on
+    the recorded motor positions give the same numbers."""
+    from pmctl.core import plant_effects as PE
+    opt = dict(backlash_mm=[0.02, 0.0, 0.01, 0.015, 0.0], backlash_start=[-1, 0, 0.5, 1, 0],
+               pitch_error_amp_mm=[0.004, 0.0, 0.0, 0.0, 0.003], pitch_error_period_mm=[5.0, 5, 5, 5, 2.5],
+               pitch_error_phase_rad=[0.3, 0, 0, 0, 1.0], thermal_delta_K=[0, 3.0, 0, 0, 0],
+               friction_coulomb_mm=[0.0, 0.0, 0.0, 0.006, 0.0], friction_stribeck_mm=[0, 0, 0, 0.004, 0])
+    s = _sim(**opt)
+    o = s.opt
+    x0 = C0 / 2000.0
+    cmd, enc, load = _effect_run(s)
+    cmd, enc, load = np.vstack([x0, cmd]), np.vstack([x0, enc]), np.vstack([x0, load])
+    fric = PE.friction_offset(cmd, DT, o.friction_coulomb_mm, o.friction_stribeck_mm, o.friction_stribeck_speed_mm_s)
+    assert np.max(np.abs(enc - cmd - fric)) < 1e-12
+    assert np.max(np.abs(fric[:, 3])) > 0.005 and np.all(fric[:, [0, 1, 2, 4]] == 0)
+    play = np.stack([PE.play_error(enc[:, j], o.backlash_mm[j], o.backlash_start[j]) for j in range(5)], 1)
+    want = (play + PE.periodic_error(enc, o.pitch_error_amp_mm, o.pitch_error_period_mm, o.pitch_error_phase_rad)
+            + PE.thermal_growth(enc, o.thermal_alpha_per_K, o.thermal_delta_K, o.thermal_fixed_end_mm))
+    assert np.max(np.abs(load[1:] - enc[1:] - want[1:])) < 1e-12
+    assert np.ptp(load[:, 0] - enc[:, 0]) > 0.02          # backlash flips and pitch error both seen on L1
+
+
+def test_sim_without_effects_keeps_the_fast_tick_and_with_zero_effects_is_identical():
+    a, b = _sim(), _sim(backlash_mm=0.0, pitch_error_amp_mm=0.0, thermal_delta_K=0.0)
+    assert not a.opt.effects_on and not b.opt.effects_on
+    c = _sim(backlash_mm=[0, 0, 0, 0, 1e-9])
+    assert c.opt.effects_on
+    ra, rc = _effect_run(a, 300), _effect_run(c, 300)
+    assert np.array_equal(ra[0], rc[0]) and np.array_equal(ra[1], rc[1])
+    assert np.max(np.abs(ra[2] - rc[2])) <= 1e-9
+
+
+def test_sim_effect_options_are_strictly_checked():
+    o = SimOptions.from_dict({"backlash_mm": 0.01, "pitch_error_amp_mm": [0, 0, 0, 0.002, 0]}, M)
+    assert np.array_equal(o.backlash_mm, [0.01] * 5) and o.pitch_error_period_mm[3] == M.resolution.table_screw_lead
+    for bad, key in (({"backlash_mm": -0.01}, "backlash_mm"), ({"backlash_mm": [0.01, 0.02]}, "backlash_mm"),
+                     ({"backlash_mm": "0.01"}, "backlash_mm"), ({"pitch_error_period_mm": 0.0}, "pitch_error_period_mm"),
+                     ({"backlash_start": 2.0}, "backlash_start"), ({"friction_coulomb_mm": True}, "friction_coulomb_mm")):
+        with pytest.raises(ConfigError, match=key):
+            SimOptions.from_dict(bad)
+    with pytest.raises(ConfigError, match="did you mean 'backlash_mm'"):
+        SimOptions.from_dict({"backlash": 0.01})

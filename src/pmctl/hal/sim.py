@@ -19,6 +19,12 @@ Per axis (L1, L2, L3, X, Y):
   (pmctl.core.statics, the tip force at the load-side pose) into the three strains, per tick, in
   Python after the C step (about 0.1-0.3 ms a tick while on). It does not deflect the chains' modes
   nor stop the tip: a surface stiff against the probing feed, read by the gauges.
+- **the effect catalogue** (a misbehaving machine; pmctl.core.plant_effects, docs/service.md):
+  friction adds the position loop's following error to the motor side (the encoders see it);
+  backlash (play operator), periodic screw error (pitch) and thermal growth of the screw position
+  sit between motor and load (only the load side, so the true tip and the gauges, see them).
+  With all of them zero the tick is the C step alone; else the C step moves drive and modes, the
+  effects follow the new motor position in Python, and the C sample reads the feedback.
 
 The true tool tip is FK(load-side joints) (:meth:`truth` gives them). The per-tick step is C
 (simplant.c, built at install with the compiled NC core, whose FK it uses for the gravity strain). Fault injection for tests:
@@ -32,9 +38,10 @@ import time
 from dataclasses import dataclass, fields
 
 import numpy as np
-from scipy.linalg import expm
 
+from pmctl.core import plant_effects as PE
 from pmctl.core.config import Machine
+from pmctl.core.plant_effects import SCREW_FIXED_END_MM
 from pmctl.core.errors import ConfigError
 from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Inputs, Status
 
@@ -62,6 +69,25 @@ class SimOptions:
     contact_z_mm: float | None = None   # a plane z = this (tool tip in W, mm) resisting the tip below it
     contact_stiffness_N_per_mm: float = 2000.0
     tip_force_N: tuple = (0.0, 0.0, 0.0)   # constant force on the tool tip, N, base axes
+    # ---- the effect catalogue (pmctl.core.plant_effects), per axis L1 L2 L3 X Y; all 0 = off
+    backlash_mm: tuple = (0.0,) * 5                     # play (deadband) width between motor and load
+    backlash_start: tuple = (0.0,) * 5                  # where the load rests in the play at open, -1..1
+    pitch_error_amp_mm: tuple = (0.0,) * 5              # periodic screw error A·sin(2π·s/P + φ)
+    pitch_error_period_mm: tuple = (5.0,) * 5          # default: the machine's screw leads
+    pitch_error_phase_rad: tuple = (0.0,) * 5
+    thermal_delta_K: tuple = (0.0,) * 5                 # screw temperature over the calibration's
+    thermal_alpha_per_K: tuple = (11.5e-6,) * 5         # expansion coefficient (steel)
+    thermal_fixed_end_mm: tuple = tuple(SCREW_FIXED_END_MM)   # the screw's fixed bearing (growth 0 there)
+    friction_coulomb_mm: tuple = (0.0,) * 5             # following error against Coulomb friction
+    friction_stribeck_mm: tuple = (0.0,) * 5            # ... plus the Stribeck term at low speed
+    friction_stribeck_speed_mm_s: tuple = (2.0,) * 5
+
+    @property
+    def effects_on(self) -> bool:
+        """Any catalogue effect set (else the plant's tick is the C step alone)."""
+        return bool(np.any(np.asarray(self.backlash_mm) != 0) or np.any(np.asarray(self.pitch_error_amp_mm) != 0)
+                    or np.any(np.asarray(self.thermal_delta_K) != 0) or np.any(np.asarray(self.friction_coulomb_mm) != 0)
+                    or np.any(np.asarray(self.friction_stribeck_mm) != 0))
 
     @classmethod
     def from_dict(cls, d: dict, machine: Machine | None = None, where="sim"):
@@ -77,6 +103,8 @@ class SimOptions:
         if machine is not None:
             base.mode_stiffness_N_per_mm = (machine.stiffness.chain_axial,) * 3
             base.mode_mass_kg = (machine.mass.platform_kg / 3,) * 3
+            r = machine.resolution
+            base.pitch_error_period_mm = (r.screw_lead,) * 3 + (r.table_screw_lead,) * 2
         t = Table(where, d, "")
         names = [f.name for f in fields(cls)]
         for k in d:
@@ -106,6 +134,7 @@ class SimOptions:
             estop_to_tick=t.integer("estop_to_tick", default=base.estop_to_tick, lo=-1, hi=big),
             home_switch_mm=(t.vector("home_switch_mm", 5, default=[0.0] * 5, lo=-1e4, hi=1e4, scalar_ok=True)
                             if "home_switch_mm" in d else None),
+            **cls._effect_options(t, base),
         )
         # ---- contact and applied load
         if d.get("contact_z_mm") is not None:
@@ -115,6 +144,25 @@ class SimOptions:
         o.tip_force_N = tuple(float(x) for x in t.vector("tip_force_N", 3, default=base.tip_force_N, lo=-1e6, hi=1e6))
         t.finish()
         return o
+
+    @staticmethod
+    def _effect_options(t, base) -> dict:
+        """The effect catalogue's options, each one number for all axes or one per axis."""
+        def v(name, **rng):
+            return t.vector(name, 5, default=getattr(base, name), scalar_ok=True, **rng)
+        return dict(
+            backlash_mm=v("backlash_mm", nonneg=True, hi=10.0),
+            backlash_start=v("backlash_start", lo=-1.0, hi=1.0),
+            pitch_error_amp_mm=v("pitch_error_amp_mm", lo=-10.0, hi=10.0),
+            pitch_error_period_mm=v("pitch_error_period_mm", positive=True, hi=1e4),
+            pitch_error_phase_rad=v("pitch_error_phase_rad", lo=-1e3, hi=1e3),
+            thermal_delta_K=v("thermal_delta_K", lo=-200.0, hi=500.0),
+            thermal_alpha_per_K=v("thermal_alpha_per_K", lo=-1e-3, hi=1e-3),
+            thermal_fixed_end_mm=v("thermal_fixed_end_mm", lo=-1e4, hi=1e4),
+            friction_coulomb_mm=v("friction_coulomb_mm", nonneg=True, hi=10.0),
+            friction_stribeck_mm=v("friction_stribeck_mm", nonneg=True, hi=10.0),
+            friction_stribeck_speed_mm_s=v("friction_stribeck_speed_mm_s", positive=True, hi=1e4),
+        )
 
 
 class SimBackend(Backend):
@@ -140,10 +188,7 @@ class SimBackend(Backend):
         k_N_per_m = o.mode_stiffness_N_per_mm * 1e3
         self.omega = np.sqrt(k_N_per_m / o.mode_mass_kg)          # rad/s
         self.mode_hz = self.omega / (2 * math.pi)
-        phi = np.empty((3, 2, 2))
-        for i in range(3):
-            w, z = self.omega[i], o.mode_damping_ratio[i]
-            phi[i] = expm(np.array([[0.0, 1.0], [-w * w, -2 * z * w]]) * self.dt)
+        phi = np.array([PE.mode_transition(self.mode_hz[i], o.mode_damping_ratio[i], self.dt) for i in range(3)])
         self._phi = phi
         self._strain_per_mm = machine.strain_gain * o.mode_stiffness_N_per_mm   # microstrain per mm of y
         self._rng = np.random.default_rng(o.seed)
@@ -175,6 +220,7 @@ class SimBackend(Backend):
         self._noise, self._noise_i = None, 0
         self._fb = Feedback()
         self._fb.counts = np.zeros(5, np.int64)
+        self._effects = o.effects_on
         self._open = False
         # ---- contact and applied load
         self._load_on = o.contact_z_mm is not None or any(o.tip_force_N)
@@ -200,6 +246,8 @@ class SimBackend(Backend):
         self.tick = 0
         self._fb.seq = 1
         self._open = True
+        if self._effects:
+            self._start_effects(d)
         self._check(self._plant.sample(self._draw(), 0))
         if self._load_on:
             self._add_load()
@@ -216,6 +264,11 @@ class SimBackend(Backend):
 
     def write_pulses(self, pulses):
         nz = self._draw() if self._n_noise else None
+        if self._effects:
+            self._step_effects(pulses, nz)
+            if self._load_on:
+                self._add_load()
+            return
         try:
             r = self._plant.step(pulses, nz, self.tick)
         except (TypeError, ValueError):          # not a contiguous int64 array: convert (checked before any change)
@@ -275,6 +328,50 @@ class SimBackend(Backend):
         self._fb.strain += self._per_N @ f
 
     # ---------------------------------------------------------------- internals
+    def _start_effects(self, d):
+        """The effects' state at the opening position (pmctl.core.plant_effects, per tick); only the
+        effects that are set take time in the tick."""
+        o, L = self.opt, self._lib
+        self._moff = d[L.D_MOFF:L.D_MOFF + 5]
+        self._loff = d[L.D_LOFF:L.D_LOFF + 5]
+        self._cmd = d[L.D_CMD:L.D_CMD + 5]
+        self._mot = d[L.D_MOTOR:L.D_MOTOR + 5]
+        self._play = PE.Play(o.backlash_mm, self._mot, o.backlash_start) if np.any(o.backlash_mm) else None
+        self._friction = (PE.Friction(self._cmd, self.dt, o.friction_coulomb_mm, o.friction_stribeck_mm,
+                                      o.friction_stribeck_speed_mm_s)
+                          if np.any(o.friction_coulomb_mm) or np.any(o.friction_stribeck_mm) else None)
+        self._pitch = (PE.PeriodicError(o.pitch_error_amp_mm, o.pitch_error_period_mm, o.pitch_error_phase_rad)
+                       if np.any(o.pitch_error_amp_mm) else None)
+        self._thermal = np.any(o.thermal_delta_K) and np.any(o.thermal_alpha_per_K)
+        self._zero5 = np.zeros(5)
+        self._set_offsets(self._play.error if self._play is not None else 0.0, self._zero5)
+
+    def _set_offsets(self, play_err, moff):
+        """Motor side = drive + friction (the encoders see it); load side = that + play + screw
+        errors (pitch/periodic, thermal growth) of the screw position."""
+        o = self.opt
+        s = self._mot + moff
+        self._moff[:] = moff
+        loff = play_err
+        if self._pitch is not None:
+            loff = loff + self._pitch(s)
+        if self._thermal:
+            loff = loff + PE.thermal_growth(s, o.thermal_alpha_per_K, o.thermal_delta_K, o.thermal_fixed_end_mm)
+        self._loff[:] = loff
+
+    def _step_effects(self, pulses, nz):
+        """One tick with the effects: the C step moves drive and modes, the effects follow the new
+        motor position here, then the C sample reads encoders, load-side pose and strain."""
+        try:
+            self._plant.step(pulses, None, self.tick, True)
+        except (TypeError, ValueError):
+            self._plant.step(np.ascontiguousarray(pulses, np.int64), None, self.tick, True)
+        moff = self._friction.step(self._cmd) if self._friction is not None else self._zero5
+        self._set_offsets(self._play.step(self._mot + moff) if self._play is not None else 0.0, moff)
+        self.tick += 1
+        self._fb.seq += 1
+        self._check(self._plant.sample(nz, self.tick))
+
     def _check(self, r):
         if r:
             raise self._KinematicsError(f"sim backend: the load-side pose is lost (forward kinematics, event {r})")

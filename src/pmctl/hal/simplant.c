@@ -13,7 +13,7 @@
 /* double state */
 enum { D_CMD = 0, D_MOTOR = 5, D_VM = 10, D_Y = 15, D_YD = 18, D_Q = 21, D_P = 26, D_R = 29, D_T = 38,
        D_QFK = 56, D_GAQ = 61, D_GAG = 66, D_GBQ = 69, D_GBG = 74, D_HAS_T = 77, D_HAVE_A = 78,
-       D_HAVE_B = 79, D_LEN = 80 };
+       D_HAVE_B = 79, D_MOFF = 80, D_LOFF = 85, D_LEN = 90 };
 /* constants */
 enum { K_PPM = 0, K_DT = 5, K_TAU_ON = 6, K_TAU = 7, K_LAG = 12, K_PH = 17, K_FLEX = 29, K_SPM = 30,
        K_LOST_TICK = 33, K_LOST_AXIS = 34, K_LOST_MM = 35, K_ENC_NOISE = 36, K_STRAIN_NOISE = 37,
@@ -143,7 +143,9 @@ static int gravity(PlantObject *self, double *d, long tick, double g[3], double 
     }
 }
 
-/* The feedback sample at tick `tick`: encoders (motor side + noise), strain (spring + gravity + noise). */
+/* The feedback sample at tick `tick`: encoders (motor side + noise), strain (spring + gravity + noise).
+ * D_MOFF: the effects' motor-side offsets (friction: the encoders see them), D_LOFF: their
+ * load-side offsets (backlash, screw errors: only the load sees them); both 0 without effects. */
 static int sample(PlantObject *self, long tick, const double *nz, double ev[6])
 {
     double *d = self->b[0].buf, *enc = self->b[2].buf, *strain = self->b[3].buf, g[3];
@@ -152,10 +154,12 @@ static int sample(PlantObject *self, long tick, const double *nz, double ev[6])
     int i, r, ne = (int)k[K_N_ENC];
     for (i = 0; i < 5; i++) {
         fbc[i] = counts[i];
-        enc[i] = ne ? d[D_MOTOR + i] + k[K_ENC_NOISE] * nz[i] : d[D_MOTOR + i];
+        enc[i] = d[D_MOTOR + i] + d[D_MOFF + i];
+        if (ne)
+            enc[i] += k[K_ENC_NOISE] * nz[i];
     }
     for (i = 0; i < 5; i++)
-        d[D_Q + i] = d[D_MOTOR + i] + (i < 3 ? d[D_Y + i] : 0.0);
+        d[D_Q + i] = d[D_MOTOR + i] + d[D_MOFF + i] + d[D_LOFF + i] + (i < 3 ? d[D_Y + i] : 0.0);
     r = gravity(self, d, tick, g, ev);
     if (r)
         return r;
@@ -184,8 +188,10 @@ static int noise_arg(PyObject *o, Py_buffer *v, int *got)
     return 0;
 }
 
-/* step(pulses int64[5], noise row or None, tick) -> 0, or the NC_EV_* event of a lost load-side pose.
- * `tick` is the plant's tick before this step (lost steps), the sample is taken at tick + 1. */
+/* step(pulses int64[5], noise row or None, tick[, advance_only]) -> 0, or the NC_EV_* event of a lost
+ * load-side pose. `tick` is the plant's tick before this step (lost steps), the sample is taken at
+ * tick + 1; with advance_only true the drive and modes move but no sample is taken (the caller sets
+ * the effects' offsets from the new motor position, then calls sample(noise, tick + 1)). */
 static PyObject *Plant_step(PlantObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     Py_buffer pb, nb;
@@ -193,9 +199,9 @@ static PyObject *Plant_step(PlantObject *self, PyObject *const *args, Py_ssize_t
     int64_t *counts;
     const int64_t *p;
     long tick;
-    int i, gotn, r;
-    if (nargs != 3) {
-        PyErr_SetString(PyExc_TypeError, "step(pulses, noise, tick)");
+    int i, gotn, r, advance_only = 0;
+    if (nargs != 3 && nargs != 4) {
+        PyErr_SetString(PyExc_TypeError, "step(pulses, noise, tick[, advance_only])");
         return NULL;
     }
     if (self->have != 5) {
@@ -204,6 +210,8 @@ static PyObject *Plant_step(PlantObject *self, PyObject *const *args, Py_ssize_t
     }
     tick = PyLong_AsLong(args[2]);
     if (tick == -1 && PyErr_Occurred())
+        return NULL;
+    if (nargs == 4 && (advance_only = PyObject_IsTrue(args[3])) < 0)
         return NULL;
     if (get_buf(args[0], &pb, 5, 0, 1, "pulses") < 0)
         return NULL;
@@ -242,7 +250,7 @@ static PyObject *Plant_step(PlantObject *self, PyObject *const *args, Py_ssize_t
     memcpy(d + D_CMD, c_new, sizeof c_new);
     memcpy(d + D_MOTOR, m_new, sizeof m_new);
     memcpy(d + D_VM, vm, sizeof vm);
-    r = sample(self, tick + 1, gotn ? nb.buf : NULL, ev);
+    r = advance_only ? 0 : sample(self, tick + 1, gotn ? nb.buf : NULL, ev);
     if (gotn)
         PyBuffer_Release(&nb);
     return PyLong_FromLong(r);
@@ -312,6 +320,7 @@ PyMODINIT_FUNC PyInit__simplant(void)
 #define C(name, v) PyModule_AddIntConstant(m, name, v)
     C("D_LEN", D_LEN); C("K_LEN", K_LEN); C("D_CMD", D_CMD); C("D_MOTOR", D_MOTOR); C("D_VM", D_VM);
     C("D_Y", D_Y); C("D_YD", D_YD); C("D_Q", D_Q); C("D_P", D_P); C("D_R", D_R);
+    C("D_MOFF", D_MOFF); C("D_LOFF", D_LOFF);
 #undef C
     return m;
 }

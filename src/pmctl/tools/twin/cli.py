@@ -50,6 +50,11 @@ def add_synth_parser(sub):
                    help="make the hidden effects this many times stronger (<1: harder cases; default 1)")
     p.add_argument("--noise-scale", type=float, default=1.0, metavar="F",
                    help="multiply every measurement noise (default 1)")
+    p.add_argument("--plant", choices=("batch", "loop"), default="batch",
+                   help="batch (default): the effects computed over the whole run at once (fast, the whole "
+                        "catalogue); loop: the run machined by the real control loop (no real time) on the sim "
+                        "backend carrying the effects (backlash, pitch/periodic error, friction, servo lag; "
+                        "plus the sensor, geometry and compliance effects)")
     p.add_argument("--force", action="store_true", help="replace cases that already exist in OUT_DIR")
     p.set_defaults(func=lazy("pmctl.tools.twin.synth:_cmd"))
     return p

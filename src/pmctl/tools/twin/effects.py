@@ -27,6 +27,8 @@ import numpy as np
 from scipy import optimize, signal
 
 from pmctl.core import kinematics as kin
+from pmctl.core.plant_effects import direction, first_order_lag, play_error
+from pmctl.core.plant_effects import mode_response as resonance_response
 
 AXES = ("L1", "L2", "L3", "X", "Y")
 MAX_ALPHA = 1e-4   # /K, no solid screw expands more
@@ -142,42 +144,6 @@ def fill_gaps(t, x):
     return np.interp(t, t[ok], x[ok])
 
 
-def play_error(x, width, start=0.0):
-    """Backlash as a play operator: load position stays within ±width/2 of the motor position and
-    only moves when dragged. Returns e = x_load - x_motor, starting at ``start``·width/2 (start in
-    [-1, 1]: where in the deadband the load rests when the record begins). Exact, segment-wise."""
-    h = 0.5 * abs(width)
-    x = np.asarray(x, float)
-    e = np.zeros_like(x)
-    if len(x) < 2 or h == 0:
-        return e
-    dx = np.diff(x)
-    nz = np.nonzero(dx)[0]
-    if len(nz) == 0:
-        return e
-    s = np.sign(dx[nz])
-    rev = nz[1:][s[1:] != s[:-1]]          # the increment index where direction changes
-    starts = np.concatenate([[0], rev])    # segment k starts at sample starts[k]
-    ends = np.concatenate([rev, [len(x) - 1]])
-    e0 = float(np.clip(start, -1, 1)) * h
-    for a, b in zip(starts, ends):
-        seg = np.clip(e0 - (x[a:b + 1] - x[a]), -h, h)
-        e[a:b + 1] = seg
-        e0 = seg[-1]
-    return e
-
-
-def direction(x, dead=0.0):
-    """+1/-1 for the direction of the last motion (held through stops), 0 before the first move."""
-    dx = np.diff(np.asarray(x, float), prepend=x[0])
-    s = np.where(dx > dead, 1.0, np.where(dx < -dead, -1.0, 0.0))
-    idx = np.where(s != 0, np.arange(len(s)), 0)
-    np.maximum.accumulate(idx, out=idx)
-    d = s[idx]
-    d[: np.argmax(s != 0) if np.any(s != 0) else len(s)] = 0.0
-    return d
-
-
 def axis_velocity(ctx, a) -> np.ndarray:
     """d cmd_a / dt at every row (mm/s), computed once per context."""
     key = ("velocity", a)
@@ -192,41 +158,6 @@ def axis_direction(ctx, a) -> np.ndarray:
     if key not in ctx.extra:
         ctx.extra[key] = direction(ctx.q_cmd[:, a])
     return ctx.extra[key]
-
-
-def first_order_lag(t, u, tau):
-    """Response of a first-order lag τ·y' + y = u to u, starting settled at u[0].
-
-    Exact for an input that is linear between samples (first-order hold), so a ramp at speed v is
-    trailed by exactly τ·v whatever the sample rate."""
-    u = np.asarray(u, float)
-    if tau <= 0:
-        return u.copy()
-    dt = np.diff(t)
-    if len(dt) and np.ptp(dt) <= 1e-6 * np.mean(dt):
-        h = float(np.mean(dt))
-        a = math.exp(-h / tau)
-        c = (1 - a) * tau / h - a
-        # y_k = a y_{k-1} + (1 - a - c) u_k + c u_{k-1}
-        y, _ = signal.lfilter([1 - a - c, c], [1, -a], u - u[0], zi=[0.0])
-        return y + u[0]
-    y = np.empty_like(u)
-    y[0] = u[0]
-    aa = np.exp(-dt / tau)
-    cc = (1 - aa) * tau / dt - aa
-    for k in range(1, len(u)):
-        y[k] = aa[k - 1] * y[k - 1] + (1 - aa[k - 1] - cc[k - 1]) * u[k] + cc[k - 1] * u[k - 1]
-    return y
-
-
-def resonance_response(x, dt, freq_hz, zeta):
-    """Relative displacement of a base-excited oscillator y'' + 2ζω y' + ω² y = -x'' (uniform dt),
-    i.e. H(s) = -s² / (s² + 2ζω s + ω²) applied to x - x[0]. Bilinear with prewarping at ω."""
-    w = 2 * math.pi * freq_hz
-    wp = 2.0 / dt * math.tan(min(w * dt / 2, 1.55))
-    b, a = signal.bilinear([-1.0, 0.0, 0.0], [1.0, 2 * zeta * wp, wp * wp], fs=1.0 / dt)
-    x = np.asarray(x, float)
-    return signal.lfilter(b, a, x - x[0])
 
 
 # ---------------------------------------------------------------- fit results and candidates

@@ -2,7 +2,7 @@
 
 ``pmctl twin synth OUT_DIR [--effects backlash,pitch_error,...|random] [--count N] [--seed S]
 [--clean] [--run raster|circle|calibration|warmup] [--duration S] [--rate HZ]
-[--magnitude-scale F] [--noise-scale F]`` writes
+[--magnitude-scale F] [--noise-scale F] [--plant batch|loop]`` writes
 
     OUT_DIR/case-000/recording/{recording.json,data.csv}    the data (pmctl-recording/1)
     OUT_DIR/case-000/answer.json                             the answer key, outside the recording
@@ -44,11 +44,24 @@ How a case is made (vectorised; a 60 s run at 1 kHz takes 1-2 s to simulate, ~0.
    µε); ``sensor_gain`` (measured = gain·true) / ``sensor_offset`` (measured = true + offset) on
    one channel; temperatures σ 0.02 K at 10 Hz, 0.01 K resolution; loads σ 0.3 N.
 
+Two plants (``--plant``): ``batch`` (default) computes the axis effects over the whole run at once
+(:func:`plant_batch`): the whole catalogue, fast enough for blind sets of hundreds of cases.
+``loop`` machines the run's tool path through the real controller, the NC and ControlLoop (no real
+time) on the sim backend carrying the effects (:func:`loop_plant`; backlash, pitch and periodic
+error, friction, servo lag: :data:`LOOP_EFFECTS`); the channel effects, geometry, compliance and the
+measurement (step 3) are the same code for both. The batch path stays the default because it
+carries every effect (thermal warm-ups, resonance, lost steps, forced vibration of an axis are not
+in the sim) and takes about a fifth of the CPU (a 20 s run at 1 kHz: 0.2 s against 1.0 s); both
+share pmctl.core.plant_effects and agree on the same commands.
+
 Further effects (issue 12): ``friction`` (motor side trails cmd by sign(v)·(coulomb_mm + Stribeck
 term), 0 before the first move), ``periodic_error`` (as pitch, at a period 0.8-8 mm that is no lead
 harmonic), ``sensor_latency`` (the tracker, ``channel`` ``"tip_*"``, reports the pose of t − delay_s),
 ``forced_vibration`` (a constant-amplitude line on an axis' load side or in a strain channel),
-``sensor_drift`` (measured += rate_per_s·(t − t_mid)); thermal growth draws its fixed-bearing end
+``sensor_drift`` (measured += rate_per_s·(t − t_mid)); a drawn periodic error gets a period (and
+if need be an axis) that the run can identify (:func:`periodic_window`: the screw travels at least 3
+periods, and at most a quarter period between laser-tracker samples; the cycles and the step are in
+the answer's details); thermal growth draws its fixed-bearing end
 (``screw_fixed_end_mm``: one end of the screw or the other) and may be given the heated screw's
 rise (``details["rise_K"]``). Physics outside the catalogue (``ODDITIES``, ``synth_case(...,
 oddities=[...])``, listed under ``"oddities"`` in the answer, never under ``"effects"``): a bent
@@ -82,7 +95,9 @@ Python API: ``EFFECTS``, ``RUNS``, ``make_effect(name, rng, ...) -> Effect``,
 ``make_run(kind, rng, machine, duration_s, rate_hz, loads) -> Run``, ``simulate(run, effects, rng,
 machine, *, enc=True, tool=True, tracker_div=10) -> (columns, noise)`` (rng consumption does not
 depend on the effects, so the same seed with and without effects gives the same noise),
-``play(x, width)`` (backlash operator), ``first_order_lag``, ``mode_response``, ``synth_case(rng, effects=..., ...) -> Case``,
+the physics itself (``play``, ``first_order_lag``, ``mode_response``, ...) is
+:mod:`pmctl.core.plant_effects`, shared with the sim backend and the diagnosis models,
+``synth_case(rng, effects=..., ...) -> Case``,
 ``write_case(out_dir, name, case)``, ``generate(out_dir, count, ...) -> list[Path]``.
 """
 
@@ -100,6 +115,8 @@ from scipy import signal
 from pmctl.core.config import Machine, load_machine
 from pmctl.core.errors import InputError
 from pmctl.core.kinematics import axis_from_roll_pitch, ik_batch, roll_pitch_from_axis
+from pmctl.core.plant_effects import (SCREW_FIXED_END_MM, first_order_lag, friction_offset, mode_response,
+                                      periodic_error, play, play_load, step_offset, thermal_growth)
 from pmctl.core.recording import AXES, CMD, ENC, LOAD, STRAIN, TIP, TOOL, write_recording
 from pmctl.core.statics import chain_forces, strain_of_axial
 from pmctl.tools.twin.catalogue import EFFECTS, ODDITIES, RUNS  # names shared with the command line
@@ -109,7 +126,7 @@ from pmctl.tools.twin.nominal import pose_of_joints
 RUNS_FOR = {"thermal_growth": ("warmup",), "compliance": ("calibration",)}
 TEMP_CHANNELS = ("temp_screw1", "temp_screw2", "temp_screw3", "temp_screwX", "temp_screwY")
 T_CAL_C = 20.0                     # geometry was calibrated at 20 °C
-SCREW_FIXED = np.array([150.0, 150.0, 150.0, -75.0, -75.0])   # fixed-bearing end of each screw
+SCREW_FIXED = np.array(SCREW_FIXED_END_MM)                   # fixed-bearing end of each screw
 SCREW_FREE = np.array([480.0, 480.0, 480.0, 75.0, 75.0])      # ... or it is mounted the other way round
 PULSE_MM = 1.0 / 2000.0
 
@@ -458,41 +475,6 @@ def make_run(kind: str, rng, machine: Machine, duration_s: float, rate_hz: float
 
 # ---------------------------------------------------------------- physics
 
-def play(x, width):
-    """Backlash (play operator) of a motor-side position series: the load side stays put until
-    the motor has crossed the deadband ``width``, then follows it width/2 behind. At the start
-    the load sits on the side that the first motion pushes."""
-    x = np.asarray(x, float)
-    h = width / 2.0
-    moved = np.flatnonzero(x != x[0])
-    yk = x[0] - h * (np.sign(x[moved[0]] - x[0]) if moved.size else 0.0)
-    out = []
-    for xk in x.tolist():
-        if yk < xk - h:
-            yk = xk - h
-        elif yk > xk + h:
-            yk = xk + h
-        out.append(yk)
-    return np.array(out)
-
-
-def first_order_lag(x, tau, dt):
-    """tau·y' + y = x for samples x every dt, x linear between samples (so a ramp at speed v is
-    trailed by exactly tau·v); starts at rest at x[0]."""
-    a = np.exp(-dt / tau)
-    b, den = [(1 - a) / 2, (1 - a) / 2], [1.0, -a]
-    y, _ = signal.lfilter(b, den, x, zi=signal.lfilter_zi(b, den) * x[0])
-    return y
-
-
-def mode_response(accel, freq_hz, zeta, dt):
-    """Response of δ'' + 2ζωδ' + ω²δ = −a(t) (base excitation), zero initial state."""
-    w = 2 * np.pi * freq_hz
-    sysd = signal.cont2discrete(([-1.0], [1.0, 2 * zeta * w, w * w]), dt, method="zoh")
-    b, a = np.asarray(sysd[0]).ravel(), np.asarray(sysd[1]).ravel()
-    return signal.lfilter(b, a, accel)
-
-
 def screw_temperatures(run: Run, rng, heated_axis: int | None, warm: bool, rise_K=None):
     """Friction-heated screw temperatures (n, 5) and the room (n,), °C (``rise``: the heated
     screw's rise in K, else drawn)."""
@@ -550,18 +532,6 @@ def _true_machine(machine: Machine, effects) -> Machine:
     return dataclasses.replace(machine, geometry=dataclasses.replace(g, nominal=False, **changes))
 
 
-def _direction(x):
-    """+1/-1: direction of the last motion, held through stops (0 before the first move)."""
-    dx = np.diff(x, prepend=x[0])
-    s = np.sign(dx)
-    idx = np.where(s != 0, np.arange(len(s)), 0)
-    np.maximum.accumulate(idx, out=idx)
-    d = s[idx]
-    first = np.flatnonzero(s)
-    d[: first[0] if len(first) else len(d)] = 0.0      # settled before the first move: no error
-    return d
-
-
 def make_oddity(kind: str, rng, run: Run) -> dict:
     """A random instance of physics outside the catalogue (see ODDITIES)."""
     if kind == "straightness":
@@ -604,52 +574,51 @@ def imperfect(cols: dict, rng, rate_hz: float) -> dict:
     return out
 
 
-def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, tracker_div=10,
-             noise_scale=1.0, oddities=()):
-    """Inject ``effects`` as machine physics into ``run``, measure; returns (columns, noise)."""
-    t, n, dt = run.t, len(run.t), 1.0 / run.rate_hz
+def _by_effect(effects) -> dict:
     by = {}
     for e in effects:
         by.setdefault(e.effect, []).append(e)
+    return by
+
+
+def plant_batch(q_cmd, t, effects, temps=None, machine: Machine | None = None):
+    """The axis effects over a whole run (the fast batch path; pmctl.core.plant_effects):
+    commanded joints (n, 5) at times t -> (q_mot, q_load, strain_extra). Motor side = cmd through
+    servo lag and friction; load side = motor side + backlash, pitch and periodic error, thermal
+    growth (``temps``: screw temperatures (n, 5), °C), forced vibration and resonance of an axis,
+    lost steps; strain_extra: the axis modes' spring force at the gauges."""
+    by = _by_effect(effects)
     ai = {a: j for j, a in enumerate(AXES)}
-    q_cmd = run.q
-    accel = np.gradient(np.gradient(q_cmd, dt, axis=0), dt, axis=0)
+    n, dt = len(t), float(t[1] - t[0]) if len(t) > 1 else 1.0
+    q_cmd = np.asarray(q_cmd, float)
 
     # motor side
     q_mot = q_cmd.copy()
     for e in by.get("servo_lag", []):
         j = ai[e.locator["axis"]]
-        q_mot[:, j] = first_order_lag(q_cmd[:, j], e.parameters["tau_s"], dt)
+        q_mot[:, j] = first_order_lag(t, q_cmd[:, j], e.parameters["tau_s"])
     for e in by.get("friction", []):       # following error of the position loop against friction
         j = ai[e.locator["axis"]]
-        v = np.gradient(q_cmd[:, j], dt)
-        d = _direction(q_cmd[:, j])
         d_ = e.details
-        q_mot[:, j] -= d * (e.parameters["coulomb_mm"] + d_["stribeck_mm"] * np.exp(-(v / d_["stribeck_speed_mm_s"]) ** 2))
-
-    # temperatures
-    th = by.get("thermal_growth", [])
-    temps, room = screw_temperatures(run, rng, ai[th[0].locator["axis"]] if th else None,
-                                     warm=run.kind == "warmup",
-                                     rise_K=th[0].details.get("rise_K") if th else None)
+        q_mot[:, j] += friction_offset(q_cmd[:, j], dt, e.parameters["coulomb_mm"], d_["stribeck_mm"],
+                                       d_["stribeck_speed_mm_s"])
 
     # load side
     q_load = q_mot.copy()
     for e in by.get("backlash", []):
         j = ai[e.locator["axis"]]
-        q_load[:, j] += play(q_mot[:, j], e.parameters["width_mm"]) - q_mot[:, j]
-    for e in by.get("pitch_error", []):
+        st = e.details.get("start")    # where the load rests in the play (default: pushed by the first move)
+        q_load[:, j] += (play(q_mot[:, j], e.parameters["width_mm"]) if st is None
+                         else play_load(q_mot[:, j], e.parameters["width_mm"], st)) - q_mot[:, j]
+    for e in by.get("pitch_error", []) + by.get("periodic_error", []):
         j = ai[e.locator["axis"]]
         p = e.parameters
-        q_load[:, j] += p["amplitude_mm"] * np.sin(2 * np.pi * q_mot[:, j] / p["period_mm"] + e.details["phase_rad"])
-    for e in th:
+        q_load[:, j] += periodic_error(q_mot[:, j], p["amplitude_mm"], p["period_mm"], e.details["phase_rad"])
+    for e in by.get("thermal_growth", []):
         j = ai[e.locator["axis"]]
         fixed = e.parameters.get("screw_fixed_end_mm", SCREW_FIXED[j])
-        q_load[:, j] += e.parameters["alpha_per_K"] * (temps[:, j] - e.details.get("t_ref_C", T_CAL_C)) * (q_mot[:, j] - fixed)
-    for e in by.get("periodic_error", []):
-        j = ai[e.locator["axis"]]
-        p = e.parameters
-        q_load[:, j] += p["amplitude_mm"] * np.sin(2 * np.pi * q_mot[:, j] / p["period_mm"] + e.details["phase_rad"])
+        q_load[:, j] += thermal_growth(q_mot[:, j], e.parameters["alpha_per_K"],
+                                       temps[:, j] - e.details.get("t_ref_C", T_CAL_C), fixed)
     for e in by.get("forced_vibration", []):
         if "axis" in e.locator:
             j = ai[e.locator["axis"]]
@@ -657,22 +626,148 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
             q_load[:, j] += p["amplitude_mm"] * np.sin(2 * np.pi * p["freq_hz"] * t + e.details["phase_rad"])
     for e in by.get("lost_steps", []):
         j = ai[e.locator["axis"]]
-        q_load[:, j] += np.where(t >= e.parameters["t_s"], e.parameters["offset_mm"], 0.0)
+        q_load[:, j] += step_offset(t, e.parameters["t_s"], e.parameters["offset_mm"])
     strain_extra = np.zeros((n, 3))
-    m_eff = machine.mass.platform_kg / 3.0
     for e in by.get("resonance", []):
         p = e.parameters
         if "axis" in e.locator:
             j = ai[e.locator["axis"]]
-            d = mode_response(accel[:, j], p["freq_hz"], p["damping_ratio"], dt)
+            d = mode_response(q_cmd[:, j], dt, p["freq_hz"], p["damping_ratio"])
             gamma = e.details["peak_mm"] / max(np.abs(d).max(), 1e-12)
             e.details["participation"] = gamma
             q_load[:, j] += gamma * d
             if j < 3:   # the mode's spring force reaches the gauge: k = m ω², N/mm
+                m_eff = machine.mass.platform_kg / 3.0
                 strain_extra[:, j] += machine.strain_gain * m_eff * (2 * np.pi * p["freq_hz"]) ** 2 * 1e-3 * gamma * d
-        else:
+    return q_mot, q_load, strain_extra
+
+
+# Effects the sim backend carries (pmctl.hal.sim [hal.sim] options), so a case with only these
+# (plus the channel effects, geometry and compliance of the shared stage) can come from the loop.
+LOOP_EFFECTS = ("backlash", "pitch_error", "periodic_error", "friction", "servo_lag")
+SHARED_EFFECTS = ("geometry", "compliance", "sensor_gain", "sensor_offset", "sensor_latency", "sensor_drift")
+PLANTS = ("batch", "loop")
+
+
+def loop_supports(effects) -> str:
+    """'' when the control loop on the sim can make a case with ``effects``, else why not."""
+    axes_periodic = set()
+    for e in effects:
+        if e.effect in ("resonance", "forced_vibration") and "channel" in e.locator:
+            continue
+        if e.effect in ("pitch_error", "periodic_error"):
+            if e.locator["axis"] in axes_periodic:
+                return f"two periodic errors on axis {e.locator['axis']} (the sim has one per axis)"
+            axes_periodic.add(e.locator["axis"])
+        if e.effect not in LOOP_EFFECTS + SHARED_EFFECTS:
+            where = e.locator.get("axis", e.locator.get("channel", ""))
+            return f"the sim plant does not carry {e.effect} {where}".rstrip()
+    return ""
+
+
+def sim_options(effects, q_cmd) -> dict:
+    """[hal.sim] options of the axis effects (rigid chains, no sim noise: the measurement stage adds
+    the noise); the play starts on the side that the first motion pushes, as in :func:`play`."""
+    from pmctl.core.plant_effects import first_direction
+    z = [0.0] * 5
+    o = {"flex": False, "backlash_mm": list(z), "backlash_start": [-first_direction(q_cmd[:, j]) for j in range(5)],
+         "pitch_error_amp_mm": list(z), "pitch_error_period_mm": [5.0] * 5, "pitch_error_phase_rad": list(z),
+         "friction_coulomb_mm": list(z), "friction_stribeck_mm": list(z), "friction_stribeck_speed_mm_s": [1.0] * 5,
+         "drive_tau_s": list(z)}
+    for e in effects:
+        if e.effect not in LOOP_EFFECTS:
+            continue
+        j, p = AXES.index(e.locator["axis"]), e.parameters
+        if e.effect == "backlash":     # recorded in the answer: where the loop's load started in the play
+            e.details.setdefault("start", o["backlash_start"][j])
+            o["backlash_mm"][j] = p["width_mm"]
+            o["backlash_start"][j] = e.details["start"]
+        elif e.effect in ("pitch_error", "periodic_error"):
+            o["pitch_error_amp_mm"][j] = p["amplitude_mm"]
+            o["pitch_error_period_mm"][j] = p["period_mm"]
+            o["pitch_error_phase_rad"][j] = e.details["phase_rad"]
+        elif e.effect == "friction":
+            o["friction_coulomb_mm"][j] = p["coulomb_mm"]
+            o["friction_stribeck_mm"][j] = e.details["stribeck_mm"]
+            o["friction_stribeck_speed_mm_s"][j] = e.details["stribeck_speed_mm_s"]
+        elif e.effect == "servo_lag":
+            o["drive_tau_s"][j] = p["tau_s"]
+    return o
+
+
+def loop_plant(run: Run, effects, machine: Machine, *, service=None):
+    """Run ``run`` as a job through the real controller: the NC and ControlLoop of the service config
+    (no real time, ticks back to back) on the sim backend carrying ``effects``, at the run's rate.
+    Returns (run_as_machined, (q_cmd, q_mot, q_load)): the pulse counters x resolution, the encoders
+    and the sim's load side at every tick. The loop's path follower may take longer than the run
+    (it caps speeds and accelerations below the run's own); the returned Run has the loop's ticks,
+    with the tool pose and the tip force at the path position the loop had reached. The
+    following-error limits are widened (friction and servo lag are part of the case, not a fault
+    to stop on)."""
+    from pmctl import hal
+    from pmctl.motion.loop import ControlLoop, build_targets
+    from pmctl.motion.nc import counts_of, initial_state
+    from pmctl.motion.service_config import load_service_config
+
+    why = loop_supports(effects)
+    if why:
+        raise InputError("--plant loop", None, f"{why}; use --plant batch")
+    dt = 1.0 / run.rate_hz
+    svc = service or load_service_config()
+    ncc = dataclasses.replace(svc.nc, kv_per_s=min(svc.nc.kv_per_s, 0.4 / dt), ferror_mm=max(svc.nc.ferror_mm, 5.0),
+                              min_ferror_mm=max(svc.nc.min_ferror_mm, 0.5))
+    params = ncc.params(machine, dt)
+    n = len(run.t)
+    tg = build_targets(run.tip, run.axis, np.ones(n, int), dt, machine, params)
+    c0 = counts_of(tg.q[0], params)
+    be = hal.create("sim", machine, dt, sim_options(effects, run.q))
+    be.open(c0)
+    cfg = dataclasses.replace(svc.loop, rate_hz=run.rate_hz, realtime=False, stall_timeout_s=60.0, settle_s=0.0,
+                              state_file="")
+    res = ControlLoop(machine, be, params, tg, cfg, initial_state(machine, c0), log=lambda m: None).run()
+    if res.status != "done":
+        raise RuntimeError(f"the control loop did not finish the {run.kind} run: {res.status}, {res.reason}")
+    m = res.ticks
+    ps = np.clip(res.path_s[:m] if res.path_s is not None else np.arange(m, dtype=float), 0, n - 1)
+    k = np.arange(n)
+
+    def at_path(x):
+        return None if x is None else np.stack([np.interp(ps, k, x[:, i]) for i in range(x.shape[1])], 1)
+
+    axis = at_path(run.axis)
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    q_cmd = res.counts[:m] / params.pulses_per_mm
+    machined = Run(run.kind, np.arange(m) * dt, q_cmd, at_path(run.tip), axis, at_path(run.force), run.rate_hz)
+    return machined, (q_cmd, res.enc[:m].copy(), res.truth[:m].copy())
+
+
+def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, tracker_div=10,
+             noise_scale=1.0, oddities=(), plant=None):
+    """Inject ``effects`` as machine physics into ``run``, measure; returns (columns, noise).
+    ``plant``: (q_cmd, q_mot, q_load) from the control loop (:func:`loop_plant`), which then stands
+    for the axis effects of :func:`plant_batch`; channel effects, geometry, compliance and the
+    measurement are the same for both paths."""
+    t, n, dt = run.t, len(run.t), 1.0 / run.rate_hz
+    by = _by_effect(effects)
+    ai = {a: j for j, a in enumerate(AXES)}
+
+    # temperatures
+    th = by.get("thermal_growth", [])
+    temps, room = screw_temperatures(run, rng, ai[th[0].locator["axis"]] if th else None,
+                                     warm=run.kind == "warmup",
+                                     rise_K=th[0].details.get("rise_K") if th else None)
+
+    if plant is None:
+        q_cmd = run.q
+        q_mot, q_load, strain_extra = plant_batch(q_cmd, t, effects, temps, machine)
+    else:
+        q_cmd, q_mot, q_load = (np.array(x, float) for x in plant)
+        strain_extra = np.zeros((n, 3))
+    for e in by.get("resonance", []):
+        if "channel" in e.locator:
+            p = e.parameters
             i = STRAIN.index(e.locator["channel"])
-            d = mode_response(accel[:, i], p["freq_hz"], p["damping_ratio"], dt)
+            d = mode_response(q_cmd[:, i], dt, p["freq_hz"], p["damping_ratio"])
             strain_extra[:, i] += e.details["peak_ue"] * d / max(np.abs(d).max(), 1e-12)
     for e in by.get("forced_vibration", []):
         if "channel" in e.locator:
@@ -779,11 +874,58 @@ def _pick_run(names, rng, run=None):
     return str(rng.choice(sorted(allowed))) if allowed else "calibration"
 
 
+PERIODIC_MIN_CYCLES = 3.0     # the screw must travel this many periods of a periodic error ...
+PERIODIC_MAX_STEP = 0.25      # ... and move at most this fraction of a period between tracker samples
+
+
+def periodic_window(run: Run, j: int, tracker_div: int) -> tuple[float, float, float, float]:
+    """(lo, hi, span, step): the periods (mm) of a periodic error on axis j that ``run`` can
+    identify. The identifiability rule: the screw travels at least PERIODIC_MIN_CYCLES periods
+    (span = its position range) and, while it moves, at most PERIODIC_MAX_STEP of a period between
+    two samples of the laser tracker, which alone sees the load side (step = the median travel
+    between tracker samples while moving): lo = step / 0.25, hi = span / 3."""
+    s = run.q[::max(1, int(tracker_div)), j]
+    ds = np.abs(np.diff(s))
+    step = float(np.median(ds[ds > 1e-9])) if np.any(ds > 1e-9) else float("inf")
+    span = float(np.ptp(run.q[:, j]))
+    return step / PERIODIC_MAX_STEP, span / PERIODIC_MIN_CYCLES, span, step
+
+
+def identifiable_periodic(e: Effect, run: Run, tracker_div: int, rng, *, taken=()) -> Effect:
+    """``e`` (a drawn periodic_error) with a period, and if need be an axis, that ``run`` can
+    identify (:func:`periodic_window`), drawn log-uniform in 0.8-8 mm within the window, away from
+    the lead harmonics (±8 %). Kept as drawn when it already is identifiable; when no axis has a
+    window, kept too (``details["identifiable"] = False``)."""
+    axes = [e.locator["axis"]] + [a for a in AXES if a != e.locator["axis"]
+                                  and ("periodic_error", (("axis", a),)) not in taken]
+    for a in axes:
+        lo, hi, span, step = periodic_window(run, AXES.index(a), tracker_div)
+        lo, hi = max(lo, 0.8), min(hi, 8.0)
+        if lo > hi:
+            continue
+        p = e.parameters["period_mm"]
+        if a == e.locator["axis"] and lo <= p <= hi:
+            per = p
+        else:
+            for _ in range(50):
+                per = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+                if all(abs(per * k / 5.0 - 1) > 0.08 for k in (1, 2, 3, 4)):
+                    break
+            else:
+                continue
+        d = dict(e.details, cycles=span / per, tracker_step_mm=step, identifiable=True)
+        return Effect(e.effect, {"axis": a}, dict(e.parameters, period_mm=per), d)
+    return Effect(e.effect, dict(e.locator), dict(e.parameters), dict(e.details, identifiable=False))
+
+
 def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, machine=None,
-               seed=None, magnitude_scale=1.0, noise_scale=1.0, oddities=(), imperfections=False) -> Case:
+               seed=None, magnitude_scale=1.0, noise_scale=1.0, oddities=(), imperfections=False,
+               plant="batch") -> Case:
     """One case: ``effects`` a list of catalogue names (each drawn at random) or Effect objects;
     ``oddities``: names from ODDITIES (physics outside the catalogue, listed apart in the answer);
-    ``imperfections``: drop rows, jitter the time stamps, colour the noise (:func:`imperfect`)."""
+    ``imperfections``: drop rows, jitter the time stamps, colour the noise (:func:`imperfect`);
+    ``plant``: "batch" (the axis effects as arrays, :func:`plant_batch`) or "loop" (the run machined
+    by the control loop on the sim backend carrying the effects, :func:`loop_plant`)."""
     machine = machine or load_machine()
     names = [e.effect if isinstance(e, Effect) else e for e in effects]
     kind = _pick_run(names, rng, run)
@@ -812,8 +954,18 @@ def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, mach
     tracker_div = max(1, int(round(rate_hz / tracker_hz)))
     orng = np.random.default_rng([0 if seed is None else int(seed), 77])   # apart: same noise as without
     odd = [o if isinstance(o, dict) else make_oddity(o, orng, r) for o in oddities]
+    prng = np.random.default_rng([0 if seed is None else int(seed), 53])   # apart: the other draws unchanged
+    drawn = [i for i, e in enumerate(effects) if not isinstance(e, Effect)]
+    for i in drawn:
+        if effs[i].effect == "periodic_error":
+            effs[i] = identifiable_periodic(effs[i], r, tracker_div, prng, taken=used)
+    plant_cols = None
+    if plant == "loop":
+        r, plant_cols = loop_plant(r, effs, machine)
+    elif plant != "batch":
+        raise InputError("--plant", None, f"unknown plant {plant!r}; one of {', '.join(PLANTS)}")
     cols, noise = simulate(r, effs, rng, machine, enc=enc, tool=tool, tracker_div=tracker_div,
-                           noise_scale=noise_scale, oddities=odd)
+                           noise_scale=noise_scale, oddities=odd, plant=plant_cols)
     if imperfections:
         cols = imperfect(cols, orng, rate_hz)
     descr = {"raster": "pocket milling, zig-zag passes in layers",
@@ -830,7 +982,7 @@ def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, mach
         notes.update({c: {"source": "test load / cutting-force estimate"} for c in LOAD})
     meta = {"sample_rate_hz": rate_hz, "description": f"{descr}, {duration_s:g} s",
             "channel_notes": notes}
-    answer = {"run": kind, "seed": seed, "duration_s": duration_s, "sample_rate_hz": rate_hz,
+    answer = {"run": kind, "seed": seed, "duration_s": duration_s, "sample_rate_hz": rate_hz, "plant": plant,
               "effects": [e.answer() for e in effs], "noise": noise}
     if odd:
         answer["oddities"] = odd
@@ -871,9 +1023,10 @@ def parse_effects(text: str) -> list[str] | str:
 
 def generate(out_dir, count=1, *, effects="random", seed=0, clean=False, max_effects=1, run=None,
              duration_s=None, rate_hz=None, progress=None, magnitude_scale=1.0,
-             noise_scale=1.0, overwrite=False) -> list[Path]:
+             noise_scale=1.0, overwrite=False, plant="batch") -> list[Path]:
     """Write ``count`` cases to OUT_DIR/case-NNN; returns their folders. Existing cases are refused
-    (before anything is written) unless ``overwrite``."""
+    (before anything is written) unless ``overwrite``. ``plant="loop"``: each case machined by the
+    control loop on the sim (random effects then come from those the sim carries)."""
     from pmctl.core.recording import check_target
     for k in range(count):
         check_target(Path(out_dir) / f"case-{k:03d}" / "recording", overwrite=overwrite)
@@ -886,12 +1039,13 @@ def generate(out_dir, count=1, *, effects="random", seed=0, clean=False, max_eff
             names = []
         elif effects == "random":
             m = int(rng.integers(1, max_effects + 1))
-            names = [str(x) for x in rng.choice(EFFECTS, size=m, replace=False)]
+            pool = EFFECTS if plant == "batch" else [e for e in EFFECTS if e in LOOP_EFFECTS + SHARED_EFFECTS]
+            names = [str(x) for x in rng.choice(pool, size=min(m, len(pool)), replace=False)]
         else:
             names = list(effects)
         case = synth_case(rng, names, run=run, duration_s=duration_s, rate_hz=rate_hz,
                           magnitude_scale=magnitude_scale, noise_scale=noise_scale,
-                          machine=machine, seed=case_seed)
+                          machine=machine, seed=case_seed, plant=plant)
         out.append(write_case(out_dir, f"case-{k:03d}", case, overwrite=overwrite))
         if progress:
             progress(k, out[-1], case)
@@ -915,9 +1069,20 @@ def _cmd(args) -> int:
         raise InputError("--rate", None, "must be 20..20000 Hz")
     if not 0 < args.magnitude_scale <= 100 or not 0 <= args.noise_scale <= 100:
         raise InputError("--magnitude-scale/--noise-scale", None, "must be > 0 (noise >= 0) and <= 100")
+    plant = getattr(args, "plant", "batch")
+    if plant == "loop" and args.rate is not None and not 200 <= args.rate <= 5000:
+        raise InputError("--rate", None, "with --plant loop must be 200..5000 Hz (the control loop's tick rate)")
+    if plant == "loop" and args.run == "warmup":
+        raise InputError("--run", None, "warmup runs heat the screws; the sim carries no thermal model: use --plant batch")
     if args.clean and args.effects != "random":
         raise InputError("--clean", None, f"contradicts --effects {args.effects}: a clean case hides no effect")
     eff = parse_effects(args.effects)
+    if plant == "loop" and eff != "random":
+        bad = [nm for nm in eff if nm not in LOOP_EFFECTS + SHARED_EFFECTS + ("resonance", "forced_vibration")]
+        if bad:
+            raise InputError("--effects", None, f"the sim plant does not carry {', '.join(bad)}; use --plant batch "
+                             f"(--plant loop: {', '.join(LOOP_EFFECTS + SHARED_EFFECTS)}, and resonance or "
+                             f"forced vibration in a strain channel)")
     t0 = time.perf_counter()
 
     def progress(k, d, case):
@@ -927,7 +1092,7 @@ def _cmd(args) -> int:
     generate(args.out_dir, args.count, effects=eff, seed=args.seed, clean=args.clean,
              max_effects=args.max_effects, run=args.run, duration_s=args.duration, rate_hz=args.rate,
              magnitude_scale=args.magnitude_scale, noise_scale=args.noise_scale,
-             progress=progress, overwrite=args.force)
+             progress=progress, overwrite=args.force, plant=plant)
     print(f"{args.count} case(s) in {time.perf_counter() - t0:.1f} s; answer keys are beside, not in, "
           f"each recording folder")
     return 0
