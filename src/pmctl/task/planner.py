@@ -533,27 +533,31 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
 
 def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job):
     """Plan segments c0 .. c1-1 with margins; returns (timing, tick range to emit, kept sample chunks
-    or None) once the limits hold on the samples of the window and ``vt`` + STREAM_CHECK_MM around it."""
+    or None) once the limits hold on the samples of the window and STREAM_CHECK_MM around it."""
     n, b_s = path.n, path.b_s
-    lo_need = min(b_s[max(c0 - 1, 0)], b_s[c0] - STREAM_CHECK_MM) - vt
-    hi_need = max(b_s[min(c1 + 1, n)], b_s[c1] + STREAM_CHECK_MM) + vt
-    w0 = 0 if c0 == 0 else max(0, min(c0 - 2, int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
-    w1 = n if c1 == n else min(n, max(c1 + 2, int(np.searchsorted(b_s, hi_need + margin, "left"))))
+    # the limits are checked on the samples between boundaries kb_lo and kb_hi (the window and at
+    # least STREAM_CHECK_MM around it); their times depend on the warp's knots one further out,
+    # which must not be a window end (those knots are not the whole job's); the profile must be the
+    # whole job's from there on, within vt
+    kb_lo = 0 if c0 == 0 else max(0, min(c0 - 1, int(np.searchsorted(b_s, b_s[c0] - STREAM_CHECK_MM, "right")) - 1))
+    kb_hi = n if c1 == n else min(n, max(c1 + 1, int(np.searchsorted(b_s, b_s[c1] + STREAM_CHECK_MM, "left"))))
+    lo_need = b_s[max(kb_lo - 1, 0)] - vt
+    hi_need = b_s[min(kb_hi + 1, n)] + vt
+    w0 = 0 if kb_lo <= 1 else max(0, min(kb_lo - 2, int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
+    w1 = n if kb_hi >= n - 1 else min(n, max(kb_hi + 2, int(np.searchsorted(b_s, hi_need + margin, "left"))))
     sp = path.sub(w0, w1)
     zone = None
     if w0 > 0 or w1 < n:
         zone = (b_s[w0] + vt if w0 > 0 else -np.inf, b_s[w1] - vt if w1 < n else np.inf,
                 lo_need if c0 > 0 else -np.inf, hi_need if c1 < n else np.inf)
-    chk = (-np.inf, np.inf) if zone is None else zone[2:]
     grid = _limit_grid(sp, machine, limits, dt, T)
     scale = np.ones(len(grid["s"]))
     for it in range(limits.max_iterations):
         tm = _Timing(sp, grid, scale, dt, T, job, zone=zone)
         e0 = int(tm.K_b[c0 - w0])
         e1 = int(tm.K_b[c1 - w0]) + (1 if c1 == n else 0)
-        k_lo = int(tm._first(np.array([chk[0]]), strict=False)[0])
-        k_hi = int(tm._first(np.array([chk[1]]), strict=True)[0])
-        k_lo, k_hi = min(k_lo, e0), max(k_hi, e1)
+        k_lo = int(tm.K_b[kb_lo - w0])
+        k_hi = int(tm.K_b[kb_hi - w0]) + (1 if kb_hi == n else 0)
         keep = [] if e1 - e0 <= STREAM_KEEP else None
         bad = []
         prev = None
@@ -571,9 +575,7 @@ def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job):
                 cur_x = cur
             w = _violations(*cur_x, sp, machine, limits, dt)
             if w is not None:
-                inside = (w[0] >= chk[0]) & (w[0] <= chk[1])
-                if np.any(inside):
-                    bad.append(tuple(x[inside] for x in w))
+                bad.append(w)
             prev = cur
         if not bad:
             return tm, (e0, e1), keep
