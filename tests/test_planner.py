@@ -421,12 +421,13 @@ def test_streamed_random_jobs_are_the_whole_plan(machine, text, window):
 
 def test_a_bad_line_is_refused_before_the_first_sample(machine):
     # 200 good moves, then one the machine cannot reach: nothing is yielded, the line is named
-    good = "G0 X60 Y-30 Z60\nF600\n" + "\n".join(f"G1 X{60 - (i % 2) * 10} Y{i * 0.05 - 30:.2f}" for i in range(200))
+    good = "G0 X60 Y-30 Z60\nF600\n" + "\n".join(f"G1 X{60 - ((i + 1) % 2) * 10} Y{(199 - i) * 0.05 - 30:.2f}"
+                                                 for i in range(200))          # ends at X60 Y-30
     tilt = math.radians(40.0)
     for bad in (Move(LINE, np.array([50.0, -20.0, 400.0]), np.array([0.0, 0.0, 1.0]), line=203, feed=10.0),
                 Move(LINE, np.array([50.0, -20.0, 60.0]), np.array([math.sin(tilt), 0.0, math.cos(tilt)]),
                      line=203, feed=10.0),
-                "G3 X60 Y30 I10 J30"):
+                "G3 X60 Y30 I0 J30"):
         if isinstance(bad, Move):
             g = gjob(machine, good)
             job = Job(g.moves + (bad,), g.source, g.points)
