@@ -109,30 +109,86 @@ def make_rows(tip, axis, q, line, dt_plan, params, *, rapid=None, rapid_mm_s=50.
 
 def iter_job_rows(traj, machine, params, *, rapid=None, rapid_mm_s=50.0, chunk=2000, decel=None):
     """Sample rows of a planned Trajectory, chunk by chunk (IK and derivatives per chunk: memory
-    O(chunk), not O(job)). The backward pass of a chunk runs once the next chunk's first allowed
-    value is known, so caps are looked ahead across chunk boundaries (chunks must be longer than a
-    stop from SIGMA_MAX, which 2000 samples at 1 kHz are)."""
+    O(chunk), not O(job)); ``rapid`` flags the samples of rapid moves. See ``iter_stream_rows``."""
+    pieces = ((traj.tip[a:a + chunk], traj.axis[a:a + chunk], traj.line[a:a + chunk],
+               None if rapid is None else rapid[a:a + chunk]) for a in range(0, len(traj), chunk))
+    return _rows(pieces, traj.dt, machine, params, rapid_mm_s, chunk, decel)
+
+
+def iter_stream_rows(trajs, machine, params, *, rapid_lines=(), rapid_mm_s=50.0, chunk=2000, decel=None):
+    """Sample rows of a job planned in pieces (an iterable of Trajectory, as the streaming planner
+    yields them), ``chunk`` rows at a time: the same rows as ``iter_job_rows`` of the whole
+    trajectory, in memory O(chunk + piece). Samples of the lines ``rapid_lines`` are rapids."""
+    rl = np.asarray(sorted(rapid_lines), int)
+    first = []
+
+    def pieces():
+        for tr in trajs:
+            if not first:
+                first.append(tr.dt)
+            yield tr.tip, tr.axis, tr.line, (np.isin(np.asarray(tr.line), rl) if len(rl) else None)
+    it = pieces()
+    head = next(it, None)
+    if head is None:
+        return iter(())
+    return _rows(_chain(head, it), first[0], machine, params, rapid_mm_s, chunk, decel)
+
+
+def _chain(head, rest):
+    yield head
+    yield from rest
+
+
+def _rows(pieces, dtp, machine, params, rapid_mm_s, chunk, decel):
+    """Rows of samples arriving in pieces (tip, axis, line, rapid-or-None): regrouped into chunks of
+    ``chunk`` samples, each with its neighbours (the last sample of the chunk before, the first of
+    the next) for the derivatives; the backward pass of a chunk runs once the next chunk's first
+    allowed value is known, so caps are looked ahead across chunk boundaries (chunks must be longer
+    than a stop from SIGMA_MAX, which 2000 samples at 1 kHz are)."""
     from pmctl.core import kinematics as K
-    dtp = traj.dt
     decel = decel if decel is not None else 0.5 * scaling_limits(params)[0]
-    n = len(traj)
+    buf = []                     # pieces not yet made into rows: [tip, axis, line, rapid]
+    nbuf = 0
+    before = (None, None, None)  # (tip, axis, q) of the sample before the next chunk
     pending = None
-    for a in range(0, n, chunk):
-        b = min(n, a + chunk)
-        lo, hi = max(0, a - 1), min(n, b + 1)
-        tip, axis = np.asarray(traj.tip[lo:hi], float), np.asarray(traj.axis[lo:hi], float)
+    any_rapid = False
+    done = False
+    pieces = iter(pieces)
+    while not done:
+        while nbuf < chunk + 1:
+            p = next(pieces, None)
+            if p is None:
+                done = True
+                break
+            tip, axis, line, rapid = (np.asarray(x, float) if i < 2 else x for i, x in enumerate(p))
+            if len(tip) == 0:
+                continue
+            any_rapid |= rapid is not None
+            buf.append([tip, axis, np.asarray(line), rapid if rapid is not None else np.zeros(len(tip), bool)])
+            nbuf += len(tip)
+        if nbuf == 0:
+            break
+        take = min(chunk, nbuf)
+        more = nbuf > take                       # a sample follows this chunk
+        cat = [np.concatenate([b[i] for b in buf]) for i in range(4)]
+        m = take + (1 if more else 0)
+        tip, axis = cat[0][:m], cat[1][:m]
         q = K.ik_batch(tip, axis, machine, check_limits=False).q
-        i0 = a - lo
-        i1 = i0 + (b - a)
-        nb = lambda i: (tip[i], axis[i], q[i])           # noqa: E731
-        rows = make_rows(tip[i0:i1], axis[i0:i1], q[i0:i1], np.asarray(traj.line[a:b]), dtp, params,
-                         rapid=None if rapid is None else rapid[a:b], rapid_mm_s=rapid_mm_s, end=b == n,
-                         neighbours=(nb(i0 - 1) if i0 > 0 else (None,) * 3, nb(i1) if i1 < len(tip) else (None,) * 3))
+        after = (tip[take], axis[take], q[take]) if more else (None, None, None)
+        rows = make_rows(tip[:take], axis[:take], q[:take], cat[2][:take], dtp, params,
+                         rapid=cat[3][:take] if any_rapid else None, rapid_mm_s=rapid_mm_s,
+                         end=not more, neighbours=(before, after))
+        before = (tip[take - 1], axis[take - 1], q[take - 1])
+        rest = [x[take:] for x in cat]
+        buf = [rest] if len(rest[0]) else []
+        nbuf = len(rest[0])
         own = backward_pass(rows[:, S_CAP], dtp, decel)
         if pending is not None:
             pending[:, S_CAP] = backward_pass(pending[:, S_CAP], dtp, decel, float(own[0]))
             yield pending
         pending = rows
+        if not more:
+            break
     if pending is not None:
         pending[:, S_CAP] = backward_pass(pending[:, S_CAP], dtp, decel)
         yield pending

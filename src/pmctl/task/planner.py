@@ -3,6 +3,8 @@
 Public API (stable)::
 
     plan(job, machine, dt, *, feed_override=1.0, limits=PlannerLimits(), start=None) -> Trajectory
+    validate(job, machine, dt, ...) -> path index  # the whole job checked, bounded memory
+    plan_stream(job, machine, dt, ..., path=None)  # Trajectory pieces; joined = plan(...)
     home_pose(machine) -> (tip, axis)          # the default start pose (q at home)
     load_job(path, machine, **options)         # re-exported from pmctl.task.job, dispatches on suffix
 
@@ -50,6 +52,19 @@ three times: a lower bound (length / feed + dwells) before the limit grid, the g
 it is built, and the profile's true duration before it is sampled. A typo such as ``F0.42`` or a
 ``G4`` of days is refused this way in well under a second.
 
+Streaming (``plan_stream``, what the daemon and ``pmctl run`` use): ``validate`` checks the whole job
+first in chunks (feeds, a duration bound of ``MAX_STREAM_SECONDS``, the size of each move, the
+reachability of every programmed pose and of the path between them every ``grid_mm``), so a bad line
+is refused, named, before anything moves. Then windows of ``STREAM_WINDOW`` segments are planned
+by steps 2-7 above, each with margins of path on both sides: everything a sample depends on (cap
+erosion, junction caps, the jerk filter, the warp's neighbouring knots, re-planning around a
+violation) reaches a bounded distance of about v T, and the look-ahead of the speeds is checked (the
+passes run again with the margins' ends at rest and must agree inside, else the margin doubles). A
+window is computed in the job's own path coordinate and time is summed in extended precision, so
+the pieces agree with ``plan`` to ~1e-11 mm on the bundled jobs (a few 1e-9 mm where a boundary is
+passed at nearly zero speed). Memory: the job's segment index (~0.3 kB per move) and one window,
+sampled ``SAMPLE_CHUNK`` ticks at a time.
+
 Feeds are capped at ``rapid_mm_s``, the tool tip's top speed. Cost: a 10-minute 5-axis CL job
 (18 000 moves, 614 000 samples at 1 kHz) plans in about 4 s of CPU (benchmarks/bench_planner.py).
 """
@@ -66,12 +81,19 @@ from pmctl.core.errors import InputError, PmctlError
 from pmctl.task.job import ARC, DWELL, MAX_MOVES, RAPID, Job, home_pose, load_job  # noqa: F401  (re-exported)
 from pmctl.task.trajectory import Trajectory
 
-__all__ = ["PlannerLimits", "plan", "home_pose", "load_job", "PlanningError"]
+__all__ = ["PlannerLimits", "plan", "plan_stream", "validate", "home_pose", "load_job", "PlanningError"]
 
 
 VIOLATION_TOL = 1e-6      # relative overshoot of a limit on the samples that triggers re-planning
 MAX_SAMPLES = 1_200_000   # ticks of one planned job (20 min at 1 kHz; ~0.9 GB at the planner's peak)
 MAX_GRID_POINTS = 2_000_000   # points of the limit grid along the path
+# the streaming planner (plan_stream)
+MAX_STREAM_SECONDS = 24 * 3600.0   # lower bound of a job's duration (a typo such as F0.42 is refused)
+MAX_SEGMENT_GRID = 400_000    # grid points of one move (100 m at the default grid)
+STREAM_WINDOW = 128           # segments planned together (each with margins of path on both sides)
+STREAM_MARGIN_MM = 20.0       # first margin beyond what a window provably needs (doubled when too short)
+STREAM_CHECK_MM = 20.0        # limits are checked this far beyond a window too
+STREAM_KEEP = 60_000          # a window's samples up to this count are kept from its check, else sampled again
 
 
 class PlanningError(PmctlError):
@@ -106,49 +128,58 @@ class _Path:
     def __init__(self, job: Job, start, limits: PlannerLimits, feed_override: float):
         tip, axis = (np.asarray(start[0], float), np.asarray(start[1], float))
         axis = axis / np.linalg.norm(axis)
-        rows = []
+        # Filled move by move into arrays of the job's size (no per-move objects: a long job's index
+        # stays at ~0.3 kB per move), trimmed to the segments at the end.
+        nm = len(job.moves)
+        kind = np.zeros(nm, int)
+        p0, p1, a0, a1 = (np.zeros((nm, 3)) for _ in range(4))
+        phi, r0, r1, th0, sweep, length, vmax_, rpm_ = (np.zeros(nm) for _ in range(8))
+        cc = np.zeros((nm, 2))
+        rot_ = np.zeros(nm, bool)
+        line_ = np.zeros(nm, int)
+        n = 0
         stop = {0}                    # boundaries (index = segments completed) with an exact stop
         dwell, dwell_line = {}, {}
         rpm_prev = None
         self.start_line = job.moves[0].line if job.moves else 0
         for m in job.moves:
             if m.kind == DWELL:
-                b = len(rows)
+                b = n
                 stop.add(b)
                 dwell[b] = dwell.get(b, 0.0) + float(m.dwell)
                 dwell_line[b] = m.line
                 continue
             t1 = np.asarray(m.tip, float)
-            a1 = np.asarray(m.axis, float)
-            a1 = a1 / np.linalg.norm(a1)
-            phi = float(np.arccos(np.clip(np.dot(axis, a1), -1.0, 1.0)))
-            r = dict(kind=0, p0=tip, p1=t1, a0=axis, a1=a1, phi=phi, c=np.zeros(2), r0=0.0, r1=0.0,
-                     th0=0.0, sweep=0.0, line=m.line, rpm=m.spindle_rpm)
+            a_1 = np.asarray(m.axis, float)
+            a_1 = a_1 / np.linalg.norm(a_1)
+            ph = float(np.arccos(np.clip(np.dot(axis, a_1), -1.0, 1.0)))
             if m.kind == ARC:
                 c = np.asarray(m.center, float)[:2]
-                r0 = float(np.hypot(*(tip[:2] - c)))
-                r1 = float(np.hypot(*(t1[:2] - c)))
-                rm = 0.5 * (r0 + r1)
+                rr0 = float(np.hypot(*(tip[:2] - c)))
+                rr1 = float(np.hypot(*(t1[:2] - c)))
+                rm = 0.5 * (rr0 + rr1)
                 ltip = float(np.hypot(rm * m.sweep, t1[2] - tip[2]))
-                r.update(kind=1, c=c, r0=r0, r1=r1, th0=float(np.arctan2(tip[1] - c[1], tip[0] - c[0])),
-                         sweep=float(m.sweep))
             else:
                 ltip = float(np.linalg.norm(t1 - tip))
             rot = ltip < 1e-6
-            length = limits.rotation_length_mm * phi if rot else ltip
-            if length < 1e-9:
-                tip, axis = t1, a1         # nothing moves: the point is the current pose
+            ln = limits.rotation_length_mm * ph if rot else ltip
+            if ln < 1e-9:
+                tip, axis = t1, a_1        # nothing moves: the point is the current pose
                 continue
             if rpm_prev is not None and m.spindle_rpm != rpm_prev:
-                stop.add(len(rows))
+                stop.add(n)
             rpm_prev = m.spindle_rpm
-            vmax = limits.rapid_mm_s if m.kind == RAPID else min(m.feed * feed_override, limits.rapid_mm_s)
-            if not vmax > 0:
-                raise InputError(job.source, m.line, f"move has no positive feed ({vmax!r} mm/s)")
-            r.update(length=length, rot=rot, vmax=vmax)
-            rows.append(r)
-            tip, axis = t1, a1
-        self.n = n = len(rows)
+            vm = limits.rapid_mm_s if m.kind == RAPID else min(m.feed * feed_override, limits.rapid_mm_s)
+            if not vm > 0:
+                raise InputError(job.source, m.line, f"move has no positive feed ({vm!r} mm/s)")
+            p0[n], p1[n], a0[n], a1[n], phi[n] = tip, t1, axis, a_1, ph
+            if m.kind == ARC:
+                kind[n], cc[n], r0[n], r1[n] = 1, c, rr0, rr1
+                th0[n], sweep[n] = float(np.arctan2(tip[1] - c[1], tip[0] - c[0])), float(m.sweep)
+            line_[n], rpm_[n], length[n], rot_[n], vmax_[n] = m.line, m.spindle_rpm, ln, rot, vm
+            n += 1
+            tip, axis = t1, a_1
+        self.n = n
         stop.add(n)
         self.stop = np.zeros(n + 1, bool)
         self.stop[sorted(stop)] = True
@@ -159,22 +190,43 @@ class _Path:
             self.dwell_line[b] = dwell_line[b]
         self.end_tip, self.end_axis = tip, axis
         self.start_tip, self.start_axis = np.asarray(start[0], float), np.asarray(start[1], float)
-        get = lambda k, shape=(): np.array([r[k] for r in rows], float).reshape((n,) + shape)  # noqa: E731
-        self.kind = np.array([r["kind"] for r in rows], int)
-        self.p0, self.p1, self.a0, self.a1 = get("p0", (3,)), get("p1", (3,)), get("a0", (3,)), get("a1", (3,))
-        self.phi, self.c, self.r0, self.r1 = get("phi"), get("c", (2,)), get("r0"), get("r1")
-        self.th0, self.sweep, self.length, self.vmax = get("th0"), get("sweep"), get("length"), get("vmax")
-        self.rot = np.array([r["rot"] for r in rows], bool)
-        self.line = np.array([r["line"] for r in rows], int)
-        self.rpm = get("rpm")
+        self.kind = kind[:n].copy()
+        self.p0, self.p1, self.a0, self.a1 = p0[:n].copy(), p1[:n].copy(), a0[:n].copy(), a1[:n].copy()
+        self.phi, self.c, self.r0, self.r1 = phi[:n].copy(), cc[:n].copy(), r0[:n].copy(), r1[:n].copy()
+        self.th0, self.sweep, self.length, self.vmax = th0[:n].copy(), sweep[:n].copy(), length[:n].copy(), \
+            vmax_[:n].copy()
+        self.rot = rot_[:n].copy()
+        self.line = line_[:n].copy()
+        self.rpm = rpm_[:n].copy()
+        self._bounds(self.start_axis / np.linalg.norm(self.start_axis))
+
+    def _bounds(self, start_axis):
+        n = self.n
         self.s_end = np.cumsum(self.length)
         self.s_start = self.s_end - self.length
         self.total = float(self.s_end[-1]) if n else 0.0
         # Boundary poses, exact: b = 0 the start, b = i + 1 the end of segment i.
         self.b_tip = np.vstack([self.start_tip[None], self.p1]) if n else self.start_tip[None].copy()
-        self.b_axis = np.vstack([self.start_axis[None] / np.linalg.norm(self.start_axis), self.a1]) if n \
-            else self.start_axis[None].copy()
+        self.b_axis = np.vstack([start_axis[None], self.a1]) if n else self.start_axis[None].copy()
         self.b_s = np.concatenate([[0.0], self.s_end])
+
+    def sub(self, i0, i1):
+        """The segments i0 .. i1-1 as a path of their own, in the job's path coordinate s (the same
+        floats as the whole job's, so a window computes with the same numbers). Its ends are exact
+        stops only where the job has one (the job's ends, dwells, spindle changes)."""
+        p = object.__new__(_Path)
+        for k in ("kind", "p0", "p1", "a0", "a1", "phi", "c", "r0", "r1", "th0", "sweep", "length", "vmax",
+                  "rot", "line", "rpm"):
+            setattr(p, k, getattr(self, k)[i0:i1])
+        p.n = i1 - i0
+        p.stop, p.dwell, p.dwell_line = self.stop[i0:i1 + 1], self.dwell[i0:i1 + 1], self.dwell_line[i0:i1 + 1]
+        p.start_tip, p.start_axis = self.b_tip[i0], self.b_axis[i0]
+        p.end_tip, p.end_axis = self.b_tip[i1], self.b_axis[i1]
+        p.start_line = int(self.line[i0]) if p.n else self.start_line
+        p.s_end, p.s_start, p.b_s = self.s_end[i0:i1], self.s_start[i0:i1], self.b_s[i0:i1 + 1]
+        p.total = float(self.b_s[i1])
+        p.b_tip, p.b_axis = self.b_tip[i0:i1 + 1], self.b_axis[i0:i1 + 1]
+        return p
 
     def pose(self, seg, u):
         seg = np.asarray(seg, int)
@@ -263,9 +315,11 @@ def _erode(s, cap, radius, ext):
 
 
 def _forward_pass(w_lim, c):
-    """w[k] = min(w_lim[k], w[k-1] + c[k-1]), w[0] = w_lim[0], in closed form."""
-    C = np.concatenate([[0.0], np.cumsum(c)])
-    return C + np.minimum.accumulate(w_lim - C)
+    """w[k] = min(w_lim[k], w[k-1] + c[k-1]), w[0] = w_lim[0], in closed form. The prefix sums are
+    in extended precision: the result then hardly depends on how far back they start (a window of
+    the streaming planner agrees with the whole job's plan to ~1e-12 mm)."""
+    C = np.concatenate([np.zeros(1, np.longdouble), np.cumsum(np.asarray(c, np.longdouble))])
+    return (C + np.minimum.accumulate(w_lim - C)).astype(float)
 
 
 class _Profile:
@@ -294,7 +348,9 @@ class _Profile:
         keep = t_dur > 0
         keep[0] = True
         self.dur, self.s0, self.v0, self.a = t_dur[keep], p_s0[keep], p_v0[keep], p_a[keep]
-        self.t0 = np.concatenate([[0.0], np.cumsum(self.dur)[:-1]])
+        # Piece start times in extended precision: a rounding error e of t0 would shift the integral
+        # below by s e, which the moving average divides by T (a noise of ~1e-10 mm on long jobs).
+        self.t0 = np.concatenate([np.zeros(1, np.longdouble), np.cumsum(self.dur.astype(np.longdouble))[:-1]])
         self.t_end = float(self.t0[-1] + self.dur[-1])
         d = self.dur
         # The running integral of s grows like S t; keep it in extended precision so that the moving
@@ -304,23 +360,25 @@ class _Profile:
         self.I0 = np.concatenate([np.zeros(1, np.longdouble), cum[:-1]])
         self.I_end = cum[-1]
         self.S = float(s[-1])
+        self.S0 = float(s[0])             # where the path (a window of a longer one) starts
         self.T = T
         # Arrival time (after the hold) at every grid point.
-        t_all = np.concatenate([[0.0], np.cumsum(t_dur)])
+        t_all = np.concatenate([[0.0], np.cumsum(t_dur.astype(np.longdouble)).astype(float)])
         self.t_arrive = t_all[0::2]           # start of hold at point k
         self.t_leave = t_all[0::2] + hold
 
     def _eval(self, t):
         t = np.asarray(t, float)
         i = np.clip(np.searchsorted(self.t0, t, "right") - 1, 0, len(self.t0) - 1)
-        tau = np.clip(t - self.t0[i], 0.0, self.dur[i])
+        tau = np.clip((t - self.t0[i]).astype(float), 0.0, self.dur[i])
         s = self.s0[i] + self.v0[i] * tau + 0.5 * self.a[i] * tau**2
         v = self.v0[i] + self.a[i] * tau
         I = self.I0[i] + (self.s0[i] * tau + 0.5 * self.v0[i] * tau**2 + self.a[i] * tau**3 / 6)
         before, after = t < 0, t > self.t_end
-        s = np.where(before, 0.0, np.where(after, self.S, s))
+        s = np.where(before, self.S0, np.where(after, self.S, s))
         v = np.where(before | after, 0.0, v)
-        I = np.where(before, 0.0, np.where(after, self.I_end + np.longdouble(self.S) * (t - self.t_end), I))
+        I = np.where(before, np.longdouble(self.S0) * t,
+                     np.where(after, self.I_end + np.longdouble(self.S) * (t - self.t_end), I))
         return s, v, I
 
     def filtered(self, t):
@@ -336,13 +394,7 @@ class _Profile:
 def plan(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: PlannerLimits | None = None,
          start=None) -> Trajectory:
     """Plan ``job`` into a Trajectory sampled every ``dt`` seconds (see the module docstring)."""
-    limits = limits or PlannerLimits()
-    if not dt > 0:
-        raise PlanningError(f"tick period must be > 0, got {dt!r}")
-    if not feed_override > 0:
-        raise PlanningError(f"feed override must be > 0, got {feed_override!r}")
-    if start is None:
-        start = home_pose(machine)
+    limits, start = _start(job, machine, dt, feed_override, limits, start)
     if len(job.moves) > MAX_MOVES:
         raise InputError(job.source, int(job.moves[MAX_MOVES].line) or None,
                          f"more than {MAX_MOVES} moves: longer than the batch planner takes (split the job)")
@@ -363,30 +415,190 @@ def plan(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: Pl
         traj, worst = _sample(path, grid, scale, machine, limits, dt, T, job)
         if worst is None:
             return traj
-        s_bad, factor, v_bad = worst
-        # Lower the caps around the offending samples and plan again.
-        radius = 1.1 * v_bad * T + 2 * limits.grid_mm
-        lo = np.searchsorted(grid["s"], s_bad - radius, "left")
-        hi = np.searchsorted(grid["s"], s_bad + radius, "right") - 1
-        scale = np.minimum(scale, _range_min(len(scale), lo, hi, factor))
-    raise PlanningError(f"{job.source}: could not meet the joint/feed limits after {limits.max_iterations} "
-                        "re-planning iterations")
+        scale = _lower_caps(grid, scale, worst, limits, T)
+    raise _not_met(job, limits)
 
 
-def _too_long(job, line, what, dt):
+def _lower_caps(grid, scale, worst, limits, T):
+    """Lower the caps around the offending samples (to plan again)."""
+    s_bad, factor, v_bad = worst
+    radius = 1.1 * v_bad * T + 2 * limits.grid_mm
+    lo = np.searchsorted(grid["s"], s_bad - radius, "left")
+    hi = np.searchsorted(grid["s"], s_bad + radius, "right") - 1
+    return np.minimum(scale, _range_min(len(scale), lo, hi, factor))
+
+
+def _not_met(job, limits):
+    return PlanningError(f"{job.source}: could not meet the joint/feed limits after {limits.max_iterations} "
+                         "re-planning iterations")
+
+
+def _start(job, machine, dt, feed_override, limits, start):
+    limits = limits or PlannerLimits()
+    if not dt > 0:
+        raise PlanningError(f"tick period must be > 0, got {dt!r}")
+    if not feed_override > 0:
+        raise PlanningError(f"feed override must be > 0, got {feed_override!r}")
+    if start is None:
+        start = home_pose(machine)
+    return limits, start
+
+
+# ---------------------------------------------------------------- the streaming planner
+
+def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: PlannerLimits | None = None,
+             start=None, batch: bool = False) -> "_Path":
+    """Check a whole job for the streaming planner before anything moves, in bounded memory: every
+    move has a positive feed, the duration's lower bound is within ``MAX_STREAM_SECONDS``, no single
+    move needs more than ``MAX_SEGMENT_GRID`` grid points, every programmed pose is reachable and so
+    is the path between them (checked every ``grid_mm`` along it). InputError names the file and line.
+    Returns the job's segment index, which ``plan_stream(path=...)`` takes. ``batch``: the batch
+    planner's bounds on the duration and the whole grid instead (for a caller that holds the whole
+    trajectory)."""
+    limits, start = _start(job, machine, dt, feed_override, limits, start)
+    if batch and len(job.moves) > MAX_MOVES:
+        raise InputError(job.source, int(job.moves[MAX_MOVES].line) or None,
+                         f"more than {MAX_MOVES} moves: longer than the batch planner takes (split the job)")
+    path = _Path(job, start, limits, feed_override)
+    if batch:
+        _check_size(path, job, dt, limits)
+    else:
+        _check_size(path, job, dt, limits, max_samples=int(MAX_STREAM_SECONDS / dt), whole_grid=False)
+    if path.n == 0:
+        return path
+    counts = np.maximum(2, np.ceil(path.length / limits.grid_mm).astype(np.int64))
+    if np.any(counts > MAX_SEGMENT_GRID):
+        i = int(np.argmax(counts > MAX_SEGMENT_GRID))
+        raise InputError(job.source, int(path.line[i]),
+                         f"this move is {path.length[i]:.6g} mm long: more than {MAX_SEGMENT_GRID} grid points "
+                         f"of {limits.grid_mm:g} mm (check arc turns P and the coordinates, or split the move)")
+    _check_reachable(path, job, machine)
+    # the path between the programmed poses, segment by segment in chunks of about SAMPLE_CHUNK points
+    i = 0
+    while i < path.n:
+        j = i + 1 + int(np.searchsorted(np.cumsum(counts[i + 1:]), SAMPLE_CHUNK))
+        c = counts[i:j]
+        seg = np.repeat(np.arange(i, j), c)
+        u = (np.arange(len(seg)) - np.repeat(np.cumsum(c) - c, c)) / np.repeat(c, c)
+        tip, axis = path.pose(seg, u)
+        _check_samples(tip, axis, path.line[seg], machine, job)
+        i = j
+    return path
+
+
+def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: PlannerLimits | None = None,
+                start=None, path=None, window: int = STREAM_WINDOW):
+    """Plan ``job`` as ``plan`` does, chunk by chunk: yields Trajectory pieces (each at most
+    ``SAMPLE_CHUNK`` samples) whose concatenation is ``plan``'s trajectory (to rounding, ~1e-12 mm).
+
+    The job is validated first (``validate``; pass its ``path`` to skip that). Then it is planned in
+    windows of ``window`` segments, each with margins of the path on both sides: the limit grid,
+    the velocity profile, the jerk filter and the time warp of the window are those of the whole
+    job wherever the margins hold everything they depend on. The profile is checked for that (the
+    speeds with the margin's ends free and at rest must agree in the window), else the margin grows.
+    Memory: the job's segment index (~0.3 kB per move) and one window with its margins."""
+    limits, start = _start(job, machine, dt, feed_override, limits, start)
+    if path is None:
+        path = validate(job, machine, dt, feed_override=feed_override, limits=limits, start=start)
+    T = max(2.0 * limits.tangential_accel / limits.jerk_mm_s3, 2.0 * dt)
+    points = np.asarray(job.points, float).reshape(-1, 3)
+    if path.n == 0:
+        nt = int(np.ceil(path.dwell.sum() / dt)) + 1
+        for k0 in range(0, nt, SAMPLE_CHUNK):
+            m = min(nt, k0 + SAMPLE_CHUNK) - k0
+            z = np.zeros((m, 3))
+            yield Trajectory(dt, np.repeat(path.start_tip[None], m, 0), np.repeat(path.b_axis[:1], m, 0), z,
+                             z.copy(), np.full(m, path.start_line, int), np.zeros(m), job.source, points)
+        return
+    # reach of what a window's result depends on: the erosion of the caps, the jerk filter, the
+    # re-planning radius around a violation (all ~ v T), and the look-ahead of the speeds (checked)
+    vt = 1.1 * float(path.vmax.max()) * T + 4 * limits.grid_mm
+    for c0 in range(0, path.n, window):
+        c1 = min(path.n, c0 + window)
+        margin = max(STREAM_MARGIN_MM, 2 * vt)
+        while True:
+            try:
+                tm, rng, kept = _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job)
+                break
+            except _NotLocal:
+                margin *= 2
+        if kept is not None:
+            for part in kept:
+                yield Trajectory(dt, *part, job.source, points)
+        else:
+            for k0 in range(rng[0], rng[1], SAMPLE_CHUNK):
+                part, _ = tm.samples(k0, min(rng[1], k0 + SAMPLE_CHUNK))
+                yield Trajectory(dt, *part, job.source, points)
+
+
+def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job):
+    """Plan segments c0 .. c1-1 with margins; returns (timing, tick range to emit, kept sample chunks
+    or None) once the limits hold on the samples of the window and STREAM_CHECK_MM around it."""
+    n, b_s = path.n, path.b_s
+    # the limits are checked on the samples between boundaries kb_lo and kb_hi (the window and at
+    # least STREAM_CHECK_MM around it); their times depend on the warp's knots one further out,
+    # which must not be a window end (those knots are not the whole job's); the profile must be the
+    # whole job's from there on, within vt
+    kb_lo = 0 if c0 == 0 else max(0, min(c0 - 1, int(np.searchsorted(b_s, b_s[c0] - STREAM_CHECK_MM, "right")) - 1))
+    kb_hi = n if c1 == n else min(n, max(c1 + 1, int(np.searchsorted(b_s, b_s[c1] + STREAM_CHECK_MM, "left"))))
+    lo_need = b_s[max(kb_lo - 1, 0)] - vt
+    hi_need = b_s[min(kb_hi + 1, n)] + vt
+    w0 = 0 if kb_lo <= 1 else max(0, min(kb_lo - 2, int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
+    w1 = n if kb_hi >= n - 1 else min(n, max(kb_hi + 2, int(np.searchsorted(b_s, hi_need + margin, "left"))))
+    sp = path.sub(w0, w1)
+    zone = None
+    if w0 > 0 or w1 < n:
+        zone = (b_s[w0] + vt if w0 > 0 else -np.inf, b_s[w1] - vt if w1 < n else np.inf,
+                lo_need if c0 > 0 else -np.inf, hi_need if c1 < n else np.inf)
+    grid = _limit_grid(sp, machine, limits, dt, T)
+    scale = np.ones(len(grid["s"]))
+    for it in range(limits.max_iterations):
+        tm = _Timing(sp, grid, scale, dt, T, job, zone=zone)
+        e0 = int(tm.K_b[c0 - w0])
+        e1 = int(tm.K_b[c1 - w0]) + (1 if c1 == n else 0)
+        k_lo = int(tm.K_b[kb_lo - w0])
+        k_hi = int(tm.K_b[kb_hi - w0]) + (1 if kb_hi == n else 0)
+        keep = [] if e1 - e0 <= STREAM_KEEP else None
+        bad = []
+        prev = None
+        for k0 in range(k_lo, k_hi, SAMPLE_CHUNK):
+            k1 = min(k_hi, k0 + SAMPLE_CHUNK)
+            part, (sf, v, seg) = tm.samples(k0, k1)
+            q = _check_samples(part[0], part[1], part[4], machine, job)
+            if keep is not None and k1 > e0 and k0 < e1:
+                a, b = max(k0, e0) - k0, min(k1, e1) - k0
+                keep.append(tuple(x[a:b] for x in part))
+            cur = (q, part[0], v, sf, seg)
+            if prev is not None:       # two samples of overlap: the differences across the chunk edge
+                cur_x = tuple(np.concatenate([p_[-2:], c_]) for p_, c_ in zip(prev, cur))
+            else:
+                cur_x = cur
+            w = _violations(*cur_x, sp, machine, limits, dt)
+            if w is not None:
+                bad.append(w)
+            prev = cur
+        if not bad:
+            return tm, (e0, e1), keep
+        scale = _lower_caps(grid, scale, tuple(np.concatenate(x) for x in zip(*bad)), limits, T)
+    raise _not_met(job, limits)
+
+
+def _too_long(job, line, what, dt, max_samples=None):
+    bound = (f"the batch planner holds at most {MAX_SAMPLES} ticks ({MAX_SAMPLES * dt / 60:.0f} min at {1 / dt:g} Hz)"
+             if max_samples is None else f"a job may take at most {max_samples * dt / 3600:g} h")
     return InputError(job.source, int(line) if line else None,
-                      f"{what}: the batch planner holds at most {MAX_SAMPLES} ticks "
-                      f"({MAX_SAMPLES * dt / 60:.0f} min at {1 / dt:g} Hz); check the feed (F is per minute), "
+                      f"{what}: {bound}; check the feed (F is per minute), "
                       f"dwells (G4 P is in seconds) and arc turns (P), or split the job")
 
 
-def _check_size(path: _Path, job, dt, limits: PlannerLimits):
+def _check_size(path: _Path, job, dt, limits: PlannerLimits, max_samples=None, whole_grid=True):
     """Refuse, before anything large is allocated, a job whose lower-bound duration or limit grid
-    exceeds the bounds; the line named is where the bound is crossed."""
+    exceeds the bounds (the batch planner's, unless given; ``whole_grid=False``: no bound on the
+    whole grid); the line named is where the bound is crossed."""
     # Lower bound of the duration at every boundary: each segment at its top speed, dwells in full.
     seg_t = path.length / path.vmax if path.n else np.zeros(0)
     t_b = np.cumsum(path.dwell) + np.concatenate([[0.0], np.cumsum(seg_t)])   # at boundary b (dwell incl.)
-    limit_t = MAX_SAMPLES * dt
+    limit_t = (MAX_SAMPLES if max_samples is None else max_samples) * dt
     if not t_b[-1] < limit_t:
         b = int(np.argmax(~(t_b < limit_t)))
         if b > 0 and t_b[b] - path.dwell[b] >= limit_t:          # crossed while moving into boundary b
@@ -398,12 +610,13 @@ def _check_size(path: _Path, job, dt, limits: PlannerLimits):
             line = path.dwell_line[b]
             what = (f"the job takes at least {t_b[-1]:.4g} s, of which {path.dwell.sum():.4g} s of dwells; "
                     "over the bound by this line")
-        raise _too_long(job, line, what, dt)
-    if path.n:
+        raise _too_long(job, line, what, dt, max_samples)
+    if path.n and whole_grid:
         counts = np.maximum(2.0, np.ceil(path.length / limits.grid_mm))
         cum = np.cumsum(counts)
-        if cum[-1] > MAX_GRID_POINTS:
-            i = int(np.argmax(cum > MAX_GRID_POINTS))
+        max_grid = MAX_GRID_POINTS
+        if cum[-1] > max_grid:
+            i = int(np.argmax(cum > max_grid))
             raise InputError(job.source, int(path.line[i]),
                              f"the path is {path.total:.6g} mm long: more than the batch planner's "
                              f"{MAX_GRID_POINTS} grid points of {limits.grid_mm:g} mm by this line "
@@ -411,10 +624,12 @@ def _check_size(path: _Path, job, dt, limits: PlannerLimits):
 
 
 def _check_reachable(path, job, machine):
-    r = K.ik_batch(path.b_tip, path.b_axis, machine)
-    if not np.all(r.ok[1:]):
-        b = int(np.argmax(~r.ok[1:])) + 1
-        raise InputError(job.source, int(path.line[b - 1]), f"pose unreachable: {r.reason[b]}")
+    for b0 in range(1, path.n + 1, SAMPLE_CHUNK):        # the boundaries after the start, in chunks
+        b1 = min(path.n + 1, b0 + SAMPLE_CHUNK)
+        r = K.ik_batch(path.b_tip[b0:b1], path.b_axis[b0:b1], machine)
+        if not np.all(r.ok):
+            i = int(np.argmax(~r.ok))
+            raise InputError(job.source, int(path.line[b0 + i - 1]), f"pose unreachable: {r.reason[i]}")
 
 
 def _limit_grid(path: _Path, machine, limits: PlannerLimits, dt, T):
@@ -495,7 +710,11 @@ def _limit_grid(path: _Path, machine, limits: PlannerLimits, dt, T):
     return dict(s=s, seg=seg, u=u, vcap=vg, acap=ag, b_idx=b_idx, vmax_seg=path.vmax[seg], jrad=jrad)
 
 
-def _profile(path, grid, scale, T):
+def _profile(path, grid, scale, T, zone=None):
+    """The raw profile on the grid. ``zone`` = (z_lo, z_hi, c_lo, c_hi) for a window of a longer job:
+    outside [z_lo, z_hi] the caps miss their neighbours beyond the window's ends; the speeds are
+    computed again with zero there (a lower bound of the true ones, the caps as they are giving an
+    upper bound) and must agree on [c_lo, c_hi], else _NotLocal (the window needs a wider margin)."""
     s = grid["s"]
     vcap = np.minimum(grid["vcap"] * scale, grid["vmax_seg"])
     b_idx = grid["b_idx"]
@@ -514,6 +733,16 @@ def _profile(path, grid, scale, T):
     w_lim = vcap**2
     w = _forward_pass(w_lim, c)
     w = _forward_pass(w[::-1], c[::-1])[::-1]
+    if zone is not None:
+        z_lo, z_hi, c_lo, c_hi = zone
+        out = (s < z_lo) | (s > z_hi)
+        i_out = np.nonzero(out)[0]
+        out[np.clip(np.concatenate([i_out - 1, i_out + 1]), 0, len(s) - 1)] = True
+        w_lo = _forward_pass(np.where(out, 0.0, w_lim), c)
+        w_lo = _forward_pass(w_lo[::-1], c[::-1])[::-1]
+        chk = (s >= c_lo) & (s <= c_hi)
+        if not np.array_equal(w[chk], w_lo[chk]):
+            raise _NotLocal()
     hold = np.zeros(len(s))
     hold[stop_pts] = T + path.dwell[path.stop]
     hold[b_idx[0]] = path.dwell[0]
@@ -521,99 +750,164 @@ def _profile(path, grid, scale, T):
     return _Profile(s, w, hold, T), stop_pts
 
 
+class _NotLocal(Exception):
+    """A window's speeds depend on more of the path than its margins hold."""
+
+
+class _Timing:
+    """When the samples of a planned path are: the filtered profile, the tick of every boundary
+    (``K_b``) and the time warp that puts each boundary on its tick. Samples are then evaluated for
+    any range of ticks (``samples``), so a long path is sampled chunk by chunk."""
+
+    def __init__(self, path: _Path, grid, scale, dt, T, job, max_samples=None, zone=None):
+        prof, stop_pts = _profile(path, grid, scale, T, zone)
+        b_idx = grid["b_idx"]
+        n = path.n
+        self.path, self.prof, self.dt, self.job = path, prof, dt, job
+        # Filtered arrival time at every boundary.
+        tau = np.empty(n + 1)
+        tau[0] = -0.5 * T
+        tau[n] = prof.t_end + 0.5 * T
+        inner = np.arange(1, n)
+        st = path.stop[inner]
+        tau[inner[st]] = prof.t_arrive[b_idx[inner[st]]] + 0.5 * (T + path.dwell[inner[st]])
+        mv = inner[~st]
+        if len(mv):
+            target = path.b_s[mv]
+            lo = prof.t_arrive[b_idx[mv]] - 0.5 * T
+            hi = prof.t_arrive[b_idx[mv]] + 0.5 * T
+            for _ in range(60):
+                mid = 0.5 * (lo + hi)
+                sf, _ = prof.filtered(mid)
+                below = sf < target
+                lo = np.where(below, mid, lo)
+                hi = np.where(below, hi, mid)
+            tau[mv] = 0.5 * (lo + hi)
+        gaps = np.diff(tau)
+        if max_samples is not None:
+            over = np.cumsum(gaps) / dt > max_samples - n - 1      # before anything of that size exists
+            if np.any(over):
+                b = int(np.argmax(over))
+                raise _too_long(job, path.line[b], f"the planned job takes {tau[-1] - tau[0]:.6g} s "
+                                                   "(the joint and acceleration limits slow it down)", dt)
+        ticks = np.maximum(1, np.ceil(gaps / dt - 1e-9).astype(int))
+        self.K_b = K_b = np.concatenate([[0], np.cumsum(ticks)])
+        self.n_samples = int(K_b[-1]) + 1
+        # The warped clock lags real time by D(t) >= 0; D is a monotone (PCHIP) interpolant of its knot
+        # values, so the warp rate 1 - D' never exceeds 1: the warp only ever slows the profile down.
+        x_b = K_b * dt
+        self.tau0 = tau[0]
+        self.lag = PchipInterpolator(x_b, x_b - (tau - tau[0]))
+        self.dlag = self.lag.derivative()
+        self.warp = None
+        for k0 in range(0, self.n_samples, SAMPLE_CHUNK):
+            if np.any(1.0 - self.dlag(np.arange(k0, min(k0 + SAMPLE_CHUNK, self.n_samples)) * dt) < 0):
+                self.warp = PchipInterpolator(x_b, tau)    # only for segments far shorter than a tick
+                self.dwarp = self.warp.derivative()
+                break
+        # Samples held at a stop (within 1e-9 mm of it) sit exactly there, at rest: the tick range of each.
+        stops = np.nonzero(path.stop)[0]
+        lo = self._first(path.b_s[stops] - 1e-9, strict=False)
+        hi = self._first(path.b_s[stops] + 1e-9, strict=True)
+        self.hold = {int(b): (min(int(l_), int(K_b[b])), max(int(h_), int(K_b[b]) + 1))
+                     for b, l_, h_ in zip(stops, lo, hi)}
+        # Samples inside a dwell carry the G4's line (the dwell is the middle of the hold at its point).
+        self.dwells = {}
+        for b in np.nonzero(path.dwell > 0)[0]:
+            lo_, hi_ = self.hold[int(b)]
+            nd = int(round(path.dwell[b] / dt))
+            extra = (hi_ - lo_) - nd
+            a = lo_ + (0 if b == 0 else (extra // 2 if b < n else extra))
+            self.dwells[int(b)] = (a, a + nd + 1)
+
+    def _clock(self, k):
+        """Profile time and warp rate of ticks k."""
+        tk = np.asarray(k) * self.dt
+        if self.warp is not None:
+            return self.warp(tk), self.dwarp(tk)
+        return tk - self.lag(tk) + self.tau0, 1.0 - self.dlag(tk)
+
+    def _s(self, k):
+        tt, rate = self._clock(k)
+        sf, vf = self.prof.filtered(tt)
+        return np.clip(sf, self.path.b_s[0], self.path.total), vf * rate
+
+    def _first(self, x, strict):
+        """First tick whose s is >= x (> x if strict), for every x; n_samples where none (s is monotone)."""
+        lo = np.zeros(len(x), int)
+        hi = np.full(len(x), self.n_samples)
+        while np.any(lo < hi):
+            mid = (lo + hi) // 2
+            sm, _ = self._s(np.minimum(mid, self.n_samples - 1))
+            ok = ((sm > x) if strict else (sm >= x)) & (mid < self.n_samples)
+            hi = np.where(ok & (lo < hi), mid, hi)
+            lo = np.where(~ok & (lo < hi), mid + 1, lo)
+        return lo
+
+    def samples(self, k0, k1):
+        """Ticks k0 .. k1-1: (tip, axis, tip_vel, axis_vel, line, rpm) and, for the limit check, (s, v, seg)."""
+        path, K_b, n = self.path, self.K_b, self.path.n
+        k = np.arange(k0, k1)
+        sf, v = self._s(k)
+        seg, u = path.locate(sf)
+        # Samples on boundaries: exactly the programmed pose, arriving from the segment before.
+        on = np.nonzero((K_b >= k0) & (K_b < k1))[0]
+        seg[K_b[on[on > 0]] - k0] = on[on > 0] - 1
+        u[K_b[on[on > 0]] - k0] = 1.0
+        if k0 == 0:
+            seg[0], u[0] = 0, 0.0
+        ranges = []
+        for b, (lo, hi) in self.hold.items():
+            lo, hi = max(lo, k0), min(hi, k1)
+            if lo < hi:
+                ranges.append((b, lo - k0, hi - k0))
+                seg[lo - k0:hi - k0] = max(b - 1, 0)
+                u[lo - k0:hi - k0] = 1.0 if b > 0 else 0.0
+                v[lo - k0:hi - k0] = 0.0
+        tip, axis = path.pose(seg, u)
+        for b, lo, hi in ranges:
+            tip[lo:hi] = path.b_tip[b]
+            axis[lo:hi] = path.b_axis[b]
+        tip[K_b[on] - k0] = path.b_tip[on]
+        axis[K_b[on] - k0] = path.b_axis[on]
+        der_tip, der_ax = _tangent(path, seg, u)
+        tip_vel = der_tip * v[:, None]
+        axis_vel = der_ax * v[:, None]
+        for end in (0, self.n_samples - 1):
+            if k0 <= end < k1:
+                tip_vel[end - k0] = 0.0
+                axis_vel[end - k0] = 0.0
+        line = path.line[seg] if n else np.full(len(k), path.start_line, int)
+        rpm = path.rpm[seg]
+        for b, (a, e) in self.dwells.items():
+            a, e = max(a, k0), min(e, k1)
+            if a < e:
+                line[a - k0:e - k0] = path.dwell_line[b]
+        return (tip, axis, tip_vel, axis_vel, line.astype(int), rpm.astype(float)), (sf, v, seg)
+
+
+SAMPLE_CHUNK = 20_000     # ticks sampled at once (the planner's peak is ~0.75 kB per sample)
+
+
 def _sample(path: _Path, grid, scale, machine, limits, dt, T, job):
-    prof, stop_pts = _profile(path, grid, scale, T)
-    b_idx = grid["b_idx"]
-    n = path.n
-    # Filtered arrival time at every boundary.
-    tau = np.empty(n + 1)
-    tau[0] = -0.5 * T
-    tau[n] = prof.t_end + 0.5 * T
-    inner = np.arange(1, n)
-    st = path.stop[inner]
-    tau[inner[st]] = prof.t_arrive[b_idx[inner[st]]] + 0.5 * (T + path.dwell[inner[st]])
-    mv = inner[~st]
-    if len(mv):
-        target = path.b_s[mv]
-        lo = prof.t_arrive[b_idx[mv]] - 0.5 * T
-        hi = prof.t_arrive[b_idx[mv]] + 0.5 * T
-        for _ in range(60):
-            mid = 0.5 * (lo + hi)
-            sf, _ = prof.filtered(mid)
-            below = sf < target
-            lo = np.where(below, mid, lo)
-            hi = np.where(below, hi, mid)
-        tau[mv] = 0.5 * (lo + hi)
-    gaps = np.diff(tau)
-    over = np.cumsum(gaps) / dt > MAX_SAMPLES - n - 1      # before anything of that size exists
-    if np.any(over):
-        b = int(np.argmax(over))
-        raise _too_long(job, path.line[b], f"the planned job takes {tau[-1] - tau[0]:.6g} s "
-                                           "(the joint and acceleration limits slow it down)", dt)
-    ticks = np.maximum(1, np.ceil(gaps / dt - 1e-9).astype(int))
-    K_b = np.concatenate([[0], np.cumsum(ticks)])
-    # The warped clock lags real time by D(t) >= 0; D is a monotone (PCHIP) interpolant of its knot
-    # values, so the warp rate 1 - D' never exceeds 1: the warp only ever slows the profile down.
-    x_b = K_b * dt
-    lag = PchipInterpolator(x_b, x_b - (tau - tau[0]))
-    dlag = lag.derivative()
-    k = np.arange(K_b[-1] + 1)
-    tk = k * dt
-    rate = 1.0 - dlag(tk)
-    if np.any(rate < 0):              # only for segments far shorter than a tick
-        warp = PchipInterpolator(x_b, tau)
-        tt, rate = warp(tk), warp.derivative()(tk)
-    else:
-        tt = tk - lag(tk) + tau[0]
-    sf, vf = prof.filtered(tt)
-    v = vf * rate
-    sf = np.clip(sf, 0.0, path.total)
-    seg, u = path.locate(sf)
-    # Samples on boundaries: exactly the programmed pose, arriving from the segment before.
-    seg[K_b[1:]] = np.arange(n)
-    u[K_b[1:]] = 1.0
-    seg[0], u[0] = 0, 0.0
-    # Samples held at a stop (within 1e-9 mm of it): exactly there, at rest.
-    hold_ranges = {}
-    for b in np.nonzero(path.stop)[0]:
-        lo = int(np.searchsorted(sf, path.b_s[b] - 1e-9, "left"))
-        hi = int(np.searchsorted(sf, path.b_s[b] + 1e-9, "right"))
-        lo, hi = min(lo, K_b[b]), max(hi, K_b[b] + 1)
-        hold_ranges[b] = (lo, hi)
-        seg[lo:hi] = max(b - 1, 0)
-        u[lo:hi] = 1.0 if b > 0 else 0.0
-        v[lo:hi] = 0.0
-    tip, axis = path.pose(seg, u)
-    for b, (lo, hi) in hold_ranges.items():
-        tip[lo:hi] = path.b_tip[b]
-        axis[lo:hi] = path.b_axis[b]
-    tip[K_b] = path.b_tip
-    axis[K_b] = path.b_axis
-    der_tip, der_ax = _tangent(path, seg, u)
-    tip_vel = der_tip * v[:, None]
-    axis_vel = der_ax * v[:, None]
-    tip_vel[0] = 0.0
-    axis_vel[0] = 0.0
-    tip_vel[-1] = 0.0
-    axis_vel[-1] = 0.0
-    line = path.line[seg]
-    rpm = path.rpm[seg]
-    # Samples inside a dwell carry the G4's line (the dwell is the middle of the hold at its point).
-    for b in np.nonzero(path.dwell > 0)[0]:
-        lo, hi = hold_ranges[b]
-        extra = (hi - lo) - int(round(path.dwell[b] / dt))
-        a = lo + (0 if b == 0 else (extra // 2 if b < n else extra))
-        line[a:a + int(round(path.dwell[b] / dt)) + 1] = path.dwell_line[b]
-    # Reachability and limits on the samples.
+    """The whole path sampled at once (the batch planner): (Trajectory, violations or None)."""
+    tm = _Timing(path, grid, scale, dt, T, job, max_samples=MAX_SAMPLES)
+    (tip, axis, tip_vel, axis_vel, line, rpm), (sf, v, seg) = tm.samples(0, tm.n_samples)
+    q = _check_samples(tip, axis, line, machine, job)
+    traj = Trajectory(dt, tip, axis, tip_vel, axis_vel, line, rpm, job.source,
+                      np.asarray(job.points, float).reshape(-1, 3))
+    worst = _violations(q, tip, v, sf, seg, path, machine, limits, dt)
+    return traj, worst
+
+
+def _check_samples(tip, axis, line, machine, job):
+    """Reachability of the samples (InputError with the job line); their joint positions."""
     ik = K.ik_batch(tip, axis, machine)
     if not np.all(ik.ok):
         i = int(np.argmax(~ik.ok))
         raise InputError(job.source, int(line[i]), f"the path leaves the workspace at tip "
                                                    f"{np.round(tip[i], 4).tolist()}: {ik.reason[i]}")
-    traj = Trajectory(dt, tip, axis, tip_vel, axis_vel, line.astype(int), rpm.astype(float), job.source,
-                      np.asarray(job.points, float).reshape(-1, 3))
-    worst = _violations(ik.q, tip, v, sf, seg, path, machine, limits, dt)
-    return traj, worst
+    return ik.q
 
 
 def _tangent(path, seg, u, delta=1e-4):

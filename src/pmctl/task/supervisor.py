@@ -99,6 +99,7 @@ class Supervisor:
         self.started_at = time.time()
         self.counts0 = None
         self.exited_reason = ""
+        self.plan_feed_override = 1.0     # the planner's feed factor (pmctl run --feed-override)
 
     # ------------------------------------------------------------ lifecycle
     def start(self, counts0, timeout_s: float = 60.0):
@@ -356,9 +357,13 @@ class Supervisor:
 
     # ------------------------------------------------------------ threads
     def _planner(self):
-        from pmctl.motion.timescale import iter_job_rows
+        """Plans queued items one after the other with the streaming planner: the whole item is
+        validated first (reachability, feeds, bounds: nothing of a bad item reaches the rt side),
+        then planned window by window and pushed as room frees up in the sample ring, so memory is
+        bounded by a window, not by the job."""
+        from pmctl.motion.timescale import iter_stream_rows
         from pmctl.task.job import RAPID
-        from pmctl.task.planner import PlannerLimits, plan
+        from pmctl.task.planner import PlannerLimits, plan_stream, validate
         rapid_mm_s = PlannerLimits().rapid_mm_s
         while not self._stop.is_set():
             try:
@@ -368,11 +373,13 @@ class Supervisor:
             if self._abort.is_set() or it.gen != self._gen:
                 continue
             try:
-                traj = plan(it.job, self.machine, self.dt, start=it.start)
-                rapid_lines = [m.line for m in it.job.moves if m.kind == RAPID]
-                rapid = np.isin(np.asarray(traj.line), rapid_lines) if rapid_lines else None
+                path = validate(it.job, self.machine, self.dt, feed_override=self.plan_feed_override, start=it.start)
+                rapid_lines = {m.line for m in it.job.moves if m.kind == RAPID}
+                pieces = plan_stream(it.job, self.machine, self.dt, feed_override=self.plan_feed_override,
+                                     start=it.start, path=path)
                 it.planned = True
-                for rows in iter_job_rows(traj, self.machine, self.params, rapid=rapid, rapid_mm_s=rapid_mm_s):
+                for rows in iter_stream_rows(pieces, self.machine, self.params, rapid_lines=rapid_lines,
+                                             rapid_mm_s=rapid_mm_s):
                     i = 0
                     while i < len(rows):
                         if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
@@ -390,6 +397,19 @@ class Supervisor:
                         self.items.remove(it)
                 self.log(f"planning {it.name or it.kind} failed: {e}")
                 self._emit("error", {"msg": f"planning failed: {e}"})
+                if it.planned:
+                    self._planning_failed_midway(it, e)
+
+    def _planning_failed_midway(self, it, e):
+        """A window of an item failed after its first samples were queued (validation passed, so
+        rare): stop on the path now, drop everything queued after it and raise an alarm; nothing
+        may continue from a pose the machine is not at."""
+        with self._lock:
+            self.items.clear()
+            self._gen += 1
+        if self.ch is not None and not self.rt_dead:
+            self.command(C.C_RESET)
+        self.raise_alarm(ALARM_ABORT, f"planning of {it.name or it.kind} failed during the job: {e}")
 
     def _drain_records(self):
         if self.ch is None:

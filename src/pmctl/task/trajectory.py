@@ -29,3 +29,18 @@ class Trajectory:
     @property
     def duration(self):
         return len(self.tip) * self.dt
+
+    @classmethod
+    def join(cls, pieces, max_len=None, too_long=None) -> "Trajectory":
+        """One Trajectory of consecutive pieces (as the streaming planner yields them). With
+        ``max_len``, ``too_long(n)`` (an exception) is raised once the pieces pass that many samples."""
+        parts, n = [], 0
+        for p in pieces:
+            n += len(p)
+            if max_len is not None and n > max_len:
+                raise too_long(n)
+            parts.append(p)
+        first = parts[0]
+        cat = {k: np.concatenate([getattr(p, k) for p in parts]) for k in
+               ("tip", "axis", "tip_vel", "axis_vel", "line", "spindle_rpm")}
+        return cls(first.dt, source=first.source, points=first.points, **cat)

@@ -374,7 +374,7 @@ def run(args) -> int:
     from pmctl.motion.nc import counts_of, initial_state
     from pmctl.motion.service_config import load_service_config
     from pmctl.motion.state_store import CounterWriter, StateLock, load_counters
-    from pmctl.task.planner import load_job, plan
+    from pmctl.task.planner import load_job
 
     out = _Out()
     log = out.log
@@ -451,7 +451,7 @@ def run(args) -> int:
         plan_machine = replace(machine, limits=lim)
         notes.append(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: "
                      f"planning with that")
-    traj = plan(job, plan_machine, dt, feed_override=args.feed_override, start=(st.tip, st.axis))
+    traj = _plan(job, plan_machine, dt, args.feed_override, (st.tip, st.axis))
     targets = prepare(machine, params, traj, dt, counts0)
     backend = hal.create(backend_name, machine, dt, svc.backend_tables.get(backend_name, {}))
 
@@ -536,6 +536,23 @@ def run(args) -> int:
     finally:
         for sig, h in old.items():
             signal.signal(sig, h)
+
+
+def _plan(job, machine, dt, feed_override, start):
+    """The job planned by the streaming planner the daemon uses: validated whole first (nothing
+    moves on a bad line), then planned window by window and joined, since the in-process loop
+    replays a whole preflighted trajectory (bounded as the batch planner is: MAX_SAMPLES ticks)."""
+    from pmctl.core.errors import InputError
+    from pmctl.task.planner import MAX_SAMPLES, plan_stream, validate
+    from pmctl.task.trajectory import Trajectory
+    path = validate(job, machine, dt, feed_override=feed_override, start=start, batch=True)
+
+    def too_long(n):
+        return InputError(job.source, None, f"the planned job takes more than {MAX_SAMPLES} ticks "
+                                            f"({MAX_SAMPLES * dt / 60:.0f} min at {1 / dt:g} Hz), what a one-shot "
+                                            f"run holds; run longer jobs through pmctl serve")
+    return Trajectory.join(plan_stream(job, machine, dt, feed_override=feed_override, start=start, path=path),
+                           MAX_SAMPLES, too_long)
 
 
 def _open_recording(args, machine, backend, backend_name, cfg, sink, job_start):
