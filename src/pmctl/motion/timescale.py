@@ -258,13 +258,24 @@ class TimeScaler:
                     lo = b1
                 if b2 < hi:
                     hi = b2
+        # The joints may keep sigma from speeding up and limit how hard it slows down, but never force
+        # it up nor keep it from slowing towards its goal at a quarter of its rate limit: near the
+        # curvature cap (sigma^2 |q_tautau| at the joint limit) any deceleration adds to the
+        # curvature term, speeding up to balance it runs away, and a feed hold must still come to rest.
         if lo <= hi:
-            if ds < lo:
-                ds = lo
-            elif ds > hi:
+            if ds > hi:
                 ds = hi
-        else:
-            ds = 0.5 * (lo + hi)
+            elif ds < lo:
+                ds = min(lo, max(ds, -0.25 * A))
+        if ds > A:
+            ds = A
+        elif ds < -A:
+            ds = -A
+        if e >= 0.0 and s + ds * dt > goal:
+            # arrived: land on the goal and rest there, never past it (the discrete jerk-limited
+            # approach overshoots by ~1e-5, which at the curvature cap is a joint over its limit)
+            self.sigma, self.dsigma = goal, 0.0
+            return goal
         s = s + ds * dt
         if s <= 0.0:
             s, ds = 0.0, 0.0
