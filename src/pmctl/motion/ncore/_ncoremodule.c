@@ -210,7 +210,7 @@ PyMODINIT_FUNC PyInit__ncore(void)
 #define C(name) PyModule_AddIntConstant(m, #name, name)
     C(NC_C_LEN); C(NC_S_LEN); C(NC_N_LEN);
     C(NC_S_ACC); C(NC_S_QDOT); C(NC_S_P); C(NC_S_R); C(NC_S_TIP); C(NC_S_AXIS); C(NC_S_PERR);
-    C(NC_S_QM); C(NC_S_T); C(NC_S_EV);
+    C(NC_S_QM); C(NC_S_T); C(NC_S_EV); C(NC_S_KTH);
     C(NC_N_COUNTS); C(NC_N_PULSES); C(NC_N_MODE); C(NC_N_EVENT); C(NC_N_HAS_QM); C(NC_N_ITER);
     C(NC_EV_NONE); C(NC_EV_ENC_NONFINITE); C(NC_EV_STRAIN_NONFINITE); C(NC_EV_FERROR); C(NC_EV_FK_NOCONV);
     C(NC_EV_FK_BRANCH); C(NC_EV_FK_SINGULAR); C(NC_EV_SVD); C(NC_EV_PATH_ERROR); C(NC_EV_TILT);
