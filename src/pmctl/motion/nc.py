@@ -350,6 +350,8 @@ class NCParams:
         for f in ("pulses_per_mm", "vmax", "amax", "lower", "upper", "k_theta", "deflection_per_ue", "mode_hz",
                   "k_theta_leak"):
             a = np.array(getattr(self, f), float)
+            if f in ("k_theta", "mode_hz", "k_theta_leak"):     # one value for all chains, or one per chain
+                a = np.broadcast_to(a, (3,)).copy()
             a.setflags(write=False)
             object.__setattr__(self, f, a)
         if self.implementation not in IMPLEMENTATIONS:
@@ -362,6 +364,7 @@ class NCParams:
         w = 2.0 * math.pi * self.mode_hz
         inv_w2 = [1.0 / (x * x) if x > 0 else 0.0 for x in w.tolist()]
         object.__setattr__(self, "_inv_w2", inv_w2)
+        object.__setattr__(self, "_acc_lp", [1.0 - math.exp(-x * self.dt) for x in w.tolist()])
         object.__setattr__(self, "_kth_modal", self._kth_on and bool(np.any(self.mode_hz > 0)))
 
     @classmethod
@@ -407,8 +410,9 @@ class NCState:
     path_error: float = 0.0   # |e| of the last tick, mm (weighted)
     q_model: np.ndarray | None = None   # joints of the model pose (P, R)
     T: np.ndarray | None = None         # (6, 3) platform twist per unit chain-length change at (P, R)
-    kth: np.ndarray | None = None       # (9,) soft-chain K_theta: offset d (3, mm), last feed-forward
-                                        # chain rate (3, mm/s), last planned stretch a*/w^2 (3, mm)
+    kth: np.ndarray | None = None       # (12,) soft-chain K_theta: offset d (3, mm), last feed-forward
+                                        # chain rate (3, mm/s), last planned stretch a*/w^2 (3, mm),
+                                        # low-passed planned chain acceleration (3, mm/s^2)
 
     # Mode changes from outside the step (the loop's stop request, a backend fault, the end of the
     # job). The compiled core's state handle (pmctl.motion.ncore.CompiledState) has the same four
@@ -498,17 +502,21 @@ def _damped_pinv_apply(J, x, params: NCParams, x2=None):
 def _kth_modal_l(qd, qf, defl, kth, params: NCParams):
     """The soft-chain K_theta term (docs/vibration.md) on lists, in the compiled core's order.
     qf: the targets' feed-forward chain rates of this tick; defl: theta_m - theta_L per chain, mm;
-    kth: (9,) state (offset d, last feed-forward rate, last stretch o). Adds to qd[:3] and returns
-    the new state: a* = (qf - qf_prev)/dt (the targets' second difference), o = a*/w^2 the planned
-    stretch, y_dyn = y + o (y = -defl), rate K_theta y_dyn + kv d (+ kv o + (o - o_prev)/dt with
-    deflection feed-forward), d += dt (K_theta y_dyn - leak d)."""
-    dt, kv, iw2 = params.dt, params.kv, params._inv_w2
+    kth: (12,) state (offset d, last feed-forward rate, last stretch o, low-passed a*). Adds to
+    qd[:3] and returns the new state: a* = (qf - qf_prev)/dt (the targets' second difference),
+    low-passed at the mode (af += c (a* - af), c = 1 - exp(-w dt): the stretch a*/w^2 is the
+    deflection only for what lies below the mode, and a one-tick velocity step of the targets would
+    otherwise become a one-tick motor blip of a*/w^2), o = af/w^2 the planned stretch, y_dyn = y + o
+    (y = -defl), rate K_theta y_dyn + kv d (+ kv o + (o - o_prev)/dt with deflection feed-forward),
+    d += dt (K_theta y_dyn - leak d)."""
+    dt, kv, iw2, cf = params.dt, params.kv, params._inv_w2, params._acc_lp
     kt, lk = params._l.kth, params._l.leak
-    out = [0.0] * 9
+    out = [0.0] * 12
     for i in range(3):
         d = kth[i]
         a = (qf[i] - kth[3 + i]) / dt
-        o = a * iw2[i]
+        af = kth[9 + i] + cf[i] * (a - kth[9 + i])
+        o = af * iw2[i]
         y = -defl[i] + o
         u = kt[i] * y + kv * d
         if params.deflection_ff:
@@ -517,6 +525,7 @@ def _kth_modal_l(qd, qf, defl, kth, params: NCParams):
         out[i] = d + dt * (kt[i] * y - lk[i] * d)
         out[3 + i] = qf[i]
         out[6 + i] = o
+        out[9 + i] = af
     return out
 
 
@@ -620,7 +629,7 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
             if params._kth_modal:
                 qdl = qd.tolist()
                 kth_st = _kth_modal_l(qdl, qf.tolist(), defl.tolist(),
-                                      [0.0] * 9 if state.kth is None else state.kth.tolist(), params)
+                                      [0.0] * 12 if state.kth is None else state.kth.tolist(), params)
                 qd = np.array(qdl)
             else:
                 qd[:3] -= params.k_theta * defl

@@ -72,7 +72,9 @@ class Supervisor:
         self.backend = backend or self.svc.backend
         self.rate_hz = float(rate_hz or self.svc.loop.rate_hz)
         self.dt = 1.0 / self.rate_hz
-        self.params = self.svc.nc.params(self.machine, self.dt, where=self.svc.source)
+        from pmctl.motion.service_config import nc_setup
+        self.nc_setup = nc_setup(self.svc, self.machine, self.dt, self.backend)   # chain modes, K_theta auto, shaper
+        self.params = self.svc.nc.params(self.machine, self.dt, where=self.svc.source, modes=self.nc_setup.modes)
         self.state_file = state_file
         self.realtime = bool(realtime)
         self.log = log or (lambda m: None)
@@ -356,7 +358,7 @@ class Supervisor:
 
     # ------------------------------------------------------------ threads
     def _planner(self):
-        from pmctl.motion.timescale import iter_job_rows
+        from pmctl.motion.timescale import iter_job_rows, shape_trajectory
         from pmctl.task.job import RAPID
         from pmctl.task.planner import PlannerLimits, plan
         rapid_mm_s = PlannerLimits().rapid_mm_s
@@ -368,7 +370,7 @@ class Supervisor:
             if self._abort.is_set() or it.gen != self._gen:
                 continue
             try:
-                traj = plan(it.job, self.machine, self.dt, start=it.start)
+                traj = shape_trajectory(plan(it.job, self.machine, self.dt, start=it.start), self.nc_setup.shaper)
                 rapid_lines = [m.line for m in it.job.moves if m.kind == RAPID]
                 rapid = np.isin(np.asarray(traj.line), rapid_lines) if rapid_lines else None
                 it.planned = True

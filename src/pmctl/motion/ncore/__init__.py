@@ -48,7 +48,7 @@ def constants(machine: Machine, params: NCParams | None, model: ModelFK | None =
     c += m._off + m._tip_p + m._axis_p
     c += [m.z_table, m.tol, float(m.max_iter), m.cos_max_tilt, m._fz] + m._com + [m._keps]
     if params is None:           # FK only (the sim's gravity strain): no NC limits
-        c += [0.0] * 56
+        c += [0.0] * 59
     else:
         L = params._l
         c += [params.dt] + L.ppm + L.vmax + L.amax + L.adt + L.lower + L.upper
@@ -57,7 +57,7 @@ def constants(machine: Machine, params: NCParams | None, model: ModelFK | None =
         c += [float(x) for x in params.k_theta] + [float(x) for x in params.deflection_per_ue]
         c += [float(params.max_pulses_per_tick), params.ferror_mm, params.min_ferror_mm,
               params.max_path_error_mm, float(bool(params.static_strain_comp)), float(params._kth_on)]
-        c += L.leak + list(params._inv_w2) + [float(bool(params.deflection_ff)), float(params._kth_modal)]
+        c += L.leak + list(params._inv_w2) + list(params._acc_lp) + [float(bool(params.deflection_ff)), float(params._kth_modal)]
     a = np.array(c, float)
     if len(a) != _ncore.NC_C_LEN:
         raise AssertionError(f"ncore constants: {len(a)} values, the core takes {_ncore.NC_C_LEN}")
@@ -155,7 +155,7 @@ class CompiledState:
             s[_S_T:_S_T + 18] = np.asarray(st.T, float).ravel()
             n[_N_HAS_QM] = 1
         if st.kth is not None:
-            s[_S_KTH:_S_KTH + 9] = st.kth
+            s[_S_KTH:_S_KTH + 12] = st.kth
         self.reason = st.reason
         self.mode = int(st.mode)
         return self
@@ -168,7 +168,7 @@ class CompiledState:
                        s[_S_TIP:_S_TIP + 3].copy(), s[_S_AXIS:_S_AXIS + 3].copy(), int(n[_N_MODE]), self.reason,
                        float(s[_S_PERR]), s[_S_QM:_S_QM + 5].copy() if has else None,
                        s[_S_T:_S_T + 18].reshape(6, 3).copy() if has else None,
-                       s[_S_KTH:_S_KTH + 9].copy() if self._params._kth_modal and has else None)
+                       s[_S_KTH:_S_KTH + 12].copy() if self._params._kth_modal and has else None)
 
 
 class CompiledNC:

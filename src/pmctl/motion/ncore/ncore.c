@@ -34,6 +34,7 @@ int nc_setup(nc_const *c, const double *f, int n)
     TAKE(c->static_comp); TAKE(c->kth_on);
     for (i = 0; i < 3; i++) TAKE(c->leak[i]);
     for (i = 0; i < 3; i++) TAKE(c->inv_w2[i]);
+    for (i = 0; i < 3; i++) TAKE(c->acc_lp[i]);
     TAKE(c->defl_ff); TAKE(c->kth_modal);
 #undef TAKE
     return k == NC_C_LEN ? 0 : -1;
@@ -426,7 +427,7 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
     }
     if (mode == NC_RUN) {
         double P[3], R[9], tip[3], axis[3], J[30], T[18], x[6], e[6], qd[5], w = c->w, kv = c->kv;
-        double qf[5], kth_new[9];
+        double qf[5], kth_new[12];
         double dLb[3], *dL = NULL, cc, perr;
         int64_t iters = 0;
         int k;
@@ -468,13 +469,15 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
                 if (c->kth_modal != 0.0) {
                     /* soft chain (nc._kth_modal_l): planned stretch off, decoupled offset d */
                     double *ks = s + NC_S_KTH, d = ks[i], a = (qf[i] - ks[3 + i]) / c->dt;
-                    double o = a * c->inv_w2[i], y = -defl + o, u = c->k_theta[i] * y + kv * d;
+                    double af = ks[9 + i] + c->acc_lp[i] * (a - ks[9 + i]);
+                    double o = af * c->inv_w2[i], y = -defl + o, u = c->k_theta[i] * y + kv * d;
                     if (c->defl_ff != 0.0)
                         u = u + (kv * o + (o - ks[6 + i]) / c->dt);
                     qd[i] = qd[i] + u;
                     kth_new[i] = d + c->dt * (c->k_theta[i] * y - c->leak[i] * d);
                     kth_new[3 + i] = qf[i];
                     kth_new[6 + i] = o;
+                    kth_new[9 + i] = af;
                 } else {
                     qd[i] -= c->k_theta[i] * defl;
                 }

@@ -42,9 +42,9 @@
 #define NC_S_QM 29      /* 5: joints of the model pose */
 #define NC_S_T 34       /* 18: (6, 3) twist map d(P, w)/dL at the model pose, row-major */
 #define NC_S_EV 52      /* 6: event arguments */
-#define NC_S_KTH 58     /* 9: soft-chain K_theta: offset d (3, mm), last feed-forward chain rate (3, mm/s),
-                         *    last planned stretch a*|w^2 (3, mm) (nc.NCState.kth) */
-#define NC_S_LEN 67
+#define NC_S_KTH 58     /* 12: soft-chain K_theta: offset d (3, mm), last feed-forward chain rate (3, mm/s),
+                         *    last planned stretch a*|w^2 (3, mm), low-passed a* (3) (nc.NCState.kth) */
+#define NC_S_LEN 70
 
 /* int64 state buffer layout */
 #define NC_N_COUNTS 0   /* 5: pulse counters */
@@ -64,10 +64,10 @@ typedef struct {
     double dt, ppm[5], vmax[5], amax[5], adt[5], lower[5], upper[5];
     double cos_theta2_max, kv, damping, sv_threshold, w, k_theta[3], dpu[3];
     double max_pulses, ferror, min_ferror, max_path_error, static_comp, kth_on;
-    double leak[3], inv_w2[3], defl_ff, kth_modal;    /* soft-chain K_theta (nc._kth_modal_l) */
+    double leak[3], inv_w2[3], acc_lp[3], defl_ff, kth_modal;    /* soft-chain K_theta (nc._kth_modal_l) */
 } nc_const;
 
-#define NC_C_LEN 101     /* model 45 (27 + 9 + 5 + 3 + 1), params 56 (1 + 30 + 5 + 3 + 3 + 6 + 8) */
+#define NC_C_LEN 104     /* model 45 (27 + 9 + 5 + 3 + 1), params 59 (1 + 30 + 5 + 3 + 3 + 6 + 11) */
 
 /* Returns 0, or -1 if n != NC_C_LEN. */
 int nc_setup(nc_const *c, const double *flat, int n);
