@@ -45,6 +45,7 @@ from pmctl.core.vf import vf_tick
 RUN, STOPPING, HALTED, DONE = 0, 1, 2, 3
 IMPLEMENTATIONS = ("compiled", "python")
 _ZERO5 = [0.0] * 5
+ACC_LP = 2.0          # soft-chain K_theta: the planned acceleration is low-passed at ACC_LP x the mode
 MODE_NAMES = {RUN: "run", STOPPING: "stopping", HALTED: "halted", DONE: "done"}
 
 def _solve6(M, B):
@@ -364,7 +365,7 @@ class NCParams:
         w = 2.0 * math.pi * self.mode_hz
         inv_w2 = [1.0 / (x * x) if x > 0 else 0.0 for x in w.tolist()]
         object.__setattr__(self, "_inv_w2", inv_w2)
-        object.__setattr__(self, "_acc_lp", [1.0 - math.exp(-x * self.dt) for x in w.tolist()])
+        object.__setattr__(self, "_acc_lp", [1.0 - math.exp(-ACC_LP * x * self.dt) for x in w.tolist()])
         object.__setattr__(self, "_kth_modal", self._kth_on and bool(np.any(self.mode_hz > 0)))
 
     @classmethod
@@ -504,7 +505,7 @@ def _kth_modal_l(qd, qf, defl, kth, params: NCParams):
     qf: the targets' feed-forward chain rates of this tick; defl: theta_m - theta_L per chain, mm;
     kth: (12,) state (offset d, last feed-forward rate, last stretch o, low-passed a*). Adds to
     qd[:3] and returns the new state: a* = (qf - qf_prev)/dt (the targets' second difference),
-    low-passed at the mode (af += c (a* - af), c = 1 - exp(-w dt): the stretch a*/w^2 is the
+    low-passed (af += c (a* - af), c = 1 - exp(-ACC_LP w dt), a cut at twice the mode: the stretch a*/w^2 is the
     deflection only for what lies below the mode, and a one-tick velocity step of the targets would
     otherwise become a one-tick motor blip of a*/w^2), o = af/w^2 the planned stretch, y_dyn = y + o
     (y = -defl), rate K_theta y_dyn + kv d (+ kv o + (o - o_prev)/dt with deflection feed-forward),
