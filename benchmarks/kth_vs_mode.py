@@ -236,8 +236,8 @@ def main(argv=None):
         return 0
     print(f"kv {KV:g}/s, {1 / DT:g} Hz, plant damping {ZETA:g}, start deflection 50 um; "
           f"mode damping ratio: eq.3.1 continuous | eq.3.1 sampled | closed-loop simulation")
-    print("  today = nc.py as it is (deflection scale from the modal stiffness); "
-          "decoupled = the proposed change (leak = 0.1 w), by monkeypatch")
+    print("  today = the plain K_theta (deflection scale from the modal stiffness); "
+          "decoupled = the NC's soft-chain law (mode_hz, leak = 0.1 w)")
     worst = worst_mod = 0.0
     for f in a.freqs:
         leak = 0.1 * 2 * math.pi * f

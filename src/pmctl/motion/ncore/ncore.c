@@ -117,6 +117,23 @@ static int solve6(double M[36], double *B, int nr)
  * _damped_pinv_apply), by a one-sided Jacobi SVD: rotate column pairs of J until orthogonal (the
  * columns are then s_j u_j), accumulating V. lam^2 fades in below the smallest singular value
  * sv_threshold. Returns -1 if the sweeps do not converge. */
+/* out = V diag(1 / (s2 + lam2)) (A^T x), A's columns s_j u_j after the Jacobi sweeps */
+static void apply_decomposition(const double A[30], const double V[25], const double s2[5], double lam2,
+                                const double x[6], double out[5])
+{
+    int p, i;
+    for (i = 0; i < 5; i++)
+        out[i] = 0.0;
+    for (p = 0; p < 5; p++) {
+        double ux = 0.0, g;
+        for (i = 0; i < 6; i++)
+            ux += A[5 * i + p] * x[i];
+        g = ux / (s2[p] + lam2);
+        for (i = 0; i < 5; i++)
+            out[i] += V[5 * i + p] * g;
+    }
+}
+
 static int damped_pinv_apply(double A[30], const double x[6], double damping, double eps, double out[5],
                              const double *x2, double *out2)
 {
@@ -172,28 +189,9 @@ static int damped_pinv_apply(double A[30], const double x[6], double damping, do
         double smin = sqrt(smin2), r = smin / eps;
         lam2 = smin >= eps ? 0.0 : damping * damping * (1.0 - r * r);
     }
-    for (i = 0; i < 5; i++)
-        out[i] = 0.0;
-    for (p = 0; p < 5; p++) {
-        double ux = 0.0, g;
-        for (i = 0; i < 6; i++)
-            ux += A[5 * i + p] * x[i];
-        g = ux / (s2[p] + lam2);
-        for (i = 0; i < 5; i++)
-            out[i] += V[5 * i + p] * g;
-    }
-    if (x2) {           /* a second right-hand side through the same decomposition */
-        for (i = 0; i < 5; i++)
-            out2[i] = 0.0;
-        for (p = 0; p < 5; p++) {
-            double ux = 0.0, g;
-            for (i = 0; i < 6; i++)
-                ux += A[5 * i + p] * x2[i];
-            g = ux / (s2[p] + lam2);
-            for (i = 0; i < 5; i++)
-                out2[i] += V[5 * i + p] * g;
-        }
-    }
+    apply_decomposition(A, V, s2, lam2, x, out);
+    if (x2)             /* a second right-hand side through the same decomposition */
+        apply_decomposition(A, V, s2, lam2, x2, out2);
     return 0;
 }
 
