@@ -11,8 +11,8 @@ For each chain-mode frequency f (sim plant: modal mass 31.66 kg, stiffness m (2 
 and each K_theta, the real NC loop (pmctl.motion.loop.ControlLoop, nc_step, the sim backend with its
 flexible mode and strain gauges, V-F converters in multi-pulse mode, 1 kHz) holds a fixed pose while
 the chains start with a 50 um deflection; the damping ratio of the decay is fitted to the load-side
-deflection. The change proposed for K_theta on soft machines is applied *by configuration, not by
-patching nc.py*: the strain -> deflection scale uses the chain's modal stiffness
+deflection. The soft-chain K_theta is the NC's own (NCParams mode_hz and k_theta_leak: decoupled
+feedback, in both cores); the strain -> deflection scale uses the chain's modal stiffness
 (``NCParams.from_machine(modal_stiffness_N_per_mm=...)``), the value the sim plant has, instead of
 the machine config's 20 000 N/mm. Column "as today" repeats K_theta = 200/s with the machine
 config's stiffness, as ``pmctl run --k-theta`` does.
@@ -64,59 +64,6 @@ def best_gain(f, kv=KV, dt=DT, leak=None):
     return float(g[i]), float(zs[i])
 
 
-def feedback_step(kth, kv, keps_k, w, dt, *, leak=None, target_q=None, ff=False):
-    """nc_step with a changed K_theta term, by monkeypatching in this script only (nc.py is not
-    changed). nc.py adds K_theta y to the chain rates, y = load - motor deflection from the gauges
-    (gravity strain of the model pose removed); the replacement term reaches it through the strain it
-    reads: strain + k_eps k (y_eff - y) makes nc.py add K_theta y_eff = the rate wanted below.
-
-    - ``leak`` (1/s) not None: **decoupled** -- an offset d per chain integrates K_theta y_dyn - leak d
-      and the chain rates get K_theta y_dyn + kv d, so the pose loop (gain kv, closed on the
-      motor side) no longer pulls the feedback's own motion back;
-    - ``target_q`` (N, 5) joints of the targets: **quasi-static removal** -- y_dyn = y + a*/w^2 with
-      a* the targets' chain acceleration (second difference): the spring's stretch under the planned
-      acceleration is not vibration and is not fed back;
-    - ``ff``: **deflection feed-forward** -- the motor leads by a*/w^2 (offset o, rate kv o + o'),
-      so the load side, not the motor, follows the path.
-    Returns the replacement for pmctl.motion.loop.nc_step."""
-    d = np.zeros(3)
-    k = 0
-    if target_q is not None:
-        q = np.asarray(target_q, float)[:, :3]
-        qp = np.vstack([q[:1], q, q[-1:], q[-1:]])
-        acc = (qp[2:] - 2 * qp[1:-1] + qp[:-2]) / dt ** 2       # a*_k, k = 0 .. N
-    else:
-        acc = np.zeros((1, 3))
-
-    def a_at(i):
-        return acc[min(i, len(acc) - 1)]
-
-    def step(state, target, fb, p, model):
-        nonlocal d, k
-        s0 = np.array(model.static_strain(state.R, state.T)) if state.T is not None else fb.strain.copy()
-        y = (fb.strain - s0) / keps_k
-        a = a_at(k)
-        y_dyn = y + a / (w * w) if target_q is not None else y
-        rate = kth * y_dyn
-        if leak is not None:
-            rate = rate + kv * d
-        if ff:
-            o, o1 = a / (w * w), a_at(k + 1) / (w * w)
-            rate = rate + kv * o + (o1 - o) / dt
-        fb.strain[:] = fb.strain + keps_k * (rate / kth - y)
-        out = NC.nc_step(state, target, fb, p, model)
-        if leak is not None:
-            d = d + dt * (kth * y_dyn - leak * d)
-        k += 1
-        return out
-    return step
-
-
-def decoupled_step(kth, kv, leak, keps_k, dt, w=1.0):
-    """The decoupled K_theta alone (no quasi-static removal: the start is at rest)."""
-    return feedback_step(kth, kv, keps_k, w, dt, leak=leak)
-
-
 def simulate(f, kth, modal=True, y0_mm=0.05, duration=None, accel_scale=100.0, leak=None):
     """Fitted (frequency Hz, damping ratio, loop status) of the decay in the closed loop.
     ``accel_scale`` multiplies the NC's joint acceleration limit: the feedback alone needs
@@ -125,7 +72,9 @@ def simulate(f, kth, modal=True, y0_mm=0.05, duration=None, accel_scale=100.0, l
     from dataclasses import replace
     m = load_machine("prototype")
     k = MASS * (2 * math.pi * f) ** 2 / 1e3                    # N/mm
-    params = NC.NCParams.from_machine(m, DT, k_theta=kth, kv=KV, modal_stiffness_N_per_mm=k if modal else None)
+    dec = dict(mode_hz=f, k_theta_leak=leak) if leak is not None and kth > 0 else {}
+    params = NC.NCParams.from_machine(m, DT, k_theta=kth, kv=KV, modal_stiffness_N_per_mm=k if modal else None,
+                                      **dec)
     params = replace(params, amax=params.amax * accel_scale)
     tip, axis = home_pose(m)
     tip = np.asarray(tip, float) + [0, 0, -100.0]
@@ -138,23 +87,19 @@ def simulate(f, kth, modal=True, y0_mm=0.05, duration=None, accel_scale=100.0, l
     be = hal.create("sim", m, DT, dict(flex=True, mode_stiffness_N_per_mm=[k] * 3, mode_mass_kg=[MASS] * 3,
                                        mode_damping_ratio=[ZETA] * 3))
     be.open(c0)
-    be.y[:] = y0_mm
-    be._sample()                       # the gauges read the initial deflection
+    Ly = be._lib.D_Y if hasattr(be._lib, "D_Y") else 15       # the plant's deflection y (simplant.c D_Y)
+    be._d[Ly:Ly + 3] = y0_mm
+    be._check(be._plant.sample(be._draw(), 0))                 # the gauges read the initial deflection
     ys = []
     wp = be.write_pulses
 
     def write(p):
         wp(p)
-        ys.append(be.y[0])
+        ys.append(be._d[Ly])
     be.write_pulses = write
     lp = L.ControlLoop(m, be, params, tg, LoopConfig(realtime=False, state_file="", settle_s=0.0, stall_timeout_s=60.0),
                        st, log=lambda s: None)
-    if leak is not None and kth > 0:
-        L.nc_step = decoupled_step(kth, KV, leak, m.strain_gain * k, DT)
-    try:
-        res = lp.run()
-    finally:
-        L.nc_step = NC.nc_step
+    res = lp.run()
     y = np.array(ys)
     t = np.arange(len(y)) * DT
     fd, zp = predict_sampled(f, kth if modal else kth / 10.0, leak=leak)
@@ -194,14 +139,18 @@ def shape_traj(traj, sh):
 def comb_run(job, kth, *, stiff=2000.0, mass=MASS, zeta=ZETA, modal=True, scheme=None, leak_frac=0.1,
              shaper=None):
     """The comb job through planner, loop and sim (in-process, as ``pmctl run --no-realtime``).
-    scheme: None (nc.py as it is), or a dict of :func:`feedback_step` options ("leak", "qs", "ff").
+    scheme: None (the plain K_theta), or a dict: the soft-chain K_theta of the NC (NCParams mode_hz:
+    planned stretch off, decoupled with leak = leak_frac w), with deflection feed-forward if "ff".
     Returns a dict: vibration = RMS of the chain deflection band-passed around the mode (0.6-1.6 f),
     load-vs-motor tip RMS (what the issue measured), tool-tip error p99 (load side vs target) and
     the job time."""
     from scipy.signal import butter, sosfiltfilt
     m = load_machine("prototype")
     w = math.sqrt(stiff * 1e3 / mass)
-    params = NC.NCParams.from_machine(m, DT, k_theta=kth, kv=KV, modal_stiffness_N_per_mm=stiff if modal else None)
+    soft = dict(mode_hz=w / (2 * math.pi), leak_frac=leak_frac, deflection_ff=bool(scheme.get("ff"))) \
+        if scheme and kth != 0 else {}
+    params = NC.NCParams.from_machine(m, DT, k_theta=kth, kv=KV, modal_stiffness_N_per_mm=stiff if modal else None,
+                                      **soft)
     h_tip, h_axis = home_pose(m)
     c0 = NC.counts_of(K.ik(h_tip, h_axis, m).q, params)
     st = NC.initial_state(m, c0)
@@ -216,14 +165,7 @@ def comb_run(job, kth, *, stiff=2000.0, mass=MASS, zeta=ZETA, modal=True, scheme
     be.open(c0)
     lp = L.ControlLoop(m, be, params, tg, LoopConfig(realtime=False, state_file="", stall_timeout_s=60.0), st,
                        log=lambda s: None)
-    if scheme is not None and kth != 0:
-        L.nc_step = feedback_step(kth, KV, m.strain_gain * stiff, w, DT,
-                                  leak=leak_frac * w if scheme.get("leak") else None,
-                                  target_q=tg.q if scheme.get("qs") else None, ff=bool(scheme.get("ff")))
-    try:
-        res = lp.run()
-    finally:
-        L.nc_step = NC.nc_step
+    res = lp.run()
     i0 = res.job_start
     pl, _ = K.fk_batch(res.truth[i0:], m)
     pm, _ = K.fk_batch(res.enc[i0:], m)
@@ -253,7 +195,7 @@ def comb_table(job, gains=(200.0,), shaper_name="ZVD"):
     print(f"comb job {job}: sim chain mode 2000 N/mm, {MASS} kg ({f0:.1f} Hz), {ZETA:g} damping; kv {KV:g}/s")
     print("vibration = RMS of the chain deflection band-passed 0.6-1.6 x the mode; path error = distance of the "
           "load-side tip from the programmed path; K_theta 'proposed' = modal scale + quasi-static removed + "
-          "decoupled + deflection feed-forward (monkeypatched)")
+          "decoupled + deflection feed-forward (the NC's soft-chain K_theta)")
     print(f"{'case':62s} {'vibration':>10s} {'load-motor':>11s} {'path p99':>9s} {'job':>7s}")
     full = dict(qs=True, leak=True, ff=True)
     rows = [("none (K_theta 0)", 0.0, {})]
@@ -261,8 +203,7 @@ def comb_table(job, gains=(200.0,), shaper_name="ZVD"):
         rows += [(f"K_theta {g:g}, as shipped (scale from 20000 N/mm)", g, dict(modal=False)),
                  (f"K_theta {g:g}, modal stiffness scale", g, {}),
                  (f"K_theta {-g:g}, modal stiffness scale (wrong sign)", -g, {}),
-                 (f"K_theta {g:g}, + quasi-static removed", g, dict(scheme=dict(qs=True))),
-                 (f"K_theta {g:g}, + decoupled from the pose loop", g, dict(scheme=dict(qs=True, leak=True))),
+                 (f"K_theta {g:g}, + quasi-static removed, decoupled", g, dict(scheme=dict(qs=True, leak=True))),
                  (f"K_theta {g:g}, + deflection feed-forward (= proposed)", g, dict(scheme=full))]
     sh = S.make_shaper(shaper_name, f0, ZETA)
     sh_off = S.make_shaper(shaper_name, f0 / 1.2, ZETA)
@@ -295,8 +236,8 @@ def main(argv=None):
         return 0
     print(f"kv {KV:g}/s, {1 / DT:g} Hz, plant damping {ZETA:g}, start deflection 50 um; "
           f"mode damping ratio: eq.3.1 continuous | eq.3.1 sampled | closed-loop simulation")
-    print("  today = nc.py as it is (deflection scale from the modal stiffness); "
-          "decoupled = the proposed change (leak = 0.1 w), by monkeypatch")
+    print("  today = the plain K_theta (deflection scale from the modal stiffness); "
+          "decoupled = the NC's soft-chain law (mode_hz, leak = 0.1 w)")
     worst = worst_mod = 0.0
     for f in a.freqs:
         leak = 0.1 * 2 * math.pi * f

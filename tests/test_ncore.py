@@ -26,7 +26,7 @@ from pmctl.motion.nc import (DONE, HALTED, RUN, ModelFK, NCParams, PythonNC, cou
 from pmctl.motion.service_config import NCConfig, service_from_dict
 
 M = load_machine()
-STATE_FIELDS = ("acc", "qdot", "P", "R", "tip", "axis", "path_error", "q_model", "T")
+STATE_FIELDS = ("acc", "qdot", "P", "R", "tip", "axis", "path_error", "q_model", "T", "kth")
 COMP_FIELDS = ("comp_dir", "comp_bl", "comp")
 
 
@@ -151,6 +151,35 @@ def test_compiled_and_python_send_the_same_pulses_tick_for_tick(rate, multi, k_t
            "seed": geom_seed}
     ticks, sp, sc, moved = closed_loop(machine, params, rows, q[0], sim, every=7)
     assert sp.mode == RUN and ticks == len(rows) + int(0.05 / dt), sp.reason    # a feasible path: no stop
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(rate=st.sampled_from([500.0, 1000.0, 2000.0]),
+       k_theta=st.lists(st.sampled_from([0.0, 50.0, 200.0, 400.0]), min_size=3, max_size=3),
+       mode_hz=st.lists(st.sampled_from([0.0, 15.0, 40.0, 120.0]), min_size=3, max_size=3),
+       stiffness=st.sampled_from([500.0, 2000.0, 20000.0]),
+       leak=st.lists(st.floats(0.0, 100.0), min_size=3, max_size=3),
+       ff=st.booleans(), geom_seed=st.integers(0, 10_000), geom_size=st.sampled_from([0.0, 2.0]),
+       amp=st.lists(st.floats(0.0, 15.0), min_size=5, max_size=5), freq=st.floats(0.2, 2.0),
+       noise=st.booleans())
+def test_soft_chain_k_theta_same_pulses_tick_for_tick(rate, k_theta, mode_hz, stiffness, leak, ff, geom_seed,
+                                                      geom_size, amp, freq, noise):
+    """The soft-chain K_theta (modal stiffness scale, planned stretch off, decoupled offset, deflection
+    feed-forward; per-chain gains, modes and leaks) on a soft flexible plant: same pulses and state."""
+    machine = perturbed(geom_seed, geom_size)
+    dt = 1.0 / rate
+    k_theta = [min(k, 0.4 / dt) for k in k_theta]
+    params = NCParams.from_machine(machine, dt, kv=min(400.0, 0.4 / dt), k_theta=k_theta,
+                                   modal_stiffness_N_per_mm=stiffness, mode_hz=mode_hz,
+                                   k_theta_leak=leak, deflection_ff=ff)
+    rows, q = joint_path(machine, params, dt, 0.6, np.array(amp), freq, np.zeros(5), np.zeros(5))
+    sim = {"flex": True, "mode_stiffness_N_per_mm": stiffness, "mode_mass_kg": 31.66,
+           "strain_noise_ue": 0.01 if noise else 0.0, "seed": geom_seed}
+    ticks, sp, sc, moved = closed_loop(machine, params, rows, q[0], sim, every=5)
+    # a mode assumed far from the plant's with no leak can drift off the path (a path-error stop):
+    # both cores must still agree on it, which closed_loop checks
+    if params._kth_modal and sp.mode == RUN:
+        assert sp.kth is not None and np.all(np.isfinite(sp.kth))
 
 
 def test_long_run_20000_ticks_same_pulses_and_state():

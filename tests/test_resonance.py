@@ -49,10 +49,23 @@ def recording(tmp_path_factory):
     return d, rec
 
 
-def test_modes_found_from_the_gauges(recording, capsys):
+@pytest.fixture(scope="module")
+def analysed(recording):
+    """The analysis of the recording, once, with --write into a copy of its service config."""
+    import contextlib
+    import io
     d, rec = recording
     out = d / "out"
-    assert main(["analyze", "resonance", str(rec), "--out", str(out)]) == 0
+    svc = d / "svc_write.toml"
+    svc.write_text((d / "svc.toml").read_text().replace("[nc]\n", "[nc]\nmode_hz = 10.0\n"))
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main(["analyze", "resonance", str(rec), "--out", str(out), "--write", str(svc)]) == 0
+    return d, out, svc, buf.getvalue()
+
+
+def test_modes_found_from_the_gauges(analysed):
+    d, out, _, text = analysed
     res = json.loads((out / "resonance.json").read_text())
     for ch in res["chains"]:
         m = ch["modes"][0]
@@ -67,7 +80,6 @@ def test_modes_found_from_the_gauges(recording, capsys):
         assert zd >= 0.3 and kd > 0
     png = (out / "resonance.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
-    text = capsys.readouterr().out
     assert "recommended" in text and "chain 3: mode" in text
 
 
@@ -121,3 +133,25 @@ def test_advice_uses_the_shaper_curves():
     assert zv.remaining_worst == pytest.approx(float(S.residual_vibration(S.make_shaper("ZV", 40.0, 0.02), 44.0, 0.02)),
                                                rel=0.02)
     assert best.remaining_worst <= R.MAX_REMAINING
+
+
+def test_write_puts_the_modes_into_the_service_config_and_run_uses_them(analysed, capsys):
+    """--write SERVICE: [nc] mode_hz / damping / modal stiffness (from the fit's static gain: the sim's
+    75 Hz chain is 31.66 kg on 7031 N/mm); pmctl run --k-theta auto --shaper auto then takes them."""
+    d, _, svc, text = analysed
+    assert f"into {svc}" in text
+    from pmctl.motion.service_config import load_service_config
+    nc = load_service_config(svc).nc
+    assert np.allclose(nc.mode_hz, 75.0, rtol=0.01) and np.allclose(nc.mode_damping_ratio, 0.04, rtol=0.25)
+    k_true = MASS * (2 * math.pi * 75.0) ** 2 / 1e3
+    assert np.allclose(nc.modal_stiffness_N_per_mm, k_true, rtol=0.1)
+    assert svc.read_text().count("mode_hz") == 1            # replaced, not added twice
+    capsys.readouterr()
+    assert main(["run", "--job", str(d / "impulse.ngc"), "--no-realtime", "--service", str(svc), "--state", "",
+                 "--quiet", "--k-theta", "auto", "--shaper", "auto"]) == 0
+    err = capsys.readouterr().err
+    assert "[nc] mode_hz" in err and "K_theta auto" in err and "shaper: " in err and "(auto)" in err
+    assert main(["run", "--job", str(d / "impulse.ngc"), "--no-realtime", "--service", str(svc), "--state", "",
+                 "--quiet", "--shaper", "ZVX"]) == 1
+    assert main(["run", "--job", str(d / "impulse.ngc"), "--no-realtime", "--service", str(svc), "--state", "",
+                 "--quiet", "--k-theta", "-3"]) == 1

@@ -50,6 +50,7 @@ from pmctl.core.vf import vf_tick
 RUN, STOPPING, HALTED, DONE = 0, 1, 2, 3
 IMPLEMENTATIONS = ("compiled", "python")
 _ZERO5 = [0.0] * 5
+ACC_LP = 2.0          # soft-chain K_theta: the planned acceleration is low-passed at ACC_LP x the mode
 MODE_NAMES = {RUN: "run", STOPPING: "stopping", HALTED: "halted", DONE: "done"}
 
 def _solve6(M, B):
@@ -306,7 +307,7 @@ class ModelFK:
 
 
 class _Lists:
-    __slots__ = ("vmax", "adt", "lower", "upper", "ppm", "amax")
+    __slots__ = ("vmax", "adt", "lower", "upper", "ppm", "amax", "kth", "leak")
 
     def __init__(self, p):
         self.vmax = [float(x) for x in p.vmax]
@@ -315,6 +316,8 @@ class _Lists:
         self.lower = [float(x) for x in p.lower]
         self.upper = [float(x) for x in p.upper]
         self.ppm = [float(x) for x in p.pulses_per_mm]
+        self.kth = [float(x) for x in p.k_theta]
+        self.leak = [float(x) for x in p.k_theta_leak]
 
 
 @dataclass(frozen=True)
@@ -334,6 +337,12 @@ class NCParams:
     orient_weight_mm: float = 100.0    # weight of the axis rows (mm per unit axis error)
     k_theta: np.ndarray = field(default_factory=lambda: np.zeros(3))   # 1/s per chain, 0 = off
     deflection_per_ue: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mm per microstrain
+    # K_theta on a soft chain (docs/vibration.md): with the chain's mode known (mode_hz > 0) the
+    # planned stretch a*/w^2 is taken off the deflection, the feedback is decoupled from the pose
+    # loop through a leaky offset per chain (leak 1/s), and optionally the motor leads by a*/w^2.
+    mode_hz: np.ndarray = field(default_factory=lambda: np.zeros(3))   # chain mode per chain, 0 = unknown
+    k_theta_leak: np.ndarray = field(default_factory=lambda: np.zeros(3))   # 1/s per chain
+    deflection_ff: bool = False        # motor leads by the planned stretch a*/w^2 (load side on the path)
     max_pulses_per_tick: int = 1
     ferror_mm: float = 1.0             # following-error limit at full speed (LinuxCNC FERROR)
     min_ferror_mm: float = 0.01        # floor at low speed (LinuxCNC MIN_FERROR)
@@ -347,8 +356,11 @@ class NCParams:
     def __post_init__(self):
         # Arrays are frozen too (use dataclasses.replace to change a limit), so the plain-float
         # copies for the per-tick scalar code (5 numbers: cheaper than numpy calls) stay in step.
-        for f in ("pulses_per_mm", "vmax", "amax", "lower", "upper", "k_theta", "deflection_per_ue"):
+        for f in ("pulses_per_mm", "vmax", "amax", "lower", "upper", "k_theta", "deflection_per_ue", "mode_hz",
+                  "k_theta_leak"):
             a = np.array(getattr(self, f), float)
+            if f in ("k_theta", "mode_hz", "k_theta_leak"):     # one value for all chains, or one per chain
+                a = np.broadcast_to(a, (3,)).copy()
             a.setflags(write=False)
             object.__setattr__(self, f, a)
         if self.implementation not in IMPLEMENTATIONS:
@@ -356,13 +368,27 @@ class NCParams:
                              f"got {self.implementation!r}")
         object.__setattr__(self, "_l", _Lists(self))
         object.__setattr__(self, "_kth_on", bool(np.any(self.k_theta)))
+        if np.any(self.mode_hz < 0) or np.any(self.k_theta_leak < 0):
+            raise ValueError("mode_hz and k_theta_leak must be >= 0")
+        w = 2.0 * math.pi * self.mode_hz
+        inv_w2 = [1.0 / (x * x) if x > 0 else 0.0 for x in w.tolist()]
+        object.__setattr__(self, "_inv_w2", inv_w2)
+        object.__setattr__(self, "_acc_lp", [1.0 - math.exp(-ACC_LP * x * self.dt) for x in w.tolist()])
+        object.__setattr__(self, "_kth_modal", self._kth_on and bool(np.any(self.mode_hz > 0)))
 
     @classmethod
     def from_machine(cls, machine: Machine, dt: float, *, max_pulses_per_tick=None, k_theta=0.0,
-                     modal_stiffness_N_per_mm=None, **kw):
+                     modal_stiffness_N_per_mm=None, mode_hz=None, leak_frac=0.1, **kw):
         """Limits from the machine config. ``max_pulses_per_tick=None`` -> multi-pulse mode sized by
         the joint speed limit (200 kpulse/s at 2000 pulse/mm and 100 mm/s); 1 -> the seed's mode.
-        The strain->deflection scale is 1/(strain gain x chain stiffness)."""
+        The strain->deflection scale is 1/(strain gain x chain stiffness): the chain's modal
+        stiffness when given, else the machine config's chain_axial. ``mode_hz`` (one or three):
+        the chain mode, which turns on the soft-chain K_theta (quasi-static stretch removed,
+        decoupled from the pose loop with a leak of ``leak_frac`` x w unless k_theta_leak is given)."""
+        if mode_hz is not None:
+            mh = np.broadcast_to(np.asarray(mode_hz, float), (3,)).copy()
+            kw["mode_hz"] = mh
+            kw.setdefault("k_theta_leak", leak_frac * 2.0 * math.pi * mh)
         lim, res = machine.limits, machine.resolution
         ppm = res.pulses_per_mm
         vlim = lim.joint_speed
@@ -398,6 +424,9 @@ class NCState:
     comp_dir: np.ndarray | None = None  # (5,) direction per axis (+1, -1, 0 before the first move)
     comp_bl: np.ndarray | None = None   # (5,) backlash term, mm
     comp: np.ndarray | None = None      # (5,) correction of the last tick, mm (model joint - motor)
+    kth: np.ndarray | None = None       # (12,) soft-chain K_theta: offset d (3, mm), last feed-forward
+                                        # chain rate (3, mm/s), last planned stretch a*/w^2 (3, mm),
+                                        # low-passed planned chain acceleration (3, mm/s^2)
 
     # Mode changes from outside the step (the loop's stop request, a backend fault, the end of the
     # job). The compiled core's state handle (pmctl.motion.ncore.CompiledState) has the same four
@@ -470,14 +499,48 @@ def limit_rates(qdot_des, qdot_prev, params: NCParams):
     return np.array(_limit_rates_l(list(map(float, qdot_des)), list(map(float, qdot_prev)), params._l))
 
 
-def _damped_pinv_apply(J, x, params: NCParams):
+def _damped_pinv_apply(J, x, params: NCParams, x2=None):
+    """J+ x (and J+ x2 with the same decomposition when x2 is given: returns both)."""
     U, s, Vt, info = lapack.dgesdd(J, full_matrices=0)
     if info != 0:
         raise KinematicsError(SVD_TEXT)
     smin = s[-1]
     eps = params.sv_threshold
     lam2 = 0.0 if smin >= eps else params.damping ** 2 * (1.0 - (smin / eps) ** 2)
-    return Vt.T @ ((s / (s * s + lam2)) * (U.T @ x))
+    g = s / (s * s + lam2)
+    if x2 is None:
+        return Vt.T @ (g * (U.T @ x))
+    return Vt.T @ (g * (U.T @ x)), Vt.T @ (g * (U.T @ x2))
+
+
+def _kth_modal_l(qd, qf, defl, kth, params: NCParams):
+    """The soft-chain K_theta term (docs/vibration.md) on lists, in the compiled core's order.
+    qf: the targets' feed-forward chain rates of this tick; defl: theta_m - theta_L per chain, mm;
+    kth: (12,) state (offset d, last feed-forward rate, last stretch o, low-passed a*). Adds to
+    qd[:3] and returns the new state: a* = (qf - qf_prev)/dt (the targets' second difference),
+    low-passed (af += c (a* - af), c = 1 - exp(-ACC_LP w dt), a cut at twice the mode: the stretch a*/w^2 is the
+    deflection only for what lies below the mode, and a one-tick velocity step of the targets would
+    otherwise become a one-tick motor blip of a*/w^2), o = af/w^2 the planned stretch, y_dyn = y + o
+    (y = -defl), rate K_theta y_dyn + kv d (+ kv o + (o - o_prev)/dt with deflection feed-forward),
+    d += dt (K_theta y_dyn - leak d)."""
+    dt, kv, iw2, cf = params.dt, params.kv, params._inv_w2, params._acc_lp
+    kt, lk = params._l.kth, params._l.leak
+    out = [0.0] * 12
+    for i in range(3):
+        d = kth[i]
+        a = (qf[i] - kth[3 + i]) / dt
+        af = kth[9 + i] + cf[i] * (a - kth[9 + i])
+        o = af * iw2[i]
+        y = -defl[i] + o
+        u = kt[i] * y + kv * d
+        if params.deflection_ff:
+            u = u + (kv * o + (o - kth[6 + i]) / dt)
+        qd[i] = qd[i] + u
+        out[i] = d + dt * (kt[i] * y - lk[i] * d)
+        out[3 + i] = qf[i]
+        out[6 + i] = o
+        out[9 + i] = af
+    return out
 
 
 def _stopping_violation(q, qdot, L, dt):
@@ -550,6 +613,7 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
         qj = ql
     mode, reason = state.mode, state.reason
     P, R, tip, axis, perr = state.P, state.R, state.tip, state.axis, state.path_error
+    kth_st = state.kth
     qdot_des = _ZERO5
     if mode == RUN:
         try:
@@ -570,7 +634,11 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
             for r in (3, 4, 5):
                 Jr = J[r]
                 J[r] = [Jr[0] * w, Jr[1] * w, Jr[2] * w, 0.0, 0.0]
-            qd = _damped_pinv_apply(np.array(J), x, params)
+            if params._kth_modal:       # the targets' own joint rates too (feed-forward only)
+                qd, qf = _damped_pinv_apply(np.array(J), x, params,
+                                            np.array([t[6], t[7], t[8], t[9] * w, t[10] * w, t[11] * w]))
+            else:
+                qd = _damped_pinv_apply(np.array(J), x, params)
         except KinematicsError as e:
             return zero, replace(state, qdot=np.zeros(5), acc=np.zeros(5), mode=HALTED,
                                  reason=f"{MODEL_LOST}{e}")
@@ -580,7 +648,13 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
                 s0 = model.static_strain(R, Tm)
                 sg = sg - np.array(s0)
             defl = -sg * params.deflection_per_ue                  # theta_m - theta_L, mm
-            qd[:3] -= params.k_theta * defl
+            if params._kth_modal:
+                qdl = qd.tolist()
+                kth_st = _kth_modal_l(qdl, qf.tolist(), defl.tolist(),
+                                      [0.0] * 12 if state.kth is None else state.kth.tolist(), params)
+                qd = np.array(qdl)
+            else:
+                qd[:3] -= params.k_theta * defl
         qdot_des = qd.tolist()
         if perr > params.max_path_error_mm:
             mode, reason = STOPPING, path_error_text(perr, params)
@@ -612,7 +686,9 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
         cs = (np.array(cd), np.array(cb), np.array(cc))
     else:
         cs = (state.comp_dir, state.comp_bl, state.comp)
-    return pulses, NCState(state.counts + pulses, acc, qdot_a, P, R, tip, axis, mode, reason, perr, qm, Tm, *cs)
+    if kth_st is not None and not isinstance(kth_st, np.ndarray):
+        kth_st = np.array(kth_st)
+    return pulses, NCState(state.counts + pulses, acc, qdot_a, P, R, tip, axis, mode, reason, perr, qm, Tm, *cs, kth_st)
 
 
 class PythonNC:

@@ -176,7 +176,8 @@ def rt_main(spec: dict) -> int:
         cfg.stall_timeout_s = max(cfg.stall_timeout_s, 5.0)
         cfg.max_overruns_in_row = 1 << 30
     dt = cfg.dt
-    params = svc.nc.params(machine, dt, where=svc.source)
+    from pmctl.motion.service_config import nc_setup
+    params = svc.nc.params(machine, dt, where=svc.source, modes=nc_setup(svc, machine, dt, spec["backend"]).modes)
     counts = np.array(spec["counts"], np.int64)
     be = hal.create(spec["backend"], machine, dt, svc.backend_options if spec["backend"] == svc.backend else {})
     be.open(counts)

@@ -49,20 +49,171 @@ class NCConfig:
     min_ferror_mm: float = 0.01
     max_path_error_mm: float = 0.5
     implementation: str = "compiled"   # the loop's NC: "compiled" (C core) or "python" (the reference, nc.nc_step)
+    k_theta_auto: bool = False         # k_theta_per_s = "auto": per chain from the chain mode (ChainModes)
+    # the chain modes (docs/vibration.md): measured (pmctl analyze resonance --write) or declared;
+    # None = not given here (then the sim's declared plant, else the machine config's stiffness)
+    mode_hz: tuple | None = None
+    mode_damping_ratio: tuple | None = None
+    modal_stiffness_N_per_mm: tuple | None = None
+    deflection_feedforward: bool = True   # soft chains: the motor leads by the planned stretch a*/w^2
+    shaper: str = "none"               # time-law input shaper: none, a type (pmctl.core.shaper.SHAPERS) or auto
+    shaper_hz: tuple | None = None     # per chain; None = the chain modes
+    shaper_damping_ratio: float | None = None   # None = the chain modes' damping
 
-    def params(self, machine: Machine, dt: float, where="service config") -> NCParams:
+    def params(self, machine: Machine, dt: float, where="service config", modes: "ChainModes | None" = None) -> NCParams:
+        """NC parameters. ``modes``: the chain modes (:func:`chain_modes`); they set the strain ->
+        deflection scale (modal stiffness), turn on the soft-chain K_theta for modes below
+        SOFT_MODE_FACTOR x kv (where the pose loop would undo the feedback), and size
+        ``k_theta_per_s = "auto"``."""
         if self.kv_per_s * dt >= 1.0:
             raise ConfigError(where, "nc.kv_per_s",
                               f"{self.kv_per_s:g}/s at {1 / dt:g} Hz gives kv*dt = {self.kv_per_s * dt:.2f}; "
                               f"must be < 1 for a stable loop (lower the gain or raise the rate)")
-        kth = np.asarray(self.k_theta_per_s, float)
+        kw = {}
+        if modes is not None:
+            kw["modal_stiffness_N_per_mm"] = np.asarray(modes.stiffness_N_per_mm, float)
+            soft = modes.soft(self.kv_per_s)
+            if np.any(soft):
+                kw["mode_hz"] = np.where(soft, modes.hz, 0.0)
+                kw["deflection_ff"] = self.deflection_feedforward
+        if self.k_theta_auto:
+            if modes is None:
+                raise ConfigError(where, "nc.k_theta_per_s",
+                                  '"auto" needs the chain modes: nc.mode_hz, a [hal.sim] plant with flex = true, '
+                                  "or pmctl analyze resonance --write")
+            kth = np.array(auto_k_theta(modes, self.kv_per_s, dt))
+        else:
+            kth = np.asarray(self.k_theta_per_s, float)
         if np.any(kth * dt >= 1.0):
             raise ConfigError(where, "nc.k_theta_per_s", "k_theta*dt must be < 1")
         return NCParams.from_machine(
             machine, dt, max_pulses_per_tick=1 if self.pulse_mode == "single" else None,
             k_theta=kth, kv=self.kv_per_s, damping=self.damping, sv_threshold=self.sv_threshold,
             ferror_mm=self.ferror_mm, min_ferror_mm=self.min_ferror_mm,
-            max_path_error_mm=self.max_path_error_mm, implementation=self.implementation)
+            max_path_error_mm=self.max_path_error_mm, implementation=self.implementation, **kw)
+
+
+SOFT_MODE_FACTOR = 2.0      # the soft-chain K_theta below w = 2 kv (docs/vibration.md, eq. 3.1 table)
+
+
+@dataclass
+class ChainModes:
+    """The chain mode per chain (L1-L3) and where it comes from (said when a run starts)."""
+
+    hz: np.ndarray                    # (3,)
+    damping_ratio: np.ndarray         # (3,)
+    stiffness_N_per_mm: np.ndarray    # (3,) chain stiffness at the gauge (strain -> deflection scale)
+    source: str
+
+    def soft(self, kv: float) -> np.ndarray:
+        """Chains whose mode lies below SOFT_MODE_FACTOR x kv: the pose loop, closed on the motor side,
+        would pull back the feedback's own motion there (docs/vibration.md §1.4)."""
+        return 2 * np.pi * self.hz < SOFT_MODE_FACTOR * kv
+
+    def describe(self) -> str:
+        f = ", ".join(f"{x:.1f}" for x in self.hz)
+        z = ", ".join(f"{x:.3f}" for x in self.damping_ratio)
+        k = ", ".join(f"{x:g}" for x in self.stiffness_N_per_mm)
+        return f"chain modes [{f}] Hz, damping [{z}], stiffness [{k}] N/mm (from {self.source})"
+
+
+def auto_k_theta(modes: ChainModes, kv: float, dt: float) -> list[float]:
+    """K_theta per chain for ``k_theta = auto``: the sampled eq. 3.1 model's smallest gain that damps
+    the chain's mode to 0.3 (pmctl.tools.analysis.resonance.k_theta_for_mode), with the feedback the
+    NC will run (decoupled for a soft chain)."""
+    from pmctl.tools.analysis.resonance import k_theta_for_mode
+    soft = modes.soft(kv)
+    out = []
+    for i in range(3):
+        f, z = float(modes.hz[i]), float(modes.damping_ratio[i])
+        leak = 0.1 * 2 * np.pi * f if soft[i] else None
+        out.append(k_theta_for_mode(f, kv, dt, z, leak=leak)[0])
+    return out
+
+
+def shaper_design(f_hz: float, zeta: float, k_theta: float, kv: float, dt: float, soft: bool):
+    """(frequency Hz, damping ratio) a shaper should be designed for, for a chain mode (f_hz, zeta):
+    the mode itself without feedback; with K_theta on, the closed-loop mode that the feedback leaves
+    (the sampled eq. 3.1 model, pmctl.tools.analysis.resonance.predict_sampled, with the feedback the
+    NC runs). A shaper tuned to the open-loop mode misses the damped, shifted closed-loop one and
+    only adds its own impulses' excitation (docs/vibration.md §5)."""
+    if k_theta <= 0:
+        return f_hz, zeta
+    from pmctl.tools.analysis.resonance import predict_sampled
+    fc, zc = predict_sampled(f_hz, k_theta, kv, dt, zeta, leak=0.1 * 2 * np.pi * f_hz if soft else None)
+    if not (np.isfinite(fc) and 0.0 <= zc < 0.95):
+        return f_hz, zeta
+    return float(fc), float(zc)
+
+
+def choose_shaper(nc: NCConfig, modes: "ChainModes | None", k_theta, dt: float, where: str = "service config"):
+    """The time-law shaper of a run (None = off) and a sentence saying what it is and why.
+    ``nc.shaper``: none, a type, or auto (the type the resonance analysis recommends: the shortest
+    whose remaining vibration stays within 5 % over +-10 % of the mode). Frequencies: nc.shaper_hz
+    (per chain) else the chain modes; each chain's design point is :func:`shaper_design` with that
+    chain's K_theta; distinct design points (more than 3 % apart) are convolved."""
+    name = nc.shaper
+    if name == "none":
+        return None, "shaper: none"
+    from pmctl.core import shaper as S
+    if nc.shaper_hz is not None:
+        hz = np.broadcast_to(np.asarray(nc.shaper_hz, float), (3,))
+        zs = np.broadcast_to(np.asarray(modes.damping_ratio if modes is not None else 0.02, float), (3,))
+        src = f"{where}: [nc] shaper_hz"
+    elif modes is not None:
+        hz, zs, src = modes.hz, modes.damping_ratio, modes.source
+    else:
+        raise ConfigError(where, "nc.shaper", f'"{name}" needs a frequency: nc.shaper_hz, nc.mode_hz '
+                                              "(pmctl analyze resonance --write), or a [hal.sim] plant with flex = true")
+    if nc.shaper_damping_ratio is not None:
+        zs = np.full(3, nc.shaper_damping_ratio)
+    kth = np.broadcast_to(np.asarray(k_theta, float), (3,))
+    soft = (2 * np.pi * np.asarray(hz) < SOFT_MODE_FACTOR * nc.kv_per_s)
+    points = []
+    for i in range(3):
+        fz = shaper_design(float(hz[i]), float(zs[i]), float(kth[i]), nc.kv_per_s, dt, bool(soft[i]))
+        if not any(abs(fz[0] - p[0]) <= 0.03 * p[0] for p in points):
+            points.append(fz)
+    if name == "auto":
+        from pmctl.tools.analysis.resonance import shaper_advice
+        name = shaper_advice(points[0][0], points[0][1])[1].name
+    sh = S.convolve([S.make_shaper(name, f, min(z, 0.9)) for f, z in points]) if len(points) > 1 \
+        else S.make_shaper(name, *points[0])
+    pts = ", ".join(f"{f:.1f} Hz / {z:.3f}" for f, z in points)
+    why = " (closed-loop mode with K_theta)" if np.any(kth > 0) else ""
+    return sh, (f"shaper: {sh.name}{' (auto)' if nc.shaper == 'auto' else ''} at {pts}{why}, "
+                f"{1e3 * sh.duration:.1f} ms per stop, time law along the path; modes from {src}")
+
+
+def chain_modes(svc: "ServiceConfig", machine: Machine, backend: str | None = None) -> ChainModes | None:
+    """The chain modes for the NC and the shaper, first found of: ``[nc] mode_hz`` (measured: pmctl
+    analyze resonance --write, or declared); the sim backend's declared plant when its flexible mode
+    is on (``[hal.sim]`` flex, mode_stiffness_N_per_mm, mode_mass_kg, mode_damping_ratio); else None
+    (the NC then scales the strain with the machine config's chain stiffness)."""
+    nc = svc.nc
+    backend = backend or svc.backend
+    if nc.mode_hz is not None:
+        k = nc.modal_stiffness_N_per_mm
+        src = f"{svc.source}: [nc] mode_hz"
+        if k is None:
+            k = (machine.stiffness.chain_axial,) * 3
+            src += " (stiffness: the machine config's chain_axial)"
+        z = nc.mode_damping_ratio if nc.mode_damping_ratio is not None else (0.02,) * 3
+        return ChainModes(np.array(nc.mode_hz, float), np.array(z, float), np.array(k, float), src)
+    if backend == "sim":
+        from pmctl.hal.sim import SimOptions
+        o = SimOptions.from_dict(svc.backend_tables.get("sim", {}), machine, where=f"{svc.source}: hal.sim")
+        if o.flex:
+            k = np.asarray(o.mode_stiffness_N_per_mm, float)
+            m = np.asarray(o.mode_mass_kg, float)
+            hz = np.sqrt(k * 1e3 / m) / (2 * np.pi)
+            if nc.modal_stiffness_N_per_mm is not None:
+                k = np.array(nc.modal_stiffness_N_per_mm, float)
+            return ChainModes(hz, np.asarray(o.mode_damping_ratio, float), k,
+                              f"{svc.source}: [hal.sim] declared plant")
+    if nc.modal_stiffness_N_per_mm is not None:
+        raise ConfigError(svc.source, "nc.modal_stiffness_N_per_mm", "needs nc.mode_hz (the chain mode) with it")
+    return None
 
 
 @dataclass
@@ -119,7 +270,23 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
 
     s = Table(path, data.get("nc", {}), "nc")
     d = NCConfig()
-    kth = s.vector("k_theta_per_s", 3, default=[0.0] * 3, nonneg=True, hi=1e5, scalar_ok=True)
+    kth_auto = data.get("nc", {}).get("k_theta_per_s") == "auto"
+    kth = [0.0] * 3 if kth_auto else s.vector("k_theta_per_s", 3, default=[0.0] * 3, nonneg=True, hi=1e5,
+                                              scalar_ok=True)
+    if kth_auto:
+        s.string("k_theta_per_s", choices=("auto",))
+    opt_vec = lambda key, **kw: (tuple(float(x) for x in s.vector(key, 3, scalar_ok=True, **kw))   # noqa: E731
+                                 if key in data.get("nc", {}) else None)
+    mode_hz = opt_vec("mode_hz", positive=True, hi=1e4)
+    mode_z = opt_vec("mode_damping_ratio", nonneg=True, hi=1.0)
+    modal_k = opt_vec("modal_stiffness_N_per_mm", positive=True, hi=1e10)
+    shaper_hz = opt_vec("shaper_hz", positive=True, hi=1e4)
+    from pmctl.core.shaper import SHAPERS
+    shaper = s.string("shaper", default="none", choices=("none", "auto") + tuple(SHAPERS))
+    shaper_z = s.number("shaper_damping_ratio", nonneg=True, hi=0.9) if "shaper_damping_ratio" in data.get("nc", {}) \
+        else None
+    if mode_z is not None and mode_hz is None:
+        raise ConfigError(path, "nc.mode_damping_ratio", "needs nc.mode_hz (the chain mode) with it")
     mode = s.string("pulse_mode", default=d.pulse_mode, choices=("multi", "single"))
     impl = s.string("implementation", default=d.implementation, choices=IMPLEMENTATIONS)
     nc = NCConfig(
@@ -130,7 +297,10 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
         ferror_mm=s.number("ferror_mm", default=d.ferror_mm, positive=True, hi=1e3),
         min_ferror_mm=s.number("min_ferror_mm", default=d.min_ferror_mm, positive=True, hi=1e3),
         max_path_error_mm=s.number("max_path_error_mm", default=d.max_path_error_mm, positive=True, hi=1e3),
-        implementation=impl,
+        implementation=impl, k_theta_auto=kth_auto, mode_hz=mode_hz, mode_damping_ratio=mode_z,
+        modal_stiffness_N_per_mm=modal_k,
+        deflection_feedforward=_bool(s, "deflection_feedforward", True),
+        shaper=shaper, shaper_hz=shaper_hz, shaper_damping_ratio=shaper_z,
     )
     if nc.min_ferror_mm > nc.ferror_mm:
         raise ConfigError(path, "nc.min_ferror_mm", "must not exceed nc.ferror_mm")
@@ -169,3 +339,71 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
     return ServiceConfig(loop, nc, backend, source=str(path), backend_tables=tables,
                          spindle=spindle if spindle is not None and spindle.enabled else None,
                          daq=daq if daq is not None and daq.enabled else None, probe=probe)
+
+
+@dataclass
+class NCSetup:
+    """What a run's NC and shaping stage use, resolved from the service config (and the flags that
+    changed it): the chain modes, K_theta per chain (auto resolved), the shaper, and the sentences
+    that say so."""
+
+    modes: ChainModes | None
+    shaper: object                # pmctl.core.shaper.Shaper or None
+    notes: list
+
+
+def nc_setup(svc: ServiceConfig, machine: Machine, dt: float, backend: str | None = None) -> NCSetup:
+    """Resolve the chain modes, ``k_theta_per_s = "auto"`` (written back into svc.nc as numbers) and
+    the shaper. Then ``svc.nc.params(machine, dt, modes=setup.modes)`` builds the NC parameters and
+    pmctl.motion.timescale.shape_trajectory applies ``setup.shaper`` to the plan."""
+    nc = svc.nc
+    modes = chain_modes(svc, machine, backend)
+    notes = []
+    if modes is not None:
+        notes.append(modes.describe())
+    if nc.k_theta_auto:
+        if modes is None:
+            raise ConfigError(svc.source, "nc.k_theta_per_s",
+                              '"auto" needs the chain modes: nc.mode_hz (pmctl analyze resonance --write) '
+                              "or a [hal.sim] plant with flex = true")
+        nc.k_theta_per_s = tuple(auto_k_theta(modes, nc.kv_per_s, dt))
+        nc.k_theta_auto = False
+        notes.append("K_theta auto: [" + ", ".join(f"{k:.0f}" for k in nc.k_theta_per_s)
+                     + "]/s per chain (sampled eq. 3.1 model: the smallest gain damping the chain mode to 0.3)")
+    if modes is not None and any(nc.k_theta_per_s):
+        soft = modes.soft(nc.kv_per_s)
+        if np.any(soft):
+            notes.append("K_theta on soft chains (mode below 2 kv): planned stretch off, decoupled from the pose "
+                         "loop" + (", deflection feed-forward" if nc.deflection_feedforward else ""))
+    shaper, text = choose_shaper(nc, modes, nc.k_theta_per_s, dt, svc.source)
+    if shaper is not None:
+        notes.append(text)
+    return NCSetup(modes, shaper, notes)
+
+
+def parse_k_theta_flag(v):
+    """``--k-theta``: None, "auto", or a gain >= 0 (1/s). PmctlError naming the flag otherwise."""
+    from pmctl.core.errors import PmctlError
+    if v is None or v == "auto":
+        return v
+    try:
+        k = float(v)
+    except (TypeError, ValueError):
+        raise PmctlError(f"--k-theta must be a gain in 1/s (>= 0) or auto, got {v!r}") from None
+    if not (np.isfinite(k) and k >= 0):
+        raise PmctlError(f"--k-theta must be >= 0 1/s, got {v}")
+    return k
+
+
+def parse_shaper_flag(v):
+    """``--shaper``: None, none, auto or a shaper type (case-insensitive) -> the canonical name."""
+    if v is None:
+        return None
+    from pmctl.core.errors import PmctlError
+    from pmctl.core.shaper import SHAPERS
+    key = str(v).strip()
+    if key.lower() in ("none", "auto"):
+        return key.lower()
+    if key.upper() in SHAPERS:
+        return key.upper()
+    raise PmctlError(f"--shaper must be one of none, auto, {', '.join(SHAPERS)}; got {v!r}")

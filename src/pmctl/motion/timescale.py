@@ -194,6 +194,31 @@ def _rows(pieces, dtp, machine, params, rapid_mm_s, chunk, decel):
         yield pending
 
 
+# ---------------------------------------------------------------- input shaping of the time law
+
+
+def shape_trajectory(traj, shaper):
+    """The shaping stage between the planner and the loop (``pmctl run --shaper``, ``[nc] shaper``):
+    a planned Trajectory with its time law along the path shaped (pmctl.core.shaper.shaped_index,
+    piece by piece between corners). Every sample stays on the planned path, only later; the job
+    line and spindle speed follow the path position; velocities are the forward differences (the
+    NC's feed-forward). ``shaper`` None returns ``traj`` unchanged."""
+    if shaper is None or len(traj) < 3:
+        return traj
+    from dataclasses import replace
+
+    from pmctl.core import shaper as S
+    tip, axis = np.asarray(traj.tip, float), np.asarray(traj.axis, float)
+    sig = S.shaped_index(tip, axis, traj.dt, shaper)
+    p, a = S.path_at_index(tip, axis, sig)
+    i = np.minimum(np.floor(sig + 1e-9).astype(int), len(tip) - 1)
+    tv, av = np.zeros_like(p), np.zeros_like(a)
+    tv[:-1] = np.diff(p, axis=0) / traj.dt
+    av[:-1] = np.diff(a, axis=0) / traj.dt
+    return replace(traj, tip=p, axis=a, tip_vel=tv, axis_vel=av, line=np.asarray(traj.line)[i],
+                   spindle_rpm=np.asarray(traj.spindle_rpm)[i])
+
+
 # ---------------------------------------------------------------- the per-tick part
 
 

@@ -72,7 +72,9 @@ class Supervisor:
         self.backend = backend or self.svc.backend
         self.rate_hz = float(rate_hz or self.svc.loop.rate_hz)
         self.dt = 1.0 / self.rate_hz
-        self.params = self.svc.nc.params(self.machine, self.dt, where=self.svc.source)
+        from pmctl.motion.service_config import nc_setup
+        self.nc_setup = nc_setup(self.svc, self.machine, self.dt, self.backend)   # chain modes, K_theta auto, shaper
+        self.params = self.svc.nc.params(self.machine, self.dt, where=self.svc.source, modes=self.nc_setup.modes)
         self.state_file = state_file
         self.realtime = bool(realtime)
         self.log = log or (lambda m: None)
@@ -361,9 +363,9 @@ class Supervisor:
         validated first (reachability, feeds, bounds: nothing of a bad item reaches the rt side),
         then planned window by window and pushed as room frees up in the sample ring, so memory is
         bounded by a window, not by the job."""
-        from pmctl.motion.timescale import iter_stream_rows
+        from pmctl.motion.timescale import iter_job_rows, iter_stream_rows, shape_trajectory
         from pmctl.task.job import RAPID
-        from pmctl.task.planner import PlannerLimits, plan_stream, validate
+        from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
         rapid_mm_s = PlannerLimits().rapid_mm_s
         while not self._stop.is_set():
             try:
@@ -373,13 +375,23 @@ class Supervisor:
             if self._abort.is_set() or it.gen != self._gen:
                 continue
             try:
-                path = validate(it.job, self.machine, self.dt, feed_override=self.plan_feed_override, start=it.start)
                 rapid_lines = {m.line for m in it.job.moves if m.kind == RAPID}
-                pieces = plan_stream(it.job, self.machine, self.dt, feed_override=self.plan_feed_override,
-                                     start=it.start, path=path)
+                if self.nc_setup.shaper is None:
+                    path = validate(it.job, self.machine, self.dt, feed_override=self.plan_feed_override,
+                                    start=it.start)
+                    pieces = plan_stream(it.job, self.machine, self.dt, feed_override=self.plan_feed_override,
+                                         start=it.start, path=path)
+                    rows_iter = iter_stream_rows(pieces, self.machine, self.params, rapid_lines=rapid_lines,
+                                                 rapid_mm_s=rapid_mm_s)
+                else:
+                    # an input shaper reshapes the time law over whole segments: planned whole (memory
+                    # grows with the job; a streaming shaper is not built yet)
+                    traj = shape_trajectory(plan(it.job, self.machine, self.dt, feed_override=self.plan_feed_override,
+                                                 start=it.start), self.nc_setup.shaper)
+                    rapid = np.isin(np.asarray(traj.line), list(rapid_lines)) if rapid_lines else None
+                    rows_iter = iter_job_rows(traj, self.machine, self.params, rapid=rapid, rapid_mm_s=rapid_mm_s)
                 it.planned = True
-                for rows in iter_stream_rows(pieces, self.machine, self.params, rapid_lines=rapid_lines,
-                                             rapid_mm_s=rapid_mm_s):
+                for rows in rows_iter:
                     i = 0
                     while i < len(rows):
                         if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:

@@ -60,8 +60,12 @@ def add_parser(sub):
     p.add_argument("--no-realtime", action="store_true",
                    help="run ticks back to back, no sleeping and no real-time priority (offline simulation: "
                         "a slow tick is not a stall)")
-    p.add_argument("--k-theta", type=float, default=None, metavar="PER_S",
-                   help="strain-gauge feedback gain per chain, 1/s (0 = off; default: service config)")
+    p.add_argument("--k-theta", default=None, metavar="PER_S|auto",
+                   help="strain-gauge feedback gain per chain, 1/s (0 = off), or auto: per chain from the chain "
+                        "mode (docs/vibration.md; default: service config)")
+    p.add_argument("--shaper", default=None, metavar="TYPE|auto|none",
+                   help="input shaper on the time law along the path (the tool stays on the path): ZV, MZV, ZVD, "
+                        "EI, 2HUMP_EI, 3HUMP_EI, auto (from the chain modes) or none (default: [nc] shaper)")
     p.add_argument("--pulse-mode", choices=("multi", "single"), default=None,
                    help="V-F converters: integer pulses per tick (multi) or the original controller's one per tick (single; Kamiya et al. 2005)")
     p.add_argument("--state", default=None, metavar="FILE",
@@ -382,8 +386,9 @@ def run(args) -> int:
     # ---- every input is checked before anything is said about the machine or anything moves
     if args.rate is not None and not (math.isfinite(args.rate) and 10 <= args.rate <= 20000):
         raise PmctlError(f"--rate must be within 10 .. 20000 Hz, got {args.rate:g}")
-    if args.k_theta is not None and not (math.isfinite(args.k_theta) and args.k_theta >= 0):
-        raise PmctlError(f"--k-theta must be >= 0 1/s, got {args.k_theta:g}")
+    from pmctl.motion.service_config import parse_k_theta_flag, parse_shaper_flag
+    k_theta_arg = parse_k_theta_flag(args.k_theta)
+    shaper_arg = parse_shaper_flag(getattr(args, "shaper", None))
     if not (math.isfinite(args.feed_override) and 0 < args.feed_override <= 10):
         raise PmctlError(f"--feed-override must be within (0, 10], got {args.feed_override:g}")
     if args.backend is not None and args.backend not in hal.BACKENDS:
@@ -404,20 +409,25 @@ def run(args) -> int:
         cfg.rate_hz = float(args.rate)
     if args.no_realtime:
         cfg.realtime = False
-    if args.k_theta is not None:
-        svc.nc.k_theta_per_s = (args.k_theta,) * 3
+    if k_theta_arg is not None:
+        svc.nc.k_theta_auto = k_theta_arg == "auto"
+        svc.nc.k_theta_per_s = (0.0,) * 3 if svc.nc.k_theta_auto else (k_theta_arg,) * 3
+    if shaper_arg is not None:
+        svc.nc.shaper = shaper_arg
     if args.pulse_mode:
         svc.nc.pulse_mode = args.pulse_mode
     backend_name = args.backend or svc.backend
     state_file = cfg.state_file if args.state is None else args.state
     dt = cfg.dt
+    from pmctl.motion.service_config import nc_setup
+    setup = nc_setup(svc, machine, dt, backend_name)     # chain modes, K_theta auto, shaper
     from pmctl.hal.modbus_daq import check_k_theta_source
     check_k_theta_source(svc.daq, svc.nc.k_theta_per_s, machine, f"{svc.source}: daq")
     strain_in_loop = getattr(hal.backend_class(backend_name), "strain_in_loop", True)
     if not strain_in_loop and any(svc.nc.k_theta_per_s):
         log(f"K_theta off: backend {backend_name} carries no strain gauges in its cyclic data")
         svc.nc.k_theta_per_s = (0.0,) * 3
-    params = svc.nc.params(machine, dt, where=svc.source)
+    params = svc.nc.params(machine, dt, where=svc.source, modes=setup.modes)
 
     # Where the machine is: saved counters, else home (said only once everything has been checked).
     lock = StateLock(state_file) if state_file else None      # noqa: F841 (held until the process exits)
@@ -452,6 +462,9 @@ def run(args) -> int:
         notes.append(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: "
                      f"planning with that")
     traj = _plan(job, plan_machine, dt, args.feed_override, (st.tip, st.axis))
+    from pmctl.motion.timescale import shape_trajectory
+    traj = shape_trajectory(traj, setup.shaper)
+    notes += setup.notes
     targets = prepare(machine, params, traj, dt, counts0)
     backend = hal.create(backend_name, machine, dt, svc.backend_tables.get(backend_name, {}))
 
@@ -528,7 +541,7 @@ def run(args) -> int:
             lp.stop_request = pending[0]
         mode = "multi-pulse" if params.max_pulses_per_tick > 1 else "one pulse per tick (as in Kamiya et al. 2005)"
         log(f"{Path(args.job).name}: {len(targets.rows) * dt:.2f} s at {cfg.rate_hz:g} Hz, backend {backend_name}, "
-            f"V-F {mode}, K_theta {svc.nc.k_theta_per_s[0]:g}/s, "
+            f"V-F {mode}, K_theta {'/'.join(f'{k:.4g}' for k in sorted(set(svc.nc.k_theta_per_s)))}/s, "
             f"{'real-time' if cfg.realtime else 'no real-time (ticks back to back)'}")
         prog = _Progress(lp, Path(args.job).name, dt, args.quiet, out)
         return _run_and_report(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt,

@@ -32,6 +32,7 @@ _S_ACC, _S_QDOT, _S_P, _S_R = _ncore.NC_S_ACC, _ncore.NC_S_QDOT, _ncore.NC_S_P, 
 _S_TIP, _S_AXIS, _S_PERR, _S_QM, _S_T, _S_EV = (_ncore.NC_S_TIP, _ncore.NC_S_AXIS, _ncore.NC_S_PERR,
                                                 _ncore.NC_S_QM, _ncore.NC_S_T, _ncore.NC_S_EV)
 _S_CDIR, _S_CBL, _S_COMP = _ncore.NC_S_CDIR, _ncore.NC_S_CBL, _ncore.NC_S_COMP
+_S_KTH = _ncore.NC_S_KTH
 _N_COUNTS, _N_PULSES, _N_MODE, _N_EVENT, _N_HAS_QM, _N_ITER = (
     _ncore.NC_N_COUNTS, _ncore.NC_N_PULSES, _ncore.NC_N_MODE, _ncore.NC_N_EVENT, _ncore.NC_N_HAS_QM,
     _ncore.NC_N_ITER)
@@ -48,7 +49,7 @@ def constants(machine: Machine, params: NCParams | None, model: ModelFK | None =
     c += m._off + m._tip_p + m._axis_p
     c += [m.z_table, m.tol, float(m.max_iter), m.cos_max_tilt, m._fz] + m._com + [m._keps]
     if params is None:           # FK only (the sim's gravity strain): no NC limits
-        c += [0.0] * 48
+        c += [0.0] * 59
     else:
         L = params._l
         c += [params.dt] + L.ppm + L.vmax + L.amax + L.adt + L.lower + L.upper
@@ -57,6 +58,7 @@ def constants(machine: Machine, params: NCParams | None, model: ModelFK | None =
         c += [float(x) for x in params.k_theta] + [float(x) for x in params.deflection_per_ue]
         c += [float(params.max_pulses_per_tick), params.ferror_mm, params.min_ferror_mm,
               params.max_path_error_mm, float(bool(params.static_strain_comp)), float(params._kth_on)]
+        c += L.leak + list(params._inv_w2) + list(params._acc_lp) + [float(bool(params.deflection_ff)), float(params._kth_modal)]
     a = np.array(c, float)
     if len(a) != _ncore.NC_C_LEN:
         raise AssertionError(f"ncore constants: {len(a)} values, the core takes {_ncore.NC_C_LEN}")
@@ -157,6 +159,8 @@ class CompiledState:
             v = getattr(st, f, None)
             if v is not None:
                 s[at:at + 5] = v
+        if st.kth is not None:
+            s[_S_KTH:_S_KTH + 12] = st.kth
         self.reason = st.reason
         self.mode = int(st.mode)
         return self
@@ -170,7 +174,8 @@ class CompiledState:
                        s[_S_QDOT:_S_QDOT + 5].copy(), s[_S_P:_S_P + 3].copy(), s[_S_R:_S_R + 9].reshape(3, 3).copy(),
                        s[_S_TIP:_S_TIP + 3].copy(), s[_S_AXIS:_S_AXIS + 3].copy(), int(n[_N_MODE]), self.reason,
                        float(s[_S_PERR]), s[_S_QM:_S_QM + 5].copy() if has else None,
-                       s[_S_T:_S_T + 18].reshape(6, 3).copy() if has else None, *comp)
+                       s[_S_T:_S_T + 18].reshape(6, 3).copy() if has else None, *comp,
+                       s[_S_KTH:_S_KTH + 12].copy() if self._params._kth_modal and has else None)
 
 
 class CompiledNC:

@@ -32,6 +32,10 @@ int nc_setup(nc_const *c, const double *f, int n)
     for (i = 0; i < 3; i++) TAKE(c->dpu[i]);
     TAKE(c->max_pulses); TAKE(c->ferror); TAKE(c->min_ferror); TAKE(c->max_path_error);
     TAKE(c->static_comp); TAKE(c->kth_on);
+    for (i = 0; i < 3; i++) TAKE(c->leak[i]);
+    for (i = 0; i < 3; i++) TAKE(c->inv_w2[i]);
+    for (i = 0; i < 3; i++) TAKE(c->acc_lp[i]);
+    TAKE(c->defl_ff); TAKE(c->kth_modal);
 #undef TAKE
     c->comp = NULL;
     return k == NC_C_LEN ? 0 : -1;
@@ -204,7 +208,25 @@ static int solve6(double M[36], double *B, int nr)
  * _damped_pinv_apply), by a one-sided Jacobi SVD: rotate column pairs of J until orthogonal (the
  * columns are then s_j u_j), accumulating V. lam^2 fades in below the smallest singular value
  * sv_threshold. Returns -1 if the sweeps do not converge. */
-static int damped_pinv_apply(double A[30], const double x[6], double damping, double eps, double out[5])
+/* out = V diag(1 / (s2 + lam2)) (A^T x), A's columns s_j u_j after the Jacobi sweeps */
+static void apply_decomposition(const double A[30], const double V[25], const double s2[5], double lam2,
+                                const double x[6], double out[5])
+{
+    int p, i;
+    for (i = 0; i < 5; i++)
+        out[i] = 0.0;
+    for (p = 0; p < 5; p++) {
+        double ux = 0.0, g;
+        for (i = 0; i < 6; i++)
+            ux += A[5 * i + p] * x[i];
+        g = ux / (s2[p] + lam2);
+        for (i = 0; i < 5; i++)
+            out[i] += V[5 * i + p] * g;
+    }
+}
+
+static int damped_pinv_apply(double A[30], const double x[6], double damping, double eps, double out[5],
+                             const double *x2, double *out2)
 {
     double V[25] = {0}, s2[5], smin2, lam2, worst = INFINITY;
     int sweep, p, q, i, rotated = 1;
@@ -258,16 +280,9 @@ static int damped_pinv_apply(double A[30], const double x[6], double damping, do
         double smin = sqrt(smin2), r = smin / eps;
         lam2 = smin >= eps ? 0.0 : damping * damping * (1.0 - r * r);
     }
-    for (i = 0; i < 5; i++)
-        out[i] = 0.0;
-    for (p = 0; p < 5; p++) {
-        double ux = 0.0, g;
-        for (i = 0; i < 6; i++)
-            ux += A[5 * i + p] * x[i];
-        g = ux / (s2[p] + lam2);
-        for (i = 0; i < 5; i++)
-            out[i] += V[5 * i + p] * g;
-    }
+    apply_decomposition(A, V, s2, lam2, x, out);
+    if (x2)             /* a second right-hand side through the same decomposition */
+        apply_decomposition(A, V, s2, lam2, x2, out2);
     return 0;
 }
 
@@ -509,6 +524,7 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
     }
     if (mode == NC_RUN) {
         double P[3], R[9], tip[3], axis[3], J[30], T[18], x[6], e[6], qd[5], w = c->w, kv = c->kv;
+        double qf[5], kth_new[12];
         double dLb[3], *dL = NULL, cc, perr;
         int64_t iters = 0;
         int k;
@@ -535,16 +551,36 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
         for (i = 15; i < 30; i += 5) {
             J[i] *= w; J[i + 1] *= w; J[i + 2] *= w; J[i + 3] = 0.0; J[i + 4] = 0.0;
         }
-        if (damped_pinv_apply(J, x, c->damping, c->sv_threshold, qd))
-            return halt_now(s, n, NC_EV_SVD);
+        {
+            double xf[6] = {t[6], t[7], t[8], t[9] * w, t[10] * w, t[11] * w};
+            int modal = c->kth_modal != 0.0;
+            if (damped_pinv_apply(J, x, c->damping, c->sv_threshold, qd, modal ? xf : NULL, qf))
+                return halt_now(s, n, NC_EV_SVD);
+        }
         if (c->kth_on != 0.0) {
             double s0[3] = {0.0, 0.0, 0.0};
             if (c->static_comp != 0.0)      /* the gauges also read the weight: keep the dynamic part */
                 nc_static_strain(c, R, T, s0);
             for (i = 0; i < 3; i++) {
                 double defl = -(strain[i] - s0[i]) * c->dpu[i];      /* theta_m - theta_L, mm */
-                qd[i] -= c->k_theta[i] * defl;
+                if (c->kth_modal != 0.0) {
+                    /* soft chain (nc._kth_modal_l): planned stretch off, decoupled offset d */
+                    double *ks = s + NC_S_KTH, d = ks[i], a = (qf[i] - ks[3 + i]) / c->dt;
+                    double af = ks[9 + i] + c->acc_lp[i] * (a - ks[9 + i]);
+                    double o = af * c->inv_w2[i], y = -defl + o, u = c->k_theta[i] * y + kv * d;
+                    if (c->defl_ff != 0.0)
+                        u = u + (kv * o + (o - ks[6 + i]) / c->dt);
+                    qd[i] = qd[i] + u;
+                    kth_new[i] = d + c->dt * (c->k_theta[i] * y - c->leak[i] * d);
+                    kth_new[3 + i] = qf[i];
+                    kth_new[6 + i] = o;
+                    kth_new[9 + i] = af;
+                } else {
+                    qd[i] -= c->k_theta[i] * defl;
+                }
             }
+            if (c->kth_modal != 0.0)
+                memcpy(s + NC_S_KTH, kth_new, sizeof kth_new);
         }
         /* commit the model pose */
         memcpy(s + NC_S_P, P, sizeof P);

@@ -45,7 +45,9 @@
 #define NC_S_CDIR 58    /* 5: compensation: direction per axis (+1, -1, 0 before the first move) */
 #define NC_S_CBL 63     /* 5: compensation: backlash term, mm */
 #define NC_S_COMP 68    /* 5: compensation of the last tick, mm (model joint - motor position) */
-#define NC_S_LEN 73
+#define NC_S_KTH 73     /* 12: soft-chain K_theta: offset d (3, mm), last feed-forward chain rate (3, mm/s),
+                         *    last planned stretch a*|w^2 (3, mm), low-passed a* (3) (nc.NCState.kth) */
+#define NC_S_LEN 85
 
 /* int64 state buffer layout */
 #define NC_N_COUNTS 0   /* 5: pulse counters */
@@ -68,9 +70,10 @@ typedef struct {
     /* per-axis backlash and screw compensation (pmctl/core/compensation.py): the caller's flat
      * table (nc_setup_comp), NULL = none */
     const double *comp;
+    double leak[3], inv_w2[3], acc_lp[3], defl_ff, kth_modal;    /* soft-chain K_theta (nc._kth_modal_l) */
 } nc_const;
 
-#define NC_C_LEN 93      /* model 45 (27 + 9 + 5 + 3 + 1), params 48 (1 + 30 + 5 + 3 + 3 + 6) */
+#define NC_C_LEN 104     /* model 45 (27 + 9 + 5 + 3 + 1), params 59 (1 + 30 + 5 + 3 + 3 + 6 + 11) */
 
 /* Returns 0, or -1 if n != NC_C_LEN. */
 int nc_setup(nc_const *c, const double *flat, int n);

@@ -67,6 +67,9 @@ def add_resonance_parser(sub):
     p.add_argument("--modes", type=int, default=1, help="modes fitted per chain (default 1)")
     p.add_argument("--kv", type=float, default=400.0, help="NC pose gain for the K_theta advice, 1/s (default 400)")
     p.add_argument("--out", default="out/analyze", help="directory for resonance.png/json (default out/analyze)")
+    p.add_argument("--write", metavar="SERVICE.toml", default=None,
+                   help="also put the modes found into that service config's [nc] (mode_hz, mode_damping_ratio, "
+                        "modal_stiffness_N_per_mm): the source of --k-theta auto and --shaper auto")
     p.set_defaults(func=lazy("pmctl.tools.analysis.resonance:cmd_resonance"))
 
 

@@ -20,8 +20,11 @@ removed by a zero-phase 2.5 Hz high-pass):
   within +-10 % (drift, mistuning), the time each stop costs (the shaper's duration) and the corner
   it would cut if applied to the Cartesian targets at 50 mm/s (time-law shaping cuts none);
   the recommendation is the shortest shaper whose worst residual within +-10 % is <= 5 %;
-- K_theta for the mode from the sampled eq. 3.1 model (:func:`predict_sampled`), for nc.py as it is
-  and for the decoupled feedback proposed in docs/vibration.md.
+- K_theta for the mode from the sampled eq. 3.1 model (:func:`predict_sampled`), for the plain
+  feedback and for the decoupled one the NC runs on soft chains (docs/vibration.md);
+- ``--write SERVICE.toml``: the modes into that service config's ``[nc]`` (mode_hz,
+  mode_damping_ratio, modal_stiffness_N_per_mm from the fit's static gain), where ``pmctl run
+  --k-theta auto --shaper auto`` takes them from.
 """
 
 from __future__ import annotations
@@ -146,22 +149,23 @@ class Mode:
     damping: float
     psd_peak_hz: float          # strongest peak of the dwells' PSD (for comparison; nan if none)
     fit_rms_ue: float           # RMS of the ARX fit's one-step residual, µε
+    strain_per_accel: float = float("nan")   # |static gain| of the fit: µε per mm/s^2 of the chain's
+                                             # motor acceleration (= strain gain x modal mass, below the mode)
 
 
-def arx_modes(u, y, fs: float, n_modes: int = 1, fmin: float = 0.0, fmax: float = float("inf")):
-    """Modes of the chain from its known input and measured output: ARX least squares
-    y_k = sum_{i=1..2n} a_i y_{k-i} + sum_{j=0..2n+1} b_j w_{k-j}, with w the second difference of
-    the motor-side chain length u (the mode answers the motor's acceleration: a constant velocity
-    leaves no deflection) and y the gauge strain, both high-passed; the poles of the AR part mapped to continuous time,
-    s = ln(z) fs. Unlike an accelerometer, the gauge's input is known (the encoders), so any motion
-    -- strokes, stops, the pose loop's one-pulse dithering at rest -- serves as excitation.
-    Returns ([(freq Hz, damping ratio)] sorted by frequency, residual RMS)."""
+def arx_gain(u, y, fs: float, n_modes: int = 1) -> float:
+    """|Static gain| of the ARX model of :func:`arx_modes`: µε of strain per mm/s^2 of motor
+    acceleration, below the modes. For one chain mode that is k_eps x m (the quasi-static stretch
+    m a / k times the gauge's k_eps k), so the modal stiffness is that over k_eps, times w^2."""
+    return _arx_fit(u, y, fs, n_modes)[2]
+
+
+def _arx_fit(u, y, fs, n_modes):
+    """(AR coefficients, residual RMS, |static gain| per mm/s^2) of the ARX fit of arx_modes."""
     from scipy.signal import butter, sosfilt
     u = np.asarray(u, float)
     y = np.asarray(y, float)
     w2 = np.r_[0.0, 0.0, u[2:] - 2.0 * u[1:-1] + u[:-2]]
-    # the same causal high-pass on both (exactly linear time-invariant, so the ARX relation between
-    # them is unchanged) takes off the gravity strain
     sos = butter(2, 2.5, "highpass", fs=fs, output="sos")
     u = sosfilt(sos, w2)
     y = sosfilt(sos, y - y[0])
@@ -181,7 +185,21 @@ def arx_modes(u, y, fs: float, n_modes: int = 1, fmin: float = 0.0, fmax: float 
     theta, *_ = np.linalg.lstsq(X / scale, tgt, rcond=None)
     theta = theta / scale
     res = tgt - X @ theta
-    z = np.roots(np.r_[1.0, -theta[:na]])
+    den = 1.0 - float(np.sum(theta[:na]))
+    g0 = abs(float(np.sum(theta[na:])) / den) / fs ** 2 if den != 0 else float("nan")   # w2 = a dt^2
+    return theta[:na], float(np.sqrt(np.mean(res ** 2))), g0
+
+
+def arx_modes(u, y, fs: float, n_modes: int = 1, fmin: float = 0.0, fmax: float = float("inf")):
+    """Modes of the chain from its known input and measured output: ARX least squares
+    y_k = sum_{i=1..2n} a_i y_{k-i} + sum_{j=0..2n+1} b_j w_{k-j}, with w the second difference of
+    the motor-side chain length u (the mode answers the motor's acceleration: a constant velocity
+    leaves no deflection) and y the gauge strain, both high-passed; the poles of the AR part mapped to continuous time,
+    s = ln(z) fs. Unlike an accelerometer, the gauge's input is known (the encoders), so any motion
+    -- strokes, stops, the pose loop's one-pulse dithering at rest -- serves as excitation.
+    Returns ([(freq Hz, damping ratio)] sorted by frequency, residual RMS)."""
+    a_coef, rms, _ = _arx_fit(u, y, fs, n_modes)
+    z = np.roots(np.r_[1.0, -a_coef])
     out = []
     for zi in z:
         if zi.imag <= 0 or abs(zi) >= 1.0:
@@ -190,7 +208,7 @@ def arx_modes(u, y, fs: float, n_modes: int = 1, fmin: float = 0.0, fmax: float 
         f, zeta = abs(sz) / (2 * math.pi), -sz.real / abs(sz)
         if fmin <= f <= fmax:
             out.append((float(f), float(zeta)))
-    return sorted(out), float(np.sqrt(np.mean(res ** 2)))
+    return sorted(out), rms
 
 
 def modes_of_chain(strain_i, u_i, cmd, fs: float, fmin: float, fmax: float, chain: int, n_modes: int = 1,
@@ -200,8 +218,9 @@ def modes_of_chain(strain_i, u_i, cmd, fs: float, fmin: float, fmax: float, chai
     freqs, p = strain_psd(np.asarray(strain_i, float), fs, segs)
     peaks = find_peaks_hz(freqs, p[0], fmin, fmax, 1)
     modes, rms = arx_modes(u_i, strain_i, fs, n_modes, fmin, fmax)
+    g0 = arx_gain(u_i, strain_i, fs, n_modes) if n_modes == 1 else float("nan")
     pk = peaks[0] if peaks else float("nan")
-    return [Mode(chain, f, z, pk, rms) for f, z in modes], (freqs, p[0])
+    return [Mode(chain, f, z, pk, rms, g0) for f, z in modes], (freqs, p[0])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -378,6 +397,68 @@ def _plot(result, spectra, path: Path, title: str):
     plt.close(fig)
 
 
+def modes_entry(result, strain_gain: float) -> dict:
+    """The ``[nc]`` keys of a service config for the chain modes found (first mode per chain):
+    mode_hz, mode_damping_ratio and, when the fit's static gain is known, modal_stiffness_N_per_mm
+    = (µε per mm/s^2) / k_eps x w^2 (the gauge sees k_eps k y, and y = m a / k below the mode)."""
+    hz, z, k = [], [], []
+    for ch in result["chains"]:
+        if not ch["modes"]:
+            raise PmctlError(f"chain {ch['chain']}: no mode found; nothing written")
+        m = ch["modes"][0]
+        w = 2 * math.pi * m["freq_hz"]
+        hz.append(round(m["freq_hz"], 3))
+        z.append(round(min(max(m["damping"], 0.0), 0.9), 4))
+        g = m.get("strain_per_accel", float("nan"))
+        k.append(round(g * w * w / strain_gain, 1) if math.isfinite(g) and g > 0 else None)
+    out = {"mode_hz": hz, "mode_damping_ratio": z}
+    if all(x is not None for x in k):
+        out["modal_stiffness_N_per_mm"] = k
+    return out
+
+
+def write_modes(path, entry: dict) -> None:
+    """Put ``entry`` (:func:`modes_entry`) into the ``[nc]`` table of the service config ``path``:
+    those keys replaced where they are, else added under the table's header; the rest of the file
+    (comments included) is kept. The new file is validated whole (load_service_config) before it
+    replaces the old one, so a refused value leaves the file as it was."""
+    import os
+    import tempfile
+
+    from pmctl.motion.service_config import load_service_config
+    p = Path(path)
+    try:
+        lines = p.read_text(encoding="utf-8").splitlines()
+    except OSError as e:
+        raise PmctlError(f"--write {p}: cannot read: {e.strerror or e}") from None
+    fmt = lambda v: "[" + ", ".join(f"{x:g}" for x in v) + "]"   # noqa: E731
+    new = [f"{k} = {fmt(v)}   # pmctl analyze resonance --write" for k, v in entry.items()]
+    out, section, placed = [], None, False
+    for ln in lines:
+        st = ln.strip()
+        if st.startswith("[") and not st.startswith("[["):
+            section = st.split("]")[0].strip("[ ")
+            out.append(ln)
+            if section == "nc":
+                out += new
+                placed = True
+            continue
+        if section == "nc" and "=" in st and st.split("=")[0].strip() in entry:
+            continue
+        out.append(ln)
+    if not placed:
+        out += ["", "[nc]"] + new
+    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".tmp", dir=str(p.parent))
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write("\n".join(out) + "\n")
+        load_service_config(tmp)
+        os.replace(tmp, p)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
 def cmd_resonance(args):
     if args.make_job:
         text = make_impulse_job(args.axis, args.strokes, args.stroke_mm, args.dwell_s, args.feed)
@@ -419,4 +500,9 @@ def cmd_resonance(args):
     js = out / "resonance.json"
     js.write_text(json.dumps(result, indent=1), encoding="utf-8")
     print(f"wrote {png}\nwrote {js}")
+    if getattr(args, "write", None):
+        entry = modes_entry(result, rec.machine.strain_gain)
+        write_modes(args.write, entry)
+        print(f"wrote [nc] {', '.join(f'{k} = {v}' for k, v in entry.items())} into {args.write} "
+              f"(pmctl run --service {args.write} --k-theta auto --shaper auto uses them)")
     return 0

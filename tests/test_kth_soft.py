@@ -1,0 +1,123 @@
+"""K_theta on soft chains (docs/vibration.md): the sampled eq. 3.1 model predicts the damping the NC's
+feedback gives a chain mode in the closed loop, the chain modes and K_theta = auto come from the
+service config or the sim's declared plant, and the [nc] keys are validated strictly."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import curve_fit
+
+from pmctl import hal
+from pmctl.core import kinematics as K
+from pmctl.core.config import load_machine
+from pmctl.core.errors import ConfigError
+from pmctl.motion import loop as L
+from pmctl.motion import nc as NC
+from pmctl.motion.service_config import LoopConfig, chain_modes, nc_setup, service_from_dict
+from pmctl.task.planner import home_pose
+from pmctl.tools.analysis.resonance import predict_sampled
+
+M = load_machine()
+MASS, ZETA, KV, DT = 31.66, 0.02, 400.0, 1e-3
+
+
+def decay(f, kth, leak, y0=0.05):
+    """Closed loop (NC, sim with its flexible mode and gauges) holding a pose while the chains start
+    from a y0 deflection: fitted (frequency, damping ratio) of the load-side deflection."""
+    k = MASS * (2 * math.pi * f) ** 2 / 1e3
+    dec = dict(mode_hz=f, k_theta_leak=leak) if leak is not None else {}
+    p = NC.NCParams.from_machine(M, DT, k_theta=kth, kv=KV, modal_stiffness_N_per_mm=k, **dec)
+    from dataclasses import replace
+    p = replace(p, amax=p.amax * 100)       # the linear model: no acceleration clipping (see --limits)
+    tip, axis = home_pose(M)
+    tip = np.asarray(tip, float) + [0, 0, -100.0]
+    c0 = NC.counts_of(K.ik(tip, axis, M).q, p)
+    st = NC.initial_state(M, c0)
+    n = int(max(0.3, 10.0 / f) / DT)
+    tg = L.build_targets(np.repeat(st.tip[None], n, 0), np.repeat(st.axis[None], n, 0), np.zeros(n, int), DT, M, p)
+    be = hal.create("sim", M, DT, dict(flex=True, mode_stiffness_N_per_mm=k, mode_mass_kg=MASS,
+                                       mode_damping_ratio=ZETA, strain_noise_ue=0.0))
+    be.open(c0)
+    Ly = be._lib.D_Y                                   # the plant's deflection state (simplant.c)
+    be._d[Ly:Ly + 3] = y0
+    be._check(be._plant.sample(be._draw(), 0))
+    ys = []
+    wp = be.write_pulses
+
+    def write(pl):
+        wp(pl)
+        ys.append(be._d[Ly])
+    be.write_pulses = write
+    res = L.ControlLoop(M, be, p, tg, LoopConfig(realtime=False, state_file="", settle_s=0.0, stall_timeout_s=60.0),
+                        st, log=lambda s: None).run()
+    assert res.status == "done", res.reason
+    y = np.array(ys)
+    t = np.arange(len(y)) * DT
+    fp, zp = predict_sampled(f, kth, KV, DT, ZETA, leak)
+    w0 = 2 * math.pi * fp
+    nfit = int(3.0 / (f * DT)) + 5
+    model = lambda t, a, b, s, w, c: np.exp(-s * t) * (a * np.cos(w * t) + b * np.sin(w * t)) + c   # noqa: E731
+    pp, _ = curve_fit(model, t[:nfit], y[:nfit], p0=[y0, 0.0, zp * w0, w0, 0.0], maxfev=20000)
+    s, w = abs(pp[2]), abs(pp[3])
+    return w / (2 * math.pi), s / math.hypot(s, w), (fp, zp)
+
+
+@pytest.mark.parametrize("f,kth,leak", [(40.0, 200.0, "dec"), (80.0, 200.0, "dec"), (40.0, 200.0, None)])
+def test_eq31_sampled_predicts_the_closed_loop_damping(f, kth, leak):
+    lk = 0.1 * 2 * math.pi * f if leak else None
+    fs, zs, (fp, zp) = decay(f, kth, lk)
+    assert zs == pytest.approx(zp, abs=0.04)
+    assert fs == pytest.approx(fp, rel=0.03)
+    assert zs > 4 * ZETA                 # and the feedback does damp the mode
+
+
+def _svc(nc=None, sim=None):
+    d = {"nc": nc or {}, "hal": {"backend": "sim", "sim": sim or {}}}
+    return service_from_dict(d, "svc.toml")
+
+
+SOFT = {"flex": True, "mode_stiffness_N_per_mm": 2000.0, "mode_mass_kg": 31.66, "mode_damping_ratio": 0.02}
+
+
+def test_chain_modes_from_the_sim_plant_and_from_nc():
+    m = chain_modes(_svc(sim=SOFT), M)
+    assert np.allclose(m.hz, math.sqrt(2e6 / 31.66) / (2 * math.pi)) and "hal.sim" in m.source
+    assert np.allclose(m.stiffness_N_per_mm, 2000.0)
+    m2 = chain_modes(_svc(nc={"mode_hz": [40.0, 41.0, 42.0], "modal_stiffness_N_per_mm": 2100.0}, sim=SOFT), M)
+    assert list(m2.hz) == [40.0, 41.0, 42.0] and "[nc] mode_hz" in m2.source    # [nc] wins over the plant
+    assert chain_modes(_svc(sim={"flex": False}), M) is None
+    # the default (stiff, 246 Hz) plant keeps the plain feedback: its mode is above 2 kv
+    st = _svc(nc={"k_theta_per_s": 200.0}, sim={"flex": True})
+    p = st.nc.params(M, DT, modes=chain_modes(st, M))
+    assert not p._kth_modal and np.allclose(p.deflection_per_ue, 1 / (M.strain_gain * M.stiffness.chain_axial))
+
+
+def test_k_theta_auto_and_soft_params():
+    s = _svc(nc={"k_theta_per_s": "auto"}, sim=SOFT)
+    setup = nc_setup(s, M, DT)
+    p = s.nc.params(M, DT, modes=setup.modes)
+    assert p._kth_modal and np.all(p.k_theta > 0) and np.all(p.k_theta * DT <= 0.4)
+    z = predict_sampled(40.0, float(p.k_theta[0]), KV, DT, ZETA, 0.1 * 2 * math.pi * 40.0)[1]
+    assert z >= 0.3 - 1e-6                 # the gain the model says damps the mode to 0.3
+    assert np.allclose(p.deflection_per_ue, 1 / (M.strain_gain * 2000.0))
+    assert any("K_theta auto" in n for n in setup.notes)
+
+
+@pytest.mark.parametrize("nc,key", [
+    ({"k_theta_per_s": "auto"}, "nc.k_theta_per_s"),                 # auto without any mode
+    ({"k_theta_per_s": "fast"}, "k_theta_per_s"),
+    ({"mode_hz": -3.0}, "mode_hz"),
+    ({"mode_hz": [40.0, 40.0]}, "mode_hz"),
+    ({"mode_damping_ratio": 0.02}, "nc.mode_damping_ratio"),         # without mode_hz
+    ({"modal_stiffness_N_per_mm": 2000.0}, "nc.modal_stiffness_N_per_mm"),
+    ({"shaper": "ZVX"}, "shaper"),
+    ({"shaper": "auto"}, "nc.shaper"),                               # auto without any mode
+    ({"shaper_hz": 0.0}, "shaper_hz"),
+    ({"deflection_feedforward": 1}, "deflection_feedforward"),
+])
+def test_nc_keys_refused_with_their_name(nc, key):
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+        s = _svc(nc=nc, sim={"flex": False})
+        setup = nc_setup(s, M, DT)
+        s.nc.params(M, DT, modes=setup.modes)
