@@ -66,7 +66,8 @@ def test_cli_writes_the_recording_md_report_and_plots(tmp_path, capsys):
     out = capsys.readouterr().out
     assert out.index("WHERE") < out.index("WHY")          # where first, then why
     rep = json.loads(js.read_text())
-    assert set(rep) == {"recording", "verdict", "findings", "unexplained", "confidence_calibration"}
+    assert set(rep) == {"recording", "verdict", "samples", "findings", "unexplained", "confidence_calibration"}
+    assert rep["samples"]["total"] == rep["samples"]["analysed"] == len(case.columns["t"])
     f = rep["findings"][0]
     assert set(f) == {"effect", "axis", "parameters", "where", "evidence", "rms_before", "rms_after", "heldout",
                       "confidence"}
