@@ -36,13 +36,12 @@ CHILD = r"""
 import json, resource, sys, time
 from pmctl.tools.twin.diagnose import diagnose, read_for_diagnosis
 w0, t0 = time.perf_counter(), time.process_time()
-meta, machine, cols = read_for_diagnosis(sys.argv[1])
+meta, machine, cols, span = read_for_diagnosis(sys.argv[1])
 t1 = time.process_time()
-rep, extras = diagnose(cols, machine)
+rep, extras = diagnose(cols, machine, span=span)
 t2, w2 = time.process_time(), time.perf_counter()
 print(json.dumps({"read_cpu_s": t1 - t0, "diagnose_cpu_s": t2 - t1, "wall_s": w2 - w0,
-                  "n": int(cols.attrs.get("rows_total", len(cols["t"]))) if hasattr(cols, "attrs") else len(cols["t"]),
-                  "analysed": len(cols["t"]),
+                  "n": span["rows_total"], "analysed": len(cols["t"]),
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "verdict": rep["verdict"],
                   "findings": [(f["effect"], f.get("axis"), f["parameters"], f["confidence"]) for f in rep["findings"]]}))

@@ -20,7 +20,7 @@ def add_diagnose_parser(sub):
     p.add_argument("--cap", type=int, default=DEFAULT_CAP,
                    help=f"max analysis samples per channel (default {DEFAULT_CAP})")
     p.add_argument("--progress", action="store_true",
-                   help="progress bar on stderr on long work even when stderr is not a terminal")
+                   help="progress bar on stderr even when stderr is not a terminal")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bar (default: one on stderr on long work when it is a terminal)")
     p.set_defaults(func=lazy("pmctl.tools.twin.diagnose:_run"))

@@ -189,6 +189,8 @@ class _Progress:
 
     def done(self):
         if self.enabled:
+            self.k = self.total - 1        # (fewer selection rounds than budgeted: the work is done)
+            self.step("done")
             sys.stderr.write("\n")
             sys.stderr.flush()
 
@@ -774,18 +776,19 @@ def _run(args) -> int:
     folder = find_recording(args.folder)
     if Path(folder) != Path(args.folder) and not Path(args.folder).is_file():
         print(f"pmctl: {args.folder} holds one recording, in {folder}: diagnosing that", file=sys.stderr)
-    # a progress bar on stderr for long work: when stderr is a terminal, or asked for with --progress
-    show = getattr(args, "progress", False) or (not args.no_progress and sys.stderr.isatty())
+    # a progress bar on stderr: on long work when stderr is a terminal, always with --progress
+    forced = getattr(args, "progress", False)
+    show = forced or (not args.no_progress and sys.stderr.isatty())
     data = Path(folder) / "data.csv"
     big = data.is_file() and data.stat().st_size >= 16 << 20        # ~10^5 rows and more
-    meta, rec_machine, columns, span = read_for_diagnosis(folder, progress=show and big)
+    meta, rec_machine, columns, span = read_for_diagnosis(folder, progress=forced or (show and big))
     n = span["rows_total"]
     if meta.get("complete") is False:
         why = meta.get("incomplete_reason") or "the run that wrote it did not finish"
         print(f"pmctl: warning: {folder} is an incomplete recording ({why}); diagnosing the "
               f"{n} samples it holds", file=sys.stderr)
     machine = load_machine(args.config) if args.config else rec_machine
-    prog = show and n >= 100_000
+    prog = forced or (show and n >= 100_000)
     report, extras = diagnose(columns, machine, name=_display_name(folder), progress=prog, cap=args.cap,
                               span=span)
     notes = plant_notes(report, meta)
