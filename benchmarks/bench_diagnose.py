@@ -5,10 +5,10 @@
 Recordings (pmctl-recording/1 folders at 1 kHz, one hidden backlash of 0.02 mm on X):
 
 - up to 10^6 samples: one synth calibration run of that length, written whole;
-- beyond: a 200 s synth run tiled back and forth in time (forward, then time-reversed, then forward
-  ...: the motion stays continuous at the joins, and backlash, a direction-dependent offset,
-  stays backlash when time runs backwards), streamed through pmctl.core.recording.RecordingWriter
-  one tile at a time, so no more than one tile is ever in memory.
+- beyond: a 200 s synth run written by pmctl.core.recording.write_recording, whose rows are then
+  repeated with continuing times, one tile of text at a time (no more than one tile is ever in
+  memory). At each join the positions jump back to the run's start in one sample, in the commands
+  and the measurements alike: one sample in 200 000 that no run of the diagnosis needs.
 
 Each size is then diagnosed in a fresh child process exactly as ``pmctl twin diagnose`` does
 (pmctl.tools.twin.diagnose.read_for_diagnosis, then diagnose with the default cap), and the child
@@ -61,27 +61,31 @@ def _synth(duration_s, seed=5):
 
 def make(n, folder):
     """Write the recording of n samples under folder; returns its path."""
-    from pmctl.core.recording import RecordingWriter, write_recording
+    from pmctl.core.recording import DATA_FILE, META_FILE, write_recording
     rec = Path(folder) / f"n{n}" / "recording"
     if n <= 1_000_000:
         case = _synth(n / 1000.0)
         write_recording(rec, case.columns, sample_rate_hz=1000.0, description=f"bench {n}")
         return rec
+    # one tile written by the recording writer, then its rows repeated with new times, one tile
+    # of text at a time
+    tile = Path(folder) / f"n{n}" / "tile"
     case = _synth(TILE_S)
-    cols = case.columns
-    names = list(cols)
-    m = len(cols["t"])
-    dt = float(cols["t"][1] - cols["t"][0])
-    with RecordingWriter(rec, names, sample_rate_hz=1000.0,
-                         description=f"bench {n}: {TILE_S:g} s synth run tiled back and forth") as w:
-        done, k = 0, 0
-        while done < n:
+    write_recording(tile, case.columns, sample_rate_hz=1000.0,
+                    description=f"bench {n}: a {TILE_S:g} s synth run repeated")
+    with open(tile / DATA_FILE, "rb") as fh:
+        head = fh.readline()
+        rest = [ln.split(b",", 1)[1] for ln in fh.read().splitlines()]
+    rec.mkdir(parents=True)
+    (rec / META_FILE).write_bytes((tile / META_FILE).read_bytes())
+    m = len(rest)
+    with open(rec / DATA_FILE, "wb") as out:
+        out.write(head)
+        for done in range(0, n, m):
             take = min(m, n - done)
-            chunk = {c: (cols[c] if k % 2 == 0 else cols[c][::-1])[:take] for c in names if c != "t"}
-            chunk["t"] = (done + np.arange(take)) * dt
-            w.append(chunk)
-            done += take
-            k += 1
+            t = ((done + np.arange(take)) * 1e-3).round(6).tolist()
+            out.write(b"".join(b"%r,%s\n" % (tv, r) for tv, r in zip(t, rest[:take])))
+    shutil.rmtree(tile)
     return rec
 
 
