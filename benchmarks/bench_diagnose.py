@@ -1,14 +1,21 @@
-"""Diagnosis cost against recording length: CPU time and peak memory (10^4, 10^5, 10^6 samples).
+"""Diagnosis cost against recording length: CPU time, wall time and peak memory (10^4 ... 10^7 samples).
 
-    .venv/bin/python benchmarks/bench_diagnose.py [--sizes 1e4,1e5,1e6] [--keep DIR]
+    .venv/bin/python benchmarks/bench_diagnose.py [--sizes 1e4,1e5,1e6,1e7] [--keep DIR]
 
-Each size is a synth calibration run at 1 kHz with one hidden backlash (width 0.02 mm on X),
-written as a pmctl-recording/1 folder. A fresh child process then reads it with the bounded-
-memory reader (pmctl.core.recording_chunks.read_columns: data.csv in 16 MB blocks, measured
-channels in float32) and diagnoses it with the default settings (at most DEFAULT_CAP analysis
-samples per channel). The child reports its CPU time (read and diagnose apart) and its peak
-resident memory (ru_maxrss), so sizes do not share an allocator. Also printed: the machine's
-load average, since the CPU time of a loaded 2-core machine is less stable than its memory.
+Recordings (pmctl-recording/1 folders at 1 kHz, one hidden backlash of 0.02 mm on X):
+
+- up to 10^6 samples: one synth calibration run of that length, written whole;
+- beyond: a 200 s synth run written by pmctl.core.recording.write_recording, whose rows are then
+  repeated with continuing times, one tile of text at a time (no more than one tile is ever in
+  memory). At each join the positions jump back to the run's start in one sample, in the commands
+  and the measurements alike: one sample in 200 000 that no run of the diagnosis needs.
+
+Each size is then diagnosed in a fresh child process exactly as ``pmctl twin diagnose`` does
+(pmctl.tools.twin.diagnose.read_for_diagnosis, then diagnose with the default cap), and the child
+reports its CPU time (read and diagnose apart), its wall time and its peak resident memory
+(ru_maxrss), so sizes do not share an allocator. The machine's load average is printed per size:
+the CPU and wall time of a loaded 2-core machine vary more than its memory. The recordings are
+removed at the end unless --keep names a folder for them.
 """
 
 from __future__ import annotations
@@ -16,59 +23,101 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 CHILD = r"""
 import json, resource, sys, time
-from pmctl.core.recording_chunks import read_columns
-from pmctl.tools.twin.diagnose import diagnose
-t0 = time.process_time()
-meta, machine, cols = read_columns(sys.argv[1])
+from pmctl.tools.twin.diagnose import diagnose, read_for_diagnosis
+w0, t0 = time.perf_counter(), time.process_time()
+meta, machine, cols, span = read_for_diagnosis(sys.argv[1])
 t1 = time.process_time()
-rep, _ = diagnose(cols, machine)
-t2 = time.process_time()
-print(json.dumps({"read_cpu_s": t1 - t0, "diagnose_cpu_s": t2 - t1, "n": len(cols["t"]),
+rep, extras = diagnose(cols, machine, span=span)
+t2, w2 = time.process_time(), time.perf_counter()
+print(json.dumps({"read_cpu_s": t1 - t0, "diagnose_cpu_s": t2 - t1, "wall_s": w2 - w0,
+                  "n": span["rows_total"], "analysed": len(cols["t"]),
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "verdict": rep["verdict"],
                   "findings": [(f["effect"], f.get("axis"), f["parameters"], f["confidence"]) for f in rep["findings"]]}))
 """
 
+EFFECT = ("backlash", {"axis": "X"}, {"width_mm": 0.02})
+TILE_S = 200.0
 
-def make(n, folder):
+
+def _synth(duration_s, seed=5):
     import numpy as np
     from pmctl.core.config import load_machine
     from pmctl.tools.twin import synth
-    m = load_machine()
-    case = synth.synth_case(np.random.default_rng(5), [synth.Effect("backlash", {"axis": "X"}, {"width_mm": 0.02})],
-                            run="calibration", duration_s=n / 1000.0, rate_hz=1000.0, machine=m, seed=5)
-    synth.write_case(folder, f"n{n}", case)
-    return Path(folder) / f"n{n}" / "recording"
+    return synth.synth_case(np.random.default_rng(seed), [synth.Effect(*EFFECT)], run="calibration",
+                            duration_s=duration_s, rate_hz=1000.0, machine=load_machine(), seed=seed)
+
+
+def make(n, folder):
+    """Write the recording of n samples under folder; returns its path."""
+    from pmctl.core.recording import DATA_FILE, META_FILE, write_recording
+    rec = Path(folder) / f"n{n}" / "recording"
+    if n <= 1_000_000:
+        case = _synth(n / 1000.0)
+        write_recording(rec, case.columns, sample_rate_hz=1000.0, description=f"bench {n}")
+        return rec
+    # one tile written by the recording writer, then its rows repeated with new times, one tile
+    # of text at a time
+    tile = Path(folder) / f"n{n}" / "tile"
+    case = _synth(TILE_S)
+    write_recording(tile, case.columns, sample_rate_hz=1000.0,
+                    description=f"bench {n}: a {TILE_S:g} s synth run repeated")
+    with open(tile / DATA_FILE, "rb") as fh:
+        head = fh.readline()
+        rest = [ln.split(b",", 1)[1] for ln in fh.read().splitlines()]
+    rec.mkdir(parents=True)
+    (rec / META_FILE).write_bytes((tile / META_FILE).read_bytes())
+    m = len(rest)
+    with open(rec / DATA_FILE, "wb") as out:
+        out.write(head)
+        for done in range(0, n, m):
+            take = min(m, n - done)
+            t = ((done + np.arange(take)) * 1e-3).round(6).tolist()
+            out.write(b"".join(b"%r,%s\n" % (tv, r) for tv, r in zip(t, rest[:take])))
+    shutil.rmtree(tile)
+    return rec
 
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--sizes", default="1e4,1e5,1e6")
-    ap.add_argument("--keep", help="write the recordings here (default: a temporary folder)")
+    ap.add_argument("--sizes", default="1e4,1e5,1e6,1e7")
+    ap.add_argument("--keep", help="write the recordings here and keep them (default: a temporary folder, removed)")
     a = ap.parse_args()
     tmp = a.keep or tempfile.mkdtemp(prefix="bench_diagnose_")
-    print(f"load average {os.getloadavg()[0]:.1f} (2 cores)")
-    print(f"{'samples':>9s} {'read cpu s':>10s} {'diag cpu s':>10s} {'µs/sample':>9s} {'peak RSS MB':>11s}  verdict, findings")
-    for n in (int(float(s)) for s in a.sizes.split(",")):
-        rec = Path(tmp) / f"n{n}" / "recording"
-        if not (rec / "data.csv").exists():
-            t0 = time.perf_counter()
-            rec = make(n, tmp)
-            print(f"  (made {rec} in {time.perf_counter() - t0:.0f} s)", flush=True)
-        out = subprocess.run([sys.executable, "-c", CHILD, str(rec)], capture_output=True, text=True, check=True)
-        r = json.loads(out.stdout.strip().splitlines()[-1])
-        tot = r["read_cpu_s"] + r["diagnose_cpu_s"]
-        print(f"{r['n']:9d} {r['read_cpu_s']:10.2f} {r['diagnose_cpu_s']:10.2f} {1e6 * tot / r['n']:9.1f} "
-              f"{r['peak_rss_mb']:11.0f}  {r['verdict']}, {r['findings']}", flush=True)
-    print(f"load average {os.getloadavg()[0]:.1f}")
+    try:
+        print(f"load average {os.getloadavg()[0]:.1f} (2 cores)")
+        print(f"{'samples':>9s} {'analysed':>9s} {'read cpu s':>10s} {'diag cpu s':>10s} {'wall s':>7s} "
+              f"{'µs/sample':>9s} {'peak RSS MB':>11s} {'load':>5s}  verdict, findings")
+        for n in (int(float(s)) for s in a.sizes.split(",")):
+            rec = Path(tmp) / f"n{n}" / "recording"
+            if not (rec / "data.csv").exists():
+                t0 = time.perf_counter()
+                rec = make(n, tmp)
+                mb = (rec / "data.csv").stat().st_size / 2**20
+                print(f"  (made {rec}, {mb:.0f} MB, in {time.perf_counter() - t0:.0f} s)", flush=True)
+            out = subprocess.run([sys.executable, "-c", CHILD, str(rec)], capture_output=True, text=True)
+            if out.returncode:
+                print(out.stderr[-2000:])
+                raise SystemExit(f"size {n}: the child failed")
+            r = json.loads(out.stdout.strip().splitlines()[-1])
+            tot = r["read_cpu_s"] + r["diagnose_cpu_s"]
+            print(f"{r['n']:9d} {r['analysed']:9d} {r['read_cpu_s']:10.2f} {r['diagnose_cpu_s']:10.2f} "
+                  f"{r['wall_s']:7.1f} {1e6 * tot / r['n']:9.2f} {r['peak_rss_mb']:11.0f} "
+                  f"{os.getloadavg()[0]:5.1f}  {r['verdict']}, {r['findings']}", flush=True)
+    finally:
+        if not a.keep:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 if __name__ == "__main__":

@@ -62,11 +62,15 @@ def test_cli_writes_the_recording_md_report_and_plots(tmp_path, capsys):
     synth.write_case(tmp_path, "c", case)
     js, plots = tmp_path / "r.json", tmp_path / "plots"
     assert main(["twin", "diagnose", str(tmp_path / "c" / "recording"), "--json", str(js),
-                 "--plots", str(plots), "--cap", str(CAP)]) == 0
-    out = capsys.readouterr().out
+                 "--plots", str(plots), "--cap", str(CAP), "--progress"]) == 0
+    cap = capsys.readouterr()
+    out = cap.out
     assert out.index("WHERE") < out.index("WHY")          # where first, then why
+    assert "diagnosing [" in cap.err and "[" + "#" * 30 + "]" in cap.err   # the bar: on stderr, to its end
+    assert "\r" not in out and "diagnosing [" not in js.read_text()
     rep = json.loads(js.read_text())
-    assert set(rep) == {"recording", "verdict", "findings", "unexplained", "confidence_calibration"}
+    assert set(rep) == {"recording", "verdict", "samples", "findings", "unexplained", "confidence_calibration"}
+    assert rep["samples"]["total"] == rep["samples"]["analysed"] == len(case.columns["t"])
     f = rep["findings"][0]
     assert set(f) == {"effect", "axis", "parameters", "where", "evidence", "rms_before", "rms_after", "heldout",
                       "confidence"}

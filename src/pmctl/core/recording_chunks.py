@@ -14,7 +14,14 @@ numbers, ``t`` on every row and strictly increasing (checked across block bounda
   ``t`` and the ``cmd_*`` in float64 and the measured channels in ``measured_dtype`` (float32
   keeps 7 significant digits: 30 nm on a 500 mm axis, far below the 0.5 µm encoder pulse).
   Memory: the kept columns plus one block. ``progress(done_bytes, total_bytes)`` is called per
-  block.
+  block. ``rows=[(start, stop), ...]`` (sorted, disjoint row ranges) keeps only those rows: every
+  row is still read and checked, but memory is the kept rows plus one block, whatever the file's
+  length. ``info`` (a dict), when given, receives ``rows_total`` (rows in the file).
+- :func:`count_rows(folder)`: an upper bound of the data rows (the file's line count minus the
+  header; exact without blank lines), from one pass over the bytes without parsing.
+- :func:`plan_segments(n, max_rows, n_segments)`: the row ranges a bounded reader keeps of an
+  n-row file: all of it when n <= max_rows, else ``n_segments`` contiguous runs of
+  ``max_rows // n_segments`` rows spread evenly from the first row to the last.
 """
 
 from __future__ import annotations
@@ -110,23 +117,60 @@ def iter_chunks(folder, *, block_bytes=BLOCK_BYTES, progress=None):
         raise InputError(path, 2, "no samples after the header")
 
 
+def count_rows(folder, *, block_bytes=BLOCK_BYTES) -> int:
+    """Lines of data.csv after the header (an upper bound of its rows; exact without blank lines)."""
+    path = _folder(folder) / DATA_FILE
+    try:
+        fh = open(path, "rb")
+    except OSError as e:
+        raise InputError(path, None, f"cannot read: {e.strerror or e}") from None
+    lines, last = 0, b"\n"
+    with fh:
+        while buf := fh.read(block_bytes):
+            lines += buf.count(b"\n")
+            last = buf[-1:]
+    return max(lines + (last != b"\n") - 1, 0)
+
+
+def plan_segments(n: int, max_rows: int, n_segments: int) -> list[tuple[int, int]]:
+    """Row ranges [(start, stop), ...] to keep of n rows: [(0, n)] when n <= max_rows, else
+    n_segments runs of max_rows // n_segments rows, the first at row 0, the last ending at row n."""
+    if n <= max_rows:
+        return [(0, n)]
+    k = max(1, min(n_segments, max_rows))
+    length = max_rows // k
+    starts = np.linspace(0, n - length, k).round().astype(int) if k > 1 else np.array([0])
+    return [(int(s), int(s) + length) for s in starts]
+
+
 def read_columns(folder, channels=None, *, measured_dtype=np.float32, block_bytes=BLOCK_BYTES,
-                 progress=None):
-    """(meta, machine, columns) with only ``channels`` kept (default: all known channels)."""
+                 progress=None, rows=None, info=None):
+    """(meta, machine, columns) with only ``channels`` kept (default: all known channels) and, with
+    ``rows`` (sorted disjoint (start, stop) ranges), only those rows."""
     folder = _folder(folder)
     meta, machine_path, _ = read_meta(folder)
     machine = load_machine(machine_path)
     parts: dict[str, list] = {}
     keep = None
-    for names, _, arr in iter_chunks(folder, block_bytes=block_bytes, progress=progress):
+    total = 0
+    for names, row0, arr in iter_chunks(folder, block_bytes=block_bytes, progress=progress):
+        total = row0 + len(arr)
         if keep is None:
             want = [n for n in names if channel_kind(n) is not None] if channels is None else \
                 [n for n in names if n in set(channels) | set(REQUIRED)]
             keep = [(n, names.index(n), np.float64 if n in REQUIRED or n in CMD else measured_dtype) for n in want]
             parts = {n: [] for n, _, _ in keep}
+        if rows is not None:
+            sel = [np.arange(max(a, row0), min(b, total)) - row0 for a, b in rows if a < total and b > row0]
+            if not sel:
+                continue
+            arr = arr[np.concatenate(sel)]
         for n, j, dt in keep:
             parts[n].append(arr[:, j].astype(dt))
+    if info is not None:
+        info["rows_total"] = total
     columns = {}
-    for n in list(parts):
-        columns[n] = np.concatenate(parts.pop(n))
+    for n, _, dt in keep:
+        p = parts.pop(n)
+        columns[n] = np.concatenate(p) if p else np.zeros(0, dt)
     return meta, machine, columns

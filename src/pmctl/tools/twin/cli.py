@@ -19,7 +19,10 @@ def add_diagnose_parser(sub):
     p.add_argument("--config", metavar="PATH", help="machine config (default: the one the recording names)")
     p.add_argument("--cap", type=int, default=DEFAULT_CAP,
                    help=f"max analysis samples per channel (default {DEFAULT_CAP})")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--progress", action="store_true",
+                   help="progress bar on stderr even when stderr is not a terminal")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (default: one on stderr on long work when it is a terminal)")
     p.add_argument("--write-compensation", metavar="FILE",
                    help="write the backlash and screw compensation table of the accepted per-axis findings "
                         "(backlash, pitch and periodic errors) to FILE, for the machine config's [compensation] "

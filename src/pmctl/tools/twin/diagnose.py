@@ -80,10 +80,21 @@ def _noise_rows(idx, n_chunks=8, chunk=2500):
     return [idx[s:s + chunk] for s in starts]
 
 
-def build_context(columns: dict, machine, *, cap=DEFAULT_CAP) -> Context:
-    """Residuals of the nominal twin (pmctl.tools.twin.nominal) at the analysis rows, whitened and stacked."""
+def build_context(columns: dict, machine, *, cap=DEFAULT_CAP, bounds=None) -> Context:
+    """Residuals of the nominal twin (pmctl.tools.twin.nominal) at the analysis rows, whitened and stacked.
+    ``bounds``: indices where contiguous runs of the rows start and end ([0, ..., n]; default one
+    run), for a recording kept as runs (:func:`read_for_diagnosis`): no analysis row lies in the
+    first MARGIN_S of a run (the state of lags, modes and reversals carried over a gap is unknown
+    there), and the dynamic effects restart at every run (ctx.extra["bounds"])."""
     t = np.asarray(columns["t"], float)
     n = len(t)
+    bounds = np.asarray([0, n] if bounds is None else bounds, int)
+    runs = len(bounds) > 2
+    settled = np.ones(n, bool)
+    if runs:
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            if b > a:
+                settled[a:np.searchsorted(t[a:b], t[a] + min(MARGIN_S, 0.1 * (t[b - 1] - t[a])), "left") + a] = False
     q_cmd = np.stack([fx.fill_gaps(t, np.asarray(columns[f"cmd_{a}"], float)) for a in AXES], 1)
     has_enc = np.array([f"enc_{a}" in columns and np.isfinite(columns[f"enc_{a}"]).any() for a in AXES])
     q_motor = q_cmd.copy()
@@ -95,7 +106,7 @@ def build_context(columns: dict, machine, *, cap=DEFAULT_CAP) -> Context:
     obs_names = [k for k in columns if k in nominal.PREDICTABLE]
     sampled, ana, noi = {}, {}, {}
     for k in obs_names:
-        ok = np.flatnonzero(np.isfinite(np.asarray(columns[k], float)))
+        ok = np.flatnonzero(np.isfinite(np.asarray(columns[k], float)) & settled)
         if len(ok) < 10:
             continue
         sampled[k] = ok
@@ -142,9 +153,14 @@ def build_context(columns: dict, machine, *, cap=DEFAULT_CAP) -> Context:
         P, R = np.zeros((0, 3)), np.zeros((0, 3, 3))
         J, geo, forces = np.zeros((0, 6, 5)), {}, np.zeros((0, 3))
     dt = np.diff(t)
+    if runs:                     # the step within the runs (a gap between two runs is no step)
+        dt = np.delete(dt, bounds[1:-1] - 1)
     uniform = float(np.mean(dt)) if len(dt) and np.ptp(dt) <= 1e-6 * np.mean(dt) + 1e-12 else None
     ctx = Context(machine, t, q_cmd, q_motor, has_enc, temps, rows, J, geo, forces, obs, uniform)
     ctx.extra["P"], ctx.extra["R"] = P, R
+    if runs:
+        ctx.extra["bounds"] = bounds
+        ctx.extra["cuts"] = t[bounds[1:-1]]
     if len(rows) and state.tip_force is not None:
         ctx.extra["tip_force"] = np.nan_to_num(state.tip_force[at])
     return ctx
@@ -174,6 +190,8 @@ class _Progress:
 
     def done(self):
         if self.enabled:
+            self.k = self.total - 1        # (fewer selection rounds than budgeted: the work is done)
+            self.step("done")
             sys.stderr.write("\n")
             sys.stderr.flush()
 
@@ -531,10 +549,13 @@ def _finding(ev, ctx, y_before, y0, y_after_cum, loc_before):
 
 
 def diagnose(columns: dict, machine, *, name="recording", progress=False,
-             cap=DEFAULT_CAP) -> tuple[dict, dict]:
-    """Run the whole diagnosis. Returns (report per docs/diagnosis-report.md, extras for text and plots)."""
+             cap=DEFAULT_CAP, span=None) -> tuple[dict, dict]:
+    """Run the whole diagnosis. Returns (report per docs/diagnosis-report.md, extras for text and plots).
+    ``span``: how the rows were kept of a longer recording (:func:`read_for_diagnosis`)."""
     columns = compensated_columns(columns, getattr(machine, "compensation", None))     # the NC's joints
-    ctx = build_context(columns, machine, cap=cap)
+    ctx = build_context(columns, machine, cap=cap, bounds=span["bounds"] if span else None)
+    if span:
+        ctx.extra["span"] = span
     loc0 = locate(ctx)
     accepted, yfinal, rejected = select_effects(ctx, progress=progress, loc=loc0)
     y0 = ctx.obs.y
@@ -556,7 +577,10 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
         verdict = "unmodelled physics found"
     else:
         verdict = "consistent with the nominal twin"
-    report = {"recording": name, "verdict": verdict, "findings": findings, "unexplained": unexp,
+    kept = len(ctx.t)
+    samples = {"total": int(span["rows_total"]) if span else kept, "analysed": kept,
+               "runs": len(span["bounds"]) - 1 if span else 1}
+    report = {"recording": name, "verdict": verdict, "samples": samples, "findings": findings, "unexplained": unexp,
               "confidence_calibration": calibration.DESCRIPTION}
     extras = {"ctx": ctx, "locate": loc0, "accepted": accepted, "y_final": yfinal,
               "locate_after": loc_after, "rejected": rejected,
@@ -564,24 +588,49 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
     return report, extras
 
 
-def read_for_diagnosis(folder, *, progress=False):
-    """(meta, machine, columns) of a recording folder read in bounded memory
+MAX_ROWS = 1_000_000    # rows of a recording the diagnosis holds at once (the working set)
+N_SEGMENTS = 48         # ... as this many contiguous runs spread over a longer recording
+MARGIN_S = 1.0          # analysis rows start this long (at most 10 %) after each run's first row
+
+
+def read_for_diagnosis(folder, *, progress=False, max_rows=MAX_ROWS, n_segments=N_SEGMENTS):
+    """(meta, machine, columns, span) of a recording folder read in bounded memory
     (pmctl.core.recording_chunks: 16 MB blocks, only the channels the twin uses, measured channels
-    in float32), with a progress bar on stderr when ``progress``."""
-    from pmctl.core.recording_chunks import read_columns
+    in float32), with a progress bar on stderr when ``progress``.
+
+    A recording of more than ``max_rows`` rows is kept as ``n_segments`` contiguous runs of
+    ``max_rows // n_segments`` rows spread evenly over it (every row is still read and checked):
+    each run is long enough for the dynamic effects (lags, modes, reversals) to show in full, and
+    the runs span the whole record for the slow ones (drift, thermal growth, a step). ``span``:
+    {"rows_total", "rows": [(start, stop), ...] file rows kept, "bounds": run boundaries as
+    indices into the kept rows}, for :func:`diagnose`."""
+    from pmctl.core.recording_chunks import count_rows, plan_segments, read_columns
     bar = _Progress(1000, progress, "reading   ")
 
     def cb(done, total):            # one redraw per 16 MB block
         bar.k = int(1000 * done / max(total, 1)) - 1
         bar.step()
-    meta, machine, cols = read_columns(folder, progress=cb if progress else None)
+    n_est = count_rows(folder)
+    plan = plan_segments(n_est, max_rows, n_segments)
+    info = {}
+    meta, machine, cols = read_columns(folder, progress=cb if progress else None,
+                                       rows=None if len(plan) == 1 else plan, info=info)
     bar.done()
-    return meta, machine, cols
+    kept = len(cols["t"])
+    if len(plan) == 1:
+        plan, bounds = [(0, kept)], [0, kept]
+    else:      # (blank lines make the estimate high: the last runs may end short)
+        plan = [(a, min(b, info["rows_total"])) for a, b in plan if a < info["rows_total"]]
+        bounds = np.concatenate([[0], np.cumsum([b - a for a, b in plan])]).tolist()
+    return meta, machine, cols, {"rows_total": info["rows_total"], "rows": plan, "bounds": bounds}
 
 
 def format_text(report, extras) -> str:
     ctx, loc = extras["ctx"], extras["locate"]
-    L = [f"recording: {report['recording']}  ({len(ctx.t)} samples, {ctx.duration:.1f} s)", "",
+    smp = report.get("samples") or {"total": len(ctx.t), "analysed": len(ctx.t), "runs": 1}
+    held = (f"; kept {smp['analysed']} of them as {smp['runs']} runs of {smp['analysed'] // smp['runs']} "
+            f"spread over the record") if smp["runs"] > 1 else ""
+    L = [f"recording: {report['recording']}  ({smp['total']} samples, {ctx.duration:.1f} s{held})", "",
          "WHERE the recording differs from the nominal twin", ""]
     after = extras.get("locate_after", {}).get("channels", {}) if report["findings"] else {}
     L.append(f"  {'channel':10s} {'samples':>8s} {'rms':>11s} {'noise':>11s} {'excess/noise':>12s}"
@@ -729,17 +778,21 @@ def _run(args) -> int:
     folder = find_recording(args.folder)
     if Path(folder) != Path(args.folder) and not Path(args.folder).is_file():
         print(f"pmctl: {args.folder} holds one recording, in {folder}: diagnosing that", file=sys.stderr)
+    # a progress bar on stderr: on long work when stderr is a terminal, always with --progress
+    forced = getattr(args, "progress", False)
+    show = forced or (not args.no_progress and sys.stderr.isatty())
     data = Path(folder) / "data.csv"
-    big = data.is_file() and data.stat().st_size >= 16 << 20        # ~10^5 rows and more: show progress
-    meta, rec_machine, columns = read_for_diagnosis(folder, progress=big and not args.no_progress)
-    n = len(columns["t"])
+    big = data.is_file() and data.stat().st_size >= 16 << 20        # ~10^5 rows and more
+    meta, rec_machine, columns, span = read_for_diagnosis(folder, progress=forced or (show and big))
+    n = span["rows_total"]
     if meta.get("complete") is False:
         why = meta.get("incomplete_reason") or "the run that wrote it did not finish"
         print(f"pmctl: warning: {folder} is an incomplete recording ({why}); diagnosing the "
               f"{n} samples it holds", file=sys.stderr)
     machine = load_machine(args.config) if args.config else rec_machine
-    prog = (not args.no_progress) and n >= 100_000
-    report, extras = diagnose(columns, machine, name=_display_name(folder), progress=prog, cap=args.cap)
+    prog = forced or (show and n >= 100_000)
+    report, extras = diagnose(columns, machine, name=_display_name(folder), progress=prog, cap=args.cap,
+                              span=span)
     notes = plant_notes(report, meta)
     print(format_text(report, extras))
     if notes:

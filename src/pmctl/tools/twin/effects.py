@@ -160,6 +160,48 @@ def axis_direction(ctx, a) -> np.ndarray:
     return ctx.extra[key]
 
 
+def per_run(ctx, fn, *series):
+    """``fn(*series)`` on every contiguous run of rows (ctx.extra["bounds"], a recording kept as
+    runs: a filter restarts at each run instead of bridging the gap), concatenated; on one run
+    simply ``fn(*series)``."""
+    b = ctx.extra.get("bounds")
+    if b is None:
+        return fn(*series)
+    return np.concatenate([fn(*(x[s:e] for x in series)) for s, e in zip(b[:-1], b[1:]) if e > s])
+
+
+def welch_runs(tt, sig, cuts=None, nperseg=4096):
+    """Welch spectrum (frequencies, power) of an irregularly sampled series after interpolation to
+    its median step; with ``cuts`` (times where a new run of a recording kept as runs starts) the
+    runs are interpolated and transformed apart and their spectra averaged, weighted by length, so
+    no gap is bridged. None when there is nothing to transform."""
+    dt = float(np.median(np.diff(tt)))
+    if not dt > 0:
+        return None
+    pieces = np.split(np.arange(len(tt)), np.searchsorted(tt, cuts)) if cuts is not None and len(cuts) else \
+        [np.arange(len(tt))]
+    grids = []
+    for ix in pieces:
+        if len(ix) < 2:
+            continue
+        tu = np.arange(tt[ix[0]], tt[ix[-1]], dt)
+        if len(tu):
+            su = np.interp(tu, tt[ix], sig[ix])
+            grids.append(su - su.mean())
+    if not grids:
+        return None
+    nps = min(nperseg, max(len(g) for g in grids)) if len(grids) == 1 else \
+        min(nperseg, int(np.median([len(g) for g in grids])))
+    out, wsum = None, 0
+    for g in grids:
+        if len(g) < nps:
+            continue
+        fq, p = signal.welch(g, fs=1 / dt, nperseg=nps)
+        out = p * len(g) if out is None else out + p * len(g)
+        wsum += len(g)
+    return (fq, out / wsum) if out is not None else None
+
+
 # ---------------------------------------------------------------- fit results and candidates
 
 @dataclass
@@ -608,7 +650,7 @@ class ServoLag(AxisSignal):
         gs, ys, rs = g[sel], y[sel], rows[sel]
 
         def res(p):
-            return gs * (first_order_lag(ctx.t, u, p[0]) - u)[rs] - ys
+            return gs * (per_run(ctx, lambda tt, uu: first_order_lag(tt, uu, p[0]), ctx.t, u) - u)[rs] - ys
 
         tau = tau0
         if ctx.uniform_dt is not None:
@@ -618,7 +660,7 @@ class ServoLag(AxisSignal):
                 tau = float(sol.x[0])
             except ValueError:
                 pass
-        pred = g * (first_order_lag(ctx.t, u, tau) - u)[rows]
+        pred = g * (per_run(ctx, lambda tt, uu: first_order_lag(tt, uu, tau), ctx.t, u) - u)[rows]
         return Fit({"tau_s": tau}, pred, 1)
 
     def check(self, ctx, fit, y):
@@ -766,10 +808,9 @@ class Resonance(Candidate):
         if "uniform" not in ctx.extra:
             if ctx.uniform_dt is not None:
                 ctx.extra["uniform"] = (ctx.t, ctx.uniform_dt, None)
-            else:
+            else:                # (a uniform grid per run, made in _bases)
                 dt = float(np.median(np.diff(ctx.t)))
-                tu = np.arange(ctx.t[0], ctx.t[-1] + dt / 2, dt)
-                ctx.extra["uniform"] = (tu, dt, True)
+                ctx.extra["uniform"] = (None, dt, True)
         return ctx.extra["uniform"]
 
     def _weights(self, ctx):
@@ -793,12 +834,15 @@ class Resonance(Candidate):
 
     def _bases(self, ctx, f, z, idx=None):
         """Columns of the fit at obs elements ``idx`` (default: all)."""
-        tu, dt, resample = self._uniform(ctx)
+        _, dt, resample = self._uniform(ctx)
         a, W, _ = self._weights(ctx)
-        x = ctx.q_cmd[:, a] if resample is None else np.interp(tu, ctx.t, ctx.q_cmd[:, a])
-        h = resonance_response(x, dt, f, z)
-        if resample is not None:
-            h = np.interp(ctx.t, tu, h)
+
+        def one(tt, x):
+            if resample is None:
+                return resonance_response(x, dt, f, z)
+            tu = np.arange(tt[0], tt[-1] + dt / 2, dt)
+            return np.interp(tt, tu, resonance_response(np.interp(tu, tt, x), dt, f, z))
+        h = per_run(ctx, one, ctx.t, ctx.q_cmd[:, a])
         o = ctx.obs
         if idx is None:
             return (W * h[o.row]).T
@@ -824,10 +868,10 @@ class Resonance(Candidate):
             sig, tt = y[m][order], ctx.t[o.row[m][order]]
         if len(sig) < 32:
             return []
-        dt = float(np.median(np.diff(tt)))
-        tu = np.arange(tt[0], tt[-1], dt)
-        su = np.interp(tu, tt, sig)
-        fq, p = signal.welch(su - su.mean(), fs=1 / dt, nperseg=min(len(su), 4096))
+        sp = welch_runs(tt, sig, ctx.extra.get("cuts"))
+        if sp is None:
+            return []
+        fq, p = sp
         base = signal.medfilt(p, 31) if len(p) > 31 else np.full_like(p, np.median(p))
         ratio = p / np.maximum(base, 1e-300)
         ratio[fq < 0.5] = 0
@@ -992,16 +1036,15 @@ class SensorDrift(Candidate):
         return {"rate_per_s": float(c[0])}
 
 
-def _line_frequencies(tt, sig, fmin=0.5, k=3, ratio_min=6.0):
-    """Peaks of the Welch spectrum of an (irregular) series, strongest first, above fmin."""
+def _line_frequencies(tt, sig, fmin=0.5, k=3, ratio_min=6.0, cuts=None):
+    """Peaks of the Welch spectrum of an (irregular) series, strongest first, above fmin
+    (``cuts``: see :func:`welch_runs`)."""
     if len(sig) < 32:
         return []
-    dt = float(np.median(np.diff(tt)))
-    if dt <= 0:
+    sp = welch_runs(tt, sig, cuts)
+    if sp is None:
         return []
-    tu = np.arange(tt[0], tt[-1], dt)
-    su = np.interp(tu, tt, sig)
-    fq, p = signal.welch(su - su.mean(), fs=1 / dt, nperseg=min(len(su), 4096))
+    fq, p = sp
     base = signal.medfilt(p, 31) if len(p) > 31 else np.full_like(p, np.median(p))
     ratio = p / np.maximum(base, 1e-300)
     ratio[fq < fmin] = 0
@@ -1051,7 +1094,7 @@ class ForcedVibration(Candidate):
     def fit(self, ctx, y, train):
         if self._starts is None:
             tt, sig = self._series(ctx, y)
-            self._starts = _line_frequencies(tt, sig, fmin=1.0) if len(tt) else []
+            self._starts = _line_frequencies(tt, sig, fmin=1.0, cuts=ctx.extra.get("cuts")) if len(tt) else []
         if not self._starts:
             return Fit({}, np.zeros_like(y), 3, ok=False)
         g = self._w(ctx)

@@ -21,7 +21,7 @@ import math
 import numpy as np
 from scipy import signal
 
-from pmctl.tools.twin.effects import AXES, Context, axis_gain, axis_velocity
+from pmctl.tools.twin.effects import AXES, Context, axis_gain, axis_velocity, welch_runs
 
 MAD_K = 1.4826
 
@@ -82,17 +82,12 @@ def axis_projection(ctx: Context, a, y=None, site="load"):
     return ctx.t[rows], num[rows] / den[rows], rows
 
 
-def spectrum_time(t, x):
-    """Welch spectrum of an (irregularly sampled) series after interpolation to its median step."""
+def spectrum_time(t, x, cuts=None):
+    """Welch spectrum of an (irregularly sampled) series after interpolation to its median step
+    (``cuts``: run starts of a recording kept as runs, see effects.welch_runs)."""
     if len(x) < 64:
         return None
-    dt = float(np.median(np.diff(t)))
-    if dt <= 0:
-        return None
-    tu = np.arange(t[0], t[-1], dt)
-    xu = np.interp(tu, t, x)
-    f, p = signal.welch(xu - xu.mean(), fs=1 / dt, nperseg=min(len(xu), 4096))
-    return f, p
+    return welch_runs(t, x, cuts)
 
 
 def spectrum_position(pos, x, moving):
@@ -146,7 +141,7 @@ def locate(ctx: Context, y=None) -> dict:
         info["windows_s"] = windows(t, flag, tspan / 50)
         if flag.any():
             all_flags_t.append(t[flag])
-        sp = spectrum_time(t, r)
+        sp = spectrum_time(t, r, ctx.extra.get("cuts"))
         if sp is not None:
             f, p = sp
             fpk, ratio = _peak(f, p, 2 * (f[1] - f[0]) if len(f) > 1 else 0)

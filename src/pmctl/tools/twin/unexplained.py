@@ -99,7 +99,7 @@ def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray) -> dict:
             best = (f, ax)
     out["reversal-locked"] = best
     # spectral line
-    fl = _line_frequencies(tt, yy, fmin=0.5, k=1, ratio_min=10.0)
+    fl = _line_frequencies(tt, yy, fmin=0.5, k=1, ratio_min=10.0, cuts=ctx.extra.get("cuts"))
     if fl:
         f0 = fl[0]
         X = np.stack([np.sin(2 * np.pi * f0 * tt), np.cos(2 * np.pi * f0 * tt)], 1)
