@@ -60,6 +60,15 @@ class Inputs:
 NO_INPUTS = Inputs()
 
 
+def as_inputs(x) -> Inputs:
+    """A backend's ``inputs()`` answer as :class:`Inputs`: an Inputs as it is; an int as a bridge's bit
+    mask (bits 0-4 the home switches of L1 L2 L3 X Y, bit 5 the E-stop)."""
+    if isinstance(x, Inputs):
+        return x
+    bits = int(x)
+    return Inputs(tuple(bool(bits >> i & 1) for i in range(5)), bool(bits >> 5 & 1))
+
+
 @dataclass
 class Status:
     ok: bool = True
@@ -108,6 +117,11 @@ class Backend(ABC):
     def inputs(self) -> Inputs:
         """Home switches and E-stop (see :class:`Inputs`). Default: a backend without either."""
         return NO_INPUTS
+
+    def rereference(self, counts: np.ndarray) -> None:
+        """Homing set the controller's pulse counters to ``counts`` (the motors did not move). A backend
+        whose device keeps its own counters makes them read ``counts`` from now on; the default (a
+        backend without device counters) has nothing to do."""
 
     def truth(self) -> np.ndarray | None:
         """Load-side joint positions (mm), known only to a simulation; None for hardware."""

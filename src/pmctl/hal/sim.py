@@ -52,6 +52,9 @@ class SimOptions:
     estop_from_tick: int = -1           # >= 0: the E-stop input reads pressed from this tick ...
     estop_to_tick: int = -1             # ... until this tick (-1: for ever)
     home_switch_mm: tuple | None = None  # per axis: the home switch closes at motor position >= this
+    motor_offset_mm: tuple | None = None  # per axis: at open the motors stand this far from where the counters
+                                          # say (a position lost in a power cut); encoders and device counters
+                                          # count from the counters, only the truth and the switches see it
 
     @classmethod
     def from_dict(cls, d: dict, machine: Machine | None = None, where="sim"):
@@ -96,6 +99,8 @@ class SimOptions:
             estop_to_tick=t.integer("estop_to_tick", default=base.estop_to_tick, lo=-1, hi=big),
             home_switch_mm=(t.vector("home_switch_mm", 5, default=[0.0] * 5, lo=-1e4, hi=1e4, scalar_ok=True)
                             if "home_switch_mm" in d else None),
+            motor_offset_mm=(t.vector("motor_offset_mm", 5, default=[0.0] * 5, lo=-1e3, hi=1e3, scalar_ok=True)
+                             if "motor_offset_mm" in d else None),
         )
         t.finish()
         return o
@@ -159,6 +164,7 @@ class SimBackend(Backend):
         self._noise, self._noise_i = None, 0
         self._fb = Feedback()
         self._fb.counts = np.zeros(5, np.int64)
+        self._off = None            # plant counters - controller counters (motor_offset_mm, homing), or None
         self._open = False
 
     # ---------------------------------------------------------------- Backend API
@@ -167,6 +173,9 @@ class SimBackend(Backend):
         from pmctl.core.kinematics import forward_platform
         L = self._lib
         self.counts = np.array(counts, dtype=np.int64)
+        if self.opt.motor_offset_mm is not None:
+            self._off = np.rint(np.asarray(self.opt.motor_offset_mm) * self.ppm).astype(np.int64)
+            self.counts += self._off
         d = np.zeros(L.D_LEN)
         d[L.D_CMD:L.D_CMD + 5] = self.counts / self.ppm          # commanded position, mm
         d[L.D_MOTOR:L.D_MOTOR + 5] = d[L.D_CMD:L.D_CMD + 5]     # motor side = command at rest
@@ -181,7 +190,9 @@ class SimBackend(Backend):
         self.tick = 0
         self._fb.seq = 1
         self._open = True
-        self._check(self._plant.sample(self._draw(), 0))
+        r = self._plant.sample(self._draw(), 0)
+        self._relative()
+        self._check(r)
 
     def read(self):
         if not self._open:
@@ -201,6 +212,8 @@ class SimBackend(Backend):
             r = self._plant.step(np.ascontiguousarray(pulses, np.int64), nz, self.tick)
         self.tick += 1
         self._fb.seq += 1
+        if self._off is not None:
+            self._relative()
         if r:
             self._check(r)
 
@@ -209,8 +222,16 @@ class SimBackend(Backend):
         est = 0 <= o.estop_from_tick <= self.tick and (o.estop_to_tick < 0 or self.tick < o.estop_to_tick)
         home = None
         if o.home_switch_mm is not None:
-            home = tuple(bool(self.motor[i] >= o.home_switch_mm[i]) for i in range(5))
+            m = self._d[self._lib.D_MOTOR:self._lib.D_MOTOR + 5]
+            home = tuple(bool(m[i] >= o.home_switch_mm[i]) for i in range(5))
         return Inputs(home, est)
+
+    def rereference(self, counts):
+        """The device counters and encoders read from ``counts`` on (the motors stay where they are)."""
+        self._off = self.counts - np.asarray(counts, np.int64)
+        self._fb.counts[:] = self.counts
+        self._fb.enc[:] = self._d[self._lib.D_MOTOR:self._lib.D_MOTOR + 5]
+        self._relative()
 
     def truth(self):
         """Load-side joints (mm): motor side plus the chains' deflection."""
@@ -223,6 +244,12 @@ class SimBackend(Backend):
         self._open = False
 
     # ---------------------------------------------------------------- internals
+    def _relative(self):
+        """Device counters and encoders as the controller knows them (plant counters minus the offset)."""
+        if self._off is not None:
+            self._fb.counts -= self._off
+            self._fb.enc -= self._off / self.ppm
+
     def _check(self, r):
         if r:
             raise self._KinematicsError(f"sim backend: the load-side pose is lost (forward kinematics, event {r})")

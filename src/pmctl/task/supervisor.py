@@ -83,6 +83,8 @@ class Supervisor:
         self.alarm_msg = ""
         self.check_mode = False
         self.homing = False
+        self.homing_abort = threading.Event()     # a reset during homing aborts the cycle (ALARM 6)
+        self.homed = False
         self.rt_dead = False
         self.items: collections.deque[Item] = collections.deque()   # submitted, not finished
         self.n_submitted = 0
@@ -228,6 +230,8 @@ class Supervisor:
 
     # ------------------------------------------------------------ motion requests
     def _check_motion_allowed(self):
+        if self.homing:
+            raise MotionRefused("homing is under way", 8)
         if self.rt_dead:
             raise MotionRefused("the rt motion process is down: unlock ($X) or reset to restart it", 9)
         if self.alarm:
@@ -257,10 +261,10 @@ class Supervisor:
         with self._lock:
             return len(self.items)
 
-    def command(self, code, a1=0.0) -> int:
+    def command(self, code, a1=0.0, a2=0.0) -> int:
         """Queue a command for the rt side; returns its sequence number (see wait_ack)."""
         with self._lock:
-            self.ch.command(code, a1)
+            self.ch.command(code, a1, a2)
             return self.ch._cmd_seq
 
     def wait_ack(self, seq, timeout_s=5.0) -> bool:
@@ -276,7 +280,8 @@ class Supervisor:
         self.command(C.C_HOLD)
 
     def resume(self):
-        self.command(C.C_RESUME)
+        if not self.homing:              # the homing cycle's stops are its own
+            self.command(C.C_RESUME)
 
     def feed_override(self, f: float):
         self.command(C.C_FEED_OV, float(f))
@@ -285,7 +290,14 @@ class Supervisor:
         self.command(C.C_RAPID_OV, float(r))
 
     def soft_reset(self, timeout_s=10.0):
-        """Stop now on the path, drop everything queued, keep the position (grbl ctrl-X)."""
+        """Stop now on the path, drop everything queued, keep the position (grbl ctrl-X). During
+        homing it aborts the cycle (ALARM 6)."""
+        if self.homing:
+            self.homing_abort.set()
+        self._stop_queue(timeout_s)
+
+    def _stop_queue(self, timeout_s=10.0):
+        """Stop on the path, drop every queued item and sample, wait until at rest."""
         self._abort.set()
         with self._lock:
             self.items.clear()
@@ -332,6 +344,52 @@ class Supervisor:
             if self.raw()[C.ST_MODE] != RUN:
                 raise MotionRefused(f"cannot unlock: {self.ch.reason() or 'the rt side stays halted'}", 9)
         self.alarm, self.alarm_msg = 0, ""
+
+    def home(self):
+        """``$H``: the homing cycle (pmctl.task.homing) with the [homing] settings; blocks until it
+        ends. Returns (True, message) when homed (the alarm is cleared), (False, reason) when it
+        failed (an alarm says why); MotionRefused when it cannot start (busy, no switches)."""
+        from pmctl.core.errors import ConfigError
+        from pmctl.task.homing import HomingFailed, RtMover, Sequence
+        if self.homing:
+            raise MotionRefused("homing is already under way", 8)
+        if not (self.alarm or self.rt_dead) and self.busy():
+            raise MotionRefused("$H only when idle: motion is queued or under way", 8)
+        try:
+            self.svc.homing.check(self.params, self.svc.source)
+        except ConfigError as e:
+            raise MotionRefused(str(e), 5) from None
+        if self.rt_dead or self.raw()[C.ST_MODE] != RUN:
+            self.unlock()                 # restart / re-arm the rt side first (refused while an E-stop holds)
+        if int(self.raw()[C.ST_HOME_IN]) < 0:
+            raise MotionRefused(f"backend {self.backend!r} reports no home switches", 5)
+        self.homing_abort.clear()
+        with self._lock:
+            self.items.clear()
+            self._gen += 1
+        self.alarm, self.alarm_msg = 0, ""
+        self.homing = True
+        self._emit("homing", {})
+        try:
+            shifts = Sequence(self.svc.homing, self.machine.resolution.pulses_per_mm).run(
+                RtMover(self, self.homing_abort))
+        except (HomingFailed, MotionRefused, PmctlError) as e:
+            self.homing = False
+            code = getattr(e, "code", 9) if isinstance(e, HomingFailed) else 9
+            if self.ch is not None and not self.rt_dead:
+                self._stop_queue()
+            if not self.alarm:
+                self.raise_alarm(code, f"homing failed: {e}")
+            self.homed = False
+            return False, str(e)
+        finally:
+            self.homing = False
+        self.homed = True
+        from pmctl.task.homing import AXES
+        msg = "homed; counter corrections " + ", ".join(
+            f"{AXES[i]} {d / self.machine.resolution.pulses_per_mm[i]:+.4f} mm" for i, d in shifts.items())
+        self._emit("homed", {"shifts": {AXES[i]: int(d) for i, d in shifts.items()}, "msg": msg})
+        return True, msg
 
     def raise_alarm(self, code: int, msg: str):
         first = not self.alarm
