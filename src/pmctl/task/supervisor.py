@@ -58,6 +58,7 @@ class Item:
     error: str = ""
     lines: dict = field(default_factory=dict)    # sample line -> reported line (console N words)
     gen: int = 0                                 # queue generation: a reset or fault drops older items
+    source: str = ""                             # a job file's path (the journal keeps it for a resume)
 
 
 class Supervisor:
@@ -244,14 +245,15 @@ class Supervisor:
                 return self.items[-1].end
         return self.pose()
 
-    def submit(self, job, kind="job", name="", lines=None) -> Item:
+    def submit(self, job, kind="job", name="", lines=None, source="") -> Item:
         """Queue a Job (planned from where the previous item ends). Raises MotionRefused in alarm."""
         self._check_motion_allowed()
         moves = [m for m in job.moves if m.kind != "dwell"]
         with self._lock:
             start = self.end_pose()
             end = (np.asarray(moves[-1].tip, float), np.asarray(moves[-1].axis, float)) if moves else start
-            it = Item(kind, job, start, end, name, self.n_submitted, lines=dict(lines or {}), gen=self._gen)
+            it = Item(kind, job, start, end, name, self.n_submitted, lines=dict(lines or {}), gen=self._gen,
+                      source=str(source))
             self.n_submitted += 1
             self.items.append(it)
         self._plan_q.put(it)
