@@ -118,8 +118,8 @@ def test_sequence_switch_not_found_within_the_search_distance_is_alarm_9():
 def service_file(tmp_path, switch=SWITCH, offset=OFFSET, homing=FAST):
     base = (ROOT / "config" / "service.toml").read_text()
     assert "[hal.sim]\n" in base and "[homing]" in base
-    text = base.replace("[hal.sim]\n", f"[hal.sim]\nhome_switch_mm = {list(switch)}\nmotor_offset_mm = {list(offset)}\n")
-    for k, v in homing.items():
+    text = base.replace("[hal.sim]\n", f"[hal.sim]\nmotor_offset_mm = {list(offset)}\n")
+    for k, v in {"home_switch_mm": list(switch), **homing}.items():
         lines = [ln for ln in text.splitlines() if ln.startswith(f"{k} =")]
         text = text.replace(lines[0], f"{k} = {v}")
     p = tmp_path / "service.toml"
@@ -148,7 +148,7 @@ def test_serve_home_after_a_lost_position_then_counters_match_the_truth(tmp_path
         counts = np.array(ans["counts"])
         true = c0 + np.rint(np.array(OFFSET) * PPM).astype(np.int64) + np.array(ans["sent"])   # the plant's motors
         bound = 1.0 * DT * PPM + 1                     # latch speed x tick + 1 pulse, in pulses
-        print(f"counters - true motor positions after $H: {(counts - true).tolist()} pulses (bound {bound:g})")
+        print(f"counters - true motor positions after $H: {(counts - true).tolist()} pulses (bound {bound.tolist()})")
         assert np.all(np.abs(counts - true) <= bound), counts - true
         # $H is refused while a move runs
         assert s.send("G21 G91 G1 F120 X-6") == "ok"

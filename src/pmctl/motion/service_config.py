@@ -16,6 +16,7 @@ import numpy as np
 from pmctl.core.config import CONFIG_DIR, Machine
 from pmctl.core.errors import ConfigError
 from pmctl.core.strict_toml import Table, check_tables, read_toml
+from pmctl.hal.base import AXES as HOMING_AXES
 
 from pmctl.motion.nc import IMPLEMENTATIONS, NCParams
 
@@ -64,8 +65,6 @@ class NCConfig:
             ferror_mm=self.ferror_mm, min_ferror_mm=self.min_ferror_mm,
             max_path_error_mm=self.max_path_error_mm, implementation=self.implementation)
 
-
-HOMING_AXES = ("L1", "L2", "L3", "X", "Y")
 
 
 @dataclass

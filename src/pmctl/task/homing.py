@@ -28,9 +28,8 @@ import time
 import numpy as np
 
 from pmctl.core.errors import PmctlError
-
-ALARM_HOMING_RESET, ALARM_HOMING_PULLOFF, ALARM_HOMING_APPROACH = 6, 8, 9
-AXES = ("L1", "L2", "L3", "X", "Y")
+from pmctl.hal.base import AXES
+from pmctl.task.supervisor import ALARM_HOMING_APPROACH, ALARM_HOMING_PULLOFF, ALARM_HOMING_RESET
 
 
 class HomingFailed(PmctlError):

@@ -74,6 +74,7 @@ class Supervisor:
         self.rate_hz = float(rate_hz or self.svc.loop.rate_hz)
         self.dt = 1.0 / self.rate_hz
         self.params = self.svc.nc.params(self.machine, self.dt, where=self.svc.source)
+        self.svc.homing.check(self.params, self.svc.source)        # [homing] against this machine's joints
         self.state_file = state_file
         self.realtime = bool(realtime)
         self.log = log or (lambda m: None)
@@ -351,16 +352,11 @@ class Supervisor:
         """``$H``: the homing cycle (pmctl.task.homing) with the [homing] settings; blocks until it
         ends. Returns (True, message) when homed (the alarm is cleared), (False, reason) when it
         failed (an alarm says why); MotionRefused when it cannot start (busy, no switches)."""
-        from pmctl.core.errors import ConfigError
         from pmctl.task.homing import HomingFailed, RtMover, Sequence
         if self.homing:
             raise MotionRefused("homing is already under way", 8)
         if not (self.alarm or self.rt_dead) and self.busy():
             raise MotionRefused("$H only when idle: motion is queued or under way", 8)
-        try:
-            self.svc.homing.check(self.params, self.svc.source)
-        except ConfigError as e:
-            raise MotionRefused(str(e), 5) from None
         if self.rt_dead or self.raw()[C.ST_MODE] != RUN:
             self.unlock()                 # restart / re-arm the rt side first (refused while an E-stop holds)
         if int(self.raw()[C.ST_HOME_IN]) < 0:
