@@ -249,3 +249,61 @@ def test_sigkill_mid_job_restart_confirm_and_resume_from_the_line(tmp_path):
     print(f"resumed from line {line}: {resumed.sum()} recorded ticks, max distance to the programmed path "
           f"{d.max() * 1e3:.2f} um")
     assert d.max() < 5e-3, d.max()
+
+
+def test_reset_during_homing_aborts_with_alarm_6(tmp_path):
+    import threading
+    from pmctl.motion.nc import counts_of
+    from pmctl.task.supervisor import Supervisor
+    svc = service_file(tmp_path, offset=[0.0] * 5, homing={"seek_mm_s": 2.0, "latch_mm_s": 1.0, "pull_off_mm": 0.5})
+    s = Supervisor("prototype", service=str(svc), realtime=False)
+    tip, ax = home_pose(M)
+    s.start(counts_of(K.ik(tip, ax, M).q, s.params))
+    try:
+        out = []
+        t = threading.Thread(target=lambda: out.append(s.home()))
+        t.start()
+        t0 = time.time()
+        while s.state_name() != "Home" and time.time() - t0 < 30:
+            time.sleep(0.01)
+        time.sleep(0.5)
+        assert s.state_name() == "Home"
+        s.resume()                                   # cycle start does not interfere with the cycle's stops
+        s.soft_reset()
+        t.join(60)
+        assert out and not out[0][0] and s.alarm == 6 and s.state_name() == "Alarm"
+        from pmctl.motion import channel as C
+        r = s.raw()
+        assert r[C.ST_SIGMA] == 0 and r[C.ST_QUEUED] == 0          # stopped, nothing left queued
+    finally:
+        s.shutdown()
+
+
+JOB_TEXT_LINES = JOB.strip().splitlines()
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(1, len(JOB_TEXT_LINES) + 1), st.floats(0.5, 10.0),
+       st.lists(st.floats(-8, 8), min_size=2, max_size=2), st.floats(165.0, 172.0))
+def test_resume_plan_approaches_the_line_start_and_keeps_the_rest_of_the_job(tmp_path_factory, line, clearance, xy, z):
+    from pmctl.motion.service_config import load_service_config
+    from pmctl.task.resume import ResumeRefused, resume_job
+    d = tmp_path_factory.mktemp("job")
+    (d / "j.ngc").write_text(JOB)
+    job = load_job(d / "j.ngc", M, start=home_pose(M))
+    params = load_service_config().nc.params(M, DT)
+    tip, axis = np.array([xy[0], xy[1], z]), np.array([0.0, 0.0, 1.0])
+    try:
+        r = resume_job(job, line, tip, axis, M, params, clearance)
+    except ResumeRefused as e:
+        assert line > max(m.line for m in job.moves) and "no motion" in str(e)
+        return
+    k = next(n for n, m in enumerate(job.moves) if m.line >= line)
+    rest = job.moves[k:] if k > 0 else job.moves[1:]
+    start = job.moves[k - 1].tip if k > 0 else job.moves[0].tip
+    assert r.moves[3:] == tuple(rest)                                           # the job itself, unchanged
+    assert np.allclose(r.moves[0].tip, tip + clearance * axis)                  # retract along the tool axis
+    assert np.allclose(r.moves[1].tip, start + clearance * r.moves[2].axis)     # over the start point
+    assert r.moves[1].kind == "rapid" and r.moves[2].kind == "line"
+    assert np.allclose(r.moves[2].tip, start)                                   # plunge to it
+    assert all(m.line == 0 for m in r.moves[:3])

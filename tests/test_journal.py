@@ -36,6 +36,14 @@ def test_journal_round_trip_and_damaged_file(tmp_path):
     with pytest.raises(InputError) as e:
         Journal(p, M.name).load()
     assert "offsets.g92" in str(e.value)
+    for key, bad in (("line", -1), ("line", "7"), ("job_start", [1, 2, 3]), ("job", 5), ("homed", "yes")):
+        p.write_text(json.dumps({"format": "pmctl-journal/1", "machine": M.name, key: bad}))
+        with pytest.raises(InputError) as e:
+            Journal(p, M.name).load()
+        assert key in str(e.value)
+    j.save(job="/jobs/a.ngc", line=7, job_start=[0, 0, 173, 0, 0, 1], homed=True)
+    k = Journal(p, M.name).load()
+    assert k.data["job_start"] == [0, 0, 173, 0, 0, 1] and k.data["homed"] is True
     p.write_text(json.dumps({"format": "pmctl-journal/1", "machine": "other"}))
     with pytest.raises(InputError):
         Journal(p, M.name).load()

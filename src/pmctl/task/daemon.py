@@ -221,6 +221,11 @@ class Daemon:
             if wd and now - last_ping >= wd and self.rt_on_time():
                 sd_notify("WATCHDOG=1")
                 last_ping = now
+            if sup.homed != self.journal.data.get("homed"):
+                try:
+                    self.journal.save(homed=sup.homed)
+                except OSError as e:
+                    self.log(f"journal write failed: {e}")
             state = sup.state_name()
             if state != last_status:
                 sd_notify(f"STATUS={state}" + (f" (alarm {sup.alarm}: {sup.alarm_msg})" if sup.alarm else ""))

@@ -466,6 +466,7 @@ class Supervisor:
             self._drain_records()
             if self.proc is not None and not self.proc.is_alive() and not self.rt_dead and not self._stop.is_set():
                 self.rt_dead = True
+                self.homed = False            # the counters are kept, but not trusted
                 with self._lock:
                     self.items.clear()
                     self._gen += 1
@@ -485,6 +486,8 @@ class Supervisor:
                     self._ended_base = int(s[C.ST_ENDED])
                 code = ALARM_SOFT_LIMIT if reason.startswith(("soft limit", "path error")) else (
                     ALARM_ESTOP if reason.startswith("E-stop") else ALARM_MOTOR_FAULT)
+                if code == ALARM_MOTOR_FAULT:
+                    self.homed = False        # following error / lost backend: the position may be wrong
                 if not self.alarm:
                     self.raise_alarm(code, reason)
             # retire finished items: the rt side counts the job ends it passed
