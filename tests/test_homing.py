@@ -8,8 +8,9 @@
   positions within latch speed x tick + 1 pulse, the true tool tip matches the model pose, pulses
   counted = pulses sent; $H is refused while a move runs;
 - a switch out of reach -> controlled stop, ALARM 9 (supervisor with the sim);
-- SIGKILL of the supervisor mid-job, restart, confirm ($X), resume from the journal's line: the
-  job completes and the resumed part of the tool path lies on the programmed path.
+- SIGKILL of the supervisor mid-job, restart, home (`pmctl ctl home`), resume from the journal's
+  line (`pmctl ctl resume-job`): the job completes and the resumed part of the tool path lies on the
+  programmed path.
 """
 
 import json
@@ -196,7 +197,15 @@ G1 X0 Y0 Z170
 """
 
 
-def test_sigkill_mid_job_restart_confirm_and_resume_from_the_line(tmp_path):
+def ctl(sock, *args):
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, "-m", "pmctl.interfaces.cli", "ctl", "--socket", str(sock), *args],
+                         capture_output=True, text=True, cwd=ROOT)
+    return json.loads(out.stdout) if out.stdout.strip() else {"ok": False, "error": out.stderr}
+
+
+def test_sigkill_mid_job_restart_home_and_resume_from_the_line(tmp_path):
     job = tmp_path / "square.ngc"
     job.write_text(JOB)
     state = tmp_path / "state.json"
@@ -219,14 +228,17 @@ def test_sigkill_mid_job_restart_confirm_and_resume_from_the_line(tmp_path):
         stop_serve(p)
     line = json.loads(journal.read_text())["line"]
     rec = tmp_path / "rec2"
-    p, link = start_serve(tmp_path, state=state, record=rec, extra=("--socket", str(sock)))
+    svc = service_file(tmp_path, offset=[0.0] * 5)
+    p, link = start_serve(tmp_path, state=state, record=rec, extra=("--socket", str(sock), "--service", str(svc)))
     s = Sender(link)
     try:
         assert s.status()["state"] == "Alarm"
-        ans = request(sock, {"cmd": "resume_job"})
-        assert not ans["ok"] and "alarm" in ans["error"]          # confirm first
-        assert s.send("$X") == "ok"
-        ans = request(sock, {"cmd": "resume_job"})
+        ans = ctl(sock, "resume-job")
+        assert not ans["ok"] and "alarm" in ans["error"]          # confirm or home first
+        ans = ctl(sock, "home")
+        assert ans["ok"] and "homed" in ans["msg"], ans
+        assert s.status()["state"] == "Idle"
+        ans = ctl(sock, "resume-job")
         assert ans["ok"], ans
         done = s.wait_state(("Idle",), 300)
         assert done["state"] == "Idle"

@@ -47,6 +47,7 @@ class Daemon:
         self.sup = None
         self.lock = None
         self.interrupted = None            # (job file, line, start pose) of a job a crash interrupted
+        self._rec_lock = threading.Lock()  # the record sink (monitor thread) vs record start/stop
 
     # ------------------------------------------------------------ start
     def start(self):
@@ -153,6 +154,27 @@ class Daemon:
         return it
 
     # ------------------------------------------------------------ recording
+    def record_start(self, folder):
+        """Start recording the session into ``folder`` (control socket ``record start``)."""
+        from pmctl.core.errors import PmctlError
+        with self._rec_lock:
+            if self.rec is not None:
+                raise PmctlError(f"already recording into {self.record_dir}")
+            self.record_dir = str(folder)
+        self._open_recording()
+        return self.record_dir
+
+    def record_stop(self):
+        """Finalise the recording (control socket ``record stop``); returns its folder."""
+        from pmctl.core.errors import PmctlError
+        with self._rec_lock:
+            if self.rec is None:
+                raise PmctlError("not recording")
+            self.sup.record_sink = None
+            rec, self.rec = self.rec, None
+            rec.__exit__(None, None, None)
+        return self.record_dir
+
     def _open_recording(self):
         from pmctl.core.recording import RecordingWriter
         from pmctl.motion.recorder import R_COUNTS, R_ENC, R_LINE, R_SIGMA, R_STRAIN, R_TICK, R_TRUTH
@@ -193,7 +215,9 @@ class Daemon:
                 tip = ax = np.full((len(rows), 3), np.nan)
             out = np.column_stack([t, rows[:, R_COUNTS:R_COUNTS + 5] / ppm, rows[:, R_ENC:R_ENC + 5], tip, ax,
                                    rows[:, R_STRAIN:R_STRAIN + 3], rows[:, R_LINE], rows[:, R_SIGMA]])
-            self.rec.append(out)
+            with self._rec_lock:
+                if self.rec is not None:
+                    self.rec.append(out)
         sup.record_sink = sink
 
     # ------------------------------------------------------------ run

@@ -2,6 +2,7 @@
 
     pmctl ctl --socket PATH status | hold | resume | stop | estop | unlock | home
     pmctl ctl --socket PATH resume-job [--line N] [--clearance MM]
+    pmctl ctl --socket PATH record start DIR | record stop
     pmctl ctl --socket PATH override [--feed F] [--rapid R]
     pmctl ctl --socket PATH queue add FILE | queue list
     pmctl ctl --socket PATH subscribe [--period S]
@@ -15,10 +16,10 @@ def add_parser(sub):
                        description="Send one request to the control socket of `pmctl serve` and print the answer.")
     p.add_argument("--socket", required=True, metavar="PATH", help="the control socket (pmctl serve --socket)")
     p.add_argument("what", choices=("status", "hold", "resume", "stop", "estop", "unlock", "home", "resume-job",
-                                    "override", "queue", "subscribe"),
+                                    "override", "queue", "record", "subscribe"),
                    help="home: the homing cycle ($H); resume-job: continue the job a crash interrupted from its "
                         "line, after unlock or home (retract along the tool axis, move over, plunge at feed)")
-    p.add_argument("args", nargs="*", help="queue: 'add FILE' or 'list'")
+    p.add_argument("args", nargs="*", help="queue: 'add FILE' or 'list'; record: 'start DIR' or 'stop'")
     p.add_argument("--feed", type=float, default=None, help="override: feed factor 0.1 .. 2.0")
     p.add_argument("--rapid", type=float, default=None, help="override: rapid factor 0.25, 0.5 or 1.0")
     p.add_argument("--period", type=float, default=0.5, help="subscribe: seconds between status lines")
@@ -63,6 +64,13 @@ def run(args) -> int:
             req["list"] = True
         else:
             raise PmctlError("queue: use 'queue add FILE' or 'queue list'")
+    elif args.what == "record":
+        if args.args[:1] == ["start"] and len(args.args) == 2:
+            req["start"] = os.path.abspath(args.args[1])
+        elif args.args == ["stop"]:
+            req["stop"] = True
+        else:
+            raise PmctlError("record: use 'record start DIR' or 'record stop'")
     elif args.what == "override":
         if args.feed is not None:
             req["feed"] = args.feed

@@ -13,6 +13,8 @@ JSON lines, for scripts and a future UI. One request per line, one JSON answer p
     {"cmd": "resume_job", "line": n, "clearance_mm": c}
                                                -> resume the job the journal says was interrupted, from
                                                   its line (or line n), with a safe approach
+    {"cmd": "record", "start": "DIR"} / {"cmd": "record", "stop": true}
+                                               -> start recording the session into DIR / finalise it
     {"cmd": "subscribe", "period_s": 0.2}      -> a status line every period until the client leaves
 Errors: {"ok": false, "error": "..."}.
 """
@@ -166,6 +168,12 @@ class ControlServer:
             sup.estop("E-stop from the control socket")
         elif cmd == "unlock":
             sup.unlock()
+        elif cmd == "record":
+            if "start" in req:
+                return {"ok": True, "folder": self.daemon.record_start(os.path.abspath(str(req["start"])))}
+            if req.get("stop"):
+                return {"ok": True, "folder": self.daemon.record_stop()}
+            return {"ok": False, "error": "record: 'start': DIR or 'stop': true"}
         elif cmd == "home":
             ok, msg = self.daemon.home()
             return {"ok": bool(ok), "msg": msg} if ok else {"ok": False, "error": msg}
