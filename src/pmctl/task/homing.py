@@ -133,9 +133,12 @@ class RtMover:
     def _s(self):
         return self.sup.raw()
 
-    def _check(self):
+    def _check(self, latch_seq=None):
+        from pmctl.motion import channel as C
         from pmctl.task.supervisor import MotionRefused
         sup = self.sup
+        if latch_seq is not None and self._s()[C.ST_LATCH_SEQ] != latch_seq:
+            raise _Latched()
         if self.abort.is_set():
             raise HomingFailed(ALARM_HOMING_RESET, "homing aborted by a reset")
         if sup.rt_dead or sup.alarm:
@@ -167,15 +170,7 @@ class RtMover:
         try:
             for rows in iter_job_rows(traj, sup.machine, sup.params, rapid=np.ones(len(traj), bool),
                                       rapid_mm_s=1e3):
-                k = 0
-                while k < len(rows):
-                    self._check()
-                    if self._s()[C.ST_LATCH_SEQ] != seq0:
-                        raise _Latched()
-                    n = sup.ch.samples.push(rows[k:])
-                    k += n
-                    if n == 0:
-                        time.sleep(0.005)
+                sup.stream_rows(rows, lambda: self._check(seq0))
             while True:
                 self._check()
                 st = self._s()

@@ -260,6 +260,17 @@ class Supervisor:
         self._plan_q.put(it)
         return it
 
+    def stream_rows(self, rows, cancelled) -> None:
+        """Push sample rows into the ring as room frees up; raises ``cancelled()``'s exception (the
+        callable raises to stop) between pushes."""
+        i = 0
+        while i < len(rows):
+            cancelled()
+            n = self.ch.samples.push(rows[i:])
+            i += n
+            if n == 0:
+                time.sleep(0.005)
+
     def queued_items(self) -> int:
         with self._lock:
             return len(self.items)
