@@ -80,6 +80,7 @@ class Backend(ABC):
 
     name = "abstract"
     accepts = "pulses"
+    can_rereference = False       # True: rereference() is implemented, homing is possible
 
     @classmethod
     def validate_options(cls, table: dict, where: str):
@@ -119,9 +120,10 @@ class Backend(ABC):
         return NO_INPUTS
 
     def rereference(self, counts: np.ndarray) -> None:
-        """Homing set the controller's pulse counters to ``counts`` (the motors did not move). A backend
-        whose device keeps its own counters makes them read ``counts`` from now on; the default (a
-        backend without device counters) has nothing to do."""
+        """Homing set the controller's pulse counters to ``counts`` (the motors did not move): the
+        device's own counters or position targets must read ``counts`` from now on. Only a backend with
+        ``can_rereference`` True implements it (homing is refused on the others)."""
+        raise HalError(f"backend {self.name!r} cannot re-reference its counters")
 
     def truth(self) -> np.ndarray | None:
         """Load-side joint positions (mm), known only to a simulation; None for hardware."""

@@ -109,6 +109,7 @@ class SimOptions:
 class SimBackend(Backend):
     name = "sim"
     accepts = "pulses"
+    can_rereference = True
 
     @classmethod
     def validate_options(cls, table: dict, where: str) -> SimOptions:

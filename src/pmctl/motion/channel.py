@@ -36,7 +36,8 @@ ST_COUNTS0 = ST_DEV_COUNTS + 5    # (5) the counters the rt process started from
                                   # (homing): counters = ST_COUNTS0 + ST_SENT holds throughout
 ST_LATCH_SEQ = ST_COUNTS0 + 5     # counts the home-switch latches (C_HOME_ARM)
 ST_LATCH = ST_LATCH_SEQ + 1       # (5) the counters at the tick the armed switch reached the wanted state
-ST_HOME_IN = ST_LATCH + 5         # home switches as a bit mask (bit i: axis i closed); -1: no switches
+ST_HOME_IN = ST_LATCH + 5         # home switches as a bit mask (bit i: axis i closed); -1: no switches, or a
+                                  # backend that cannot re-reference its counters (no homing)
 STATUS_WIDTH = 56
 REASON_BYTES = 512
 

@@ -92,7 +92,7 @@ class RtHook:
         inp = as_inputs(lp.backend.inputs())
         if st.mode != HALTED and inp.estop:
             st = _halt(st, "E-stop input pressed")
-        home = inp.home
+        home = inp.home if lp.backend.can_rereference else None      # homing needs the re-reference
         if self.arm_axis >= 0 and home is not None and bool(home[self.arm_axis]) == self.arm_want:
             self.latch = st.counts.tolist()
             self.latch_seq += 1

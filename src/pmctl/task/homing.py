@@ -139,7 +139,7 @@ class RtMover:
         sup = self.sup
         if latch_seq is not None and self._s()[C.ST_LATCH_SEQ] != latch_seq:
             raise _Latched()
-        if self.abort.is_set():
+        if self.abort.is_set() or sup._stop.is_set():
             raise HomingFailed(ALARM_HOMING_RESET, "homing aborted by a reset")
         if sup.rt_dead or sup.alarm:
             raise MotionRefused(sup.alarm_msg or "the rt motion process is down", 9)

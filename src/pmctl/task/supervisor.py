@@ -151,6 +151,7 @@ class Supervisor:
 
     def shutdown(self, reason="stopped", timeout_s=30.0) -> np.ndarray:
         """Hold on the path, let the rt side save its counters and exit; returns the final counters."""
+        self.homing_abort.set()
         self._abort.set()
         counts = None
         if self.proc is not None and self.proc.is_alive():
