@@ -319,3 +319,31 @@ def test_resume_plan_approaches_the_line_start_and_keeps_the_rest_of_the_job(tmp
     assert r.moves[1].kind == "rapid" and r.moves[2].kind == "line"
     assert np.allclose(r.moves[2].tip, start)                                   # plunge to it
     assert all(m.line == 0 for m in r.moves[:3])
+
+
+@pytest.mark.parametrize("table, key", [
+    ({"order": ["L1", "Z"]}, "homing.order"),
+    ({"order": ["L1", "L1"]}, "homing.order"),
+    ({"order": []}, "homing.order"),
+    ({"seek_mm_s": "5"}, "homing.seek_mm_s"),
+    ({"latch_mm_s": 6.0}, "homing.latch_mm_s"),
+    ({"pull_off_mm": 0}, "homing.pull_off_mm"),
+    ({"reference_mm": [400, 400, 400, 5]}, "homing.reference_mm"),
+    ({"serch_mm": 5}, "serch_mm"),
+])
+def test_homing_table_is_strictly_validated(table, key):
+    from pmctl.core.errors import ConfigError
+    from pmctl.motion.service_config import service_from_dict
+    with pytest.raises(ConfigError) as e:
+        service_from_dict({"homing": table}, "svc.toml")
+    assert key in str(e.value) and "svc.toml" in str(e.value)
+
+
+def test_homing_references_outside_the_joint_travel_are_refused_at_start():
+    from pmctl.core.errors import ConfigError
+    from pmctl.motion.service_config import service_from_dict
+    svc = service_from_dict({"homing": {"reference_mm": [600.0, 400.0, 400.0, 5.0, 5.0]}}, "svc.toml")
+    params = svc.nc.params(M, DT)
+    with pytest.raises(ConfigError) as e:
+        svc.homing.check(params, "svc.toml")
+    assert "reference_mm" in str(e.value) and "L1" in str(e.value)
