@@ -67,7 +67,10 @@ def test_power_cut_comes_back_in_alarm_at_the_last_snapshot_not_trusted(tmp_path
         p0 = np.array(s.status()["pos"])
         assert s.send("G21 G91 G1 F300 X-12") == "ok"
         s.wait_state(("Run",), 60)
-        time.sleep(1.2)
+        t0 = time.time()                 # moving (the first plan can take a second on a loaded machine) ...
+        while s.status()["pos"][0] - p0[0] > -0.5 and time.time() - t0 < 60:
+            time.sleep(0.05)
+        time.sleep(0.3)                  # ... and past a periodic snapshot
         rt = rt_pid_of(p.pid)
         os.kill(rt, signal.SIGKILL)                 # both at once: nobody can save anything
         p.send_signal(signal.SIGKILL)
