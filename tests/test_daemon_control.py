@@ -70,7 +70,7 @@ def test_control_socket_queue_hold_resume_override_subscribe(tmp_path):
         t0 = time.time()
         while time.time() - t0 < 120:
             st2 = request(sock, {"cmd": "status"})
-            if st2["state"] == "Idle" and st2["queued_items"] == 0:
+            if abs(st2["mpos"][0] - (st["mpos"][0] - 3)) < 1e-3 and st2["sigma"] == 0:
                 break
             time.sleep(0.2)
         time.sleep(0.2)
