@@ -1,5 +1,6 @@
 """The control socket of `pmctl serve` (JSON lines, owner/group only) and `pmctl ctl`: queue jobs
-(the next planned while the current runs), list, hold/resume, override, status, subscribe."""
+(the next planned while the current runs), list, hold/resume, override, status, subscribe, record
+start/stop."""
 
 import json
 import os
@@ -56,5 +57,28 @@ def test_control_socket_queue_hold_resume_override_subscribe(tmp_path):
                 break
             time.sleep(0.2)
         assert np.allclose(np.subtract(st["mpos"], st0["mpos"])[:3], [6, 4, 0], atol=2e-3)   # both jobs ran
+        # record start / stop: the recording holds the move made while it was on, finalised at stop
+        rec = tmp_path / "rec"
+        out = subprocess.run([sys.executable, "-m", "pmctl.interfaces.cli", "ctl", "--socket", str(sock), "record",
+                              "start", str(rec)], capture_output=True, text=True, cwd=ROOT)
+        assert out.returncode == 0 and json.loads(out.stdout)["folder"] == str(rec)
+        again = request(sock, {"cmd": "record", "start": str(tmp_path / "other")})
+        assert not again["ok"] and "already recording" in again["error"]
+        c = tmp_path / "c.ngc"
+        c.write_text("G21 G91 G1 F600 X-3\n")
+        assert request(sock, {"cmd": "queue", "add": str(c)})["ok"]
+        t0 = time.time()
+        while time.time() - t0 < 120:
+            st2 = request(sock, {"cmd": "status"})
+            if abs(st2["mpos"][0] - (st["mpos"][0] - 3)) < 1e-3 and st2["sigma"] == 0:
+                break
+            time.sleep(0.2)
+        time.sleep(0.2)
+        assert request(sock, {"cmd": "record", "stop": True})["ok"]
+        assert not request(sock, {"cmd": "record", "stop": True})["ok"]
     finally:
         stop_serve(p)
+    from pmctl.core.recording import read_recording
+    r = read_recording(rec)
+    x = r["tip_x"][np.isfinite(r["tip_x"])]
+    assert abs((x.max() - x.min()) - 3.0) < 2e-3 and abs(x[-1] - (st["mpos"][0] - 3)) < 2e-3

@@ -113,7 +113,9 @@ def test_sigkill_of_the_rt_process_and_of_the_supervisor(tmp_path):
         s.reset()
         assert s.send("G21 G91 G1 F300 X-15") == "ok"
         s.wait_state(("Run",), 60)
-        time.sleep(1.0)
+        t0 = time.time()                 # moving (planning can take a while on a loaded machine)
+        while s.status()["pos"][0] > -0.5 and time.time() - t0 < 60:
+            time.sleep(0.05)
         rt = rt_pid_of(p.pid)
         n = len(s.pushed)
         os.kill(rt, signal.SIGKILL)
@@ -132,7 +134,9 @@ def test_sigkill_of_the_rt_process_and_of_the_supervisor(tmp_path):
         t0 = time.time()                 # the journal has recorded the running job (an fsync on a busy disk)
         while not json.loads(journal.read_text()).get("running") and time.time() - t0 < 20:
             time.sleep(0.05)
-        time.sleep(0.3)
+        t0 = time.time()                 # and it moves
+        while s.status()["pos"][1] - st2["pos"][1] < 0.1 and time.time() - t0 < 60:
+            time.sleep(0.05)
         rt = rt_pid_of(p.pid)
         p.send_signal(signal.SIGKILL)
         p.wait(10)

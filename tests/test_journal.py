@@ -36,6 +36,14 @@ def test_journal_round_trip_and_damaged_file(tmp_path):
     with pytest.raises(InputError) as e:
         Journal(p, M.name).load()
     assert "offsets.g92" in str(e.value)
+    for key, bad in (("line", -1), ("line", "7"), ("job_start", [1, 2, 3]), ("job", 5), ("homed", "yes")):
+        p.write_text(json.dumps({"format": "pmctl-journal/1", "machine": M.name, key: bad}))
+        with pytest.raises(InputError) as e:
+            Journal(p, M.name).load()
+        assert key in str(e.value)
+    j.save(job="/jobs/a.ngc", line=7, job_start=[0, 0, 173, 0, 0, 1], homed=True)
+    k = Journal(p, M.name).load()
+    assert k.data["job_start"] == [0, 0, 173, 0, 0, 1] and k.data["homed"] is True
     p.write_text(json.dumps({"format": "pmctl-journal/1", "machine": "other"}))
     with pytest.raises(InputError):
         Journal(p, M.name).load()
@@ -59,7 +67,10 @@ def test_power_cut_comes_back_in_alarm_at_the_last_snapshot_not_trusted(tmp_path
         p0 = np.array(s.status()["pos"])
         assert s.send("G21 G91 G1 F300 X-12") == "ok"
         s.wait_state(("Run",), 60)
-        time.sleep(1.2)
+        t0 = time.time()                 # moving (the first plan can take a second on a loaded machine) ...
+        while s.status()["pos"][0] - p0[0] > -0.5 and time.time() - t0 < 60:
+            time.sleep(0.05)
+        time.sleep(0.3)                  # ... and past a periodic snapshot
         rt = rt_pid_of(p.pid)
         os.kill(rt, signal.SIGKILL)                 # both at once: nobody can save anything
         p.send_signal(signal.SIGKILL)

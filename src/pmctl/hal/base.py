@@ -60,6 +60,15 @@ class Inputs:
 NO_INPUTS = Inputs()
 
 
+def as_inputs(x) -> Inputs:
+    """A backend's ``inputs()`` answer as :class:`Inputs`: an Inputs as it is; an int as a bridge's bit
+    mask (bits 0-4 the home switches of L1 L2 L3 X Y, bit 5 the E-stop)."""
+    if isinstance(x, Inputs):
+        return x
+    bits = int(x)
+    return Inputs(tuple(bool(bits >> i & 1) for i in range(5)), bool(bits >> 5 & 1))
+
+
 @dataclass
 class Status:
     ok: bool = True
@@ -71,6 +80,7 @@ class Backend(ABC):
 
     name = "abstract"
     accepts = "pulses"
+    can_rereference = False       # True: rereference() is implemented, homing is possible
 
     @classmethod
     def validate_options(cls, table: dict, where: str):
@@ -108,6 +118,12 @@ class Backend(ABC):
     def inputs(self) -> Inputs:
         """Home switches and E-stop (see :class:`Inputs`). Default: a backend without either."""
         return NO_INPUTS
+
+    def rereference(self, counts: np.ndarray) -> None:
+        """Homing set the controller's pulse counters to ``counts`` (the motors did not move): the
+        device's own counters or position targets must read ``counts`` from now on. Only a backend with
+        ``can_rereference`` True implements it (homing is refused on the others)."""
+        raise HalError(f"backend {self.name!r} cannot re-reference its counters")
 
     def truth(self) -> np.ndarray | None:
         """Load-side joint positions (mm), known only to a simulation; None for hardware."""

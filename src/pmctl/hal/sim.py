@@ -88,6 +88,9 @@ class SimOptions:
         return bool(np.any(np.asarray(self.backlash_mm) != 0) or np.any(np.asarray(self.pitch_error_amp_mm) != 0)
                     or np.any(np.asarray(self.thermal_delta_K) != 0) or np.any(np.asarray(self.friction_coulomb_mm) != 0)
                     or np.any(np.asarray(self.friction_stribeck_mm) != 0))
+    motor_offset_mm: tuple | None = None  # per axis: at open the motors stand this far from where the counters
+                                          # say (a position lost in a power cut); encoders and device counters
+                                          # count from the counters, only the truth and the switches see it
 
     @classmethod
     def from_dict(cls, d: dict, machine: Machine | None = None, where="sim"):
@@ -135,6 +138,8 @@ class SimOptions:
             home_switch_mm=(t.vector("home_switch_mm", 5, default=[0.0] * 5, lo=-1e4, hi=1e4, scalar_ok=True)
                             if "home_switch_mm" in d else None),
             **cls._effect_options(t, base),
+            motor_offset_mm=(t.vector("motor_offset_mm", 5, default=[0.0] * 5, lo=-1e3, hi=1e3, scalar_ok=True)
+                             if "motor_offset_mm" in d else None),
         )
         # ---- contact and applied load
         if d.get("contact_z_mm") is not None:
@@ -168,6 +173,7 @@ class SimOptions:
 class SimBackend(Backend):
     name = "sim"
     accepts = "pulses"
+    can_rereference = True
 
     @classmethod
     def validate_options(cls, table: dict, where: str) -> SimOptions:
@@ -221,6 +227,7 @@ class SimBackend(Backend):
         self._fb = Feedback()
         self._fb.counts = np.zeros(5, np.int64)
         self._effects = o.effects_on
+        self._off = None            # plant counters - controller counters (motor_offset_mm, homing), or None
         self._open = False
         # ---- contact and applied load
         self._load_on = o.contact_z_mm is not None or any(o.tip_force_N)
@@ -232,6 +239,9 @@ class SimBackend(Backend):
         from pmctl.core.kinematics import forward_platform
         L = self._lib
         self.counts = np.array(counts, dtype=np.int64)
+        if self.opt.motor_offset_mm is not None:
+            self._off = np.rint(np.asarray(self.opt.motor_offset_mm) * self.ppm).astype(np.int64)
+            self.counts += self._off
         d = np.zeros(L.D_LEN)
         d[L.D_CMD:L.D_CMD + 5] = self.counts / self.ppm          # commanded position, mm
         d[L.D_MOTOR:L.D_MOTOR + 5] = d[L.D_CMD:L.D_CMD + 5]     # motor side = command at rest
@@ -248,7 +258,9 @@ class SimBackend(Backend):
         self._open = True
         if self._effects:
             self._start_effects(d)
-        self._check(self._plant.sample(self._draw(), 0))
+        r = self._plant.sample(self._draw(), 0)
+        self._relative()
+        self._check(r)
         if self._load_on:
             self._add_load()
 
@@ -275,6 +287,8 @@ class SimBackend(Backend):
             r = self._plant.step(np.ascontiguousarray(pulses, np.int64), nz, self.tick)
         self.tick += 1
         self._fb.seq += 1
+        if self._off is not None:
+            self._relative()
         if r:
             self._check(r)
         if self._load_on:
@@ -285,8 +299,16 @@ class SimBackend(Backend):
         est = 0 <= o.estop_from_tick <= self.tick and (o.estop_to_tick < 0 or self.tick < o.estop_to_tick)
         home = None
         if o.home_switch_mm is not None:
-            home = tuple(bool(self.motor[i] >= o.home_switch_mm[i]) for i in range(5))
+            m = self._d[self._lib.D_MOTOR:self._lib.D_MOTOR + 5]
+            home = tuple(bool(m[i] >= o.home_switch_mm[i]) for i in range(5))
         return Inputs(home, est)
+
+    def rereference(self, counts):
+        """The device counters and encoders read from ``counts`` on (the motors stay where they are)."""
+        self._off = self.counts - np.asarray(counts, np.int64)
+        self._fb.counts[:] = self.counts
+        self._fb.enc[:] = self._d[self._lib.D_MOTOR:self._lib.D_MOTOR + 5]
+        self._relative()
 
     def truth(self):
         """Load-side joints (mm): motor side plus the chains' deflection."""
@@ -370,7 +392,16 @@ class SimBackend(Backend):
         self._set_offsets(self._play.step(self._mot + moff) if self._play is not None else 0.0, moff)
         self.tick += 1
         self._fb.seq += 1
-        self._check(self._plant.sample(nz, self.tick))
+        r = self._plant.sample(nz, self.tick)
+        if self._off is not None:
+            self._relative()
+        self._check(r)
+
+    def _relative(self):
+        """Device counters and encoders as the controller knows them (plant counters minus the offset)."""
+        if self._off is not None:
+            self._fb.counts -= self._off
+            self._fb.enc -= self._off / self.ppm
 
     def _check(self, r):
         if r:

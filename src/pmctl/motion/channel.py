@@ -32,7 +32,12 @@ ST_AXIS = ST_TIP + 3              # 19
  ST_FAULT, ST_PID, ST_QUEUED, ST_MONO) = range(ST_AXIS + 3, ST_AXIS + 15)
 ST_SENT = ST_MONO + 1             # (5) pulses written to the backend since the rt process started
 ST_DEV_COUNTS = ST_SENT + 5       # (5) the counters the device reports (NaN if it keeps none)
-ST_COUNTS0 = ST_DEV_COUNTS + 5    # (5) the counters the rt process started from
+ST_COUNTS0 = ST_DEV_COUNTS + 5    # (5) the counters the rt process started from, moved by any re-reference
+                                  # (homing): counters = ST_COUNTS0 + ST_SENT holds throughout
+ST_LATCH_SEQ = ST_COUNTS0 + 5     # counts the home-switch latches (C_HOME_ARM)
+ST_LATCH = ST_LATCH_SEQ + 1       # (5) the counters at the tick the armed switch reached the wanted state
+ST_HOME_IN = ST_LATCH + 5         # home switches as a bit mask (bit i: axis i closed); -1: no switches, or a
+                                  # backend that cannot re-reference its counters (no homing)
 STATUS_WIDTH = 56
 REASON_BYTES = 512
 
@@ -42,7 +47,10 @@ PH_STARTING, PH_RUNNING, PH_EXITED = 0.0, 1.0, 2.0
 F_NONE, F_STOP, F_FAULT = 0.0, 1.0, 2.0
 
 # commands
-C_HOLD, C_RESUME, C_FEED_OV, C_RAPID_OV, C_RESET, C_QUIT, C_ESTOP, C_UNLOCK, C_SET_COUNTS = range(1, 10)
+C_HOLD, C_RESUME, C_FEED_OV, C_RAPID_OV, C_RESET, C_QUIT, C_ESTOP, C_UNLOCK, C_SET_COUNTS, C_HOME_ARM = range(1, 11)
+# C_SET_COUNTS (axis, counter): re-reference one axis's pulse counter at rest (homing; the motor does not move).
+# C_HOME_ARM (axis, state): latch the counters and feed-hold at the first tick the home switch of ``axis``
+# reads ``state`` (1 closed, 0 open); axis -1 disarms.
 CMD_WIDTH = 4
 CMD_CAPACITY = 64
 

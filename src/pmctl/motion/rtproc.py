@@ -3,7 +3,11 @@
 Started by the supervisor (pmctl.task.supervisor) as a separate process; everything it needs comes
 in ``spec`` (a dict of plain values). Per tick, after the NC step, its hook:
 - applies the commands queued by the supervisor (hold, resume, overrides, soft reset, quit,
-  E-stop, unlock) -- reading a ring, never waiting;
+  E-stop, unlock, and for homing: arm a home-switch latch, re-reference a counter at rest) --
+  reading a ring, never waiting;
+- reads the backend's inputs: the E-stop halts; an armed home switch reaching its wanted state
+  latches the counters of that tick and feed-holds on the path (the homing sequence, in the
+  supervisor's pmctl.task.homing, plans the moves and reads the latch);
 - writes the status block (counters, model pose, sigma, line, phase, timing) under a sequence
   counter;
 - every 50 ticks checks that the supervisor is still its parent: if it died, the machine is
@@ -20,6 +24,7 @@ import sys
 
 import numpy as np
 
+from pmctl.hal.base import as_inputs
 from pmctl.motion import channel as C
 
 
@@ -37,6 +42,10 @@ class RtHook:
         self.faulted = False
         self.term = False
         self.rest_ticks = 0
+        self.arm_axis, self.arm_want = -1, True     # the armed home switch (C_HOME_ARM)
+        self.latch_seq = 0
+        self.latch = [0.0] * 5
+        self.shift = np.zeros(5, np.int64)          # re-references (C_SET_COUNTS) since the start
 
     def __call__(self, lp, k, st):
         from pmctl.motion.nc import HALTED, RUN, STOPPING
@@ -44,7 +53,7 @@ class RtHook:
         sc = fol.scaler
         cmds = ch.commands
         while cmds.count():
-            seq, code, a1, _ = cmds.row(0).tolist()
+            seq, code, a1, a2 = cmds.row(0).tolist()
             cmds.advance(1)
             code = int(code)
             self.last_ack = seq
@@ -66,7 +75,7 @@ class RtHook:
             elif code == C.C_ESTOP:
                 st = _halt(st, "E-stop (software)")
             elif code == C.C_UNLOCK:
-                if lp.backend.inputs().estop:
+                if as_inputs(lp.backend.inputs()).estop:
                     continue                  # latched: the E-stop input must clear first
                 if st.mode != RUN:
                     st = _restart(st, self.machine, lp)
@@ -74,8 +83,21 @@ class RtHook:
                 fol.clear()
                 fol._rest = st.tip.tolist() + st.axis.tolist()
                 sc.hold = False
-        if st.mode != HALTED and lp.backend.inputs().estop:
+            elif code == C.C_HOME_ARM:
+                self.arm_axis, self.arm_want = int(a1), bool(a2)
+            elif code == C.C_SET_COUNTS:
+                # at rest with nothing queued only (the supervisor checks the counters after the ack)
+                if st.mode == RUN and sc.sigma == 0.0 and fol.src.count() == 0 and 0 <= int(a1) < 5:
+                    st = self._rereference(lp, st, int(a1), int(a2))
+        inp = as_inputs(lp.backend.inputs())
+        if st.mode != HALTED and inp.estop:
             st = _halt(st, "E-stop input pressed")
+        home = inp.home if lp.backend.can_rereference else None      # homing needs the re-reference
+        if self.arm_axis >= 0 and home is not None and bool(home[self.arm_axis]) == self.arm_want:
+            self.latch = st.counts.tolist()
+            self.latch_seq += 1
+            self.arm_axis = -1
+            sc.hold = True                    # stop on the path; the supervisor drops the rest
         if self.term and not self.quitting:
             self.quitting = "SIGTERM"
             sc.hold = True
@@ -112,6 +134,9 @@ class RtHook:
         s[C.ST_DROPPED] = lp.dropped
         s[C.ST_LATE_NS] = late
         s[C.ST_COMPUTE_NS] = comp
+        s[C.ST_LATCH_SEQ] = self.latch_seq
+        s[C.ST_LATCH:C.ST_LATCH + 5] = self.latch
+        s[C.ST_HOME_IN] = -1.0 if home is None else float(sum(1 << i for i in range(5) if home[i]))
         s[C.ST_CMD_ACK] = self.last_ack
         s[C.ST_ONTIME] = self.ontime
         s[C.ST_QUEUED] = fol.src.count()
@@ -121,6 +146,22 @@ class RtHook:
         if fb is not None and fb.counts is not None:
             s[C.ST_DEV_COUNTS:C.ST_DEV_COUNTS + 5] = fb.counts.tolist()
         s[C.ST_SEQ] += 1.0
+        return st
+
+
+    def _rereference(self, lp, st, axis, count):
+        """Set one axis's pulse counter (homing): the NC restarts from the new counters (its model pose
+        is their FK), the backend's device counters follow, and the start counters move with it so
+        that counters = start + pulses sent still holds."""
+        counts = np.array(st.counts, np.int64)
+        d = count - int(counts[axis])
+        counts[axis] = count
+        lp.backend.rereference(counts)
+        st = _restart(st, self.machine, lp, counts)
+        self.shift[axis] += d
+        self.ch.st[C.ST_COUNTS0 + axis] += d
+        lp.follower.clear()
+        lp.follower._rest = st.tip.tolist() + st.axis.tolist()
         return st
 
 
@@ -143,9 +184,9 @@ def _was_stop(st) -> bool:
     return not (r.startswith("following error") or r.startswith("model pose lost") or r.startswith("backend"))
 
 
-def _restart(st, machine, lp):
+def _restart(st, machine, lp, counts=None):
     from pmctl.motion.nc import initial_state
-    return lp.nc.load(initial_state(machine, st.counts))
+    return lp.nc.load(initial_state(machine, st.counts if counts is None else counts))
 
 
 def rt_main(spec: dict) -> int:
@@ -223,7 +264,7 @@ def rt_main(spec: dict) -> int:
             ch.set_reason(getattr(lp, "quit_reason", "") or (res.reason if res else "rt process error"))
             ch.st[C.ST_PHASE] = C.PH_EXITED
             fb = lp.last_fb
-            sent_ok = bool(np.array_equal(counts + lp.sent, final.counts))
+            sent_ok = bool(np.array_equal(counts + hook.shift + lp.sent, final.counts))
             dev_ok = fb is None or fb.counts is None or bool(np.array_equal(fb.counts, final.counts))
             log(f"stopped: {getattr(lp, 'quit_reason', '') or (res.reason if res else '')}; counters "
                 f"{final.counts.tolist()} saved; pulses sent = counter change: {'yes' if sent_ok else 'NO'}; "

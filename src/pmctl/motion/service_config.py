@@ -16,6 +16,7 @@ import numpy as np
 from pmctl.core.config import CONFIG_DIR, Machine
 from pmctl.core.errors import ConfigError
 from pmctl.core.strict_toml import Table, check_tables, read_toml
+from pmctl.hal.base import AXES as HOMING_AXES
 
 from pmctl.motion.nc import IMPLEMENTATIONS, NCParams
 
@@ -216,6 +217,56 @@ def chain_modes(svc: "ServiceConfig", machine: Machine, backend: str | None = No
     return None
 
 
+
+@dataclass
+class HomingConfig:
+    """[homing]: the per-axis sequence of ``$H`` (pmctl.task.homing). Every home switch closes when its
+    joint moves in + past the switch (a cam switch: closed on the + side of its edge)."""
+    order: tuple = HOMING_AXES                            # axes homed one after another (one joint moves)
+    reference_mm: tuple = (400.0, 400.0, 400.0, 5.0, 5.0)  # joint position of each switch's closing edge
+    seek_mm_s: float = 5.0                                # toward the switch (grbl $25)
+    latch_mm_s: float = 0.5                               # the slow approach whose edge is taken (grbl $24)
+    pull_off_mm: float = 1.0                              # past the opening edge, before and after the latch (grbl $27)
+    search_mm: float = 15.0                               # farthest seek; no switch within it: ALARM 9
+
+    def check(self, params, where="[homing]"):
+        """Against the machine's joint limits (ConfigError naming the key)."""
+        for i, a in enumerate(HOMING_AXES):
+            r = self.reference_mm[i]
+            if not params.lower[i] + self.pull_off_mm <= r <= params.upper[i] - self.pull_off_mm:
+                raise ConfigError(where, "homing.reference_mm", f"{a} = {r:g} mm must lie inside the joint range "
+                                  f"[{params.lower[i]:g}, {params.upper[i]:g}] mm with room for the pull-off")
+            for key, v in (("seek_mm_s", self.seek_mm_s), ("latch_mm_s", self.latch_mm_s)):
+                if v > 0.5 * params.vmax[i]:
+                    raise ConfigError(where, f"homing.{key}", f"{v:g} mm/s exceeds half the {a} speed limit "
+                                                              f"({params.vmax[i]:g} mm/s)")
+
+
+def homing_from_dict(data, path) -> HomingConfig:
+    s = Table(path, data, "homing")
+    d = HomingConfig()
+    present, order = s._get("order", list(d.order), False)
+    if not isinstance(order, list) or not order or not all(isinstance(a, str) for a in order):
+        raise ConfigError(path, "homing.order", "must be a non-empty list of axis names (L1 L2 L3 X Y)")
+    for a in order:
+        if a not in HOMING_AXES:
+            raise ConfigError(path, "homing.order", f"unknown axis {a!r}; known: {', '.join(HOMING_AXES)}")
+    if len(set(order)) != len(order):
+        raise ConfigError(path, "homing.order", "an axis is listed twice")
+    h = HomingConfig(
+        order=tuple(order),
+        reference_mm=tuple(float(x) for x in s.vector("reference_mm", 5, default=d.reference_mm, lo=-1e4, hi=1e4)),
+        seek_mm_s=s.number("seek_mm_s", default=d.seek_mm_s, positive=True, hi=1e3),
+        latch_mm_s=s.number("latch_mm_s", default=d.latch_mm_s, positive=True, hi=1e3),
+        pull_off_mm=s.number("pull_off_mm", default=d.pull_off_mm, positive=True, hi=100.0),
+        search_mm=s.number("search_mm", default=d.search_mm, positive=True, hi=1e4),
+    )
+    s.finish()
+    if h.latch_mm_s > h.seek_mm_s:
+        raise ConfigError(path, "homing.latch_mm_s", "must not exceed homing.seek_mm_s (the latch is the slow approach)")
+    return h
+
+
 @dataclass
 class ServiceConfig:
     loop: LoopConfig = field(default_factory=LoopConfig)
@@ -226,6 +277,7 @@ class ServiceConfig:
     spindle: object = None      # [spindle]: pmctl.hal.modbus_vfd.VfdOptions, None = no spindle control
     daq: object = None          # [daq]: pmctl.hal.modbus_daq.DaqOptions, None = no strain DAQ
     probe: object = None        # [probe]: pmctl.motion.probe.ProbeConfig (stop on contact, G38.2/G38.3)
+    homing: HomingConfig = field(default_factory=HomingConfig)   # [homing]
 
     @property
     def backend_options(self) -> dict:
@@ -248,7 +300,7 @@ def load_service_config(path: str | Path | None = None) -> ServiceConfig:
 
 
 def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
-    check_tables(path, data, (), ("loop", "nc", "hal", "spindle", "daq", "probe"))
+    check_tables(path, data, (), ("loop", "nc", "hal", "spindle", "daq", "probe", "homing"))
     s = Table(path, data.get("loop", {}), "loop")
     d = LoopConfig()
     loop = LoopConfig(
@@ -336,9 +388,11 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
         daq = DaqOptions.from_dict(data["daq"], f"{path}: daq")
     from pmctl.motion.probe import ProbeConfig
     probe = ProbeConfig.from_dict(data.get("probe", {}), path)
+    homing = homing_from_dict(data.get("homing", {}), path)
     return ServiceConfig(loop, nc, backend, source=str(path), backend_tables=tables,
                          spindle=spindle if spindle is not None and spindle.enabled else None,
-                         daq=daq if daq is not None and daq.enabled else None, probe=probe)
+                         daq=daq if daq is not None and daq.enabled else None, probe=probe,
+                         homing=homing)
 
 
 @dataclass

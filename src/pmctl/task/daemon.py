@@ -2,7 +2,9 @@
 
 Start-up: read the counter file and the journal; decide where the machine is and whether that can
 be trusted (a clean stop: yes; a periodic snapshot left by a crash or a power cut: Alarm 11 with the
-age of the position, until ``$X`` confirms it or ``$H`` homes); start the rt process there; open the
+age of the position, until ``$X`` confirms it or ``$H`` homes; a job the journal says was running is
+kept as the interrupted job, which ``resume_job`` continues from its line once the alarm is cleared);
+start the rt process there; open the
 recording, the console and the control socket; tell systemd READY. Then watch: the watchdog is
 pinged only while the rt side reports ticks on time; the journal follows the job and line.
 Shutdown (SIGTERM, SIGINT): feed hold on the path, the rt process saves its counters and exits, the
@@ -44,6 +46,8 @@ class Daemon:
         self.ctl = None
         self.sup = None
         self.lock = None
+        self.interrupted = None            # (job file, line, start pose) of a job a crash interrupted
+        self._rec_lock = threading.Lock()  # the record sink (monitor thread) vs record start/stop
 
     # ------------------------------------------------------------ start
     def start(self):
@@ -79,6 +83,8 @@ class Daemon:
         job = self.journal.data.get("job")
         if self.journal.data.get("running") and job:
             self.position_note += f"; job {job} was interrupted at line {self.journal.data.get('line', 0)}"
+            if job != "console":
+                self.interrupted = (job, int(self.journal.data.get("line", 0)), self.journal.data.get("job_start"))
             if alarm is None:
                 alarm = (ALARM_HOMING_REQUIRED, f"job {job} was interrupted at line "
                                                 f"{self.journal.data.get('line', 0)}: confirm the position with $X")
@@ -88,6 +94,8 @@ class Daemon:
         sup.start(counts)
         if alarm:
             sup.raise_alarm(*alarm)
+            self.journal.data["homed"] = False          # the position is not trusted
+        sup.homed = bool(self.journal.data.get("homed"))
         self.journal.save(running=False)
         if self.socket_path:
             from pmctl.interfaces.console.control import ControlServer
@@ -98,13 +106,75 @@ class Daemon:
             from pmctl.interfaces.console.port import ConsolePort
             from pmctl.task.jog import make_jogger
             self.port = ConsolePort(self.console_spec)
-            self.console = GrblConsole(sup, self.port.fd, self.journal, log=self.log, jogger=make_jogger(sup))
+            self.console = GrblConsole(sup, self.port.fd, self.journal, log=self.log, jogger=make_jogger(sup),
+                                       homing=self.home)
             self.console.start()
             self.log(f"console on {self.port.device}" + (f" (link {self.port.link})" if self.port.link else ""))
         from pmctl.task.notify import sd_notify
         sd_notify(f"READY=1\nSTATUS={sup.state_name()}: {self.position_note}\nMAINPID={os.getpid()}")
 
+    # ------------------------------------------------------------ homing, resume
+    def home(self):
+        """$H (console) / home (control socket): (ok, message); the journal records the homing."""
+        ok, msg = self.sup.home()
+        self.journal.save(homed=bool(ok))
+        self.log(msg if ok else f"homing failed: {msg}")
+        if ok and self.console is not None:
+            self.console.interp.sync(*self.sup.pose())
+        return ok, msg
+
+    def resume_job(self, line=None, clearance_mm=None):
+        """Queue the rest of the interrupted job from its line (or ``line``), with the safe approach of
+        pmctl.task.resume from where the machine is. Refused in alarm (confirm with $X or home with
+        $H first), while motion is queued, or when the approach is unreachable."""
+        from pmctl.core.errors import PmctlError
+        from pmctl.task.job import load_job
+        from pmctl.task.resume import CLEARANCE_MM, resume_job
+        from pmctl.task.supervisor import MotionRefused
+        sup = self.sup
+        if self.interrupted is None:
+            raise PmctlError("no interrupted job to resume (the journal records none)")
+        if sup.alarm or sup.rt_dead:
+            raise MotionRefused(f"alarm {sup.alarm}: confirm the position ($X) or home ($H) first", 9)
+        if sup.busy():
+            raise MotionRefused("motion is queued or under way", 8)
+        path, jline, start = self.interrupted
+        line = jline if line is None else int(line)
+        if start is not None:
+            start = (np.asarray(start[:3], float), np.asarray(start[3:], float))
+        job = load_job(path, sup.machine, start=start)
+        tip, axis = sup.pose()
+        rest = resume_job(job, line, tip, axis, sup.machine, sup.params,
+                          CLEARANCE_MM if clearance_mm is None else float(clearance_mm))
+        it = sup.submit(rest, kind="job", name=f"{os.path.basename(path)} from line {line}", source=path)
+        it.start_pose = start              # the journal keeps the job's own start (G91 jobs need it)
+        it.resume_line = line              # and, during the approach (line 0), the line it resumes
+        self.interrupted = None
+        self.log(f"resuming {path} from line {line}")
+        return it
+
     # ------------------------------------------------------------ recording
+    def record_start(self, folder):
+        """Start recording the session into ``folder`` (control socket ``record start``)."""
+        from pmctl.core.errors import PmctlError
+        with self._rec_lock:
+            if self.rec is not None:
+                raise PmctlError(f"already recording into {self.record_dir}")
+            self.record_dir = str(folder)
+        self._open_recording()
+        return self.record_dir
+
+    def record_stop(self):
+        """Finalise the recording (control socket ``record stop``); returns its folder."""
+        from pmctl.core.errors import PmctlError
+        with self._rec_lock:
+            if self.rec is None:
+                raise PmctlError("not recording")
+            self.sup.record_sink = None
+            rec, self.rec = self.rec, None
+            rec.__exit__(None, None, None)
+        return self.record_dir
+
     def _open_recording(self):
         from pmctl.core.recording import RecordingWriter
         from pmctl.motion.recorder import R_COUNTS, R_ENC, R_LINE, R_SIGMA, R_STRAIN, R_TICK, R_TRUTH
@@ -156,7 +226,9 @@ class Daemon:
                                  sup.machine)
                 cols += [f[c] for c in LOAD_CHANNELS]
             out = np.column_stack(cols)
-            self.rec.append(out)
+            with self._rec_lock:
+                if self.rec is not None:
+                    self.rec.append(out)
         sup.record_sink = sink
 
     # ------------------------------------------------------------ run
@@ -184,17 +256,32 @@ class Daemon:
             if wd and now - last_ping >= wd and self.rt_on_time():
                 sd_notify("WATCHDOG=1")
                 last_ping = now
+            if sup.homed != self.journal.data.get("homed"):
+                try:
+                    self.journal.save(homed=sup.homed)
+                except OSError as e:
+                    self.log(f"journal write failed: {e}")
             state = sup.state_name()
             if state != last_status:
                 sd_notify(f"STATUS={state}" + (f" (alarm {sup.alarm}: {sup.alarm_msg})" if sup.alarm else ""))
                 last_status = state
-            running = bool(sup.busy())
+            running = bool(sup.busy()) and not sup.homing
             line = int(sup.current_line()) if running else 0
             if (running, line) != last_line and (last_line is None or running != last_line[0]
                                                   or now - last_save > 0.5):
                 last_save = now
+                job, start = None, None
+                if running:
+                    with sup._lock:
+                        cur = sup.items[0] if sup.items else None
+                    job = (cur.source or "console") if cur is not None else "console"
+                    if line == 0 and cur is not None:
+                        line = getattr(cur, "resume_line", 0)
+                    if cur is not None and cur.source:
+                        start = getattr(cur, "start_pose", None) or cur.start
+                        start = [float(x) for x in np.concatenate([np.ravel(start[0]), np.ravel(start[1])])]
                 try:
-                    self.journal.save(running=running, line=line, job="console" if running else None)
+                    self.journal.save(running=running, line=line, job=job, job_start=start)
                 except OSError as e:
                     self.log(f"journal write failed: {e}")
                 last_line = (running, line)

@@ -3,7 +3,8 @@ counters (which the rt process keeps in its own counter file, pmctl.motion.state
 
 ``<state file>.journal`` holds, as one JSON object written atomically (temp file, fsync, rename,
 fsync of the folder): the work offsets (G54-G59, G92, the active system), the console settings
-($10), whether the machine was homed, the job and line in progress, and when it was written. A
+($10), whether the machine is homed, the job in progress (its file, or "console"), its line and
+the pose it was planned from (for a resume), and when it was written. A
 damaged journal is an error naming the file: the daemon does not guess offsets.
 """
 
@@ -58,6 +59,18 @@ class Journal:
         g92 = off.get("g92", [0.0] * 5)
         if not (isinstance(g92, list) and len(g92) == 5):
             raise InputError(self.path, 1, "offsets.g92: expected 5 numbers")
+        job = d.get("job")
+        if job is not None and not isinstance(job, str):
+            raise InputError(self.path, 1, "job: expected a file name or null")
+        line = d.get("line", 0)
+        if not (isinstance(line, int) and not isinstance(line, bool) and line >= 0):
+            raise InputError(self.path, 1, "line: expected a line number >= 0")
+        start = d.get("job_start")
+        if start is not None and not (isinstance(start, list) and len(start) == 6
+                                      and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in start)):
+            raise InputError(self.path, 1, "job_start: expected 6 numbers (tool tip and axis) or null")
+        if not isinstance(d.get("homed", False), bool):
+            raise InputError(self.path, 1, "homed: expected true or false")
         self.data.update(d)
         self.loaded = True
         return self

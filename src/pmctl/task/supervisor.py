@@ -58,6 +58,7 @@ class Item:
     error: str = ""
     lines: dict = field(default_factory=dict)    # sample line -> reported line (console N words)
     gen: int = 0                                 # queue generation: a reset or fault drops older items
+    source: str = ""                             # a job file's path (the journal keeps it for a resume)
 
 
 class Supervisor:
@@ -75,6 +76,7 @@ class Supervisor:
         from pmctl.motion.service_config import nc_setup
         self.nc_setup = nc_setup(self.svc, self.machine, self.dt, self.backend)   # chain modes, K_theta auto, shaper
         self.params = self.svc.nc.params(self.machine, self.dt, where=self.svc.source, modes=self.nc_setup.modes)
+        self.svc.homing.check(self.params, self.svc.source)        # [homing] against this machine's joints
         self.state_file = state_file
         self.realtime = bool(realtime)
         self.log = log or (lambda m: None)
@@ -85,6 +87,8 @@ class Supervisor:
         self.alarm_msg = ""
         self.check_mode = False
         self.homing = False
+        self.homing_abort = threading.Event()     # a reset during homing aborts the cycle (ALARM 6)
+        self.homed = False
         self.rt_dead = False
         self.items: collections.deque[Item] = collections.deque()   # submitted, not finished
         self.n_submitted = 0
@@ -150,6 +154,7 @@ class Supervisor:
 
     def shutdown(self, reason="stopped", timeout_s=30.0) -> np.ndarray:
         """Hold on the path, let the rt side save its counters and exit; returns the final counters."""
+        self.homing_abort.set()
         self._abort.set()
         counts = None
         if self.proc is not None and self.proc.is_alive():
@@ -231,6 +236,8 @@ class Supervisor:
 
     # ------------------------------------------------------------ motion requests
     def _check_motion_allowed(self):
+        if self.homing:
+            raise MotionRefused("homing is under way", 8)
         if self.rt_dead:
             raise MotionRefused("the rt motion process is down: unlock ($X) or reset to restart it", 9)
         if self.alarm:
@@ -243,27 +250,39 @@ class Supervisor:
                 return self.items[-1].end
         return self.pose()
 
-    def submit(self, job, kind="job", name="", lines=None) -> Item:
+    def submit(self, job, kind="job", name="", lines=None, source="") -> Item:
         """Queue a Job (planned from where the previous item ends). Raises MotionRefused in alarm."""
         self._check_motion_allowed()
         moves = [m for m in job.moves if m.kind != "dwell"]
         with self._lock:
             start = self.end_pose()
             end = (np.asarray(moves[-1].tip, float), np.asarray(moves[-1].axis, float)) if moves else start
-            it = Item(kind, job, start, end, name, self.n_submitted, lines=dict(lines or {}), gen=self._gen)
+            it = Item(kind, job, start, end, name, self.n_submitted, lines=dict(lines or {}), gen=self._gen,
+                      source=str(source))
             self.n_submitted += 1
             self.items.append(it)
         self._plan_q.put(it)
         return it
 
+    def stream_rows(self, rows, cancelled) -> None:
+        """Push sample rows into the ring as room frees up; raises ``cancelled()``'s exception (the
+        callable raises to stop) between pushes."""
+        i = 0
+        while i < len(rows):
+            cancelled()
+            n = self.ch.samples.push(rows[i:])
+            i += n
+            if n == 0:
+                time.sleep(0.005)
+
     def queued_items(self) -> int:
         with self._lock:
             return len(self.items)
 
-    def command(self, code, a1=0.0) -> int:
+    def command(self, code, a1=0.0, a2=0.0) -> int:
         """Queue a command for the rt side; returns its sequence number (see wait_ack)."""
         with self._lock:
-            self.ch.command(code, a1)
+            self.ch.command(code, a1, a2)
             return self.ch._cmd_seq
 
     def wait_ack(self, seq, timeout_s=5.0) -> bool:
@@ -279,7 +298,8 @@ class Supervisor:
         self.command(C.C_HOLD)
 
     def resume(self):
-        self.command(C.C_RESUME)
+        if not self.homing:              # the homing cycle's stops are its own
+            self.command(C.C_RESUME)
 
     def feed_override(self, f: float):
         self.command(C.C_FEED_OV, float(f))
@@ -288,7 +308,14 @@ class Supervisor:
         self.command(C.C_RAPID_OV, float(r))
 
     def soft_reset(self, timeout_s=10.0):
-        """Stop now on the path, drop everything queued, keep the position (grbl ctrl-X)."""
+        """Stop now on the path, drop everything queued, keep the position (grbl ctrl-X). During
+        homing it aborts the cycle (ALARM 6)."""
+        if self.homing:
+            self.homing_abort.set()
+        self._stop_queue(timeout_s)
+
+    def _stop_queue(self, timeout_s=10.0):
+        """Stop on the path, drop every queued item and sample, wait until at rest."""
         self._abort.set()
         with self._lock:
             self.items.clear()
@@ -335,6 +362,47 @@ class Supervisor:
             if self.raw()[C.ST_MODE] != RUN:
                 raise MotionRefused(f"cannot unlock: {self.ch.reason() or 'the rt side stays halted'}", 9)
         self.alarm, self.alarm_msg = 0, ""
+
+    def home(self):
+        """``$H``: the homing cycle (pmctl.task.homing) with the [homing] settings; blocks until it
+        ends. Returns (True, message) when homed (the alarm is cleared), (False, reason) when it
+        failed (an alarm says why); MotionRefused when it cannot start (busy, no switches)."""
+        from pmctl.task.homing import HomingFailed, RtMover, Sequence
+        if self.homing:
+            raise MotionRefused("homing is already under way", 8)
+        if not (self.alarm or self.rt_dead) and self.busy():
+            raise MotionRefused("$H only when idle: motion is queued or under way", 8)
+        if self.rt_dead or self.raw()[C.ST_MODE] != RUN:
+            self.unlock()                 # restart / re-arm the rt side first (refused while an E-stop holds)
+        if int(self.raw()[C.ST_HOME_IN]) < 0:
+            raise MotionRefused(f"backend {self.backend!r} reports no home switches", 5)
+        self.homing_abort.clear()
+        with self._lock:
+            self.items.clear()
+            self._gen += 1
+        self.alarm, self.alarm_msg = 0, ""
+        self.homing = True
+        self._emit("homing", {})
+        try:
+            shifts = Sequence(self.svc.homing, self.machine.resolution.pulses_per_mm).run(
+                RtMover(self, self.homing_abort))
+        except (HomingFailed, MotionRefused, PmctlError) as e:
+            self.homing = False
+            code = getattr(e, "code", 9) if isinstance(e, HomingFailed) else 9
+            if self.ch is not None and not self.rt_dead:
+                self._stop_queue()
+            if not self.alarm:
+                self.raise_alarm(code, f"homing failed: {e}")
+            self.homed = False
+            return False, str(e)
+        finally:
+            self.homing = False
+        self.homed = True
+        from pmctl.task.homing import AXES
+        msg = "homed; counter corrections " + ", ".join(
+            f"{AXES[i]} {d / self.machine.resolution.pulses_per_mm[i]:+.4f} mm" for i, d in shifts.items())
+        self._emit("homed", {"shifts": {AXES[i]: int(d) for i, d in shifts.items()}, "msg": msg})
+        return True, msg
 
     def raise_alarm(self, code: int, msg: str):
         first = not self.alarm
@@ -442,6 +510,7 @@ class Supervisor:
             self._drain_records()
             if self.proc is not None and not self.proc.is_alive() and not self.rt_dead and not self._stop.is_set():
                 self.rt_dead = True
+                self.homed = False            # the counters are kept, but not trusted
                 with self._lock:
                     self.items.clear()
                     self._gen += 1
@@ -461,6 +530,8 @@ class Supervisor:
                     self._ended_base = int(s[C.ST_ENDED])
                 code = ALARM_SOFT_LIMIT if reason.startswith(("soft limit", "path error")) else (
                     ALARM_ESTOP if reason.startswith("E-stop") else ALARM_MOTOR_FAULT)
+                if code == ALARM_MOTOR_FAULT:
+                    self.homed = False        # following error / lost backend: the position may be wrong
                 if not self.alarm:
                     self.raise_alarm(code, reason)
             # retire finished items: the rt side counts the job ends it passed

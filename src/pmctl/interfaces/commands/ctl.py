@@ -1,6 +1,8 @@
 """`pmctl ctl`: talk to a running `pmctl serve` through its control socket (JSON lines).
 
-    pmctl ctl --socket PATH status | hold | resume | stop | estop | unlock
+    pmctl ctl --socket PATH status | hold | resume | stop | estop | unlock | home
+    pmctl ctl --socket PATH resume-job [--line N] [--clearance MM]
+    pmctl ctl --socket PATH record start DIR | record stop
     pmctl ctl --socket PATH override [--feed F] [--rapid R]
     pmctl ctl --socket PATH queue add FILE | queue list
     pmctl ctl --socket PATH subscribe [--period S]
@@ -13,12 +15,18 @@ def add_parser(sub):
     p = sub.add_parser("ctl", help="control a running `pmctl serve` through its control socket",
                        description="Send one request to the control socket of `pmctl serve` and print the answer.")
     p.add_argument("--socket", required=True, metavar="PATH", help="the control socket (pmctl serve --socket)")
-    p.add_argument("what", choices=("status", "hold", "resume", "stop", "estop", "unlock", "override", "queue",
-                                    "subscribe"))
-    p.add_argument("args", nargs="*", help="queue: 'add FILE' or 'list'")
+    p.add_argument("what", choices=("status", "hold", "resume", "stop", "estop", "unlock", "home", "resume-job",
+                                    "override", "queue", "record", "subscribe"),
+                   help="home: the homing cycle ($H); resume-job: continue the job a crash interrupted from its "
+                        "line, after unlock or home (retract along the tool axis, move over, plunge at feed)")
+    p.add_argument("args", nargs="*", help="queue: 'add FILE' or 'list'; record: 'start DIR' or 'stop'")
     p.add_argument("--feed", type=float, default=None, help="override: feed factor 0.1 .. 2.0")
     p.add_argument("--rapid", type=float, default=None, help="override: rapid factor 0.25, 0.5 or 1.0")
     p.add_argument("--period", type=float, default=0.5, help="subscribe: seconds between status lines")
+    p.add_argument("--line", type=int, default=None, help="resume-job: the line to resume from (default: the "
+                                                          "line the journal recorded)")
+    p.add_argument("--clearance", type=float, default=None, metavar="MM",
+                   help="resume-job: retract and approach clearance along the tool axis (default 5 mm)")
     p.set_defaults(func=run)
 
 
@@ -43,7 +51,12 @@ def run(args) -> int:
     import os
 
     from pmctl.core.errors import PmctlError
-    req = {"cmd": args.what}
+    req = {"cmd": args.what.replace("-", "_")}
+    if args.what == "resume-job":
+        if args.line is not None:
+            req["line"] = args.line
+        if args.clearance is not None:
+            req["clearance_mm"] = args.clearance
     if args.what == "queue":
         if args.args[:1] == ["add"] and len(args.args) == 2:
             req["add"] = os.path.abspath(args.args[1])
@@ -51,6 +64,13 @@ def run(args) -> int:
             req["list"] = True
         else:
             raise PmctlError("queue: use 'queue add FILE' or 'queue list'")
+    elif args.what == "record":
+        if args.args[:1] == ["start"] and len(args.args) == 2:
+            req["start"] = os.path.abspath(args.args[1])
+        elif args.args == ["stop"]:
+            req["stop"] = True
+        else:
+            raise PmctlError("record: use 'record start DIR' or 'record stop'")
     elif args.what == "override":
         if args.feed is not None:
             req["feed"] = args.feed
@@ -68,7 +88,7 @@ def run(args) -> int:
             finally:
                 s.close()
             return 0
-        ans = request(args.socket, req)
+        ans = request(args.socket, req, timeout=None if args.what == "home" else 30.0)
     except OSError as e:
         raise PmctlError(f"--socket {args.socket}: {e.strerror or e}") from None
     print(json.dumps(ans))

@@ -8,7 +8,13 @@ JSON lines, for scripts and a future UI. One request per line, one JSON answer p
     {"cmd": "override", "feed": 1.2, "rapid": 0.5}
     {"cmd": "stop"}                            -> soft reset: stop on the path, queue dropped, position kept
     {"cmd": "estop"}                           -> immediate halt, Alarm 10 until unlock
-    {"cmd": "unlock"}
+    {"cmd": "unlock"}                          -> $X: confirm the position, clear the alarm
+    {"cmd": "home"}                            -> $H: the homing cycle; answers when it ends
+    {"cmd": "resume_job", "line": n, "clearance_mm": c}
+                                               -> resume the job the journal says was interrupted, from
+                                                  its line (or line n), with a safe approach
+    {"cmd": "record", "start": "DIR"} / {"cmd": "record", "stop": true}
+                                               -> start recording the session into DIR / finalise it
     {"cmd": "subscribe", "period_s": 0.2}      -> a status line every period until the client leaves
 Errors: {"ok": false, "error": "..."}.
 """
@@ -116,6 +122,7 @@ class ControlServer:
         a, b = roll_pitch_deg(axis)
         return {"ok": True, "state": sup.state_name(), "mpos": [*map(float, tip), a, b],
                 "counts": [int(x) for x in s[C.ST_COUNTS:C.ST_COUNTS + 5]], "line": sup.current_line(),
+                "sent": [int(x) for x in s[C.ST_SENT:C.ST_SENT + 5]], "homed": bool(sup.homed),
                 "sigma": float(s[C.ST_SIGMA]), "feed_override": float(s[C.ST_FEED_OV]),
                 "rapid_override": float(s[C.ST_RAPID_OV]), "queued_items": sup.queued_items(),
                 "alarm": sup.alarm, "alarm_msg": sup.alarm_msg, "rt_alive": not sup.rt_dead,
@@ -131,7 +138,7 @@ class ControlServer:
             if "add" in req:
                 path = str(req["add"])
                 job = load_job(path, sup.machine, start=sup.end_pose())
-                it = sup.submit(job, kind="job", name=os.path.basename(path))
+                it = sup.submit(job, kind="job", name=os.path.basename(path), source=os.path.abspath(path))
                 return {"ok": True, "index": it.index}
             with sup._lock:
                 items = [{"index": i.index, "kind": i.kind, "name": i.name, "planned": i.planned} for i in sup.items]
@@ -161,6 +168,21 @@ class ControlServer:
             sup.estop("E-stop from the control socket")
         elif cmd == "unlock":
             sup.unlock()
+        elif cmd == "record":
+            if "start" in req:
+                return {"ok": True, "folder": self.daemon.record_start(os.path.abspath(str(req["start"])))}
+            if req.get("stop"):
+                return {"ok": True, "folder": self.daemon.record_stop()}
+            return {"ok": False, "error": "record: 'start': DIR or 'stop': true"}
+        elif cmd == "home":
+            ok, msg = self.daemon.home()
+            return {"ok": bool(ok), "msg": msg} if ok else {"ok": False, "error": msg}
+        elif cmd == "resume_job":
+            line = req.get("line")
+            clearance = float(req.get("clearance_mm", 5.0))
+            it = self.daemon.resume_job(line=None if line is None else int(line), clearance_mm=clearance)
+            return {"ok": True, "index": it.index, "job": it.source, "line": it.job.moves[3].line
+                    if len(it.job.moves) > 3 else 0}
         else:
             return {"ok": False, "error": f"unknown command {cmd!r}"}
         return {"ok": True}

@@ -404,7 +404,9 @@ class GrblConsole:
 
     def _settings_list(self):
         m, p = self.sup.machine, self.sup.params
-        out = [(10, self.settings[10]), (13, 0), (20, 1), (21, 0), (22, 1 if self.homing else 0)]
+        from pmctl.motion import channel as C
+        switches = self.sup.ch is not None and self.sup.raw()[C.ST_HOME_IN] >= 0
+        out = [(10, self.settings[10]), (13, 0), (20, 1), (21, 0), (22, 1 if self.homing and switches else 0)]
         ppm = m.resolution.pulses_per_mm
         for i in range(5):
             out.append((100 + i, f"{ppm[i]:.3f}"))

@@ -1,0 +1,204 @@
+"""Homing (``$H``): a per-axis sequence against the home switches, one joint moving at a time.
+
+Every home switch is a cam switch that closes when its joint moves in + past the switch's edge
+([homing] in the service config gives the order, the speeds, the pull-off, the search distance and
+the joint position of each edge). Per axis, as grbl and LinuxCNC do it:
+
+1. if the switch is already closed: move off it (-) until it opens (ALARM 8 if it does not within
+   the search distance);
+2. seek (+) at the seek speed until it closes (ALARM 9 if not within the search distance), stop on
+   the path;
+3. back off (-) until it opens, then by the pull-off;
+4. latch: approach (+) at the latch speed; the pulse counter of the tick the switch closes is taken
+   (the rt side latches it, so the position is good to latch speed x tick + 1 pulse), stop;
+5. back off (-) until it opens and by the pull-off;
+6. re-reference: the counter becomes (reference + counted since the latch), at rest.
+
+The moves are joint paths (q0 + e_i s(t), a trapezoidal s) streamed as pose samples (their FK) into
+the one path the machine moves on; the NC's IK of those poses is the joint path. :class:`Sequence`
+holds the logic against an abstract mover (so it can be checked without the rt side);
+:class:`RtMover` moves the machine through the supervisor's channel.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from pmctl.core.errors import PmctlError
+from pmctl.hal.base import AXES
+from pmctl.task.supervisor import ALARM_HOMING_APPROACH, ALARM_HOMING_PULLOFF, ALARM_HOMING_RESET
+
+
+class HomingFailed(PmctlError):
+    """The homing cycle failed; ``code`` is grbl's alarm code (6 reset, 8 pull-off, 9 approach)."""
+
+    def __init__(self, code, msg):
+        super().__init__(msg)
+        self.code = code
+
+
+def joint_profile(dist: float, speed: float, accel: float, dt: float) -> np.ndarray:
+    """s(t) sampled every ``dt`` from 0 to ``dist`` (signed): a trapezoid (a triangle when short) with
+    |s'| <= speed and |s''| <= accel; starts and ends at rest, the last sample exactly ``dist``."""
+    d = abs(float(dist))
+    if d == 0.0:
+        return np.zeros(1)
+    v = min(float(speed), math.sqrt(d * accel))
+    ta = v / accel
+    tc = (d - v * ta) / v
+    T = 2 * ta + tc
+    n = max(2, int(math.ceil(T / dt)) + 1)
+    t = np.minimum(np.arange(n) * dt, T)
+    s = np.where(t < ta, 0.5 * accel * t ** 2,
+                 np.where(t < ta + tc, 0.5 * v * ta + v * (t - ta),
+                          d - 0.5 * accel * np.maximum(T - t, 0.0) ** 2))
+    s[-1] = d
+    return math.copysign(1.0, dist) * s
+
+
+def joint_trajectory(q0, axis: int, dist: float, speed: float, accel: float, machine, dt: float):
+    """The Trajectory (poses = FK of q0 + e_axis s(t)) of a single-joint move; PmctlError if any pose
+    of it has no forward kinematics."""
+    from pmctl.core import kinematics as K
+    from pmctl.task.trajectory import Trajectory
+    s = joint_profile(dist, speed, accel, dt)
+    q = np.repeat(np.asarray(q0, float)[None], len(s), 0)
+    q[:, axis] += s
+    pose, ok = K.fk_batch(q, machine)
+    if not np.all(ok):
+        raise PmctlError(f"homing {AXES[axis]}: the move of {dist:+g} mm leaves the workspace")
+    ax = pose.axis / np.linalg.norm(pose.axis, axis=1)[:, None]
+    z = np.zeros_like(pose.tip)
+    return Trajectory(dt, pose.tip, ax, z, z, np.zeros(len(s), int), np.zeros(len(s)), source="homing")
+
+
+class Sequence:
+    """The homing cycle against a mover with ``switch(i) -> bool``, ``count(i) -> int``,
+    ``move(i, dist, speed, want=None) -> latched counter or None`` (``want``: stop at the first tick
+    the switch reads ``want``) and ``set_count(i, n)``."""
+
+    def __init__(self, cfg, ppm):
+        self.cfg = cfg
+        self.ppm = np.asarray(ppm, float)
+
+    def home_axis(self, mv, i: int) -> int:
+        """Home axis ``i``; returns the counter shift applied (pulses)."""
+        c, name = self.cfg, AXES[i]
+        if mv.switch(i):
+            if mv.move(i, -c.search_mm, c.seek_mm_s, want=False) is None:
+                raise HomingFailed(ALARM_HOMING_PULLOFF, f"homing {name}: the switch did not open within "
+                                                         f"{c.search_mm:g} mm moving off it")
+        if mv.move(i, c.search_mm, c.seek_mm_s, want=True) is None:
+            raise HomingFailed(ALARM_HOMING_APPROACH, f"homing {name}: switch not found within the search "
+                                                      f"distance {c.search_mm:g} mm")
+        edge = self._clear(mv, i)
+        dist = (edge - mv.count(i)) / self.ppm[i] + 2 * c.pull_off_mm      # to the edge and a pull-off beyond
+        latched = mv.move(i, dist, c.latch_mm_s, want=True)
+        if latched is None:
+            raise HomingFailed(ALARM_HOMING_APPROACH, f"homing {name}: switch not found on the latch approach "
+                                                      f"({dist:.3f} mm)")
+        self._clear(mv, i)
+        shift = int(round(c.reference_mm[i] * self.ppm[i])) - int(latched)
+        mv.set_count(i, mv.count(i) + shift)
+        return shift
+
+    def _clear(self, mv, i) -> int:
+        """Back off (-) until the switch opens, then by the pull-off; returns the counter at the edge."""
+        c = self.cfg
+        edge = mv.move(i, -c.search_mm, c.seek_mm_s, want=False)
+        if edge is None:
+            raise HomingFailed(ALARM_HOMING_PULLOFF, f"homing {AXES[i]}: the switch did not open pulling off")
+        mv.move(i, -c.pull_off_mm, c.seek_mm_s)
+        return edge
+
+    def run(self, mv) -> dict:
+        return {AXES.index(a): self.home_axis(mv, AXES.index(a)) for a in self.cfg.order}
+
+
+class RtMover:
+    """Moves for :class:`Sequence` through the supervisor: samples into the channel's sample ring,
+    the switch latch and the re-reference as commands to the rt side."""
+
+    def __init__(self, sup, abort):
+        from pmctl.motion.timescale import scaling_limits
+        self.sup = sup
+        self.abort = abort                 # threading.Event: a reset aborts the cycle (ALARM 6)
+        self.ppm = np.asarray(sup.machine.resolution.pulses_per_mm, float)
+        self.accel = [0.25 * float(a) for a in sup.params.amax]
+        self.scaling = scaling_limits(sup.params)
+
+    def _s(self):
+        return self.sup.raw()
+
+    def _check(self, latch_seq=None):
+        from pmctl.motion import channel as C
+        from pmctl.task.supervisor import MotionRefused
+        sup = self.sup
+        if latch_seq is not None and self._s()[C.ST_LATCH_SEQ] != latch_seq:
+            raise _Latched()
+        if self.abort.is_set() or sup._stop.is_set():
+            raise HomingFailed(ALARM_HOMING_RESET, "homing aborted by a reset")
+        if sup.rt_dead or sup.alarm:
+            raise MotionRefused(sup.alarm_msg or "the rt motion process is down", 9)
+
+    def count(self, i):
+        from pmctl.motion import channel as C
+        return int(self._s()[C.ST_COUNTS + i])
+
+    def switch(self, i):
+        from pmctl.motion import channel as C
+        bits = int(self._s()[C.ST_HOME_IN])
+        if bits < 0:
+            raise HomingFailed(ALARM_HOMING_APPROACH, "this backend reports no home switches")
+        return bool(bits >> i & 1)
+
+    def move(self, i, dist, speed, want=None):
+        from pmctl.motion import channel as C
+        from pmctl.motion.timescale import iter_job_rows
+        sup = self.sup
+        s = self._s()
+        q0 = s[C.ST_COUNTS:C.ST_COUNTS + 5] / self.ppm
+        traj = joint_trajectory(q0, i, dist, speed, self.accel[i], sup.machine, sup.dt)
+        seq0, ended0 = s[C.ST_LATCH_SEQ], s[C.ST_ENDED]
+        if want is not None:
+            if not sup.wait_ack(sup.command(C.C_HOME_ARM, float(i), 1.0 if want else 0.0), 10.0):
+                raise HomingFailed(ALARM_HOMING_APPROACH, "the rt side did not take the switch latch")
+        latched = None
+        try:
+            for rows in iter_job_rows(traj, sup.machine, sup.params, rapid=np.ones(len(traj), bool),
+                                      rapid_mm_s=1e3):
+                sup.stream_rows(rows, lambda: self._check(seq0))
+            while True:
+                self._check()
+                st = self._s()
+                if st[C.ST_LATCH_SEQ] != seq0 or st[C.ST_ENDED] > ended0:
+                    break
+                time.sleep(0.002)
+        except _Latched:
+            pass
+        if want is not None:
+            sup.wait_ack(sup.command(C.C_HOME_ARM, -1.0), 10.0)
+        st = self._s()
+        if st[C.ST_LATCH_SEQ] != seq0:
+            latched = int(st[C.ST_LATCH + i])
+        sup._stop_queue()                   # at rest on the path, the rest of the move dropped
+        self._check()
+        return latched
+
+    def set_count(self, i, n):
+        from pmctl.motion import channel as C
+        sup = self.sup
+        sup.wait_ack(sup.command(C.C_SET_COUNTS, float(i), float(n)), 10.0)
+        t0 = time.monotonic()
+        while self.count(i) != n:
+            if time.monotonic() - t0 > 10.0:
+                raise HomingFailed(ALARM_HOMING_APPROACH, f"homing {AXES[i]}: the rt side did not re-reference "
+                                                          f"the counter (not at rest?)")
+            time.sleep(0.005)
+
+
+class _Latched(Exception):
+    pass
