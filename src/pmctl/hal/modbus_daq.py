@@ -104,8 +104,9 @@ def check_k_theta_source(opt: DaqOptions | None, k_theta, machine, where="daq"):
 class StrainDAQ:
     """Client + poller. ``latest()`` gives (t_monotonic, counter, strain[3]) of the newest sample."""
 
-    def __init__(self, opt: DaqOptions):
+    def __init__(self, opt: DaqOptions, before_poll=None):
         self.opt = opt
+        self.before_poll = before_poll     # e.g. hands a simulated DAQ the strain to serve
         self.client = None
         self.samples: list[tuple[int, float, list[float]]] = []     # (tick, t, strain)
         self.fault = ""
@@ -134,6 +135,8 @@ class StrainDAQ:
     def poll(self):
         """One read of the four registers; checks the age. Returns (t, counter, strain)."""
         from pymodbus.exceptions import ModbusException
+        if self.before_poll is not None:
+            self.before_poll()
         t_req = time.monotonic()
         try:
             rr = self.client.read_input_registers(self.opt.base, count=4, device_id=self.opt.device_id)
@@ -209,17 +212,26 @@ class DaqSession:
         self.source = source or (lambda: (0.0, 0.0, 0.0))
         self.log = log
         self.server = self.device = None
+        self.sim = None
         self.daq = None
 
     def connect(self):
         try:
             if self.opt.simulate:
-                from pmctl.hal.modbus_sim import ModbusSimServer, SimDAQ
-                self.device = SimDAQ(self.source, self.opt.base, self.opt.ue_per_count, self.opt.sim_sample_hz)
-                self.server = ModbusSimServer(self.device, self.opt.host, self.opt.port, self.opt.device_id,
-                                              input_registers=True).start()
-                self.opt.port = self.server.port
-            self.daq = StrainDAQ(self.opt).connect()
+                # the simulated DAQ in a device-simulator process; the strain it serves is pushed
+                # to it before each poll
+                from pmctl.hal.devsim import DeviceSimulator, DeviceSimulatorError
+                o = self.opt
+                spec = {"base": o.base, "ue_per_count": o.ue_per_count, "sample_hz": o.sim_sample_hz,
+                        "host": o.host, "port": o.port, "device_id": o.device_id}
+                try:
+                    self.sim = DeviceSimulator({"daq": spec}, "simulated strain DAQ").start()
+                except DeviceSimulatorError as e:
+                    raise HalError(str(e)) from None
+                self.opt.port = self.sim.info["daq_port"]
+                self.device, self.server = self.sim.proxy("daq"), self.sim.proxy("daq_server")
+                self.sim.push_strain(self.source())
+            self.daq = StrainDAQ(self.opt, self._feed if self.sim is not None else None).connect()
         except BaseException:
             self.close()
             raise
@@ -231,9 +243,15 @@ class DaqSession:
     def per_tick(self, n):
         return self.daq.per_tick(n)
 
+    def _feed(self):
+        self.sim.push_strain(self.source())
+
     def close(self):
         if self.daq is not None:
             self.daq.close()
-        if self.server is not None:
+        if self.sim is not None:
+            self.sim.stop()
+            self.sim = None
+        elif self.server is not None:
             self.server.stop()
-            self.server = None
+        self.server = None

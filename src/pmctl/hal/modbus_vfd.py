@@ -265,9 +265,17 @@ class SpindleMonitor:
         return out
 
 
+def sim_spec(opt: VfdOptions) -> dict:
+    """What the device simulator (pmctl.hal.devsim) needs to serve a VFD for ``opt``."""
+    from dataclasses import asdict
+    return {"registers": asdict(opt.registers), "max_hz": opt.max_hz, "max_rpm": opt.max_rpm,
+            "ramp_rpm_per_s": opt.sim_ramp_rpm_per_s, "host": opt.host, "port": opt.port,
+            "device_id": opt.device_id}
+
+
 def simulated(opt: VfdOptions):
-    """Start a simulated VFD for ``opt`` (simulate = true); returns (server, device). The chosen
-    port is written back to ``opt.port`` when it was 0."""
+    """Start a simulated VFD for ``opt`` in this process (tests); returns (server, device). The
+    chosen port is written back to ``opt.port`` when it was 0."""
     from pmctl.hal.modbus_sim import ModbusSimServer, SimVFD
     dev = SimVFD(opt.registers, max_hz=opt.max_hz, rpm_per_hz=opt.max_rpm / opt.max_hz,
                  ramp_hz_per_s=opt.sim_ramp_rpm_per_s * opt.max_hz / opt.max_rpm)
@@ -297,6 +305,7 @@ class SpindleSession:
         self.opt = replace(opt)            # the simulated port is written back into this copy
         self.log = log
         self.server = self.device = None
+        self.sim = None
         self.vfd = None
         self.monitor = None
         self.direction = 1.0
@@ -304,7 +313,14 @@ class SpindleSession:
     def connect(self):
         try:
             if self.opt.simulate:
-                self.server, self.device = simulated(self.opt)
+                # the simulated VFD in a device-simulator process (not in the loop's process)
+                from pmctl.hal.devsim import DeviceSimulator, DeviceSimulatorError
+                try:
+                    self.sim = DeviceSimulator({"vfd": sim_spec(self.opt)}, "simulated spindle VFD").start()
+                except DeviceSimulatorError as e:
+                    raise HalError(str(e)) from None
+                self.opt.port = self.sim.info["vfd_port"]
+                self.device, self.server = self.sim.proxy("vfd"), self.sim.proxy("vfd_server")
             self.vfd = SpindleVFD(self.opt).connect()
         except BaseException:
             self.close()
@@ -338,6 +354,9 @@ class SpindleSession:
             except HalError as e:
                 self.log(f"warning: {e} (M5 not acknowledged)")
             self.vfd.close()
-        if self.server is not None:
+        if self.sim is not None:
+            self.sim.stop()
+            self.sim = None
+        elif self.server is not None:
             self.server.stop()
-            self.server = None
+        self.server = None
