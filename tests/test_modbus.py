@@ -130,7 +130,7 @@ def test_job_speed():
         job_speed([0, 8000, 6000])
 
 
-def _spindle_run(inject):
+def _spindle_run(inject, **extra):
     """A 6 s line on the sim backend with the spindle watched as pmctl run does; ``inject(dev, srv)``
     once the loop is under way."""
     dt = 1e-3
@@ -141,7 +141,7 @@ def _spindle_run(inject):
     be = hal.create("sim", M, dt, {})
     be.open(c0)
     sp = SpindleSession(VfdOptions.from_dict({"simulate": True, "port": 0, "poll_ms": 10.0,
-                                              "sim_ramp_rpm_per_s": 40000.0}), log=lambda m: None).connect()
+                                              "sim_ramp_rpm_per_s": 40000.0, **extra}), log=lambda m: None).connect()
     sp.start(8000)
     # paced ticks: back to back the compiled loop would finish the 6 s line before a poll sees the fault
     cfg = LoopConfig(rate_hz=1000, realtime=True, lock_memory=False, stall_timeout_s=5.0, max_overruns_in_row=10**6)
@@ -176,6 +176,31 @@ def test_vfd_link_lost_mid_job_is_a_controlled_stop():
     assert res.status == "stopped"
     assert "spindle VFD" in res.reason and "link lost" in res.reason
     assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
+
+
+def test_vfd_over_rtu_fault_mid_job_is_a_controlled_stop():
+    # Modbus RTU: the client on one end of a null modem (two ptys) of the device simulator, whose
+    # RTU server is on the other end; the fault is injected into the simulator's VFD
+    res, be, c0, sp = _spindle_run(lambda dev, srv: dev.fault(9), transport="rtu", serial_port="devsim",
+                                   baud=115200)
+    assert res.status == "stopped"
+    assert "RTU 115200 N1 (unit 1): fault code 9 in register 0x5000" in res.reason
+    assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
+    assert np.nanmax(sp.per_tick(res.ticks)) >= 0.98 * 8000
+
+
+@pytest.mark.parametrize("table,key", [
+    ({"transport": "can"}, "transport"), ({"transport": "rtu", "serial_port": "ttyUSB0"}, "serial_port"),
+    ({"transport": "rtu", "serial_port": "/dev/ttyUSB0", "baud": 12345}, "baud"),
+    ({"transport": "rtu", "serial_port": "/dev/ttyUSB0", "parity": "X"}, "parity"),
+    ({"transport": "rtu", "serial_port": "/dev/ttyUSB0", "stop_bits": 3}, "stop_bits"),
+    ({"transport": "rtu", "serial_port": "/dev/ttyUSB0", "device_id": 0}, "device_id"),
+    ({"transport": "rtu", "simulate": True, "serial_port": "/dev/ttyUSB0"}, "serial_port"),
+    ({"transport": "rtu", "simulate": True, "serial_port": "devsim", "parity": "E"}, "parity")])
+def test_rtu_options_errors_name_the_field(table, key):
+    with pytest.raises(ConfigError) as e:
+        VfdOptions.from_dict(table, "service.toml: spindle")
+    assert e.value.key == key and f"spindle: {key}: " in str(e.value)
 
 
 def test_pmctl_run_canopen_with_a_spindle_job_records_spindle_rpm(tmp_path):

@@ -231,9 +231,9 @@ class CanopenCSP(Backend):
             raise ConfigError("hal.canopen", "cycle_ms",
                               f"{o.cycle_ms:g} ms is not a whole multiple of the NC tick {self.dt * 1e3:g} ms")
         self.cycle_ticks = int(round(ratio))
-        # a paused host: the drives hold their last target; past host_timeout_ms they fault by
-        # themselves (no host heartbeat); half of it is the pause the loop rides out
-        self.stall_tolerance_s = o.host_timeout_ms / 2e3
+        # a paused host: the drives hold their last target; past host_timeout_ms without the host's
+        # heartbeat (sent every host_heartbeat_ms from the ticks) they fault by themselves
+        self.stall_tolerance_s = (o.host_timeout_ms - o.host_heartbeat_ms) / 1e3
         self.cycle_s = o.cycle_ms / 1e3
         self.inc_per_mm = np.asarray(o.increments_per_mm if o.increments_per_mm is not None
                                      else machine.resolution.pulses_per_mm, float)
@@ -503,6 +503,9 @@ class CanopenCSP(Backend):
         self._fill_feedback()
         # the host heartbeat keeps going from a timer until the first tick takes over
         self._hb_task = self.network.send_periodic(C.cob_heartbeat(o.host_node_id), [5], o.host_heartbeat_ms / 1e3)
+        # that timer thread is all the drives hear of the host until the loop runs (the spindle
+        # spins up meanwhile): it gets the receive threads' priority
+        C.boost_thread(getattr(getattr(self._hb_task, "_task", None), "thread", None), o.bus_thread_priority)
 
     def _cycle(self, cw: int, settle: bool = True):
         """One CAN cycle outside the loop (start-up): RPDOs with ``cw`` and the held targets, SYNC,

@@ -6,7 +6,8 @@ so that they do not share the control loop's process (and its interpreter lock):
   written on one link goes to every other link and to the simulated drives, a frame a drive sends
   goes to every link. The master is one link; listeners (tests, benchmarks) are others, opened
   with python-can's own ``slcan`` interface like a USB-CAN adapter;
-- the spindle VFD and the strain DAQ (pmctl.hal.modbus_sim), pymodbus servers on 127.0.0.1.
+- the spindle VFD and the strain DAQ (pmctl.hal.modbus_sim), pymodbus servers on 127.0.0.1; the
+  VFD speaks RTU instead on one end of a null modem made of two ptys, the client opens the other.
 
 Start: ``python -m pmctl.hal.devsim '<spec as JSON>'``; it prints one JSON line when every device
 answers (``{"ready": true, "can_tcp_port": .., "links": [pty, ...], "vfd_port": .., "daq_port": ..}``), then obeys
@@ -169,6 +170,48 @@ class Hub:
                     pass
 
 
+class NullModem:
+    """Two ptys joined like two serial ports by a null-modem cable: what one side's user writes,
+    the other side's user reads (e.g. an RTU server on one, the client on the other)."""
+
+    def __init__(self):
+        from pmctl.hal.slcan_link import raw
+        self.ends = []
+        for _ in range(2):
+            m, s = os.openpty()
+            raw(s)
+            self.ends.append((m, s, os.ttyname(s)))
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, daemon=True, name="pmctl-devsim-null-modem")
+        self._t.start()
+
+    @property
+    def paths(self):
+        return [p for _m, _s, p in self.ends]
+
+    def _run(self):
+        (ma, _sa, _pa), (mb, _sb, _pb) = self.ends
+        other = {ma: mb, mb: ma}
+        while not self._stop.is_set():
+            r, _, _ = select.select([ma, mb], [], [], 0.1)
+            for fd in r:
+                try:
+                    data = os.read(fd, 4096)
+                    os.write(other[fd], data)
+                except OSError:             # EIO: that end is not open right now: the bytes are lost
+                    time.sleep(0.01)
+
+    def stop(self):
+        self._stop.set()
+        self._t.join(1.0)
+        for m, s, _p in self.ends:
+            for fd in (m, s):
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+
+
 def hub_bus(hub: Hub):
     """The python-can bus of the simulated nodes on the hub's wire."""
     import can
@@ -212,7 +255,7 @@ class _Sim:
         if note:
             self.notes.append(note)
         self.hub = self.drives = None
-        self.vfd = self.vfd_server = None
+        self.vfd = self.vfd_server = self.modem = None
         self.daq = self.daq_server = None
         self.strain = [0.0, 0.0, 0.0]
         if "can" in spec:
@@ -227,7 +270,11 @@ class _Sim:
             from pmctl.hal.modbus_vfd import VfdRegisters
             self.vfd = SimVFD(VfdRegisters(**v["registers"]), max_hz=v["max_hz"], rpm_per_hz=v["max_rpm"] / v["max_hz"],
                               ramp_hz_per_s=v["ramp_rpm_per_s"] * v["max_hz"] / v["max_rpm"])
-            self.vfd_server = ModbusSimServer(self.vfd, v["host"], v["port"], v["device_id"]).start()
+            serial = None
+            if v.get("rtu"):                # RTU: the server on one end of a null modem, the client's end reported
+                self.modem = NullModem()
+                serial = {"port": self.modem.paths[0], **v["rtu"]}
+            self.vfd_server = ModbusSimServer(self.vfd, v["host"], v["port"], v["device_id"], serial=serial).start()
         if "daq" in spec:
             d = spec["daq"]
             from pmctl.hal.modbus_sim import ModbusSimServer, SimDAQ
@@ -239,6 +286,7 @@ class _Sim:
         return {"ready": True, "pid": os.getpid(), "links": self.hub.paths if self.hub else [],
                 "can_tcp_port": self.hub.tcp_port if self.hub else None,
                 "vfd_port": self.vfd_server.port if self.vfd_server else None,
+                "vfd_serial": self.modem.paths[1] if self.modem else None,
                 "daq_port": self.daq_server.port if self.daq_server else None, "notes": self.notes}
 
     def target(self, name: str):
@@ -268,6 +316,8 @@ class _Sim:
         for s in (self.vfd_server, self.daq_server):
             if s is not None:
                 s.stop()
+        if self.modem is not None:
+            self.modem.stop()
         if self.drives is not None:
             self.drives.stop()
         if self.hub is not None:

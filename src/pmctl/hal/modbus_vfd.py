@@ -1,4 +1,4 @@
-"""The spindle inverter (VFD) over Modbus TCP, with a pymodbus client.
+"""The spindle inverter (VFD) over Modbus TCP or RTU (a serial line), with a pymodbus client.
 
 - ``M3``/``M4 S..`` -> set-point and run forward / reverse; ``M5`` -> stop (function codes 06 and 03).
 - ``wait_at_speed``: the measured speed within ``at_speed_tolerance`` (2 %) of the command, as
@@ -45,11 +45,19 @@ class VfdRegisters:
         return f"register 0x{addr:04X}"
 
 
+BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
+
+
 @dataclass
 class VfdOptions:
     enabled: bool = True
-    host: str = "127.0.0.1"
-    port: int = 502                  # 0 with simulate = true: any free loopback port
+    transport: str = "tcp"           # "tcp" (Modbus TCP) or "rtu" (Modbus RTU on a serial line)
+    host: str = "127.0.0.1"          # tcp
+    port: int = 502                  # tcp; 0 with simulate = true: any free loopback port
+    serial_port: str = ""            # rtu: the serial device; "devsim" with simulate = true
+    baud: int = 19200                # rtu
+    parity: str = "N"                # rtu: N, E or O
+    stop_bits: int = 1               # rtu
     device_id: int = 1
     timeout_ms: float = 200.0
     max_rpm: float = 24000.0         # speed at set-point 10000 (maximum frequency)
@@ -97,8 +105,30 @@ class VfdOptions:
             v = getattr(o, k)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise ConfigError(where, k, f"must be an integer {lo} .. {hi}, got {v!r}")
-        if o.port == 0 and not o.simulate:
+        if o.transport not in ("tcp", "rtu"):
+            raise ConfigError(where, "transport", f"must be \"tcp\" or \"rtu\", got {o.transport!r}")
+        if o.transport == "tcp" and o.port == 0 and not o.simulate:
             raise ConfigError(where, "port", "0 (any free port) only with simulate = true")
+        if o.baud not in BAUDS or isinstance(o.baud, bool):
+            raise ConfigError(where, "baud", f"must be one of {', '.join(map(str, BAUDS))}, got {o.baud!r}")
+        if o.parity not in ("N", "E", "O"):
+            raise ConfigError(where, "parity", f"must be \"N\", \"E\" or \"O\", got {o.parity!r}")
+        if o.stop_bits not in (1, 2) or isinstance(o.stop_bits, bool):
+            raise ConfigError(where, "stop_bits", f"must be 1 or 2, got {o.stop_bits!r}")
+        if not isinstance(o.serial_port, str):
+            raise ConfigError(where, "serial_port", f"must be a serial device path, got {o.serial_port!r}")
+        if o.transport == "rtu":
+            if o.simulate and o.serial_port != "devsim":
+                raise ConfigError(where, "serial_port", f"a simulated RTU VFD is the device simulator's: "
+                                                        f"serial_port = \"devsim\", not {o.serial_port!r}")
+            if o.simulate and o.parity != "N":
+                raise ConfigError(where, "parity", f"the simulated RTU line is a pty, which has no parity bit: "
+                                                   f"parity = \"N\", not {o.parity!r}")
+            if not o.simulate and not o.serial_port.startswith("/"):
+                raise ConfigError(where, "serial_port", f"must be a serial device (e.g. /dev/ttyUSB0), "
+                                                        f"got {o.serial_port!r}")
+            if not 1 <= o.device_id <= 247:
+                raise ConfigError(where, "device_id", f"an RTU unit address is 1 .. 247, got {o.device_id}")
         if not isinstance(o.host, str) or not o.host:
             raise ConfigError(where, "host", "must be a host name or address")
         if o.simulate and not (o.host.startswith("127.") or o.host == "localhost"):
@@ -124,12 +154,23 @@ class SpindleVFD:
 
     @property
     def device(self):
-        return f"spindle VFD {self.opt.host}:{self.opt.port} (unit {self.opt.device_id})"
+        o = self.opt
+        if o.transport == "rtu":
+            return f"spindle VFD {o.serial_port} RTU {o.baud} {o.parity}{o.stop_bits} (unit {o.device_id})"
+        return f"spindle VFD {o.host}:{o.port} (unit {o.device_id})"
 
     def connect(self):
-        from pymodbus.client import ModbusTcpClient
-        self.client = ModbusTcpClient(self.opt.host, port=self.opt.port, timeout=self.opt.timeout_ms / 1e3,
-                                      retries=0, reconnect_delay=0)
+        o = self.opt
+        if o.transport == "rtu":
+            from pymodbus import FramerType
+            from pymodbus.client import ModbusSerialClient
+            self.client = ModbusSerialClient(o.serial_port, framer=FramerType.RTU, baudrate=o.baud, bytesize=8,
+                                             parity=o.parity, stopbits=o.stop_bits, timeout=o.timeout_ms / 1e3,
+                                             retries=0, reconnect_delay=0)
+        else:
+            from pymodbus.client import ModbusTcpClient
+            self.client = ModbusTcpClient(o.host, port=o.port, timeout=o.timeout_ms / 1e3,
+                                          retries=0, reconnect_delay=0)
         if not self.client.connect():
             raise HalError(f"{self.device}: cannot connect")
         self.read_fault()              # the link answers and the inverter is healthy, before any command
@@ -268,9 +309,12 @@ class SpindleMonitor:
 def sim_spec(opt: VfdOptions) -> dict:
     """What the device simulator (pmctl.hal.devsim) needs to serve a VFD for ``opt``."""
     from dataclasses import asdict
-    return {"registers": asdict(opt.registers), "max_hz": opt.max_hz, "max_rpm": opt.max_rpm,
+    spec = {"registers": asdict(opt.registers), "max_hz": opt.max_hz, "max_rpm": opt.max_rpm,
             "ramp_rpm_per_s": opt.sim_ramp_rpm_per_s, "host": opt.host, "port": opt.port,
             "device_id": opt.device_id}
+    if opt.transport == "rtu":
+        spec["rtu"] = {"baudrate": opt.baud, "parity": opt.parity, "stopbits": opt.stop_bits}
+    return spec
 
 
 def simulated(opt: VfdOptions):
@@ -320,6 +364,8 @@ class SpindleSession:
                 except DeviceSimulatorError as e:
                     raise HalError(str(e)) from None
                 self.opt.port = self.sim.info["vfd_port"]
+                if self.opt.transport == "rtu":
+                    self.opt.serial_port = self.sim.info["vfd_serial"]
                 self.device, self.server = self.sim.proxy("vfd"), self.sim.proxy("vfd_server")
             self.vfd = SpindleVFD(self.opt).connect()
         except BaseException:
