@@ -260,7 +260,8 @@ class SpindleMonitor:
 
     def __init__(self, vfd: SpindleVFD, tick, on_fault):
         self.vfd, self.tick, self.on_fault = vfd, tick, on_fault
-        self.samples: list[tuple[int, float]] = []
+        self.changer = None              # a SpeedChanger: speed changes inside the job
+        self.samples: list[tuple[int, float]] = []  # (tick, signed rpm)
         self.fault = ""
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, daemon=True, name="pmctl-spindle")
@@ -276,8 +277,11 @@ class SpindleMonitor:
             try:
                 self.vfd.read_fault()
                 rpm = self.vfd.read_rpm()
-                self.samples.append((int(self.tick()), rpm))
+                # signed like the command: negative = M4
+                self.samples.append((int(self.tick()), -rpm if self.vfd.rpm_cmd < 0 else rpm))
                 missed = 0
+                if self.changer is not None:
+                    self.changer.poll(rpm)
             except HalTimeout as e:          # one unanswered poll is no lost link yet
                 missed += 1
                 if missed < self.vfd.opt.max_missed_polls:
@@ -329,16 +333,94 @@ def simulated(opt: VfdOptions):
 
 
 def job_speed(spindle_rpm) -> float:
-    """The one spindle speed of a job (signed: negative = M4), 0 when the spindle stays off. A job
-    that changes speed or direction between its moves is refused: this first integration runs the
-    spindle at one speed for the whole job."""
+    """The spindle speed a job starts with (signed: negative = M4): its first non-zero one, 0 when
+    the spindle stays off. Later changes are ``speed_changes``."""
     import numpy as np
     v = np.asarray(spindle_rpm, float)
-    on = np.unique(v[v != 0])
-    if len(on) > 1:
-        raise HalError(f"the job commands several spindle speeds ({', '.join(f'{x:g}' for x in on)} rpm); "
-                       f"one speed per job is supported (split the job)")
+    on = v[v != 0]
     return float(on[0]) if len(on) else 0.0
+
+
+REST_STEP_MM = 1e-3     # joint motion per sample below which a planned stop counts as at rest
+LOOKAHEAD_SAMPLES = 2   # the wait starts this many ticks' worth of path before the stop, at most
+
+
+def speed_changes(spindle_rpm, q, job_start: int = 0) -> list[tuple[int, float, bool]]:
+    """The spindle speed changes inside a job, after it started at ``job_speed``: (the sample of
+    the loop's targets where the motion waits, the new signed speed, whether the path is at rest
+    there). The planner stops the path exactly on the last sample of the old speed (``q``: the
+    targets' joints, ``job_start``: the first job sample among them); it is at rest when the
+    joints move less than ``REST_STEP_MM`` per sample around it. Trailing zeros (the M5 at the end)
+    are no change."""
+    import numpy as np
+    v = np.asarray(spindle_rpm, float)
+    q = np.asarray(q, float)
+    on = np.flatnonzero(v)
+    if not len(on):
+        return []
+    out = []
+    cur = v[on[0]]
+    for c in np.flatnonzero(np.diff(v)) + 1:
+        if c <= on[0] or c > on[-1] or v[c] == cur:
+            continue
+        cur = v[c]
+        p = int(c) + job_start - 1                  # the last sample at the old speed: the stop
+        steps = [np.abs(q[i + 1] - q[i]).max() for i in range(p - LOOKAHEAD_SAMPLES, p + 1)
+                 if 0 <= i and i + 1 < len(q)]
+        out.append((p, float(cur), bool(steps) and bool(max(steps) <= REST_STEP_MM)))
+    return out
+
+
+class SpeedChanger:
+    """Speed changes inside a job. In the loop's thread (``hook``, each tick): when the path
+    reaches a change, the loop's path follower holds there (at a planned stop, where the path is
+    at rest, at once). In the monitor's thread (``poll``, at each poll): the new speed goes to the
+    VFD, and once it is within ``at_speed_tolerance`` the hold is released. A change that does not
+    reach its speed within ``spinup_timeout_s`` is a fault (a controlled stop)."""
+
+    def __init__(self, vfd: SpindleVFD, loop, changes):
+        self.vfd, self.loop, self.changes = vfd, loop, list(changes)
+        self.next = 0
+        self.pending = None             # the speed asked for, while the path waits for it
+        self.sent = False
+        self.t_sent = 0.0
+        self.held_ticks = []            # [from tick, to tick] of each wait
+
+    def hook(self, lp, k, st):
+        if self.pending is None and self.next < len(self.changes):
+            b, rpm, rest = self.changes[self.next]
+            fol = lp.follower
+            sc = fol.scaler
+            # where the next ticks will take the path (sigma samples per tick): wait before the
+            # stop is passed, i.e. at most LOOKAHEAD_SAMPLES short of it, where the path is at rest
+            if fol.s_total + LOOKAHEAD_SAMPLES * sc.sigma * fol.k >= b:
+                sc.hold = True
+                if rest:                # on a planned stop the path is at rest: sigma means nothing there
+                    sc.sigma = sc.dsigma = 0.0
+                self.next += 1
+                self.sent = False
+                self.held_ticks.append([k, None])
+                self.pending = rpm
+        return st
+
+    def poll(self, rpm_meas: float):
+        """In the monitor's thread; raises HalError when a change does not come to speed."""
+        want = self.pending
+        if want is None:
+            return
+        if not self.sent:
+            self.vfd.start(want)        # M3/M4 S.. (or M5); reversing waits for rest inside
+            self.sent, self.t_sent = True, time.monotonic()
+            return
+        if self.vfd.at_speed(rpm_meas):
+            self.held_ticks[-1][1] = int(self.loop.tick)
+            self.pending = None
+            if not self.loop.stop_request:      # a stop asked for meanwhile keeps the hold
+                self.loop.follower.scaler.hold = False
+            return
+        if time.monotonic() - self.t_sent > self.vfd.opt.spinup_timeout_s:
+            raise HalError(f"{self.vfd.device}: not at speed {self.vfd.opt.spinup_timeout_s:g} s after "
+                           f"S{abs(want):g}: {rpm_meas:g} rpm in {self.vfd.r.name(self.vfd.r.speed_rpm)}")
 
 
 class SpindleSession:
@@ -352,7 +434,8 @@ class SpindleSession:
         self.sim = None
         self.vfd = None
         self.monitor = None
-        self.direction = 1.0
+        self.changer = None
+        self.direction = 1.0             # the monitor's samples are signed already
 
     def connect(self):
         try:
@@ -374,21 +457,37 @@ class SpindleSession:
         return self
 
     def start(self, rpm: float):
-        self.direction = 1.0 if rpm >= 0 else -1.0
         self.vfd.start(rpm)
         t0 = time.monotonic()
         got = self.vfd.wait_at_speed()
         self.log(f"spindle {'M3' if rpm > 0 else 'M4'} S{abs(rpm):g}: at speed ({got:g} rpm) after "
                  f"{time.monotonic() - t0:.2f} s")
 
+    def follow(self, loop, targets, spindle_rpm):
+        """Speed changes inside the job: the loop waits at each for the new speed (call before
+        ``watch``)."""
+        changes = speed_changes(spindle_rpm, targets.q, targets.job_start)
+        if not changes:
+            return None
+        self.changer = SpeedChanger(self.vfd, loop, changes)
+        prev = loop.hook
+
+        def hook(lp, k, st):
+            st = self.changer.hook(lp, k, st)
+            return prev(lp, k, st) if prev is not None else st
+        loop.hook = hook
+        return self.changer
+
     def watch(self, tick, on_fault):
-        self.monitor = SpindleMonitor(self.vfd, tick, on_fault).start()
+        self.monitor = SpindleMonitor(self.vfd, tick, on_fault)
+        self.monitor.changer = self.changer
+        self.monitor.start()
 
     def per_tick(self, n):
         import numpy as np
         if self.monitor is None:
             return np.full(n, np.nan)
-        return self.monitor.per_tick(n) * self.direction
+        return self.monitor.per_tick(n)
 
     def close(self):
         """M5 (when the link still answers), then the monitor and the simulated device go."""
