@@ -15,6 +15,8 @@ TCP (default, as shipped) or a pty, or in this process on the python-can virtual
    slcan link of the device simulator, or the virtual channel) records every frame. Per CAN cycle: frames, nominal bits, and the exact bits on the
    wire (each frame's real stuff bits), and the load they make at the configured bit rate.
 3. Answer time: SYNC to the last drive's TPDO, as seen by the listener (median, p99, max).
+4. ``--rtt``: instead, the round trip of one slcan line between two processes at SCHED_FIFO (when
+   permitted) over a pty and over loopback TCP: why the device simulator's link is TCP.
 Prints the figures and the load average; asserts nothing.
 """
 
@@ -39,12 +41,64 @@ from pmctl.motion.loop import AbsoluteSleeper, setup_realtime, undo_realtime
 from pmctl.motion.service_config import load_service_config
 
 
+def link_rtt(kind: str, n: int = 3000) -> np.ndarray:
+    """Round trips (ms) of an 18-byte slcan line echoed by a child process, over a pty or TCP."""
+    import socket
+    import tty
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(52))
+    except OSError:
+        pass
+    if kind == "pty":
+        a_fd, b_fd = os.openpty()
+        tty.setraw(b_fd)
+        keep = ()
+    else:
+        srv = socket.create_server(("127.0.0.1", 0))
+        c = socket.create_connection(srv.getsockname())
+        d, _ = srv.accept()
+        for x in (c, d):
+            x.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        a_fd, b_fd, keep = c.fileno(), d.fileno(), (srv, c, d)
+    pid = os.fork()
+    if pid == 0:
+        while True:
+            x = os.read(b_fd, 100)
+            if not x or x == b"q":
+                os._exit(0)
+            os.write(b_fd, x)
+    line = b"t1816AABBCCDDEEFF\r"
+    rt = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        os.write(a_fd, line)
+        got = 0
+        while got < len(line):
+            got += len(os.read(a_fd, 100))
+        rt.append(time.perf_counter() - t0)
+        time.sleep(0.001)
+    os.write(a_fd, b"q")
+    os.waitpid(pid, 0)
+    del keep
+    return np.array(rt) * 1e3
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--service", default=None)
     ap.add_argument("--link", choices=("tcp", "pty", "virtual"), default="tcp")
+    ap.add_argument("--rtt", action="store_true", help="round trip of an slcan line over a pty and over TCP")
     a = ap.parse_args(argv)
+    if a.rtt:
+        print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f} on "
+              f"{os.cpu_count()} CPUs")
+        for kind in ("pty", "tcp"):
+            r = link_rtt(kind)
+            print(f"{kind}: round trip of one slcan line between two processes: median {np.median(r):.3f} ms, "
+                  f"p99 {np.percentile(r, 99):.2f} ms, p99.9 {np.percentile(r, 99.9):.2f} ms, max {r.max():.2f} ms "
+                  f"({len(r)} trips)")
+        return 0
     svc = load_service_config(a.service)
     table = dict(svc.backend_tables.get("canopen", {}))
     if a.link == "virtual":
