@@ -3,8 +3,6 @@ slcan links (loopback TCP and a pty), driven by the canopen backend through the 
 wire checked with python-can's own ``slcan`` interface; faults injected across the process
 boundary; a simulator that dies is a controlled stop."""
 
-import threading
-
 import can
 import numpy as np
 from hypothesis import given, settings
@@ -17,7 +15,7 @@ from pmctl.motion.loop import ControlLoop, prepare
 from pmctl.motion.nc import counts_of, initial_state
 from pmctl.motion.service_config import LoopConfig
 
-from test_canopen import FAST, M, DT, start_counts
+from test_canopen import DT, FAST, M, Listener, start_counts
 
 DEVSIM = {**FAST, "interface": "slcan", "channel": "devsim", "simulate": True, "sim_link": "tcp",
           "sim_listen_links": 1, "sim_rt_priority": 0}
@@ -43,32 +41,9 @@ def test_slcan_decode_refuses_a_short_frame_and_ignores_answers():
         raise AssertionError(bad)
 
 
-class SlcanListener:
+def slcan_listener(path):
     """python-can's own slcan interface on one of the simulator's pty links, recording frames."""
-
-    def __init__(self, path):
-        self.bus = can.Bus(interface="slcan", channel=path, bitrate=1_000_000, sleep_after_open=0)
-        self.frames = []
-        self._stop = threading.Event()
-        self._t = threading.Thread(target=self._run, daemon=True)
-        self._t.start()
-
-    def _run(self):
-        while not self._stop.is_set():
-            try:
-                m = self.bus.recv(0.05)
-            except can.CanOperationError:      # the simulator closed the link
-                return
-            if m is not None:
-                self.frames.append((m.arbitration_id, bytes(m.data)))
-
-    def close(self):
-        self._stop.set()
-        self._t.join()
-        try:
-            self.bus.shutdown()
-        except can.CanError:                   # its "close channel" command has nowhere to go
-            pass
+    return Listener(None, can.Bus(interface="slcan", channel=path, bitrate=1_000_000, sleep_after_open=0))
 
 
 def _run(opts, during=None):
@@ -91,7 +66,7 @@ def _run(opts, during=None):
 
 
 def test_job_through_drives_in_another_process_ends_where_commanded_and_the_wire_shows_it():
-    res, be, c0, before, lst = _run(DEVSIM, lambda be: SlcanListener(be.devsim.links[0]))
+    res, be, c0, before, lst = _run(DEVSIM, lambda be: slcan_listener(be.devsim.links[0]))
     assert res.status == "done", res.reason
     assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
     # the drives' own positions, asked across the process boundary at the end of the loop, within

@@ -33,6 +33,15 @@ READY_TIMEOUT_S = 60.0      # imports and server start on a loaded 2-core machin
 
 # ------------------------------------------------------------------ the simulator process
 
+def _close_ptys(ptys):
+    for m, s, _p in ptys:
+        for fd in (m, s):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
 class Hub:
     """slcan links joined into one wire, plus a python-can bus for the local nodes. Links: ptys
     (``n_pty``, made now) and loopback TCP connections (accepted on ``tcp_port`` as they come).
@@ -162,12 +171,7 @@ class Hub:
             self._drop(fd)
         if self.listener is not None:
             self.listener.close()
-        for m, s, _p in self.ptys:
-            for fd in (m, s):
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
+        _close_ptys(self.ptys)
 
 
 class NullModem:
@@ -204,12 +208,7 @@ class NullModem:
     def stop(self):
         self._stop.set()
         self._t.join(1.0)
-        for m, s, _p in self.ends:
-            for fd in (m, s):
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
+        _close_ptys(self.ends)
 
 
 def hub_bus(hub: Hub):
