@@ -412,3 +412,31 @@ def test_daq_timeout_mid_job_is_a_controlled_stop():
     res, be, c0, ses = _daq_run(slow)
     assert res.status == "stopped" and "strain DAQ" in res.reason and "timeout" in res.reason
     assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
+
+
+def test_slow_deflection_is_the_static_chain_elongation_low_passed():
+    from pmctl.hal.modbus_daq import SlowDeflection, chain_deflection_mm
+    ue = np.array([100.0, -50.0, 0.0])
+    d = chain_deflection_mm(ue, M)
+    # tension = strain / gain; elongation = tension / axial stiffness
+    np.testing.assert_allclose(d, ue / M.strain_gain / M.stiffness.chain_axial)
+    f = SlowDeflection(M, tau_s=2.0)
+    f.update(0.0, [0.0, 0.0, 0.0])
+    for k in range(1, 201):                 # a strain step held for one time constant, 10 ms samples
+        v = f.update(k * 0.01, ue)
+    np.testing.assert_allclose(v, d * (1 - np.exp(-1.0)), rtol=1e-9)
+
+
+def test_daq_session_keeps_the_slow_deflection_of_the_served_strain():
+    ses = DaqSession(DaqOptions.from_dict({"simulate": True, "port": 0, "poll_ms": 10.0, "comp_tau_s": 0.05}),
+                     lambda: (200.0, 100.0, -100.0), log=lambda m: None, machine=M).connect()
+    try:
+        ses.watch(lambda: 0, lambda why: None)
+        t_end = time.monotonic() + 30.0
+        while time.monotonic() < t_end and len(ses.daq.deflection) < 40:
+            time.sleep(0.02)
+    finally:
+        ses.close()
+    from pmctl.hal.modbus_daq import chain_deflection_mm
+    want = chain_deflection_mm([200.0, 100.0, -100.0], M)
+    np.testing.assert_allclose(ses.daq.deflection[-1][1], want, rtol=1e-3)
