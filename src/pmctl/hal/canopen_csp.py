@@ -550,7 +550,7 @@ class CanopenCSP(Backend):
                 if left <= 0:
                     break
                 self._cond.wait(left)
-        if late:
+        if late and not (self._fault and self._enabled):   # in the run, a fault that ended the wait is the reason
             d = late[0]
             age = "never" if d.t_tpdo is None else f"{(time.monotonic() - d.t_tpdo) * 1e3:.1f} ms ago"
             allowed = f", {late_cycles} may be late" if late_cycles else ""
