@@ -131,7 +131,7 @@ class SlcanLinkBus(can.BusABC):
         except BlockingIOError:
             return None, False
         except (OSError, EOFError) as e:
-            if isinstance(e, EOFError) or e.errno == errno.EIO:     # the device side is gone
+            if isinstance(e, EOFError) or e.errno in (errno.EIO, errno.ECONNRESET):   # the device side is gone
                 self.closed_by_peer = True
                 return None, False
             raise can.CanOperationError(f"slcan link: {e}") from None
