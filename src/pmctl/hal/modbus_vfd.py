@@ -435,6 +435,7 @@ class SpindleSession:
         self.vfd = None
         self.monitor = None
         self.changer = None
+        self._at_start = None
         self.direction = 1.0             # the monitor's samples are signed already
 
     def connect(self):
@@ -460,6 +461,7 @@ class SpindleSession:
         self.vfd.start(rpm)
         t0 = time.monotonic()
         got = self.vfd.wait_at_speed()
+        self._at_start = -got if rpm < 0 else got     # the speed the loop starts with (tick 0)
         self.log(f"spindle {'M3' if rpm > 0 else 'M4'} S{abs(rpm):g}: at speed ({got:g} rpm) after "
                  f"{time.monotonic() - t0:.2f} s")
 
@@ -481,6 +483,8 @@ class SpindleSession:
     def watch(self, tick, on_fault):
         self.monitor = SpindleMonitor(self.vfd, tick, on_fault)
         self.monitor.changer = self.changer
+        if self._at_start is not None:        # measured by the wait at speed, just before the loop
+            self.monitor.samples.append((0, self._at_start))
         self.monitor.start()
 
     def per_tick(self, n):
