@@ -1,16 +1,22 @@
 """Benchmark of the CANopen backend: bus load of the shipped [hal.canopen] config, computed from the
-PDO map and measured on the python-can virtual bus, and the answer time of the simulated drives.
+PDO map and measured on the wire, and the answer time of the simulated drives.
 
-    .venv/bin/python benchmarks/bench_canopen.py [--seconds 5] [--service config/service.toml]
+    .venv/bin/python benchmarks/bench_canopen.py [--seconds 5] [--link tcp|pty|virtual]
+                                                 [--service config/service.toml]
+
+``--link``: the simulated drives in the device-simulator process on an slcan link over loopback
+TCP (default, as shipped) or a pty, or in this process on the python-can virtual bus.
 
 1. Computed: the backend's own figure (SYNC + RPDO + TPDO per drive per cycle, 47 + 8n bits per
    frame, 20 % stuffing budget, plus heartbeats) for the shipped cycle, and the same map at every
    cycle of 1 .. 4 NC ticks.
 2. Measured: the backend holds its position at the shipped tick rate in real time (SCHED_FIFO when
-   permitted) for --seconds, driving the simulated drives; a plain python-can bus on the same
-   channel records every frame. Per CAN cycle: frames, nominal bits, and the exact bits on the
+   permitted) for --seconds, driving the simulated drives; a listener on the same wire (a second
+   slcan link of the device simulator, or the virtual channel) records every frame. Per CAN cycle: frames, nominal bits, and the exact bits on the
    wire (each frame's real stuff bits), and the load they make at the configured bit rate.
 3. Answer time: SYNC to the last drive's TPDO, as seen by the listener (median, p99, max).
+4. ``--rtt``: instead, the round trip of one slcan line between two processes at SCHED_FIFO (when
+   permitted) over a pty and over loopback TCP: why the device simulator's link is TCP.
 Prints the figures and the load average; asserts nothing.
 """
 
@@ -30,18 +36,75 @@ from pmctl import hal
 from pmctl.core.config import load_machine
 from pmctl.hal import cia402 as C
 from pmctl.hal.canopen_csp import CanopenOptions
+from pmctl.hal.slcan_link import SlcanLinkBus
 from pmctl.motion.loop import AbsoluteSleeper, setup_realtime, undo_realtime
 from pmctl.motion.service_config import load_service_config
+
+
+def link_rtt(kind: str, n: int = 3000) -> np.ndarray:
+    """Round trips (ms) of an 18-byte slcan line echoed by a child process, over a pty or TCP."""
+    import socket
+    import tty
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(52))
+    except OSError:
+        pass
+    if kind == "pty":
+        a_fd, b_fd = os.openpty()
+        tty.setraw(b_fd)
+        keep = ()
+    else:
+        srv = socket.create_server(("127.0.0.1", 0))
+        c = socket.create_connection(srv.getsockname())
+        d, _ = srv.accept()
+        for x in (c, d):
+            x.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        a_fd, b_fd, keep = c.fileno(), d.fileno(), (srv, c, d)
+    pid = os.fork()
+    if pid == 0:
+        while True:
+            x = os.read(b_fd, 100)
+            if not x or x == b"q":
+                os._exit(0)
+            os.write(b_fd, x)
+    line = b"t1816AABBCCDDEEFF\r"
+    rt = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        os.write(a_fd, line)
+        got = 0
+        while got < len(line):
+            got += len(os.read(a_fd, 100))
+        rt.append(time.perf_counter() - t0)
+        time.sleep(0.001)
+    os.write(a_fd, b"q")
+    os.waitpid(pid, 0)
+    del keep
+    return np.array(rt) * 1e3
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--service", default=None)
+    ap.add_argument("--link", choices=("tcp", "pty", "virtual"), default="tcp")
+    ap.add_argument("--rtt", action="store_true", help="round trip of an slcan line over a pty and over TCP")
     a = ap.parse_args(argv)
+    if a.rtt:
+        print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f} on "
+              f"{os.cpu_count()} CPUs")
+        for kind in ("pty", "tcp"):
+            r = link_rtt(kind)
+            print(f"{kind}: round trip of one slcan line between two processes: median {np.median(r):.3f} ms, "
+                  f"p99 {np.percentile(r, 99):.2f} ms, p99.9 {np.percentile(r, 99.9):.2f} ms, max {r.max():.2f} ms "
+                  f"({len(r)} trips)")
+        return 0
     svc = load_service_config(a.service)
     table = dict(svc.backend_tables.get("canopen", {}))
-    table.update(simulate=True, channel="pmctl-bench-canopen", interface="virtual")
+    if a.link == "virtual":
+        table.update(simulate=True, channel="pmctl-bench-canopen", interface="virtual")
+    else:
+        table.update(simulate=True, channel="devsim", interface="slcan", sim_link=a.link)
     o = CanopenOptions.from_dict(table)
     dt = svc.loop.dt
     bl = o.bus_load()
@@ -57,7 +120,17 @@ def main(argv=None):
         print(f"  cycle {k * dt * 1e3:g} ms ({k} ticks): {b.load * 100:6.1f} %  {verdict}")
 
     m = load_machine()
-    lis = can.Bus(interface="virtual", channel=o.channel)
+    be = hal.create("canopen", m, dt, o)
+    counts = np.rint(np.array([250.0, 250.0, 250.0, 0.0, 0.0]) * m.resolution.pulses_per_mm).astype(np.int64)
+    be.open(counts)
+    if a.link == "virtual":
+        lis = can.Bus(interface="virtual", channel=o.channel)
+        where = "the virtual bus (one process)"
+    else:
+        # a second loopback TCP link into the device simulator's hub, like the backend's own
+        lis = SlcanLinkBus(f"socket://127.0.0.1:{be.devsim.info['can_tcp_port']}", o.bitrate)
+        where = (f"slcan links between processes (the backend's over {a.link}, the listener's over tcp; "
+                 f"device simulator at SCHED_FIFO {o.sim_rt_priority} when permitted)")
     frames = []
     stop = threading.Event()
 
@@ -68,9 +141,7 @@ def main(argv=None):
                 frames.append((time.monotonic(), msg.arbitration_id, bytes(msg.data)))
     t = threading.Thread(target=rx, daemon=True)
     t.start()
-    be = hal.create("canopen", m, dt, o)
-    counts = np.rint(np.array([250.0, 250.0, 250.0, 0.0, 0.0]) * m.resolution.pulses_per_mm).astype(np.int64)
-    be.open(counts)
+    time.sleep(0.2)
     q = counts / m.resolution.pulses_per_mm
     n_ticks = int(a.seconds / dt)
     msgs = setup_realtime(50, lock_memory=False)
@@ -111,7 +182,7 @@ def main(argv=None):
     exact = sum(C.frame_bits_stuffed(cid, d) for _, cid, d in body)
     wall = body[-1][0] - body[0][0]
     cyc_s = o.cycle_ms / 1e3
-    print(f"measured on the virtual bus over {cycles} cycles ({wall:.2f} s wall): "
+    print(f"measured on {where} over {cycles} cycles ({wall:.2f} s wall): "
           + ", ".join(f"{v / cycles:.2f} {k}" for k, v in sorted(kinds.items())) + " per cycle")
     print(f"  {len(body) / cycles:.2f} frames per cycle, {nominal / cycles:.1f} nominal bits per cycle, "
           f"{exact / cycles:.1f} bits per cycle with the real stuff bits (+{(exact / nominal - 1) * 100:.1f} %)")

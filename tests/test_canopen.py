@@ -31,8 +31,8 @@ DT = 1e-3
 _chan = itertools.count()
 
 # generous timeouts: the suite runs on a loaded 2-core host (no timing is asserted here)
-FAST = {"heartbeat_ms": 20, "heartbeat_timeout_ms": 400, "host_heartbeat_ms": 10, "host_timeout_ms": 400,
-        "read_timeout_ms": 200.0, "sdo_timeout_ms": 500.0, "bus_thread_priority": 0}
+FAST = {"heartbeat_ms": 20, "heartbeat_timeout_ms": 1000, "host_heartbeat_ms": 10, "host_timeout_ms": 1500,
+        "read_timeout_ms": 200.0, "sdo_timeout_ms": 500.0, "bus_thread_priority": 0, "late_cycles": 0}
 
 
 def channel():
@@ -40,10 +40,10 @@ def channel():
 
 
 class Listener:
-    """A plain python-can bus on the same virtual channel recording every frame."""
+    """A plain python-can bus recording every frame: on the same virtual channel, or ``bus``."""
 
-    def __init__(self, ch):
-        self.bus = can.Bus(interface="virtual", channel=ch)
+    def __init__(self, ch, bus=None):
+        self.bus = bus or can.Bus(interface="virtual", channel=ch)
         self.frames = []
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, daemon=True)
@@ -51,14 +51,20 @@ class Listener:
 
     def _run(self):
         while not self._stop.is_set():
-            m = self.bus.recv(0.05)
+            try:
+                m = self.bus.recv(0.05)
+            except can.CanOperationError:      # the other side closed the link
+                return
             if m is not None:
                 self.frames.append((m.arbitration_id, bytes(m.data)))
 
     def close(self):
         self._stop.set()
         self._t.join()
-        self.bus.shutdown()
+        try:
+            self.bus.shutdown()
+        except can.CanError:                   # a link whose other side is gone
+            pass
 
 
 def start_counts():
@@ -274,6 +280,19 @@ def test_drive_following_error_bit_stops():
 def test_dropped_tpdo_is_older_than_its_cycle():
     res, be = _fault_run(lambda d: d[5].at_sync(40, lambda: d[5].drop_tpdos(1)), read_timeout_ms=30.0)
     assert "node 5 (Y): TPDO1 0x185 older than its cycle" in res.reason
+
+
+def test_dropped_tpdo_with_late_answers_allowed_is_a_lost_frame():
+    # up to 4 answers may be late, yet one lost outright is seen at once: the others answer the next SYNC
+    res, be = _fault_run(lambda d: d[3].at_sync(40, lambda: d[3].drop_tpdos(1)), late_cycles=4)
+    assert "node 3 (L3): TPDO1 0x183 older than its cycle: no answer to SYNC" in res.reason
+    assert "(frame lost)" in res.reason
+
+
+def test_late_answers_allowed_job_still_ends_where_commanded():
+    res, be, c0 = run_job({**FAST, "channel": channel(), "simulate": True, "late_cycles": 8})
+    assert res.status == "done", res.reason
+    assert np.array_equal(be.sim.positions(), res.state.counts)
 
 
 def test_lost_heartbeat_stops():

@@ -19,7 +19,7 @@ from pmctl import hal
 from pmctl.core.config import load_machine
 from pmctl.core.errors import ConfigError
 from pmctl.hal import HalError
-from pmctl.hal.modbus_vfd import SpindleSession, SpindleVFD, VfdOptions, job_speed, simulated
+from pmctl.hal.modbus_vfd import SpindleSession, SpindleVFD, VfdOptions, job_speed, simulated, speed_changes, REST_STEP_MM
 from pmctl.motion.loop import ControlLoop, prepare
 from pmctl.motion.nc import NCParams, counts_of, initial_state
 from pmctl.motion.service_config import LoopConfig, service_from_dict
@@ -122,15 +122,87 @@ def test_config_errors_name_the_key():
     assert service_from_dict({"spindle": {"enabled": False}}).spindle is None
 
 
-def test_job_speed():
+def test_job_speed_and_speed_changes():
     assert job_speed([0, 0, 8000, 8000, 0]) == 8000
     assert job_speed([0, -6000, -6000]) == -6000
     assert job_speed([0, 0]) == 0
-    with pytest.raises(HalError):
-        job_speed([0, 8000, 6000])
+    assert job_speed([0, 8000, 6000]) == 8000
+    q = np.array([[0.0] * 5, [1.0] * 5, [1.0] * 5, [1.0] * 5, [1.0] * 5, [2.0] * 5, [3.0] * 5])
+    # the change at sample 4 waits on the last sample of the old speed (3), at rest there (no joint
+    # moves within two samples of it); the final M5 is no change
+    assert speed_changes([8000, 8000, 8000, 8000, 6000, 6000, 0], q) == [(3, 6000.0, True)]
+    assert speed_changes([8000] * 5 + [6000, 6000], q) == [(4, 6000.0, False)]
+    assert speed_changes([0, 0, 8000, 8000, 8000, 8000], q) == []          # the start speed: no change
+    assert speed_changes([8000, -8000, -8000, -8000], q, job_start=3) == [(3, -8000.0, True)]
 
 
-def _spindle_run(inject):
+def test_speed_change_mid_job_waits_on_the_path_until_at_speed(tmp_path):
+    """S12000 and then M4 S9000 inside a job on the sim backend: the path stops at each change,
+    the VFD gets the new speed, and no tick moves the target while the measured speed is off by
+    more than 2 % from the speed of the move."""
+    from pmctl.core.kinematics import ik
+    from pmctl.task.planner import home_pose, load_job, plan
+    job = tmp_path / "s.ngc"
+    job.write_text(textwrap.dedent("""\
+        G17 G21 G90 G94
+        F600 S6000 M3
+        G1 X2
+        S12000
+        G1 Y2
+        M4 S9000
+        G1 X0
+        M5
+        M2
+        """))
+    dt = 1e-3
+    p = NCParams.from_machine(M, dt, kv=400.0)
+    tip, axis = home_pose(M)
+    c0 = counts_of(ik(tip, axis, M).q, p)
+    st0 = initial_state(M, c0)
+    traj = plan(load_job(job, M, start=(st0.tip, st0.axis)), M, dt, start=(st0.tip, st0.axis))
+    tg = prepare(M, p, traj, dt, c0)
+    be = hal.create("sim", M, dt, {})
+    be.open(c0)
+    sp = SpindleSession(VfdOptions.from_dict({"simulate": True, "port": 0, "poll_ms": 10.0,
+                                              "sim_ramp_rpm_per_s": 40000.0}), log=lambda m: None).connect()
+    try:
+        sp.start(job_speed(traj.spindle_rpm))
+        cfg = LoopConfig(rate_hz=1000, realtime=True, lock_memory=False, stall_timeout_s=5.0,
+                         max_overruns_in_row=10**6)
+        lp = ControlLoop(M, be, p, tg, cfg, st0, log=lambda m: None)
+        ch = sp.follow(lp, tg, traj.spindle_rpm)
+        sp.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
+        res = lp.run()
+        commands = sp.device.commands
+    finally:
+        sp.close()
+    assert res.status == "done", res.reason
+    assert [c[1] for c in ch.changes] == [12000.0, -9000.0] and all(c[2] for c in ch.changes)
+    assert len(ch.held_ticks) == 2 and all(b > a for a, b in ch.held_ticks)
+    # the VFD was told: set-point 12000 / 24000, then reverse at 9000
+    assert [0x2000, 5000] in [list(c) for c in commands] and [0x1000, 2] in [list(c) for c in commands]
+    rpm = sp.per_tick(res.ticks)
+    k = np.arange(res.ticks)
+    # the speed of the move a tick runs: that of the sample the target is heading for
+    want = np.asarray(traj.spindle_rpm)[np.clip(np.ceil(res.path_s).astype(int) - tg.job_start, 0,
+                                                len(traj.spindle_rpm) - 1)]
+    # cutting: the target moves by more than the planned stop's creep (REST_STEP_MM a tick; the wait
+    # may start up to LOOKAHEAD_SAMPLES short of the stop, and that last micrometre runs on release)
+    moving = np.r_[np.linalg.norm(np.diff(res.target[:, :3], axis=0), axis=1) > REST_STEP_MM, False]
+    # before the monitor's first poll the start speed was checked by the wait at speed
+    first_poll = sp.monitor.samples[0][0]
+    cut = moving & (want != 0) & (k >= max(tg.job_start, first_poll))
+    assert cut.sum() > 500
+    assert np.all(np.abs(rpm[cut] - want[cut]) <= 0.02 * np.abs(want[cut])), \
+        np.flatnonzero(np.abs(rpm[cut] - want[cut]) > 0.02 * np.abs(want[cut]))[:5]
+    # the recorded speed steps: 6000, then 12000, then -9000, each held while the path moves on it
+    for level in (6000, 12000, -9000):
+        assert np.any(cut & (np.abs(rpm - level) <= 0.02 * abs(level)))
+    first = {lv: k[cut & (np.abs(rpm - lv) <= 0.02 * abs(lv))][0] for lv in (6000, 12000, -9000)}
+    assert first[6000] < first[12000] < first[-9000]
+
+
+def _spindle_run(inject, **extra):
     """A 6 s line on the sim backend with the spindle watched as pmctl run does; ``inject(dev, srv)``
     once the loop is under way."""
     dt = 1e-3
@@ -141,7 +213,7 @@ def _spindle_run(inject):
     be = hal.create("sim", M, dt, {})
     be.open(c0)
     sp = SpindleSession(VfdOptions.from_dict({"simulate": True, "port": 0, "poll_ms": 10.0,
-                                              "sim_ramp_rpm_per_s": 40000.0}), log=lambda m: None).connect()
+                                              "sim_ramp_rpm_per_s": 40000.0, **extra}), log=lambda m: None).connect()
     sp.start(8000)
     # paced ticks: back to back the compiled loop would finish the 6 s line before a poll sees the fault
     cfg = LoopConfig(rate_hz=1000, realtime=True, lock_memory=False, stall_timeout_s=5.0, max_overruns_in_row=10**6)
@@ -176,6 +248,31 @@ def test_vfd_link_lost_mid_job_is_a_controlled_stop():
     assert res.status == "stopped"
     assert "spindle VFD" in res.reason and "link lost" in res.reason
     assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
+
+
+def test_vfd_over_rtu_fault_mid_job_is_a_controlled_stop():
+    # Modbus RTU: the client on one end of a null modem (two ptys) of the device simulator, whose
+    # RTU server is on the other end; the fault is injected into the simulator's VFD
+    res, be, c0, sp = _spindle_run(lambda dev, srv: dev.fault(9), transport="rtu", serial_port="devsim",
+                                   baud=115200)
+    assert res.status == "stopped"
+    assert "RTU 115200 N1 (unit 1): fault code 9 in register 0x5000" in res.reason
+    assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
+    assert np.nanmax(sp.per_tick(res.ticks)) >= 0.98 * 8000
+
+
+@pytest.mark.parametrize("table,key", [
+    ({"transport": "can"}, "transport"), ({"transport": "rtu", "serial_port": "ttyUSB0"}, "serial_port"),
+    ({"transport": "rtu", "serial_port": "/dev/ttyUSB0", "baud": 12345}, "baud"),
+    ({"transport": "rtu", "serial_port": "/dev/ttyUSB0", "parity": "X"}, "parity"),
+    ({"transport": "rtu", "serial_port": "/dev/ttyUSB0", "stop_bits": 3}, "stop_bits"),
+    ({"transport": "rtu", "serial_port": "/dev/ttyUSB0", "device_id": 0}, "device_id"),
+    ({"transport": "rtu", "simulate": True, "serial_port": "/dev/ttyUSB0"}, "serial_port"),
+    ({"transport": "rtu", "simulate": True, "serial_port": "devsim", "parity": "E"}, "parity")])
+def test_rtu_options_errors_name_the_field(table, key):
+    with pytest.raises(ConfigError) as e:
+        VfdOptions.from_dict(table, "service.toml: spindle")
+    assert e.value.key == key and f"spindle: {key}: " in str(e.value)
 
 
 def test_pmctl_run_canopen_with_a_spindle_job_records_spindle_rpm(tmp_path):
@@ -315,3 +412,31 @@ def test_daq_timeout_mid_job_is_a_controlled_stop():
     res, be, c0, ses = _daq_run(slow)
     assert res.status == "stopped" and "strain DAQ" in res.reason and "timeout" in res.reason
     assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
+
+
+def test_slow_deflection_is_the_static_chain_elongation_low_passed():
+    from pmctl.hal.modbus_daq import SlowDeflection, chain_deflection_mm
+    ue = np.array([100.0, -50.0, 0.0])
+    d = chain_deflection_mm(ue, M)
+    # tension = strain / gain; elongation = tension / axial stiffness
+    np.testing.assert_allclose(d, ue / M.strain_gain / M.stiffness.chain_axial)
+    f = SlowDeflection(M, tau_s=2.0)
+    f.update(0.0, [0.0, 0.0, 0.0])
+    for k in range(1, 201):                 # a strain step held for one time constant, 10 ms samples
+        v = f.update(k * 0.01, ue)
+    np.testing.assert_allclose(v, d * (1 - np.exp(-1.0)), rtol=1e-9)
+
+
+def test_daq_session_keeps_the_slow_deflection_of_the_served_strain():
+    ses = DaqSession(DaqOptions.from_dict({"simulate": True, "port": 0, "poll_ms": 10.0, "comp_tau_s": 0.05}),
+                     lambda: (200.0, 100.0, -100.0), log=lambda m: None, machine=M).connect()
+    try:
+        ses.watch(lambda: 0, lambda why: None)
+        t_end = time.monotonic() + 30.0
+        while time.monotonic() < t_end and len(ses.daq.deflection) < 40:
+            time.sleep(0.02)
+    finally:
+        ses.close()
+    from pmctl.hal.modbus_daq import chain_deflection_mm
+    want = chain_deflection_mm([200.0, 100.0, -100.0], M)
+    np.testing.assert_allclose(ses.daq.deflection[-1][1], want, rtol=1e-3)

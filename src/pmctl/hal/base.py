@@ -81,6 +81,11 @@ class Backend(ABC):
     name = "abstract"
     accepts = "pulses"
     can_rereference = False       # True: rereference() is implemented, homing is possible
+    # How long the device rides out a host that does not command it (a late wake-up or a long
+    # tick), seconds; the loop stops at the longer of this and its own stall limit. 0: the loop's
+    # limit. Devices that hold by themselves (CSP drives keep their last target and fault on their
+    # own when the host's heartbeat stays away) tolerate more than a device that runs dry.
+    stall_tolerance_s = 0.0
 
     @classmethod
     def validate_options(cls, table: dict, where: str):

@@ -26,7 +26,17 @@ Faults, each a HalError naming the node, its axis and the code, after a quick st
 a lost heartbeat, an EMCY, a statusword fault or following-error bit, a drive that left Operation
 enabled, a TPDO older than its cycle.
 
-``simulate = true`` runs simulated drives (pmctl.hal.cia402_sim) on the same python-can bus.
+A late answer is survivable: the drives interpolate toward the last target they got and hold it,
+so the feedback may be a few cycles old without harm. ``late_cycles`` says how many: at the due
+tick every drive must have answered all SYNCs but the last ``late_cycles``; the feedback uses each
+drive's latest answer with the target it was following then. A lost frame is told apart from a
+late one by the other drives: they answer each SYNC in one burst, so a drive still short of SYNC
+n-1 when another answers SYNC n lost its answer.
+
+``simulate = true`` runs simulated drives (pmctl.hal.cia402_sim): with ``interface = "virtual"`` on
+the same python-can bus in this process (tests), with ``interface = "slcan"`` and ``channel =
+"devsim"`` in a device-simulator process of their own (pmctl.hal.devsim) on an slcan link over a
+pty, which the backend starts, waits for and stops. A simulator that dies is a lost heartbeat.
 """
 
 from __future__ import annotations
@@ -45,6 +55,8 @@ from pmctl.hal.base import AXES, Backend, Feedback, HalError, HalTimeout, Status
 
 RPDO_BYTES = 6          # target position (INTEGER32) + controlword (UNSIGNED16)
 TPDO_BYTES = 6          # position actual (INTEGER32) + statusword (UNSIGNED16)
+MAX_LATE_CYCLES = 32
+HISTORY = 64            # targets kept per SYNC (> MAX_LATE_CYCLES + 2)
 INTERFACES = ("virtual", "slcan", "socketcan", "pcan", "kvaser", "ixxat", "vector", "serial")
 
 
@@ -66,8 +78,12 @@ class CanopenOptions:
     following_window_mm: float = 1.0           # 0x6065: a target jump beyond this faults the drive
     position_tolerance_mm: float = 0.001       # drive position vs controller counters at start
     eds: str = ""                              # "" = the shipped CiA 402 EDS
+    late_cycles: int = 4                       # answers may lag the SYNCs by this many cycles (jitter)
     simulate: bool = False                     # run simulated drives on the bus (cia402_sim)
     sim_lag_ms: float = 1.0                    # simulated drives: first-order lag
+    sim_rt_priority: int = 0                   # SCHED_FIFO of the device simulator process when permitted
+    sim_link: str = "tcp"                      # device simulator's slcan link: "tcp" (loopback) or "pty"
+    sim_listen_links: int = 0                  # device simulator: extra pty links for listeners
     bus_thread_priority: int = 51              # SCHED_FIFO of the CAN receive threads when permitted, 0 = off
 
     @classmethod
@@ -129,9 +145,16 @@ class CanopenOptions:
         o.following_window_mm = num("following_window_mm", positive=True)
         o.position_tolerance_mm = num("position_tolerance_mm", positive=True)
         o.sim_lag_ms = num("sim_lag_ms", lo=0.0)
-        o.bus_thread_priority = num("bus_thread_priority", lo=0, integer=True)
-        if o.bus_thread_priority > 99:
-            raise ConfigError(where, "bus_thread_priority", "must be 0 .. 99")
+        o.late_cycles = num("late_cycles", lo=0, integer=True)
+        if o.late_cycles > MAX_LATE_CYCLES:
+            raise ConfigError(where, "late_cycles", f"must be 0 .. {MAX_LATE_CYCLES}, got {o.late_cycles}")
+        for k in ("bus_thread_priority", "sim_rt_priority"):
+            setattr(o, k, num(k, lo=0, integer=True))
+            if getattr(o, k) > 99:
+                raise ConfigError(where, k, "must be 0 .. 99")
+        o.sim_listen_links = num("sim_listen_links", lo=0, integer=True)
+        if o.sim_listen_links > 8:
+            raise ConfigError(where, "sim_listen_links", "must be 0 .. 8")
         if o.increments_per_mm is not None:
             v = o.increments_per_mm
             a = np.broadcast_to(np.asarray(v, float), (5,)).copy() if np.ndim(v) == 0 or len(v) == 5 else None
@@ -145,6 +168,11 @@ class CanopenOptions:
         if o.simulate and o.interface not in ("virtual", "slcan"):
             raise ConfigError(where, "simulate", f"simulated drives need the 'virtual' or 'slcan' interface, "
                                                  f"not {o.interface!r}")
+        if o.sim_link not in ("tcp", "pty"):
+            raise ConfigError(where, "sim_link", f"must be \"tcp\" or \"pty\", got {o.sim_link!r}")
+        if o.simulate and o.interface == "slcan" and o.channel != "devsim":
+            raise ConfigError(where, "channel", f"simulated drives on slcan live in the device simulator: "
+                                                f"channel = \"devsim\", not {o.channel!r}")
         load = o.bus_load()
         if load.load > C.MAX_BUS_LOAD:
             # the smallest cycle that fits, for the message
@@ -203,12 +231,16 @@ class CanopenCSP(Backend):
             raise ConfigError("hal.canopen", "cycle_ms",
                               f"{o.cycle_ms:g} ms is not a whole multiple of the NC tick {self.dt * 1e3:g} ms")
         self.cycle_ticks = int(round(ratio))
+        # a paused host: the drives hold their last target; past host_timeout_ms without the host's
+        # heartbeat (sent every host_heartbeat_ms from the ticks) they fault by themselves
+        self.stall_tolerance_s = (o.host_timeout_ms - o.host_heartbeat_ms) / 1e3
         self.cycle_s = o.cycle_ms / 1e3
         self.inc_per_mm = np.asarray(o.increments_per_mm if o.increments_per_mm is not None
                                      else machine.resolution.pulses_per_mm, float)
         self.bus_load = o.bus_load()
         self.network = None
         self.sim = None
+        self.devsim = None
         self.drives: list[_Drive] = []
         self._fb = Feedback()
         self._cond = threading.Condition()
@@ -221,7 +253,7 @@ class CanopenCSP(Backend):
         self._t_host_hb = 0.0
         self._targets = np.zeros(5, np.int64)
         self._last_q = None
-        self._sent_last = self._sent_prev = None     # targets sent with the last two SYNCs, increments
+        self._sent = np.zeros((HISTORY, 5), np.int64)   # targets sent with SYNC s at row s % HISTORY
         self._cw = C.CW_SHUTDOWN
         self.frames_sent = 0
 
@@ -257,6 +289,15 @@ class CanopenCSP(Backend):
             d.pos, d.sw = pos, sw
             d.answers += 1
             d.t_tpdo = time.monotonic()
+            if self._enabled and not self._fault:
+                # the drives answer each SYNC in one burst, in order on the wire: when one answers
+                # SYNC n, all of SYNC n-1 has arrived; a drive still short of it lost a frame
+                for o in self.drives:
+                    if o.answers < d.answers - 1:
+                        self._fault = (f"canopen {o.name}: TPDO1 0x{C.cob_tpdo1(o.id):03X} older than its "
+                                       f"cycle: no answer to SYNC {o.answers + 1} while {d.name} answered "
+                                       f"SYNC {d.answers} (frame lost)")
+                        break
             self._cond.notify_all()
 
     def _on_heartbeat(self, d: _Drive, data, ts):
@@ -295,12 +336,28 @@ class CanopenCSP(Backend):
         ppm = self.machine.resolution.pulses_per_mm
         q0 = counts / ppm
         self._targets = np.rint(q0 * self.inc_per_mm).astype(np.int64)
-        if o.simulate:
-            from pmctl.hal.cia402_sim import SimDriveSet
-            self.sim = SimDriveSet(o.node_ids, self._targets.tolist(), interface=o.interface, channel=o.channel,
-                                   bitrate=o.bitrate, lag_s=o.sim_lag_ms / 1e3, eds=self._eds())
+        bus = None
         try:
-            net = canopen.Network()
+            if o.simulate and o.interface == "slcan":
+                from pmctl.hal.devsim import DeviceSimulator, DeviceSimulatorError
+                from pmctl.hal.slcan_link import SlcanLinkBus
+                spec = {"can": {"node_ids": list(o.node_ids), "positions": self._targets.tolist(),
+                                "lag_s": o.sim_lag_ms / 1e3, "eds": self._eds(), "tcp": True,
+                                "ptys": (1 if o.sim_link == "pty" else 0) + o.sim_listen_links},
+                        "rt_priority": o.sim_rt_priority}
+                try:
+                    self.devsim = DeviceSimulator(spec, "CiA 402 drive simulator").start()
+                    link = self.devsim.links[0] if o.sim_link == "pty" else \
+                        f"socket://127.0.0.1:{self.devsim.info['can_tcp_port']}"
+                    bus = SlcanLinkBus(link, o.bitrate)
+                except (DeviceSimulatorError, can.CanError) as e:
+                    raise HalError(f"canopen: simulated drives: {e}") from None
+            elif o.simulate:
+                from pmctl.hal.cia402_sim import SimDriveSet
+                self.sim = SimDriveSet(o.node_ids, self._targets.tolist(), interface=o.interface,
+                                       channel=o.channel, bitrate=o.bitrate, lag_s=o.sim_lag_ms / 1e3,
+                                       eds=self._eds())
+            net = canopen.Network(bus)
             kw = {"interface": o.interface, "channel": o.channel}
             if o.interface != "virtual":
                 kw["bitrate"] = o.bitrate
@@ -446,6 +503,9 @@ class CanopenCSP(Backend):
         self._fill_feedback()
         # the host heartbeat keeps going from a timer until the first tick takes over
         self._hb_task = self.network.send_periodic(C.cob_heartbeat(o.host_node_id), [5], o.host_heartbeat_ms / 1e3)
+        # that timer thread is all the drives hear of the host until the loop runs (the spindle
+        # spins up meanwhile): it gets the receive threads' priority
+        C.boost_thread(getattr(getattr(self._hb_task, "_task", None), "thread", None), o.bus_thread_priority)
 
     def _cycle(self, cw: int, settle: bool = True):
         """One CAN cycle outside the loop (start-up): RPDOs with ``cw`` and the held targets, SYNC,
@@ -459,7 +519,7 @@ class CanopenCSP(Backend):
 
     def _send_cycle(self):
         net = self.network
-        self._sent_prev, self._sent_last = self._sent_last, self._targets.copy()
+        self._sent[(self._syncs + 1) % HISTORY] = self._targets
         for i, d in enumerate(self.drives):
             rp = d.rpdo
             if rp is not None:
@@ -478,22 +538,24 @@ class CanopenCSP(Backend):
             self._t_host_hb = now
             self.network.send_message(C.cob_heartbeat(self.opt.host_node_id), bytes([5]))
 
-    def _wait_answers(self, timeout: float, when: str):
+    def _wait_answers(self, timeout: float, when: str, late_cycles: int = 0):
         t_end = time.monotonic() + timeout
+        need = self._syncs - late_cycles
         with self._cond:
             while True:
-                late = [d for d in self.drives if d.answers < self._syncs]
+                late = [d for d in self.drives if d.answers < need]
                 if not late or self._fault:
                     break
                 left = t_end - time.monotonic()
                 if left <= 0:
                     break
                 self._cond.wait(left)
-        if late:
+        if late and not (self._fault and self._enabled):   # in the run, a fault that ended the wait is the reason
             d = late[0]
             age = "never" if d.t_tpdo is None else f"{(time.monotonic() - d.t_tpdo) * 1e3:.1f} ms ago"
+            allowed = f", {late_cycles} may be late" if late_cycles else ""
             raise HalTimeout(f"canopen {d.name}: TPDO1 0x{C.cob_tpdo1(d.id):03X} older than its cycle "
-                             f"({when}): answered {d.answers} of {self._syncs} SYNCs, last {age} "
+                             f"({when}): answered {d.answers} of {self._syncs} SYNCs{allowed}, last {age} "
                              f"(frame lost or drive silent)")
 
     def _fill_feedback(self):
@@ -503,17 +565,32 @@ class CanopenCSP(Backend):
         commanded position: the transport delay of the cycle is not a following error, the drive's
         lag is. ``positions()`` keeps the raw position actual."""
         fb = self._fb
-        prev = self._sent_prev
         q = self._last_q
-        for i, d in enumerate(self.drives):
-            if prev is None or q is None:
-                fb.enc[i] = d.pos / self.inc_per_mm[i]
+        with self._cond:
+            answers = [(d.answers, d.pos) for d in self.drives]
+        for i, (a, pos) in enumerate(answers):
+            if q is None or a < 2 or self._syncs - a >= HISTORY - 1:
+                fb.enc[i] = pos / self.inc_per_mm[i]
             else:
-                fb.enc[i] = q[i] - (prev[i] - d.pos) / self.inc_per_mm[i]
+                # the answer to SYNC a: the drive's position while it followed the target of SYNC a-1
+                fb.enc[i] = q[i] - (self._sent[(a - 1) % HISTORY, i] - pos) / self.inc_per_mm[i]
         fb.seq += 1
 
     # ---------------------------------------------------------------- loop side
+    def _with_sim(self, e: HalError) -> HalError:
+        """A fault while the drives' simulator process is gone says so."""
+        if self.devsim is None or self.devsim.alive() or "device simulator" in str(e):
+            return e
+        self._fault = f"{e} ({self.devsim.exit_text()})"
+        return type(e)(self._fault)
+
     def read(self) -> Feedback:
+        try:
+            return self._read()
+        except HalError as e:
+            raise self._with_sim(e) from None
+
+    def _read(self) -> Feedback:
         if not self._enabled:
             raise HalError(self._fault or "canopen backend: read before open")
         if self._fault:
@@ -534,13 +611,14 @@ class CanopenCSP(Backend):
                     self._cond.wait(t_end - now)
             if late:
                 d = late[0]
+                dead = self.devsim.exit_text() if self.devsim is not None else ""
                 self._fault = (f"canopen {d.name}: heartbeat lost: none for {(now - d.t_hb) * 1e3:.0f} ms "
-                               f"(timeout {self.opt.heartbeat_timeout_ms} ms)")
+                               f"(timeout {self.opt.heartbeat_timeout_ms} ms){'; ' + dead if dead else ''}")
                 self._stop_all()
                 raise HalError(self._fault)
         if self._writes == self._need:
             try:
-                self._wait_answers(self.opt.read_timeout_ms / 1e3, f"SYNC {self._syncs}")
+                self._wait_answers(self.opt.read_timeout_ms / 1e3, f"SYNC {self._syncs}", self.opt.late_cycles)
             except HalTimeout as e:
                 self._fault = str(e)
                 self._stop_all()
@@ -577,6 +655,12 @@ class CanopenCSP(Backend):
             d.node.sdo.RESPONSE_TIMEOUT = old
 
     def write_positions(self, q_mm) -> None:
+        try:
+            self._write_positions(q_mm)
+        except HalError as e:
+            raise self._with_sim(e) from None
+
+    def _write_positions(self, q_mm) -> None:
         if not self._enabled:
             raise HalError(self._fault or "canopen backend: write before open")
         if self._hb_task is not None:            # the ticks carry the host heartbeat from now on
@@ -638,6 +722,8 @@ class CanopenCSP(Backend):
             self.network = None
         if self.sim is not None:
             self.sim.stop()
+        if self.devsim is not None:
+            self.devsim.stop()
 
     def close(self) -> None:
         if self.network is not None:

@@ -235,17 +235,25 @@ def boost_bus_threads(network, priority: int) -> bool:
     """Give the receive thread(s) of a canopen Network's python-can Notifier SCHED_FIFO ``priority``,
     so that frames are handled promptly next to a real-time loop (an answer that waits behind
     ordinary processes arrives after its cycle). False when not permitted or not applicable
-    (the one OS call in this module)."""
-    import os
-    import threading
+    (the one OS call in this module, in boost_thread)."""
     if priority <= 0 or network is None or network.notifier is None:
         return False
     ok = False
     for t in getattr(network.notifier, "_readers", []):
-        if isinstance(t, threading.Thread) and t.native_id:
-            try:
-                os.sched_setscheduler(t.native_id, os.SCHED_FIFO, os.sched_param(priority))
-                ok = True
-            except (PermissionError, OSError, AttributeError):
-                return False
+        if not boost_thread(t, priority):
+            return False
+        ok = True
     return ok
+
+
+def boost_thread(t, priority: int) -> bool:
+    """SCHED_FIFO ``priority`` for one running thread, when permitted."""
+    import os
+    import threading
+    if priority <= 0 or not isinstance(t, threading.Thread) or not t.native_id:
+        return False
+    try:
+        os.sched_setscheduler(t.native_id, os.SCHED_FIFO, os.sched_param(priority))
+        return True
+    except (PermissionError, OSError, AttributeError):
+        return False

@@ -18,7 +18,8 @@ Fault injection for tests: ``fault(code, emcy=True)`` (statusword fault bit, 0x6
 scheduled n SYNCs ahead with ``at_sync(n, fn)``.
 
 Buses: python-can ``virtual`` (one process; every can.Bus on the same channel name sees the
-others' frames) or ``slcan`` over a pty between processes.
+others' frames), or the device simulator's slcan links over ptys (pmctl.hal.devsim: the drives in
+a process of their own).
 """
 
 from __future__ import annotations
@@ -280,10 +281,10 @@ class SimDriveSet:
     """Drives on one bus: their own python-can Bus and canopen Network (a second node on the wire)."""
 
     def __init__(self, node_ids, positions, *, interface="virtual", channel="pmctl-can0", bitrate=1_000_000,
-                 lag_s=0.0, eds: str = EDS_PATH):
+                 lag_s=0.0, eds: str = EDS_PATH, bus: can.BusABC | None = None):
         self.drives = [SimDrive(n, p, lag_s, eds) for n, p in zip(node_ids, positions)]
         self.by_id = {d.id: d for d in self.drives}
-        self.network = canopen.Network()
+        self.network = canopen.Network(bus)          # a given bus: e.g. the device simulator's hub
         kw = {"interface": interface, "channel": channel}
         if interface != "virtual":
             kw["bitrate"] = bitrate

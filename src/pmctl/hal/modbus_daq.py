@@ -40,6 +40,7 @@ class DaqOptions:
     k_theta_source: str = "backend"  # which strain feeds K_theta: the backend's cyclic data, or this DAQ
     simulate: bool = False           # serve the sim plant's strain from a simulated DAQ on host:port
     sim_sample_hz: float = 100.0
+    comp_tau_s: float = 2.0          # low-pass of the static chain deflection estimate (slow compensation)
 
     @classmethod
     def from_dict(cls, d: dict, where="daq") -> "DaqOptions":
@@ -53,7 +54,7 @@ class DaqOptions:
         for k in ("enabled", "simulate"):
             if not isinstance(getattr(o, k), bool):
                 raise ConfigError(where, k, f"must be true or false, got {getattr(o, k)!r}")
-        for k in ("ue_per_count", "timeout_ms", "poll_ms", "max_age_ms", "sim_sample_hz"):
+        for k in ("ue_per_count", "timeout_ms", "poll_ms", "max_age_ms", "sim_sample_hz", "comp_tau_s"):
             v = getattr(o, k)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or abs(v) > 1e15 or not math.isfinite(v) or v <= 0:
                 raise ConfigError(where, k, f"must be a number > 0, got {v!r}")
@@ -101,11 +102,46 @@ def check_k_theta_source(opt: DaqOptions | None, k_theta, machine, where="daq"):
                           f"(twice the mode): use k_theta_source = \"backend\" or K_theta = 0")
 
 
+def chain_deflection_mm(strain_ue, machine):
+    """Static axial elongation of each chain (mm, tension positive) from its plate-link strain
+    (microstrain, tension positive): tension = strain / strain_gain (N), elongation = tension /
+    the chain's axial stiffness (N/mm)."""
+    import numpy as np
+    return np.asarray(strain_ue, float) / machine.strain_gain / machine.stiffness.chain_axial
+
+
+class SlowDeflection:
+    """The slow-compensation estimate fed by the DAQ: each chain's static deflection
+    (``chain_deflection_mm`` of the DAQ strain), low-passed with time constant ``tau_s`` over the
+    samples' own time stamps, so that the chain mode and noise do not reach it. It is an estimate
+    for monitoring and for a slow correction of the chain lengths; the control loop's K_theta
+    damping is a different, per-tick path (``k_theta_source``)."""
+
+    def __init__(self, machine, tau_s: float):
+        self.machine, self.tau = machine, float(tau_s)
+        self.value = None               # mm per chain
+        self._t = None
+
+    def update(self, t: float, strain_ue) -> list[float]:
+        import math
+        d = chain_deflection_mm(strain_ue, self.machine)
+        if self.value is None:
+            self.value = d.copy()
+        else:
+            a = 1.0 - math.exp(-max(0.0, t - self._t) / self.tau)
+            self.value = self.value + a * (d - self.value)
+        self._t = t
+        return self.value.tolist()
+
+
 class StrainDAQ:
     """Client + poller. ``latest()`` gives (t_monotonic, counter, strain[3]) of the newest sample."""
 
-    def __init__(self, opt: DaqOptions):
+    def __init__(self, opt: DaqOptions, before_poll=None):
         self.opt = opt
+        self.before_poll = before_poll     # e.g. hands a simulated DAQ the strain to serve
+        self.slow = None                   # a SlowDeflection fed by the watched samples
+        self.deflection: list[tuple[int, list[float]]] = []   # (tick, low-passed mm per chain)
         self.client = None
         self.samples: list[tuple[int, float, list[float]]] = []     # (tick, t, strain)
         self.fault = ""
@@ -134,6 +170,8 @@ class StrainDAQ:
     def poll(self):
         """One read of the four registers; checks the age. Returns (t, counter, strain)."""
         from pymodbus.exceptions import ModbusException
+        if self.before_poll is not None:
+            self.before_poll()
         t_req = time.monotonic()
         try:
             rr = self.client.read_input_registers(self.opt.base, count=4, device_id=self.opt.device_id)
@@ -166,6 +204,8 @@ class StrainDAQ:
                 try:
                     t, n, s = self.poll()
                     self.samples.append((int(tick()), t, s))
+                    if self.slow is not None:
+                        self.deflection.append((int(tick()), self.slow.update(t, s)))
                     missed = 0
                 except HalTimeout as e:      # one unanswered poll is no timeout fault yet
                     missed += 1
@@ -203,23 +243,35 @@ class StrainDAQ:
 class DaqSession:
     """The DAQ for one run: (a simulated DAQ serving ``source()``,) connect, watch, record, close."""
 
-    def __init__(self, opt: DaqOptions, source=None, log=print):
+    def __init__(self, opt: DaqOptions, source=None, log=print, machine=None):
         from dataclasses import replace
         self.opt = replace(opt)
+        self.machine = machine             # given: the slow chain-deflection estimate is kept too
         self.source = source or (lambda: (0.0, 0.0, 0.0))
         self.log = log
         self.server = self.device = None
+        self.sim = None
         self.daq = None
 
     def connect(self):
         try:
             if self.opt.simulate:
-                from pmctl.hal.modbus_sim import ModbusSimServer, SimDAQ
-                self.device = SimDAQ(self.source, self.opt.base, self.opt.ue_per_count, self.opt.sim_sample_hz)
-                self.server = ModbusSimServer(self.device, self.opt.host, self.opt.port, self.opt.device_id,
-                                              input_registers=True).start()
-                self.opt.port = self.server.port
-            self.daq = StrainDAQ(self.opt).connect()
+                # the simulated DAQ in a device-simulator process; the strain it serves is pushed
+                # to it before each poll
+                from pmctl.hal.devsim import DeviceSimulator, DeviceSimulatorError
+                o = self.opt
+                spec = {"base": o.base, "ue_per_count": o.ue_per_count, "sample_hz": o.sim_sample_hz,
+                        "host": o.host, "port": o.port, "device_id": o.device_id}
+                try:
+                    self.sim = DeviceSimulator({"daq": spec}, "simulated strain DAQ").start()
+                except DeviceSimulatorError as e:
+                    raise HalError(str(e)) from None
+                self.opt.port = self.sim.info["daq_port"]
+                self.device, self.server = self.sim.proxy("daq"), self.sim.proxy("daq_server")
+                self.sim.push_strain(self.source())
+            self.daq = StrainDAQ(self.opt, self._feed if self.sim is not None else None).connect()
+            if self.machine is not None:
+                self.daq.slow = SlowDeflection(self.machine, self.opt.comp_tau_s)
         except BaseException:
             self.close()
             raise
@@ -231,9 +283,15 @@ class DaqSession:
     def per_tick(self, n):
         return self.daq.per_tick(n)
 
+    def _feed(self):
+        self.sim.push_strain(self.source())
+
     def close(self):
         if self.daq is not None:
             self.daq.close()
-        if self.server is not None:
+        if self.sim is not None:
+            self.sim.stop()
+            self.sim = None
+        elif self.server is not None:
             self.server.stop()
-            self.server = None
+        self.server = None

@@ -50,9 +50,10 @@ class RegisterBlock(BaseModbusDataBlock):
 
 
 class ModbusSimServer:
-    """A pymodbus TCP server for one device (unit id ``device_id``) in a background thread."""
+    """A pymodbus TCP server for one device (unit id ``device_id``) in a background thread; an RTU
+    server on a serial device instead when ``serial`` = {port, baudrate, parity, stopbits}."""
 
-    def __init__(self, device, host="127.0.0.1", port=0, device_id=1, input_registers=False):
+    def __init__(self, device, host="127.0.0.1", port=0, device_id=1, input_registers=False, serial=None):
         if not host.startswith("127.") and host not in ("localhost", "::1"):
             raise ValueError(f"simulated Modbus devices listen on loopback addresses only, not {host}")
         self.device, self.host, self.port = device, host, int(port)
@@ -65,6 +66,7 @@ class ModbusSimServer:
         self._ready = threading.Event()
         self._error = None
         self._stop_lock = threading.Lock()
+        self.serial = serial
 
     def start(self):
         self._thread = threading.Thread(target=self._run, daemon=True, name="pmctl-modbus-sim")
@@ -82,6 +84,13 @@ class ModbusSimServer:
 
         async def main():
             try:
+                if self.serial is not None:
+                    from pymodbus import FramerType
+                    from pymodbus.server import ModbusSerialServer
+                    self._server = ModbusSerialServer(self.context, framer=FramerType.RTU, bytesize=8,
+                                                      **self.serial)
+                    await self._server.serve_forever(background=True)
+                    return
                 self._server = ModbusTcpServer(self.context, address=(self.host, self.port))
                 await self._server.serve_forever(background=True)
                 if self.port == 0:

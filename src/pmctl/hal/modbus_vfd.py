@@ -1,4 +1,4 @@
-"""The spindle inverter (VFD) over Modbus TCP, with a pymodbus client.
+"""The spindle inverter (VFD) over Modbus TCP or RTU (a serial line), with a pymodbus client.
 
 - ``M3``/``M4 S..`` -> set-point and run forward / reverse; ``M5`` -> stop (function codes 06 and 03).
 - ``wait_at_speed``: the measured speed within ``at_speed_tolerance`` (2 %) of the command, as
@@ -45,11 +45,19 @@ class VfdRegisters:
         return f"register 0x{addr:04X}"
 
 
+BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
+
+
 @dataclass
 class VfdOptions:
     enabled: bool = True
-    host: str = "127.0.0.1"
-    port: int = 502                  # 0 with simulate = true: any free loopback port
+    transport: str = "tcp"           # "tcp" (Modbus TCP) or "rtu" (Modbus RTU on a serial line)
+    host: str = "127.0.0.1"          # tcp
+    port: int = 502                  # tcp; 0 with simulate = true: any free loopback port
+    serial_port: str = ""            # rtu: the serial device; "devsim" with simulate = true
+    baud: int = 19200                # rtu
+    parity: str = "N"                # rtu: N, E or O
+    stop_bits: int = 1               # rtu
     device_id: int = 1
     timeout_ms: float = 200.0
     max_rpm: float = 24000.0         # speed at set-point 10000 (maximum frequency)
@@ -97,8 +105,30 @@ class VfdOptions:
             v = getattr(o, k)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise ConfigError(where, k, f"must be an integer {lo} .. {hi}, got {v!r}")
-        if o.port == 0 and not o.simulate:
+        if o.transport not in ("tcp", "rtu"):
+            raise ConfigError(where, "transport", f"must be \"tcp\" or \"rtu\", got {o.transport!r}")
+        if o.transport == "tcp" and o.port == 0 and not o.simulate:
             raise ConfigError(where, "port", "0 (any free port) only with simulate = true")
+        if o.baud not in BAUDS or isinstance(o.baud, bool):
+            raise ConfigError(where, "baud", f"must be one of {', '.join(map(str, BAUDS))}, got {o.baud!r}")
+        if o.parity not in ("N", "E", "O"):
+            raise ConfigError(where, "parity", f"must be \"N\", \"E\" or \"O\", got {o.parity!r}")
+        if o.stop_bits not in (1, 2) or isinstance(o.stop_bits, bool):
+            raise ConfigError(where, "stop_bits", f"must be 1 or 2, got {o.stop_bits!r}")
+        if not isinstance(o.serial_port, str):
+            raise ConfigError(where, "serial_port", f"must be a serial device path, got {o.serial_port!r}")
+        if o.transport == "rtu":
+            if o.simulate and o.serial_port != "devsim":
+                raise ConfigError(where, "serial_port", f"a simulated RTU VFD is the device simulator's: "
+                                                        f"serial_port = \"devsim\", not {o.serial_port!r}")
+            if o.simulate and o.parity != "N":
+                raise ConfigError(where, "parity", f"the simulated RTU line is a pty, which has no parity bit: "
+                                                   f"parity = \"N\", not {o.parity!r}")
+            if not o.simulate and not o.serial_port.startswith("/"):
+                raise ConfigError(where, "serial_port", f"must be a serial device (e.g. /dev/ttyUSB0), "
+                                                        f"got {o.serial_port!r}")
+            if not 1 <= o.device_id <= 247:
+                raise ConfigError(where, "device_id", f"an RTU unit address is 1 .. 247, got {o.device_id}")
         if not isinstance(o.host, str) or not o.host:
             raise ConfigError(where, "host", "must be a host name or address")
         if o.simulate and not (o.host.startswith("127.") or o.host == "localhost"):
@@ -124,12 +154,23 @@ class SpindleVFD:
 
     @property
     def device(self):
-        return f"spindle VFD {self.opt.host}:{self.opt.port} (unit {self.opt.device_id})"
+        o = self.opt
+        if o.transport == "rtu":
+            return f"spindle VFD {o.serial_port} RTU {o.baud} {o.parity}{o.stop_bits} (unit {o.device_id})"
+        return f"spindle VFD {o.host}:{o.port} (unit {o.device_id})"
 
     def connect(self):
-        from pymodbus.client import ModbusTcpClient
-        self.client = ModbusTcpClient(self.opt.host, port=self.opt.port, timeout=self.opt.timeout_ms / 1e3,
-                                      retries=0, reconnect_delay=0)
+        o = self.opt
+        if o.transport == "rtu":
+            from pymodbus import FramerType
+            from pymodbus.client import ModbusSerialClient
+            self.client = ModbusSerialClient(o.serial_port, framer=FramerType.RTU, baudrate=o.baud, bytesize=8,
+                                             parity=o.parity, stopbits=o.stop_bits, timeout=o.timeout_ms / 1e3,
+                                             retries=0, reconnect_delay=0)
+        else:
+            from pymodbus.client import ModbusTcpClient
+            self.client = ModbusTcpClient(o.host, port=o.port, timeout=o.timeout_ms / 1e3,
+                                          retries=0, reconnect_delay=0)
         if not self.client.connect():
             raise HalError(f"{self.device}: cannot connect")
         self.read_fault()              # the link answers and the inverter is healthy, before any command
@@ -219,7 +260,8 @@ class SpindleMonitor:
 
     def __init__(self, vfd: SpindleVFD, tick, on_fault):
         self.vfd, self.tick, self.on_fault = vfd, tick, on_fault
-        self.samples: list[tuple[int, float]] = []
+        self.changer = None              # a SpeedChanger: speed changes inside the job
+        self.samples: list[tuple[int, float]] = []  # (tick, signed rpm)
         self.fault = ""
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, daemon=True, name="pmctl-spindle")
@@ -235,8 +277,11 @@ class SpindleMonitor:
             try:
                 self.vfd.read_fault()
                 rpm = self.vfd.read_rpm()
-                self.samples.append((int(self.tick()), rpm))
+                # signed like the command: negative = M4
+                self.samples.append((int(self.tick()), -rpm if self.vfd.rpm_cmd < 0 else rpm))
                 missed = 0
+                if self.changer is not None:
+                    self.changer.poll(rpm)
             except HalTimeout as e:          # one unanswered poll is no lost link yet
                 missed += 1
                 if missed < self.vfd.opt.max_missed_polls:
@@ -265,9 +310,20 @@ class SpindleMonitor:
         return out
 
 
+def sim_spec(opt: VfdOptions) -> dict:
+    """What the device simulator (pmctl.hal.devsim) needs to serve a VFD for ``opt``."""
+    from dataclasses import asdict
+    spec = {"registers": asdict(opt.registers), "max_hz": opt.max_hz, "max_rpm": opt.max_rpm,
+            "ramp_rpm_per_s": opt.sim_ramp_rpm_per_s, "host": opt.host, "port": opt.port,
+            "device_id": opt.device_id}
+    if opt.transport == "rtu":
+        spec["rtu"] = {"baudrate": opt.baud, "parity": opt.parity, "stopbits": opt.stop_bits}
+    return spec
+
+
 def simulated(opt: VfdOptions):
-    """Start a simulated VFD for ``opt`` (simulate = true); returns (server, device). The chosen
-    port is written back to ``opt.port`` when it was 0."""
+    """Start a simulated VFD for ``opt`` in this process (tests); returns (server, device). The
+    chosen port is written back to ``opt.port`` when it was 0."""
     from pmctl.hal.modbus_sim import ModbusSimServer, SimVFD
     dev = SimVFD(opt.registers, max_hz=opt.max_hz, rpm_per_hz=opt.max_rpm / opt.max_hz,
                  ramp_hz_per_s=opt.sim_ramp_rpm_per_s * opt.max_hz / opt.max_rpm)
@@ -277,16 +333,94 @@ def simulated(opt: VfdOptions):
 
 
 def job_speed(spindle_rpm) -> float:
-    """The one spindle speed of a job (signed: negative = M4), 0 when the spindle stays off. A job
-    that changes speed or direction between its moves is refused: this first integration runs the
-    spindle at one speed for the whole job."""
+    """The spindle speed a job starts with (signed: negative = M4): its first non-zero one, 0 when
+    the spindle stays off. Later changes are ``speed_changes``."""
     import numpy as np
     v = np.asarray(spindle_rpm, float)
-    on = np.unique(v[v != 0])
-    if len(on) > 1:
-        raise HalError(f"the job commands several spindle speeds ({', '.join(f'{x:g}' for x in on)} rpm); "
-                       f"one speed per job is supported (split the job)")
+    on = v[v != 0]
     return float(on[0]) if len(on) else 0.0
+
+
+REST_STEP_MM = 1e-3     # joint motion per sample below which a planned stop counts as at rest
+LOOKAHEAD_SAMPLES = 2   # the wait starts this many ticks' worth of path before the stop, at most
+
+
+def speed_changes(spindle_rpm, q, job_start: int = 0) -> list[tuple[int, float, bool]]:
+    """The spindle speed changes inside a job, after it started at ``job_speed``: (the sample of
+    the loop's targets where the motion waits, the new signed speed, whether the path is at rest
+    there). The planner stops the path exactly on the last sample of the old speed (``q``: the
+    targets' joints, ``job_start``: the first job sample among them); it is at rest when the
+    joints move less than ``REST_STEP_MM`` per sample around it. Trailing zeros (the M5 at the end)
+    are no change."""
+    import numpy as np
+    v = np.asarray(spindle_rpm, float)
+    q = np.asarray(q, float)
+    on = np.flatnonzero(v)
+    if not len(on):
+        return []
+    out = []
+    cur = v[on[0]]
+    for c in np.flatnonzero(np.diff(v)) + 1:
+        if c <= on[0] or c > on[-1] or v[c] == cur:
+            continue
+        cur = v[c]
+        p = int(c) + job_start - 1                  # the last sample at the old speed: the stop
+        steps = [np.abs(q[i + 1] - q[i]).max() for i in range(p - LOOKAHEAD_SAMPLES, p + 1)
+                 if 0 <= i and i + 1 < len(q)]
+        out.append((p, float(cur), bool(steps) and bool(max(steps) <= REST_STEP_MM)))
+    return out
+
+
+class SpeedChanger:
+    """Speed changes inside a job. In the loop's thread (``hook``, each tick): when the path
+    reaches a change, the loop's path follower holds there (at a planned stop, where the path is
+    at rest, at once). In the monitor's thread (``poll``, at each poll): the new speed goes to the
+    VFD, and once it is within ``at_speed_tolerance`` the hold is released. A change that does not
+    reach its speed within ``spinup_timeout_s`` is a fault (a controlled stop)."""
+
+    def __init__(self, vfd: SpindleVFD, loop, changes):
+        self.vfd, self.loop, self.changes = vfd, loop, list(changes)
+        self.next = 0
+        self.pending = None             # the speed asked for, while the path waits for it
+        self.sent = False
+        self.t_sent = 0.0
+        self.held_ticks = []            # [from tick, to tick] of each wait
+
+    def hook(self, lp, k, st):
+        if self.pending is None and self.next < len(self.changes):
+            b, rpm, rest = self.changes[self.next]
+            fol = lp.follower
+            sc = fol.scaler
+            # where the next ticks will take the path (sigma samples per tick): wait before the
+            # stop is passed, i.e. at most LOOKAHEAD_SAMPLES short of it, where the path is at rest
+            if fol.s_total + LOOKAHEAD_SAMPLES * sc.sigma * fol.k >= b:
+                sc.hold = True
+                if rest:                # on a planned stop the path is at rest: sigma means nothing there
+                    sc.sigma = sc.dsigma = 0.0
+                self.next += 1
+                self.sent = False
+                self.held_ticks.append([k, None])
+                self.pending = rpm
+        return st
+
+    def poll(self, rpm_meas: float):
+        """In the monitor's thread; raises HalError when a change does not come to speed."""
+        want = self.pending
+        if want is None:
+            return
+        if not self.sent:
+            self.vfd.start(want)        # M3/M4 S.. (or M5); reversing waits for rest inside
+            self.sent, self.t_sent = True, time.monotonic()
+            return
+        if self.vfd.at_speed(rpm_meas):
+            self.held_ticks[-1][1] = int(self.loop.tick)
+            self.pending = None
+            if not self.loop.stop_request:      # a stop asked for meanwhile keeps the hold
+                self.loop.follower.scaler.hold = False
+            return
+        if time.monotonic() - self.t_sent > self.vfd.opt.spinup_timeout_s:
+            raise HalError(f"{self.vfd.device}: not at speed {self.vfd.opt.spinup_timeout_s:g} s after "
+                           f"S{abs(want):g}: {rpm_meas:g} rpm in {self.vfd.r.name(self.vfd.r.speed_rpm)}")
 
 
 class SpindleSession:
@@ -297,14 +431,26 @@ class SpindleSession:
         self.opt = replace(opt)            # the simulated port is written back into this copy
         self.log = log
         self.server = self.device = None
+        self.sim = None
         self.vfd = None
         self.monitor = None
-        self.direction = 1.0
+        self.changer = None
+        self._at_start = None
+        self.direction = 1.0             # the monitor's samples are signed already
 
     def connect(self):
         try:
             if self.opt.simulate:
-                self.server, self.device = simulated(self.opt)
+                # the simulated VFD in a device-simulator process (not in the loop's process)
+                from pmctl.hal.devsim import DeviceSimulator, DeviceSimulatorError
+                try:
+                    self.sim = DeviceSimulator({"vfd": sim_spec(self.opt)}, "simulated spindle VFD").start()
+                except DeviceSimulatorError as e:
+                    raise HalError(str(e)) from None
+                self.opt.port = self.sim.info["vfd_port"]
+                if self.opt.transport == "rtu":
+                    self.opt.serial_port = self.sim.info["vfd_serial"]
+                self.device, self.server = self.sim.proxy("vfd"), self.sim.proxy("vfd_server")
             self.vfd = SpindleVFD(self.opt).connect()
         except BaseException:
             self.close()
@@ -312,21 +458,40 @@ class SpindleSession:
         return self
 
     def start(self, rpm: float):
-        self.direction = 1.0 if rpm >= 0 else -1.0
         self.vfd.start(rpm)
         t0 = time.monotonic()
         got = self.vfd.wait_at_speed()
+        self._at_start = -got if rpm < 0 else got     # the speed the loop starts with (tick 0)
         self.log(f"spindle {'M3' if rpm > 0 else 'M4'} S{abs(rpm):g}: at speed ({got:g} rpm) after "
                  f"{time.monotonic() - t0:.2f} s")
 
+    def follow(self, loop, targets, spindle_rpm):
+        """Speed changes inside the job: the loop waits at each for the new speed (call before
+        ``watch``)."""
+        changes = speed_changes(spindle_rpm, targets.q, targets.job_start)
+        if not changes:
+            return None
+        self.changer = SpeedChanger(self.vfd, loop, changes)
+        prev = loop.hook
+
+        def hook(lp, k, st):
+            st = self.changer.hook(lp, k, st)
+            return prev(lp, k, st) if prev is not None else st
+        loop.hook = hook
+        return self.changer
+
     def watch(self, tick, on_fault):
-        self.monitor = SpindleMonitor(self.vfd, tick, on_fault).start()
+        self.monitor = SpindleMonitor(self.vfd, tick, on_fault)
+        self.monitor.changer = self.changer
+        if self._at_start is not None:        # measured by the wait at speed, just before the loop
+            self.monitor.samples.append((0, self._at_start))
+        self.monitor.start()
 
     def per_tick(self, n):
         import numpy as np
         if self.monitor is None:
             return np.full(n, np.nan)
-        return self.monitor.per_tick(n) * self.direction
+        return self.monitor.per_tick(n)
 
     def close(self):
         """M5 (when the link still answers), then the monitor and the simulated device go."""
@@ -338,6 +503,9 @@ class SpindleSession:
             except HalError as e:
                 self.log(f"warning: {e} (M5 not acknowledged)")
             self.vfd.close()
-        if self.server is not None:
+        if self.sim is not None:
+            self.sim.stop()
+            self.sim = None
+        elif self.server is not None:
             self.server.stop()
-            self.server = None
+        self.server = None

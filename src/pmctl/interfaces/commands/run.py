@@ -536,6 +536,8 @@ def run(args) -> int:
                 rec_writer._discard()       # nothing ran: nothing is left under any name
             raise
         holder["lp"] = lp
+        if spindle is not None:           # S changes inside the job: the path waits at each for the speed
+            spindle.follow(lp, targets, traj.spindle_rpm)
         if pending:
             stop_tick.append(0)
             lp.stop_request = pending[0]
