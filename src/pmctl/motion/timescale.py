@@ -427,6 +427,10 @@ class PathFollower:
             sc.sigma = sc.dsigma = 0.0
         else:
             f2 -= adv
+            for i in range(1, adv + 1):    # never step over a job's end (at rest): stop on it, so it is counted
+                if int(src.row(i)[S_FLAGS]) & FLAG_END:
+                    adv, f2 = i, 0.0
+                    break
         self.s_total += (adv + f2) - f
         if adv:
             src.advance(adv)
