@@ -50,6 +50,11 @@ def test_a_job_runs_through_the_rt_process_and_every_pulse_is_counted(sup):
     tip, axis = sup.pose()
     assert np.linalg.norm(tip - job.moves[-1].tip) < 2e-3                           # at the last programmed point
     assert sup.state_name() == "Idle"
+    # a normal shutdown: the rt side saves and exits as asked - no "rt motion process died" alarm
+    events = []
+    sup.listeners.append(lambda ev, detail: events.append(ev))
+    sup.shutdown()                          # joins the monitor thread, which watched the rt side exit
+    assert not sup.alarm and not sup.rt_dead and "rt_dead" not in events, (sup.alarm_msg, events)
 
 
 def test_rt_process_killed_raises_an_alarm_refuses_motion_and_unlock_restarts_it(sup):

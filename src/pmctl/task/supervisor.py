@@ -90,6 +90,7 @@ class Supervisor:
         self.homing_abort = threading.Event()     # a reset during homing aborts the cycle (ALARM 6)
         self.homed = False
         self.rt_dead = False
+        self._quitting = False
         self.items: collections.deque[Item] = collections.deque()   # submitted, not finished
         self.n_submitted = 0
         self._gen = 0
@@ -156,6 +157,7 @@ class Supervisor:
         """Hold on the path, let the rt side save its counters and exit; returns the final counters."""
         self.homing_abort.set()
         self._abort.set()
+        self._quitting = True         # the rt side's exit from here on is the asked-for one, not a death (ALARM 17)
         counts = None
         if self.proc is not None and self.proc.is_alive():
             self.ch.command(C.C_QUIT)
@@ -508,7 +510,8 @@ class Supervisor:
             if ch is None:
                 continue
             self._drain_records()
-            if self.proc is not None and not self.proc.is_alive() and not self.rt_dead and not self._stop.is_set():
+            if self.proc is not None and not self.proc.is_alive() and not self.rt_dead and not self._stop.is_set() \
+                    and not self._quitting:
                 self.rt_dead = True
                 self.homed = False            # the counters are kept, but not trusted
                 with self._lock:
