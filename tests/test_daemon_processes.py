@@ -162,3 +162,29 @@ def test_estop_input_latches_alarm_10_until_it_clears_and_unlock(tmp_path):
         assert s.wait_idle(60) and not s.alarm
     finally:
         s.shutdown()
+
+
+def test_a_shaped_job_through_the_daemon_ends_on_its_last_point_with_every_pulse_counted(tmp_path):
+    """With [nc] shaper set, the planner thread shapes the time law of the whole item (not streamed):
+    the machine still follows the programmed path to its last point and the rt side counts every
+    pulse."""
+    from pathlib import Path
+    svc = tmp_path / "service.toml"
+    base = (Path(__file__).resolve().parents[1] / "config" / "service.toml").read_text()
+    assert 'shaper = "none"' in base
+    svc.write_text(base.replace('shaper = "none"', 'shaper = "ZVD"\nshaper_hz = 40.0', 1))
+    s = Supervisor("prototype", service=str(svc), realtime=False)
+    assert s.nc_setup.shaper is not None and s.nc_setup.shaper.name == "ZVD"
+    tip, ax = home_pose(s.machine)
+    s.start(counts_of(K.ik(tip, ax, s.machine).q, s.params))
+    try:
+        job = job_from(s, "G21 G90 G1 F1500 X8 Y-3 Z{z}\nX0 Y4\n")
+        s.submit(job)
+        assert s.wait_idle(120) and not s.alarm
+        r = s.raw()
+        counts = r[C.ST_COUNTS:C.ST_COUNTS + 5]
+        assert np.array_equal(counts, r[C.ST_COUNTS0:C.ST_COUNTS0 + 5] + r[C.ST_SENT:C.ST_SENT + 5])
+        tip1, _ = s.pose()
+        assert np.linalg.norm(tip1 - job.moves[-1].tip) < 2e-3
+    finally:
+        s.shutdown()

@@ -40,7 +40,9 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from pmctl.core import plant_effects as PE
+from pmctl.core import statics
 from pmctl.core.config import Machine
+from pmctl.core.kinematics import forward_platform, tool_of_platform
 from pmctl.core.plant_effects import SCREW_FIXED_END_MM
 from pmctl.core.errors import ConfigError
 from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Inputs, Status
@@ -236,7 +238,6 @@ class SimBackend(Backend):
     # ---------------------------------------------------------------- Backend API
     def open(self, counts):
         from pmctl.core.errors import KinematicsError
-        from pmctl.core.kinematics import forward_platform
         L = self._lib
         self.counts = np.array(counts, dtype=np.int64)
         if self.opt.motor_offset_mm is not None:
@@ -327,8 +328,6 @@ class SimBackend(Backend):
 
     def _add_load(self):
         """Add the strain of this tick's tip force (contact + applied) at the load-side pose."""
-        from pmctl.core import statics
-        from pmctl.core.kinematics import forward_platform, tool_of_platform
         o, g = self.opt, self.machine.geometry
         q = self._q
         P, R = forward_platform(q[:3], g)

@@ -343,7 +343,7 @@ class ControlLoop:
         positions, ppm = be.accepts == "positions", p.pulses_per_mm     # CSP drives take joint targets, mm
         nan5 = [math.nan] * 5
         period = int(round(1e9 / cfg.rate_hz))
-        stall_ns = int(max(cfg.stall_timeout_s, getattr(be, "stall_tolerance_s", 0.0)) * 1e9)
+        stall_ns = int(max(cfg.stall_timeout_s, be.stall_tolerance_s) * 1e9)
         spin_ns = int(cfg.spin_us * 1e3)
         # timing statistics in a bounded window (the last TIMING_WINDOW ticks)
         comp = np.zeros(TIMING_WINDOW, np.int64)

@@ -26,6 +26,7 @@ q_tautau (5), cap, line, flags (``FLAG_RAPID``, ``FLAG_END`` = last sample of a 
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -131,12 +132,7 @@ def iter_stream_rows(trajs, machine, params, *, rapid_lines=(), rapid_mm_s=50.0,
     head = next(it, None)
     if head is None:
         return iter(())
-    return _rows(_chain(head, it), first[0], machine, params, rapid_mm_s, chunk, decel)
-
-
-def _chain(head, rest):
-    yield head
-    yield from rest
+    return _rows(itertools.chain([head], it), first[0], machine, params, rapid_mm_s, chunk, decel)
 
 
 def _rows(pieces, dtp, machine, params, rapid_mm_s, chunk, decel):

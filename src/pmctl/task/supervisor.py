@@ -433,7 +433,7 @@ class Supervisor:
         validated first (reachability, feeds, bounds: nothing of a bad item reaches the rt side),
         then planned window by window and pushed as room frees up in the sample ring, so memory is
         bounded by a window, not by the job."""
-        from pmctl.motion.timescale import iter_job_rows, iter_stream_rows, shape_trajectory
+        from pmctl.motion.timescale import iter_stream_rows, shape_trajectory
         from pmctl.task.job import RAPID
         from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
         rapid_mm_s = PlannerLimits().rapid_mm_s
@@ -458,8 +458,8 @@ class Supervisor:
                     # grows with the job; a streaming shaper is not built yet)
                     traj = shape_trajectory(plan(it.job, self.machine, self.dt, feed_override=self.plan_feed_override,
                                                  start=it.start), self.nc_setup.shaper)
-                    rapid = np.isin(np.asarray(traj.line), list(rapid_lines)) if rapid_lines else None
-                    rows_iter = iter_job_rows(traj, self.machine, self.params, rapid=rapid, rapid_mm_s=rapid_mm_s)
+                    rows_iter = iter_stream_rows([traj], self.machine, self.params, rapid_lines=rapid_lines,
+                                                 rapid_mm_s=rapid_mm_s)
                 it.planned = True
                 for rows in rows_iter:
                     i = 0
