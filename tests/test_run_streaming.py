@@ -50,7 +50,12 @@ def test_sigkill_leaves_a_readable_partial_recording(tmp_path):
             line = p.stderr.readline()
             if not line or (" s at " in line and "backend" in line):
                 break
-        time.sleep(2.0)
+        data = tmp_path / "rec.partial" / "data.csv"
+        t0 = time.monotonic()                                   # ~2 s of ticks drained to disk (not a fixed
+        while time.monotonic() - t0 < 120 and p.poll() is None:  # sleep: a loaded machine starts late)
+            if data.exists() and data.read_bytes().count(b"\n") > 2000:
+                break
+            time.sleep(0.05)
         assert p.poll() is None, "the run ended before it could be killed"
         p.send_signal(signal.SIGKILL)
         p.wait(timeout=30)
