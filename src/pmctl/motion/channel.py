@@ -8,7 +8,11 @@ Layout (all float64 unless noted), in this order:
   sequence number in the status block;
 - the command ring (supervisor -> rt), ``CMD_CAPACITY`` rows of (seq, code, arg1, arg2);
 - the sample ring (supervisor -> rt), planned samples (pmctl.motion.timescale.WIDTH floats);
-- the record ring (rt -> supervisor), per-tick records (pmctl.motion.recorder.REC_WIDTH floats).
+- the record ring (rt -> supervisor), per-tick records (pmctl.motion.recorder.REC_WIDTH floats);
+- the probe table (supervisor -> rt), ``PROBE_TABLE_WIDTH`` floats: a sequence number, then the
+  probing segment the next ``FLAG_PROBE`` samples belong to (pmctl.motion.probe.ProbeSegment.to_row).
+  The supervisor writes it (the number last) before it pushes those samples; one probe is in flight
+  at a time.
 
 The supervisor creates the segment and unlinks it at exit; the rt side attaches by name.
 """
@@ -19,6 +23,8 @@ import math
 
 import numpy as np
 
+from pmctl.motion.probe import RESULT_WIDTH as PROBE_RESULT_WIDTH
+from pmctl.motion.probe import SEGMENT_WIDTH as PROBE_SEGMENT_WIDTH
 from pmctl.motion.recorder import REC_WIDTH
 from pmctl.motion.ring import Ring, ring_bytes
 from pmctl.motion.timescale import WIDTH as SAMPLE_WIDTH
@@ -38,7 +44,10 @@ ST_LATCH_SEQ = ST_COUNTS0 + 5     # counts the home-switch latches (C_HOME_ARM)
 ST_LATCH = ST_LATCH_SEQ + 1       # (5) the counters at the tick the armed switch reached the wanted state
 ST_HOME_IN = ST_LATCH + 5         # home switches as a bit mask (bit i: axis i closed); -1: no switches, or a
                                   # backend that cannot re-reference its counters (no homing)
-STATUS_WIDTH = 56
+ST_PROBE_SEQ = ST_HOME_IN + 1     # counts the probing moves ended (G38.2/G38.3, pmctl.motion.probe)
+ST_PROBE = ST_PROBE_SEQ + 1       # (PROBE_RESULT_WIDTH) the last one's result (ProbeResult.to_row)
+STATUS_WIDTH = ST_PROBE + PROBE_RESULT_WIDTH
+PROBE_TABLE_WIDTH = 1 + PROBE_SEGMENT_WIDTH
 REASON_BYTES = 512
 
 # rt phases
@@ -60,7 +69,8 @@ RECORD_CAPACITY = 8192            # 8 s of records at 1 kHz, 2 MB
 
 def segment_size(sample_capacity=SAMPLE_CAPACITY, record_capacity=RECORD_CAPACITY) -> int:
     return (8 * STATUS_WIDTH + REASON_BYTES + ring_bytes(CMD_CAPACITY, CMD_WIDTH)
-            + ring_bytes(sample_capacity, SAMPLE_WIDTH) + ring_bytes(record_capacity, REC_WIDTH))
+            + ring_bytes(sample_capacity, SAMPLE_WIDTH) + ring_bytes(record_capacity, REC_WIDTH)
+            + 8 * PROBE_TABLE_WIDTH)
 
 
 class Channel:
@@ -90,9 +100,12 @@ class Channel:
         off += n
         n = ring_bytes(record_capacity, REC_WIDTH)
         self.records = Ring(record_capacity, REC_WIDTH, buf[off:off + n], reset=create)
+        off += n
+        self.probe = np.ndarray((PROBE_TABLE_WIDTH,), np.float64, buf, off)
         if create:
             self.st[:] = 0.0
             self._reason[:] = 0
+            self.probe[:] = 0.0
         self._cmd_seq = 0
 
     # ---- rt side
@@ -129,7 +142,7 @@ class Channel:
 
     def close(self, unlink: bool = False):
         # numpy views keep the buffer exported: drop them first
-        for a in ("st", "_reason", "commands", "samples", "records"):
+        for a in ("st", "_reason", "commands", "samples", "records", "probe"):
             if hasattr(self, a):
                 delattr(self, a)
         import gc

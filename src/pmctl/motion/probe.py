@@ -26,6 +26,14 @@ stiffness k_contact (strain_sensing.overtravel_bound has both).
 
 A G38.2 move that ends without contact is a probe failure (grbl's alarm 5): ``result.error`` says so;
 the move itself ended at its programmed target, nothing went beyond it.
+
+The same monitor runs in both places that drive the loop: ``pmctl run`` gives it the job's segments
+up front (found by the follower's line); the daemon's rt process (pmctl.motion.rtproc) gives it a
+``fetch`` callable instead, which hands over the one segment the supervisor announced in the
+channel's probe table once the follower is on samples flagged ``FLAG_PROBE``
+(pmctl.motion.timescale). The supervisor plans a probing move as a piece of its own (see
+:func:`split_at_probes`), so at most one is in flight; the result goes back in the status block
+(:meth:`ProbeResult.to_row` / :meth:`ProbeResult.from_row`).
 """
 
 from __future__ import annotations
@@ -42,6 +50,8 @@ from pmctl.core.errors import ConfigError
 IDLE, TARE, ARMED, STOPPING = 0, 1, 2, 3
 GRID = 9                        # model points along a probing line
 HISTORY = 32                    # ticks kept for the contact-point fit
+SEGMENT_WIDTH = 12 + 4 * GRID   # floats of a segment in the channel's probe table (ProbeSegment.to_row)
+RESULT_WIDTH = 22               # floats of a result in the status block (ProbeResult.to_row)
 TARE_GUARD = 8                  # reference ticks before a contact during the tare is watched for
 
 
@@ -92,6 +102,22 @@ class ProbeSegment:
     def length(self) -> float:
         return float(np.linalg.norm(self.end - self.start))
 
+    def to_row(self) -> list:
+        """SEGMENT_WIDTH floats: line, mode, start, end, axis, feed, then the model grid (s, strain x 3)."""
+        gs = list(self.grid_s) + [math.nan] * (GRID - len(self.grid_s))
+        gst = [list(x) for x in self.grid_strain] + [[math.nan] * 3] * (GRID - len(self.grid_strain))
+        return ([float(self.line), float(self.mode), *map(float, self.start), *map(float, self.end),
+                 *map(float, self.axis), float(self.feed)] + [float(x) for x in gs]
+                + [float(v) for x in gst for v in x])
+
+    @classmethod
+    def from_row(cls, row) -> "ProbeSegment":
+        r = [float(x) for x in row[:SEGMENT_WIDTH]]
+        gs = [x for x in r[12:12 + GRID] if not math.isnan(x)]
+        n = len(gs)
+        gst = [r[12 + GRID + 3 * i:12 + GRID + 3 * i + 3] for i in range(n)]
+        return cls(int(r[0]), int(r[1]), np.array(r[2:5]), np.array(r[5:8]), np.array(r[8:11]), r[11], gs, gst)
+
 
 @dataclass
 class ProbeResult:
@@ -108,6 +134,7 @@ class ProbeResult:
     bound_mm: float = 0.0           # bound on after_trigger_mm (ProbeMonitor.bound_mm)
     noise_N: float = 0.0            # force noise seen in the reference ticks (1 sigma, per chain)
     error: str = ""                 # G38.2 without contact
+    counts: tuple | None = None     # pulse counters at rest after the probe (the daemon's rt side fills them)
 
     def prb(self) -> str:
         """grbl's probe report: ``[PRB:x,y,z,a,b:ok]`` (tool tip in W, mm; A, B in degrees)."""
@@ -121,7 +148,29 @@ class ProbeResult:
                 "ab_deg": [float(x) for x in self.ab_deg], "stop_mm": [float(x) for x in self.stop],
                 "tick": self.tick, "speed_mm_s": self.speed_mm_s, "overtravel_mm": self.overtravel_mm,
                 "after_trigger_mm": self.after_trigger_mm, "after_trigger_bound_mm": self.bound_mm,
-                "noise_N": self.noise_N, "error": self.error}
+                "noise_N": self.noise_N, "error": self.error,
+                **({"counts": [int(c) for c in self.counts]} if self.counts is not None else {})}
+
+    def to_row(self) -> list:
+        """RESULT_WIDTH floats for the status block (the error text is rebuilt from mode and contact)."""
+        c = list(self.counts) if self.counts is not None else [math.nan] * 5
+        return ([float(self.line), float(self.mode), 1.0 if self.contact else 0.0, *map(float, self.point),
+                 *map(float, self.ab_deg), *map(float, self.stop), float(self.tick), float(self.speed_mm_s),
+                 float(self.overtravel_mm), float(self.after_trigger_mm), float(self.bound_mm), float(self.noise_N)]
+                + [float(x) for x in c])
+
+    @classmethod
+    def from_row(cls, row) -> "ProbeResult":
+        r = [float(x) for x in row[:RESULT_WIDTH]]
+        line, mode, contact = int(r[0]), int(r[1]), r[2] != 0.0
+        counts = None if math.isnan(r[17]) else tuple(int(x) for x in r[17:22])
+        return cls(line, mode, contact, np.array(r[3:6]), (r[6], r[7]), np.array(r[8:11]), int(r[11]), r[12], r[13],
+                   r[14], r[15], r[16], probe_fail_text(line) if (mode == 2 and not contact) else "", counts)
+
+
+def probe_fail_text(line: int) -> str:
+    """The error of a G38.2 move that ended without contact (grbl's alarm 5)."""
+    return f"probe fail: no contact along the G38.2 move of line {line} (alarm 5)"
 
 
 def probe_segments(job, machine, start_tip) -> list[ProbeSegment]:
@@ -148,31 +197,83 @@ def probe_segments(job, machine, start_tip) -> list[ProbeSegment]:
     return out
 
 
-def check_probe_job(job, cfg: ProbeConfig, path, feed_factor: float = 1.0):
-    """What ``pmctl run`` can do with a job's probing moves: each at most ``max_feed_mm_min`` (times
-    the run's feed override ``feed_factor``, which the plan applies), and
-    the probe the last motion of the job (the job ends at the contact: motion after it would start
-    from a position nobody planned). InputError naming the line."""
+def check_probe_feeds(job, cfg: ProbeConfig, path, feed_factor: float = 1.0):
+    """Each probing move at most ``max_feed_mm_min`` (times the planner's feed override
+    ``feed_factor``, which the plan applies). InputError naming the line."""
     from pmctl.core.errors import InputError
+    for m in job.moves:
+        if m.probe and m.feed * feed_factor * 60.0 > cfg.max_feed_mm_min * (1 + 1e-9):
+            why = f" with the feed override x{feed_factor:g}" if feed_factor != 1.0 else ""
+            raise InputError(path, m.line, f"G38.{m.probe} at F{m.feed * 60:g} mm/min{why} is faster than the probing "
+                                           f"limit probe.max_feed_mm_min = {cfg.max_feed_mm_min:g}")
+
+
+def check_probe_job(job, cfg: ProbeConfig, path, feed_factor: float = 1.0):
+    """What ``pmctl run`` can do with a job's probing moves: each within the feed limit
+    (:func:`check_probe_feeds`), and the probe the last motion of the job (the in-process run ends
+    at the contact: motion after it would start from a position nobody planned). InputError naming
+    the line."""
+    from pmctl.core.errors import InputError
+    check_probe_feeds(job, cfg, path, feed_factor)
     moves = job.moves
     for i, m in enumerate(moves):
         if not m.probe:
             continue
-        if m.feed * feed_factor * 60.0 > cfg.max_feed_mm_min * (1 + 1e-9):
-            why = f" with the feed override x{feed_factor:g}" if feed_factor != 1.0 else ""
-            raise InputError(path, m.line, f"G38.{m.probe} at F{m.feed * 60:g} mm/min{why} is faster than the probing "
-                                           f"limit probe.max_feed_mm_min = {cfg.max_feed_mm_min:g}")
         after = [n for n in moves[i + 1:] if n.kind != "dwell"]
         if after:
             raise InputError(path, after[0].line, f"motion after the probing move of line {m.line}: pmctl run ends "
                                                   f"the job at the contact, so a probe must be the job's last move")
 
 
-class ProbeMonitor:
-    """Per-tick stop-on-contact for the probing segments of one job (or stream)."""
+def split_at_probes(job) -> list:
+    """The job cut into pieces the daemon plans one after the other: ``(piece, probe)`` pairs, where a
+    probing move is a piece of its own (``probe`` its Move; None for the others). Every piece starts
+    and ends at rest; the piece after a probe is planned only once the probe has ended, from where
+    it stopped (grbl: motion after a probe starts at the probed position). Dwells stay with the
+    motion before them."""
+    from pmctl.task.job import DWELL, Job
+    out, cur = [], []
 
-    def __init__(self, machine, segments, cfg: ProbeConfig, dt: float, params=None):
+    def piece(moves):
+        pts = np.array([m.tip for m in moves if m.kind != DWELL], float).reshape(-1, 3)
+        return Job(tuple(moves), job.source, pts, np.array([m.line for m in moves if m.kind != DWELL], int))
+    for m in job.moves:
+        if m.probe:
+            if cur:
+                out.append((piece(cur), None))
+                cur = []
+            out.append((piece([m]), m))
+        else:
+            cur.append(m)
+    if cur:
+        if out and all(m.kind == DWELL for m in cur) and out[-1][1] is None:
+            out[-1] = (piece(list(out[-1][0].moves) + cur), None)
+        else:
+            out.append((piece(cur), None))
+    return out
+
+
+def mark_probe_rows(rows, seg_feed_mm_s: float, cfg: ProbeConfig):
+    """Sample rows of a probing piece (pmctl.motion.timescale): flagged ``FLAG_PROBE`` (the rt side
+    runs the monitor on them), and their sigma cap lowered so that no feed override takes the probe
+    past ``max_feed_mm_min`` (grbl ignores feed overrides while probing; here they may slow it)."""
+    from pmctl.motion.timescale import FLAG_PROBE, S_CAP, S_FLAGS
+    rows[:, S_FLAGS] += FLAG_PROBE
+    cap = min(1.0, cfg.max_feed_mm_min / 60.0 / max(seg_feed_mm_s, 1e-9))
+    np.minimum(rows[:, S_CAP], cap, out=rows[:, S_CAP])
+    return rows
+
+
+class ProbeMonitor:
+    """Per-tick stop-on-contact for the probing segments of one job (or stream).
+
+    ``segments``: the job's probing segments, found by the follower's line (``pmctl run``); or
+    ``fetch(fol)`` -> ProbeSegment | None: a stream's next segment, asked for at every idle tick
+    (the daemon's rt side; its segments are used once and dropped)."""
+
+    def __init__(self, machine, segments, cfg: ProbeConfig, dt: float, params=None, fetch=None):
         self.machine, self.cfg, self.dt = machine, cfg, float(dt)
+        self.params, self.fetch = params, fetch
         self.by_line = {s.line: s for s in segments}
         self.gain = float(machine.strain_gain)
         self.results: list[ProbeResult] = []
@@ -244,7 +345,7 @@ class ProbeMonitor:
         res = ProbeResult(seg.line, seg.mode, contact, kw.pop("point", np.full(3, np.nan)),
                           (math.degrees(float(a)), math.degrees(float(b))), np.array(tip[:3], float), **kw)
         if not contact and seg.mode == 2:
-            res.error = f"probe fail: no contact along the G38.2 move of line {seg.line} (alarm 5)"
+            res.error = probe_fail_text(seg.line)
         self.results.append(res)
         self.done_line = seg.line
         self.state = IDLE
@@ -256,13 +357,19 @@ class ProbeMonitor:
         the three gauges as read at the tick's start (the plant at this target)."""
         state = self.state
         if state == IDLE:
-            line = fol.line
-            if line == self.done_line:       # resting where a finished probe left the follower
-                return
-            self.done_line = None
-            seg = self.by_line.get(line)
-            if seg is None:
-                return
+            if self.fetch is not None:
+                seg = self.fetch(fol)
+                if seg is None:
+                    return
+                self._decel[seg.line] = self._effective_decel(seg, self.params)
+            else:
+                line = fol.line
+                if line == self.done_line:       # resting where a finished probe left the follower
+                    return
+                self.done_line = None
+                seg = self.by_line.get(line)
+                if seg is None:
+                    return
             self._begin(seg)
             state = TARE
         seg = self.seg
@@ -343,6 +450,14 @@ class ProbeMonitor:
             self.run = 0
         if self.run >= self.cfg.debounce_ticks:
             self._contact(fol, k, s)
+
+    def cancel(self, fol) -> None:
+        """Forget the segment under way without a result (a soft reset or a fault dropped the motion):
+        the stop's raised rate limits go back."""
+        if self.state == STOPPING:
+            fol.scaler.accel, fol.scaler.jerk = self._saved
+        self.state = IDLE
+        self.seg = None
 
     @staticmethod
     def _push(hs, hd, s, a0, a1, a2):

@@ -8,6 +8,10 @@ in ``spec`` (a dict of plain values). Per tick, after the NC step, its hook:
 - reads the backend's inputs: the E-stop halts; an armed home switch reaching its wanted state
   latches the counters of that tick and feed-holds on the path (the homing sequence, in the
   supervisor's pmctl.task.homing, plans the moves and reads the latch);
+- probing (G38.2/G38.3): the loop's probe monitor (pmctl.motion.probe, the one ``pmctl run`` uses)
+  takes the segment the supervisor announced in the channel's probe table once the follower is on
+  ``FLAG_PROBE`` samples, and stops on contact; each ended probe's result (contact point, stop,
+  tick, counters) goes into the status block under ``ST_PROBE_SEQ``;
 - writes the status block (counters, model pose, sigma, line, phase, timing) under a sequence
   counter;
 - every 50 ticks checks that the supervisor is still its parent: if it died, the machine is
@@ -46,6 +50,24 @@ class RtHook:
         self.latch_seq = 0
         self.latch = [0.0] * 5
         self.shift = np.zeros(5, np.int64)          # re-references (C_SET_COUNTS) since the start
+        self.probe = None                           # the loop's ProbeMonitor (rt_main sets it)
+        self.probe_seen = float(ch.probe[0])        # the probe table's last announcement taken
+        self.probe_seq = 0
+        self.probe_row = [float("nan")] * C.PROBE_RESULT_WIDTH
+
+    def probe_fetch(self, fol):
+        """ProbeMonitor's ``fetch``: the segment newly announced in the probe table, once the follower
+        is on a sample flagged FLAG_PROBE of its line (one float compare per tick otherwise)."""
+        tab = self.ch.probe
+        if tab[0] == self.probe_seen or fol.line != int(tab[1]):
+            return None
+        from pmctl.motion.timescale import FLAG_PROBE, S_FLAGS
+        src = fol.src
+        if src.count() == 0 or not int(src.row(0)[S_FLAGS]) & FLAG_PROBE:
+            return None
+        from pmctl.motion.probe import ProbeSegment
+        self.probe_seen = float(tab[0])
+        return ProbeSegment.from_row(tab[1:])
 
     def __call__(self, lp, k, st):
         from pmctl.motion.nc import HALTED, RUN, STOPPING
@@ -69,6 +91,8 @@ class RtHook:
             elif code == C.C_RESET:
                 self.resetting = True
                 sc.hold = True
+                if self.probe is not None:
+                    self.probe.cancel(fol)
             elif code == C.C_QUIT:
                 self.quitting = "stopped by the supervisor"
                 sc.hold = True
@@ -80,6 +104,8 @@ class RtHook:
                 if st.mode != RUN:
                     st = _restart(st, self.machine, lp)
                     self.faulted = False
+                if self.probe is not None:
+                    self.probe.cancel(fol)
                 fol.clear()
                 fol._rest = st.tip.tolist() + st.axis.tolist()
                 sc.hold = False
@@ -108,6 +134,8 @@ class RtHook:
         if st.mode in (STOPPING, HALTED):
             if not self.faulted:
                 self.faulted = True
+                if self.probe is not None:
+                    self.probe.cancel(fol)
                 fol.clear()
                 ch.set_reason(st.reason)
                 ch.st[C.ST_FAULT] = C.F_FAULT if st.mode == HALTED and not _was_stop(st) else C.F_STOP
@@ -122,6 +150,12 @@ class RtHook:
         if self.quitting and (at_rest or st.mode == HALTED):
             lp.quit = True
             lp.quit_reason = self.quitting
+        mon = self.probe
+        if mon is not None and mon.results:
+            r = mon.results.pop(0)              # one probe at a time: the supervisor waits for each
+            r.counts = tuple(int(c) for c in st.counts.tolist())
+            self.probe_row = r.to_row()
+            self.probe_seq += 1
         late = getattr(lp, "last_late_ns", 0)
         comp = getattr(lp, "last_compute_ns", 0)
         self.ontime = self.ontime + 1 if (late + comp) < self.period_ns else 0
@@ -145,6 +179,8 @@ class RtHook:
         fb = lp.last_fb
         if fb is not None and fb.counts is not None:
             s[C.ST_DEV_COUNTS:C.ST_DEV_COUNTS + 5] = fb.counts.tolist()
+        s[C.ST_PROBE_SEQ] = self.probe_seq
+        s[C.ST_PROBE:C.ST_PROBE + C.PROBE_RESULT_WIDTH] = self.probe_row
         s[C.ST_SEQ] += 1.0
         return st
 
@@ -240,13 +276,15 @@ def rt_main(spec: dict) -> int:
             pass
 
     hook = RtHook(ch, machine, params, int(spec["ppid"]), log)
+    from pmctl.motion.probe import ProbeMonitor
+    hook.probe = ProbeMonitor(machine, [], svc.probe, dt, params, fetch=hook.probe_fetch)
 
     def _term(signum, frame):
         hook.term = True
     signal.signal(signal.SIGTERM, _term)
     lp = ControlLoop(machine, be, params, None, cfg, st, log=log, writer=writer, follower=fol,
                      records=ch.records, recorder=_Null(ch.records, keep=False), hook=hook,
-                     exit_when_done=False, setup_rt=realtime)
+                     exit_when_done=False, setup_rt=realtime, probe=hook.probe)
     ch.st[C.ST_PHASE] = C.PH_RUNNING
     res = None
     try:

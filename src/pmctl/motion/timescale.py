@@ -21,7 +21,8 @@ What moves sigma (each tick, :class:`TimeScaler`):
 Every target is a point of the planned path: a hold stops ON the path, never by dropping targets.
 
 Sample rows (``WIDTH`` floats): tip (3), axis (3), tip_tau (3), axis_tau (3), q_tau (5),
-q_tautau (5), cap, line, flags (``FLAG_RAPID``, ``FLAG_END`` = last sample of a job, at rest).
+q_tautau (5), cap, line, flags (``FLAG_RAPID``, ``FLAG_END`` = last sample of a job, at rest,
+``FLAG_PROBE`` = a sample of a probing move, pmctl.motion.probe.mark_probe_rows).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ import numpy as np
 S_TIP, S_AXIS, S_TIPT, S_AXT, S_QT, S_QTT, S_CAP, S_LINE, S_FLAGS = 0, 3, 6, 9, 12, 17, 22, 23, 24
 WIDTH = 25
 FLAG_RAPID, FLAG_END = 1, 2
+FLAG_PROBE = 4
 
 FEED_OVERRIDE_RANGE = (0.10, 2.00)
 RAPID_OVERRIDES = (0.25, 0.50, 1.00)

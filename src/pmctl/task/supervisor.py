@@ -9,6 +9,12 @@ It creates the channel (shared memory), starts the rt process and then, in its o
   raises an alarm, saves the last counters it reported (not trusted: the drives stopped on their
   own watchdog) and refuses motion until an unlock restarts it.
 
+Probing (G38.2/G38.3) is planned in pieces (pmctl.motion.probe.split_at_probes): the motion before a
+probe, the probing move alone (its samples flagged, its segment announced in the channel's probe
+table), then -- once the rt side reports the probe ended -- the rest of the item from where the
+probe stopped. The results land in ``Item.probe_results``; a G38.2 without contact raises ALARM 5
+and drops the queue (grbl's probe fail).
+
 The machine state (grbl's: Idle, Run, Hold:0/1, Jog, Home, Alarm, Check) is derived here from
 the rt status and the supervisor's own flags. Operator requests (hold, resume, overrides, soft
 reset, E-stop, unlock) go to the rt side as commands on the channel's command ring.
@@ -35,6 +41,7 @@ from pmctl.motion.timescale import HELD, HOLDING, MOVING, STARVED
 # grbl alarm codes (grbl 1.1; 10, 11, 17 as grblHAL numbers them)
 ALARM_HARD_LIMIT, ALARM_SOFT_LIMIT, ALARM_ABORT, ALARM_HOMING_RESET = 1, 2, 3, 6
 ALARM_HOMING_PULLOFF, ALARM_HOMING_APPROACH, ALARM_ESTOP, ALARM_HOMING_REQUIRED, ALARM_MOTOR_FAULT = 8, 9, 10, 11, 17
+ALARM_PROBE_FAIL_CONTACT = 5      # G38.2 ended without contact
 
 
 class MotionRefused(PmctlError):
@@ -59,6 +66,9 @@ class Item:
     lines: dict = field(default_factory=dict)    # sample line -> reported line (console N words)
     gen: int = 0                                 # queue generation: a reset or fault drops older items
     source: str = ""                             # a job file's path (the journal keeps it for a resume)
+    probe_results: list = field(default_factory=list)   # pmctl.motion.probe.ProbeResult of each probe, in order
+    parts: int = 1                               # pieces planned one after the other (probing splits an item)
+    ends: int = 0                                # of which the rt side has passed the end
 
 
 class Supervisor:
@@ -261,6 +271,10 @@ class Supervisor:
             end = (np.asarray(moves[-1].tip, float), np.asarray(moves[-1].axis, float)) if moves else start
             it = Item(kind, job, start, end, name, self.n_submitted, lines=dict(lines or {}), gen=self._gen,
                       source=str(source))
+            if any(m.probe for m in job.moves):
+                from pmctl.motion.probe import check_probe_feeds, split_at_probes
+                check_probe_feeds(job, self.svc.probe, source or name or job.source, self.plan_feed_override)
+                it.parts = len(split_at_probes(job))
             self.n_submitted += 1
             self.items.append(it)
         self._plan_q.put(it)
@@ -432,11 +446,8 @@ class Supervisor:
         """Plans queued items one after the other with the streaming planner: the whole item is
         validated first (reachability, feeds, bounds: nothing of a bad item reaches the rt side),
         then planned window by window and pushed as room frees up in the sample ring, so memory is
-        bounded by a window, not by the job."""
-        from pmctl.motion.timescale import iter_stream_rows, shape_trajectory
-        from pmctl.task.job import RAPID
-        from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
-        rapid_mm_s = PlannerLimits().rapid_mm_s
+        bounded by a window, not by the job. An item with probing moves goes piece by piece
+        (:meth:`_plan_probing`)."""
         while not self._stop.is_set():
             try:
                 it = self._plan_q.get(timeout=0.05)
@@ -445,31 +456,12 @@ class Supervisor:
             if self._abort.is_set() or it.gen != self._gen:
                 continue
             try:
-                rapid_lines = {m.line for m in it.job.moves if m.kind == RAPID}
-                if self.nc_setup.shaper is None:
-                    path = validate(it.job, self.machine, self.dt, feed_override=self.plan_feed_override,
-                                    start=it.start)
-                    pieces = plan_stream(it.job, self.machine, self.dt, feed_override=self.plan_feed_override,
-                                         start=it.start, path=path)
-                    rows_iter = iter_stream_rows(pieces, self.machine, self.params, rapid_lines=rapid_lines,
-                                                 rapid_mm_s=rapid_mm_s)
-                else:
-                    # an input shaper reshapes the time law over whole segments: planned whole (memory
-                    # grows with the job; a streaming shaper is not built yet)
-                    traj = shape_trajectory(plan(it.job, self.machine, self.dt, feed_override=self.plan_feed_override,
-                                                 start=it.start), self.nc_setup.shaper)
-                    rows_iter = iter_stream_rows([traj], self.machine, self.params, rapid_lines=rapid_lines,
-                                                 rapid_mm_s=rapid_mm_s)
+                if it.parts > 1 or any(m.probe for m in it.job.moves):
+                    self._plan_probing(it)
+                    continue
+                rows_iter = self._rows_of(it.job, it.start)
                 it.planned = True
-                for rows in rows_iter:
-                    i = 0
-                    while i < len(rows):
-                        if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
-                            raise _Aborted()
-                        n = self.ch.samples.push(rows[i:])
-                        i += n
-                        if n == 0:
-                            time.sleep(0.005)
+                self._push_rows(rows_iter, it)
             except _Aborted:
                 continue
             except PmctlError as e:
@@ -481,6 +473,94 @@ class Supervisor:
                 self._emit("error", {"msg": f"planning failed: {e}"})
                 if it.planned:
                     self._planning_failed_midway(it, e)
+
+    def _rows_of(self, job, start):
+        """Sample rows of ``job`` planned from ``start`` (validated first), an iterator of chunks."""
+        from pmctl.motion.timescale import iter_stream_rows, shape_trajectory
+        from pmctl.task.job import RAPID
+        from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
+        rapid_mm_s = PlannerLimits().rapid_mm_s
+        rapid_lines = {m.line for m in job.moves if m.kind == RAPID}
+        if self.nc_setup.shaper is None:
+            path = validate(job, self.machine, self.dt, feed_override=self.plan_feed_override, start=start)
+            pieces = plan_stream(job, self.machine, self.dt, feed_override=self.plan_feed_override,
+                                 start=start, path=path)
+            return iter_stream_rows(pieces, self.machine, self.params, rapid_lines=rapid_lines,
+                                    rapid_mm_s=rapid_mm_s)
+        # an input shaper reshapes the time law over whole segments: planned whole (memory
+        # grows with the job; a streaming shaper is not built yet)
+        traj = shape_trajectory(plan(job, self.machine, self.dt, feed_override=self.plan_feed_override,
+                                     start=start), self.nc_setup.shaper)
+        return iter_stream_rows([traj], self.machine, self.params, rapid_lines=rapid_lines,
+                                rapid_mm_s=rapid_mm_s)
+
+    def _push_rows(self, rows_iter, it):
+        for rows in rows_iter:
+            i = 0
+            while i < len(rows):
+                if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
+                    raise _Aborted()
+                n = self.ch.samples.push(rows[i:])
+                i += n
+                if n == 0:
+                    time.sleep(0.005)
+
+    def _plan_probing(self, it):
+        """An item with probing moves, piece by piece (pmctl.motion.probe.split_at_probes): a probing
+        piece's segment goes into the channel's probe table, its samples flagged; then the planner
+        waits for the rt side's result and plans the next piece from where the probe stopped."""
+        from pmctl.motion.probe import ProbeResult, mark_probe_rows, probe_segments, split_at_probes
+        from pmctl.task.job import DWELL
+        start = (np.asarray(it.start[0], float), np.asarray(it.start[1], float))
+        pieces = split_at_probes(it.job)
+        for k, (piece, probe) in enumerate(pieces):
+            rows_iter = self._rows_of(piece, start)
+            if probe is None:
+                it.planned = True
+                self._push_rows(rows_iter, it)
+                last = [m for m in piece.moves if m.kind != DWELL]
+                if last:
+                    start = (np.asarray(last[-1].tip, float), np.asarray(last[-1].axis, float))
+                continue
+            seg = probe_segments(piece, self.machine, start[0])[0]
+            seq0 = self.raw()[C.ST_PROBE_SEQ]
+            tab = self.ch.probe
+            tab[1:] = seg.to_row()
+            tab[0] += 1.0                    # the announcement last: the rt side takes the whole row
+            it.planned = True
+            feed = seg.feed * self.plan_feed_override
+            self._push_rows((mark_probe_rows(r, feed, self.svc.probe) for r in rows_iter), it)
+            s = self._wait_probe(seq0, it)
+            res = ProbeResult.from_row(s[C.ST_PROBE:C.ST_PROBE + C.PROBE_RESULT_WIDTH])
+            it.probe_results.append(res)
+            self._emit("probe", res.as_dict())
+            if res.error:
+                # grbl's probe fail: the queue is dropped, motion locked until $X
+                with self._lock:
+                    self.items.clear()
+                    self._gen += 1
+                    self._ended_base = int(s[C.ST_ENDED])
+                self.raise_alarm(ALARM_PROBE_FAIL_CONTACT, res.error)
+                return
+            start = (np.asarray(res.stop, float), np.asarray(seg.axis, float))
+            if k == len(pieces) - 1 or all(m.kind == DWELL for p, _ in pieces[k + 1:] for m in p.moves):
+                # the item ends where the probe stopped: what is queued after it starts from there
+                with self._lock:
+                    it.end = start
+                    if it in self.items:
+                        i = self.items.index(it)
+                        if i + 1 < len(self.items):
+                            self.items[i + 1].start = start
+
+    def _wait_probe(self, seq0, it):
+        """The status block once the rt side has reported the probe ended (ST_PROBE_SEQ past seq0)."""
+        while True:
+            if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
+                raise _Aborted()
+            s = self.raw()
+            if s[C.ST_PROBE_SEQ] > seq0:
+                return s
+            time.sleep(0.002)
 
     def _planning_failed_midway(self, it, e):
         """A window of an item failed after its first samples were queued (validation passed, so
@@ -542,6 +622,10 @@ class Supervisor:
             with self._lock:
                 while self.items and self.items[0].planned and self._ended_base + 1 <= ended:
                     self._ended_base += 1
+                    head = self.items[0]
+                    head.ends += 1
+                    if head.ends < head.parts:      # a piece of an item planned in pieces (probing)
+                        continue
                     done = self.items.popleft()
                     self._emit("item_done", {"kind": done.kind, "name": done.name, "index": done.index})
 

@@ -11,12 +11,17 @@ Two threads:
   answer waits (grbl's full planner buffer), so a character-counting sender with its 128-byte budget
   is paced by the machine. Motion lines are collected into batches that the supervisor plans as one
   job (a batch goes when it is large, when the sender pauses, or at M2/M30).
+- a probing line (G38.2/G38.3) is executed as grbl does: the queued motion is sent, the probe goes
+  alone, and the line is answered once the probe has ended -- ``[PRB:x,y,z,a,b:1]`` (``:0``
+  without contact; after ``ALARM:5`` for a G38.2 without contact) then ``ok`` -- and the lines after
+  it are read from where the probe stopped.
 
 A bad line changes nothing: not the queued motion, not the parser state, not the next line.
 """
 
 from __future__ import annotations
 
+import copy
 import os
 import queue
 import select
@@ -51,9 +56,7 @@ class GrblConsole:
         self.jogger = jogger
         tip, axis = sup.pose()
         self.interp = LineInterpreter(sup.machine, tip, axis, journal.data.get("offsets"))
-        # G38.2/G38.3: refused here (error:20) until the daemon's stream stops on contact; they run
-        # in pmctl run (pmctl.motion.probe), and $# reports no probe ([PRB:...:0])
-        self.interp.st.probe_ok = False
+        self.last_prb = None                  # the last probe's ProbeResult ($# reports it)
         self.settings = {10: int(journal.data.get("settings", {}).get("10", 1))}
         self.lines: queue.Queue = queue.Queue()
         self._wlock = threading.Lock()
@@ -290,7 +293,10 @@ class GrblConsole:
                 last = self.sup.items[-1].kind if self.sup.items else None
             if last != "gcode":
                 self.interp.sync(*self.sup.end_pose())
+        st0 = copy.deepcopy(self.interp.st)     # a refused probe line changes nothing
         moves, n_word, flags = self.interp.execute(text, self.seq)
+        if any(m.probe for m in moves) and not self.sup.check_mode:
+            return self._probe(moves, n_word, st0, gen)
         if flags.get("sync"):
             self._persist()
         if self.sup.check_mode or not moves:
@@ -310,18 +316,51 @@ class GrblConsole:
 
     def _flush(self, gen=None):
         if not self.batch:
-            return
+            return None
         while self.sup.queued_items() >= MAX_QUEUED_ITEMS:
             if (gen is not None and gen != self._reset_gen) or self._stop.is_set() or self.sup.alarm:
                 self.batch, self.batch_lines = [], {}
-                return
+                return None
             time.sleep(0.01)
         batch, lines = self.batch, self.batch_lines
         self.batch, self.batch_lines = [], {}
         try:
-            self.sup.submit(moves_job(batch, "console"), kind="gcode", name="console", lines=lines)
+            return self.sup.submit(moves_job(batch, "console"), kind="gcode", name="console", lines=lines)
         except MotionRefused:
-            pass
+            return None
+
+    def _probe(self, moves, n_word, st0, gen):
+        """A G38.2/G38.3 line, as grbl runs it: the motion queued before it goes first, the probe is
+        planned alone, and the line is answered when the probe has ended ([PRB:...] then ok); the
+        parser continues from where the probe stopped."""
+        from pmctl.core.errors import InputError
+        from pmctl.motion.probe import check_probe_feeds
+        try:
+            check_probe_feeds(moves_job(moves), self.sup.svc.probe, "console", self.sup.plan_feed_override)
+        except InputError as e:
+            self.interp.st = st0
+            self.write(f"[MSG:{e.reason}]")
+            raise LineError(20, e.reason) from None
+        self._flush(gen)
+        self.batch, self.batch_lines, self.batch_t = list(moves), {self.seq: n_word}, time.monotonic()
+        it = self._flush(gen)
+        if it is None:
+            self.interp.st = st0
+            raise MotionRefused("the probe could not be queued", 9)
+        while not it.probe_results:
+            if gen != self._reset_gen or self._stop.is_set() or it.gen != self.sup._gen or self.sup.rt_dead:
+                break                     # a soft reset, an alarm or a fault dropped it
+            time.sleep(0.005)
+        if not it.probe_results:
+            self.interp.sync(*self.sup.pose())
+            return
+        r = it.probe_results[-1]
+        t0 = time.monotonic()
+        while r.error and not self.sup.alarm and time.monotonic() - t0 < 2.0:
+            time.sleep(0.002)             # ALARM:5 first (the supervisor raises it right after the result)
+        self.last_prb = r
+        self.write(r.prb())
+        self.interp.sync(r.stop, it.end[1])
 
     def _persist(self):
         self.interp.changed = False
@@ -344,7 +383,7 @@ class GrblConsole:
             self.write(f"[G30:{z}]")
             self.write("[G92:" + ",".join(f"{v:.3f}" for v in self.interp.g92) + "]")
             self.write("[TLO:0.000]")
-            self.write(f"[PRB:{z}:0]")
+            self.write(self.last_prb.prb() if self.last_prb is not None else f"[PRB:{z}:0]")
         elif cmd == "$G":
             self.write(f"[GC:{self.interp.parser_state()}]")
         elif cmd == "$I":
