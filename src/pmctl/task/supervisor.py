@@ -523,13 +523,13 @@ class Supervisor:
                     start = (np.asarray(last[-1].tip, float), np.asarray(last[-1].axis, float))
                 continue
             seg = probe_segments(piece, self.machine, start[0])[0]
+            seg.feed *= self.plan_feed_override      # the feed as planned (the monitor's speed and stop)
             seq0 = self.raw()[C.ST_PROBE_SEQ]
             tab = self.ch.probe
             tab[1:] = seg.to_row()
             tab[0] += 1.0                    # the announcement last: the rt side takes the whole row
             it.planned = True
-            feed = seg.feed * self.plan_feed_override
-            self._push_rows((mark_probe_rows(r, feed, self.svc.probe) for r in rows_iter), it)
+            self._push_rows((mark_probe_rows(r, seg.feed, self.svc.probe) for r in rows_iter), it)
             s = self._wait_probe(seq0, it)
             res = ProbeResult.from_row(s[C.ST_PROBE:C.ST_PROBE + C.PROBE_RESULT_WIDTH])
             it.probe_results.append(res)
