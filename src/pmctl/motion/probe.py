@@ -229,8 +229,8 @@ def split_at_probes(job) -> list:
     """The job cut into pieces the daemon plans one after the other: ``(piece, probe)`` pairs, where a
     probing move is a piece of its own (``probe`` its Move; None for the others). Every piece starts
     and ends at rest; the piece after a probe is planned only once the probe has ended, from where
-    it stopped (grbl: motion after a probe starts at the probed position). Dwells stay with the
-    motion before them."""
+    it stopped (grbl: motion after a probe starts at the probed position). A dwell goes with the
+    moves around it (after a probe: with the piece after it)."""
     from pmctl.task.job import DWELL, Job
     out, cur = [], []
 
@@ -246,10 +246,7 @@ def split_at_probes(job) -> list:
         else:
             cur.append(m)
     if cur:
-        if out and all(m.kind == DWELL for m in cur) and out[-1][1] is None:
-            out[-1] = (piece(list(out[-1][0].moves) + cur), None)
-        else:
-            out.append((piece(cur), None))
+        out.append((piece(cur), None))
     return out
 
 
