@@ -407,7 +407,7 @@ def test_g38_is_modal_and_refused_where_there_is_no_stop_on_contact():
     assert [m.probe for m in job.moves] == [3, 3, 0]
     from pmctl.task.interp import LineError, LineInterpreter
     it = LineInterpreter(load_machine(), START, (0.0, 0.0, 1.0))
-    it.st.probe_ok = False                        # as the operator console has it
+    it.st.probe_ok = False                        # a reader with no stop on contact
     with pytest.raises(LineError) as e:
         it.execute("G38.2 Z90 F60", 1)
     assert e.value.code == 20 and "probing is not available here" in str(e.value)

@@ -19,7 +19,7 @@ Supported (LinuxCNC semantics unless noted):
   before; the inverse of ``G0``), is a straight feed line otherwise (modal like G1), and makes a
   ``LINE`` move with ``probe`` = 2 / 3: the control loop stops it on contact (pmctl.motion.probe). Its
   A/B must not change (the tool axis stays put while probing). ``G38.4``/``G38.5`` (probe away) are
-  refused; a reader whose state says ``probe_ok = False`` (the operator console) refuses G38 too;
+  refused; a reader whose state says ``probe_ok = False`` (no stop on contact there) refuses G38 too;
 - ``M3`` spindle on clockwise, ``M4`` counter-clockwise (the moves' spindle_rpm is negative), at S: an
   ``M3``/``M4`` while S is 0, or ``S0`` while the spindle turns, is refused (the spindle never runs at
   0 rpm in silence); ``M5`` off, ``M2``/``M30`` end of program (later lines are
