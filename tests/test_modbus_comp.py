@@ -8,22 +8,22 @@ stiffness (tension from the plant's own gauges: the platform's weight and a cons
 tool tip). With ``compensate = true`` the NC takes offset = -deflection per chain: the commanded
 chain lengths move by the deflection and the true tool tip comes back onto the target."""
 
-import threading
 import time
 
 import numpy as np
 import pytest
 
-from pmctl import hal
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.core.errors import ConfigError
 from pmctl.hal.modbus_daq import DaqOptions, DaqSession, chain_deflection_mm
 from pmctl.hal.sim import SimBackend
-from pmctl.motion.loop import ControlLoop, Targets, build_targets
+from pmctl.motion.loop import ControlLoop, build_targets
 from pmctl.motion.nc import NCParams, counts_of, initial_state
 from pmctl.motion.recorder import R_CHAIN_OFFSET, R_COUNTS, R_TICK, R_TRUTH
 from pmctl.motion.service_config import LoopConfig, service_from_dict
+
+from test_modbus import run_with_daq
 
 M = load_machine()
 DT = 1e-3
@@ -77,17 +77,7 @@ def run_compensated(daq_opts, seconds, *, inject_at=None, inject=None, p=None):
                      lambda off: holder["lp"].set_chain_offsets(off)).connect()
     lp = ControlLoop(M, be, p, tg, cfg, initial_state(M, c0), log=logs.append, hook=copy_gauges)
     holder["lp"] = lp
-    ses.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
-    if inject is not None:
-        def injector():
-            while lp.tick < inject_at and lp.mode == 0:
-                time.sleep(0.001)
-            inject(ses.device)
-        threading.Thread(target=injector, daemon=True).start()
-    try:
-        res = lp.run()
-    finally:
-        ses.close()
+    res = run_with_daq(lp, ses, inject_at, inject)
     return res, lp.recorder.arrays(), c0, ses, logs, p
 
 
