@@ -260,6 +260,31 @@ def test_chain_offset_is_added_to_the_commanded_lengths_at_the_slew_rate():
     assert np.array_equal(seen[0], seen[1])
 
 
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+def test_a_restart_keeps_the_applied_chain_offset(impl):
+    """A restart (unlock, homing) from counters that carry an applied offset, holding the model
+    pose it starts from (the rt side's rest pose): with the offset given to initial_state the
+    counters stay; without, the NC would slew the offset in a second time."""
+    dt = 1e-3
+    params = NCParams.from_machine(M, dt, kv=400.0, chain_offset_rate_mm_s=1.0)
+    off = np.array([0.03, -0.02, 0.01])
+    c = counts_of(np.array([M.geometry.z_home] * 3 + [0.0, 0.0]) + np.r_[off, 0.0, 0.0], params)
+    st0 = initial_state(M, c, offset=off)
+    tip0 = initial_state(M, c).tip
+    for given, moved in ((True, False), (False, True)):
+        nc = make_nc(M, params, impl)
+        s = nc.load(initial_state(M, c, offset=off if given else None))
+        target = np.r_[np.array(s.tip, float), np.array(s.axis, float), np.zeros(6)]   # the rest pose (rtproc)
+        be = hal.create("sim", M, dt, {})
+        be.open(c)
+        for _ in range(200):
+            pl, s = nc.step(s, target, be.read(), off)
+            be.write_pulses(np.array(pl))
+        d = (np.asarray(s.counts) - c)[:3] / params.pulses_per_mm[:3]
+        assert (np.max(np.abs(d)) > 0.005) == moved, d
+    assert np.linalg.norm(st0.tip - tip0) > 0.01
+
+
 def test_long_run_20000_ticks_same_pulses_and_state():
     """A 10 s circle-like joint motion at 2 kHz with K_theta on the flexible, noisy sim plant."""
     dt = 5e-4

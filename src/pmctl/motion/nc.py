@@ -476,15 +476,21 @@ class NCState:
         return replace(self, counts=np.array(counts, np.int64))
 
 
-def initial_state(machine: Machine, counts, model: ModelFK | None = None) -> NCState:
-    """State at given pulse counters: model pose by a cold-start FK (raises KinematicsError)."""
+def initial_state(machine: Machine, counts, model: ModelFK | None = None, offset=None) -> NCState:
+    """State at given pulse counters: model pose by a cold-start FK (raises KinematicsError).
+    ``offset``: the chain-length offset already applied (a restart keeps it: the model pose is
+    that of the counters minus it, and the NC goes on from it instead of slewing it in again)."""
     from pmctl.core.kinematics import forward_platform
     counts = np.asarray(counts, dtype=np.int64).copy()
     q = counts / machine.resolution.pulses_per_mm
+    off = None
+    if offset is not None:
+        off = np.array(offset, float).reshape(3)
+        q[:3] -= off
     P, R = forward_platform(q[:3], machine.geometry)
     model = model or ModelFK(machine)
     P, R, tip, axis, _ = model.solve(q, P, R)
-    return NCState(counts, np.zeros(5), np.zeros(5), P, R, tip, axis)
+    return NCState(counts, np.zeros(5), np.zeros(5), P, R, tip, axis, offset=off)
 
 
 def counts_of(q, params: NCParams):

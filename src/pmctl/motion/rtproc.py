@@ -188,7 +188,9 @@ def _was_stop(st) -> bool:
 
 def _restart(st, machine, lp, counts=None):
     from pmctl.motion.nc import initial_state
-    return lp.nc.load(initial_state(machine, st.counts if counts is None else counts))
+    off = getattr(st, "offset", None)          # the applied chain-length offset stays through a restart
+    return lp.nc.load(initial_state(machine, st.counts if counts is None else counts,
+                                    offset=None if off is None else np.array(off, float)))
 
 
 def rt_main(spec: dict) -> int:
