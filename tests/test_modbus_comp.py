@@ -194,3 +194,34 @@ def test_supervisor_sets_a_chain_offset_through_the_rt_process(tmp_path):
     assert off[-1, 1] == pytest.approx(0.02) and np.all(off[:, [0, 2]] == 0.0)
     assert np.max(np.abs(np.diff(off[:, 1]))) <= s.params.chain_offset_rate_mm_s * s.dt + 1e-12
     assert C.C_CHAIN_OFFSET > C.C_HOME_ARM
+
+
+def test_pmctl_run_with_compensate_records_the_applied_offsets(tmp_path):
+    """`pmctl run --record` on the sim with the shipped service config and compensate = true: the
+    recording has comp_L1..3, slew-limited, bounded, on the side that cancels the chains' static
+    deflection (the platform's weight compresses them: the offset is positive), and loads as
+    before with them as extra columns."""
+    import subprocess
+    import sys
+
+    from pmctl.core.config import CONFIG_DIR
+    from pmctl.core.recording import read_recording
+    job = tmp_path / "j.ngc"
+    job.write_text("G17 G21 G90 G94\nF300\nG1 X2 Y0 Z172\nG4 P1\nG1 X0\nM2\n")      # near home (z 172.75)
+    svc = tmp_path / "service.toml"
+    text = (CONFIG_DIR / "service.toml").read_text()
+    assert "compensate = false" in text and "stall_timeout_ms = 50 " in text
+    svc.write_text(text.replace("compensate = false", "compensate = true")
+                   .replace("stall_timeout_ms = 50 ", "stall_timeout_ms = 5000 "))
+    rec = tmp_path / "rec"
+    r = subprocess.run([sys.executable, "-m", "pmctl.interfaces.cli", "run", "--backend", "sim", "--job", str(job),
+                        "--record", str(rec), "--state", "", "--quiet", "--no-realtime", "--service", str(svc)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    R = read_recording(rec)
+    assert {"comp_L1", "comp_L2", "comp_L3"} <= set(R.unknown_columns)
+    off = np.stack([R.columns[f"comp_L{i}"] for i in (1, 2, 3)], -1)
+    assert np.max(np.abs(np.diff(off, axis=0))) <= 0.05 / 1000 + 1e-12       # comp_rate_mm_s at 1 kHz
+    assert np.all(np.abs(off) <= 0.2)
+    want = -chain_deflection_mm([-40.887] * 3, M)                          # the weight: 4.1 um of compression
+    np.testing.assert_allclose(off[-1], want, atol=0.3e-3)
