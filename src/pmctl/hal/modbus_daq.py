@@ -8,7 +8,9 @@ answers), a request without answer within ``timeout_ms`` is a timeout: both are 
 device and the register, and the run stops in a controlled way.
 
 Modbus cannot carry a 1 kHz feedback path: the DAQ feeds recordings, monitoring and slow
-compensation. ``check_k_theta_source`` refuses it as the K_theta source when it samples slower than
+compensation (``SlowDeflection``: the chains' static elongation, low-passed; with ``compensate``
+the session hands its negative to the NC as chain-length offsets, ``DaqSession.on_offset``).
+``check_k_theta_source`` refuses it as the K_theta source when it samples slower than
 twice the chain mode it would damp (Nyquist; the mode of the machine config).
 """
 

@@ -339,27 +339,31 @@ class ControlLoop:
         length (pmctl.motion.nc: the NC slews to it at chain_offset_rate_mm_s). Any thread. A value
         beyond +-chain_offset_max_mm or not finite is refused, said in the log (once until a value
         is accepted again), and the previous input stays."""
-        lim = self.params.chain_offset_max_mm
-        if not (0 <= chain < 3):
-            self.log(f"chain offset refused: chain {chain} is not 0, 1 or 2 (L1, L2, L3)")
-            return False
-        mm = float(mm)
-        if not (math.isfinite(mm) and abs(mm) <= lim):
-            if not self._offset_refused[chain]:
-                self.log(f"chain offset refused: L{chain + 1} {mm:+.4f} mm is beyond the bound +-{lim:g} mm "
-                         f"(chain_offset_max_mm); the offset stays at "
-                         f"{0.0 if self.chain_offset is None else float(self.chain_offset[chain]):+.4f} mm")
-            self._offset_refused[chain] = True
-            return False
-        self._offset_refused[chain] = False
-        off = np.zeros(3) if self.chain_offset is None else self.chain_offset.copy()
-        off[chain] = mm
-        self.chain_offset = off           # one reference swap: the tick reads a whole vector
-        return True
+        return self.set_chain_offsets({int(chain): mm})
 
     def set_chain_offsets(self, offsets_mm) -> bool:
-        """All three chain-length offsets (mm), each as :meth:`set_chain_offset`."""
-        return all([self.set_chain_offset(i, v) for i, v in enumerate(offsets_mm)])
+        """Several chain-length offsets at once (a sequence of three, or {chain: mm}), each as
+        :meth:`set_chain_offset`; the tick sees them together."""
+        items = offsets_mm.items() if isinstance(offsets_mm, dict) else enumerate(offsets_mm)
+        off = np.zeros(3) if self.chain_offset is None else self.chain_offset.copy()
+        lim, ok = self.params.chain_offset_max_mm, True
+        for chain, mm in items:
+            if not 0 <= chain < 3:
+                self.log(f"chain offset refused: chain {chain} is not 0, 1 or 2 (L1, L2, L3)")
+                ok = False
+                continue
+            mm = float(mm)
+            if not (math.isfinite(mm) and abs(mm) <= lim):
+                if not self._offset_refused[chain]:
+                    self.log(f"chain offset refused: L{chain + 1} {mm:+.4f} mm is beyond the bound +-{lim:g} mm "
+                             f"(chain_offset_max_mm); the offset stays at {off[chain]:+.4f} mm")
+                self._offset_refused[chain] = True
+                ok = False
+                continue
+            self._offset_refused[chain] = False
+            off[chain] = mm
+        self.chain_offset = off           # one reference swap: the tick reads a whole vector
+        return ok
 
     def run(self) -> LoopResult:
         cfg, p, be = self.cfg, self.params, self.backend
