@@ -380,18 +380,23 @@ def _daq_run(inject):
     cfg = LoopConfig(rate_hz=1000, realtime=True, lock_memory=False, stall_timeout_s=5.0, max_overruns_in_row=10**6)
     lp = ControlLoop(M, be, p, tg, cfg,
                      initial_state(M, c0), log=lambda m: None)
-    ses.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
+    return run_with_daq(lp, ses, 500, inject), be, c0, ses
 
-    def injector():
-        while lp.tick < 500:
-            time.sleep(0.001)
-        inject(ses.device)
-    threading.Thread(target=injector, daemon=True).start()
+
+def run_with_daq(lp, ses, inject_at=None, inject=None):
+    """Run the loop with the DAQ watched (a DAQ fault is a stop request), ``inject(device)`` at
+    tick ``inject_at`` from another thread; the session is closed at the end."""
+    ses.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
+    if inject is not None:
+        def injector():
+            while lp.tick < inject_at and lp.mode == 0:
+                time.sleep(0.001)
+            inject(ses.device)
+        threading.Thread(target=injector, daemon=True).start()
     try:
-        res = lp.run()
+        return lp.run()
     finally:
         ses.close()
-    return res, be, c0, ses
 
 
 def test_daq_stale_mid_job_is_a_controlled_stop_and_samples_follow_the_plant():

@@ -28,6 +28,7 @@ from pmctl.motion.service_config import NCConfig, service_from_dict
 M = load_machine()
 STATE_FIELDS = ("acc", "qdot", "P", "R", "tip", "axis", "path_error", "q_model", "T", "kth")
 COMP_FIELDS = ("comp_dir", "comp_bl", "comp")
+OFFSET_FIELDS = ("offset",)      # the chain-length offset applied (None before any input reads as zeros)
 
 
 def perturbed(seed: int, size: float):
@@ -80,18 +81,20 @@ def assert_same_state(a, b, tick):
             continue
         d = float(np.max(np.abs(np.asarray(x, float) - np.asarray(y, float))))
         assert d <= 1e-9, f"tick {tick}: {f} differs by {d:g}"
-    for f in COMP_FIELDS:      # the compensation state: None (none yet) reads as zeros in the core
+    for f in COMP_FIELDS + OFFSET_FIELDS:      # None (none yet) reads as zeros in the core
         x, y = getattr(a, f), getattr(b, f)
         if x is None and y is None:
             continue
-        x = np.zeros(5) if x is None else x
-        y = np.zeros(5) if y is None else y
+        n = 3 if f in OFFSET_FIELDS else 5
+        x = np.zeros(n) if x is None else x
+        y = np.zeros(n) if y is None else y
         assert np.array_equal(x, y), f"tick {tick}: {f} {x} vs {y}"
 
 
-def closed_loop(machine, params, rows, q0, sim_opt, *, every=1, inject=None):
+def closed_loop(machine, params, rows, q0, sim_opt, *, every=1, inject=None, offset=None):
     """Each NC against its own sim; returns (ticks, final python state, final compiled snapshot,
-    pulses sent per axis in absolute value)."""
+    pulses sent per axis in absolute value). ``offset(k)``: the chain-length offset input of tick k
+    (an array of 3 or None), the same for both."""
     dt = params.dt
     c0 = counts_of(q0, params)
     st0 = initial_state(machine, c0)
@@ -112,8 +115,9 @@ def closed_loop(machine, params, rows, q0, sim_opt, *, every=1, inject=None):
         if inject is not None:
             inject(k, fa)
             inject(k, fb)
-        pa, sp = py.step(sp, tg, fa)
-        pb, sc = cc.step(sc, tg, fb)
+        off = None if offset is None else offset(k)
+        pa, sp = py.step(sp, tg, fa, off)
+        pb, sc = cc.step(sc, tg, fb, off)
         assert np.array_equal(pa, pb), f"tick {k}: pulses {pa} vs {pb}"
         assert sp.mode == sc.mode and sp.reason == sc.reason, f"tick {k}: {sp.reason!r} vs {sc.reason!r}"
         if k % every == 0:
@@ -180,6 +184,105 @@ def test_soft_chain_k_theta_same_pulses_tick_for_tick(rate, k_theta, mode_hz, st
     # both cores must still agree on it, which closed_loop checks
     if params._kth_modal and sp.mode == RUN:
         assert sp.kth is not None and np.all(np.isfinite(sp.kth))
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(rate=st.sampled_from([500.0, 1000.0, 2000.0]), multi=st.booleans(),
+       seed=st.integers(0, 10_000), geom_size=st.sampled_from([0.0, 1.0]),
+       bound=st.sampled_from([0.0, 0.05, 0.2, 1.0]), slew=st.sampled_from([0.0, 0.01, 0.1, 2.0]),
+       steps=st.lists(st.tuples(st.integers(0, 900), st.integers(0, 2),
+                                st.one_of(st.floats(-2.0, 2.0), st.sampled_from([math.nan, math.inf, -math.inf]))),
+                      max_size=8),
+       gaps=st.lists(st.integers(0, 900), max_size=3), comp=st.booleans(),
+       amp=st.lists(st.floats(0.0, 12.0), min_size=5, max_size=5), freq=st.floats(0.3, 2.0))
+def test_compiled_and_python_same_pulses_with_chain_offsets(rate, multi, seed, geom_size, bound, slew, steps, gaps,
+                                                            comp, amp, freq):
+    """The chain-length offset input (slow compensation): random steps of random size per chain
+    (beyond the bound, non-finite ones too), ticks without an input (held), random bounds and slew
+    rates, with and without a compensation table: the same pulses and the same applied offset, tick
+    for tick; the applied offset never moves faster than the slew nor beyond the bound."""
+    machine = perturbed(seed, geom_size)
+    dt = 1.0 / rate
+    home = np.array([machine.geometry.z_home] * 3 + [0.0, 0.0])
+    params = NCParams.from_machine(machine, dt, kv=min(400.0, 0.4 / dt), max_pulses_per_tick=None if multi else 1,
+                                   chain_offset_max_mm=bound, chain_offset_rate_mm_s=slew,
+                                   compensation=random_compensation(seed, 0.01, 0.005, 7, home) if comp else None)
+    rows, q = joint_path(machine, params, dt, 0.6, np.array(amp), freq, np.zeros(5), np.zeros(5))
+    want = np.zeros(3)
+    by_tick = {}
+    for k, i, v in steps:
+        by_tick.setdefault(int(k * rate / 1000), []).append((i, v))
+    holes = {int(g * rate / 1000) for g in gaps}
+
+    def offset(k):
+        for i, v in by_tick.get(k, ()):
+            want[i] = v
+        return None if k in holes else want.copy()
+    ticks, sp, sc, moved = closed_loop(machine, params, rows, q[0], {"seed": seed}, every=3, offset=offset)
+    assert sp.mode == RUN, sp.reason
+    assert np.all(np.abs(sp.offset) <= bound)
+
+
+def test_chain_offset_is_added_to_the_commanded_lengths_at_the_slew_rate():
+    """At rest on a fixed target, an offset step of +0.1 mm on L2 (-0.05 on L3) moves the counters
+    of L2 by +0.1 mm (L3 by -0.05) once the slew time has passed, the applied offset ramps at the
+    slew rate (never a jump), and a request over the bound is clipped to it."""
+    dt = 1e-3
+    params = NCParams.from_machine(M, dt, kv=400.0, chain_offset_max_mm=0.08, chain_offset_rate_mm_s=0.2)
+    q0 = np.array([M.geometry.z_home] * 3 + [0.0, 0.0])
+    rows, q = joint_path(M, params, dt, 0.05, np.zeros(5), 1.0, np.zeros(5), np.zeros(5))
+    n = 1000
+    rows = np.repeat(rows[:1], n, 0)
+    seen = []
+
+    def offset(k):
+        return np.zeros(3) if k < 100 else np.array([0.0, 0.1, -0.05])
+    for impl in ("python", "compiled"):
+        nc = make_nc(M, params, impl)
+        c0 = counts_of(q0, params)
+        s = nc.load(initial_state(M, c0))
+        be = hal.create("sim", M, dt, {})
+        be.open(c0)
+        offs = []
+        for k in range(n):
+            pl, s = nc.step(s, rows[k], be.read(), offset(k))
+            be.write_pulses(np.array(pl))
+            offs.append(np.array(s.offset, float).copy())
+        offs = np.array(offs)
+        assert np.max(np.abs(np.diff(offs, axis=0))) <= 0.2 * dt + 1e-15        # slew-limited
+        np.testing.assert_allclose(offs[-1], [0.0, 0.08, -0.05])                # L2 clipped to the bound
+        np.testing.assert_allclose(offs[100 + 199], [0.0, 0.04, -0.04], atol=1e-12)   # 200 ticks of 0.2 um
+        np.testing.assert_allclose(offs[100 + 399], [0.0, 0.08, -0.05], atol=1e-12)   # 0.08 mm / 0.2 mm/s = 0.4 s
+        dq = (np.asarray(s.counts) - c0) / params.pulses_per_mm
+        tol = 2.0 / params.pulses_per_mm[:3]            # within two pulses (the servo's dither at rest)
+        assert np.all(np.abs(dq[:3] - [0.0, 0.08, -0.05]) <= tol), dq
+        seen.append(np.asarray(s.counts).copy())
+    assert np.array_equal(seen[0], seen[1])
+
+
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+def test_a_restart_keeps_the_applied_chain_offset(impl):
+    """A restart (unlock, homing) from counters that carry an applied offset, holding the model
+    pose it starts from (the rt side's rest pose): with the offset given to initial_state the
+    counters stay; without, the NC would slew the offset in a second time."""
+    dt = 1e-3
+    params = NCParams.from_machine(M, dt, kv=400.0, chain_offset_rate_mm_s=1.0)
+    off = np.array([0.03, -0.02, 0.01])
+    c = counts_of(np.array([M.geometry.z_home] * 3 + [0.0, 0.0]) + np.r_[off, 0.0, 0.0], params)
+    st0 = initial_state(M, c, offset=off)
+    tip0 = initial_state(M, c).tip
+    for given, moved in ((True, False), (False, True)):
+        nc = make_nc(M, params, impl)
+        s = nc.load(initial_state(M, c, offset=off if given else None))
+        target = np.r_[np.array(s.tip, float), np.array(s.axis, float), np.zeros(6)]   # the rest pose (rtproc)
+        be = hal.create("sim", M, dt, {})
+        be.open(c)
+        for _ in range(200):
+            pl, s = nc.step(s, target, be.read(), off)
+            be.write_pulses(np.array(pl))
+        d = (np.asarray(s.counts) - c)[:3] / params.pulses_per_mm[:3]
+        assert (np.max(np.abs(d)) > 0.005) == moved, d
+    assert np.linalg.norm(st0.tip - tip0) > 0.01
 
 
 def test_long_run_20000_ticks_same_pulses_and_state():

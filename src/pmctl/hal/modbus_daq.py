@@ -8,7 +8,9 @@ answers), a request without answer within ``timeout_ms`` is a timeout: both are 
 device and the register, and the run stops in a controlled way.
 
 Modbus cannot carry a 1 kHz feedback path: the DAQ feeds recordings, monitoring and slow
-compensation. ``check_k_theta_source`` refuses it as the K_theta source when it samples slower than
+compensation (``SlowDeflection``: the chains' static elongation, low-passed; with ``compensate``
+the session hands its negative to the NC as chain-length offsets, ``DaqSession.on_offset``).
+``check_k_theta_source`` refuses it as the K_theta source when it samples slower than
 twice the chain mode it would damp (Nyquist; the mode of the machine config).
 """
 
@@ -17,12 +19,14 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 from pmctl.core.errors import ConfigError
 from pmctl.hal.base import HalError, HalTimeout
 
 K_THETA_SOURCES = ("backend", "daq")
+COMP_MAX_MM_LIMIT = 5.0          # comp_max_mm above this is no slow correction of a chain's elongation
+COMP_RATE_MM_S_LIMIT = 10.0
 
 
 @dataclass
@@ -41,39 +45,45 @@ class DaqOptions:
     simulate: bool = False           # serve the sim plant's strain from a simulated DAQ on host:port
     sim_sample_hz: float = 100.0
     comp_tau_s: float = 2.0          # low-pass of the static chain deflection estimate (slow compensation)
+    compensate: bool = False         # apply the estimate: chain-length offset = -deflection (NC input)
+    comp_max_mm: float = 0.2         # bound of the offset per chain; a larger estimate is refused (held)
+    comp_rate_mm_s: float = 0.05     # slew rate of the offset in the NC (a step of the estimate is a ramp)
 
     @classmethod
     def from_dict(cls, d: dict, where="daq") -> "DaqOptions":
-        if not isinstance(d, dict):
-            raise ConfigError(where, "-", "must be a table")
-        names = {f.name for f in fields(cls)}
-        for k in d:
-            if k not in names:
-                raise ConfigError(where, k, f"unknown daq option; known: {', '.join(sorted(names))}")
-        o = cls(**d)
-        for k in ("enabled", "simulate"):
-            if not isinstance(getattr(o, k), bool):
-                raise ConfigError(where, k, f"must be true or false, got {getattr(o, k)!r}")
-        for k in ("ue_per_count", "timeout_ms", "poll_ms", "max_age_ms", "sim_sample_hz", "comp_tau_s"):
-            v = getattr(o, k)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or abs(v) > 1e15 or not math.isfinite(v) or v <= 0:
-                raise ConfigError(where, k, f"must be a number > 0, got {v!r}")
-            setattr(o, k, float(v))
-        for k, lo, hi in (("port", 0, 65535), ("device_id", 0, 247), ("base", 0, 0xFFFC),
-                          ("max_missed_polls", 1, 100)):
-            v = getattr(o, k)
-            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-                raise ConfigError(where, k, f"must be an integer {lo} .. {hi}, got {v!r}")
+        """The ``[daq]`` table read strictly (pmctl.core.strict_toml.Table: every key known, every
+        value of its exact type and range); ConfigError(where, key, reason)."""
+        from pmctl.core.strict_toml import Table
+        t = Table(where, d, "")
+        b = cls()
+        pos = dict(positive=True, hi=1e15)
+        o = cls(
+            enabled=t.boolean("enabled", default=b.enabled),
+            host=t.string("host", default=b.host),
+            port=t.integer("port", default=b.port, lo=0, hi=65535),
+            device_id=t.integer("device_id", default=b.device_id, lo=0, hi=247),
+            base=t.integer("base", default=b.base, lo=0, hi=0xFFFC),
+            ue_per_count=t.number("ue_per_count", default=b.ue_per_count, **pos),
+            timeout_ms=t.number("timeout_ms", default=b.timeout_ms, **pos),
+            poll_ms=t.number("poll_ms", default=b.poll_ms, **pos),
+            max_age_ms=t.number("max_age_ms", default=b.max_age_ms, **pos),
+            max_missed_polls=t.integer("max_missed_polls", default=b.max_missed_polls, lo=1, hi=100),
+            k_theta_source=t.string("k_theta_source", default=b.k_theta_source, choices=K_THETA_SOURCES),
+            simulate=t.boolean("simulate", default=b.simulate),
+            sim_sample_hz=t.number("sim_sample_hz", default=b.sim_sample_hz, **pos),
+            comp_tau_s=t.number("comp_tau_s", default=b.comp_tau_s, **pos),
+            compensate=t.boolean("compensate", default=b.compensate),
+            comp_max_mm=t.number("comp_max_mm", default=b.comp_max_mm, positive=True, hi=COMP_MAX_MM_LIMIT),
+            comp_rate_mm_s=t.number("comp_rate_mm_s", default=b.comp_rate_mm_s, positive=True,
+                                    hi=COMP_RATE_MM_S_LIMIT),
+        )
+        t.finish()
+        if not o.host:
+            raise ConfigError(where, "host", "must be a host name or address, got an empty string")
         if o.port == 0 and not o.simulate:
             raise ConfigError(where, "port", "0 (any free port) only with simulate = true")
-        for k in ("host", "k_theta_source"):
-            if not isinstance(getattr(o, k), str) or not getattr(o, k):
-                raise ConfigError(where, k, f"must be a non-empty string, got {getattr(o, k)!r}")
         if o.simulate and not (o.host.startswith("127.") or o.host == "localhost"):
             raise ConfigError(where, "host", f"a simulated DAQ listens on a loopback address, not {o.host}")
-        if o.k_theta_source not in K_THETA_SOURCES:
-            raise ConfigError(where, "k_theta_source", f"must be one of {', '.join(K_THETA_SOURCES)}, "
-                                                       f"got {o.k_theta_source!r}")
         if o.max_age_ms <= o.poll_ms:
             raise ConfigError(where, "max_age_ms", f"{o.max_age_ms:g} ms must exceed poll_ms = {o.poll_ms:g}")
         return o
@@ -141,6 +151,7 @@ class StrainDAQ:
         self.opt = opt
         self.before_poll = before_poll     # e.g. hands a simulated DAQ the strain to serve
         self.slow = None                   # a SlowDeflection fed by the watched samples
+        self.on_estimate = None            # called with each new slow estimate (mm per chain), in the poll thread
         self.deflection: list[tuple[int, list[float]]] = []   # (tick, low-passed mm per chain)
         self.client = None
         self.samples: list[tuple[int, float, list[float]]] = []     # (tick, t, strain)
@@ -205,7 +216,10 @@ class StrainDAQ:
                     t, n, s = self.poll()
                     self.samples.append((int(tick()), t, s))
                     if self.slow is not None:
-                        self.deflection.append((int(tick()), self.slow.update(t, s)))
+                        est = self.slow.update(t, s)
+                        self.deflection.append((int(tick()), est))
+                        if self.on_estimate is not None:
+                            self.on_estimate(est)
                     missed = 0
                 except HalTimeout as e:      # one unanswered poll is no timeout fault yet
                     missed += 1
@@ -241,41 +255,59 @@ class StrainDAQ:
 
 
 class DaqSession:
-    """The DAQ for one run: (a simulated DAQ serving ``source()``,) connect, watch, record, close."""
+    """The DAQ for one run: (a simulated DAQ serving ``source()``,) connect, watch, record, close.
 
-    def __init__(self, opt: DaqOptions, source=None, log=print, machine=None):
+    Given the machine, the slow chain-deflection estimate is kept (``daq.deflection``); with
+    ``compensate = true`` each estimate also goes to ``on_offset(offsets_mm)`` as the chain-length
+    offsets that cancel it: offset = -deflection per chain (a chain stretched by d under tension is
+    commanded d shorter; the NC adds the offset to the commanded chain length, slew-limited and
+    bounded: pmctl.motion.nc). When the DAQ faults (stale data, timeout) the estimates stop: the
+    last offset is held while the run stops."""
+
+    def __init__(self, opt: DaqOptions, source=None, log=print, machine=None, on_offset=None):
         from dataclasses import replace
         self.opt = replace(opt)
         self.machine = machine             # given: the slow chain-deflection estimate is kept too
         self.source = source or (lambda: (0.0, 0.0, 0.0))
         self.log = log
+        self.on_offset = on_offset         # callable(offsets_mm: tuple of 3), with compensate = true
+        self.offsets: tuple | None = None  # the last offsets handed to on_offset
         self.server = self.device = None
         self.sim = None
         self.daq = None
+        if self.opt.compensate and machine is None:
+            raise ValueError("DaqSession: compensate = true needs the machine (chain stiffness, strain gain)")
 
     def connect(self):
         try:
             if self.opt.simulate:
                 # the simulated DAQ in a device-simulator process; the strain it serves is pushed
                 # to it before each poll
-                from pmctl.hal.devsim import DeviceSimulator, DeviceSimulatorError
+                from pmctl.hal.modbus_sim import start_simulated
                 o = self.opt
                 spec = {"base": o.base, "ue_per_count": o.ue_per_count, "sample_hz": o.sim_sample_hz,
                         "host": o.host, "port": o.port, "device_id": o.device_id}
-                try:
-                    self.sim = DeviceSimulator({"daq": spec}, "simulated strain DAQ").start()
-                except DeviceSimulatorError as e:
-                    raise HalError(str(e)) from None
+                self.sim, self.device, self.server = start_simulated("daq", spec, "simulated strain DAQ")
                 self.opt.port = self.sim.info["daq_port"]
-                self.device, self.server = self.sim.proxy("daq"), self.sim.proxy("daq_server")
                 self.sim.push_strain(self.source())
             self.daq = StrainDAQ(self.opt, self._feed if self.sim is not None else None).connect()
             if self.machine is not None:
                 self.daq.slow = SlowDeflection(self.machine, self.opt.comp_tau_s)
+                if self.opt.compensate and self.on_offset is not None:
+                    self.daq.on_estimate = self._estimate
         except BaseException:
             self.close()
             raise
         return self
+
+    def _estimate(self, deflection_mm):
+        """Each slow estimate -> the offsets that cancel it (in the poll thread)."""
+        off = tuple(-float(x) for x in deflection_mm)
+        self.offsets = off
+        try:
+            self.on_offset(off)
+        except Exception as e:       # noqa: BLE001 -- a compensation problem must not end the monitoring
+            self.log(f"{self.daq.device}: slow compensation not applied: {type(e).__name__}: {e}")
 
     def watch(self, tick, on_fault):
         self.daq.watch(tick, on_fault)
@@ -289,9 +321,6 @@ class DaqSession:
     def close(self):
         if self.daq is not None:
             self.daq.close()
-        if self.sim is not None:
-            self.sim.stop()
-            self.sim = None
-        elif self.server is not None:
-            self.server.stop()
-        self.server = None
+        from pmctl.hal.modbus_sim import stop_simulated
+        stop_simulated(self.sim, self.server)
+        self.sim = self.server = None

@@ -15,7 +15,6 @@ Every error names the device (host:port, unit) and the register.
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from dataclasses import dataclass, field, fields
@@ -72,51 +71,47 @@ class VfdOptions:
 
     @classmethod
     def from_dict(cls, d: dict, where="spindle") -> "VfdOptions":
-        if not isinstance(d, dict):
-            raise ConfigError(where, "-", "must be a table")
-        names = {f.name for f in fields(cls)}
-        kw = {}
-        for k, v in d.items():
-            if k not in names:
-                raise ConfigError(where, k, f"unknown spindle option; known: {', '.join(sorted(names))}")
-            kw[k] = v
-        regs = kw.pop("registers", {})
-        if not isinstance(regs, dict):
-            raise ConfigError(where, "registers", "must be a table")
-        rnames = {f.name for f in fields(VfdRegisters)}
-        for k, v in regs.items():
-            if k not in rnames:
-                raise ConfigError(where, f"registers.{k}", f"unknown register; known: {', '.join(sorted(rnames))}")
-            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 0xFFFF:
-                raise ConfigError(where, f"registers.{k}", f"must be a 16-bit register address or value, got {v!r}")
-        o = cls(**kw, registers=VfdRegisters(**regs))
-        for k in ("enabled", "simulate"):
-            if not isinstance(getattr(o, k), bool):
-                raise ConfigError(where, k, f"must be true or false, got {getattr(o, k)!r}")
-        for k in ("timeout_ms", "max_rpm", "max_hz", "at_speed_tolerance", "spinup_timeout_s", "poll_ms",
-                  "sim_ramp_rpm_per_s"):
-            v = getattr(o, k)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or abs(v) > 1e15 or not math.isfinite(v) or v <= 0:
-                raise ConfigError(where, k, f"must be a number > 0, got {v!r}")
-            setattr(o, k, float(v))
+        """The ``[spindle]`` table (and ``[spindle.registers]``) read strictly
+        (pmctl.core.strict_toml.Table: every key known, every value of its exact type and range);
+        ConfigError(where, key, reason)."""
+        from pmctl.core.strict_toml import Table
+        t = Table(where, d, "")
+        b = cls()
+        pos = dict(positive=True, hi=1e15)
+        _, regs = t._get("registers", {}, False)
+        rt = Table(where, regs, "registers")
+        rb = VfdRegisters()
+        registers = VfdRegisters(**{f.name: rt.integer(f.name, default=getattr(rb, f.name), lo=0, hi=0xFFFF)
+                                    for f in fields(VfdRegisters)})
+        rt.finish()
+        o = cls(
+            enabled=t.boolean("enabled", default=b.enabled),
+            transport=t.string("transport", default=b.transport, choices=("tcp", "rtu")),
+            host=t.string("host", default=b.host),
+            port=t.integer("port", default=b.port, lo=0, hi=65535),
+            serial_port=t.string("serial_port", default=b.serial_port),
+            baud=t.integer("baud", default=b.baud, lo=0, hi=10**7),
+            parity=t.string("parity", default=b.parity, choices=("N", "E", "O")),
+            stop_bits=t.integer("stop_bits", default=b.stop_bits, lo=1, hi=2),
+            device_id=t.integer("device_id", default=b.device_id, lo=0, hi=247),
+            timeout_ms=t.number("timeout_ms", default=b.timeout_ms, **pos),
+            max_rpm=t.number("max_rpm", default=b.max_rpm, **pos),
+            max_hz=t.number("max_hz", default=b.max_hz, **pos),
+            at_speed_tolerance=t.number("at_speed_tolerance", default=b.at_speed_tolerance, **pos),
+            spinup_timeout_s=t.number("spinup_timeout_s", default=b.spinup_timeout_s, **pos),
+            poll_ms=t.number("poll_ms", default=b.poll_ms, **pos),
+            max_missed_polls=t.integer("max_missed_polls", default=b.max_missed_polls, lo=1, hi=100),
+            simulate=t.boolean("simulate", default=b.simulate),
+            sim_ramp_rpm_per_s=t.number("sim_ramp_rpm_per_s", default=b.sim_ramp_rpm_per_s, **pos),
+            registers=registers,
+        )
+        t.finish()
         if o.at_speed_tolerance >= 0.5:
             raise ConfigError(where, "at_speed_tolerance", "a fraction of the speed, e.g. 0.02 for 2 %")
-        for k, lo, hi in (("port", 0, 65535), ("device_id", 0, 247), ("max_missed_polls", 1, 100)):
-            v = getattr(o, k)
-            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-                raise ConfigError(where, k, f"must be an integer {lo} .. {hi}, got {v!r}")
-        if o.transport not in ("tcp", "rtu"):
-            raise ConfigError(where, "transport", f"must be \"tcp\" or \"rtu\", got {o.transport!r}")
         if o.transport == "tcp" and o.port == 0 and not o.simulate:
             raise ConfigError(where, "port", "0 (any free port) only with simulate = true")
-        if o.baud not in BAUDS or isinstance(o.baud, bool):
+        if o.baud not in BAUDS:
             raise ConfigError(where, "baud", f"must be one of {', '.join(map(str, BAUDS))}, got {o.baud!r}")
-        if o.parity not in ("N", "E", "O"):
-            raise ConfigError(where, "parity", f"must be \"N\", \"E\" or \"O\", got {o.parity!r}")
-        if o.stop_bits not in (1, 2) or isinstance(o.stop_bits, bool):
-            raise ConfigError(where, "stop_bits", f"must be 1 or 2, got {o.stop_bits!r}")
-        if not isinstance(o.serial_port, str):
-            raise ConfigError(where, "serial_port", f"must be a serial device path, got {o.serial_port!r}")
         if o.transport == "rtu":
             if o.simulate and o.serial_port != "devsim":
                 raise ConfigError(where, "serial_port", f"a simulated RTU VFD is the device simulator's: "
@@ -129,7 +124,7 @@ class VfdOptions:
                                                         f"got {o.serial_port!r}")
             if not 1 <= o.device_id <= 247:
                 raise ConfigError(where, "device_id", f"an RTU unit address is 1 .. 247, got {o.device_id}")
-        if not isinstance(o.host, str) or not o.host:
+        if not o.host:
             raise ConfigError(where, "host", "must be a host name or address")
         if o.simulate and not (o.host.startswith("127.") or o.host == "localhost"):
             raise ConfigError(where, "host", f"a simulated VFD listens on a loopback address, not {o.host}")
@@ -441,16 +436,11 @@ class SpindleSession:
     def connect(self):
         try:
             if self.opt.simulate:
-                # the simulated VFD in a device-simulator process (not in the loop's process)
-                from pmctl.hal.devsim import DeviceSimulator, DeviceSimulatorError
-                try:
-                    self.sim = DeviceSimulator({"vfd": sim_spec(self.opt)}, "simulated spindle VFD").start()
-                except DeviceSimulatorError as e:
-                    raise HalError(str(e)) from None
+                from pmctl.hal.modbus_sim import start_simulated
+                self.sim, self.device, self.server = start_simulated("vfd", sim_spec(self.opt), "simulated spindle VFD")
                 self.opt.port = self.sim.info["vfd_port"]
                 if self.opt.transport == "rtu":
                     self.opt.serial_port = self.sim.info["vfd_serial"]
-                self.device, self.server = self.sim.proxy("vfd"), self.sim.proxy("vfd_server")
             self.vfd = SpindleVFD(self.opt).connect()
         except BaseException:
             self.close()
@@ -503,9 +493,6 @@ class SpindleSession:
             except HalError as e:
                 self.log(f"warning: {e} (M5 not acknowledged)")
             self.vfd.close()
-        if self.sim is not None:
-            self.sim.stop()
-            self.sim = None
-        elif self.server is not None:
-            self.server.stop()
-        self.server = None
+        from pmctl.hal.modbus_sim import stop_simulated
+        stop_simulated(self.sim, self.server)
+        self.sim = self.server = None

@@ -60,6 +60,8 @@ C_HOLD, C_RESUME, C_FEED_OV, C_RAPID_OV, C_RESET, C_QUIT, C_ESTOP, C_UNLOCK, C_S
 # C_SET_COUNTS (axis, counter): re-reference one axis's pulse counter at rest (homing; the motor does not move).
 # C_HOME_ARM (axis, state): latch the counters and feed-hold at the first tick the home switch of ``axis``
 # reads ``state`` (1 closed, 0 open); axis -1 disarms.
+C_CHAIN_OFFSET = 11
+# C_CHAIN_OFFSET (chain, mm): the chain-length offset input of chain 0..2 (slow compensation; ControlLoop.set_chain_offset).
 CMD_WIDTH = 4
 CMD_CAPACITY = 64
 

@@ -331,6 +331,39 @@ class ControlLoop:
         self.quit = False
         self.dropped = 0
         self.sent = np.zeros(5, np.int64)
+        self.chain_offset = None        # (3,) chain-length offset input, mm (the NC reads it each tick); None = none
+        self._offset_refused = [False] * 3
+
+    def set_chain_offset(self, chain: int, mm: float) -> bool:
+        """Set the chain-length offset input of chain 0..2 (L1..L3), mm, added to the commanded
+        length (pmctl.motion.nc: the NC slews to it at chain_offset_rate_mm_s). Any thread. A value
+        beyond +-chain_offset_max_mm or not finite is refused, said in the log (once until a value
+        is accepted again), and the previous input stays."""
+        return self.set_chain_offsets({int(chain): mm})
+
+    def set_chain_offsets(self, offsets_mm) -> bool:
+        """Several chain-length offsets at once (a sequence of three, or {chain: mm}), each as
+        :meth:`set_chain_offset`; the tick sees them together."""
+        items = offsets_mm.items() if isinstance(offsets_mm, dict) else enumerate(offsets_mm)
+        off = np.zeros(3) if self.chain_offset is None else self.chain_offset.copy()
+        lim, ok = self.params.chain_offset_max_mm, True
+        for chain, mm in items:
+            if not 0 <= chain < 3:
+                self.log(f"chain offset refused: chain {chain} is not 0, 1 or 2 (L1, L2, L3)")
+                ok = False
+                continue
+            mm = float(mm)
+            if not (math.isfinite(mm) and abs(mm) <= lim):
+                if not self._offset_refused[chain]:
+                    self.log(f"chain offset refused: L{chain + 1} {mm:+.4f} mm is beyond the bound +-{lim:g} mm "
+                             f"(chain_offset_max_mm); the offset stays at {off[chain]:+.4f} mm")
+                self._offset_refused[chain] = True
+                ok = False
+                continue
+            self._offset_refused[chain] = False
+            off[chain] = mm
+        self.chain_offset = off           # one reference swap: the tick reads a whole vector
+        return ok
 
     def run(self) -> LoopResult:
         cfg, p, be = self.cfg, self.params, self.backend
@@ -342,6 +375,7 @@ class ControlLoop:
         has_truth = be.truth() is not None
         positions, ppm = be.accepts == "positions", p.pulses_per_mm     # CSP drives take joint targets, mm
         nan5 = [math.nan] * 5
+        zero3 = [0.0] * 3
         period = int(round(1e9 / cfg.rate_hz))
         stall_ns = int(max(cfg.stall_timeout_s, be.stall_tolerance_s) * 1e9)
         spin_ns = int(cfg.spin_us * 1e3)
@@ -420,7 +454,7 @@ class ControlLoop:
                 row += fb.strain.tolist()
                 row += be.truth().tolist() if has_truth else nan5
                 t_nc = mono()
-                pulses, st = self.nc.step(st, tg, fb)      # the one NC call site (compiled or Python)
+                pulses, st = self.nc.step(st, tg, fb, self.chain_offset)   # the one NC call site (compiled or Python)
                 ncns[w] = mono() - t_nc
                 pending = pulses
                 try:
@@ -440,6 +474,7 @@ class ControlLoop:
                 row += tg[:6].tolist()
                 row.append(late[w])
                 row.append(self.last_compute_ns)
+                row += zero3 if st.offset is None else st.offset.tolist()
                 if not rec.push_row(row):
                     if cfg.realtime or not getattr(recorder, "inline", True):
                         self.dropped += 1

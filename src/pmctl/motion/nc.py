@@ -14,6 +14,16 @@ With a compensation (``NCParams.compensation``, the machine config's [compensati
 step 1 (and of the soft limits) are counts x resolution + the per-axis backlash and screw
 correction (pmctl.core.compensation.comp_tick); the following error stays on the motor side.
 
+Chain-length offset (the slow compensation of the strain DAQ, pmctl.hal.modbus_daq): an input of
+three lengths (mm, one per chain) *added to the commanded chain lengths*: the model joints of
+step 1 are counts x resolution (+ compensation) - offset, so the loop, closing on the model pose,
+drives the counters to IK(target) + offset. The offset applied is its own state (``NCState.offset``):
+it follows the input only in RUN, at most ``chain_offset_rate_mm_s`` (so a step of the input is a
+ramp, never a jump of the commanded lengths), within +-``chain_offset_max_mm`` (a larger or
+non-finite input is clipped / ignored here; the loop refuses it before with a reason). Sign: a
+chain that is too long by d under load (tension elongation: strain / gain / stiffness) is
+cancelled by the offset -d.
+
 Units: mm, s, rad. Joint rates in mm/s; V-F input in pulses/s, threshold one pulse.
 
 Gains, in the seed's terms (eq. 3.1): the seed's V-F input is u = K_G(theta0 - theta_m) - K_theta
@@ -50,6 +60,7 @@ from pmctl.core.vf import vf_tick
 RUN, STOPPING, HALTED, DONE = 0, 1, 2, 3
 IMPLEMENTATIONS = ("compiled", "python")
 _ZERO5 = [0.0] * 5
+_ZERO3 = [0.0] * 3
 ACC_LP = 2.0          # soft-chain K_theta: the planned acceleration is low-passed at ACC_LP x the mode
 MODE_NAMES = {RUN: "run", STOPPING: "stopping", HALTED: "halted", DONE: "done"}
 
@@ -352,6 +363,9 @@ class NCParams:
     # per-axis backlash and screw compensation (pmctl.core.compensation; None = none): the model
     # joints are counts x resolution + its correction
     compensation: object = field(default=None, compare=False)
+    # the chain-length offset input (slow compensation): bound of its magnitude and its slew rate
+    chain_offset_max_mm: float = 0.2
+    chain_offset_rate_mm_s: float = 0.05
 
     def __post_init__(self):
         # Arrays are frozen too (use dataclasses.replace to change a limit), so the plain-float
@@ -375,6 +389,12 @@ class NCParams:
         object.__setattr__(self, "_inv_w2", inv_w2)
         object.__setattr__(self, "_acc_lp", [1.0 - math.exp(-ACC_LP * x * self.dt) for x in w.tolist()])
         object.__setattr__(self, "_kth_modal", self._kth_on and bool(np.any(self.mode_hz > 0)))
+        for f in ("chain_offset_max_mm", "chain_offset_rate_mm_s"):
+            v = float(getattr(self, f))
+            if not (math.isfinite(v) and v >= 0.0):
+                raise ValueError(f"{f} must be a finite number >= 0, got {v!r}")
+            object.__setattr__(self, f, v)
+        object.__setattr__(self, "_off_step", self.chain_offset_rate_mm_s * self.dt)    # mm per tick
 
     @classmethod
     def from_machine(cls, machine: Machine, dt: float, *, max_pulses_per_tick=None, k_theta=0.0,
@@ -427,6 +447,8 @@ class NCState:
     kth: np.ndarray | None = None       # (12,) soft-chain K_theta: offset d (3, mm), last feed-forward
                                         # chain rate (3, mm/s), last planned stretch a*/w^2 (3, mm),
                                         # low-passed planned chain acceleration (3, mm/s^2)
+    offset: np.ndarray | None = None    # (3,) chain-length offset applied (mm, added to the commanded
+                                        # lengths); None before the first offset input
 
     # Mode changes from outside the step (the loop's stop request, a backend fault, the end of the
     # job). The compiled core's state handle (pmctl.motion.ncore.CompiledState) has the same four
@@ -454,15 +476,21 @@ class NCState:
         return replace(self, counts=np.array(counts, np.int64))
 
 
-def initial_state(machine: Machine, counts, model: ModelFK | None = None) -> NCState:
-    """State at given pulse counters: model pose by a cold-start FK (raises KinematicsError)."""
+def initial_state(machine: Machine, counts, model: ModelFK | None = None, offset=None) -> NCState:
+    """State at given pulse counters: model pose by a cold-start FK (raises KinematicsError).
+    ``offset``: the chain-length offset already applied (a restart keeps it: the model pose is
+    that of the counters minus it, and the NC goes on from it instead of slewing it in again)."""
     from pmctl.core.kinematics import forward_platform
     counts = np.asarray(counts, dtype=np.int64).copy()
     q = counts / machine.resolution.pulses_per_mm
+    off = None
+    if offset is not None:
+        off = np.array(offset, float).reshape(3)
+        q[:3] -= off
     P, R = forward_platform(q[:3], machine.geometry)
     model = model or ModelFK(machine)
     P, R, tip, axis, _ = model.solve(q, P, R)
-    return NCState(counts, np.zeros(5), np.zeros(5), P, R, tip, axis)
+    return NCState(counts, np.zeros(5), np.zeros(5), P, R, tip, axis, offset=off)
 
 
 def counts_of(q, params: NCParams):
@@ -580,11 +608,36 @@ def _ferror_violation(q, enc, qdot, params: NCParams):
     return ""
 
 
-def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
+def _slew_offset(off, want, params: NCParams):
+    """The applied chain-length offset one tick on toward the input ``want`` (lists of 3): the input
+    clipped to +-chain_offset_max_mm (a non-finite one holds), approached at most _off_step per tick."""
+    lim, step = params.chain_offset_max_mm, params._off_step
+    out = [0.0] * 3
+    for i in range(3):
+        w = want[i]
+        if not math.isfinite(w):
+            w = off[i]
+        elif w > lim:
+            w = lim
+        elif w < -lim:
+            w = -lim
+        d = w - off[i]
+        if d > step:
+            out[i] = off[i] + step
+        elif d < -step:
+            out[i] = off[i] - step
+        else:
+            out[i] = w
+    return out
+
+
+def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK, offset=None):
     """One tick. Returns (pulses int64 (5,), new NCState). Pure: ``state`` is not modified.
 
     target: (12,) = tip (3, mm in W), axis (3, unit), tip_vel (3, mm/s), axis_vel (3, 1/s).
     feedback: has ``enc`` (5,) motor-side positions in mm and ``strain`` (3,) microstrain.
+    offset: (3,) chain-length offset input, mm (added to the commanded chain lengths, slew-limited
+    and bounded: see the module docstring); None = no input this tick (the applied offset is held).
     A stop (soft limit, path error) decelerates within the acceleration limits (mode STOPPING,
     then HALTED); a fault (FK failure, following error) halts at once (no more pulses).
     ``model`` holds only constants and scratch space.
@@ -611,6 +664,12 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
         qj = [ql[i] + cc[i] for i in range(5)]
     else:
         qj = ql
+    off = None
+    if offset is not None or state.offset is not None:      # the chain-length offset (slow compensation)
+        off = _ZERO3 if state.offset is None else state.offset.tolist()
+        if offset is not None and state.mode == RUN:
+            off = _slew_offset(off, offset.tolist() if isinstance(offset, np.ndarray) else list(offset), params)
+        qj = [qj[0] - off[0], qj[1] - off[1], qj[2] - off[2], qj[3], qj[4]]
     mode, reason = state.mode, state.reason
     P, R, tip, axis, perr = state.P, state.R, state.tip, state.axis, state.path_error
     kth_st = state.kth
@@ -688,7 +747,8 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK):
         cs = (state.comp_dir, state.comp_bl, state.comp)
     if kth_st is not None and not isinstance(kth_st, np.ndarray):
         kth_st = np.array(kth_st)
-    return pulses, NCState(state.counts + pulses, acc, qdot_a, P, R, tip, axis, mode, reason, perr, qm, Tm, *cs, kth_st)
+    return pulses, NCState(state.counts + pulses, acc, qdot_a, P, R, tip, axis, mode, reason, perr, qm, Tm, *cs, kth_st,
+                           None if off is None else np.array(off))
 
 
 class PythonNC:
@@ -705,8 +765,8 @@ class PythonNC:
     def load(self, state: NCState) -> NCState:
         return state
 
-    def step(self, state: NCState, target, feedback):
-        return nc_step(state, target, feedback, self.params, self.model)
+    def step(self, state: NCState, target, feedback, offset=None):
+        return nc_step(state, target, feedback, self.params, self.model, offset)
 
 
 def make_nc(machine: Machine, params: NCParams, implementation: str | None = None):

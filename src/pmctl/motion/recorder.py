@@ -19,7 +19,8 @@ from pmctl.motion.ring import Ring
 R_TICK, R_S, R_SIGMA, R_LINE, R_MODE, R_FOLLOW = 0, 1, 2, 3, 4, 5
 R_COUNTS, R_ENC, R_STRAIN, R_TRUTH, R_TARGET = 6, 11, 16, 19, 24
 R_LATE_NS, R_PREV_COMPUTE_NS = 30, 31       # this tick's wake-up lateness, the previous tick's compute time
-REC_WIDTH = 32
+R_CHAIN_OFFSET = 32                         # (3) chain-length offset the NC applied this tick, mm (slow compensation)
+REC_WIDTH = 35                              # new columns go at the end of the row
 REC_CAPACITY = 4096            # rows: 4 s at 1 kHz, ~1 MB
 
 

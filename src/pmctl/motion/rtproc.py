@@ -111,6 +111,8 @@ class RtHook:
                 sc.hold = False
             elif code == C.C_HOME_ARM:
                 self.arm_axis, self.arm_want = int(a1), bool(a2)
+            elif code == C.C_CHAIN_OFFSET:
+                lp.set_chain_offset(int(a1), a2)      # bounded there (refused with a reason in the log)
             elif code == C.C_SET_COUNTS:
                 # at rest with nothing queued only (the supervisor checks the counters after the ack)
                 if st.mode == RUN and sc.sigma == 0.0 and fol.src.count() == 0 and 0 <= int(a1) < 5:
@@ -222,7 +224,9 @@ def _was_stop(st) -> bool:
 
 def _restart(st, machine, lp, counts=None):
     from pmctl.motion.nc import initial_state
-    return lp.nc.load(initial_state(machine, st.counts if counts is None else counts))
+    off = getattr(st, "offset", None)          # the applied chain-length offset stays through a restart
+    return lp.nc.load(initial_state(machine, st.counts if counts is None else counts,
+                                    offset=None if off is None else np.array(off, float)))
 
 
 def rt_main(spec: dict) -> int:

@@ -60,6 +60,9 @@ class NCConfig:
     shaper: str = "none"               # time-law input shaper: none, a type (pmctl.core.shaper.SHAPERS) or auto
     shaper_hz: tuple | None = None     # per chain; None = the chain modes
     shaper_damping_ratio: float | None = None   # None = the chain modes' damping
+    # the chain-length offset input (slow compensation): bound and slew rate, from [daq] comp_max_mm / comp_rate_mm_s
+    chain_offset_max_mm: float = 0.2
+    chain_offset_rate_mm_s: float = 0.05
 
     def params(self, machine: Machine, dt: float, where="service config", modes: "ChainModes | None" = None) -> NCParams:
         """NC parameters. ``modes``: the chain modes (:func:`chain_modes`); they set the strain ->
@@ -91,7 +94,8 @@ class NCConfig:
             machine, dt, max_pulses_per_tick=1 if self.pulse_mode == "single" else None,
             k_theta=kth, kv=self.kv_per_s, damping=self.damping, sv_threshold=self.sv_threshold,
             ferror_mm=self.ferror_mm, min_ferror_mm=self.min_ferror_mm,
-            max_path_error_mm=self.max_path_error_mm, implementation=self.implementation, **kw)
+            max_path_error_mm=self.max_path_error_mm, implementation=self.implementation,
+            chain_offset_max_mm=self.chain_offset_max_mm, chain_offset_rate_mm_s=self.chain_offset_rate_mm_s, **kw)
 
 
 SOFT_MODE_FACTOR = 2.0      # the soft-chain K_theta below w = 2 kv (docs/vibration.md, eq. 3.1 table)
@@ -386,6 +390,7 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
     if "daq" in data:
         from pmctl.hal.modbus_daq import DaqOptions
         daq = DaqOptions.from_dict(data["daq"], f"{path}: daq")
+        nc.chain_offset_max_mm, nc.chain_offset_rate_mm_s = daq.comp_max_mm, daq.comp_rate_mm_s
     from pmctl.motion.probe import ProbeConfig
     probe = ProbeConfig.from_dict(data.get("probe", {}), path)
     homing = homing_from_dict(data.get("homing", {}), path)

@@ -323,6 +323,25 @@ class Supervisor:
     def rapid_override(self, r: float):
         self.command(C.C_RAPID_OV, float(r))
 
+    def set_chain_offset(self, chain: int, mm: float) -> bool:
+        """The chain-length offset input of chain 0..2 (L1..L3), mm, added to the commanded length by
+        the rt side's NC at its slew rate (the strain DAQ's slow compensation). Refused (False, the
+        reason in the log) beyond the NC's bound or when not finite."""
+        lim = self.params.chain_offset_max_mm
+        refused = getattr(self, "_offset_refused", set())
+        self._offset_refused = refused
+        if not (0 <= int(chain) < 3 and math.isfinite(mm) and abs(mm) <= lim):
+            if chain not in refused:          # said once until a value of that chain is accepted again
+                self.log(f"chain offset refused: chain {chain} {mm:+.4f} mm (chains 0-2, bound +-{lim:g} mm "
+                         f"chain_offset_max_mm); the previous offset stays")
+            refused.add(chain)
+            return False
+        refused.discard(chain)
+        if self.ch is None or self.rt_dead:
+            return False
+        self.command(C.C_CHAIN_OFFSET, float(int(chain)), float(mm))
+        return True
+
     def soft_reset(self, timeout_s=10.0):
         """Stop now on the path, drop everything queued, keep the position (grbl ctrl-X). During
         homing it aborts the cycle (ALARM 6)."""

@@ -245,6 +245,7 @@ class RunSink:
         self.load = bool(load)        # load_fx/fy/fz from the gauges (a backend with strain in its cyclic data)
         self.has_truth = bool(has_truth)
         self.spindle, self.daq, self.writer = spindle, daq, writer
+        self._comp = daq is not None and daq.opt.compensate      # comp_L1..3: the applied chain offsets
         self.track = TrackingAccumulator(job_start, expect) if has_truth else None
         self.rows = 0
         self.chunks = 0
@@ -276,6 +277,11 @@ class RunSink:
                 notes[f"daq_strain_{i + 1}"] = {"source": f"strain DAQ over Modbus TCP polled every "
                                                           f"{self.daq.opt.poll_ms:g} ms, held between polls, "
                                                           f"microstrain"}
+        if self._comp:
+            for i in range(3):
+                names.append(f"comp_L{i + 1}")
+                notes[f"comp_L{i + 1}"] = {"source": "chain-length offset the NC applied (slow compensation from "
+                                                     "the strain DAQ: -deflection, slew-limited), mm"}
         return names, notes
 
     def __call__(self, rows):
@@ -324,6 +330,10 @@ class RunSink:
             for i in range(3):
                 v = _held(d.samples, ticks, lambda s, i=i: s[2][i]) if d is not None else None
                 cols[f"daq_strain_{i + 1}"] = np.full(n, np.nan) if v is None else v
+        if self._comp:
+            from pmctl.motion.recorder import R_CHAIN_OFFSET
+            for i in range(3):
+                cols[f"comp_L{i + 1}"] = rows[:, R_CHAIN_OFFSET + i]
         if self.writer is not None:
             self.writer.append(cols)
         self.rows += n
@@ -502,7 +512,8 @@ def run(args) -> int:
                 spindle = SpindleSession(svc.spindle, log).connect()   # the link answers before the drives enable
             backend.open(counts0)
             if svc.daq is not None:       # the simulated DAQ serves the backend's (plant's) strain gauges
-                daq = DaqSession(svc.daq, lambda: _strain_of(backend), log).connect()
+                daq = DaqSession(svc.daq, lambda: _strain_of(backend), log, machine,
+                                 lambda off: holder["lp"].set_chain_offsets(off)).connect()   # slow compensation
             if spindle is not None:
                 spindle.start(rpm_job)    # cutting waits for at speed
         except BaseException:

@@ -33,6 +33,7 @@ _S_TIP, _S_AXIS, _S_PERR, _S_QM, _S_T, _S_EV = (_ncore.NC_S_TIP, _ncore.NC_S_AXI
                                                 _ncore.NC_S_QM, _ncore.NC_S_T, _ncore.NC_S_EV)
 _S_CDIR, _S_CBL, _S_COMP = _ncore.NC_S_CDIR, _ncore.NC_S_CBL, _ncore.NC_S_COMP
 _S_KTH = _ncore.NC_S_KTH
+_S_OFF = _ncore.NC_S_OFF
 _N_COUNTS, _N_PULSES, _N_MODE, _N_EVENT, _N_HAS_QM, _N_ITER = (
     _ncore.NC_N_COUNTS, _ncore.NC_N_PULSES, _ncore.NC_N_MODE, _ncore.NC_N_EVENT, _ncore.NC_N_HAS_QM,
     _ncore.NC_N_ITER)
@@ -49,7 +50,7 @@ def constants(machine: Machine, params: NCParams | None, model: ModelFK | None =
     c += m._off + m._tip_p + m._axis_p
     c += [m.z_table, m.tol, float(m.max_iter), m.cos_max_tilt, m._fz] + m._com + [m._keps]
     if params is None:           # FK only (the sim's gravity strain): no NC limits
-        c += [0.0] * 59
+        c += [0.0] * 61
     else:
         L = params._l
         c += [params.dt] + L.ppm + L.vmax + L.amax + L.adt + L.lower + L.upper
@@ -59,6 +60,7 @@ def constants(machine: Machine, params: NCParams | None, model: ModelFK | None =
         c += [float(params.max_pulses_per_tick), params.ferror_mm, params.min_ferror_mm,
               params.max_path_error_mm, float(bool(params.static_strain_comp)), float(params._kth_on)]
         c += L.leak + list(params._inv_w2) + list(params._acc_lp) + [float(bool(params.deflection_ff)), float(params._kth_modal)]
+        c += [params.chain_offset_max_mm, params._off_step]
     a = np.array(c, float)
     if len(a) != _ncore.NC_C_LEN:
         raise AssertionError(f"ncore constants: {len(a)} values, the core takes {_ncore.NC_C_LEN}")
@@ -96,7 +98,7 @@ class CompiledState:
     NCState (``counts``, ``mode``, ``reason``) and the same mode-change methods, which change the
     buffers in place and return the handle. :meth:`snapshot` copies it out as an NCState."""
 
-    __slots__ = ("s", "n", "counts", "pulses", "qdot", "tip", "axis", "reason", "mode", "_params")
+    __slots__ = ("s", "n", "counts", "pulses", "qdot", "tip", "axis", "offset", "reason", "mode", "_params")
 
     def __init__(self, s: np.ndarray, n: np.ndarray, params: NCParams):
         self.s, self.n, self._params = s, n, params
@@ -105,6 +107,7 @@ class CompiledState:
         self.qdot = s[_S_QDOT:_S_QDOT + 5]             # joint rates, mm/s (read them; the core writes)
         self.tip = s[_S_TIP:_S_TIP + 3]                # model tool tip and axis in W
         self.axis = s[_S_AXIS:_S_AXIS + 3]
+        self.offset = s[_S_OFF:_S_OFF + 3]             # chain-length offset applied, mm
         self.reason = ""
         self.mode = int(n[_N_MODE])            # a copy of n[NC_N_MODE], kept in step by every change
 
@@ -161,6 +164,8 @@ class CompiledState:
                 s[at:at + 5] = v
         if st.kth is not None:
             s[_S_KTH:_S_KTH + 12] = st.kth
+        if st.offset is not None:
+            s[_S_OFF:_S_OFF + 3] = st.offset
         self.reason = st.reason
         self.mode = int(st.mode)
         return self
@@ -175,7 +180,8 @@ class CompiledState:
                        s[_S_TIP:_S_TIP + 3].copy(), s[_S_AXIS:_S_AXIS + 3].copy(), int(n[_N_MODE]), self.reason,
                        float(s[_S_PERR]), s[_S_QM:_S_QM + 5].copy() if has else None,
                        s[_S_T:_S_T + 18].reshape(6, 3).copy() if has else None, *comp,
-                       s[_S_KTH:_S_KTH + 12].copy() if self._params._kth_modal and has else None)
+                       s[_S_KTH:_S_KTH + 12].copy() if self._params._kth_modal and has else None,
+                       s[_S_OFF:_S_OFF + 3].copy())
 
 
 class CompiledNC:
@@ -201,8 +207,10 @@ class CompiledNC:
     def load(self, state: NCState) -> CompiledState:
         return self.handle.load(state)
 
-    def step(self, state: CompiledState, target, feedback):
-        r = self._step(target, feedback.enc, feedback.strain)      # 16 * event + mode
+    def step(self, state: CompiledState, target, feedback, offset=None):
+        if offset is not None and not isinstance(offset, np.ndarray):
+            offset = np.asarray(offset, float)
+        r = self._step(target, feedback.enc, feedback.strain, offset)      # 16 * event + mode
         state.mode = r & 15
         if r >= 16:
             state.reason = _reason(r >> 4, self._ev, self.params)

@@ -99,10 +99,10 @@ static int ready(CoreObject *self)
 
 static PyObject *Core_step(CoreObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
-    Py_buffer t, e, g;
-    int ev;
-    if (nargs != 3) {
-        PyErr_SetString(PyExc_TypeError, "step(target, enc, strain)");
+    Py_buffer t, e, g, o;
+    int ev, have_o = 0;
+    if (nargs != 3 && nargs != 4) {
+        PyErr_SetString(PyExc_TypeError, "step(target, enc, strain, offset=None)");
         return NULL;
     }
     if (!ready(self))
@@ -118,11 +118,22 @@ static PyObject *Core_step(CoreObject *self, PyObject *const *args, Py_ssize_t n
         PyBuffer_Release(&e);
         return NULL;
     }
+    if (nargs == 4 && args[3] != Py_None) {
+        if (get_buf(args[3], &o, 3, 0, 0, "offset") < 0) {
+            PyBuffer_Release(&t);
+            PyBuffer_Release(&e);
+            PyBuffer_Release(&g);
+            return NULL;
+        }
+        have_o = 1;
+    }
     ev = nc_step(&self->c, (double *)self->sbuf.buf, (int64_t *)self->nbuf.buf, (const double *)t.buf,
-                 (const double *)e.buf, (const double *)g.buf);
+                 (const double *)e.buf, (const double *)g.buf, have_o ? (const double *)o.buf : NULL);
     PyBuffer_Release(&t);
     PyBuffer_Release(&e);
     PyBuffer_Release(&g);
+    if (have_o)
+        PyBuffer_Release(&o);
     return PyLong_FromLong((long)ev * 16 + (long)((int64_t *)self->nbuf.buf)[NC_N_MODE]);
 }
 
@@ -194,7 +205,8 @@ static PyObject *Core_static_strain(CoreObject *self, PyObject *const *args, Py_
 
 static PyMethodDef Core_methods[] = {
     {"step", (PyCFunction)(void (*)(void))Core_step, METH_FASTCALL,
-     "step(target, enc, strain) -> 16 * event + mode: one NC tick on the state buffers"},
+     "step(target, enc, strain, offset=None) -> 16 * event + mode: one NC tick on the state buffers "
+     "(offset: the chain-length offset input, 3 mm)"},
     {"fk", (PyCFunction)(void (*)(void))Core_fk, METH_FASTCALL,
      "fk(q, P, R, dL, T0, tip, axis, J, T, ev) -> Newton iterations, or -event on failure"},
     {"static_strain", (PyCFunction)(void (*)(void))Core_static_strain, METH_FASTCALL,
@@ -233,7 +245,7 @@ PyMODINIT_FUNC PyInit__ncore(void)
 #define C(name) PyModule_AddIntConstant(m, #name, name)
     C(NC_C_LEN); C(NC_S_LEN); C(NC_N_LEN);
     C(NC_S_ACC); C(NC_S_QDOT); C(NC_S_P); C(NC_S_R); C(NC_S_TIP); C(NC_S_AXIS); C(NC_S_PERR);
-    C(NC_S_QM); C(NC_S_T); C(NC_S_EV); C(NC_S_CDIR); C(NC_S_CBL); C(NC_S_COMP); C(NC_S_KTH);
+    C(NC_S_QM); C(NC_S_T); C(NC_S_EV); C(NC_S_CDIR); C(NC_S_CBL); C(NC_S_COMP); C(NC_S_KTH); C(NC_S_OFF);
     C(NC_N_COUNTS); C(NC_N_PULSES); C(NC_N_MODE); C(NC_N_EVENT); C(NC_N_HAS_QM); C(NC_N_ITER);
     C(NC_EV_NONE); C(NC_EV_ENC_NONFINITE); C(NC_EV_STRAIN_NONFINITE); C(NC_EV_FERROR); C(NC_EV_FK_NOCONV);
     C(NC_EV_FK_BRANCH); C(NC_EV_FK_SINGULAR); C(NC_EV_SVD); C(NC_EV_PATH_ERROR); C(NC_EV_TILT);

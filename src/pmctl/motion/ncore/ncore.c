@@ -36,6 +36,7 @@ int nc_setup(nc_const *c, const double *f, int n)
     for (i = 0; i < 3; i++) TAKE(c->inv_w2[i]);
     for (i = 0; i < 3; i++) TAKE(c->acc_lp[i]);
     TAKE(c->defl_ff); TAKE(c->kth_modal);
+    TAKE(c->off_max); TAKE(c->off_step);
 #undef TAKE
     c->comp = NULL;
     return k == NC_C_LEN ? 0 : -1;
@@ -464,6 +465,29 @@ static void limit_rates(const nc_const *c, const double des_in[5], const double 
         out[i] = m > 1.0 ? prev[i] + dq[i] / m : des[i];
 }
 
+/* nc._slew_offset: the applied chain-length offset one tick on toward the input (clipped to
+ * +-off_max; a non-finite input holds), at most off_step per tick. */
+static void slew_offset(const nc_const *c, double *off, const double *want_in)
+{
+    int i;
+    for (i = 0; i < 3; i++) {
+        double w = want_in[i], d;
+        if (!isfinite(w))
+            w = off[i];
+        else if (w > c->off_max)
+            w = c->off_max;
+        else if (w < -c->off_max)
+            w = -c->off_max;
+        d = w - off[i];
+        if (d > c->off_step)
+            off[i] = off[i] + c->off_step;
+        else if (d < -c->off_step)
+            off[i] = off[i] - c->off_step;
+        else
+            off[i] = w;
+    }
+}
+
 static int halt_now(double *s, int64_t *n, int ev)
 {
     int i;
@@ -477,7 +501,8 @@ static int halt_now(double *s, int64_t *n, int ev)
     return ev;
 }
 
-int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const double *enc, const double *strain)
+int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const double *enc, const double *strain,
+            const double *offset)
 {
     double ql[5], prev[5], qd_des[5] = {0, 0, 0, 0, 0}, qdot[5], *ev = s + NC_S_EV;
     double qj[5], cc[5], cd[5], cb[5];
@@ -522,6 +547,12 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
     } else {
         memcpy(qj, ql, sizeof ql);
     }
+    /* the chain-length offset (slow compensation): slewed in RUN only, subtracted from the model
+     * joints, so that the counters follow IK(target) + offset */
+    if (offset != NULL && mode0 == NC_RUN)
+        slew_offset(c, s + NC_S_OFF, offset);
+    for (i = 0; i < 3; i++)
+        qj[i] = qj[i] - s[NC_S_OFF + i];
     if (mode == NC_RUN) {
         double P[3], R[9], tip[3], axis[3], J[30], T[18], x[6], e[6], qd[5], w = c->w, kv = c->kv;
         double qf[5], kth_new[12];

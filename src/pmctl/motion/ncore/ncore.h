@@ -47,7 +47,8 @@
 #define NC_S_COMP 68    /* 5: compensation of the last tick, mm (model joint - motor position) */
 #define NC_S_KTH 73     /* 12: soft-chain K_theta: offset d (3, mm), last feed-forward chain rate (3, mm/s),
                          *    last planned stretch a*|w^2 (3, mm), low-passed a* (3) (nc.NCState.kth) */
-#define NC_S_LEN 85
+#define NC_S_OFF 85     /* 3: chain-length offset applied, mm (added to the commanded chain lengths; nc.NCState.offset) */
+#define NC_S_LEN 88
 
 /* int64 state buffer layout */
 #define NC_N_COUNTS 0   /* 5: pulse counters */
@@ -71,9 +72,10 @@ typedef struct {
      * table (nc_setup_comp), NULL = none */
     const double *comp;
     double leak[3], inv_w2[3], acc_lp[3], defl_ff, kth_modal;    /* soft-chain K_theta (nc._kth_modal_l) */
+    double off_max, off_step;    /* chain-length offset: bound (mm) and slew per tick (mm) (nc._slew_offset) */
 } nc_const;
 
-#define NC_C_LEN 104     /* model 45 (27 + 9 + 5 + 3 + 1), params 59 (1 + 30 + 5 + 3 + 3 + 6 + 11) */
+#define NC_C_LEN 106     /* model 45 (27 + 9 + 5 + 3 + 1), params 61 (1 + 30 + 5 + 3 + 3 + 6 + 11 + 2) */
 
 /* Returns 0, or -1 if n != NC_C_LEN. */
 int nc_setup(nc_const *c, const double *flat, int n);
@@ -95,9 +97,10 @@ int nc_fk(const nc_const *c, const double *q, double *P, double *R, const double
 void nc_static_strain(const nc_const *c, const double *R, const double *T, double *out3);
 
 /* One tick (nc.nc_step) on the state buffers s (NC_S_LEN) and n (NC_N_LEN). target (12): tip,
- * axis, tip velocity, axis velocity; enc (5) motor-side positions, mm; strain (3) microstrain.
+ * axis, tip velocity, axis velocity; enc (5) motor-side positions, mm; strain (3) microstrain;
+ * offset (3) the chain-length offset input, mm (NULL: none this tick, the applied offset is held).
  * Returns the event of this tick (also in n[NC_N_EVENT]). */
 int nc_step(const nc_const *c, double *s, int64_t *n, const double *target, const double *enc,
-            const double *strain);
+            const double *strain, const double *offset);
 
 #endif
