@@ -57,6 +57,7 @@ RPDO_BYTES = 6          # target position (INTEGER32) + controlword (UNSIGNED16)
 TPDO_BYTES = 6          # position actual (INTEGER32) + statusword (UNSIGNED16)
 MAX_LATE_CYCLES = 32
 HISTORY = 64            # targets kept per SYNC (> MAX_LATE_CYCLES + 2)
+_RPDO = struct.Struct("<iH")   # RPDO1: target position, controlword
 INTERFACES = ("virtual", "slcan", "socketcan", "pcan", "kvaser", "ixxat", "vector", "serial")
 
 
@@ -517,20 +518,49 @@ class CanopenCSP(Backend):
             self._send_cycle()                  # a second SYNC: the answer shows the new state
             self._wait_answers(max(0.5, 10 * self.cycle_s), "start-up")
 
+    _frames = None          # the cycle's can.Messages, built at the first cycle (_cycle_frames)
+    _batch = None           # the bus's send_batch, if it has one
+
     def _send_cycle(self):
+        """The cycle's frames: each drive's RPDO1 (target, controlword), the SYNC, and the host's
+        heartbeat when due. Packed with struct into can.Message objects built once (not through
+        the canopen PDO variables: the same bytes), and handed to the bus in one call when it
+        takes a batch (an slcan link: one write for the whole cycle), else one send each."""
         net = self.network
         self._sent[(self._syncs + 1) % HISTORY] = self._targets
-        for i, d in enumerate(self.drives):
-            rp = d.rpdo
-            if rp is not None:
-                struct.pack_into("<iH", rp.data, 0, int(self._targets[i]), self._cw)
-                rp.transmit()
+        fr = self._frames
+        if fr is None or len(fr) != len(self.drives) + 2:
+            fr = self._frames = self._cycle_frames()
+        cw = self._cw
+        for m, t in zip(fr, self._targets.tolist()):
+            _RPDO.pack_into(m.data, 0, t, cw)
+        now = time.monotonic()
+        n = len(fr) - 1                                     # RPDOs + SYNC
+        if now - self._t_host_hb >= self.opt.host_heartbeat_ms / 1e3:
+            self._t_host_hb = now
+            n += 1                                          # + the host heartbeat
+        bus = net.bus
+        with net.send_lock:
+            if self._batch is not None:
+                self._batch(fr[:n] if n < len(fr) else fr)
             else:
-                net.send_message(C.cob_rpdo1(d.id), struct.pack("<iH", int(self._targets[i]), self._cw))
-        net.sync.transmit()
+                for i in range(n):
+                    bus.send(fr[i])
+        net.check()                                         # the receive thread still alive
         self._syncs += 1
         self.frames_sent += len(self.drives) + 1
-        self._host_heartbeat()
+
+    def _cycle_frames(self) -> list:
+        """The frames of a cycle, built once: RPDO1 of each drive (6 bytes), SYNC (no data), the
+        host heartbeat (operational); and the bus's batch send, if it has one."""
+        import can
+        self._batch = getattr(self.network.bus, "send_batch", None)
+        fr = [can.Message(arbitration_id=C.cob_rpdo1(d.id), is_extended_id=False, data=bytearray(RPDO_BYTES))
+              for d in self.drives]
+        fr.append(can.Message(arbitration_id=C.COB_SYNC, is_extended_id=False, data=b""))
+        fr.append(can.Message(arbitration_id=C.cob_heartbeat(self.opt.host_node_id), is_extended_id=False,
+                              data=bytes([5])))
+        return fr
 
     def _host_heartbeat(self, force=False):
         now = time.monotonic()
@@ -598,7 +628,13 @@ class CanopenCSP(Backend):
             raise HalError(self._fault)
         lim = self.opt.heartbeat_timeout_ms / 1e3
         now = time.monotonic()
-        if any(d.t_hb is not None and now - d.t_hb > lim for d in self.drives):
+        for d in self.drives:                       # (a plain loop: this runs every tick)
+            t = d.t_hb
+            if t is not None and now - t > lim:
+                break
+        else:
+            d = None
+        if d is not None:
             # a heartbeat seems overdue: first let the receive thread work off what it has (after a
             # pause of this process the frames are there, unread), at most read_timeout_ms
             t_end = now + self.opt.read_timeout_ms / 1e3
