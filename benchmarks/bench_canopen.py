@@ -19,7 +19,8 @@ TCP (default, as shipped) or a pty, or in this process on the python-can virtual
 4. ``--tick``: instead, the control loop's tick compute (read -> follower -> NC -> write -> record,
    ``pmctl run``'s figure) on this backend in real time at the service's rate, a ~5 s job near home,
    for the backend's cycle as it is ("after": RPDOs packed with struct into can.Messages built
-   once, the cycle's frames in one write on an slcan link) and as it was ("before": each RPDO
+   once; on an slcan link the cycle's frames in one write by the backend's writer thread) and as
+   it was ("before": each RPDO
    through the canopen PDO map's variables and transmit, the SYNC through canopen's SYNC
    producer, one send per frame), alternating, --rounds each, in one run: median / p99 per
    variant over all rounds and per round, with the load average.
@@ -156,12 +157,14 @@ def tick_compute(a, o, svc) -> int:
                 be.close()
             c = res.timing.compute_ns / 1e3
             out[name].append(c)
+            cyc = c[0::be.cycle_ticks]           # the ticks that send a cycle (and take its answers)
             print(f"  round {r + 1} {name:6s}: {res.status}; tick compute median {np.median(c):6.1f} us, "
-                  f"p99 {np.percentile(c, 99):7.1f} us, max {c.max():7.0f} us; overruns {res.timing.overruns}; "
+                  f"p99 {np.percentile(c, 99):7.1f} us, max {c.max():7.0f} us (ticks with a CAN cycle: median "
+                  f"{np.median(cyc):6.1f} us); overruns {res.timing.overruns}; "
                   f"load average {la0:.2f} -> {os.getloadavg()[0]:.2f}")
     for name in ("before", "after"):
         c = np.concatenate(out[name])
-        print(f"{name:6s} ({'canopen PDO map + SyncProducer, a send per frame' if name == 'before' else 'direct packing, one write per cycle'}): "
+        print(f"{name:6s} ({'canopen PDO map + SyncProducer, a send per frame' if name == 'before' else 'direct packing; slcan: one write per cycle by the writer thread'}): "
               f"tick compute median {np.median(c):6.1f} us, p99 {np.percentile(c, 99):7.1f} us over {len(c)} ticks")
     b, f = (np.concatenate(out[k]) for k in ("before", "after"))
     print(f"after / before: median {np.median(f) / np.median(b):.2f}, p99 {np.percentile(f, 99) / np.percentile(b, 99):.2f}; "

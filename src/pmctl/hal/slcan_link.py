@@ -38,6 +38,11 @@ def encode(msg: can.Message) -> bytes:
     return (b"T%08X%d%s\r" if msg.is_extended_id else b"t%03X%d%s\r") % (cid, n, binascii.hexlify(msg.data).upper())
 
 
+def encode_batch(msgs) -> bytes:
+    """Several frames as their slcan lines, in order."""
+    return b"".join([encode(m) for m in msgs])
+
+
 def decode(line: bytes) -> can.Message | None:
     """A frame from one slcan line (without its CR); None for anything that is not a frame
     (a command's answer, a transmit acknowledge ``z``). A malformed frame raises ValueError."""
@@ -151,7 +156,11 @@ class SlcanLinkBus(can.BusABC):
     def send_batch(self, msgs, timeout=None) -> None:
         """Several frames in one write (one system call instead of one per frame): the same lines
         on the link, in the same order, as ``send`` of each in turn."""
-        self._write(b"".join([encode(m) for m in msgs]), timeout)
+        self.send_lines(encode_batch(msgs), timeout)
+
+    def send_lines(self, data: bytes, timeout=None) -> None:
+        """Frames already encoded (``encode``, ``encode_batch``), written whole."""
+        self._write(data, timeout)
 
     def _write(self, data: bytes, timeout) -> None:
         t_end = None
