@@ -1,4 +1,5 @@
-"""Build of the compiled NC core (the C extension pmctl.motion.ncore._ncore); everything else is
+"""Build of the compiled NC core (the C extension pmctl.motion.ncore._ncore), the sim plant's tick and
+the loop's compiled path follower (pmctl.motion._follow); everything else is
 in pyproject.toml. ``pip install .`` and ``pip install -e .`` both compile it with the machine's C
 compiler; without one the install stops and says which compiler it looked for."""
 
@@ -48,4 +49,14 @@ plant = Extension(          # the loopback sim plant's tick (pmctl.hal.sim), wit
     libraries=ext.libraries,
 )
 
-setup(ext_modules=[ext, plant], cmdclass={"build_ext": BuildExt})
+FOLLOW = "src/pmctl/motion/follow"
+follow = Extension(         # the loop's path follower (pmctl.motion.timescale.CompiledFollower)
+    "pmctl.motion._follow",
+    sources=[f"{FOLLOW}/follow.c", f"{FOLLOW}/_followmodule.c"],
+    depends=[f"{FOLLOW}/follow.h"],
+    include_dirs=[FOLLOW],
+    extra_compile_args=ext.extra_compile_args,
+    libraries=ext.libraries,
+)
+
+setup(ext_modules=[ext, plant, follow], cmdclass={"build_ext": BuildExt})

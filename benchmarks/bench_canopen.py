@@ -3,6 +3,7 @@ PDO map and measured on the wire, and the answer time of the simulated drives.
 
     .venv/bin/python benchmarks/bench_canopen.py [--seconds 5] [--link tcp|pty|virtual]
                                                  [--service config/service.toml]
+    .venv/bin/python benchmarks/bench_canopen.py --tick [--rounds 3] [--link tcp|pty|virtual]
 
 ``--link``: the simulated drives in the device-simulator process on an slcan link over loopback
 TCP (default, as shipped) or a pty, or in this process on the python-can virtual bus.
@@ -15,7 +16,15 @@ TCP (default, as shipped) or a pty, or in this process on the python-can virtual
    slcan link of the device simulator, or the virtual channel) records every frame. Per CAN cycle: frames, nominal bits, and the exact bits on the
    wire (each frame's real stuff bits), and the load they make at the configured bit rate.
 3. Answer time: SYNC to the last drive's TPDO, as seen by the listener (median, p99, max).
-4. ``--rtt``: instead, the round trip of one slcan line between two processes at SCHED_FIFO (when
+4. ``--tick``: instead, the control loop's tick compute (read -> follower -> NC -> write -> record,
+   ``pmctl run``'s figure) on this backend in real time at the service's rate, a ~5 s job near home,
+   for the backend's cycle as it is ("after": RPDOs packed with struct into can.Messages built
+   once; on an slcan link the cycle's frames in one write by the backend's writer thread) and as
+   it was ("before": each RPDO
+   through the canopen PDO map's variables and transmit, the SYNC through canopen's SYNC
+   producer, one send per frame), alternating, --rounds each, in one run: median / p99 per
+   variant over all rounds and per round, with the load average.
+5. ``--rtt``: instead, the round trip of one slcan line between two processes at SCHED_FIFO (when
    permitted) over a pty and over loopback TCP: why the device simulator's link is TCP.
 Prints the figures and the load average; asserts nothing.
 """
@@ -35,7 +44,7 @@ import numpy as np
 from pmctl import hal
 from pmctl.core.config import load_machine
 from pmctl.hal import cia402 as C
-from pmctl.hal.canopen_csp import CanopenOptions
+from pmctl.hal.canopen_csp import HISTORY, CanopenCSP, CanopenOptions
 from pmctl.hal.slcan_link import SlcanLinkBus
 from pmctl.motion.loop import AbsoluteSleeper, setup_realtime, undo_realtime
 from pmctl.motion.service_config import load_service_config
@@ -83,12 +92,95 @@ def link_rtt(kind: str, n: int = 3000) -> np.ndarray:
     return np.array(rt) * 1e3
 
 
+class PdoMachineryCSP(CanopenCSP):
+    """The backend with its cycle sent the way it was before the direct frame packing (the
+    "before" of --tick): each RPDO through its canopen PdoMap (variables, transmit), the SYNC
+    through canopen's SyncProducer, the host heartbeat by Network.send_message; one bus send per
+    frame. The same frames on the wire."""
+
+    def _send_cycle(self):
+        import struct
+        net = self.network
+        self._sent[(self._syncs + 1) % HISTORY] = self._targets
+        for i, d in enumerate(self.drives):
+            rp = d.rpdo
+            struct.pack_into("<iH", rp.data, 0, int(self._targets[i]), self._cw)
+            rp.transmit()
+        net.sync.transmit()
+        self._syncs += 1
+        self.frames_sent += len(self.drives) + 1
+        self._host_heartbeat()
+
+
+BENCH_JOB = """G21 G90 G94 F900
+G1 X6 Y0
+G3 X0 Y6 I-6 J0
+G3 X-6 Y0 I0 J-6
+G3 X0 Y-6 I6 J0
+G3 X6 Y0 I0 J6
+G1 X0 Y0
+"""
+
+
+def tick_compute(a, o, svc) -> int:
+    """§4: the loop's tick compute with the backend's cycle as it is and as it was."""
+    from pmctl.core import kinematics as K
+    from pmctl.motion.loop import ControlLoop, prepare
+    from pmctl.motion.nc import counts_of, initial_state
+    from pmctl.motion.service_config import nc_setup
+    from pmctl.task.gcode import parse_gcode
+    from pmctl.task.planner import home_pose, plan
+    m = load_machine()
+    dt = svc.loop.dt
+    setup = nc_setup(svc, m, dt, "canopen")
+    svc.nc.k_theta_per_s = (0.0,) * 3          # as pmctl run: this backend carries no strain
+    params = svc.nc.params(m, dt, where=svc.source, modes=setup.modes)
+    tip, axis = home_pose(m)
+    tr = plan(parse_gcode(BENCH_JOB, "bench.ngc", tip, axis), m, dt, start=(tip, axis))
+    c0 = counts_of(K.ik(tip, axis, m).q, params)
+    tg = prepare(m, params, tr, dt, c0)
+    print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f} on "
+          f"{os.cpu_count()} CPUs; link {a.link}; NC tick {dt * 1e3:g} ms, CAN cycle {o.cycle_ms:g} ms; "
+          f"job {len(tg.rows) * dt:.1f} s, {a.rounds} rounds per variant, alternating")
+    out = {"before": [], "after": []}
+    for r in range(a.rounds):
+        for name, cls in (("before", PdoMachineryCSP), ("after", CanopenCSP)):
+            be = cls(m, dt, o)
+            be.open(c0)
+            cfg = svc.loop
+            cfg.realtime, cfg.settle_s, cfg.state_file = True, 0.0, ""
+            msgs = []
+            la0 = os.getloadavg()[0]
+            try:
+                res = ControlLoop(m, be, params, tg, cfg, initial_state(m, c0), log=msgs.append).run()
+            finally:
+                be.close()
+            c = res.timing.compute_ns / 1e3
+            out[name].append(c)
+            cyc = c[0::be.cycle_ticks]           # the ticks that send a cycle (and take its answers)
+            print(f"  round {r + 1} {name:6s}: {res.status}; tick compute median {np.median(c):6.1f} us, "
+                  f"p99 {np.percentile(c, 99):7.1f} us, max {c.max():7.0f} us (ticks with a CAN cycle: median "
+                  f"{np.median(cyc):6.1f} us); overruns {res.timing.overruns}; "
+                  f"load average {la0:.2f} -> {os.getloadavg()[0]:.2f}")
+    for name in ("before", "after"):
+        c = np.concatenate(out[name])
+        print(f"{name:6s} ({'canopen PDO map + SyncProducer, a send per frame' if name == 'before' else 'direct packing; slcan: one write per cycle by the writer thread'}): "
+              f"tick compute median {np.median(c):6.1f} us, p99 {np.percentile(c, 99):7.1f} us over {len(c)} ticks")
+    b, f = (np.concatenate(out[k]) for k in ("before", "after"))
+    print(f"after / before: median {np.median(f) / np.median(b):.2f}, p99 {np.percentile(f, 99) / np.percentile(b, 99):.2f}; "
+          f"load average after {os.getloadavg()[0]:.2f}")
+    return 0
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--service", default=None)
     ap.add_argument("--link", choices=("tcp", "pty", "virtual"), default="tcp")
     ap.add_argument("--rtt", action="store_true", help="round trip of an slcan line over a pty and over TCP")
+    ap.add_argument("--tick", action="store_true",
+                    help="the loop's tick compute with the backend's cycle as it is and as it was")
+    ap.add_argument("--rounds", type=int, default=3, help="--tick: rounds per variant (default 3)")
     a = ap.parse_args(argv)
     if a.rtt:
         print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f} on "
@@ -106,6 +198,8 @@ def main(argv=None):
     else:
         table.update(simulate=True, channel="devsim", interface="slcan", sim_link=a.link)
     o = CanopenOptions.from_dict(table)
+    if a.tick:
+        return tick_compute(a, o, svc)
     dt = svc.loop.dt
     bl = o.bus_load()
     print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f} on "

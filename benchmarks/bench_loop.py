@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_loop.py [--duration 60] [--rates 1000,2000,3000,4000,5000]
                                               [--rt-rate 2000] [--no-flex] [--spin-us 0]
+                                              [--sections 1,1b,2,3,4]
 
 Everything runs with the service config's NC (config/service.toml: gains, K_theta, pulse mode,
 gravity-strain compensation) on the loopback sim with the service's [hal.sim] options (flexible
@@ -10,6 +11,10 @@ mode on unless --no-flex); kv is capped at 0.4/dt for high rates.
 1. NC step alone, both implementations in this run on the same inputs (each on its own closed
    loop with an ideal plant, same targets, pulses compared tick for tick): median / p99 per call, CPU
    time per call (the loop's timer around the call included), and the Python/compiled ratio.
+1b. The path follower alone (pmctl.motion.timescale), both implementations in this run on the same
+   sample stream (the circle's rows through a ring fed as the rt process feeds it, a feed hold and
+   its resume, feed overrides 50 % and 150 %): median / p99 per next_target call, CPU per call,
+   the ratio, and in how many ticks the targets were identical.
 2. Whole tick (read sim -> NC -> write sim -> record), ticks back to back (realtime=False), for
    each implementation; 2b: the same with the sim's effect catalogue on (backlash, pitch error,
    thermal growth, friction on every axis: the effects' per-tick Python between the C step and
@@ -109,6 +114,49 @@ def bench_nc(m, rate, n):
     return out["compiled"][0], out["python"][0], out["compiled"][1], out["python"][1], same, params
 
 
+def bench_follower(m, rate, n):
+    """Each follower on its own ring with the same rows pushed at the same ticks and the same
+    operator requests; targets compared tick for tick afterwards. One after the other."""
+    from pmctl.motion.loop import target_samples
+    from pmctl.motion.ring import Ring
+    from pmctl.motion.timescale import WIDTH, make_follower
+    svc, params = service(m, rate)
+    dt = params.dt
+    rows = target_samples(prepare(m, params, circle(dt, n * dt * 1.2 + 2), dt), dt, params)
+    events = {n // 5: ("hold", True), n // 5 + 600: ("hold", False), n // 2: ("feed", 1.5), 3 * n // 4: ("feed", 0.5)}
+    mono, cpu = time.perf_counter_ns, time.thread_time_ns
+    out = {}
+    for impl in ("compiled", "python"):
+        ring = Ring(4096, WIDTH)
+        fol = make_follower(ring, params, dt, implementation=impl)
+        fed = ring.push(rows[:3000])
+        t = np.zeros(n, np.int64)
+        tg = np.zeros((n, 12))
+        busy = 0
+        gc.disable()
+        try:
+            for k in range(n):
+                if k % 10 == 0 and fed < len(rows):
+                    fed += ring.push(rows[fed:fed + 12])
+                ev = events.get(k)
+                if ev is not None:
+                    if ev[0] == "hold":
+                        fol.scaler.hold = ev[1]
+                    else:
+                        fol.scaler.set_feed_override(ev[1])
+                c1 = cpu()
+                t0 = mono()
+                x = fol.next_target()
+                t[k] = mono() - t0
+                busy += cpu() - c1
+                tg[k] = x
+        finally:
+            gc.enable()
+        out[impl] = (t / 1e3, busy / n / 1e3, tg, fol.s_total)
+    same = int(np.sum(np.all(out["compiled"][2] == out["python"][2], axis=1)))
+    return out["compiled"], out["python"], same
+
+
 # [hal.sim] effects for the 2b line: every catalogue effect of the sim on every axis
 SIM_EFFECTS = {"backlash_mm": 0.01, "pitch_error_amp_mm": 0.003, "thermal_delta_K": 2.0,
                "friction_coulomb_mm": 0.004, "friction_stribeck_mm": 0.002}
@@ -146,7 +194,9 @@ def main(argv=None):
     ap.add_argument("--rates", default="1000,2000,3000,4000,5000")
     ap.add_argument("--rt-rate", type=float, default=2000.0, help="rate of the §3 run (default 2000 Hz)")
     ap.add_argument("--nc-ticks", type=int, default=20000, help="ticks of §1 (default 20000)")
+    ap.add_argument("--follower-ticks", type=int, default=20000, help="ticks of §1b (default 20000)")
     ap.add_argument("--no-flex", action="store_true")
+    ap.add_argument("--sections", default="1,1b,2,3,4", help="which sections to run (default all: 1,1b,2,3,4)")
     ap.add_argument("--spin-us", type=float, default=0.0,
                     help="busy-wait this long before each deadline (loop.spin_us; keeps a VM's vCPU awake)")
     a = ap.parse_args(argv)
@@ -155,7 +205,27 @@ def main(argv=None):
     print(f"host: {os.cpu_count()} CPUs, {load()}, python {sys.version.split()[0]}, uid {os.getuid()}")
 
     rate = a.rt_rate
-    tc, tp, cc, cp, same, params = bench_nc(m, rate, a.nc_ticks)
+    sections = {x.strip() for x in a.sections.split(",")}
+    if "1" in sections:
+        bench_nc_section(m, rate, a.nc_ticks)
+    if "1b" in sections:
+        (tc, cc, _, sc), (tp, cp, _, sp), same = bench_follower(m, rate, a.follower_ticks)
+        print(f"1b. path follower alone at {rate:g} Hz ({len(tc)} ticks with a hold, its resume and feed overrides; "
+              f"same targets in {same} of {len(tc)}, path {sc:.1f} / {sp:.1f} samples; {load()}):")
+        print(f"   compiled: median {np.median(tc):6.2f} us, p99 {pct(tc, 99):6.2f} us, CPU {cc:6.2f} us per tick")
+        print(f"   python:   median {np.median(tp):6.2f} us, p99 {pct(tp, 99):6.2f} us, CPU {cp:6.2f} us per tick")
+        print(f"   ratio python/compiled: median {np.median(tp) / np.median(tc):.0f}x, p99 {pct(tp, 99) / pct(tc, 99):.0f}x, "
+              f"CPU per tick {cp / cc:.0f}x")
+    if "2" in sections:
+        whole_tick_section(m, rate, flex)
+    if "3" in sections:
+        realtime_section(m, rate, flex, a)
+    if "4" in sections:
+        rates_section(m, flex, a)
+
+
+def bench_nc_section(m, rate, n):
+    tc, tp, cc, cp, same, params = bench_nc(m, rate, n)
     print(f"1. NC step alone at {rate:g} Hz, K_theta {params.k_theta[0]:g}/s, {'multi' if params.max_pulses_per_tick > 1 else 'single'}"
           f"-pulse ({len(tc)} ticks, same pulses in {same} of {len(tc)}; {load()}):")
     print(f"   compiled: median {np.median(tc):6.2f} us, p99 {pct(tc, 99):6.2f} us, CPU {cc:6.2f} us per tick")
@@ -163,6 +233,8 @@ def main(argv=None):
     print(f"   ratio python/compiled: median {np.median(tp) / np.median(tc):.0f}x, p99 {pct(tp, 99) / pct(tc, 99):.0f}x, "
           f"CPU per tick {cp / cc:.0f}x (CPU per tick includes the harness: encoder copy, timer)")
 
+
+def whole_tick_section(m, rate, flex):
     for impl in ("compiled", "python"):
         res, _, cpu_frac, la = run_loop(m, rate, 10.0, realtime=False, flex=flex, impl=impl)
         s = res.timing.summary()
@@ -176,6 +248,8 @@ def main(argv=None):
           f"compute median {s['compute_median_us']:6.1f} us, p99 {s['compute_p99_us']:6.1f} us; "
           f"load average {la[0]:.2f} -> {la[1]:.2f}")
 
+
+def realtime_section(m, rate, flex, a):
     res, msgs, cpu_frac, la = run_loop(m, rate, a.duration, realtime=True, flex=flex, spin_us=a.spin_us)
     s = res.timing.summary()
     for msg in msgs:
@@ -189,6 +263,8 @@ def main(argv=None):
     print(f"   lateness median {s['late_median_us']:.1f} us, p99 {s['late_p99_us']:.1f} us, "
           f"max {s['late_max_us']:.1f} us; overruns {s['overruns']} (max {s['max_overruns_in_row']} in a row)")
 
+
+def rates_section(m, flex, a):
     best = None
     for r in (float(x) for x in a.rates.split(",")):
         res, _, cpu_frac, la = run_loop(m, r, a.duration, realtime=True, flex=flex, spin_us=a.spin_us)

@@ -347,6 +347,8 @@ def test_drives_fault_by_themselves_when_the_host_stops_and_reenable_through_fau
             time.sleep(0.02)
         assert all(d.state == C.FAULT for d in sims.drives)
         assert all(d.error_code == C.EMCY_HEARTBEAT for d in sims.drives)
+        while time.monotonic() < t_end and be.status().ok:     # the EMCY frames follow the state change
+            time.sleep(0.02)
         with pytest.raises(HalError) as e:
             be.read()
         assert "EMCY 0x8130" in str(e.value)

@@ -6,6 +6,7 @@ the job. All against the loopback sim with realtime=False."""
 import tracemalloc
 
 import numpy as np
+import pytest
 from hypothesis import given, settings, strategies as st
 
 from pmctl import hal
@@ -16,8 +17,8 @@ from pmctl.motion.nc import NCParams, counts_of, initial_state
 from pmctl.motion.recorder import REC_CAPACITY, REC_WIDTH, Recorder
 from pmctl.motion.ring import ArraySource, Ring
 from pmctl.motion.service_config import LoopConfig
-from pmctl.motion.timescale import (FLAG_END, HELD, S_FLAGS, WIDTH, PathFollower, TimeScaler, backward_pass,
-                                    iter_job_rows)
+from pmctl.motion.timescale import (FLAG_END, HELD, S_FLAGS, WIDTH, TimeScaler, backward_pass, iter_job_rows,
+                                    make_follower)
 from pmctl.task.gcode import parse_gcode
 from pmctl.task.job import home_pose
 from pmctl.task.planner import plan
@@ -146,13 +147,14 @@ def test_feed_override_changes_the_duration():
     assert ticks[1.5] < 0.75 * ticks[1.0] + 200
 
 
-def test_an_empty_queue_decelerates_along_the_path_and_continues_when_fed():
+@pytest.mark.parametrize("impl", ["compiled", "python"])
+def test_an_empty_queue_decelerates_along_the_path_and_continues_when_fed(impl):
     tr = planned()
     params = NCParams.from_machine(M, DT, kv=400.0)
     rows = np.concatenate(list(iter_job_rows(tr, M, params, chunk=500)))
     assert int(rows[-1, S_FLAGS]) & FLAG_END
     ring = Ring(4000, WIDTH)
-    fol = PathFollower(ring, params, DT)
+    fol = make_follower(ring, params, DT, implementation=impl)
     ring.push(rows[:900])
     poses, state, fed = [], [], 900
     for k in range(20000):

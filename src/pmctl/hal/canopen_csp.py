@@ -17,7 +17,9 @@ Start-up (``open``), all or nothing:
 
 Per CAN cycle (``cycle_ms``, a whole number of NC ticks): the host sends each drive's RPDO (the
 commanded joint position of the tick, converted to drive increments) and then the SYNC; the drives
-apply the targets and answer with their TPDOs. Between SYNCs the drive interpolates (0x60C2). At
+apply the targets and answer with their TPDOs (the frames packed once per cycle into prebuilt
+can.Messages; on an slcan link written in one write by the cycle writer thread, out of the tick).
+Between SYNCs the drive interpolates (0x60C2). At
 the tick where the next SYNC is due, ``read`` requires every drive's answer to the previous SYNC
 (waiting at most ``read_timeout_ms``). The bus load of this map is computed at config load and a
 config above 70 % is refused with the numbers.
@@ -57,6 +59,7 @@ RPDO_BYTES = 6          # target position (INTEGER32) + controlword (UNSIGNED16)
 TPDO_BYTES = 6          # position actual (INTEGER32) + statusword (UNSIGNED16)
 MAX_LATE_CYCLES = 32
 HISTORY = 64            # targets kept per SYNC (> MAX_LATE_CYCLES + 2)
+_RPDO = struct.Struct("<iH")   # RPDO1: target position, controlword
 INTERFACES = ("virtual", "slcan", "socketcan", "pcan", "kvaser", "ixxat", "vector", "serial")
 
 
@@ -209,6 +212,46 @@ class _Drive:
     @property
     def name(self):
         return f"node {self.id} ({self.axis})"
+
+
+class _CycleWriter:
+    """Writes the loop's cycles (encoded slcan lines) to the link from a thread of its own, so the
+    system call (on a loopback TCP link the kernel's whole TCP path runs in it) is not part of the
+    tick. One thread and one FIFO: cycles leave in the order the ticks made them. Its SCHED_FIFO
+    priority is below the loop's: it writes while the loop sleeps (or on the other core), never
+    in the loop's place. A failed write is reported through ``failed`` (the backend's fault, raised
+    at the next read)."""
+
+    def __init__(self, write, encode, lock, failed, priority: int):
+        import queue
+        self.encode = encode
+        self._q = queue.SimpleQueue()
+        self._write, self._lock, self._failed = write, lock, failed
+        self._t = threading.Thread(target=self._run, name="canopen cycle writer", daemon=True)
+        self._t.start()
+        C.boost_thread(self._t, priority)
+
+    def put(self, data: bytes) -> None:
+        self._q.put(data)
+
+    def _run(self):
+        ok = True
+        while True:
+            data = self._q.get()
+            if data is None:
+                return
+            if not ok:
+                continue                         # after a failure: the backend stops; drop the rest
+            try:
+                with self._lock:
+                    self._write(data)
+            except Exception as e:              # noqa: BLE001 -- CanError / OSError of the link
+                ok = False
+                self._failed(e)
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._q.put(None)
+        self._t.join(timeout)
 
 
 class CanopenCSP(Backend):
@@ -517,20 +560,76 @@ class CanopenCSP(Backend):
             self._send_cycle()                  # a second SYNC: the answer shows the new state
             self._wait_answers(max(0.5, 10 * self.cycle_s), "start-up")
 
+    _frames = None          # the cycle's can.Messages, built at the first cycle (_cycle_frames)
+    _batch = None           # the bus's send_batch, if it has one
+    _writer = None          # the _CycleWriter while the loop runs on a link that takes encoded lines
+
     def _send_cycle(self):
+        """The cycle's frames: each drive's RPDO1 (target, controlword), the SYNC, and the host's
+        heartbeat when due. Packed with struct into can.Message objects built once (not through
+        the canopen PDO variables: the same bytes). While the loop runs on an slcan link the
+        cycle is encoded here and written by the cycle writer's thread (one write, out of the
+        tick); otherwise handed to the bus in one call when it takes a batch, else one send each."""
         net = self.network
         self._sent[(self._syncs + 1) % HISTORY] = self._targets
-        for i, d in enumerate(self.drives):
-            rp = d.rpdo
-            if rp is not None:
-                struct.pack_into("<iH", rp.data, 0, int(self._targets[i]), self._cw)
-                rp.transmit()
-            else:
-                net.send_message(C.cob_rpdo1(d.id), struct.pack("<iH", int(self._targets[i]), self._cw))
-        net.sync.transmit()
+        fr = self._frames
+        if fr is None or len(fr) != len(self.drives) + 2:
+            fr = self._frames = self._cycle_frames()
+        cw = self._cw
+        for m, t in zip(fr, self._targets.tolist()):
+            _RPDO.pack_into(m.data, 0, t, cw)
+        now = time.monotonic()
+        n = len(fr) - 1                                     # RPDOs + SYNC
+        if now - self._t_host_hb >= self.opt.host_heartbeat_ms / 1e3:
+            self._t_host_hb = now
+            n += 1                                          # + the host heartbeat
+        w = self._writer
+        if w is not None:
+            w.put(w.encode(fr[:n]))
+        else:
+            bus = net.bus
+            with net.send_lock:
+                if self._batch is not None:
+                    self._batch(fr[:n])
+                else:
+                    for i in range(n):
+                        bus.send(fr[i])
+        net.check()                                         # the receive thread still alive
         self._syncs += 1
         self.frames_sent += len(self.drives) + 1
-        self._host_heartbeat()
+
+    def _cycle_frames(self) -> list:
+        """The frames of a cycle, built once: RPDO1 of each drive (6 bytes), SYNC (no data), the
+        host heartbeat (operational); and the bus's batch send, if it has one."""
+        import can
+        self._batch = getattr(self.network.bus, "send_batch", None)
+        fr = [can.Message(arbitration_id=C.cob_rpdo1(d.id), is_extended_id=False, data=bytearray(RPDO_BYTES))
+              for d in self.drives]
+        fr.append(can.Message(arbitration_id=C.COB_SYNC, is_extended_id=False, data=b""))
+        fr.append(can.Message(arbitration_id=C.cob_heartbeat(self.opt.host_node_id), is_extended_id=False,
+                              data=bytes([5])))
+        return fr
+
+    def _start_writer(self):
+        """The cycle writer, when the bus takes encoded lines (an slcan link)."""
+        bus = self.network.bus
+        if self._writer is None and hasattr(bus, "send_lines"):
+            from pmctl.hal.slcan_link import encode_batch
+            o = self.opt
+
+            def failed(e):
+                with self._cond:
+                    if not self._fault:
+                        self._fault = f"canopen: sending the cycle failed on {o.interface}:{o.channel}: {e}"
+                    self._cond.notify_all()
+            self._writer = _CycleWriter(bus.send_lines, encode_batch, self.network.send_lock, failed,
+                                        max(0, o.bus_thread_priority - 2))
+
+    def _stop_writer(self):
+        """Every queued cycle written, the thread ended: what is sent next goes out after them."""
+        w, self._writer = self._writer, None
+        if w is not None:
+            w.stop()
 
     def _host_heartbeat(self, force=False):
         now = time.monotonic()
@@ -598,7 +697,13 @@ class CanopenCSP(Backend):
             raise HalError(self._fault)
         lim = self.opt.heartbeat_timeout_ms / 1e3
         now = time.monotonic()
-        if any(d.t_hb is not None and now - d.t_hb > lim for d in self.drives):
+        for d in self.drives:                       # (a plain loop: this runs every tick)
+            t = d.t_hb
+            if t is not None and now - t > lim:
+                break
+        else:
+            d = None
+        if d is not None:
             # a heartbeat seems overdue: first let the receive thread work off what it has (after a
             # pause of this process the frames are there, unread), at most read_timeout_ms
             t_end = now + self.opt.read_timeout_ms / 1e3
@@ -644,6 +749,7 @@ class CanopenCSP(Backend):
         """0x603F of a faulted drive (a short SDO read; this is the way out of the run)."""
         if d.emcy is not None:
             return f", EMCY 0x{d.emcy:04X} ({C.emcy_text(d.emcy)})"
+        self._stop_writer()                      # the SDO request after the cycles already queued
         old = d.node.sdo.RESPONSE_TIMEOUT
         try:
             d.node.sdo.RESPONSE_TIMEOUT = 0.02
@@ -666,6 +772,7 @@ class CanopenCSP(Backend):
         if self._hb_task is not None:            # the ticks carry the host heartbeat from now on
             self._hb_task.stop()
             self._hb_task = None
+            self._start_writer()
         q = np.asarray(q_mm, float)
         self._last_q = q
         if self._writes % self.cycle_ticks == 0:
@@ -680,6 +787,7 @@ class CanopenCSP(Backend):
 
     def _stop_all(self):
         """Quick stop of every drive (they hold their last target): RPDOs + SYNC, best effort."""
+        self._stop_writer()
         if not self._enabled or self.network is None:
             return
         self._enabled = False
@@ -726,6 +834,7 @@ class CanopenCSP(Backend):
             self.devsim.stop()
 
     def close(self) -> None:
+        self._stop_writer()
         if self.network is not None:
             if self._enabled:
                 # the last commanded position to the drives (a tick between SYNCs is not sent yet),

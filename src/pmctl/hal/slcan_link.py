@@ -13,6 +13,7 @@ pmctl.hal.devsim.
 
 from __future__ import annotations
 
+import binascii
 import errno
 import os
 import queue
@@ -31,12 +32,15 @@ BITRATE_CODES = {10_000: "S0", 20_000: "S1", 50_000: "S2", 100_000: "S3", 125_00
 
 def encode(msg: can.Message) -> bytes:
     """One frame as an slcan line (with its CR)."""
-    n = msg.dlc
+    n, cid = msg.dlc, msg.arbitration_id
     if msg.is_remote_frame:
-        head = f"R{msg.arbitration_id:08X}{n:d}" if msg.is_extended_id else f"r{msg.arbitration_id:03X}{n:d}"
-        return head.encode() + CR
-    head = f"T{msg.arbitration_id:08X}{n:d}" if msg.is_extended_id else f"t{msg.arbitration_id:03X}{n:d}"
-    return head.encode() + bytes(msg.data).hex().upper().encode() + CR
+        return (b"R%08X%d\r" if msg.is_extended_id else b"r%03X%d\r") % (cid, n)
+    return (b"T%08X%d%s\r" if msg.is_extended_id else b"t%03X%d%s\r") % (cid, n, binascii.hexlify(msg.data).upper())
+
+
+def encode_batch(msgs) -> bytes:
+    """Several frames as their slcan lines, in order."""
+    return b"".join([encode(m) for m in msgs])
 
 
 def decode(line: bytes) -> can.Message | None:
@@ -147,7 +151,18 @@ class SlcanLinkBus(can.BusABC):
         return self._queue.get_nowait(), False
 
     def send(self, msg: can.Message, timeout=None) -> None:
-        data = encode(msg)
+        self._write(encode(msg), timeout)
+
+    def send_batch(self, msgs, timeout=None) -> None:
+        """Several frames in one write (one system call instead of one per frame): the same lines
+        on the link, in the same order, as ``send`` of each in turn."""
+        self.send_lines(encode_batch(msgs), timeout)
+
+    def send_lines(self, data: bytes, timeout=None) -> None:
+        """Frames already encoded (``encode``, ``encode_batch``), written whole."""
+        self._write(data, timeout)
+
+    def _write(self, data: bytes, timeout) -> None:
         t_end = None
         while data:
             try:

@@ -302,7 +302,7 @@ class ControlLoop:
                  setup_rt: bool | None = None, probe=None):
         from pmctl.motion.recorder import REC_CAPACITY, REC_WIDTH, Recorder
         from pmctl.motion.ring import ArraySource, Ring
-        from pmctl.motion.timescale import PathFollower
+        from pmctl.motion.timescale import make_follower
         self.machine, self.backend, self.params = machine, backend, params
         self.targets, self.cfg, self.state0 = targets, cfg, state
         self.log = log or (lambda msg: print(f"pmctl: {msg}", file=sys.stderr))
@@ -312,7 +312,7 @@ class ControlLoop:
         if follower is None:
             if targets is None:
                 raise PmctlError("ControlLoop needs targets or a follower")
-            follower = PathFollower(ArraySource(target_samples(targets, cfg.dt, params)), params, cfg.dt)
+            follower = make_follower(ArraySource(target_samples(targets, cfg.dt, params)), params, cfg.dt)
             follower.scaler.sigma = 1.0       # a one-shot job is replayed as planned from its first sample
         self.follower = follower
         self.records = records if records is not None else Ring(REC_CAPACITY, REC_WIDTH)

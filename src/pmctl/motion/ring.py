@@ -124,20 +124,21 @@ class Ring:
 
 class ArraySource:
     """The sample-source interface of a Ring over a whole array (a one-shot run's planned job):
-    ``count() row(i) advance(n)``. Rows are not copied."""
+    ``count() row(i) advance(n)``. Rows are not copied. Its counters are a Ring's (``_ctr``: rows,
+    rows consumed), so the compiled path follower reads it as it reads a Ring."""
 
     def __init__(self, rows: np.ndarray):
         self.data = rows
-        self._tail = 0
+        self._ctr = np.array([len(rows), 0], np.int64)
 
     def count(self) -> int:
-        return len(self.data) - self._tail
+        return int(self._ctr[0] - self._ctr[1])
 
     def row(self, i: int) -> np.ndarray:
-        return self.data[self._tail + i]
+        return self.data[int(self._ctr[1]) + i]
 
     def advance(self, n: int) -> None:
-        self._tail = min(len(self.data), self._tail + int(n))
+        self._ctr[1] = min(len(self.data), int(self._ctr[1]) + int(n))
 
     def clear(self) -> None:
-        self._tail = len(self.data)
+        self._ctr[1] = len(self.data)

@@ -238,7 +238,7 @@ def rt_main(spec: dict) -> int:
     from pmctl.motion.recorder import Recorder
     from pmctl.motion.service_config import load_service_config
     from pmctl.motion.state_store import CounterWriter, save_counters
-    from pmctl.motion.timescale import PathFollower
+    from pmctl.motion.timescale import make_follower
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)          # the supervisor handles Ctrl-C
     log = lambda m: print(f"pmctl rt: {m}", file=sys.stderr, flush=True)  # noqa: E731
@@ -263,7 +263,7 @@ def rt_main(spec: dict) -> int:
     be = hal.create(spec["backend"], machine, dt, svc.backend_options if spec["backend"] == svc.backend else {})
     be.open(counts)
     st = initial_state(machine, counts)
-    fol = PathFollower(ch.samples, params, dt, pose=st.tip.tolist() + st.axis.tolist())
+    fol = make_follower(ch.samples, params, dt, pose=st.tip.tolist() + st.axis.tolist())
     state_file = spec.get("state_file") or ""
     writer = CounterWriter(state_file, machine=machine.name) if state_file else None
 

@@ -20,6 +20,11 @@ What moves sigma (each tick, :class:`TimeScaler`):
   limit at the current sample.
 Every target is a point of the planned path: a hold stops ON the path, never by dropping targets.
 
+The per-tick part exists twice: :class:`PathFollower` (with :class:`TimeScaler`) is the readable
+reference, :class:`CompiledFollower` the same arithmetic in C99 (``follow/follow.c``, built at
+install as pmctl.motion._follow), equal to it tick for tick (tests/test_follow.py).
+:func:`make_follower` picks one by ``nc.implementation`` ("compiled", the default, or "python").
+
 Sample rows (``WIDTH`` floats): tip (3), axis (3), tip_tau (3), axis_tau (3), q_tau (5),
 q_tautau (5), cap, line, flags (``FLAG_RAPID``, ``FLAG_END`` = last sample of a job, at rest,
 ``FLAG_PROBE`` = a sample of a probing move, pmctl.motion.probe.mark_probe_rows).
@@ -445,3 +450,128 @@ class PathFollower:
         self._rest = nxt
         self._tg[:] = pose + ff
         return self._tg
+
+
+# ---------------------------------------------------------------- the compiled follower
+
+try:
+    from pmctl.motion import _follow
+except ImportError as _e:         # pragma: no cover - a broken install; CompiledFollower() says so
+    _follow, _FOLLOW_ERROR = None, _e
+
+_REASONS = ("", "sample queue ran dry", "waiting for planned samples (queue starved)")   # follow.h FL_R_*
+
+
+def _slot(name: str, kind=float, writable: bool = True):
+    """A property over the compiled follower's state buffer item ``name`` (follow.h FL_*), read and
+    written through ``self._v`` (a memoryview of the buffer)."""
+    i = getattr(_follow, name, -1)
+
+    def get(self):
+        return kind(self._v[i])
+
+    def put(self, value):
+        self._v[i] = float(kind(value))
+    return property(get, put if writable else None)
+
+
+class CompiledScaler(TimeScaler):
+    """The TimeScaler of a :class:`CompiledFollower`: the same attributes and methods, its numbers
+    kept in the follower's state buffer, where the compiled tick reads and writes them."""
+
+    sigma = _slot("FL_SIGMA")
+    dsigma = _slot("FL_DSIGMA")
+    feed_override = _slot("FL_FEED_OV")
+    rapid_override = _slot("FL_RAPID_OV")
+    hold = _slot("FL_HOLD", bool)
+    accel = _slot("FL_ACCEL")
+    jerk = _slot("FL_JERK")
+
+    def __init__(self, view, core, params, dt: float, accel: float | None = None, jerk: float | None = None):
+        self._v, self._core = view, core
+        super().__init__(params, dt, accel, jerk)
+
+    def step(self, goal: float, qt, qtt) -> float:
+        return self._core.sigma_step(float(goal), qt, qtt)
+
+
+class CompiledFollower:
+    """:class:`PathFollower` with its tick in C (pmctl.motion._follow: follow.c), the same
+    attributes, methods and results, tick for tick (tests/test_follow.py). ``next_target`` is the
+    compiled call itself. The source is a Ring or an ArraySource: the C side reads their counters
+    (``_ctr``) and rows (``data``) directly. Rows may be wider than WIDTH; the columns are this
+    module's S_*."""
+
+    implementation = "compiled"
+
+    def __init__(self, source, params, dt: float, dt_plan: float | None = None, *, pose=None):
+        if _follow is None:
+            raise ImportError(
+                "pmctl's compiled path follower (pmctl.motion._follow) is not built; reinstall with a C "
+                "compiler (pip install -e .), or select the Python implementation with nc.implementation = "
+                f"\"python\" in the service config ({_FOLLOW_ERROR})")
+        F = _follow
+        self.src = source
+        self.dt = float(dt)
+        self.k = self.dt / float(dt_plan or dt)
+        data = source.data
+        if data.ndim != 2 or data.dtype != np.float64 or not data.flags.c_contiguous:
+            raise ValueError("CompiledFollower: the source's rows must be a C-contiguous (n, width) float64 array")
+        self._st = np.zeros(F.FL_LEN)
+        self._v = memoryview(self._st)
+        self._tg = np.zeros(12)
+        c = np.zeros(F.FLC_LEN)
+        c[F.FLC_DT], c[F.FLC_K] = self.dt, self.k
+        c[F.FLC_AMAX:F.FLC_AMAX + 5] = [float(x) * JOINT_SHARE for x in params.amax]     # = TimeScaler.amax
+        c[[F.FLC_COL_CAP, F.FLC_COL_LINE, F.FLC_COL_FLAGS, F.FLC_COL_QT, F.FLC_COL_QTT]] = (
+            S_CAP, S_LINE, S_FLAGS, S_QT, S_QTT)
+        c[F.FLC_FLAG_RAPID], c[F.FLC_FLAG_END] = FLAG_RAPID, FLAG_END
+        self._core = F.Follower(c, self._st, source._ctr, data, data.shape[1], self._tg)
+        self.scaler = CompiledScaler(self._v, self._core, params, dt)
+        self.next_target = self._core.next          # the tick: one C call, returns self._tg
+        self._rest = pose
+
+    sigma = _slot("FL_SIGMA", writable=False)
+    frac = _slot("FL_FRAC", writable=False)
+    line = _slot("FL_LINE", int, writable=False)
+    state = _slot("FL_STATE", int, writable=False)
+    s_total = _slot("FL_S_TOTAL", writable=False)
+    ended_jobs = _slot("FL_ENDED", int)
+    at_end = _slot("FL_AT_END", bool)
+
+    @property
+    def reason(self) -> str:
+        return _REASONS[int(self._v[_follow.FL_REASON])]
+
+    @property
+    def _rest(self):
+        """The pose when nothing is queued (tip + axis), or None."""
+        F = _follow
+        return self._st[F.FL_REST:F.FL_REST + 6].tolist() if self._v[F.FL_HAS_REST] else None
+
+    @_rest.setter
+    def _rest(self, pose):
+        F = _follow
+        if pose is not None:
+            self._st[F.FL_REST:F.FL_REST + 6] = [float(x) for x in pose]
+        self._v[F.FL_HAS_REST] = float(pose is not None)
+
+    def clear(self):
+        """Drop every queued sample (soft reset), keeping the current pose as the rest pose."""
+        self._core.clear()
+
+
+IMPLEMENTATIONS = ("compiled", "python")
+
+
+def make_follower(source, params, dt: float, dt_plan: float | None = None, *, pose=None,
+                  implementation: str | None = None):
+    """The loop's path follower: ``implementation`` (default ``params.implementation``, the service
+    config's ``nc.implementation``, which selects the NC core too) "compiled" ->
+    :class:`CompiledFollower`, "python" -> :class:`PathFollower` (the reference)."""
+    impl = implementation or getattr(params, "implementation", "compiled")
+    if impl == "compiled":
+        return CompiledFollower(source, params, dt, dt_plan, pose=pose)
+    if impl == "python":
+        return PathFollower(source, params, dt, dt_plan, pose=pose)
+    raise ValueError(f"path follower implementation must be one of {', '.join(IMPLEMENTATIONS)}, got {impl!r}")
