@@ -9,8 +9,10 @@ device simulator process, the home switch in 0x60FD of each TPDO).
 - `pmctl serve` + `$H` on each backend: the counter then equals the switch-edge reference (bridge:
   exactly; drives: within the latch speed x one CAN cycle + 1 pulse), pulses counted = pulses sent,
   the machine at rest off the switch at the pull-off; `$H` refused while a move runs;
-- the drives' reference offset survives a restart in the state file: homing again corrects ~0;
-- a switch out of reach: a controlled stop and ALARM 9 naming the axis, on both backends.
+- the drives' reference offset survives a restart in the state file: homing again corrects less than
+  the latch bound;
+- a switch out of reach: a controlled stop and ALARM 9 naming the axis, on both backends;
+- the switch options and the state file's offsets are checked (file, key).
 """
 
 import json
@@ -43,16 +45,19 @@ def service_file(tmp_path, backend, switch=SW, order=("L1", "X"), homing=FAST):
     from pathlib import Path
     text = (Path(__file__).resolve().parents[1] / "config" / "service.toml").read_text()
     sw = [float(x) for x in switch]
-    if backend == "stepdir":
-        assert "[hal.stepdir]\n" in text
-        text = text.replace("[hal.stepdir]\n", f"[hal.stepdir]\nhome_switch_mm = {sw}\n")
-    else:
-        assert "[hal.canopen]" in text
-        text = text.replace("[hal.canopen]", f"[hal.canopen]\nsim_home_switch_mm = {sw}\n#", 1)
-    homing = {"order": list(order), **homing}
-    for k, v in homing.items():
-        line = next(ln for ln in text.splitlines() if ln.startswith(f"{k} ="))
-        text = text.replace(line, f"{k} = {json.dumps(v)}")
+    assert 'backend = "sim"' in text
+    text = text.replace('backend = "sim"', f'backend = "{backend}"', 1)
+    # generous link timeouts: these tests check positions, not timing, on a shared loaded machine
+    keys = ({"home_switch_mm": sw, "watchdog_ms": 1000, "read_timeout_ms": 200, "link_timeout_ms": 500}
+            if backend == "stepdir" else {"sim_home_switch_mm": sw, "heartbeat_timeout_ms": 1000,
+                                          "host_timeout_ms": 3000})
+    for section, table in ((f"[hal.{backend}]", keys), ("[homing]", {"order": list(order), **homing})):
+        head, _, body = text.partition(section)
+        assert body, section
+        for k, v in table.items():                       # the key's first line in that section
+            line = next(ln for ln in body.splitlines() if ln.startswith(f"{k} ="))
+            body = body.replace(line, f"{k} = {json.dumps(v)}", 1)
+        text = head + section + body
     p = tmp_path / f"service-{backend}.toml"
     p.write_text(text)
     return p
@@ -60,8 +65,8 @@ def service_file(tmp_path, backend, switch=SW, order=("L1", "X"), homing=FAST):
 
 # ---------------------------------------------------------------- the bridge's latch
 
-@pytest.fixture(scope="module")
-def bridge_backend():
+@pytest.fixture
+def bridge_backend():          # one bridge for all the examples of the test (hypothesis runs it once)
     from pmctl.hal.stepdir import StepDirBackend
     be = StepDirBackend(M, 1e-3, {"home_switch_mm": [float(x) for x in SW], "bridge_rt_priority": 0,
                                   "read_timeout_ms": 200.0, "link_timeout_ms": 500.0, "watchdog_ms": 5000.0})
@@ -128,80 +133,79 @@ def _serve(tmp_path, backend, svc, state=None):
     return p, Sender(link), sock
 
 
-def _home_and_check(s, sock, order, bound):
-    """$H; returns (counts, sent) and checks the counter of each homed axis against the switch edge
-    (counts = motor + reference - edge, within ``bound`` pulses below), the others untouched."""
+def _home(s, sock):
+    """$H; returns the counters, the pulses sent since the rt side started, and its start counters."""
     before = request(sock, {"cmd": "status"})
     assert s.send("$H", timeout=300) == "ok"
     assert s.wait_state(("Idle",), 60)["state"] == "Idle"
     ans = request(sock, {"cmd": "status"})
     assert ans["homed"] and not ans["alarm"]
-    counts, sent = np.array(ans["counts"]), np.array(ans["sent"])
-    start = np.array(before["counts"]) - np.array(before["sent"])
-    return counts, sent, start
+    return np.array(ans["counts"]), np.array(ans["sent"]), np.array(before["counts"]) - np.array(before["sent"])
 
 
-@pytest.mark.parametrize("backend", ["stepdir", "canopen"])
-def test_serve_home_on_a_real_backend_references_the_counters_to_the_switch_edges(tmp_path, backend):
-    order = ("L1", "X") if backend == "stepdir" else ("L1",)
-    svc = service_file(tmp_path, backend, order=order)
-    p, s, sock = _serve(tmp_path, backend, svc)
+def _check_homed(backend, s, order, counts, sent, start):
+    """The counter of each homed axis = motor + reference - switch edge (bridge: exactly; drives: up
+    to the latch bound below), the others untouched; at rest off the switch at the pull-off; $H refused
+    while a move runs."""
+    motor = start + sent              # the motors' frame is the counters' at start (no pulse lost)
+    homed = [("L1", "L2", "L3", "X", "Y").index(a) for a in order]
+    want = motor + np.where(np.isin(np.arange(5), homed), np.rint(REF * PPM).astype(np.int64) - SW_PULSES, 0)
+    err = counts - want                                         # switch edge (truth) - latched, pulses
+    bound = np.zeros(5) if backend == "stepdir" else np.floor(FAST["latch_mm_s"] * CYCLE_S * PPM) + 1
+    print(f"{backend}: counter - switch-edge reference after $H: {err.tolist()} pulses (bound {bound.tolist()})")
+    assert np.all(err <= 0) and np.all(-err <= bound), err
+    q = counts / PPM
+    print(f"{backend}: at rest {[round(REF[i] - q[i], 4) for i in homed]} mm below the switch edges")
+    for i in homed:       # at rest off the switch: the pull-off past its opening edge (+ the stop from seek speed)
+        assert REF[i] - FAST["pull_off_mm"] - 2.5 < q[i] <= REF[i] - FAST["pull_off_mm"] + 1e-3, q[i]
+    assert s.status()["state"] == "Idle"
+    assert s.send("G21 G91 G1 F120 X-3") == "ok"               # $H is refused while a move runs
+    s.wait_state(("Run",), 60)
+    assert s.send("$H") == "error:8"
+    s.wait_state(("Idle",), 120)
+
+
+def test_serve_home_on_the_bridge_references_the_counters_to_the_switch_edges_exactly(tmp_path):
+    svc = service_file(tmp_path, "stepdir", order=("L1", "X"))
+    p, s, sock = _serve(tmp_path, "stepdir", svc)
     try:
-        counts, sent, start = _home_and_check(s, sock, order, None)
-        assert np.array_equal(start, C0)
-        motor = C0 + sent                                        # the motors never lost a pulse here
-        homed = [("L1", "L2", "L3", "X", "Y").index(a) for a in order]
-        want = motor + np.where(np.isin(np.arange(5), homed), np.rint(REF * PPM).astype(np.int64) - SW_PULSES, 0)
-        err = counts - want                                     # switch edge (truth) - latched, pulses
-        bound = np.zeros(5) if backend == "stepdir" else np.floor(FAST["latch_mm_s"] * CYCLE_S * PPM) + 1
-        print(f"{backend}: counter - switch-edge reference after $H: {err.tolist()} pulses (bound {bound.tolist()})")
-        assert np.all(err <= 0) and np.all(-err <= bound), err
-        q = counts / PPM
-        for i in homed:                                          # at rest off the switch, at the pull-off
-            assert REF[i] - FAST["pull_off_mm"] - 1.0 < q[i] <= REF[i] - FAST["pull_off_mm"] + 1e-3, q[i]
-        st_ = s.status()
-        assert st_["state"] == "Idle"
-        # $H is refused while a move runs
-        assert s.send("G21 G91 G1 F120 X-3") == "ok"
-        s.wait_state(("Run",), 60)
-        assert s.send("$H") == "error:8"
-        s.wait_state(("Idle",), 120)
+        _check_homed("stepdir", s, ("L1", "X"), *_home(s, sock))
     finally:
         s.close()
         assert stop_serve(p) == 0
-    err = (tmp_path / "serve.err").read_text()
-    assert "pulses sent = counter change: yes; device counters = counters: yes" in err
+    assert "pulses sent = counter change: yes; device counters = counters: yes" in (tmp_path / "serve.err").read_text()
 
 
-def test_canopen_reference_offset_survives_a_restart_in_the_state_file(tmp_path):
+def test_serve_home_on_drives_then_the_reference_offset_survives_a_restart(tmp_path):
     svc = service_file(tmp_path, "canopen", order=("L1",))
     state = tmp_path / "state.json"
     save_counters(state, C0, machine=M.name, clean=True)
     bound = np.floor(FAST["latch_mm_s"] * CYCLE_S * PPM[0]) + 1
     p, s, sock = _serve(tmp_path, "canopen", svc, state)
     try:
-        counts, sent, start = _home_and_check(s, sock, ("L1",), bound)
+        counts, sent, start = _home(s, sock)
         shift1 = int(counts[0] - (start[0] + sent[0]))
+        _check_homed("canopen", s, ("L1",), counts, sent, start)
     finally:
         s.close()
         assert stop_serve(p) == 0
+    assert "pulses sent = counter change: yes" in (tmp_path / "serve.err").read_text()
     saved = load_counters(state, machine=M.name)
-    assert saved.clean and saved.offsets is not None and saved.offsets[0] == shift1
-    assert np.array_equal(saved.counts, counts) and not saved.offsets[1:].any()
+    assert saved.clean and saved.offsets is not None and saved.offsets[0] == shift1 and not saved.offsets[1:].any()
     # restart: the drives' positions (counters - offset) and the counters agree; the switch is where
     # the counters say the reference is, so homing again corrects by less than the latch bound
     p, s, sock = _serve(tmp_path, "canopen", svc, state)
     try:
         assert s.status()["state"] == "Idle"
-        counts2, sent2, start2 = _home_and_check(s, sock, ("L1",), bound)
-        assert np.array_equal(start2, counts)
+        counts2, sent2, start2 = _home(s, sock)
+        assert np.array_equal(start2, saved.counts)
         shift2 = int(counts2[0] - (start2[0] + sent2[0]))
     finally:
         s.close()
         assert stop_serve(p) == 0
     print(f"canopen L1: first $H corrected {shift1} pulses, after the restart {shift2} pulses (bound {bound:g})")
     assert abs(shift1) > 1000 and abs(shift2) <= bound
-    assert abs(load_counters(state, machine=M.name).offsets[0] - (shift1 + shift2)) == 0
+    assert load_counters(state, machine=M.name).offsets[0] == shift1 + shift2
 
 
 # ---------------------------------------------------------------- a missing switch
@@ -223,3 +227,33 @@ def test_switch_out_of_reach_stops_with_alarm_9_naming_the_axis(tmp_path, backen
         assert 3.0 <= moved < 4.0                                 # the whole search, then a stop
     finally:
         s.shutdown()
+
+
+# ---------------------------------------------------------------- config and state file
+
+@pytest.mark.parametrize("backend, key", [("stepdir", "home_switch_mm"), ("canopen", "sim_home_switch_mm")])
+@pytest.mark.parametrize("value", [[1.0, 2.0], [1, 2, 3, 4, True], "400", [1, 2, 3, 4, float("nan")]])
+def test_bad_switch_positions_are_refused_naming_the_key(backend, key, value):
+    from pmctl.core.errors import ConfigError
+    from pmctl.hal.canopen_csp import CanopenOptions
+    from pmctl.hal.stepdir import StepDirOptions
+    cls = StepDirOptions if backend == "stepdir" else CanopenOptions
+    with pytest.raises(ConfigError) as e:
+        cls.from_dict({key: value}, f"svc.toml: hal.{backend}")
+    assert key in str(e.value) and f"hal.{backend}" in str(e.value)
+
+
+def test_state_file_keeps_the_offsets_with_their_counters(tmp_path):
+    from pmctl.core.errors import InputError
+    p = tmp_path / "state.json"
+    save_counters(p, C0, machine=M.name, clean=True, offsets=[11500, 0, -3, 0, 7])
+    assert load_counters(p, machine=M.name).offsets.tolist() == [11500, 0, -3, 0, 7]
+    save_counters(p, C0 + 1, machine=M.name, clean=False)          # a writer that does not know them
+    s = load_counters(p, machine=M.name)
+    assert s.offsets.tolist() == [11500, 0, -3, 0, 7] and np.array_equal(s.counts, C0 + 1)
+    d = json.loads(p.read_text())
+    d["device_offsets"] = [1, 2, 3]
+    p.write_text(json.dumps(d))
+    with pytest.raises(InputError) as e:
+        load_counters(p, machine=M.name)
+    assert "device_offsets" in str(e.value) and str(p) in str(e.value)

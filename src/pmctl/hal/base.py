@@ -74,6 +74,15 @@ def as_inputs(x) -> Inputs:
     return Inputs(tuple(bool(bits >> i & 1) for i in range(5)), bool(bits >> 5 & 1))
 
 
+def switch_positions(value, where: str, key: str) -> tuple:
+    """A backend option giving simulated home switches: 5 joint positions in mm (L1 L2 L3 X Y), or
+    an empty list for none; ConfigError naming ``where`` and ``key`` otherwise."""
+    if not isinstance(value, (list, tuple)) or len(value) not in (0, 5) or any(
+            isinstance(x, bool) or not isinstance(x, (int, float)) or not abs(x) <= 1e4 for x in value):
+        raise ConfigError(where, key, f"must be 5 joint positions in mm (L1 L2 L3 X Y) or [] for none, got {value!r}")
+    return tuple(float(x) for x in value)
+
+
 @dataclass
 class Status:
     ok: bool = True

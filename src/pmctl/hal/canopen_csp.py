@@ -51,7 +51,7 @@ import numpy as np
 
 from pmctl.core.errors import ConfigError
 from pmctl.hal import cia402 as C
-from pmctl.hal.base import AXES, Backend, Feedback, HalError, HalTimeout, Inputs, Status
+from pmctl.hal.base import AXES, Backend, Feedback, HalError, HalTimeout, Inputs, Status, switch_positions
 
 RPDO_BYTES = 6          # target position (INTEGER32) + controlword (UNSIGNED16)
 TPDO_BYTES = 7          # position actual (INTEGER32) + statusword (UNSIGNED16) + digital inputs 0x60FD bits 0-7
@@ -155,12 +155,7 @@ class CanopenOptions:
             setattr(o, k, num(k, lo=0, integer=True))
             if getattr(o, k) > 99:
                 raise ConfigError(where, k, "must be 0 .. 99")
-        hs = o.sim_home_switch_mm
-        if not isinstance(hs, (list, tuple)) or len(hs) not in (0, 5) or any(
-                isinstance(x, bool) or not isinstance(x, (int, float)) or not abs(x) <= 1e4 for x in hs):
-            raise ConfigError(where, "sim_home_switch_mm", f"must be 5 joint positions in mm (L1 L2 L3 X Y) or [] "
-                                                           f"for none, got {hs!r}")
-        o.sim_home_switch_mm = tuple(float(x) for x in hs)
+        o.sim_home_switch_mm = switch_positions(o.sim_home_switch_mm, where, "sim_home_switch_mm")
         o.sim_listen_links = num("sim_listen_links", lo=0, integer=True)
         if o.sim_listen_links > 8:
             raise ConfigError(where, "sim_listen_links", "must be 0 .. 8")
@@ -737,8 +732,10 @@ class CanopenCSP(Backend):
         return self._off.copy()
 
     def set_reference_offset(self, off) -> None:
+        old = self._off_mm
         self._off = np.asarray(off, np.int64).copy()
         self._off_mm = self._off / self.machine.resolution.pulses_per_mm
+        self._fb.enc += self._off_mm - old          # the feedback in hand moves to the new frame at once
         self._in_ver += 1
 
     def _stop_all(self):

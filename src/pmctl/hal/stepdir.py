@@ -34,7 +34,7 @@ import numpy as np
 
 from pmctl.core.errors import ConfigError
 from pmctl.hal import bridge_protocol as bp
-from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Inputs, Status
+from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Inputs, Status, switch_positions
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[3] / "firmware_bridge"
 HOST_PTY = "host-pty"
@@ -104,12 +104,7 @@ class StepDirOptions:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
                 raise ConfigError(where, k, f"must be a number within {lo:g} .. {hi:g}, got {v!r}")
 
-        hs = o.home_switch_mm
-        if not isinstance(hs, (list, tuple)) or len(hs) not in (0, 5) or any(
-                isinstance(x, bool) or not isinstance(x, (int, float)) or not abs(x) <= 1e4 for x in hs):
-            raise ConfigError(where, "home_switch_mm", f"must be 5 joint positions in mm (L1 L2 L3 X Y) or [] "
-                                                       f"for none, got {hs!r}")
-        o.home_switch_mm = tuple(float(x) for x in hs)
+        o.home_switch_mm = switch_positions(o.home_switch_mm, where, "home_switch_mm")
         integer("baud", 1200, 100_000_000)
         integer("step_width_ns", 100, 1_000_000)
         integer("dir_setup_ns", 0, 1_000_000)
