@@ -1,7 +1,7 @@
 /* board_host.c - the host board layer: runs the portable core as a Linux process on a pty.
  *
  *   bridge-host [--link-file PATH] [--edge-log PATH] [--control PATH] [--orphan-exit-ms N]
- *               [--rt-priority N] [--quiet]
+ *               [--rt-priority N] [--home-at AXIS:PULSES]... [--quiet]
  *
  * - Opens a pseudo-terminal (posix_openpt) and prints "PTY <slave path>" on stdout (and writes
  *   the path to --link-file); the host opens the slave as its serial port. The bridge keeps a
@@ -15,6 +15,12 @@
  * - --control: a FIFO (created if missing) taking text lines that set the simulated inputs:
  *   "estop 0|1", "alarm AXIS 0|1", "home AXIS 0|1", "adc CH COUNTS", "quit".
  *   The strain ADC channels read what was last set there (0 by default): no strain model.
+ * - --home-at AXIS:PULSES (repeatable): a simulated home switch on AXIS (0-4 = L1 L2 L3 X Y) that
+ *   is closed while the motor is at or past PULSES. The motor position is the counters of the
+ *   first RESET (the controller's counters at start) plus every step emitted since: a later RESET
+ *   re-references the counters, it does not move the motor. The switch is evaluated at every step
+ *   edge and its transitions go to sb_home_edge() with the edge's time, so the latch is exact.
+ *   "home AXIS 0|1" on --control sets a switch by hand (latched at the time the line is read).
  * - --rt-priority N: asks for SCHED_FIFO priority N (a board has the CPU to itself; a process
  *   shares it), and runs at normal priority with a note on stderr when that is not permitted.
  * - Exits on SIGTERM/SIGINT, on "quit", or --orphan-exit-ms after its parent process died
@@ -47,6 +53,24 @@ static uint16_t g_inputs;
 static int16_t g_adc[SB_NADC];
 static unsigned long g_tx_dropped;
 static volatile sig_atomic_t g_stop;
+static struct sb_core core;
+/* simulated home switches (--home-at) */
+static uint8_t g_home_sim;             /* bit per axis: a simulated switch is configured */
+static int64_t g_home_at[SB_NAXES];
+static int64_t g_motor[SB_NAXES];      /* motor position, steps (known after the first RESET) */
+static int g_motor_known;
+static int8_t g_motor_dir[SB_NAXES] = {1, 1, 1, 1, 1};
+
+static void home_sim_update(uint8_t axis, uint64_t t, int latch)
+{
+    uint16_t bit = (uint16_t)SB_IN_HOME(axis);
+    int closed = g_motor[axis] >= g_home_at[axis];
+    if (!(g_home_sim & (1u << axis)) || closed == !!(g_inputs & bit))
+        return;
+    g_inputs = (uint16_t)(closed ? (g_inputs | bit) : (g_inputs & ~bit));
+    if (latch)
+        sb_home_edge(&core, axis, (uint8_t)closed, t);
+}
 
 static uint64_t now_ns(void)
 {
@@ -70,8 +94,22 @@ static void edge(uint64_t t, uint32_t tick, uint8_t axis, uint8_t kind)
     fwrite(r, 1, sizeof r, g_edges);
 }
 
-void board_step(uint8_t axis, uint8_t level, uint64_t t_ns, uint32_t tick) { edge(t_ns, tick, axis, level); }
-void board_dir(uint8_t axis, uint8_t dir, uint64_t t_ns, uint32_t tick) { edge(t_ns, tick, axis, (uint8_t)(dir ? 3 : 2)); }
+void board_step(uint8_t axis, uint8_t level, uint64_t t_ns, uint32_t tick)
+{
+    edge(t_ns, tick, axis, level);
+    if (level && g_motor_known && axis < SB_NAXES) {
+        g_motor[axis] += g_motor_dir[axis];
+        home_sim_update(axis, t_ns, 1);
+    }
+}
+
+void board_dir(uint8_t axis, uint8_t dir, uint64_t t_ns, uint32_t tick)
+{
+    edge(t_ns, tick, axis, (uint8_t)(dir ? 3 : 2));
+    if (axis < SB_NAXES)
+        g_motor_dir[axis] = (int8_t)(dir ? 1 : -1);
+}
+
 void board_tick_start(uint32_t tick, uint64_t t_ns) { edge(t_ns, tick, 255, 4); }
 uint16_t board_inputs(void) { return g_inputs; }
 void board_adc(int16_t out[3]) { memcpy(out, g_adc, sizeof g_adc); }
@@ -96,6 +134,15 @@ void board_tx(const uint8_t *buf, size_t n)
 
 void board_event(const char *what, const struct sb_core *c)
 {
+    int i;
+    if (!g_motor_known && !strcmp(what, "reset")) {
+        /* the first RESET places the simulated motors: the controller's counters at start */
+        g_motor_known = 1;
+        for (i = 0; i < SB_NAXES; i++) {
+            g_motor[i] = c->counters[i];
+            home_sim_update((uint8_t)i, c->now, 0);
+        }
+    }
     if (g_edges)
         fflush(g_edges);
     if (g_quiet)
@@ -146,6 +193,8 @@ static int control_line(char *s)
     } else if (!strcmp(cmd, "alarm") && sscanf(s, "%*s %d %d", &a, &v) == 2 && a >= 0 && a < SB_NAXES) {
         g_inputs = (uint16_t)(v ? (g_inputs | SB_IN_ALARM(a)) : (g_inputs & ~SB_IN_ALARM(a)));
     } else if (!strcmp(cmd, "home") && sscanf(s, "%*s %d %d", &a, &v) == 2 && a >= 0 && a < SB_NAXES) {
+        if (!!(g_inputs & SB_IN_HOME(a)) != !!v)
+            sb_home_edge(&core, (uint8_t)a, (uint8_t)!!v, core.now);
         g_inputs = (uint16_t)(v ? (g_inputs | SB_IN_HOME(a)) : (g_inputs & ~SB_IN_HOME(a)));
     } else if (!strcmp(cmd, "adc") && sscanf(s, "%*s %d %d", &a, &v) == 2 && a >= 0 && a < SB_NADC) {
         g_adc[a] = (int16_t)v;
@@ -158,7 +207,7 @@ static int control_line(char *s)
 static void usage(void)
 {
     fprintf(stderr, "usage: bridge-host [--link-file PATH] [--edge-log PATH] [--control FIFO] "
-                    "[--orphan-exit-ms N] [--rt-priority N] [--quiet]\n");
+                    "[--orphan-exit-ms N] [--rt-priority N] [--home-at AXIS:PULSES]... [--quiet]\n");
     exit(2);
 }
 
@@ -172,7 +221,6 @@ int main(int argc, char **argv)
     size_t cn = 0;
     pid_t ppid = getppid();
     uint64_t exit_at = UINT64_MAX;
-    static struct sb_core core;
     struct sigaction sa;
 
     for (i = 1; i < argc; i++) {
@@ -186,7 +234,18 @@ int main(int argc, char **argv)
             orphan_ms = strtol(argv[++i], NULL, 10);
         else if (!strcmp(argv[i], "--rt-priority") && i + 1 < argc)
             rt_prio = strtol(argv[++i], NULL, 10);
-        else if (!strcmp(argv[i], "--quiet"))
+        else if (!strcmp(argv[i], "--home-at") && i + 1 < argc) {
+            char *end;
+            long ax = strtol(argv[++i], &end, 10);
+            long long at;
+            if (*end != ':' || ax < 0 || ax >= SB_NAXES)
+                usage();
+            at = strtoll(end + 1, &end, 10);
+            if (*end)
+                usage();
+            g_home_sim = (uint8_t)(g_home_sim | (1u << ax));
+            g_home_at[ax] = at;
+        } else if (!strcmp(argv[i], "--quiet"))
             g_quiet = 1;
         else
             usage();

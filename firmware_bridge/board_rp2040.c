@@ -28,6 +28,10 @@
  * stops stepping at that time and drops what is queued); the PIO FIFOs must be drained (pio_sm_clear_fifos)
  * and the STEP pins forced low after a pulse's width in board_stop() - TODO: add a board_stop()
  * hook to board.h when the first port needs it (the host build has no FIFOs to drain).
+ * Home switches raise a GPIO IRQ too, timestamped at entry: sb_home_edge(&core, axis, level, t)
+ * latches the counter as it was at t, not counting the steps the core queued ahead of t in the
+ * current tick. LOOKAHEAD must stay inside one tick for that to be exact (an earlier tick's steps
+ * are not recomputed); the error is then the IRQ entry latency x the step rate.
  */
 #if 0   /* skeleton: not compiled */
 
@@ -103,6 +107,7 @@ static void on_input_irq(uint gpio, uint32_t events)
     (void)gpio;
     (void)events;
     sb_poll(&core, now_ns());              /* E-stop / alarm: stop at this time */
+    /* TODO: a home pin: sb_home_edge(&core, axis_of(gpio), gpio_get(gpio), t_entry) */
 }
 
 int main(void)

@@ -41,7 +41,7 @@ void sb_send_status(struct sb_core *c)
 
 static void status_why(struct sb_core *c, uint8_t why)
 {
-    uint8_t p[86];
+    uint8_t p[SB_STATUS_LEN];
     int16_t adc[SB_NADC];
     uint32_t bad = c->parser.bad_frames;
     int i;
@@ -68,6 +68,11 @@ static void status_why(struct sb_core *c, uint8_t why)
     sb_put_u32(p + 80, (uint32_t)(c->fault_time / 1000u));
     p[84] = why;
     p[85] = (uint8_t)(c->cfg.queue - c->q_n);
+    for (i = 0; i < SB_NAXES; i++) {
+        sb_put_u32(p + 86 + 4 * i, (uint32_t)c->home_latch[i]);
+        p[106 + i] = c->home_edges[i];
+    }
+    p[111] = c->home_level;
     send(c, SB_T_STATUS, p, sizeof p);
 }
 
@@ -135,8 +140,8 @@ static void advance(struct sb_core *c, uint64_t until)
             }
             if (rise > until)
                 break;
+            c->counters[i] += a->sign;      /* counted first: a latch taken in board_step includes it */
             board_step((uint8_t)i, 1, rise, c->cur_index);
-            c->counters[i] += a->sign;
             a->k++;
             a->fall = rise + c->cfg.step_width_ns;
             /* Bresenham: a_k = floor((2k+1) s / 2n) without a division per step */
@@ -151,6 +156,39 @@ static void advance(struct sb_core *c, uint64_t until)
 }
 
 static void fault(struct sb_core *c, uint16_t bits, uint64_t t);
+
+/* Rising edges of the current tick of axis `a` at or before time t: edge i is at
+ * t_first + floor((2i+1) s / 2n), so i counts while (2i+1) s < 2n (t - t_first + 1). */
+static uint32_t edges_until(const struct sb_axis *a, uint64_t t)
+{
+    uint64_t x, m;
+    if (a->n == 0 || t < a->t_first)
+        return 0;
+    x = 2u * (uint64_t)a->n * (t - a->t_first + 1u);
+    m = ((x - 1u) / a->s + 1u) / 2u;
+    return m > a->n ? a->n : (uint32_t)m;
+}
+
+void sb_home_edge(struct sb_core *c, uint8_t axis, uint8_t closed, uint64_t t_ns)
+{
+    const struct sb_axis *a;
+    int32_t n;
+    if (axis >= SB_NAXES)
+        return;
+    a = &c->ax[axis];
+    n = c->counters[axis];
+    if (c->cur_active) {
+        uint32_t at = t_ns < c->cur_start ? 0u : edges_until(a, t_ns);
+        if (at < a->k)
+            n -= a->sign * (int32_t)(a->k - at);     /* emitted, but after the transition */
+    }
+    c->home_latch[axis] = n;
+    c->home_edges[axis]++;
+    if (closed)
+        c->home_level = (uint8_t)(c->home_level | (1u << axis));
+    else
+        c->home_level = (uint8_t)(c->home_level & ~(1u << axis));
+}
 
 static void start_tick(struct sb_core *c, uint64_t t0)
 {
@@ -312,7 +350,10 @@ static uint8_t do_reset(struct sb_core *c, const struct sb_frame *f)
     c->q_n = 0;
     c->cur_active = 0;
     for (i = 0; i < SB_NAXES; i++) {
-        c->counters[i] = (int32_t)sb_get_u32(f->payload + 4 * i);
+        int32_t n = (int32_t)sb_get_u32(f->payload + 4 * i);
+        c->home_latch[i] = (int32_t)((uint32_t)c->home_latch[i] + (uint32_t)n - (uint32_t)c->counters[i]);
+        /* the latches move with the counters */
+        c->counters[i] = n;
         c->not_executed[i] = 0;
     }
     for (i = 0; i < SB_NAXES; i++) {     /* direction outputs to + : the host knows where they are */

@@ -87,6 +87,11 @@ struct sb_core {
     uint64_t last_tick_rx;        /* time of the last valid tick (or RESET) */
     uint64_t fault_time;
     uint32_t status_every;        /* a STATUS at every n-th tick start */
+    /* home-switch latch (sb_home_edge): per axis the counter at the last switch transition, the
+     * number of transitions (mod 256) and the level it went to (bit per axis) */
+    int32_t home_latch[SB_NAXES];
+    uint8_t home_edges[SB_NAXES];
+    uint8_t home_level;
     uint64_t next_idle_status;
 };
 
@@ -98,6 +103,12 @@ uint64_t sb_next_deadline(const struct sb_core *c);
 /* Largest pulse count per tick the step width allows (with or without a direction change). */
 uint32_t sb_max_pulses(const struct sb_config *cfg, int dir_change);
 void sb_send_status(struct sb_core *c);
+/* The home switch of `axis` went to `closed` at time t_ns (a board's input interrupt, with its
+ * timestamp): latches that axis's counter as it was at t_ns -- the rising edges the core emitted
+ * after t_ns in the current tick are not counted -- and reports it in every STATUS. Call it by the
+ * end of the tick the transition happened in (an earlier tick's edges are not recomputed). Safe to
+ * call from board_step() (it only writes the latch). */
+void sb_home_edge(struct sb_core *c, uint8_t axis, uint8_t closed, uint64_t t_ns);
 
 /* Board-independent event hook for logging (the host build prints; a board may leave it empty). */
 void board_event(const char *what, const struct sb_core *c);

@@ -20,9 +20,10 @@
 #define SB_FRAME_MAX 125   /* < SYNC: a SYNC byte is never a valid LEN, so "~~" resynchronises at once */
 #define SB_PAYLOAD_MAX (SB_FRAME_MAX - SB_FRAME_MIN)
 
-#define SB_PROTO_VERSION 1
+#define SB_PROTO_VERSION 2   /* 2: STATUS carries the home-switch latches (112 bytes) */
 #define SB_NAXES 5
 #define SB_NADC 3
+#define SB_STATUS_LEN 112
 
 /* host -> bridge */
 #define SB_T_IDENT 0x01      /* no payload; any SEQ; resets the expected SEQ to SEQ+1 */

@@ -103,18 +103,20 @@ def test_c_parser_agrees_with_python(harness, frames, garbage, flips):
 
 def test_status_and_ident_codecs_roundtrip():
     import struct
-    payload = struct.pack("<BBHHHIII5i5iI3hHIIIBB", 2, 3, 0x06, 0x0220, 7, 100, 99, 104,
-                          1, -2, 3, -4, 2**31 - 1, 0, 0, -5, 0, 0, 1, 10, -20, 30, 4, 123456, 123000, 0, 0, 1)
+    payload = struct.pack("<BBHHHIII5i5iI3hHIIIBB5i5BB", 2, 3, 0x06, 0x0220, 7, 100, 99, 104,
+                          1, -2, 3, -4, 2**31 - 1, 0, 0, -5, 0, 0, 1, 10, -20, 30, 4, 123456, 123000, 0, 0, 1,
+                          11, -12, 13, 14, -(2**31), 1, 0, 255, 2, 9, 0b01001)
     s = bp.decode_status(bp.Frame(9, bp.T_STATUS, payload))
     assert s.next_seq == 9 and s.state == bp.S_RUNNING and s.counters == (1, -2, 3, -4, 2**31 - 1)
+    assert s.latches() == ((1, True, 11), (0, False, -12), (255, False, 13), (2, True, 14), (9, False, -(2**31)))
     assert s.not_executed[2] == -5 and s.adc == (10, -20, 30) and s.room == 1
     assert "E-stop" in s.fault_text() and "drive alarm input (L2)" in s.fault_text()
     with pytest.raises(ValueError):
         bp.decode_status(bp.Frame(0, bp.T_STATUS, payload[:-1]))
     with pytest.raises(ValueError, match="PMSB"):
         bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, b"GRBL" + bytes(46)))
-    with pytest.raises(ValueError, match="protocol version 2"):
-        bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, b"PMSB" + struct.pack("<H", 2) + bytes(44)))
+    with pytest.raises(ValueError, match="protocol version 1"):       # version 1: no home latches in STATUS
+        bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, b"PMSB" + struct.pack("<H", 1) + bytes(44)))
 
 
 # ---------------------------------------------------------------- the live bridge under garbage

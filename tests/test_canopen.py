@@ -128,14 +128,16 @@ def test_bus_load_of_the_shipped_config_and_the_1ms_refusal():
     svc = load_service_config()
     o = CanopenOptions.from_dict(svc.backend_tables["canopen"])
     bl = o.bus_load()
-    # 5 drives: SYNC 47 + 5 x 95 + 5 x 95 = 997 bits, x1.2 = 1196 bits per 2 ms cycle at 1 Mbit/s
-    assert bl.bits_per_cycle == 997
-    assert abs(bl.load - (997 * 1.2 / 2e-3 + bl.heartbeat_bits_per_s) / 1e6) < 1e-12
-    assert 0.59 < bl.load < 0.62
+    # 5 drives: SYNC 47 + 5 x RPDO 95 (6 bytes) + 5 x TPDO 103 (7 bytes: position, statusword, the low
+    # byte of the digital inputs 0x60FD with the home switch) = 1037 bits, x1.2 = 1244 bits per 2 ms
+    # cycle at 1 Mbit/s
+    assert bl.bits_per_cycle == 1037
+    assert abs(bl.load - (1037 * 1.2 / 2e-3 + bl.heartbeat_bits_per_s) / 1e6) < 1e-12
+    assert 0.62 < bl.load < 0.65 < 0.70
     with pytest.raises(ConfigError) as e:
         CanopenOptions.from_dict({**svc.backend_tables["canopen"], "cycle_ms": 1.0})
     msg = str(e.value)
-    assert "cycle_ms" in msg and "997 bits" in msg and "70 %" in msg and "120." in msg
+    assert "cycle_ms" in msg and "1037 bits" in msg and "70 %" in msg and "125." in msg
 
 
 @pytest.mark.parametrize("table,key", [
@@ -207,6 +209,8 @@ def test_job_through_canopen_drives_ends_where_commanded_and_the_wire_shows_the_
         # RPDO1 map entry 1 = 0x607A:00, 32 bit; TPDO1 map entry 1 = 0x6064:00, 32 bit
         assert (0x600 + n, bytes([0x23, 0x00, 0x16, 0x01]) + struct.pack("<I", 0x607A0020)) in f
         assert (0x600 + n, bytes([0x23, 0x00, 0x1A, 0x01]) + struct.pack("<I", 0x60640020)) in f
+        # TPDO1 map entry 3 = 0x60FD:00 (digital inputs), its low 8 bits: the home switch is bit 2
+        assert (0x600 + n, bytes([0x23, 0x00, 0x1A, 0x03]) + struct.pack("<I", 0x60FD0008)) in f
     syncs = [i for i, (cid, d) in enumerate(f) if cid == 0x080]
     assert all(f[i][1] == b"" for i in syncs)
     assert len(syncs) >= res.ticks // 2
@@ -219,8 +223,8 @@ def test_job_through_canopen_drives_ends_where_commanded_and_the_wire_shows_the_
     tpdos = [(cid, d) for cid, d in f[k + 1:syncs[len(syncs) // 2 + 1]] if 0x181 <= cid <= 0x185]
     assert sorted(c for c, _ in tpdos) == [0x181, 0x182, 0x183, 0x184, 0x185]
     for cid, d in tpdos:
-        pos, sw = struct.unpack("<iH", d)
-        assert C.state_of(sw) == C.OPERATION_ENABLED
+        pos, sw, din = struct.unpack("<iHB", d)
+        assert C.state_of(sw) == C.OPERATION_ENABLED and din == 0       # no home switch configured
     # the last RPDO targets on the wire are the final commanded counters
     last = {}
     for cid, d in f:

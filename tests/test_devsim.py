@@ -79,7 +79,7 @@ def test_job_through_drives_in_another_process_ends_where_commanded_and_the_wire
     assert len(syncs) >= res.ticks // 2 - 50 and all(f[i][1] == b"" for i in syncs)
     tpdo = [(cid, d) for cid, d in f if 0x181 <= cid <= 0x185]
     assert {cid for cid, _ in tpdo} == {0x181, 0x182, 0x183, 0x184, 0x185}
-    assert all(len(d) == 6 for _, d in tpdo)
+    assert all(len(d) == 7 for _, d in tpdo)                 # position, statusword, 0x60FD low byte
     last = {}
     for cid, d in f:
         if 0x201 <= cid <= 0x205:

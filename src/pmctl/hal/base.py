@@ -48,13 +48,18 @@ class Feedback:
 class Inputs:
     """Switch inputs, sampled with the last ``read``: ``home`` a tuple of 5 booleans (the home
     switch of each axis L1 L2 L3 X Y closed), or None when the backend has no home switches;
-    ``estop`` True while the E-stop is pressed."""
+    ``estop`` True while the E-stop is pressed; ``latch`` None, or the device's own latch of each
+    home switch's last transition: per axis (transitions so far, any counter that changes with each,
+    closed after it, the pulse counter at it in the controller's frame). A device that latches
+    where the switch changed (a step generator counting steps, a drive sampling its input with its
+    position) is more exact than the tick at which the host sees the input."""
 
-    __slots__ = ("home", "estop")
+    __slots__ = ("home", "estop", "latch")
 
-    def __init__(self, home=None, estop=False):
+    def __init__(self, home=None, estop=False, latch=None):
         self.home = home
         self.estop = estop
+        self.latch = latch
 
 
 NO_INPUTS = Inputs()
@@ -67,6 +72,15 @@ def as_inputs(x) -> Inputs:
         return x
     bits = int(x)
     return Inputs(tuple(bool(bits >> i & 1) for i in range(5)), bool(bits >> 5 & 1))
+
+
+def switch_positions(value, where: str, key: str) -> tuple:
+    """A backend option giving simulated home switches: 5 joint positions in mm (L1 L2 L3 X Y), or
+    an empty list for none; ConfigError naming ``where`` and ``key`` otherwise."""
+    if not isinstance(value, (list, tuple)) or len(value) not in (0, 5) or any(
+            isinstance(x, bool) or not isinstance(x, (int, float)) or not abs(x) <= 1e4 for x in value):
+        raise ConfigError(where, key, f"must be 5 joint positions in mm (L1 L2 L3 X Y) or [] for none, got {value!r}")
+    return tuple(float(x) for x in value)
 
 
 @dataclass
@@ -129,6 +143,16 @@ class Backend(ABC):
         device's own counters or position targets must read ``counts`` from now on. Only a backend with
         ``can_rereference`` True implements it (homing is refused on the others)."""
         raise HalError(f"backend {self.name!r} cannot re-reference its counters")
+
+    def reference_offset(self) -> np.ndarray | None:
+        """A backend whose ``rereference`` keeps an offset (pulses per axis) between its devices' own
+        positions and the controller's counters, instead of setting the devices' counters: that offset,
+        saved with the counters so that after a restart counters and devices still agree. None: none."""
+        return None
+
+    def set_reference_offset(self, offset) -> None:
+        """Restore a saved ``reference_offset`` (before ``open``)."""
+        raise HalError(f"backend {self.name!r} keeps no reference offset")
 
     def truth(self) -> np.ndarray | None:
         """Load-side joint positions (mm), known only to a simulation; None for hardware."""

@@ -15,7 +15,7 @@ SYNC = 0x7E
 FRAME_MIN = 6
 FRAME_MAX = 125        # < SYNC: a SYNC byte is never a valid LEN
 PAYLOAD_MAX = FRAME_MAX - FRAME_MIN
-PROTO_VERSION = 1
+PROTO_VERSION = 2      # 2: STATUS carries the home-switch latches
 MAGIC = b"PMSB"
 NAXES = 5
 
@@ -134,7 +134,7 @@ class Parser:
 _TICK = struct.Struct("<I5h")
 _RESET = struct.Struct("<5i")
 _CONFIG = struct.Struct("<IIIIBB")
-_STATUS = struct.Struct("<BBHHHIII5i5iI3hHIIIBB")
+_STATUS = struct.Struct("<BBHHHIII5i5iI3hHIIIBB5i5BB")
 _IDENT = struct.Struct("<4sHBBIIIIBB8s16s")
 _ACK = struct.Struct("<BBB")
 
@@ -187,6 +187,14 @@ class BridgeStatus:
     fault_us: int
     why: int            # WHY_TICK: sent at a tick start, counters = exactly the ticks before it
     room: int           # free queue slots
+    home_latch: tuple = (0,) * NAXES   # per axis: the counter at the last home-switch transition (exact)
+    home_edges: tuple = (0,) * NAXES   # per axis: transitions latched so far, mod 256
+    home_level: int = 0                # bit per axis: the level the last transition went to (1 closed)
+
+    def latches(self) -> tuple:
+        """Per axis (transitions mod 256, closed after the last one, counter at it): the backend's
+        ``Inputs.latch``."""
+        return tuple((self.home_edges[i], bool(self.home_level >> i & 1), self.home_latch[i]) for i in range(NAXES))
 
     def fault_text(self) -> str:
         parts = [t for b, t in FAULT_TEXT.items() if self.faults & b]
@@ -202,7 +210,8 @@ def decode_status(f: Frame) -> BridgeStatus:
         raise ValueError(f"STATUS payload of {len(f.payload)} bytes, expected {_STATUS.size}")
     v = _STATUS.unpack(f.payload)
     return BridgeStatus(f.seq, v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], tuple(v[8:13]), tuple(v[13:18]),
-                        v[18], tuple(v[19:22]), v[22], v[23], v[24], v[25], v[26], v[27])
+                        v[18], tuple(v[19:22]), v[22], v[23], v[24], v[25], v[26], v[27], tuple(v[28:33]),
+                        tuple(v[33:38]), v[38])
 
 
 @dataclass

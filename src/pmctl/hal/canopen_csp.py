@@ -53,10 +53,11 @@ import numpy as np
 
 from pmctl.core.errors import ConfigError
 from pmctl.hal import cia402 as C
-from pmctl.hal.base import AXES, Backend, Feedback, HalError, HalTimeout, Status
+from pmctl.hal.base import AXES, Backend, Feedback, HalError, HalTimeout, Inputs, Status, switch_positions
 
 RPDO_BYTES = 6          # target position (INTEGER32) + controlword (UNSIGNED16)
-TPDO_BYTES = 6          # position actual (INTEGER32) + statusword (UNSIGNED16)
+TPDO_BYTES = 7          # position actual (INTEGER32) + statusword (UNSIGNED16) + digital inputs 0x60FD bits 0-7
+DI_BITS = 8             # 0x60FD mapped with its low byte: limits, home switch (bit 2), interlock
 MAX_LATE_CYCLES = 32
 HISTORY = 64            # targets kept per SYNC (> MAX_LATE_CYCLES + 2)
 _RPDO = struct.Struct("<iH")   # RPDO1: target position, controlword
@@ -88,6 +89,8 @@ class CanopenOptions:
     sim_link: str = "tcp"                      # device simulator's slcan link: "tcp" (loopback) or "pty"
     sim_listen_links: int = 0                  # device simulator: extra pty links for listeners
     bus_thread_priority: int = 51              # SCHED_FIFO of the CAN receive threads when permitted, 0 = off
+    sim_home_switch_mm: tuple = ()             # simulated drives: home switch closed at position >= this (5 joint
+                                               # positions, mm of the drives' own position); () = none
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "hal.canopen") -> "CanopenOptions":
@@ -155,6 +158,7 @@ class CanopenOptions:
             setattr(o, k, num(k, lo=0, integer=True))
             if getattr(o, k) > 99:
                 raise ConfigError(where, k, "must be 0 .. 99")
+        o.sim_home_switch_mm = switch_positions(o.sim_home_switch_mm, where, "sim_home_switch_mm")
         o.sim_listen_links = num("sim_listen_links", lo=0, integer=True)
         if o.sim_listen_links > 8:
             raise ConfigError(where, "sim_listen_links", "must be 0 .. 8")
@@ -196,7 +200,7 @@ class _Drive:
     """Master-side view of one drive: last TPDO contents and counters (written by the bus thread)."""
 
     __slots__ = ("id", "axis", "node", "pos", "sw", "answers", "t_tpdo", "t_hb", "hb_state", "emcy",
-                 "rpdo")
+                 "rpdo", "home", "edges", "edge_closed", "edge_pos")
 
     def __init__(self, node_id, axis, node):
         self.id, self.axis, self.node = node_id, axis, node
@@ -208,6 +212,10 @@ class _Drive:
         self.hb_state = None
         self.emcy = None
         self.rpdo = None
+        self.home = None            # 0x60FD home switch bit of the last TPDO (None: none received yet)
+        self.edges = 0              # home switch transitions seen between two TPDOs
+        self.edge_closed = False    # the state after the last one
+        self.edge_pos = 0           # position actual in the TPDO that first showed it (increments)
 
     @property
     def name(self):
@@ -257,6 +265,7 @@ class _CycleWriter:
 class CanopenCSP(Backend):
     name = "canopen"
     accepts = "positions"
+    can_rereference = True      # homing keeps a counter offset per axis; the drives are not re-homed
     strain_in_loop = False      # the PDO map carries positions only (feedback strain stays 0)
 
     @classmethod
@@ -299,6 +308,12 @@ class CanopenCSP(Backend):
         self._sent = np.zeros((HISTORY, 5), np.int64)   # targets sent with SYNC s at row s % HISTORY
         self._cw = C.CW_SHUTDOWN
         self.frames_sent = 0
+        # homing: controller counters = drive position (as pulses) + _off; the drives keep their positions
+        self._off = np.zeros(5, np.int64)
+        self._off_mm = np.zeros(5)
+        self._inputs = None         # cached Inputs, rebuilt when a home switch changes (_in_ver)
+        self._in_ver = 0
+        self._in_built = -1
 
     # ---------------------------------------------------------------- helpers
     def _eds(self):
@@ -328,8 +343,15 @@ class CanopenCSP(Backend):
         if len(data) < TPDO_BYTES:
             return
         pos, sw = struct.unpack_from("<iH", data)
+        home = bool(data[6] & C.DI_HOME_SWITCH) if len(data) > 6 else False
         with self._cond:
             d.pos, d.sw = pos, sw
+            if home != d.home:
+                if d.home is not None:      # an edge between the last TPDO and this one: latch this position
+                    d.edges += 1
+                    d.edge_closed, d.edge_pos = home, pos
+                d.home = home
+                self._in_ver += 1
             d.answers += 1
             d.t_tpdo = time.monotonic()
             if self._enabled and not self._fault:
@@ -377,15 +399,17 @@ class CanopenCSP(Backend):
         o = self.opt
         counts = np.asarray(counts, np.int64)
         ppm = self.machine.resolution.pulses_per_mm
-        q0 = counts / ppm
+        q0 = (counts - self._off) / ppm                 # the drives' frame (a homing offset restored)
         self._targets = np.rint(q0 * self.inc_per_mm).astype(np.int64)
+        home_at = ([int(round(mm * self.inc_per_mm[i])) for i, mm in enumerate(o.sim_home_switch_mm)]
+                   if o.sim_home_switch_mm else None)
         bus = None
         try:
             if o.simulate and o.interface == "slcan":
                 from pmctl.hal.devsim import DeviceSimulator, DeviceSimulatorError
                 from pmctl.hal.slcan_link import SlcanLinkBus
                 spec = {"can": {"node_ids": list(o.node_ids), "positions": self._targets.tolist(),
-                                "lag_s": o.sim_lag_ms / 1e3, "eds": self._eds(), "tcp": True,
+                                "lag_s": o.sim_lag_ms / 1e3, "eds": self._eds(), "tcp": True, "home_at": home_at,
                                 "ptys": (1 if o.sim_link == "pty" else 0) + o.sim_listen_links},
                         "rt_priority": o.sim_rt_priority}
                 try:
@@ -399,7 +423,7 @@ class CanopenCSP(Backend):
                 from pmctl.hal.cia402_sim import SimDriveSet
                 self.sim = SimDriveSet(o.node_ids, self._targets.tolist(), interface=o.interface,
                                        channel=o.channel, bitrate=o.bitrate, lag_s=o.sim_lag_ms / 1e3,
-                                       eds=self._eds())
+                                       eds=self._eds(), home_at=home_at)
             net = canopen.Network(bus)
             kw = {"interface": o.interface, "channel": o.channel}
             if o.interface != "virtual":
@@ -479,6 +503,7 @@ class CanopenCSP(Backend):
                 tp.clear()
                 tp.add_variable(C.OD_POSITION_ACTUAL)
                 tp.add_variable(C.OD_STATUSWORD)
+                tp.add_variable(C.OD_DIGITAL_INPUTS, 0, DI_BITS)
                 tp.cob_id, tp.trans_type, tp.enabled = C.cob_tpdo1(d.id), 1, True
                 tp.save()
             except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as e:
@@ -673,6 +698,8 @@ class CanopenCSP(Backend):
             else:
                 # the answer to SYNC a: the drive's position while it followed the target of SYNC a-1
                 fb.enc[i] = q[i] - (self._sent[(a - 1) % HISTORY, i] - pos) / self.inc_per_mm[i]
+        if self._off.any():
+            fb.enc += self._off_mm              # to the controller's frame (homing)
         fb.seq += 1
 
     # ---------------------------------------------------------------- loop side
@@ -762,7 +789,7 @@ class CanopenCSP(Backend):
 
     def write_positions(self, q_mm) -> None:
         try:
-            self._write_positions(q_mm)
+            self._write_positions(q_mm - self._off_mm if self._off.any() else q_mm)
         except HalError as e:
             raise self._with_sim(e) from None
 
@@ -784,6 +811,39 @@ class CanopenCSP(Backend):
                 raise HalError(self._fault) from None
             self._need = self._writes + self.cycle_ticks
         self._writes += 1
+
+    # ---------------------------------------------------------------- homing
+    def inputs(self) -> Inputs:
+        """The home switches (0x60FD bit 2 of each drive's last TPDO) and, per axis, the position the
+        drive reported with the first TPDO that showed the switch's last change, as a pulse counter:
+        good to the travel of one CAN cycle (the input and the position are sampled at the same SYNC)."""
+        if self._in_built != self._in_ver or self._inputs is None:
+            with self._cond:
+                self._in_built = self._in_ver
+                ppm = self.machine.resolution.pulses_per_mm
+                home = tuple(bool(d.home) for d in self.drives) if self.drives else (False,) * 5
+                latch = tuple((d.edges, d.edge_closed,
+                               int(round(d.edge_pos / self.inc_per_mm[i] * ppm[i])) + int(self._off[i]))
+                              for i, d in enumerate(self.drives)) if self.drives else None
+            self._inputs = Inputs(home, False, latch)
+        return self._inputs
+
+    def rereference(self, counts) -> None:
+        """Homing, at rest: the controller's counters become ``counts``; the drives keep their positions
+        (no drive homing), the difference is kept as a per-axis offset (saved with the counters)."""
+        ppm = self.machine.resolution.pulses_per_mm
+        q = self._last_q if self._last_q is not None else self._targets / self.inc_per_mm
+        self.set_reference_offset(np.asarray(counts, np.int64) - np.rint(q * ppm).astype(np.int64))
+
+    def reference_offset(self) -> np.ndarray:
+        return self._off.copy()
+
+    def set_reference_offset(self, off) -> None:
+        old = self._off_mm
+        self._off = np.asarray(off, np.int64).copy()
+        self._off_mm = self._off / self.machine.resolution.pulses_per_mm
+        self._fb.enc += self._off_mm - old          # the feedback in hand moves to the new frame at once
+        self._in_ver += 1
 
     def _stop_all(self):
         """Quick stop of every drive (they hold their last target): RPDOs + SYNC, best effort."""

@@ -7,6 +7,8 @@ the heartbeat producer (0x1017) and the EMCY producer. What this module adds, as
 - synchronous PDOs: the RPDO (target 0x607A + controlword) is stored when it arrives and applied on
   the next SYNC; on every SYNC the drive samples and sends its TPDO (position actual 0x6064 +
   statusword), as the PDO maps written by SDO say (only while NMT operational);
+- a home switch per drive (optional): 0x60FD bit 2 is set while the position is at or past it,
+  sampled with the position each SYNC (so the TPDO's position and input belong to one instant);
 - motion: in Operation enabled, cyclic synchronous position, the motor follows the latched target
   with a first-order lag per SYNC cycle (lag 0 = reaches each target by the next SYNC);
 - its own safety: a target jump beyond the following-error window 0x6065 or a lost host heartbeat
@@ -41,8 +43,10 @@ EDS_PATH = str(resources.files("pmctl.hal").joinpath("data/cia402_drive.eds"))
 class SimDrive:
     """One simulated drive (a LocalNode and its 402 behaviour)."""
 
-    def __init__(self, node_id: int, position: int = 0, lag_s: float = 0.0, eds: str = EDS_PATH):
+    def __init__(self, node_id: int, position: int = 0, lag_s: float = 0.0, eds: str = EDS_PATH,
+                 home_at: int | None = None):
         self.id = node_id
+        self.home_at = home_at                  # home switch closed at position >= this (increments); None: none
         self.node = canopen.LocalNode(node_id, eds)
         self.lag_s = float(lag_s)
         self.state = C.SWITCH_ON_DISABLED
@@ -111,7 +115,14 @@ class SimDrive:
             sw |= C.SW_FOLLOWING_ERROR
         return sw
 
+    @property
+    def digital_inputs(self) -> int:
+        """0x60FD: the home switch (bit 2), sampled with the position."""
+        return C.DI_HOME_SWITCH if self.home_at is not None and self.pos >= self.home_at else 0
+
     def _on_read(self, index, subindex, od):
+        if index == C.OD_DIGITAL_INPUTS:
+            return self.digital_inputs
         if index == C.OD_STATUSWORD:
             return self.statusword
         if index == C.OD_POSITION_ACTUAL:
@@ -232,6 +243,8 @@ class SimDrive:
                     payload += struct.pack("<H", self.statusword)
                 elif index == C.OD_FOLLOWING_ACTUAL:
                     payload += struct.pack("<i", int(round(self.target - self.pos)))
+                elif index == C.OD_DIGITAL_INPUTS:      # mapped whole or as its low bytes
+                    payload += struct.pack("<I", self.digital_inputs)[:bits // 8]
                 else:
                     payload += bytes(bits // 8)
             drop = self._drop > 0
@@ -281,8 +294,11 @@ class SimDriveSet:
     """Drives on one bus: their own python-can Bus and canopen Network (a second node on the wire)."""
 
     def __init__(self, node_ids, positions, *, interface="virtual", channel="pmctl-can0", bitrate=1_000_000,
-                 lag_s=0.0, eds: str = EDS_PATH, bus: can.BusABC | None = None):
-        self.drives = [SimDrive(n, p, lag_s, eds) for n, p in zip(node_ids, positions)]
+                 lag_s=0.0, eds: str = EDS_PATH, bus: can.BusABC | None = None, home_at=None):
+        """``home_at``: per drive the position (increments) at and above which its home switch is
+        closed, None for a drive without one; None: no home switches."""
+        home_at = list(home_at) if home_at is not None else [None] * len(node_ids)
+        self.drives = [SimDrive(n, p, lag_s, eds, h) for n, p, h in zip(node_ids, positions, home_at)]
         self.by_id = {d.id: d for d in self.drives}
         self.network = canopen.Network(bus)          # a given bus: e.g. the device simulator's hub
         kw = {"interface": interface, "channel": channel}

@@ -262,7 +262,8 @@ class _Sim:
             from pmctl.hal.cia402_sim import EDS_PATH, SimDriveSet
             self.hub = Hub(int(c.get("ptys", 0)), tcp=bool(c.get("tcp", True))).start()
             self.drives = SimDriveSet(c["node_ids"], c["positions"], bus=hub_bus(self.hub),
-                                      lag_s=float(c.get("lag_s", 0.0)), eds=c.get("eds") or EDS_PATH)
+                                      lag_s=float(c.get("lag_s", 0.0)), eds=c.get("eds") or EDS_PATH,
+                                      home_at=c.get("home_at"))
         if "vfd" in spec:
             v = spec["vfd"]
             from pmctl.hal.modbus_sim import ModbusSimServer, SimVFD

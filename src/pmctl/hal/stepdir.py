@@ -34,7 +34,7 @@ import numpy as np
 
 from pmctl.core.errors import ConfigError
 from pmctl.hal import bridge_protocol as bp
-from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Status
+from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Inputs, Status, switch_positions
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[3] / "firmware_bridge"
 HOST_PTY = "host-pty"
@@ -72,6 +72,8 @@ class StepDirOptions:
     control: str = ""                    # host-pty: FIFO for simulated inputs ("" = none)
     bridge_verbose: bool = False         # host-pty: let the bridge print its events on stderr
     bridge_rt_priority: int = 51         # host-pty: SCHED_FIFO priority asked for the bridge (0 = normal)
+    home_switch_mm: tuple = ()           # host-pty: simulated home switches, closed at motor >= this (5 joint
+                                         # positions, mm, in the counters' frame at start); () = none
     strain_ue_per_count: tuple = (0.01, 0.01, 0.01)   # strain ADC scale, microstrain per count
     strain_offset_counts: tuple = (0.0, 0.0, 0.0)     # ADC reading at zero strain
 
@@ -102,6 +104,7 @@ class StepDirOptions:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
                 raise ConfigError(where, k, f"must be a number within {lo:g} .. {hi:g}, got {v!r}")
 
+        o.home_switch_mm = switch_positions(o.home_switch_mm, where, "home_switch_mm")
         integer("baud", 1200, 100_000_000)
         integer("step_width_ns", 100, 1_000_000)
         integer("dir_setup_ns", 0, 1_000_000)
@@ -171,6 +174,7 @@ class _Out:
 class StepDirBackend(Backend):
     name = "stepdir"
     accepts = "pulses"
+    can_rereference = True        # a RESET at rest sets the bridge's counters (homing)
 
     @classmethod
     def validate_options(cls, table: dict, where: str) -> StepDirOptions:
@@ -214,6 +218,8 @@ class StepDirBackend(Backend):
             cmd += ["--edge-log", o.edge_log]
         if o.control:
             cmd += ["--control", o.control]
+        for i, mm in enumerate(o.home_switch_mm):
+            cmd += ["--home-at", f"{i}:{int(round(mm * self.ppm[i]))}"]
         if not o.bridge_verbose:
             cmd.append("--quiet")
         self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=None)
@@ -590,9 +596,47 @@ class StepDirBackend(Backend):
             return Status(False, self.fault.fault_text())
         return Status(not self._dead, "")
 
-    def inputs(self) -> int:
-        """The bridge's input bits as last reported (home switches 0-4, E-stop 5, drive alarms 8-12)."""
-        return self.status_last.inputs if self.status_last is not None else 0
+    def inputs(self) -> Inputs:
+        """The bridge's inputs as last reported: home switches (bits 0-4), E-stop (bit 5), and the
+        bridge's own latch of each home switch's last transition (the counter at that step, exact)."""
+        s = self.status_last
+        if s is None:
+            return Inputs((False,) * 5, False)
+        return Inputs(tuple(bool(s.inputs >> i & 1) for i in range(5)), bool(s.inputs & bp.IN_ESTOP), s.latches())
+
+    def rereference(self, counts):
+        """Homing, at rest: the bridge runs out its queue (END), checks that it executed exactly what was
+        commanded, and a RESET sets its counters to ``counts`` (the motors do not move). Takes a few
+        ticks of the link; the next tick starts the bridge's tick index at 0 again."""
+        counts = np.asarray(counts, np.int64)
+        err = self._finish()                  # END, wait for idle, counters = commanded
+        if err is not None:
+            self._dead = True
+            raise err
+        t_end = time.monotonic() + self.opt.open_timeout_ms / 1e3
+        try:
+            self.fault = None
+            self._command(bp.T_RESET, bp.reset_payload(counts), t_end, "RESET")
+        except HalError as e:
+            self._dead = True
+            raise BridgeFault(f"step/dir bridge: re-reference: {e}", self.status_last.counters
+                              if self.status_last is not None else None) from None
+        # every frame after the RESET's ack is from after it: wait for a status of the new counters
+        # (the queue accounting and the latches must not read the old one)
+        self.status_last = None
+        self._send(bp.T_STATUS_REQ, sequenced=False)
+        while self.status_last is None:
+            if time.monotonic() > t_end:
+                self._dead = True
+                raise BridgeTimeout("step/dir bridge: no status after the re-reference's RESET")
+            self._pump(0.005)
+        self.base = counts.copy()
+        self.next_tick = 0
+        self.cum[0] = counts
+        self._dir[:] = 1                      # RESET sets every direction output to +
+        self._fb.counts[:] = counts
+        self._fb.enc[:] = counts / self.ppm
+        self.t_rx = self.t_send = time.monotonic()
 
     def close(self):
         """Runs out the bridge's queue (END), checks that it executed exactly what was commanded,

@@ -47,6 +47,7 @@ class RtHook:
         self.term = False
         self.rest_ticks = 0
         self.arm_axis, self.arm_want = -1, True     # the armed home switch (C_HOME_ARM)
+        self.arm_edges = None                       # the device latch's transition count at arming
         self.latch_seq = 0
         self.latch = [0.0] * 5
         self.shift = np.zeros(5, np.int64)          # re-references (C_SET_COUNTS) since the start
@@ -111,6 +112,8 @@ class RtHook:
                 sc.hold = False
             elif code == C.C_HOME_ARM:
                 self.arm_axis, self.arm_want = int(a1), bool(a2)
+                dev = as_inputs(lp.backend.inputs()).latch
+                self.arm_edges = dev[self.arm_axis][0] if dev is not None and self.arm_axis >= 0 else None
             elif code == C.C_CHAIN_OFFSET:
                 lp.set_chain_offset(int(a1), a2)      # bounded there (refused with a reason in the log)
             elif code == C.C_SET_COUNTS:
@@ -121,11 +124,16 @@ class RtHook:
         if st.mode != HALTED and inp.estop:
             st = _halt(st, "E-stop input pressed")
         home = inp.home if lp.backend.can_rereference else None      # homing needs the re-reference
-        if self.arm_axis >= 0 and home is not None and bool(home[self.arm_axis]) == self.arm_want:
-            self.latch = st.counts.tolist()
-            self.latch_seq += 1
-            self.arm_axis = -1
-            sc.hold = True                    # stop on the path; the supervisor drops the rest
+        if self.arm_axis >= 0 and home is not None:
+            i, dev = self.arm_axis, inp.latch
+            if dev is not None and self.arm_edges is not None and dev[i][0] != self.arm_edges:
+                # the device latched a transition since arming: its counter at the switch edge
+                if bool(dev[i][1]) == self.arm_want:
+                    self._latch(st.counts.tolist(), i, int(dev[i][2]), sc)
+                else:
+                    self.arm_edges = dev[i][0]       # a transition the other way: keep waiting
+            elif bool(home[i]) == self.arm_want:
+                self._latch(st.counts.tolist(), i, None, sc)
         if self.term and not self.quitting:
             self.quitting = "SIGTERM"
             sc.hold = True
@@ -186,6 +194,15 @@ class RtHook:
         s[C.ST_SEQ] += 1.0
         return st
 
+    def _latch(self, counts, axis, dev_count, sc):
+        """The armed switch reached its state: latch the counters (the device's own latch of that
+        axis when it has one), disarm, feed hold on the path (the supervisor drops the rest)."""
+        if dev_count is not None:
+            counts[axis] = dev_count
+        self.latch = counts
+        self.latch_seq += 1
+        self.arm_axis = -1
+        sc.hold = True
 
     def _rereference(self, lp, st, axis, count):
         """Set one axis's pulse counter (homing): the NC restarts from the new counters (its model pose
@@ -195,12 +212,31 @@ class RtHook:
         d = count - int(counts[axis])
         counts[axis] = count
         lp.backend.rereference(counts)
+        off = lp.backend.reference_offset()
+        if off is not None and lp.writer is not None:
+            lp.writer.offer(counts, lp.tick, off)      # the new offset is saved with the counters it belongs to
         st = _restart(st, self.machine, lp, counts)
         self.shift[axis] += d
         self.ch.st[C.ST_COUNTS0 + axis] += d
         lp.follower.clear()
         lp.follower._rest = st.tip.tolist() + st.axis.tolist()
         return st
+
+
+def _restore_offset(be, state_file, machine_name, log):
+    """A backend that keeps a reference offset (homing on drives that keep their positions) gets the one
+    saved with the counters it starts from."""
+    if not state_file or be.reference_offset() is None:
+        return
+    from pmctl.core.errors import PmctlError
+    from pmctl.motion.state_store import load_counters
+    try:
+        saved = load_counters(state_file, machine=machine_name)
+    except PmctlError as e:
+        log(f"reference offsets not restored: {e}")
+        return
+    if saved is not None and saved.offsets is not None:
+        be.set_reference_offset(saved.offsets)
 
 
 def _wall():
@@ -261,10 +297,11 @@ def rt_main(spec: dict) -> int:
     params = svc.nc.params(machine, dt, where=svc.source, modes=nc_setup(svc, machine, dt, spec["backend"]).modes)
     counts = np.array(spec["counts"], np.int64)
     be = hal.create(spec["backend"], machine, dt, svc.backend_options if spec["backend"] == svc.backend else {})
+    state_file = spec.get("state_file") or ""
+    _restore_offset(be, state_file, machine.name, log)
     be.open(counts)
     st = initial_state(machine, counts)
     fol = make_follower(ch.samples, params, dt, pose=st.tip.tolist() + st.axis.tolist())
-    state_file = spec.get("state_file") or ""
     writer = CounterWriter(state_file, machine=machine.name) if state_file else None
 
     class _Null(Recorder):           # the supervisor drains the record ring
@@ -301,7 +338,8 @@ def rt_main(spec: dict) -> int:
         finally:
             if writer is not None:
                 writer.stop()
-                save_counters(state_file, final.counts, machine=machine.name, clean=bool(clean), tick=lp.tick)
+                save_counters(state_file, final.counts, machine=machine.name, clean=bool(clean), tick=lp.tick,
+                              offsets=be.reference_offset())
             ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = final.counts.tolist()
             ch.set_reason(getattr(lp, "quit_reason", "") or (res.reason if res else "rt process error"))
             ch.st[C.ST_PHASE] = C.PH_EXITED

@@ -60,14 +60,24 @@ class SavedCounters:
     tick: int
     machine: str
     wall_time: float
+    offsets: np.ndarray | None = None     # a backend's reference offsets (homing on drives that keep their positions)
 
 
-def save_counters(path, counts, *, machine: str, clean: bool, tick: int = 0) -> None:
-    """Atomic write of the counters (temp + fsync + rename + fsync dir)."""
+def save_counters(path, counts, *, machine: str, clean: bool, tick: int = 0, offsets=None) -> None:
+    """Atomic write of the counters (temp + fsync + rename + fsync dir). ``offsets``: the backend's
+    reference offsets (pmctl.hal.base.Backend.reference_offset), written with the counters they belong
+    to; None keeps the ones already in the file (a writer that does not know them does not drop them)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     data = {"format": FORMAT, "machine": machine, "counts": [int(c) for c in counts],
             "clean": bool(clean), "tick": int(tick), "wall_time": time.time()}
+    if offsets is None:
+        try:
+            offsets = json.loads(path.read_text(encoding="utf-8")).get("device_offsets")
+        except (OSError, ValueError, AttributeError):
+            offsets = None
+    if offsets is not None:
+        data["device_offsets"] = [int(c) for c in offsets]
     atomic_write(path, json.dumps(data) + "\n")
 
 
@@ -126,7 +136,12 @@ def load_counters(path, *, machine: str, axes: int = 5) -> SavedCounters | None:
         raise InputError(path, 1, f"tick: expected a non-negative integer, got {tick!r}")
     if isinstance(wall, bool) or not isinstance(wall, (int, float)):
         raise InputError(path, 1, f"wall_time: expected a number, got {wall!r}")
-    return SavedCounters(np.array(c, dtype=np.int64), clean, tick, machine, float(wall))
+    off = d.get("device_offsets")
+    if off is not None and (not isinstance(off, list) or len(off) != axes or any(
+            isinstance(x, bool) or not isinstance(x, int) or abs(x) >= 2**63 for x in off)):
+        raise InputError(path, 1, f"device_offsets: expected a list of {axes} integers, got {off!r}")
+    return SavedCounters(np.array(c, dtype=np.int64), clean, tick, machine, float(wall),
+                         None if off is None else np.array(off, dtype=np.int64))
 
 
 class CounterWriter:
@@ -136,6 +151,7 @@ class CounterWriter:
     def __init__(self, path, *, machine: str, axes: int = 5):
         self.path, self.machine = Path(path), machine
         self._slot = np.zeros(axes, np.int64)
+        self._offsets = None
         self._tick = 0
         self._lock = threading.Lock()
         self._wake = threading.Event()
@@ -145,10 +161,13 @@ class CounterWriter:
         self._thread = threading.Thread(target=self._run, name="pmctl-counter-writer", daemon=True)
         self._thread.start()
 
-    def offer(self, counts, tick: int) -> None:
+    def offer(self, counts, tick: int, offsets=None) -> None:
+        """``offsets`` (a re-reference changed them): from now on written with these counters."""
         with self._lock:
             self._slot[:] = counts
             self._tick = tick
+            if offsets is not None:
+                self._offsets = np.array(offsets, np.int64)
         self._wake.set()
 
     def _run(self):
@@ -160,8 +179,9 @@ class CounterWriter:
             with self._lock:
                 c = self._slot.copy()
                 tick = self._tick
+                off = self._offsets
             try:
-                save_counters(self.path, c, machine=self.machine, clean=False, tick=tick)
+                save_counters(self.path, c, machine=self.machine, clean=False, tick=tick, offsets=off)
                 self.writes += 1
             except OSError as e:
                 self.error = f"cannot write {self.path}: {e.strerror or e}"
