@@ -8,7 +8,12 @@ Layout (all float64 unless noted), in this order:
   sequence number in the status block;
 - the command ring (supervisor -> rt), ``CMD_CAPACITY`` rows of (seq, code, arg1, arg2);
 - the sample ring (supervisor -> rt), planned samples (pmctl.motion.timescale.WIDTH floats);
-- the record ring (rt -> supervisor), per-tick records (pmctl.motion.recorder.REC_WIDTH floats).
+- the record ring (rt -> supervisor), per-tick records (pmctl.motion.recorder.REC_WIDTH floats);
+- the result (``RESULT_BYTES``, after the rings): written once by the rt side as it exits, a JSON
+  object (the loop's end status and reason, ticks, and its timing summary: compute, NC step and
+  lateness median/p99/max, overruns) preceded by its length as an int64 (0: not written yet); the
+  supervisor reads it after the rt process ended (:meth:`Channel.result`), so a one-shot run
+  (``pmctl run``) reports the rt side's timing figures.
 
 The supervisor creates the segment and unlinks it at exit; the rt side attaches by name.
 """
@@ -38,7 +43,8 @@ ST_LATCH_SEQ = ST_COUNTS0 + 5     # counts the home-switch latches (C_HOME_ARM)
 ST_LATCH = ST_LATCH_SEQ + 1       # (5) the counters at the tick the armed switch reached the wanted state
 ST_HOME_IN = ST_LATCH + 5         # home switches as a bit mask (bit i: axis i closed); -1: no switches, or a
                                   # backend that cannot re-reference its counters (no homing)
-STATUS_WIDTH = 56
+ST_HOLD_AT_SEQ = ST_HOME_IN + 1  # counts the C_HOLD_AT points the path reached (held there)
+STATUS_WIDTH = 60
 REASON_BYTES = 512
 
 # rt phases
@@ -51,16 +57,22 @@ C_HOLD, C_RESUME, C_FEED_OV, C_RAPID_OV, C_RESET, C_QUIT, C_ESTOP, C_UNLOCK, C_S
 # C_SET_COUNTS (axis, counter): re-reference one axis's pulse counter at rest (homing; the motor does not move).
 # C_HOME_ARM (axis, state): latch the counters and feed-hold at the first tick the home switch of ``axis``
 # reads ``state`` (1 closed, 0 open); axis -1 disarms.
+C_HOLD_AT = 21
+# C_HOLD_AT (row, rest): feed-hold on the path when it reaches sample ``row`` of the sample ring (its
+# absolute index: Ring.written when it was pushed), e.g. a spindle speed change inside a job waiting
+# for at speed; ``rest`` 1: the path is at rest there (a planned stop). Points queue in order; each
+# reached one counts up ST_HOLD_AT_SEQ. A soft reset or a fault drops them.
 CMD_WIDTH = 4
 CMD_CAPACITY = 64
 
 SAMPLE_CAPACITY = 16384           # 16 s of samples at 1 kHz, 3.2 MB
 RECORD_CAPACITY = 8192            # 8 s of records at 1 kHz, 2 MB
+RESULT_BYTES = 8192
 
 
 def segment_size(sample_capacity=SAMPLE_CAPACITY, record_capacity=RECORD_CAPACITY) -> int:
     return (8 * STATUS_WIDTH + REASON_BYTES + ring_bytes(CMD_CAPACITY, CMD_WIDTH)
-            + ring_bytes(sample_capacity, SAMPLE_WIDTH) + ring_bytes(record_capacity, REC_WIDTH))
+            + ring_bytes(sample_capacity, SAMPLE_WIDTH) + ring_bytes(record_capacity, REC_WIDTH) + RESULT_BYTES)
 
 
 class Channel:
@@ -90,9 +102,12 @@ class Channel:
         off += n
         n = ring_bytes(record_capacity, REC_WIDTH)
         self.records = Ring(record_capacity, REC_WIDTH, buf[off:off + n], reset=create)
+        off += n
+        self._result = np.ndarray((RESULT_BYTES,), np.uint8, buf, off)
         if create:
             self.st[:] = 0.0
             self._reason[:] = 0
+            self._result[:8] = 0
         self._cmd_seq = 0
 
     # ---- rt side
@@ -108,7 +123,28 @@ class Channel:
         self._reason[:len(b)] = np.frombuffer(b, np.uint8)
         self.st[ST_REASON_SEQ] += 1.0
 
+    def set_result(self, result: dict):
+        """The rt side's end result (JSON; written once, as it exits): the body first, then its length."""
+        import json
+        b = json.dumps(result).encode()[:RESULT_BYTES - 8]
+        self._result[8:8 + len(b)] = np.frombuffer(b, np.uint8)
+        self._result[:8] = np.frombuffer(np.int64(len(b)).tobytes(), np.uint8)
+
     # ---- supervisor side
+    def result(self) -> dict | None:
+        """The rt side's end result, or None when it has not written one (killed, or still running)."""
+        import json
+        n = int(np.frombuffer(bytes(self._result[:8]), np.int64)[0])
+        if n <= 0:
+            return None
+        try:
+            return json.loads(bytes(self._result[8:8 + n]).decode())
+        except ValueError:
+            return None
+
+    def clear_result(self):
+        self._result[:8] = 0
+
     def status(self) -> np.ndarray:
         """A consistent copy of the status block (retries while the rt side writes)."""
         for _ in range(1000):
@@ -129,7 +165,7 @@ class Channel:
 
     def close(self, unlink: bool = False):
         # numpy views keep the buffer exported: drop them first
-        for a in ("st", "_reason", "commands", "samples", "records"):
+        for a in ("st", "_reason", "commands", "samples", "records", "_result"):
             if hasattr(self, a):
                 delattr(self, a)
         import gc

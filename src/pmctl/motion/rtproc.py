@@ -13,14 +13,24 @@ in ``spec`` (a dict of plain values). Per tick, after the NC step, its hook:
 - every 50 ticks checks that the supervisor is still its parent: if it died, the machine is
   brought to a feed hold on the path, the counters are saved (clean) and the process exits.
 A fault (NC halt) or an NC stop drops the queued samples: motion resumes only after an unlock.
-SIGTERM is a quit: hold on the path, save the counters, exit.
+SIGTERM is a quit: hold on the path, save the counters, exit. As it exits, the rt side writes its
+result into the channel (Channel.set_result: end status, reason, ticks, pulses sent, and the loop's
+timing summary), which a one-shot client (``pmctl run``) reports and records.
+
+``spec["offline"]`` (``pmctl run --no-realtime``): an offline simulation on the same path. Ticks
+run back to back while the path moves, and the rt side waits for planned samples instead of
+decelerating for an empty queue (starvation is a real-time matter: offline nothing is late), and
+for room in the record ring instead of dropping records. With nothing to follow (idle, held, at a
+job's end) the ticks are paced at the tick period.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import sys
+import time
 
 import numpy as np
 
@@ -28,9 +38,23 @@ from pmctl.hal.base import as_inputs
 from pmctl.motion import channel as C
 
 
+def apply_nc_overrides(svc, nc: dict | None):
+    """A run's NC settings that differ from the service config file (``pmctl run --k-theta --shaper
+    --pulse-mode``), applied to ``svc.nc`` the same way in the supervisor and in the rt process."""
+    for key, v in (nc or {}).items():
+        if key == "k_theta_per_s":
+            v = tuple(float(x) for x in v)
+        setattr(svc.nc, key, v)
+    return svc
+
+
 class RtHook:
-    def __init__(self, ch: C.Channel, machine, params, ppid: int, log):
+    def __init__(self, ch: C.Channel, machine, params, ppid: int, log, offline: bool = False):
         self.ch, self.machine, self.params = ch, machine, params
+        self.offline = bool(offline)
+        self.hold_at = []                           # [(ring row, at rest)] queued by C_HOLD_AT, in order
+        self.hold_at_seq = 0
+        self.need = None                            # offline: samples queued before the path moves on
         self.ppid = ppid
         self.log = log
         self.resetting = False
@@ -68,6 +92,7 @@ class RtHook:
                 sc.set_rapid_override(a1)
             elif code == C.C_RESET:
                 self.resetting = True
+                self.hold_at.clear()
                 sc.hold = True
             elif code == C.C_QUIT:
                 self.quitting = "stopped by the supervisor"
@@ -85,6 +110,8 @@ class RtHook:
                 sc.hold = False
             elif code == C.C_HOME_ARM:
                 self.arm_axis, self.arm_want = int(a1), bool(a2)
+            elif code == C.C_HOLD_AT:
+                self.hold_at.append((float(a1), bool(a2)))
             elif code == C.C_SET_COUNTS:
                 # at rest with nothing queued only (the supervisor checks the counters after the ack)
                 if st.mode == RUN and sc.sigma == 0.0 and fol.src.count() == 0 and 0 <= int(a1) < 5:
@@ -105,9 +132,12 @@ class RtHook:
             self.quitting = "the supervisor died: feed hold on the path, counters saved"
             self.log(self.quitting)
             sc.hold = True
+        if self.hold_at:
+            self._check_hold_at(fol, sc)
         if st.mode in (STOPPING, HALTED):
             if not self.faulted:
                 self.faulted = True
+                self.hold_at.clear()
                 fol.clear()
                 ch.set_reason(st.reason)
                 ch.st[C.ST_FAULT] = C.F_FAULT if st.mode == HALTED and not _was_stop(st) else C.F_STOP
@@ -145,8 +175,49 @@ class RtHook:
         fb = lp.last_fb
         if fb is not None and fb.counts is not None:
             s[C.ST_DEV_COUNTS:C.ST_DEV_COUNTS + 5] = fb.counts.tolist()
+        s[C.ST_HOLD_AT_SEQ] = self.hold_at_seq
         s[C.ST_SEQ] += 1.0
+        if self.offline:
+            self._offline_wait(fol, sc)
         return st
+
+    def _check_hold_at(self, fol, sc):
+        """Hold on the path at the first queued C_HOLD_AT row: once the next ticks would reach it
+        (at most LOOKAHEAD_SAMPLES short of it, as pmctl.hal.modbus_vfd.SpeedChanger does in one process)."""
+        from pmctl.hal.modbus_vfd import LOOKAHEAD_SAMPLES
+        row, rest = self.hold_at[0]
+        if fol.src.consumed + fol.frac + LOOKAHEAD_SAMPLES * sc.sigma * fol.k >= row:
+            sc.hold = True
+            if rest:                  # on a planned stop the path is at rest: sigma means nothing there
+                sc.sigma = sc.dsigma = 0.0
+            self.hold_at.pop(0)
+            self.hold_at_seq += 1
+
+    def _offline_wait(self, fol, sc):
+        """Offline (no real time): before the next tick, wait until the path can go on at full speed
+        (enough samples queued for a stop from SIGMA_MAX, or the job's end among them) and the
+        record ring has room; pace the tick when there is nothing to follow. Commands, a quit and
+        a dead supervisor end the wait at once."""
+        from pmctl.motion.timescale import FLAG_END, S_FLAGS, SIGMA_MAX
+        src, ch = fol.src, self.ch
+        if self.need is None:
+            # the queue the starvation limit of the path follower lets run at SIGMA_MAX, in samples
+            tau = SIGMA_MAX ** 2 / (0.81 * sc.accel)
+            self.need = min(int(math.ceil(tau * fol.k / self.params.dt)) + 2, src.capacity // 2)
+        while True:
+            if self.quitting or self.resetting or self.term or ch.commands.count() or os.getppid() != self.ppid:
+                return
+            if ch.records.free() < 2:
+                time.sleep(0.0005)
+                continue
+            n = src.count()
+            end = n > 0 and int(src.row(n - 1)[S_FLAGS]) & FLAG_END
+            if n == 0 or (n == 1 and end) or (sc.hold and sc.sigma == 0.0):
+                time.sleep(self.params.dt)        # nothing to follow: paced
+                return
+            if end or n >= self.need:
+                return
+            time.sleep(0.0005)                    # the planner is behind: wait, do not decelerate
 
 
     def _rereference(self, lp, st, axis, count):
@@ -207,11 +278,12 @@ def rt_main(spec: dict) -> int:
     ch.st[C.ST_COUNTS0:C.ST_COUNTS0 + 5] = [float(c) for c in spec["counts"]]
     ch.st[C.ST_DEV_COUNTS:C.ST_DEV_COUNTS + 5] = float("nan")
     machine = load_machine(spec["config"])
-    svc = load_service_config(spec.get("service"))
+    svc = apply_nc_overrides(load_service_config(spec.get("service")), spec.get("nc"))
     cfg = svc.loop
     cfg.rate_hz = float(spec.get("rate_hz") or cfg.rate_hz)
     realtime = bool(spec.get("realtime", cfg.realtime))
-    cfg.realtime = True                   # the daemon always keeps time (deadlines)
+    offline = bool(spec.get("offline", False))
+    cfg.realtime = not offline            # the daemon always keeps time (deadlines); offline: back to back
     if not realtime:
         cfg.lock_memory = False
         cfg.stall_timeout_s = max(cfg.stall_timeout_s, 5.0)
@@ -220,7 +292,7 @@ def rt_main(spec: dict) -> int:
     from pmctl.motion.service_config import nc_setup
     params = svc.nc.params(machine, dt, where=svc.source, modes=nc_setup(svc, machine, dt, spec["backend"]).modes)
     counts = np.array(spec["counts"], np.int64)
-    be = hal.create(spec["backend"], machine, dt, svc.backend_options if spec["backend"] == svc.backend else {})
+    be = hal.create(spec["backend"], machine, dt, svc.backend_tables.get(spec["backend"], {}))
     be.open(counts)
     st = initial_state(machine, counts)
     fol = PathFollower(ch.samples, params, dt, pose=st.tip.tolist() + st.axis.tolist())
@@ -239,14 +311,14 @@ def rt_main(spec: dict) -> int:
         def stop(self):
             pass
 
-    hook = RtHook(ch, machine, params, int(spec["ppid"]), log)
+    hook = RtHook(ch, machine, params, int(spec["ppid"]), log, offline=offline)
 
     def _term(signum, frame):
         hook.term = True
     signal.signal(signal.SIGTERM, _term)
     lp = ControlLoop(machine, be, params, None, cfg, st, log=log, writer=writer, follower=fol,
                      records=ch.records, recorder=_Null(ch.records, keep=False), hook=hook,
-                     exit_when_done=False, setup_rt=realtime)
+                     exit_when_done=False, setup_rt=realtime and not offline)
     ch.st[C.ST_PHASE] = C.PH_RUNNING
     res = None
     try:
@@ -262,9 +334,16 @@ def rt_main(spec: dict) -> int:
                 save_counters(state_file, final.counts, machine=machine.name, clean=bool(clean), tick=lp.tick)
             ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = final.counts.tolist()
             ch.set_reason(getattr(lp, "quit_reason", "") or (res.reason if res else "rt process error"))
-            ch.st[C.ST_PHASE] = C.PH_EXITED
             fb = lp.last_fb
             sent_ok = bool(np.array_equal(counts + hook.shift + lp.sent, final.counts))
+            ch.set_result({"status": res.status if res else "fault", "reason": res.reason if res else "rt process error",
+                           "ticks": int(res.ticks if res else lp.tick), "counts": final.counts.tolist(),
+                           "sent": lp.sent.tolist(), "shift": hook.shift.tolist(), "sent_ok": sent_ok,
+                           "dropped": int(lp.dropped), "clean": bool(clean), "realtime": bool(cfg.realtime),
+                           "timing": res.timing.summary() if res else {}})
+            ch.st[C.ST_PHASE] = C.PH_EXITED
+            if os.getppid() != int(spec["ppid"]):
+                ch.close(unlink=True)             # the supervisor died: nobody else removes the segment
             dev_ok = fb is None or fb.counts is None or bool(np.array_equal(fb.counts, final.counts))
             log(f"stopped: {getattr(lp, 'quit_reason', '') or (res.reason if res else '')}; counters "
                 f"{final.counts.tolist()} saved; pulses sent = counter change: {'yes' if sent_ok else 'NO'}; "
