@@ -3,10 +3,17 @@
     pmctl run --config config/prototype.toml --backend sim --job examples/jobs/<job> --record DIR
               [--force] [--rate HZ] [--no-realtime] [--service config/service.toml] [--state FILE]
 
-Checks every input first (job, record target, backend, state file), then plans the job from where
-the machine is (saved pulse counters, else home), runs the loop, shows progress, prints
-tracking-error and timing statistics. With --record the run is written as a recording
-(docs/recording.md) while it runs, chunk by chunk from the loop's bounded record ring, into
+Checks every input first (job, record target, backend, state file, the whole job against the
+machine), then runs it through the daemon's machinery as a one-shot client: a
+pmctl.task.supervisor.Supervisor starts the rt motion process (pmctl.motion.rtproc: the loop, the
+NC and the backend in their own process) at the saved pulse counters (else home), the job is
+submitted, planned window by window and streamed into the shared sample ring (memory bounded by a
+window, whatever the job's length), the spindle VFD and the strain DAQ are run by the supervisor;
+at the end the supervisor shuts the rt side down (it saves the counters and hands over its timing
+figures) and the run prints tracking-error and timing statistics. ``--no-realtime``: the rt side
+ticks back to back and waits for samples (an offline simulation of the same path). With --record
+the run is written as a recording
+(docs/recording.md) while it runs, chunk by chunk from the rt side's bounded record ring, into
 ``<DIR>.partial/``, renamed to DIR at the end: memory does not grow with the job, and a run that
 is killed (kill -9, power loss) leaves ``<DIR>.partial/`` with the samples up to the last chunk
 drained (every 20 ms in real time), readable as an incomplete recording.
@@ -16,13 +23,14 @@ decelerates along its path, the counters are saved as a clean stop and the recor
 Output to a closed pipe (``pmctl run ... | head``) is dropped; the run goes on and is saved.
 
 A probing move (G38.2/G38.3, the job's last motion) is stopped on contact by the strain monitor
-(pmctl.motion.probe, [probe] in the service config); the contact point is printed as grbl's
+(pmctl.motion.probe, [probe] in the service config; until the rt process does that, a probing job
+runs its loop in this process, planned whole: _run_probe_job_in_process); the contact point is printed as grbl's
 ``[PRB:x,y,z,a,b:1]`` and kept in recording.json's run block. Recordings of a backend with gauges in
 its cyclic data carry load_fx/fy/fz (the tool-tip force estimated from the strains, per chunk).
 
 Exit codes: 0 done; 3 controlled stop (soft limit, path error, missed deadlines, stall, Ctrl-C,
-SIGTERM); 4 fault (following error, backend not answering, model pose lost, G38.2 without contact);
-1 bad input.
+SIGTERM, a spindle or DAQ fault); 4 fault (following error, backend not answering, model pose lost,
+the rt process lost, G38.2 without contact); 1 bad input.
 """
 
 from __future__ import annotations
@@ -44,6 +52,9 @@ STOP_SIGNALS = {"SIGINT": "interrupted by the operator (Ctrl-C)",
 def add_parser(sub):
     p = sub.add_parser("run", help="machine a job: the control loop against a backend (sim by default)",
                        description="Run a job through the closed-loop NC at a fixed tick rate and record it. "
+                                   "Like pmctl serve, it starts the real-time motion process and streams the "
+                                   "job to it as it is planned (memory does not grow with the job); the "
+                                   "supervisor side runs the spindle and the strain DAQ. "
                                    "Ctrl-C or SIGTERM stops the machine in a controlled way and saves the run. "
                                    "Exit status: 0 done, 3 controlled stop, 4 fault, 1 bad input.",
                        epilog="The recording format is described in docs/recording.md; the state file and "
@@ -58,8 +69,9 @@ def add_parser(sub):
     p.add_argument("--force", action="store_true", help="replace an existing recording in --record DIR")
     p.add_argument("--rate", type=float, default=None, metavar="HZ", help="tick rate (default: service config)")
     p.add_argument("--no-realtime", action="store_true",
-                   help="run ticks back to back, no sleeping and no real-time priority (offline simulation: "
-                        "a slow tick is not a stall)")
+                   help="run ticks back to back, no sleeping and no real-time priority (offline simulation of "
+                        "the same path: a slow tick is not a stall, and the motion process waits for planned "
+                        "samples instead of slowing down)")
     p.add_argument("--k-theta", default=None, metavar="PER_S|auto",
                    help="strain-gauge feedback gain per chain, 1/s (0 = off), or auto: per chain from the chain "
                         "mode (docs/vibration.md; default: service config)")
@@ -436,7 +448,7 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
     log = out.log
     settle = int(round(cfg.settle_s * cfg.rate_hz))
     status = reason = ""
-    stop_tick = end_tick = None
+    stop_tick = None
     bad_input = ""
     t_wall = time.monotonic()
     try:
@@ -473,7 +485,7 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
             if done_tick is None and int(s[C.ST_ENDED]) > ended0:
                 done_tick = int(s[C.ST_TICK])       # at the job's last sample: the plant settles
             if done_tick is not None and int(s[C.ST_TICK]) >= done_tick + settle:
-                status, end_tick = "done", int(s[C.ST_TICK])
+                status = "done"
                 break
             time.sleep(0.005)
     finally:
@@ -506,8 +518,7 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
     if rec_error:
         log(f"warning: the recorder stopped at row {sink.rows}: {rec_error}")
     j0 = job_tick[0] if job_tick[0] is not None else (stop_tick if stop_tick is not None else ticks)
-    res = SimpleNamespace(job_start=j0, ticks=end_tick if status == "done" else ticks, status=status,
-                          reason=reason, dt=dt)
+    res = SimpleNamespace(job_start=j0, ticks=ticks, status=status, reason=reason, dt=dt)
     i0, i1, track_note = tracking_window(res, stop_tick)
     ts = {}
     if i1 > i0 and sink.track is not None and not rec_error:
