@@ -150,19 +150,19 @@ def test_a_job_longer_than_the_batch_planner_holds_is_streamed(tmp_path, monkeyp
 
 
 def test_a_speed_change_inside_the_job_holds_the_path_until_at_speed(tmp_path):
-    """S12000, then M4 S9000 inside a job (pmctl run through the supervisor, simulated VFD on the
+    """S16000, then M4 S6000 inside a job (pmctl run through the supervisor, simulated VFD on the
     loopback): wherever the commanded path moves, the spindle turns within 2 % of one of the job's
     speeds -- the path waits at each change (C_HOLD_AT in the rt process) until the new speed is
     reached -- and the three speeds come in the job's order."""
     job = tmp_path / "s.ngc"
     job.write_text(textwrap.dedent("""\
         G17 G21 G90 G94
-        F600 S6000 M3
-        G1 X2
-        S12000
-        G1 Y2
-        M4 S9000
-        G1 X0
+        F900 S8000 M3
+        G1 X3
+        S16000
+        G1 Y-2
+        M4 S6000
+        G1 X0 Y0
         M5
         M2
         """))
@@ -170,12 +170,12 @@ def test_a_speed_change_inside_the_job_holds_the_path_until_at_speed(tmp_path):
                'spinup_timeout_s = 20\n')
     r, saved, rec = _run(tmp_path, "rec", job, False, extra=spindle)
     assert r.returncode == 0, r.stdout + r.stderr
-    assert "spindle M3 S6000: at speed" in r.stderr
+    assert "spindle M3 S8000: at speed" in r.stderr
     rpm = rec["spindle_rpm"]
     q = np.stack([rec[f"cmd_{a}"] for a in AXES], -1)
     moving = np.r_[np.abs(np.diff(q, axis=0)).max(axis=1) > 1e-3, False]
     assert moving.sum() > 500
-    levels = np.array([6000.0, 12000.0, -9000.0])
+    levels = np.array([8000.0, 16000.0, -6000.0])
     near = np.abs(rpm[moving][:, None] - levels[None]) <= 0.02 * np.abs(levels)[None]
     assert near.any(axis=1).all(), rpm[moving][~near.any(axis=1)][:5]
     first = [int(np.flatnonzero(near[:, i])[0]) for i in range(3)]

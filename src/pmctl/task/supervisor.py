@@ -287,8 +287,12 @@ class Supervisor:
             self.raise_alarm(ALARM_ABORT, why)
 
         def stop():
-            if self.ch is not None and not self.rt_dead and not self._quitting:
-                self._stop_queue()
+            try:
+                if self.ch is not None and not self.rt_dead and not self._quitting:
+                    self._stop_queue()
+            except Exception as e:        # noqa: BLE001 (a shutdown meanwhile closed the channel: it stops anyway)
+                if not self._quitting:
+                    self.log(f"stopping after {why}: {type(e).__name__}: {e}")
         threading.Thread(target=stop, daemon=True, name="pmctl-device-stop").start()
 
     def _job_spindle(self, it, row0):

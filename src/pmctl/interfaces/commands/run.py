@@ -169,7 +169,7 @@ class _Progress:
                 self.out.write("\r" + self._line() + "\n", err=True)
 
 
-from pmctl.task.run_sink import AXES, RunSink, TrackingAccumulator, _held  # noqa: E402,F401  (kept importable here)
+from pmctl.task.run_sink import RunSink, TrackingAccumulator  # noqa: E402,F401  (kept importable here)
 
 
 def _plant_meta(backend) -> dict:
@@ -298,6 +298,17 @@ def run(args) -> int:
                        nc_over, strain_in_loop, where)
 
 
+def _catch_stop_signals(handler) -> dict:
+    """SIGINT, SIGTERM and SIGHUP to ``handler`` (main thread only); returns the handlers to restore."""
+    old = {}
+    if threading.current_thread() is threading.main_thread():
+        for name in STOP_SIGNALS:
+            sig = getattr(signal, name, None)
+            if sig is not None:
+                old[sig] = signal.signal(sig, handler)
+    return old
+
+
 def _rt_probing() -> bool:
     """Whether the rt process stops probing moves itself (``Supervisor.submit`` fills
     ``item.probe_results``); until then probing jobs take the in-process path."""
@@ -378,12 +389,7 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
         if not stop_req:
             stop_req.append((STOP_SIGNALS.get(signal.Signals(signum).name, f"signal {signum}"),
                              int(sup.ch.st[C.ST_TICK]) if sup.ch is not None else 0))
-    old = {}
-    if threading.current_thread() is threading.main_thread():
-        for name in STOP_SIGNALS:
-            sig = getattr(signal, name, None)
-            if sig is not None:
-                old[sig] = signal.signal(sig, _stop)
+    old = _catch_stop_signals(_stop)
     rec = None
     try:
         cls = hal.backend_class(backend_name)
@@ -575,12 +581,7 @@ def _run_probe_job_in_process(args, out, machine, svc, cfg, params, setup, backe
         elif not lp_.stop_request:
             stop_tick.append(lp_.tick)
             lp_.stop_request = reason
-    old = {}
-    if threading.current_thread() is threading.main_thread():
-        for name in STOP_SIGNALS:
-            sig = getattr(signal, name, None)
-            if sig is not None:
-                old[sig] = signal.signal(sig, _stop)
+    old = _catch_stop_signals(_stop)
     from pmctl.hal.modbus_daq import DaqSession
     from pmctl.hal.modbus_vfd import SpindleSession, job_speed
     rpm_job, spindle, daq = job_speed(traj.spindle_rpm), None, None
