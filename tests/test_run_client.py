@@ -217,3 +217,19 @@ def test_a_stale_daq_mid_job_stops_the_supervisor_on_the_path(tmp_path):
     r = sup.rt_result
     assert r["sent_ok"] and r["clean"]
     assert np.array_equal(np.asarray(c0) + np.asarray(r["sent"]), counts)
+
+
+def test_an_unreachable_line_is_refused_before_the_rt_process_starts(tmp_path):
+    """The whole job is checked in the client before anything moves: exit 1, the file and the line
+    named, no motion process started, no recording and no counters left."""
+    job = tmp_path / "bad.ngc"
+    job.write_text("G17 G21 G90 G94\nG0 X5 Y0 Z65\nG1 X-5 F600\nG1 X400\nM2\n")
+    state = tmp_path / "state.json"
+    args = [*PMCTL, "run", "--job", str(job), "--service", str(_service(tmp_path)), "--state", str(state),
+            "--record", str(tmp_path / "rec"), "--no-realtime", "--quiet"]
+    r = subprocess.run(args, capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "bad.ngc:4:" in r.stderr
+    assert "rt motion process" not in r.stderr and "result:" not in r.stdout
+    assert not (tmp_path / "rec").exists() and not (tmp_path / "rec.partial").exists()
+    assert not state.exists()

@@ -361,6 +361,14 @@ class Supervisor:
             tail = (tips[-3:], axes[-3:])
             yield tr
 
+    def _drop_speed_changes(self):
+        """A soft reset, an E-stop or a fault dropped the queue: no speed change is waited for."""
+        with self._lock:
+            self._speed_points.clear()
+            ch = self.spindle.changer if self.spindle is not None else None
+            if ch is not None:
+                ch.pending = None
+
     def _follow_speed_points(self, s):
         """(monitor thread) The rt side reached a C_HOLD_AT point and holds: the spindle monitor's
         thread now sends the new speed and releases the hold at speed (SpeedChanger.poll)."""
@@ -516,6 +524,7 @@ class Supervisor:
         if self.homing:
             self.homing_abort.set()
         self._stop_queue(timeout_s)
+        self._spindle_off("at the soft reset")
 
     def _stop_queue(self, timeout_s=10.0):
         """Stop on the path, drop every queued item and sample, wait until at rest."""
@@ -523,7 +532,7 @@ class Supervisor:
         with self._lock:
             self.items.clear()
             self._gen += 1
-            self._speed_points.clear()
+        self._drop_speed_changes()
         # the planner thread drops what it holds once it sees the abort
         while not self._plan_q.empty():
             try:
@@ -551,6 +560,8 @@ class Supervisor:
             self.command(C.C_ESTOP)
             self._ended_base = int(self.raw()[C.ST_ENDED])
         self.raise_alarm(ALARM_ESTOP, reason)
+        self._drop_speed_changes()
+        self._spindle_off("at the E-stop")
         self._abort.clear()
 
     def unlock(self):
@@ -739,6 +750,7 @@ class Supervisor:
                     self.items.clear()
                     self._gen += 1
                     self._ended_base = int(s[C.ST_ENDED])
+                self._drop_speed_changes()
                 code = ALARM_SOFT_LIMIT if reason.startswith(("soft limit", "path error")) else (
                     ALARM_ESTOP if reason.startswith("E-stop") else ALARM_MOTOR_FAULT)
                 if code == ALARM_MOTOR_FAULT:
@@ -763,12 +775,19 @@ class Supervisor:
         if not self.spindle_off_at_job_end or sp is None or not sp.vfd.rpm_cmd or not moves \
                 or getattr(moves[-1], "spindle_rpm", 0.0) or self.items:
             return
+        self._spindle_off("at the job's end")
+
+    def _spindle_off(self, when: str):
+        """M5 from a thread of its own (a Modbus write is no business of the caller's thread)."""
+        sp = self.spindle
+        if sp is None or sp.vfd is None or not sp.vfd.rpm_cmd:
+            return
 
         def stop():
             try:
                 sp.vfd.stop()
             except Exception as e:            # noqa: BLE001 (the monitor reports a lost link)
-                self.log(f"warning: M5 at the job's end: {e}")
+                self.log(f"warning: M5 {when}: {e}")
         threading.Thread(target=stop, daemon=True, name="pmctl-m5").start()
 
 
