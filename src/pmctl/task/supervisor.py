@@ -144,9 +144,13 @@ class Supervisor:
     def start(self, counts0, timeout_s: float = 60.0):
         """Create the channel, start the rt process at pulse counters ``counts0`` and the threads."""
         self.counts0 = np.asarray(counts0, np.int64)
-        self.ch = C.Channel(create=True, sample_capacity=self.sample_capacity)
-        self._spawn(self.counts0, timeout_s)
-        self.open_devices()
+        self.open_devices()               # a device that does not answer: refused before the drives enable
+        try:
+            self.ch = C.Channel(create=True, sample_capacity=self.sample_capacity)
+            self._spawn(self.counts0, timeout_s)
+        except BaseException:
+            self.close_devices()
+            raise
         for name, fn in (("pmctl-planner", self._planner), ("pmctl-monitor", self._monitor)):
             t = threading.Thread(target=fn, name=name, daemon=True)
             t.start()
@@ -712,7 +716,7 @@ class Supervisor:
             return
         rows = self.ch.records.pop()
         if len(rows):
-            from pmctl.motion.recorder import R_STRAIN
+            from pmctl.motion.recorder import R_STRAIN, R_TICK
             self._strain = rows[-1, R_STRAIN:R_STRAIN + 3].tolist()
         if len(rows) and self.record_sink is not None:
             try:
@@ -720,6 +724,23 @@ class Supervisor:
             except Exception as e:
                 self.log(f"recording failed: {e}")
                 self.record_sink = None
+        if len(rows):
+            self._trim_device_samples(int(rows[-1, R_TICK]))
+
+    def _trim_device_samples(self, tick: int):
+        """The spindle's and the DAQ's polled samples (tick-stamped) up to the last drained record are
+        no longer needed but the last (it holds on): memory does not grow with the session."""
+        lists = []
+        if self.spindle is not None and self.spindle.monitor is not None:
+            lists.append(self.spindle.monitor.samples)
+        if self.daq is not None and self.daq.daq is not None:
+            lists.append(self.daq.daq.samples)
+        for lst in lists:
+            i = 0
+            while i + 1 < len(lst) and lst[i + 1][0] <= tick:
+                i += 1
+            if i:
+                del lst[:i]           # appends by the polling thread go on at the end (one list op each)
 
     def _monitor(self):
         while not self._stop.wait(0.01):
