@@ -295,7 +295,7 @@ def run(args) -> int:
         return _run_probe_job_in_process(args, out, machine, svc, cfg, params, setup, backend_name, state_file,
                                          counts0, st, job, probe_segs, strain_in_loop, where)
     return _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, counts0, st, job,
-                       nc_over, strain_in_loop, where)
+                       nc_over, strain_in_loop, where, setup.notes)
 
 
 def _catch_stop_signals(handler) -> dict:
@@ -349,7 +349,7 @@ class _RunView:
 
 
 def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, counts0, st, job, nc_over,
-                strain_in_loop, where) -> int:
+                strain_in_loop, where, setup_notes) -> int:
     """The job through the machinery of the daemon: a Supervisor starts the rt motion process (its
     own process: loop, NC, backend), the job is submitted, planned window by window and streamed into
     the sample ring (memory bounded by a window, whatever the job's length), the records stream back
@@ -368,7 +368,7 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
     dt = cfg.dt
     sup = Supervisor(args.config, service=args.service, backend=backend_name, state_file=state_file or "",
                      realtime=cfg.realtime, rate_hz=cfg.rate_hz, log=log, offline=not cfg.realtime, nc=nc_over)
-    notes = list(sup.nc_setup.notes)
+    notes = list(setup_notes)              # chain modes, K_theta auto, shaper: as this run resolved them
     if sup.plan_machine is not sup.machine:
         notes.append(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: "
                      f"planning with that")
