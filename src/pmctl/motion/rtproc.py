@@ -178,7 +178,11 @@ class RtHook:
         s[C.ST_HOLD_AT_SEQ] = self.hold_at_seq
         s[C.ST_SEQ] += 1.0
         if self.offline:
-            self._offline_wait(fol, sc, lp.backend.stall_tolerance_s)
+            be = lp.backend
+            # a simulation waits as long as it takes; a device keeps its watchdog fed (CANopen: the
+            # host heartbeat the ticks carry; a step/dir bridge: its command watchdog)
+            self._offline_wait(fol, sc, math.inf if be.truth() is not None else
+                               (0.4 * be.stall_tolerance_s if be.stall_tolerance_s > 0 else 0.05))
         return st
 
     def _check_hold_at(self, fol, sc):
@@ -193,16 +197,15 @@ class RtHook:
             self.hold_at.pop(0)
             self.hold_at_seq += 1
 
-    def _offline_wait(self, fol, sc, tolerance_s=0.0):
+    def _offline_wait(self, fol, sc, max_wait_s=math.inf):
         """Offline (no real time): before the next tick, wait until the path can go on at full speed
         (enough samples queued for a stop from SIGMA_MAX, or the job's end among them) and the
         record ring has room; pace the tick when there is nothing to follow. Commands, a quit and
-        a dead supervisor end the wait at once; so does a backend's own watchdog (``tolerance_s``:
-        CANopen drives fault without the host's heartbeat, which the ticks carry): after 40 % of
-        it the tick runs, and the path may slow down for want of samples as in real time."""
+        a dead supervisor end the wait at once; a device's watchdog bounds it (``max_wait_s``):
+        then the tick runs, and the path may slow down for want of samples as in real time."""
         from pmctl.motion.timescale import FLAG_END, S_FLAGS, SIGMA_MAX
         src, ch = fol.src, self.ch
-        t_end = time.monotonic() + (0.4 * tolerance_s if tolerance_s > 0 else math.inf)
+        t_end = time.monotonic() + max_wait_s
         if self.need is None:
             # the queue the starvation limit of the path follower lets run at SIGMA_MAX, in samples
             tau = SIGMA_MAX ** 2 / (0.81 * sc.accel)
