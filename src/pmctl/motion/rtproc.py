@@ -55,6 +55,7 @@ class RtHook:
         self.hold_at = []                           # [(ring row, at rest)] queued by C_HOLD_AT, in order
         self.hold_at_seq = 0
         self.need = None                            # offline: samples queued before the path moves on
+        self._sent_prev = None                      # pulses sent as of the previous tick
         self.ppid = ppid
         self.log = log
         self.resetting = False
@@ -149,7 +150,11 @@ class RtHook:
             fol.clear()
             sc.hold = False
             self.resetting = False
-        if self.quitting and (at_rest or st.mode == HALTED):
+        # quit on a tick that sent no pulse: the last record's counters are the ones saved
+        sent = lp.sent.tolist()
+        quiet = sent == self._sent_prev
+        self._sent_prev = sent
+        if self.quitting and ((at_rest and quiet) or st.mode == HALTED):
             lp.quit = True
             lp.quit_reason = self.quitting
         late = getattr(lp, "last_late_ns", 0)
