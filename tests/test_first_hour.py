@@ -44,7 +44,7 @@ def _run_args(tmp_path, job="hemisphere.cl", record="rec", extra=(), realtime=Fa
 
 def _start_and_wait_for_loop(args, **kw):
     """Start `pmctl run`; return (process, stderr lines so far) once the loop is about to start
-    (the line announcing the job's length and rate)."""
+    (the line announcing the job streamed to the rt motion process)."""
     p = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, **kw)
     seen = []
     t0 = time.monotonic()
@@ -53,7 +53,7 @@ def _start_and_wait_for_loop(args, **kw):
         if not line:
             break
         seen.append(line)
-        if " s at " in line and "backend" in line:
+        if "streamed to the rt motion process" in line and "backend" in line:
             return p, seen
     p.kill()
     raise AssertionError("the loop never started: " + "".join(seen))

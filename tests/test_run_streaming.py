@@ -48,7 +48,7 @@ def test_sigkill_leaves_a_readable_partial_recording(tmp_path):
         t0 = time.monotonic()
         while time.monotonic() - t0 < 120:                      # the loop has started
             line = p.stderr.readline()
-            if not line or (" s at " in line and "backend" in line):
+            if not line or ("streamed to the rt motion process" in line and "backend" in line):
                 break
         data = tmp_path / "rec.partial" / "data.csv"
         t0 = time.monotonic()                                   # ~2 s of ticks drained to disk (not a fixed

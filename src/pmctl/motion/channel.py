@@ -13,6 +13,11 @@ Layout (all float64 unless noted), in this order:
   probing segment the next ``FLAG_PROBE`` samples belong to (pmctl.motion.probe.ProbeSegment.to_row).
   The supervisor writes it (the number last) before it pushes those samples; one probe is in flight
   at a time.
+- the result (``RESULT_BYTES``, last): written once by the rt side as it exits, a JSON
+  object (the loop's end status and reason, ticks, and its timing summary: compute, NC step and
+  lateness median/p99/max, overruns) preceded by its length as an int64 (0: not written yet); the
+  supervisor reads it after the rt process ended (:meth:`Channel.result`), so a one-shot run
+  (``pmctl run``) reports the rt side's timing figures.
 
 The supervisor creates the segment and unlinks it at exit; the rt side attaches by name.
 """
@@ -46,7 +51,8 @@ ST_HOME_IN = ST_LATCH + 5         # home switches as a bit mask (bit i: axis i c
                                   # backend that cannot re-reference its counters (no homing)
 ST_PROBE_SEQ = ST_HOME_IN + 1     # counts the probing moves ended (G38.2/G38.3, pmctl.motion.probe)
 ST_PROBE = ST_PROBE_SEQ + 1       # (PROBE_RESULT_WIDTH) the last one's result (ProbeResult.to_row)
-STATUS_WIDTH = ST_PROBE + PROBE_RESULT_WIDTH
+ST_HOLD_AT_SEQ = ST_PROBE + PROBE_RESULT_WIDTH  # counts the C_HOLD_AT points the path reached (held there)
+STATUS_WIDTH = ST_HOLD_AT_SEQ + 1
 PROBE_TABLE_WIDTH = 1 + PROBE_SEGMENT_WIDTH
 REASON_BYTES = 512
 
@@ -62,17 +68,23 @@ C_HOLD, C_RESUME, C_FEED_OV, C_RAPID_OV, C_RESET, C_QUIT, C_ESTOP, C_UNLOCK, C_S
 # reads ``state`` (1 closed, 0 open); axis -1 disarms.
 C_CHAIN_OFFSET = 11
 # C_CHAIN_OFFSET (chain, mm): the chain-length offset input of chain 0..2 (slow compensation; ControlLoop.set_chain_offset).
+C_HOLD_AT = 12
+# C_HOLD_AT (row, rest): feed-hold on the path when it reaches sample ``row`` of the sample ring (its
+# absolute index: Ring.written when it was pushed), e.g. a spindle speed change inside a job waiting
+# for at speed; ``rest`` 1: the path is at rest there (a planned stop). Points queue in order; each
+# reached one counts up ST_HOLD_AT_SEQ. A soft reset or a fault drops them.
 CMD_WIDTH = 4
 CMD_CAPACITY = 64
 
 SAMPLE_CAPACITY = 16384           # 16 s of samples at 1 kHz, 3.2 MB
 RECORD_CAPACITY = 8192            # 8 s of records at 1 kHz, 2 MB
+RESULT_BYTES = 8192
 
 
 def segment_size(sample_capacity=SAMPLE_CAPACITY, record_capacity=RECORD_CAPACITY) -> int:
     return (8 * STATUS_WIDTH + REASON_BYTES + ring_bytes(CMD_CAPACITY, CMD_WIDTH)
             + ring_bytes(sample_capacity, SAMPLE_WIDTH) + ring_bytes(record_capacity, REC_WIDTH)
-            + 8 * PROBE_TABLE_WIDTH)
+            + 8 * PROBE_TABLE_WIDTH + RESULT_BYTES)
 
 
 class Channel:
@@ -104,10 +116,13 @@ class Channel:
         self.records = Ring(record_capacity, REC_WIDTH, buf[off:off + n], reset=create)
         off += n
         self.probe = np.ndarray((PROBE_TABLE_WIDTH,), np.float64, buf, off)
+        off += 8 * PROBE_TABLE_WIDTH
+        self._result = np.ndarray((RESULT_BYTES,), np.uint8, buf, off)
         if create:
             self.st[:] = 0.0
             self._reason[:] = 0
             self.probe[:] = 0.0
+            self._result[:8] = 0
         self._cmd_seq = 0
 
     # ---- rt side
@@ -123,7 +138,28 @@ class Channel:
         self._reason[:len(b)] = np.frombuffer(b, np.uint8)
         self.st[ST_REASON_SEQ] += 1.0
 
+    def set_result(self, result: dict):
+        """The rt side's end result (JSON; written once, as it exits): the body first, then its length."""
+        import json
+        b = json.dumps(result).encode()[:RESULT_BYTES - 8]
+        self._result[8:8 + len(b)] = np.frombuffer(b, np.uint8)
+        self._result[:8] = np.frombuffer(np.int64(len(b)).tobytes(), np.uint8)
+
     # ---- supervisor side
+    def result(self) -> dict | None:
+        """The rt side's end result, or None when it has not written one (killed, or still running)."""
+        import json
+        n = int(np.frombuffer(bytes(self._result[:8]), np.int64)[0])
+        if n <= 0:
+            return None
+        try:
+            return json.loads(bytes(self._result[8:8 + n]).decode())
+        except ValueError:
+            return None
+
+    def clear_result(self):
+        self._result[:8] = 0
+
     def status(self) -> np.ndarray:
         """A consistent copy of the status block (retries while the rt side writes)."""
         for _ in range(1000):
@@ -144,7 +180,7 @@ class Channel:
 
     def close(self, unlink: bool = False):
         # numpy views keep the buffer exported: drop them first
-        for a in ("st", "_reason", "commands", "samples", "records", "probe"):
+        for a in ("st", "_reason", "commands", "samples", "records", "probe", "_result"):
             if hasattr(self, a):
                 delattr(self, a)
         import gc

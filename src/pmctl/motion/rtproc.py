@@ -17,14 +17,24 @@ in ``spec`` (a dict of plain values). Per tick, after the NC step, its hook:
 - every 50 ticks checks that the supervisor is still its parent: if it died, the machine is
   brought to a feed hold on the path, the counters are saved (clean) and the process exits.
 A fault (NC halt) or an NC stop drops the queued samples: motion resumes only after an unlock.
-SIGTERM is a quit: hold on the path, save the counters, exit.
+SIGTERM is a quit: hold on the path, save the counters, exit. As it exits, the rt side writes its
+result into the channel (Channel.set_result: end status, reason, ticks, pulses sent, and the loop's
+timing summary), which a one-shot client (``pmctl run``) reports and records.
+
+``spec["offline"]`` (``pmctl run --no-realtime``): an offline simulation on the same path. Ticks
+run back to back while the path moves, and the rt side waits for planned samples instead of
+decelerating for an empty queue (starvation is a real-time matter: offline nothing is late), and
+for room in the record ring instead of dropping records. With nothing to follow (idle, held, at a
+job's end) the ticks are paced at the tick period.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import sys
+import time
 
 import numpy as np
 
@@ -32,9 +42,24 @@ from pmctl.hal.base import as_inputs
 from pmctl.motion import channel as C
 
 
+def apply_nc_overrides(svc, nc: dict | None):
+    """A run's NC settings that differ from the service config file (``pmctl run --k-theta --shaper
+    --pulse-mode``), applied to ``svc.nc`` the same way in the supervisor and in the rt process."""
+    for key, v in (nc or {}).items():
+        if key == "k_theta_per_s":
+            v = tuple(float(x) for x in v)
+        setattr(svc.nc, key, v)
+    return svc
+
+
 class RtHook:
-    def __init__(self, ch: C.Channel, machine, params, ppid: int, log):
+    def __init__(self, ch: C.Channel, machine, params, ppid: int, log, offline: bool = False):
         self.ch, self.machine, self.params = ch, machine, params
+        self.offline = bool(offline)
+        self.hold_at = []                           # [(ring row, at rest)] queued by C_HOLD_AT, in order
+        self.hold_at_seq = 0
+        self.need = None                            # offline: samples queued before the path moves on
+        self._sent_prev = None                      # pulses sent as of the previous tick
         self.ppid = ppid
         self.log = log
         self.resetting = False
@@ -91,6 +116,7 @@ class RtHook:
                 sc.set_rapid_override(a1)
             elif code == C.C_RESET:
                 self.resetting = True
+                self.hold_at.clear()
                 sc.hold = True
                 if self.probe is not None:
                     self.probe.cancel(fol)
@@ -116,6 +142,8 @@ class RtHook:
                 self.arm_edges = dev[self.arm_axis][0] if dev is not None and self.arm_axis >= 0 else None
             elif code == C.C_CHAIN_OFFSET:
                 lp.set_chain_offset(int(a1), a2)      # bounded there (refused with a reason in the log)
+            elif code == C.C_HOLD_AT:
+                self.hold_at.append((float(a1), bool(a2)))
             elif code == C.C_SET_COUNTS:
                 # at rest with nothing queued only (the supervisor checks the counters after the ack)
                 if st.mode == RUN and sc.sigma == 0.0 and fol.src.count() == 0 and 0 <= int(a1) < 5:
@@ -141,11 +169,14 @@ class RtHook:
             self.quitting = "the supervisor died: feed hold on the path, counters saved"
             self.log(self.quitting)
             sc.hold = True
+        if self.hold_at:
+            self._check_hold_at(fol, sc)
         if st.mode in (STOPPING, HALTED):
             if not self.faulted:
                 self.faulted = True
                 if self.probe is not None:
                     self.probe.cancel(fol)
+                self.hold_at.clear()
                 fol.clear()
                 ch.set_reason(st.reason)
                 ch.st[C.ST_FAULT] = C.F_FAULT if st.mode == HALTED and not _was_stop(st) else C.F_STOP
@@ -157,7 +188,11 @@ class RtHook:
             fol.clear()
             sc.hold = False
             self.resetting = False
-        if self.quitting and (at_rest or st.mode == HALTED):
+        # quit on a tick that sent no pulse: the last record's counters are the ones saved
+        sent = lp.sent.tolist()
+        quiet = sent == self._sent_prev
+        self._sent_prev = sent
+        if self.quitting and ((at_rest and quiet) or st.mode == HALTED):
             lp.quit = True
             lp.quit_reason = self.quitting
         mon = self.probe
@@ -191,7 +226,14 @@ class RtHook:
             s[C.ST_DEV_COUNTS:C.ST_DEV_COUNTS + 5] = fb.counts.tolist()
         s[C.ST_PROBE_SEQ] = self.probe_seq
         s[C.ST_PROBE:C.ST_PROBE + C.PROBE_RESULT_WIDTH] = self.probe_row
+        s[C.ST_HOLD_AT_SEQ] = self.hold_at_seq
         s[C.ST_SEQ] += 1.0
+        if self.offline:
+            be = lp.backend
+            # a simulation waits as long as it takes; a device keeps its watchdog fed (CANopen: the
+            # host heartbeat the ticks carry; a step/dir bridge: its command watchdog)
+            self._offline_wait(fol, sc, math.inf if be.truth() is not None else
+                               (0.4 * be.stall_tolerance_s if be.stall_tolerance_s > 0 else 0.05))
         return st
 
     def _latch(self, counts, axis, dev_count, sc):
@@ -203,6 +245,48 @@ class RtHook:
         self.latch_seq += 1
         self.arm_axis = -1
         sc.hold = True
+
+    def _check_hold_at(self, fol, sc):
+        """Hold on the path at the first queued C_HOLD_AT row: once the next ticks would reach it
+        (at most LOOKAHEAD_SAMPLES short of it, as pmctl.hal.modbus_vfd.SpeedChanger does in one process)."""
+        from pmctl.hal.modbus_vfd import LOOKAHEAD_SAMPLES
+        row, rest = self.hold_at[0]
+        if fol.src.consumed + fol.frac + LOOKAHEAD_SAMPLES * sc.sigma * fol.k >= row:
+            sc.hold = True
+            if rest:                  # on a planned stop the path is at rest: sigma means nothing there
+                sc.sigma = sc.dsigma = 0.0
+            self.hold_at.pop(0)
+            self.hold_at_seq += 1
+
+    def _offline_wait(self, fol, sc, max_wait_s=math.inf):
+        """Offline (no real time): before the next tick, wait until the path can go on at full speed
+        (enough samples queued for a stop from SIGMA_MAX, or the job's end among them) and the
+        record ring has room; pace the tick when there is nothing to follow. Commands, a quit and
+        a dead supervisor end the wait at once; a device's watchdog bounds it (``max_wait_s``):
+        then the tick runs, and the path may slow down for want of samples as in real time."""
+        from pmctl.motion.timescale import FLAG_END, S_FLAGS, SIGMA_MAX
+        src, ch = fol.src, self.ch
+        t_end = time.monotonic() + max_wait_s
+        if self.need is None:
+            # the queue the starvation limit of the path follower lets run at SIGMA_MAX, in samples
+            tau = SIGMA_MAX ** 2 / (0.81 * sc.accel)
+            self.need = min(int(math.ceil(tau * fol.k / self.params.dt)) + 2, src.capacity // 2)
+        while True:
+            if self.quitting or self.resetting or self.term or ch.commands.count() or os.getppid() != self.ppid \
+                    or time.monotonic() > t_end:
+                return
+            if ch.records.free() < 2:
+                time.sleep(0.0005)
+                continue
+            n = src.count()
+            end = n > 0 and int(src.row(n - 1)[S_FLAGS]) & FLAG_END
+            if n == 0 or (n == 1 and end) or (sc.hold and sc.sigma == 0.0):
+                time.sleep(self.params.dt)        # nothing to follow: paced
+                return
+            if end or n >= self.need:
+                return
+            time.sleep(0.0005)                    # the planner is behind: wait, do not decelerate
+
 
     def _rereference(self, lp, st, axis, count):
         """Set one axis's pulse counter (homing): the NC restarts from the new counters (its model pose
@@ -283,11 +367,12 @@ def rt_main(spec: dict) -> int:
     ch.st[C.ST_COUNTS0:C.ST_COUNTS0 + 5] = [float(c) for c in spec["counts"]]
     ch.st[C.ST_DEV_COUNTS:C.ST_DEV_COUNTS + 5] = float("nan")
     machine = load_machine(spec["config"])
-    svc = load_service_config(spec.get("service"))
+    svc = apply_nc_overrides(load_service_config(spec.get("service")), spec.get("nc"))
     cfg = svc.loop
     cfg.rate_hz = float(spec.get("rate_hz") or cfg.rate_hz)
     realtime = bool(spec.get("realtime", cfg.realtime))
-    cfg.realtime = True                   # the daemon always keeps time (deadlines)
+    offline = bool(spec.get("offline", False))
+    cfg.realtime = not offline            # the daemon always keeps time (deadlines); offline: back to back
     if not realtime:
         cfg.lock_memory = False
         cfg.stall_timeout_s = max(cfg.stall_timeout_s, 5.0)
@@ -296,7 +381,7 @@ def rt_main(spec: dict) -> int:
     from pmctl.motion.service_config import nc_setup
     params = svc.nc.params(machine, dt, where=svc.source, modes=nc_setup(svc, machine, dt, spec["backend"]).modes)
     counts = np.array(spec["counts"], np.int64)
-    be = hal.create(spec["backend"], machine, dt, svc.backend_options if spec["backend"] == svc.backend else {})
+    be = hal.create(spec["backend"], machine, dt, svc.backend_tables.get(spec["backend"], {}))
     state_file = spec.get("state_file") or ""
     _restore_offset(be, state_file, machine.name, log)
     be.open(counts)
@@ -316,7 +401,7 @@ def rt_main(spec: dict) -> int:
         def stop(self):
             pass
 
-    hook = RtHook(ch, machine, params, int(spec["ppid"]), log)
+    hook = RtHook(ch, machine, params, int(spec["ppid"]), log, offline=offline)
     from pmctl.motion.probe import ProbeMonitor
     hook.probe = ProbeMonitor(machine, [], svc.probe, dt, params, fetch=hook.probe_fetch)
 
@@ -325,7 +410,7 @@ def rt_main(spec: dict) -> int:
     signal.signal(signal.SIGTERM, _term)
     lp = ControlLoop(machine, be, params, None, cfg, st, log=log, writer=writer, follower=fol,
                      records=ch.records, recorder=_Null(ch.records, keep=False), hook=hook,
-                     exit_when_done=False, setup_rt=realtime, probe=hook.probe)
+                     exit_when_done=False, setup_rt=realtime and not offline, probe=hook.probe)
     ch.st[C.ST_PHASE] = C.PH_RUNNING
     res = None
     try:
@@ -342,9 +427,16 @@ def rt_main(spec: dict) -> int:
                               offsets=be.reference_offset())
             ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = final.counts.tolist()
             ch.set_reason(getattr(lp, "quit_reason", "") or (res.reason if res else "rt process error"))
-            ch.st[C.ST_PHASE] = C.PH_EXITED
             fb = lp.last_fb
             sent_ok = bool(np.array_equal(counts + hook.shift + lp.sent, final.counts))
+            ch.set_result({"status": res.status if res else "fault", "reason": res.reason if res else "rt process error",
+                           "ticks": int(res.ticks if res else lp.tick), "counts": final.counts.tolist(),
+                           "sent": lp.sent.tolist(), "shift": hook.shift.tolist(), "sent_ok": sent_ok,
+                           "dropped": int(lp.dropped), "clean": bool(clean), "realtime": bool(cfg.realtime),
+                           "timing": res.timing.summary() if res else {}})
+            ch.st[C.ST_PHASE] = C.PH_EXITED
+            if os.getppid() != int(spec["ppid"]):
+                ch.close(unlink=True)             # the supervisor died: nobody else removes the segment
             dev_ok = fb is None or fb.counts is None or bool(np.array_equal(fb.counts, final.counts))
             log(f"stopped: {getattr(lp, 'quit_reason', '') or (res.reason if res else '')}; counters "
                 f"{final.counts.tolist()} saved; pulses sent = counter change: {'yes' if sent_ok else 'NO'}; "

@@ -15,6 +15,15 @@ table), then -- once the rt side reports the probe ended -- the rest of the item
 probe stopped. The results land in ``Item.probe_results``; a G38.2 without contact raises ALARM 5
 and drops the queue (grbl's probe fail).
 
+- runs the devices that are no part of the tick: the spindle VFD (``[spindle]``: started and
+  waited at speed before a job's first sample; a speed change inside a job holds the path on its
+  planned stop, C_HOLD_AT, until the new speed is reached) and the strain DAQ (``[daq]``, polled for
+  the whole session, serving a simulated DAQ the plant's strain from the drained records); a fault
+  or lost link of either is a controlled stop on the path with the reason (ALARM 3).
+
+``pmctl run`` is a one-shot client of this class (start, submit one job, wait, shutdown);
+``offline=True`` (its --no-realtime) runs the rt side's ticks back to back, waiting for samples.
+
 The machine state (grbl's: Idle, Run, Hold:0/1, Jog, Home, Alarm, Check) is derived here from
 the rt status and the supervisor's own flags. Operator requests (hold, resume, overrides, soft
 reset, E-stop, unlock) go to the rt side as commands on the channel's command ring.
@@ -73,13 +82,16 @@ class Item:
 
 class Supervisor:
     def __init__(self, config="prototype", *, service=None, backend=None, state_file="", realtime=False,
-                 rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY):
+                 rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY, offline=False, nc=None):
         from pmctl.core.config import load_machine
+        from pmctl.motion.rtproc import apply_nc_overrides
         from pmctl.motion.service_config import load_service_config
         self.config = config
         self.service = service
         self.machine = load_machine(config)
-        self.svc = load_service_config(service)
+        self.nc_overrides = dict(nc or {})        # e.g. pmctl run --k-theta --shaper --pulse-mode
+        self.svc = apply_nc_overrides(load_service_config(service), self.nc_overrides)
+        self.offline = bool(offline)              # rt ticks back to back, waiting for samples
         self.backend = backend or self.svc.backend
         self.rate_hz = float(rate_hz or self.svc.loop.rate_hz)
         self.dt = 1.0 / self.rate_hz
@@ -87,6 +99,14 @@ class Supervisor:
         self.nc_setup = nc_setup(self.svc, self.machine, self.dt, self.backend)   # chain modes, K_theta auto, shaper
         self.params = self.svc.nc.params(self.machine, self.dt, where=self.svc.source, modes=self.nc_setup.modes)
         self.svc.homing.check(self.params, self.svc.source)        # [homing] against this machine's joints
+        self.plan_machine = self.machine
+        if np.any(self.params.vmax < self.machine.limits.joint_speed - 1e-9):
+            # the V-F converters cap the joint speed below the machine's (seed mode: one pulse per
+            # tick): plan within what they can emit
+            from dataclasses import replace
+            lim = replace(self.machine.limits, chain_speed=float(self.params.vmax[:3].min()),
+                          table_speed=float(self.params.vmax[3:].min()))
+            self.plan_machine = replace(self.machine, limits=lim)
         self.state_file = state_file
         self.realtime = bool(realtime)
         self.log = log or (lambda m: None)
@@ -117,13 +137,30 @@ class Supervisor:
         self.counts0 = None
         self.exited_reason = ""
         self.plan_feed_override = 1.0     # the planner's feed factor (pmctl run --feed-override)
+        self.final_status = None          # the rt side's last status block, kept at shutdown
+        self.rt_result = None             # what the rt side reported as it exited (Channel.result)
+        # devices out of the tick (spindle VFD, strain DAQ): opened by open_devices()
+        self.spindle = None               # pmctl.hal.modbus_vfd.SpindleSession
+        self.daq = None                   # pmctl.hal.modbus_daq.DaqSession
+        self._devices_open = False
+        self._speed_points = collections.deque()   # (ring row, signed rpm) of queued C_HOLD_AT speed changes
+        self._hold_at_seen = 0
+        self._strain = [0.0, 0.0, 0.0]    # the plant's strain of the last drained record (a simulated DAQ serves it)
+        self.device_fault = ""            # the spindle's or the DAQ's fault that stopped motion
+        self.spindle_off_at_job_end = True   # M5 when a job ends with the spindle off (pmctl run: at shutdown)
+        self._spindle_note = False
 
     # ------------------------------------------------------------ lifecycle
     def start(self, counts0, timeout_s: float = 60.0):
         """Create the channel, start the rt process at pulse counters ``counts0`` and the threads."""
         self.counts0 = np.asarray(counts0, np.int64)
-        self.ch = C.Channel(create=True, sample_capacity=self.sample_capacity)
-        self._spawn(self.counts0, timeout_s)
+        self.open_devices()               # a device that does not answer: refused before the drives enable
+        try:
+            self.ch = C.Channel(create=True, sample_capacity=self.sample_capacity)
+            self._spawn(self.counts0, timeout_s)
+        except BaseException:
+            self.close_devices()
+            raise
         for name, fn in (("pmctl-planner", self._planner), ("pmctl-monitor", self._monitor)):
             t = threading.Thread(target=fn, name=name, daemon=True)
             t.start()
@@ -136,9 +173,13 @@ class Supervisor:
         ch.samples.clear()
         ch.records.clear()
         ch.commands.clear()
+        ch.clear_result()
+        self._speed_points.clear()
+        self._hold_at_seen = 0
         ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = np.asarray(counts, float)
         spec = {"shm": ch.name, "config": str(self.config), "service": self.service, "backend": self.backend,
                 "state_file": self.state_file, "rate_hz": self.rate_hz, "realtime": self.realtime,
+                "offline": self.offline, "nc": self.nc_overrides,
                 "counts": [int(c) for c in counts], "ppid": os.getpid()}
         import json
         import subprocess
@@ -178,14 +219,187 @@ class Supervisor:
         if self.ch is not None:
             counts = self.ch.st[C.ST_COUNTS:C.ST_COUNTS + 5].astype(np.int64).copy()
             self.exited_reason = self.ch.reason()
+            self.final_status = self.ch.status()
+            self.rt_result = self.ch.result()
         self._stop.set()
         for t in self._threads:
             t.join(2.0)
         self._drain_records()
+        self.close_devices()
         if self.ch is not None:
             self.ch.close(unlink=True)
             self.ch = None
         return counts
+
+    # ------------------------------------------------------------ devices out of the tick
+    def open_devices(self, spindle: bool = False):
+        """Connect the strain DAQ (and, with ``spindle``, the spindle VFD now rather than at the first
+        job that needs it); ``start`` calls it. pmctl run calls it before ``start`` so that the
+        recording knows its channels and the spindle is at speed at the first tick."""
+        if spindle and self.spindle is None and self.svc.spindle is not None:
+            self._spindle_session()
+        if self._devices_open:
+            return
+        self._devices_open = True
+        self._open_daq()
+
+    def _open_daq(self):
+        """The strain DAQ (``[daq]``): connected here, polled for the whole session by its own
+        thread (samples stamped with the rt tick); a simulated one serves the plant's strain of the
+        last drained record. A fault or lost link is a controlled stop (``_device_fault``)."""
+        if self.svc.daq is None:
+            return
+        from pmctl.hal.modbus_daq import DaqSession
+        # slow compensation ([daq] compensate): each estimate becomes the NC's chain-length offsets
+        self.daq = DaqSession(self.svc.daq, lambda: self._strain, self.log, self.machine,
+                              self._set_chain_offsets).connect()
+        self.daq.watch(self._tick, self._device_fault)
+
+    def _spindle_session(self):
+        from pmctl.hal.modbus_vfd import SpeedChanger, SpindleSession
+        self.spindle = SpindleSession(self.svc.spindle, self.log).connect()
+        # speed changes inside a job: the rt side holds on the path (C_HOLD_AT); the monitor's
+        # thread sends the new speed and releases the hold once at speed
+        self.spindle.changer = SpeedChanger(self.spindle.vfd, _RtLoopView(self), [])
+        return self.spindle
+
+    def spindle_start(self, rpm: float):
+        """M3/M4 S``rpm`` (0: M5) and wait until at speed (the path waits: call between jobs); the
+        spindle is watched from then on."""
+        sp = self.spindle or self._spindle_session()
+        if rpm == 0:
+            sp.vfd.stop()
+            return
+        sp.start(rpm)
+        if sp.monitor is None:
+            sp.watch(self._tick, self._device_fault)
+            if self.ch is not None and sp.monitor.samples:      # at speed now, not at the rt side's tick 0
+                sp.monitor.samples[0] = (self._tick(), sp.monitor.samples[0][1])
+
+    def close_devices(self):
+        """M5 and disconnect the spindle, stop polling the DAQ (each whatever the other does)."""
+        for name in ("spindle", "daq"):
+            dev = getattr(self, name)
+            if dev is not None:
+                try:
+                    dev.close()
+                except Exception as e:        # noqa: BLE001 (reported; the counters are the rt side's)
+                    self.log(f"warning: closing the {name}: {e}")
+
+    def _tick(self) -> int:
+        ch = self.ch
+        return int(ch.st[C.ST_TICK]) if ch is not None else 0
+
+    def _device_fault(self, why: str):
+        """The spindle's or the DAQ's polling thread saw a fault or a lost link: a controlled stop
+        on the path (the queue is dropped), ALARM 3 with the reason."""
+        if self.device_fault:
+            return
+        self.device_fault = why
+        self.log(f"controlled stop: {why}")
+        self._emit("device_fault", {"msg": why})
+        if not self.alarm:
+            self.raise_alarm(ALARM_ABORT, why)
+
+        def stop():
+            try:
+                if self.ch is not None and not self.rt_dead and not self._quitting:
+                    self._stop_queue()
+            except Exception as e:        # noqa: BLE001 (a shutdown meanwhile closed the channel: it stops anyway)
+                if not self._quitting:
+                    self.log(f"stopping after {why}: {type(e).__name__}: {e}")
+        threading.Thread(target=stop, daemon=True, name="pmctl-device-stop").start()
+
+    def _job_spindle(self, it, row0):
+        """Before an item's first sample is queued: its start speed (the path waits for it when
+        nothing is under way, else holds at the item's first sample until at speed)."""
+        from pmctl.hal.modbus_vfd import job_speed
+        rpm = job_speed([getattr(m, "spindle_rpm", 0.0) for m in it.job.moves])
+        if not rpm:
+            return
+        if self.svc.spindle is None:
+            if not self._spindle_note:
+                self._spindle_note = True
+                self.log(f"no [spindle] in {self.svc.source}: the job's S{abs(rpm):g} M{3 if rpm > 0 else 4} "
+                         f"is not executed")
+            return
+        sp = self.spindle or self._spindle_session()
+        if sp.vfd.rpm_cmd == rpm:
+            return
+        s = self.raw()
+        if sp.monitor is None or (s[C.ST_QUEUED] <= 1 and s[C.ST_SIGMA] == 0):
+            self.spindle_start(rpm)
+        else:
+            self._speed_change(row0, rpm, True)
+
+    def _speed_change(self, row, rpm, rest):
+        """Hold the path at sample ``row`` of the ring until the spindle runs at ``rpm``."""
+        with self._lock:
+            self._speed_points.append((row, rpm))
+            self.spindle.changer.changes.append((row, rpm, rest))
+            self.command(C.C_HOLD_AT, float(row), 1.0 if rest else 0.0)
+
+    def _spindle_pieces(self, it, pieces, row0):
+        """The planner's pieces, passed through; the spindle speed changes inside the job (as
+        pmctl.hal.modbus_vfd.speed_changes finds them in a whole plan) become C_HOLD_AT points at
+        the last sample of the old speed, sent before that sample is queued."""
+        from pmctl.hal.modbus_vfd import REST_STEP_MM
+        on_lines = [m.line for m in it.job.moves if getattr(m, "spindle_rpm", 0.0)]
+        if not on_lines or self.svc.spindle is None:
+            yield from pieces
+            return
+        last_on = max(on_lines)
+        n0 = 0                         # samples before this piece
+        prev = None                    # the speed of the sample before
+        cur = None                     # the speed the spindle runs at (after the first on)
+        tail = (np.zeros((0, 3)), np.zeros((0, 3)))
+        for tr in pieces:
+            v = np.asarray(tr.spindle_rpm, float)
+            line = np.asarray(tr.line)
+            tips = np.concatenate([tail[0], np.asarray(tr.tip, float)])
+            axes = np.concatenate([tail[1], np.asarray(tr.axis, float)])
+            off = len(tail[0])
+            for i in range(len(v)):
+                x = v[i]
+                if cur is None:
+                    if x:
+                        cur = x
+                elif x != prev and x != cur and (x or int(line[i]) < last_on):
+                    cur = x
+                    j = off + i                       # index of sample c in tips: the stop is c - 1
+                    lo = max(0, j - 1 - 2)
+                    q = K.ik_batch(tips[lo:j + 1], axes[lo:j + 1], self.machine, check_limits=False).q
+                    rest = len(q) > 1 and float(np.abs(np.diff(q, axis=0)).max()) <= REST_STEP_MM
+                    self._speed_change(row0 + n0 + i - 1, float(x), bool(rest))
+                prev = x
+            n0 += len(v)
+            tail = (tips[-3:], axes[-3:])
+            yield tr
+
+    def _drop_speed_changes(self):
+        """A soft reset, an E-stop or a fault dropped the queue: no speed change is waited for."""
+        with self._lock:
+            self._speed_points.clear()
+            ch = self.spindle.changer if self.spindle is not None else None
+            if ch is not None:
+                ch.pending = None
+
+    def _follow_speed_points(self, s):
+        """(monitor thread) The rt side reached a C_HOLD_AT point and holds: the spindle monitor's
+        thread now sends the new speed and releases the hold at speed (SpeedChanger.poll)."""
+        seq = int(s[C.ST_HOLD_AT_SEQ])
+        while self._hold_at_seen < seq:
+            self._hold_at_seen += 1
+            with self._lock:
+                if not self._speed_points:
+                    continue
+                _row, rpm = self._speed_points.popleft()
+            ch = self.spindle.changer if self.spindle is not None else None
+            if ch is not None:
+                ch.next += 1
+                ch.sent = False
+                ch.held_ticks.append([int(s[C.ST_TICK]), None])
+                ch.pending = rpm
 
     # ------------------------------------------------------------ status
     def raw(self) -> np.ndarray:
@@ -323,6 +537,10 @@ class Supervisor:
     def rapid_override(self, r: float):
         self.command(C.C_RAPID_OV, float(r))
 
+    def _set_chain_offsets(self, offsets_mm):
+        for i, mm in enumerate(offsets_mm):
+            self.set_chain_offset(i, float(mm))
+
     def set_chain_offset(self, chain: int, mm: float) -> bool:
         """The chain-length offset input of chain 0..2 (L1..L3), mm, added to the commanded length by
         the rt side's NC at its slew rate (the strain DAQ's slow compensation). Refused (False, the
@@ -348,6 +566,7 @@ class Supervisor:
         if self.homing:
             self.homing_abort.set()
         self._stop_queue(timeout_s)
+        self._spindle_off("at the soft reset")
 
     def _stop_queue(self, timeout_s=10.0):
         """Stop on the path, drop every queued item and sample, wait until at rest."""
@@ -355,6 +574,7 @@ class Supervisor:
         with self._lock:
             self.items.clear()
             self._gen += 1
+        self._drop_speed_changes()
         # the planner thread drops what it holds once it sees the abort
         while not self._plan_q.empty():
             try:
@@ -382,6 +602,8 @@ class Supervisor:
             self.command(C.C_ESTOP)
             self._ended_base = int(self.raw()[C.ST_ENDED])
         self.raise_alarm(ALARM_ESTOP, reason)
+        self._drop_speed_changes()
+        self._spindle_off("at the E-stop")
         self._abort.clear()
 
     def unlock(self):
@@ -478,7 +700,7 @@ class Supervisor:
                 if it.parts > 1 or any(m.probe for m in it.job.moves):
                     self._plan_probing(it)
                     continue
-                rows_iter = self._rows_of(it.job, it.start)
+                rows_iter = self._rows_of(it.job, it.start, it)
                 it.planned = True
                 self._push_rows(rows_iter, it)
             except _Aborted:
@@ -493,24 +715,29 @@ class Supervisor:
                 if it.planned:
                     self._planning_failed_midway(it, e)
 
-    def _rows_of(self, job, start):
-        """Sample rows of ``job`` planned from ``start`` (validated first), an iterator of chunks."""
+    def _rows_of(self, job, start, it=None):
+        """Sample rows of ``job`` planned from ``start`` (validated first), an iterator of chunks.
+        With the item ``it``: its spindle start speed is set (or a hold queued) before its first
+        sample, and its speed changes inside the job become C_HOLD_AT points."""
         from pmctl.motion.timescale import iter_stream_rows, shape_trajectory
         from pmctl.task.job import RAPID
         from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
         rapid_mm_s = PlannerLimits().rapid_mm_s
         rapid_lines = {m.line for m in job.moves if m.kind == RAPID}
+        pm = self.plan_machine
         if self.nc_setup.shaper is None:
-            path = validate(job, self.machine, self.dt, feed_override=self.plan_feed_override, start=start)
-            pieces = plan_stream(job, self.machine, self.dt, feed_override=self.plan_feed_override,
-                                 start=start, path=path)
-            return iter_stream_rows(pieces, self.machine, self.params, rapid_lines=rapid_lines,
-                                    rapid_mm_s=rapid_mm_s)
-        # an input shaper reshapes the time law over whole segments: planned whole (memory
-        # grows with the job; a streaming shaper is not built yet)
-        traj = shape_trajectory(plan(job, self.machine, self.dt, feed_override=self.plan_feed_override,
-                                     start=start), self.nc_setup.shaper)
-        return iter_stream_rows([traj], self.machine, self.params, rapid_lines=rapid_lines,
+            path = validate(job, pm, self.dt, feed_override=self.plan_feed_override, start=start)
+            pieces = plan_stream(job, pm, self.dt, feed_override=self.plan_feed_override, start=start, path=path)
+        else:
+            # an input shaper reshapes the time law over whole segments: planned whole (memory
+            # grows with the job; a streaming shaper is not built yet)
+            pieces = [shape_trajectory(plan(job, pm, self.dt, feed_override=self.plan_feed_override, start=start),
+                                       self.nc_setup.shaper)]
+        if it is not None:
+            row0 = self.ch.samples.written        # the ring row of the item's first sample
+            self._job_spindle(it, row0)
+            pieces = self._spindle_pieces(it, pieces, row0)
+        return iter_stream_rows(pieces, self.machine, self.params, rapid_lines=rapid_lines,
                                 rapid_mm_s=rapid_mm_s)
 
     def _push_rows(self, rows_iter, it):
@@ -533,7 +760,9 @@ class Supervisor:
         start = (np.asarray(it.start[0], float), np.asarray(it.start[1], float))
         pieces = split_at_probes(it.job)
         for k, (piece, probe) in enumerate(pieces):
-            rows_iter = self._rows_of(piece, start)
+            # the spindle: the item's start speed before its first piece (a speed change after a
+            # probe inside the same item is not waited for)
+            rows_iter = self._rows_of(piece, start, it if k == 0 else None)
             if probe is None:
                 it.planned = True
                 self._push_rows(rows_iter, it)
@@ -596,12 +825,32 @@ class Supervisor:
         if self.ch is None:
             return
         rows = self.ch.records.pop()
+        if len(rows):
+            from pmctl.motion.recorder import R_STRAIN, R_TICK
+            self._strain = rows[-1, R_STRAIN:R_STRAIN + 3].tolist()
         if len(rows) and self.record_sink is not None:
             try:
                 self.record_sink(rows)
             except Exception as e:
                 self.log(f"recording failed: {e}")
                 self.record_sink = None
+        if len(rows):
+            self._trim_device_samples(int(rows[-1, R_TICK]))
+
+    def _trim_device_samples(self, tick: int):
+        """The spindle's and the DAQ's polled samples (tick-stamped) up to the last drained record are
+        no longer needed but the last (it holds on): memory does not grow with the session."""
+        lists = []
+        if self.spindle is not None and self.spindle.monitor is not None:
+            lists.append(self.spindle.monitor.samples)
+        if self.daq is not None and self.daq.daq is not None:
+            lists.append(self.daq.daq.samples)
+        for lst in lists:
+            i = 0
+            while i + 1 < len(lst) and lst[i + 1][0] <= tick:
+                i += 1
+            if i:
+                del lst[:i]           # appends by the polling thread go on at the end (one list op each)
 
     def _monitor(self):
         while not self._stop.wait(0.01):
@@ -623,6 +872,8 @@ class Supervisor:
                 continue
             s = ch.status()
             self._last_status = s
+            if s[C.ST_HOLD_AT_SEQ] != self._hold_at_seen:
+                self._follow_speed_points(s)
             if s[C.ST_REASON_SEQ] != self._fault_seen and s[C.ST_FAULT] != C.F_NONE:
                 self._fault_seen = s[C.ST_REASON_SEQ]
                 reason = ch.reason()
@@ -630,6 +881,7 @@ class Supervisor:
                     self.items.clear()
                     self._gen += 1
                     self._ended_base = int(s[C.ST_ENDED])
+                self._drop_speed_changes()
                 code = ALARM_SOFT_LIMIT if reason.startswith(("soft limit", "path error")) else (
                     ALARM_ESTOP if reason.startswith("E-stop") else ALARM_MOTOR_FAULT)
                 if code == ALARM_MOTOR_FAULT:
@@ -647,12 +899,62 @@ class Supervisor:
                         continue
                     done = self.items.popleft()
                     self._emit("item_done", {"kind": done.kind, "name": done.name, "index": done.index})
+                    self._spindle_at_job_end(done)
 
     _ended_base = 0
+
+    def _spindle_at_job_end(self, it):
+        """M5 when a job ended with the spindle off and nothing queued needs it running."""
+        sp = self.spindle
+        moves = [m for m in it.job.moves if m.kind != "dwell"] or list(it.job.moves)
+        if not self.spindle_off_at_job_end or sp is None or not sp.vfd.rpm_cmd or not moves \
+                or getattr(moves[-1], "spindle_rpm", 0.0) or self.items:
+            return
+        self._spindle_off("at the job's end")
+
+    def _spindle_off(self, when: str):
+        """M5 from a thread of its own (a Modbus write is no business of the caller's thread)."""
+        sp = self.spindle
+        if sp is None or sp.vfd is None or not sp.vfd.rpm_cmd:
+            return
+
+        def stop():
+            try:
+                sp.vfd.stop()
+            except Exception as e:            # noqa: BLE001 (the monitor reports a lost link)
+                self.log(f"warning: M5 {when}: {e}")
+        threading.Thread(target=stop, daemon=True, name="pmctl-m5").start()
 
 
 class _Aborted(Exception):
     pass
+
+
+class _RtLoopView:
+    """The rt process's loop as pmctl.hal.modbus_vfd.SpeedChanger.poll sees a loop: its tick, a stop
+    asked for, and the follower's hold, whose release is a resume command on the channel."""
+
+    def __init__(self, sup):
+        self.sup = sup
+        self.follower = self
+        self.scaler = self
+
+    @property
+    def tick(self):
+        return self.sup._tick()
+
+    @property
+    def stop_request(self):
+        return self.sup._quitting or bool(self.sup.device_fault)
+
+    @property
+    def hold(self):
+        return bool(self.sup.raw()[C.ST_HOLD])
+
+    @hold.setter
+    def hold(self, value):
+        if not value:
+            self.sup.resume()
 
 
 class _RtProc:

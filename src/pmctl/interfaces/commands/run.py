@@ -3,10 +3,17 @@
     pmctl run --config config/prototype.toml --backend sim --job examples/jobs/<job> --record DIR
               [--force] [--rate HZ] [--no-realtime] [--service config/service.toml] [--state FILE]
 
-Checks every input first (job, record target, backend, state file), then plans the job from where
-the machine is (saved pulse counters, else home), runs the loop, shows progress, prints
-tracking-error and timing statistics. With --record the run is written as a recording
-(docs/recording.md) while it runs, chunk by chunk from the loop's bounded record ring, into
+Checks every input first (job, record target, backend, state file, the whole job against the
+machine), then runs it through the daemon's machinery as a one-shot client: a
+pmctl.task.supervisor.Supervisor starts the rt motion process (pmctl.motion.rtproc: the loop, the
+NC and the backend in their own process) at the saved pulse counters (else home), the job is
+submitted, planned window by window and streamed into the shared sample ring (memory bounded by a
+window, whatever the job's length), the spindle VFD and the strain DAQ are run by the supervisor;
+at the end the supervisor shuts the rt side down (it saves the counters and hands over its timing
+figures) and the run prints tracking-error and timing statistics. ``--no-realtime``: the rt side
+ticks back to back and waits for samples (an offline simulation of the same path). With --record
+the run is written as a recording
+(docs/recording.md) while it runs, chunk by chunk from the rt side's bounded record ring, into
 ``<DIR>.partial/``, renamed to DIR at the end: memory does not grow with the job, and a run that
 is killed (kill -9, power loss) leaves ``<DIR>.partial/`` with the samples up to the last chunk
 drained (every 20 ms in real time), readable as an incomplete recording.
@@ -16,13 +23,14 @@ decelerates along its path, the counters are saved as a clean stop and the recor
 Output to a closed pipe (``pmctl run ... | head``) is dropped; the run goes on and is saved.
 
 A probing move (G38.2/G38.3, the job's last motion) is stopped on contact by the strain monitor
-(pmctl.motion.probe, [probe] in the service config); the contact point is printed as grbl's
+(pmctl.motion.probe, [probe] in the service config; until the rt process does that, a probing job
+runs its loop in this process, planned whole: _run_probe_job_in_process); the contact point is printed as grbl's
 ``[PRB:x,y,z,a,b:1]`` and kept in recording.json's run block. Recordings of a backend with gauges in
 its cyclic data carry load_fx/fy/fz (the tool-tip force estimated from the strains, per chunk).
 
 Exit codes: 0 done; 3 controlled stop (soft limit, path error, missed deadlines, stall, Ctrl-C,
-SIGTERM); 4 fault (following error, backend not answering, model pose lost, G38.2 without contact);
-1 bad input.
+SIGTERM, a spindle or DAQ fault); 4 fault (following error, backend not answering, model pose lost,
+the rt process lost, G38.2 without contact); 1 bad input.
 """
 
 from __future__ import annotations
@@ -44,6 +52,9 @@ STOP_SIGNALS = {"SIGINT": "interrupted by the operator (Ctrl-C)",
 def add_parser(sub):
     p = sub.add_parser("run", help="machine a job: the control loop against a backend (sim by default)",
                        description="Run a job through the closed-loop NC at a fixed tick rate and record it. "
+                                   "Like pmctl serve, it starts the real-time motion process and streams the "
+                                   "job to it as it is planned (memory does not grow with the job); the "
+                                   "supervisor side runs the spindle and the strain DAQ. "
                                    "Ctrl-C or SIGTERM stops the machine in a controlled way and saves the run. "
                                    "Exit status: 0 done, 3 controlled stop, 4 fault, 1 bad input.",
                        epilog="The recording format is described in docs/recording.md; the state file and "
@@ -58,8 +69,9 @@ def add_parser(sub):
     p.add_argument("--force", action="store_true", help="replace an existing recording in --record DIR")
     p.add_argument("--rate", type=float, default=None, metavar="HZ", help="tick rate (default: service config)")
     p.add_argument("--no-realtime", action="store_true",
-                   help="run ticks back to back, no sleeping and no real-time priority (offline simulation: "
-                        "a slow tick is not a stall)")
+                   help="run ticks back to back, no sleeping and no real-time priority (offline simulation of "
+                        "the same path: a slow tick is not a stall, and the motion process waits for planned "
+                        "samples instead of slowing down)")
     p.add_argument("--k-theta", default=None, metavar="PER_S|auto",
                    help="strain-gauge feedback gain per chain, 1/s (0 = off), or auto: per chain from the chain "
                         "mode (docs/vibration.md; default: service config)")
@@ -157,188 +169,7 @@ class _Progress:
                 self.out.write("\r" + self._line() + "\n", err=True)
 
 
-AXES = ("L1", "L2", "L3", "X", "Y")
-_TRUTH_NOTE = "simulation: FK of the load-side joints (after drive lag and flexible mode)"
-_STRAIN_NOTE = "simulation: gravity strain of the true pose + flexible-mode spring strain + gauge noise"
-
-
-def _held(samples, ticks, value):
-    """Per-tick values of a device polled by its own thread: each sample ``(tick, ...)`` held from
-    its tick until the next (NaN before the first), for the given (increasing) ticks."""
-    import numpy as np
-    snap = list(samples)                  # appended by the polling thread: a snapshot
-    if not snap:
-        return None
-    tk = np.maximum(np.fromiter((s[0] for s in snap), np.int64, len(snap)), 0)
-    idx = np.searchsorted(tk, ticks, side="right") - 1
-    vals = np.array([value(s) for s in snap], float)
-    out = vals[np.maximum(idx, 0)]
-    out[idx < 0] = np.nan
-    return out
-
-
-class TrackingAccumulator:
-    """The tool-tip and tool-axis error of every tick from the job's start, as two compact float32
-    arrays indexed by tick (8 bytes a tick: a 10-minute job at 1 kHz holds 4.8 MB, the planner's
-    longest job ~10 MB), so the figures of :func:`pmctl.motion.loop.tracking_stats` can be computed
-    over a window known only at the end. A tick the recorder never saw (a dropped record) is -1;
-    a failed FK is NaN; a non-finite load side is +inf (no figures, as tracking_stats)."""
-
-    def __init__(self, job_start: int, expect: int = 0):
-        import numpy as np
-        self.j0 = int(job_start)
-        self.n = 0
-        self.tip = np.full(max(int(expect), 1024), -1.0, np.float32)
-        self.ang = self.tip.copy()
-
-    @property
-    def nbytes(self) -> int:
-        return self.tip.nbytes + self.ang.nbytes
-
-    def add(self, ticks, e_tip, e_ang):
-        import numpy as np
-        keep = ticks >= self.j0
-        if not keep.any():
-            return
-        i = ticks[keep] - self.j0
-        end = int(i[-1]) + 1
-        if end > len(self.tip):
-            size = max(end, 2 * len(self.tip))
-            for nm in ("tip", "ang"):
-                a = np.full(size, -1.0, np.float32)
-                a[:self.n] = getattr(self, nm)[:self.n]
-                setattr(self, nm, a)
-        self.tip[i] = e_tip[keep]
-        self.ang[i] = e_ang[keep]
-        self.n = max(self.n, end)
-
-    def stats(self, i0: int, i1: int) -> dict:
-        """tracking_stats over ticks [i0, i1): the same keys and formulas."""
-        import numpy as np
-        a, b = max(i0 - self.j0, 0), max(min(i1 - self.j0, self.n), 0)
-        e = self.tip[a:b].astype(np.float64)
-        ang = self.ang[a:b].astype(np.float64)
-        seen = e != -1.0
-        e, ang = e[seen], ang[seen]
-        if len(e) == 0 or np.isinf(e).any():
-            return {}
-        ok = np.isfinite(e)
-        if not ok.any():
-            return {"samples": int(len(e)), "fk_failures": int(len(e))}
-        return {"samples": int(len(e)), "tip_rms_um": float(np.sqrt(np.nanmean(e ** 2)) * 1e3),
-                "tip_max_um": float(np.nanmax(e) * 1e3), "tip_p99_um": float(np.nanpercentile(e, 99) * 1e3),
-                "axis_rms_urad": float(np.sqrt(np.nanmean(ang ** 2)) * 1e6),
-                "axis_max_urad": float(np.nanmax(ang) * 1e6), "fk_failures": int(np.sum(~ok))}
-
-
-class RunSink:
-    """What ``pmctl run`` does with every chunk of record rows the recorder drains (layout R_* in
-    pmctl.motion.recorder): converts it to the recording's channels, vectorised (one fk_batch a
-    chunk for the load-side tool pose), appends them to a RecordingWriter (when recording), and
-    adds the chunk's tool-tip errors to a TrackingAccumulator. Nothing else is kept: the memory
-    of a run is the ring, one chunk and the accumulator."""
-
-    def __init__(self, machine, ppm, rate_hz: float, has_truth: bool, job_start: int, expect: int = 0,
-                 spindle=None, daq=None, writer=None, load: bool = False):
-        import numpy as np
-        self.machine, self.ppm, self.rate_hz = machine, np.asarray(ppm, float), float(rate_hz)
-        self.load = bool(load)        # load_fx/fy/fz from the gauges (a backend with strain in its cyclic data)
-        self.has_truth = bool(has_truth)
-        self.spindle, self.daq, self.writer = spindle, daq, writer
-        self._comp = daq is not None and daq.opt.compensate      # comp_L1..3: the applied chain offsets
-        self.track = TrackingAccumulator(job_start, expect) if has_truth else None
-        self.rows = 0
-        self.chunks = 0
-        self.last_tick = -1
-
-    def channels(self) -> tuple[list, dict]:
-        """Channel names and notes of the recording (as record_columns, plus the devices)."""
-        names = ["t"] + [f"cmd_{a}" for a in AXES] + [f"enc_{a}" for a in AXES]
-        notes = {f"cmd_{a}": {"source": "pulse counter x resolution at the tick start"} for a in AXES}
-        if self.has_truth:
-            names += ["tip_x", "tip_y", "tip_z", "tool_i", "tool_j", "tool_k"]
-            for c in ("tip_x", "tip_y", "tip_z", "tool_i", "tool_j", "tool_k"):
-                notes[c] = {"source": _TRUTH_NOTE}
-            for i in range(3):
-                notes[f"strain_{i + 1}"] = {"source": _STRAIN_NOTE}
-        names += [f"strain_{i + 1}" for i in range(3)]
-        if self.load:
-            from pmctl.core.strain_sensing import LOAD_CHANNELS, LOAD_NOTE
-            names += list(LOAD_CHANNELS)
-            for c in LOAD_CHANNELS:
-                notes[c] = {"source": LOAD_NOTE}
-        if self.spindle is not None:
-            names.append("spindle_rpm")
-            notes["spindle_rpm"] = {"source": f"VFD speed register polled every {self.spindle.opt.poll_ms:g} ms "
-                                              f"by the supervisor, held between polls (negative: M4)"}
-        if self.daq is not None:
-            for i in range(3):
-                names.append(f"daq_strain_{i + 1}")
-                notes[f"daq_strain_{i + 1}"] = {"source": f"strain DAQ over Modbus TCP polled every "
-                                                          f"{self.daq.opt.poll_ms:g} ms, held between polls, "
-                                                          f"microstrain"}
-        if self._comp:
-            for i in range(3):
-                names.append(f"comp_L{i + 1}")
-                notes[f"comp_L{i + 1}"] = {"source": "chain-length offset the NC applied (slow compensation from "
-                                                     "the strain DAQ: -deflection, slew-limited), mm"}
-        return names, notes
-
-    def __call__(self, rows):
-        import numpy as np
-
-        from pmctl.core import kinematics as K
-        from pmctl.motion.recorder import R_COUNTS, R_ENC, R_STRAIN, R_TARGET, R_TICK, R_TRUTH
-        ticks = rows[:, R_TICK].astype(np.int64)
-        n = len(ticks)
-        cols = {"t": ticks / self.rate_hz}
-        q_cmd = np.rint(rows[:, R_COUNTS:R_COUNTS + 5]) / self.ppm
-        for i, a in enumerate(AXES):
-            cols[f"cmd_{a}"] = q_cmd[:, i]
-            cols[f"enc_{a}"] = rows[:, R_ENC + i]
-        if self.has_truth:
-            truth = rows[:, R_TRUTH:R_TRUTH + 5]
-            fin = np.all(np.isfinite(truth), axis=1)
-            tip = np.full((n, 3), np.nan)
-            axis = np.full((n, 3), np.nan)
-            ok = np.zeros(n, bool)
-            if fin.any():
-                pose, ok_f = K.fk_batch(truth[fin], self.machine)
-                tip[fin], axis[fin], ok[fin] = pose.tip, pose.axis, ok_f
-            tip[~ok] = np.nan
-            axis[~ok] = np.nan
-            for i, c in enumerate(("tip_x", "tip_y", "tip_z")):
-                cols[c] = tip[:, i]
-            for i, c in enumerate(("tool_i", "tool_j", "tool_k")):
-                cols[c] = axis[:, i]
-            tg = rows[:, R_TARGET:R_TARGET + 6]
-            e = np.linalg.norm(tip - tg[:, :3], axis=-1)
-            ang = np.arccos(np.clip(np.sum(axis * tg[:, 3:6], -1), -1.0, 1.0))
-            e[~fin] = np.inf
-            self.track.add(ticks, e.astype(np.float32), ang.astype(np.float32))
-        for i in range(3):
-            cols[f"strain_{i + 1}"] = rows[:, R_STRAIN + i]
-        if self.load:
-            from pmctl.core.strain_sensing import load_columns
-            cols.update(load_columns(rows[:, R_STRAIN:R_STRAIN + 3], q_cmd, self.machine))
-        if self.spindle is not None:
-            mon = self.spindle.monitor
-            v = _held(mon.samples, ticks, lambda s: s[1]) if mon is not None else None
-            cols["spindle_rpm"] = np.full(n, np.nan) if v is None else v * self.spindle.direction
-        if self.daq is not None:
-            d = self.daq.daq
-            for i in range(3):
-                v = _held(d.samples, ticks, lambda s, i=i: s[2][i]) if d is not None else None
-                cols[f"daq_strain_{i + 1}"] = np.full(n, np.nan) if v is None else v
-        if self._comp:
-            from pmctl.motion.recorder import R_CHAIN_OFFSET
-            for i in range(3):
-                cols[f"comp_L{i + 1}"] = rows[:, R_CHAIN_OFFSET + i]
-        if self.writer is not None:
-            self.writer.append(cols)
-        self.rows += n
-        self.chunks += 1
-        self.last_tick = int(ticks[-1])
+from pmctl.task.run_sink import RunSink, TrackingAccumulator  # noqa: E402,F401  (kept importable here)
 
 
 def _plant_meta(backend) -> dict:
@@ -377,17 +208,14 @@ def _strain_of(backend):
 
 
 def run(args) -> int:
-    import numpy as np
-
     from pmctl import hal
     from pmctl.core import kinematics as K
     from pmctl.core.config import load_machine
     from pmctl.core.errors import PmctlError
     from pmctl.core.recording import check_target, partial_path
-    from pmctl.motion.loop import ControlLoop, prepare
     from pmctl.motion.nc import counts_of, initial_state
     from pmctl.motion.service_config import load_service_config
-    from pmctl.motion.state_store import CounterWriter, StateLock, load_counters
+    from pmctl.motion.state_store import StateLock, load_counters
     from pmctl.task.planner import load_job
 
     out = _Out()
@@ -461,6 +289,268 @@ def run(args) -> int:
         from pmctl.motion.probe import check_probe_job, probe_segments
         check_probe_job(job, svc.probe, args.job, args.feed_override)
         probe_segs = probe_segments(job, machine, st.tip)
+    nc_over = {"k_theta_per_s": list(svc.nc.k_theta_per_s), "k_theta_auto": False, "shaper": svc.nc.shaper,
+               "pulse_mode": svc.nc.pulse_mode}
+    if probe_segs and not _rt_probing():
+        return _run_probe_job_in_process(args, out, machine, svc, cfg, params, setup, backend_name, state_file,
+                                         counts0, st, job, probe_segs, strain_in_loop, where)
+    return _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, counts0, st, job,
+                       nc_over, strain_in_loop, where, setup.notes)
+
+
+def _catch_stop_signals(handler) -> dict:
+    """SIGINT, SIGTERM and SIGHUP to ``handler`` (main thread only); returns the handlers to restore."""
+    old = {}
+    if threading.current_thread() is threading.main_thread():
+        for name in STOP_SIGNALS:
+            sig = getattr(signal, name, None)
+            if sig is not None:
+                old[sig] = signal.signal(sig, handler)
+    return old
+
+
+def _rt_probing() -> bool:
+    """Whether the rt process stops probing moves itself (``Supervisor.submit`` fills
+    ``item.probe_results``); until then probing jobs take the in-process path."""
+    from pmctl.task.supervisor import Item
+    return "probe_results" in getattr(Item, "__dataclass_fields__", {}) or hasattr(Item, "probe_results")
+
+
+class _RunView:
+    """What the progress display reads of a job streamed to the rt process: ticks since the job
+    was submitted, an estimate of its length from the line being executed, and the NC mode."""
+
+    def __init__(self, sup, last_line: int):
+        from pmctl.motion import channel as C
+        self.C, self.sup, self.last_line = C, sup, max(int(last_line), 1)
+        self.tick0 = None
+
+    def _st(self):
+        ch = self.sup.ch
+        return ch.st if ch is not None else None
+
+    @property
+    def tick(self):
+        st = self._st()
+        if st is None or self.tick0 is None:
+            return 0
+        return max(int(st[self.C.ST_TICK]) - self.tick0, 0)
+
+    @property
+    def n_ticks(self):
+        st = self._st()
+        frac = min(1.0, float(st[self.C.ST_LINE]) / self.last_line) if st is not None else 0.0
+        return int(self.tick / frac) if frac > 0 else self.tick
+
+    @property
+    def mode(self):
+        st = self._st()
+        return int(st[self.C.ST_MODE]) if st is not None else 0
+
+
+def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, counts0, st, job, nc_over,
+                strain_in_loop, where, setup_notes) -> int:
+    """The job through the machinery of the daemon: a Supervisor starts the rt motion process (its
+    own process: loop, NC, backend), the job is submitted, planned window by window and streamed into
+    the sample ring (memory bounded by a window, whatever the job's length), the records stream back
+    into the recording; then the supervisor shuts the rt side down and the run is reported with the
+    timing figures the rt side hands over as it exits (Channel.result)."""
+    import numpy as np
+
+    from pmctl import hal
+    from pmctl.hal.base import Backend
+    from pmctl.hal.modbus_vfd import job_speed
+    from pmctl.motion import channel as C
+    from pmctl.motion.recorder import R_S, R_TICK
+    from pmctl.task.planner import validate
+    from pmctl.task.supervisor import Supervisor
+    log = out.log
+    dt = cfg.dt
+    sup = Supervisor(args.config, service=args.service, backend=backend_name, state_file=state_file or "",
+                     realtime=cfg.realtime, rate_hz=cfg.rate_hz, log=log, offline=not cfg.realtime, nc=nc_over)
+    notes = list(setup_notes)              # chain modes, K_theta auto, shaper: as this run resolved them
+    if sup.plan_machine is not sup.machine:
+        notes.append(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: "
+                     f"planning with that")
+    # the whole job checked before anything moves (the supervisor's planner checks it again as it plans);
+    # an input shaper plans the job whole: the batch planner's bounds
+    validate(job, sup.plan_machine, dt, feed_override=args.feed_override, start=(st.tip, st.axis),
+             batch=sup.nc_setup.shaper is not None)
+    rpm0 = job_speed([m.spindle_rpm for m in job.moves])
+    if rpm0 and svc.spindle is None:
+        notes.append(f"no [spindle] in {svc.source}: the job's S{abs(rpm0):g} M{3 if rpm0 > 0 else 4} "
+                     f"is not executed")
+
+    # From here on a stop signal is a controlled stop: before the rt side runs the job it is remembered
+    # and nothing is submitted; after that the supervisor holds on the path and stops.
+    stop_req = []
+
+    def _stop(signum, frame):
+        if not stop_req:
+            stop_req.append((STOP_SIGNALS.get(signal.Signals(signum).name, f"signal {signum}"),
+                             int(sup.ch.st[C.ST_TICK]) if sup.ch is not None else 0))
+    old = _catch_stop_signals(_stop)
+    rec = None
+    try:
+        cls = hal.backend_class(backend_name)
+        has_truth = cls.truth is not Backend.truth          # a simulation knows its load side
+        log(where)
+        for m in notes:
+            log(m)
+        sup.open_devices(spindle=bool(rpm0))   # the VFD link answers (and the DAQ) before the drives enable
+        try:
+            sink = RunSink(machine, params.pulses_per_mm, cfg.rate_hz, has_truth, 1 << 62, 0, sup.spindle, sup.daq,
+                           load=strain_in_loop)
+            if args.record:
+                plant = hal.create(backend_name, machine, dt, svc.backend_tables.get(backend_name, {})) \
+                    if has_truth else None          # not opened: its options describe the simulated plant
+                rec = _open_recording(args, machine, plant, backend_name, cfg, sink, 0)
+                sink.writer = rec
+            job_tick, s0, rec_err = [None], [], []
+
+            def feed(rows):            # the supervisor's monitor thread, every drained chunk of records
+                if job_tick[0] is None and s0:
+                    moved = np.flatnonzero(rows[:, R_S] > s0[0])
+                    if len(moved):     # the first tick following the job's samples: its tracking starts
+                        job_tick[0] = int(rows[moved[0], R_TICK])
+                        if sink.track is not None:
+                            sink.track.j0 = job_tick[0]
+                try:
+                    sink(rows)
+                except Exception as e:
+                    rec_err.append(f"{type(e).__name__}: {e}")
+                    raise
+            sup.record_sink = feed
+            if rpm0 and sup.spindle is not None:
+                sup.spindle_start(rpm0)        # cutting waits for at speed
+            sup.spindle_off_at_job_end = False     # M5 at the shutdown, after the last recorded tick
+            sup.plan_feed_override = args.feed_override
+            sup.start(counts0)
+        except BaseException:
+            sup.close_devices()
+            if rec is not None:
+                rec._discard()             # nothing ran: nothing is left under any name
+            raise
+        mode = "multi-pulse" if params.max_pulses_per_tick > 1 else "one pulse per tick (as in Kamiya et al. 2005)"
+        log(f"{Path(args.job).name}: streamed to the rt motion process (pid {sup.rt_pid}) at {cfg.rate_hz:g} Hz, "
+            f"backend {backend_name}, V-F {mode}, K_theta "
+            f"{'/'.join(f'{k:.4g}' for k in sorted(set(sup.svc.nc.k_theta_per_s)))}/s, "
+            f"{'real-time' if cfg.realtime else 'no real-time (ticks back to back, waiting for samples)'}")
+        view = _RunView(sup, max((m.line for m in job.moves), default=1))
+        prog = _Progress(view, Path(args.job).name, dt, args.quiet, out)
+        return _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick, s0, rec_err, sink, rec,
+                                       machine, cfg, dt, counts0, backend_name, state_file)
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+
+def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick, s0, rec_err, sink, rec, machine,
+                            cfg, dt, counts0, backend_name, state_file) -> int:
+    from types import SimpleNamespace
+
+    from pmctl.core.errors import PmctlError
+    from pmctl.motion import channel as C
+    log = out.log
+    settle = int(round(cfg.settle_s * cfg.rate_hz))
+    status = reason = ""
+    stop_tick = None
+    bad_input = ""
+    t_wall = time.monotonic()
+    try:
+        s = sup.raw()
+        view.tick0 = int(s[C.ST_TICK])
+        it = None
+        if not stop_req:
+            s0.append(float(s[C.ST_S]))
+            ended0 = int(s[C.ST_ENDED])
+            it = sup.submit(job, kind="job", name=Path(args.job).name, source=str(args.job))
+        prog.start()
+        done_tick = None
+        while True:
+            if stop_req:
+                status, reason = "stopped", stop_req[0][0]
+                stop_tick = stop_req[0][1]
+                break
+            if sup.rt_dead:
+                status, reason = "fault", sup.alarm_msg or "the rt motion process died"
+                break
+            s = sup.raw()
+            if s[C.ST_FAULT] != C.F_NONE:
+                status = "fault" if s[C.ST_FAULT] == C.F_FAULT else "stopped"
+                reason = sup.ch.reason()
+                break
+            if sup.device_fault:
+                status, reason = "stopped", sup.device_fault
+                break
+            if it.error:
+                if not it.planned:        # nothing of it reached the rt side: bad input, nothing moved
+                    bad_input = it.error
+                status, reason = "fault", f"planning failed: {it.error}"
+                break
+            if done_tick is None and int(s[C.ST_ENDED]) > ended0:
+                done_tick = int(s[C.ST_TICK])       # at the job's last sample: the plant settles
+            if done_tick is not None and int(s[C.ST_TICK]) >= done_tick + settle:
+                status = "done"
+                break
+            time.sleep(0.005)
+    finally:
+        prog.finish()
+        sup.shutdown(reason or "done")            # hold on the path; the rt side saves its counters and exits
+    wall = time.monotonic() - t_wall
+    r = sup.rt_result
+    fs = sup.final_status
+    if bad_input:
+        if rec is not None:
+            rec._discard()
+        raise PmctlError(bad_input)
+    if r is None:
+        status, reason = "fault", "the rt motion process ended without its result" + (f" ({reason})" if reason else "")
+        r = {"ticks": int(fs[C.ST_TICK]) if fs is not None else 0, "sent_ok": False, "clean": False, "timing": {},
+             "dropped": int(fs[C.ST_DROPPED]) if fs is not None else 0}
+    elif r.get("status") == "fault" and status != "fault":      # e.g. a following error while stopping
+        status, reason = "fault", r.get("reason", "")
+    ticks = int(r["ticks"])
+    if state_file and r.get("clean") is False and status != "fault":
+        log(f"warning: the rt side did not save {state_file} as a clean stop")
+
+    probes = list(getattr(it, "probe_results", None) or []) if it is not None else []
+    probe_err = next((p.error for p in probes if p.error), "")
+    if probe_err and status == "done":         # G38.2 without contact: grbl's probe-fail alarm
+        status, reason = "fault", probe_err
+
+    # ---- the recording first (the run's data must not depend on stdout staying open), then the report
+    rec_error = rec_err[0] if rec_err else ""
+    if rec_error:
+        log(f"warning: the recorder stopped at row {sink.rows}: {rec_error}")
+    j0 = job_tick[0] if job_tick[0] is not None else (stop_tick if stop_tick is not None else ticks)
+    res = SimpleNamespace(job_start=j0, ticks=ticks, status=status, reason=reason, dt=dt)
+    i0, i1, track_note = tracking_window(res, stop_tick)
+    ts = {}
+    if i1 > i0 and sink.track is not None and not rec_error:
+        ts = sink.track.stats(i0, i1)
+    tm = r.get("timing") or {}
+    dropped = int(r.get("dropped", 0))
+    rec_rows = _finish_recording(rec, args, backend_name, cfg, log, status, reason, ts, tm, track_note, dropped,
+                                 probes, rec_error, ticks, extra={"job_start_row": int(j0), "rt_pid": sup.rt_pid})
+    _report(out, args, status, reason, ticks, dt, wall, bool(r.get("sent_ok")), dropped, ts, track_note, probes, tm,
+            cfg.realtime, state_file, bool(r.get("clean")), rec_rows)
+    return {"done": EXIT_DONE, "stopped": EXIT_STOPPED}.get(status, EXIT_FAULT)
+
+
+def _run_probe_job_in_process(args, out, machine, svc, cfg, params, setup, backend_name, state_file, counts0, st,
+                              job, probe_segs, strain_in_loop, where) -> int:
+    """A job with probing moves (G38.2/G38.3), run by a ControlLoop in this process with the strain
+    monitor (pmctl.motion.probe.ProbeMonitor) stopping it on contact: the whole job planned and
+    replayed (at most MAX_SAMPLES ticks). Removed when probing runs in the rt process (then
+    ``Supervisor.submit`` of a probing job fills ``item.probe_results`` and _run_client reports them)."""
+    import numpy as np
+
+    from pmctl import hal
+    from pmctl.motion.loop import ControlLoop, prepare
+    from pmctl.motion.state_store import CounterWriter
+    log = out.log
+    dt = cfg.dt
     plan_machine = machine
     notes = []
     if np.any(params.vmax < machine.limits.joint_speed - 1e-9):
@@ -491,12 +581,7 @@ def run(args) -> int:
         elif not lp_.stop_request:
             stop_tick.append(lp_.tick)
             lp_.stop_request = reason
-    old = {}
-    if threading.current_thread() is threading.main_thread():
-        for name in STOP_SIGNALS:
-            sig = getattr(signal, name, None)
-            if sig is not None:
-                old[sig] = signal.signal(sig, _stop)
+    old = _catch_stop_signals(_stop)
     from pmctl.hal.modbus_daq import DaqSession
     from pmctl.hal.modbus_vfd import SpindleSession, job_speed
     rpm_job, spindle, daq = job_speed(traj.spindle_rpm), None, None
@@ -565,18 +650,19 @@ def run(args) -> int:
 
 
 def _plan(job, machine, dt, feed_override, start):
-    """The job planned by the streaming planner the daemon uses: validated whole first (nothing
-    moves on a bad line), then planned window by window and joined, since the in-process loop
-    replays a whole preflighted trajectory (bounded as the batch planner is: MAX_SAMPLES ticks)."""
+    """A probing job planned by the streaming planner: validated whole first (nothing moves on a bad
+    line), then planned window by window and joined, since the in-process loop replays a whole
+    preflighted trajectory (bounded as the batch planner is: MAX_SAMPLES ticks). Removed when
+    probing runs in the rt process."""
     from pmctl.core.errors import InputError
     from pmctl.task.planner import MAX_SAMPLES, plan_stream, validate
     from pmctl.task.trajectory import Trajectory
     path = validate(job, machine, dt, feed_override=feed_override, start=start, batch=True)
 
     def too_long(n):
-        return InputError(job.source, None, f"the planned job takes more than {MAX_SAMPLES} ticks "
-                                            f"({MAX_SAMPLES * dt / 60:.0f} min at {1 / dt:g} Hz), what a one-shot "
-                                            f"run holds; run longer jobs through pmctl serve")
+        return InputError(job.source, None, f"the planned probing job takes more than {MAX_SAMPLES} ticks "
+                                            f"({MAX_SAMPLES * dt / 60:.0f} min at {1 / dt:g} Hz), what a probing "
+                                            f"job run in one process holds (split it: probe first, then cut)")
     return Trajectory.join(plan_stream(job, machine, dt, feed_override=feed_override, start=start, path=path),
                            MAX_SAMPLES, too_long)
 
@@ -675,37 +761,56 @@ def _run_and_report_1(args, lp, prog, backend, writer, state_file, machine, para
         ts = sink.track.stats(i0, i1)
     tm = res.timing.summary()
     dropped = int(res.dropped)
+    rec_rows = _finish_recording(rec, args, backend_name, cfg, log, res.status, res.reason, ts, tm, track_note,
+                                 dropped, probes, rec_error, res.ticks)
+    _report(out, args, res.status, res.reason, res.ticks, dt, wall, sent_ok, dropped, ts, track_note, probes, tm,
+            cfg.realtime, state_file, res.status != "fault", rec_rows)
+    return {"done": EXIT_DONE, "stopped": EXIT_STOPPED}.get(res.status, EXIT_FAULT)
+
+
+def _finish_recording(rec, args, backend_name, cfg, log, status, reason, ts, tm, track_note, dropped, probes,
+                      rec_error, ticks, extra=None):
+    """Write the run's end into the recording (recording.json's ``run`` block: status, reason,
+    tracking, timing, probe results) and rename ``<DIR>.partial`` to DIR; returns its rows, or None."""
+    if rec is None:
+        return None
     rec_rows = None
-    if rec is not None:
-        desc = (f"pmctl run {Path(args.job).name} on backend {backend_name} at {cfg.rate_hz:g} Hz: {res.status}"
-                + (f" ({res.reason})" if res.reason else ""))
-        run_meta = dict(rec.meta.get("run", {}))
-        run_meta.update({"status": res.status, "reason": res.reason, "tracking": ts, "timing": tm})
-        if track_note:
-            run_meta["tracking_note"] = track_note
-        if dropped:
-            run_meta["dropped_rows"] = dropped
-        if probes:
-            run_meta["probe"] = [r.as_dict() for r in probes]
-        # a stopped run is a complete recording of what happened: "complete" is about the file;
-        # rows the recorder missed (dropped, or a recording error) make it incomplete
-        missing = dropped or rec_error or rec.rows != res.ticks
-        why = (f"{dropped} rows dropped (the recorder fell behind the loop)" if dropped
-               else f"recording error: {rec_error}" if rec_error
-               else f"{rec.rows} rows for {res.ticks} ticks")
-        if rec._done:
-            log(f"warning: the recording {args.record} was abandoned during the run ({rec_error})")
-        else:
-            try:
-                rec_rows = rec.rows
-                rec.finish(complete=not missing, reason=why if missing else "",
-                           extra_meta={"description": desc, "run": run_meta})
-            except Exception as e:
-                log(f"warning: the recording {args.record} could not be finished: {e}")
-                rec_rows = None
+    run_meta = dict(rec.meta.get("run", {}))
+    run_meta.update(extra or {})
+    desc = (f"pmctl run {Path(args.job).name} on backend {backend_name} at {cfg.rate_hz:g} Hz: {status}"
+            + (f" ({reason})" if reason else ""))
+    run_meta.update({"status": status, "reason": reason, "tracking": ts, "timing": tm})
+    if track_note:
+        run_meta["tracking_note"] = track_note
+    if dropped:
+        run_meta["dropped_rows"] = dropped
+    if probes:
+        run_meta["probe"] = [r.as_dict() for r in probes]
+    # a stopped run is a complete recording of what happened: "complete" is about the file;
+    # rows the recorder missed (dropped, or a recording error) make it incomplete
+    missing = dropped or rec_error or rec.rows != ticks
+    why = (f"{dropped} rows dropped (the recorder fell behind the loop)" if dropped
+           else f"recording error: {rec_error}" if rec_error
+           else f"{rec.rows} rows for {ticks} ticks")
+    if rec._done:
+        log(f"warning: the recording {args.record} was abandoned during the run ({rec_error})")
+    else:
+        try:
+            rec_rows = rec.rows
+            rec.finish(complete=not missing, reason=why if missing else "",
+                       extra_meta={"description": desc, "run": run_meta})
+        except Exception as e:
+            log(f"warning: the recording {args.record} could not be finished: {e}")
+            rec_rows = None
+    return rec_rows
+
+
+def _report(out, args, status, reason, ticks, dt, wall, sent_ok, dropped, ts, track_note, probes, tm, realtime,
+            state_file, clean, rec_rows):
+    """The run's report on stdout (outside checks parse these lines: keep their wording)."""
     say = out.say
-    say(f"result: {res.status}" + (f" ({res.reason})" if res.reason else ""))
-    say(f"  ticks {res.ticks} ({res.ticks * dt:.2f} s machine time, {wall:.2f} s wall), "
+    say(f"result: {status}" + (f" ({reason})" if reason else ""))
+    say(f"  ticks {ticks} ({ticks * dt:.2f} s machine time, {wall:.2f} s wall), "
         f"pulses sent = pulse counters: {'yes' if sent_ok else 'NO'}")
     if dropped:
         say(f"  records dropped: {dropped} (the recorder fell behind the loop; the recording and the "
@@ -730,10 +835,9 @@ def _run_and_report_1(args, lp, prog, backend, writer, state_file, machine, para
             f"max {tm['compute_max_us']:.0f} us (NC step median {tm['nc_median_us']:.0f} us, "
             f"p99 {tm['nc_p99_us']:.0f} us; period {dt * 1e6:.0f} us)"
             + (f"; lateness p99 {tm['late_p99_us']:.0f} us, max {tm['late_max_us']:.0f} us; "
-               f"overruns {tm['overruns']} (max {tm['max_overruns_in_row']} in a row)" if cfg.realtime
+               f"overruns {tm['overruns']} (max {tm['max_overruns_in_row']} in a row)" if realtime
                else "; lateness n/a (--no-realtime)"))
     if state_file:
-        say(f"  counters: {state_file} ({'clean stop' if res.status != 'fault' else 'NOT a clean stop'})")
+        say(f"  counters: {state_file} ({'clean stop' if clean else 'NOT a clean stop'})")
     if rec_rows is not None:
         say(f"  recording: {args.record} ({rec_rows} rows)")
-    return {"done": EXIT_DONE, "stopped": EXIT_STOPPED}.get(res.status, EXIT_FAULT)
