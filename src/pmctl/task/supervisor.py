@@ -505,6 +505,11 @@ class Supervisor:
             if n == 0:
                 time.sleep(0.005)
 
+    def retired(self, it) -> bool:
+        """Whether item ``it`` has left the queue: every piece of it ran to its end (or it was dropped)."""
+        with self._lock:
+            return it not in self.items
+
     def queued_items(self) -> int:
         with self._lock:
             return len(self.items)

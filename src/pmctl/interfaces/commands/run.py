@@ -22,9 +22,9 @@ Ctrl-C, SIGTERM (``systemctl stop``) and SIGHUP all ask for a controlled stop: t
 decelerates along its path, the counters are saved as a clean stop and the recording is written.
 Output to a closed pipe (``pmctl run ... | head``) is dropped; the run goes on and is saved.
 
-A probing move (G38.2/G38.3, the job's last motion) is stopped on contact by the strain monitor
-(pmctl.motion.probe, [probe] in the service config; until the rt process does that, a probing job
-runs its loop in this process, planned whole: _run_probe_job_in_process); the contact point is printed as grbl's
+A probing move (G38.2/G38.3) is stopped on contact by the strain monitor in the rt process
+(pmctl.motion.probe, [probe] in the service config; the supervisor plans the rest of the job from
+where the probe stopped, as the daemon does); the contact point is printed as grbl's
 ``[PRB:x,y,z,a,b:1]`` and kept in recording.json's run block. Recordings of a backend with gauges in
 its cyclic data carry load_fx/fy/fz (the tool-tip force estimated from the strains, per chunk).
 
@@ -201,12 +201,6 @@ def tracking_window(res, stop_tick: int | None) -> tuple[int, int, str]:
     return j0, j0, f"not reported: the run {res.status} ({res.reason}); the figures would measure the stop, not the tracking"
 
 
-def _strain_of(backend):
-    """The strain gauges the backend's last feedback holds (what a simulated DAQ serves)."""
-    fb = getattr(backend, "_fb", None)
-    return fb.strain.tolist() if fb is not None else [0.0, 0.0, 0.0]
-
-
 def run(args) -> int:
     from pmctl import hal
     from pmctl.core import kinematics as K
@@ -284,16 +278,11 @@ def run(args) -> int:
     job = load_job(args.job, machine, start=(st.tip, st.axis))
     for line, text in job.messages:                  # G-code (MSG, ...): for the operator, before it runs
         log(f"message from {Path(args.job).name} line {line}: {text}")
-    probe_segs = []
     if any(m.probe for m in job.moves):
-        from pmctl.motion.probe import check_probe_job, probe_segments
+        from pmctl.motion.probe import check_probe_job
         check_probe_job(job, svc.probe, args.job, args.feed_override)
-        probe_segs = probe_segments(job, machine, st.tip)
     nc_over = {"k_theta_per_s": list(svc.nc.k_theta_per_s), "k_theta_auto": False, "shaper": svc.nc.shaper,
                "pulse_mode": svc.nc.pulse_mode}
-    if probe_segs and not _rt_probing():
-        return _run_probe_job_in_process(args, out, machine, svc, cfg, params, setup, backend_name, state_file,
-                                         counts0, st, job, probe_segs, strain_in_loop, where)
     return _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, counts0, st, job,
                        nc_over, strain_in_loop, where, setup.notes)
 
@@ -307,13 +296,6 @@ def _catch_stop_signals(handler) -> dict:
             if sig is not None:
                 old[sig] = signal.signal(sig, handler)
     return old
-
-
-def _rt_probing() -> bool:
-    """Whether the rt process stops probing moves itself (``Supervisor.submit`` fills
-    ``item.probe_results``); until then probing jobs take the in-process path."""
-    from pmctl.task.supervisor import Item
-    return "probe_results" in getattr(Item, "__dataclass_fields__", {}) or hasattr(Item, "probe_results")
 
 
 class _RunView:
@@ -488,7 +470,7 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
                     bad_input = it.error
                 status, reason = "fault", f"planning failed: {it.error}"
                 break
-            if done_tick is None and int(s[C.ST_ENDED]) > ended0:
+            if done_tick is None and int(s[C.ST_ENDED]) > ended0 and sup.retired(it):
                 done_tick = int(s[C.ST_TICK])       # at the job's last sample: the plant settles
             if done_tick is not None and int(s[C.ST_TICK]) >= done_tick + settle:
                 status = "done"
@@ -538,135 +520,6 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
     return {"done": EXIT_DONE, "stopped": EXIT_STOPPED}.get(status, EXIT_FAULT)
 
 
-def _run_probe_job_in_process(args, out, machine, svc, cfg, params, setup, backend_name, state_file, counts0, st,
-                              job, probe_segs, strain_in_loop, where) -> int:
-    """A job with probing moves (G38.2/G38.3), run by a ControlLoop in this process with the strain
-    monitor (pmctl.motion.probe.ProbeMonitor) stopping it on contact: the whole job planned and
-    replayed (at most MAX_SAMPLES ticks). Removed when probing runs in the rt process (then
-    ``Supervisor.submit`` of a probing job fills ``item.probe_results`` and _run_client reports them)."""
-    import numpy as np
-
-    from pmctl import hal
-    from pmctl.motion.loop import ControlLoop, prepare
-    from pmctl.motion.state_store import CounterWriter
-    log = out.log
-    dt = cfg.dt
-    plan_machine = machine
-    notes = []
-    if np.any(params.vmax < machine.limits.joint_speed - 1e-9):
-        # the V-F converters cap the joint speed below the machine's (seed mode: one pulse per
-        # tick): plan within what they can emit
-        from dataclasses import replace
-        lim = replace(machine.limits, chain_speed=float(params.vmax[:3].min()), table_speed=float(params.vmax[3:].min()))
-        plan_machine = replace(machine, limits=lim)
-        notes.append(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: "
-                     f"planning with that")
-    traj = _plan(job, plan_machine, dt, args.feed_override, (st.tip, st.axis))
-    from pmctl.motion.timescale import shape_trajectory
-    traj = shape_trajectory(traj, setup.shaper)
-    notes += setup.notes
-    targets = prepare(machine, params, traj, dt, counts0)
-    backend = hal.create(backend_name, machine, dt, svc.backend_tables.get(backend_name, {}))
-
-    # From here on a stop signal is a controlled stop: before the loop exists it is remembered and
-    # the loop stops at its first tick (nothing moves), after that it asks the loop to decelerate.
-    stop_tick, pending, holder = [], [], {}
-
-    def _stop(signum, frame):
-        # runs in the main thread between two bytecodes (of the loop, once it runs): flags only
-        reason = STOP_SIGNALS.get(signal.Signals(signum).name, f"signal {signum}")
-        lp_ = holder.get("lp")
-        if lp_ is None:
-            pending.append(reason)
-        elif not lp_.stop_request:
-            stop_tick.append(lp_.tick)
-            lp_.stop_request = reason
-    old = _catch_stop_signals(_stop)
-    from pmctl.hal.modbus_daq import DaqSession
-    from pmctl.hal.modbus_vfd import SpindleSession, job_speed
-    rpm_job, spindle, daq = job_speed(traj.spindle_rpm), None, None
-    if rpm_job and svc.spindle is None:
-        notes.append(f"no [spindle] in {svc.source}: the job's S{abs(rpm_job):g} M{3 if rpm_job > 0 else 4} "
-                     f"is not executed")
-    try:
-        log(where)
-        for m in notes:
-            log(m)
-        try:
-            if rpm_job and svc.spindle is not None:
-                spindle = SpindleSession(svc.spindle, log).connect()   # the link answers before the drives enable
-            backend.open(counts0)
-            if svc.daq is not None:       # the simulated DAQ serves the backend's (plant's) strain gauges
-                daq = DaqSession(svc.daq, lambda: _strain_of(backend), log, machine,
-                                 lambda off: holder["lp"].set_chain_offsets(off)).connect()   # slow compensation
-            if spindle is not None:
-                spindle.start(rpm_job)    # cutting waits for at speed
-        except BaseException:
-            backend.close()
-            for dev in (spindle, daq):
-                if dev is not None:
-                    dev.close()
-            raise
-        writer = CounterWriter(state_file, machine=machine.name) if state_file else None
-        # the records stream out of the loop's bounded ring chunk by chunk: into the recording
-        # (written as it goes, so a killed run leaves <DIR>.partial) and into the tracking figures
-        from pmctl.motion.recorder import REC_CAPACITY, REC_WIDTH, Recorder
-        from pmctl.motion.ring import Ring
-        sink = RunSink(machine, params.pulses_per_mm, cfg.rate_hz, backend.truth() is not None,
-                       targets.job_start, len(targets.rows) - targets.job_start, spindle, daq,
-                       load=strain_in_loop)
-        probe = None
-        if probe_segs:
-            from pmctl.motion.probe import ProbeMonitor
-            probe = ProbeMonitor(machine, probe_segs, svc.probe, dt, params)
-        rec_writer = None
-        if args.record:
-            rec_writer = _open_recording(args, machine, backend, backend_name, cfg, sink, targets.job_start)
-            sink.writer = rec_writer
-        try:
-            ring = Ring(REC_CAPACITY, REC_WIDTH)
-            lp = ControlLoop(machine, backend, params, targets, cfg, st, log=log, writer=writer, records=ring,
-                             recorder=Recorder(ring, keep=False, sink=sink), probe=probe)
-        except BaseException:
-            if rec_writer is not None:
-                rec_writer._discard()       # nothing ran: nothing is left under any name
-            raise
-        holder["lp"] = lp
-        if spindle is not None:           # S changes inside the job: the path waits at each for the speed
-            spindle.follow(lp, targets, traj.spindle_rpm)
-        if pending:
-            stop_tick.append(0)
-            lp.stop_request = pending[0]
-        mode = "multi-pulse" if params.max_pulses_per_tick > 1 else "one pulse per tick (as in Kamiya et al. 2005)"
-        log(f"{Path(args.job).name}: {len(targets.rows) * dt:.2f} s at {cfg.rate_hz:g} Hz, backend {backend_name}, "
-            f"V-F {mode}, K_theta {'/'.join(f'{k:.4g}' for k in sorted(set(svc.nc.k_theta_per_s)))}/s, "
-            f"{'real-time' if cfg.realtime else 'no real-time (ticks back to back)'}")
-        prog = _Progress(lp, Path(args.job).name, dt, args.quiet, out)
-        return _run_and_report(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt,
-                               counts0, backend_name, stop_tick, out, spindle, daq, sink, rec_writer)
-    finally:
-        for sig, h in old.items():
-            signal.signal(sig, h)
-
-
-def _plan(job, machine, dt, feed_override, start):
-    """A probing job planned by the streaming planner: validated whole first (nothing moves on a bad
-    line), then planned window by window and joined, since the in-process loop replays a whole
-    preflighted trajectory (bounded as the batch planner is: MAX_SAMPLES ticks). Removed when
-    probing runs in the rt process."""
-    from pmctl.core.errors import InputError
-    from pmctl.task.planner import MAX_SAMPLES, plan_stream, validate
-    from pmctl.task.trajectory import Trajectory
-    path = validate(job, machine, dt, feed_override=feed_override, start=start, batch=True)
-
-    def too_long(n):
-        return InputError(job.source, None, f"the planned probing job takes more than {MAX_SAMPLES} ticks "
-                                            f"({MAX_SAMPLES * dt / 60:.0f} min at {1 / dt:g} Hz), what a probing "
-                                            f"job run in one process holds (split it: probe first, then cut)")
-    return Trajectory.join(plan_stream(job, machine, dt, feed_override=feed_override, start=start, path=path),
-                           MAX_SAMPLES, too_long)
-
-
 def _open_recording(args, machine, backend, backend_name, cfg, sink, job_start):
     """The recording, opened before the loop starts: ``<DIR>.partial/`` marked incomplete, with the
     run's metadata as far as it is known (status "running"; the rest is written at the end)."""
@@ -683,89 +536,6 @@ def _open_recording(args, machine, backend, backend_name, cfg, sink, job_start):
                         sample_rate_hz=cfg.rate_hz, description=desc, channel_notes=notes,
                         extra_meta={"run": run_meta}, overwrite=args.force)
     return w.__enter__()
-
-
-def _run_and_report(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt, counts0,
-                    backend_name, stop_tick, out, spindle, daq, sink, rec) -> int:
-    try:
-        return _run_and_report_1(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt,
-                                 counts0, backend_name, stop_tick, out, spindle, daq, sink, rec)
-    except BaseException as e:
-        # whatever went wrong after the loop ended, the rows written so far are kept, marked incomplete
-        if rec is not None and not rec._done and rec.rows:
-            try:
-                rec.finish(complete=False, reason=f"pmctl run ended by {type(e).__name__}: {e}")
-            except Exception:
-                pass
-        raise
-
-
-def _run_and_report_1(args, lp, prog, backend, writer, state_file, machine, params, cfg, dt, counts0,
-                      backend_name, stop_tick, out, spindle, daq, sink, rec) -> int:
-    import numpy as np
-    log = out.log
-    prog.start()
-    t_wall = time.monotonic()
-    for dev in (spindle, daq):            # polled by their own threads; a fault or lost link stops the run
-        if dev is not None:
-            dev.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
-    close_errors = []
-    try:
-        res = lp.run()                    # its recorder has drained the last rows into the sink
-    finally:
-        prog.finish()
-        # each device is closed whatever the others do: the spindle first (M5), then the drives
-        for dev in (spindle, daq, backend):
-            if dev is not None:
-                try:
-                    dev.close()
-                except Exception as e:    # noqa: BLE001 (kept, reported, the run ends as a fault)
-                    close_errors.append((dev, e))
-        if writer is not None:
-            writer.stop()          # on a crash the last periodic snapshot (clean = false) stays
-    if close_errors:
-        # e.g. a step/dir bridge whose final counters disagree: the device's counters are the truth
-        from dataclasses import replace
-        st = res.state
-        for dev, e in close_errors:
-            if dev is backend and getattr(e, "counts", None) is not None:
-                st = st.with_counts(e.counts)
-        why = "; ".join(f"closing {getattr(d, 'name', type(d).__name__)}: {e}" for d, e in close_errors)
-        res = replace(res, status="fault", state=st, reason=(res.reason + "; " if res.reason else "") + why)
-    wall = time.monotonic() - t_wall
-    if writer is not None and writer.error:
-        log(f"warning: periodic writes of {state_file} failed during the run ({writer.error}); "
-            f"a crash would have lost the position")
-    if writer is not None:
-        from pmctl.motion.state_store import save_counters
-        # clean: the counters are exactly what was sent and the machine did what they say (a
-        # controlled stop included); after a fault (following error, lost backend) the position is
-        # in doubt: the next start says so
-        save_counters(state_file, res.state.counts, machine=machine.name, clean=res.status != "fault",
-                      tick=res.ticks)
-
-    probes = [r for r in lp.probe.results] if lp.probe is not None else []
-    probe_err = next((r.error for r in probes if r.error), "")
-    if probe_err and res.status == "done":     # G38.2 without contact: grbl's probe-fail alarm
-        from dataclasses import replace
-        res = replace(res, status="fault", reason=probe_err)
-
-    # ---- the recording first (the run's data must not depend on stdout staying open), then the report
-    sent_ok = bool(np.all(counts0 + res.pulses_sent == res.state.counts))
-    rec_error = lp.recorder.error
-    if rec_error:
-        log(f"warning: the recorder stopped at row {sink.rows}: {rec_error}")
-    i0, i1, track_note = tracking_window(res, stop_tick[0] if stop_tick else None)
-    ts = {}
-    if i1 > i0 and sink.track is not None and not rec_error:
-        ts = sink.track.stats(i0, i1)
-    tm = res.timing.summary()
-    dropped = int(res.dropped)
-    rec_rows = _finish_recording(rec, args, backend_name, cfg, log, res.status, res.reason, ts, tm, track_note,
-                                 dropped, probes, rec_error, res.ticks)
-    _report(out, args, res.status, res.reason, res.ticks, dt, wall, sent_ok, dropped, ts, track_note, probes, tm,
-            cfg.realtime, state_file, res.status != "fault", rec_rows)
-    return {"done": EXIT_DONE, "stopped": EXIT_STOPPED}.get(res.status, EXIT_FAULT)
 
 
 def _finish_recording(rec, args, backend_name, cfg, log, status, reason, ts, tm, track_note, dropped, probes,
