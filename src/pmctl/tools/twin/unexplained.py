@@ -46,9 +46,12 @@ STRUCT_MIN = 0.3        # a signature must remove this fraction of the remaining
 
 def _frac(X, y):
     """Fraction of y's energy that least squares on the columns X removes."""
-    if X.shape[0] < X.shape[1] + 2:
+    if X.shape[0] < X.shape[1] + 2 or not (np.all(np.isfinite(X)) and np.all(np.isfinite(y))):
         return 0.0
-    c = _lstsq(X, y)
+    try:
+        c = _lstsq(X, y)
+    except np.linalg.LinAlgError:
+        return 0.0
     r = y - X @ c
     e = float(y @ y)
     return max(0.0, 1.0 - float(r @ r) / e) if e > 0 else 0.0
