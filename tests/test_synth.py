@@ -347,3 +347,68 @@ def test_a_drawn_periodic_error_is_identifiable_in_its_run():
         ds = np.abs(np.diff(c.columns[j][tracked]))
         assert np.median(ds[ds > 1e-9]) <= 0.3 * p             # tracker drop-outs aside, within the rule
         assert all(abs(p * k / 5.0 - 1) > 0.08 for k in (1, 2, 3, 4))   # not a lead harmonic (a pitch error)
+
+
+# ---------------------------------------------------------------- more physics outside the catalogue
+
+def _odd(kind, seed=6, duration=6.0, rate=250.0, run="raster"):
+    """The case with the oddity, and the same case without it (same run, same noise)."""
+    kw = dict(machine=M, seed=seed, duration_s=duration, rate_hz=rate, run=run)
+    case = S.synth_case(np.random.default_rng(seed), [], oddities=[kind], **kw)
+    base = S.synth_case(np.random.default_rng(seed), [], **kw)
+    return case, base, case.answer["oddities"][0]
+
+
+def test_every_oddity_stays_out_of_the_effects_and_names_its_channels():
+    for kind in S.ODDITIES:
+        case, _, o = _odd(kind)
+        assert case.answer["effects"] == [] and o["kind"] == kind and o["channels"]
+        assert all(c in case.columns for c in o["channels"]), (kind, o["channels"])
+
+
+def test_a_crash_step_moves_the_drive_count_at_its_instant_and_stays():
+    case, base, o = _odd("crash_step", seed=8, run="calibration")
+    t = case.columns["t"]
+    d = case.columns[f"enc_{o['axis']}"] - base.columns[f"enc_{o['axis']}"]
+    assert np.all(np.abs(d[t < o["t_s"] - 0.01]) <= S.PULSE_MM)                     # nothing before
+    assert np.all(np.abs(d[t > o["t_s"] + 0.01] - o["offset_mm"]) <= S.PULSE_MM)    # the offset after, kept
+    assert np.array_equal(case.columns[f"cmd_{o['axis']}"], base.columns[f"cmd_{o['axis']}"])
+
+
+def test_an_encoder_glitch_shows_in_its_bursts_only_and_the_axis_does_not_move():
+    case, base, o = _odd("encoder_glitch", seed=12)
+    t = case.columns["t"]
+    d = case.columns[f"enc_{o['axis']}"] - base.columns[f"enc_{o['axis']}"]
+    inside = np.zeros(len(t), bool)
+    for a, b in o["bursts_s"]:
+        inside |= (t >= a) & (t < b)
+    assert np.all(np.abs(d[inside] - o["offset_mm"]) <= S.PULSE_MM) and np.all(np.abs(d[~inside]) <= S.PULSE_MM)
+    assert np.allclose(case.columns["tip_x"], base.columns["tip_x"], equal_nan=True)     # the tool did not move
+
+
+def test_a_reversal_spike_rises_after_each_reversal_on_the_load_side_only():
+    free = S.synth_case(np.random.default_rng(10), [], machine=M, seed=10, duration_s=2.0, rate_hz=100.0,
+                        oddities=["reversal_spike"])
+    assert free.answer["run"] == "raster"                    # drawn with a run of many reversals
+    case, base, o = _odd("reversal_spike", seed=10, duration=20.0, rate=100.0)
+    j = S.AXES.index(o["axis"])
+    rev = S._reversals(case.columns[f"cmd_{o['axis']}"])
+    assert len(rev) >= 4
+    assert np.array_equal(case.columns[f"enc_{o['axis']}"], base.columns[f"enc_{o['axis']}"])
+    t = case.columns["t"]
+    q_cmd = np.stack([case.columns[f"cmd_{a}"] for a in S.AXES], 1)
+    _, q_load = S.axis_oddities([o], t, q_cmd, q_cmd.copy(), q_cmd.copy())
+    bump = q_load[:, j] - q_cmd[:, j]
+    i0 = rev[len(rev) // 2]
+    k = np.searchsorted(t, t[i0] + o["tau_s"])               # the peak: amplitude at tau after the reversal
+    assert abs(abs(bump[k]) - o["amplitude_mm"]) < 0.05 * o["amplitude_mm"]
+    assert np.all(np.abs(bump) <= o["amplitude_mm"] + 1e-12)
+
+
+def test_a_table_sag_lowers_the_tip_with_the_square_of_the_x_overhang():
+    case, base, o = _odd("table_sag", seed=11)
+    dz = case.columns["tip_z"] - base.columns["tip_z"]
+    x = case.columns["enc_X"] if "enc_X" in case.columns else case.columns["cmd_X"]
+    ok = np.isfinite(dz)
+    pred = -o["amplitude_mm"] * ((x - o["center_mm"]) / o["half_span_mm"]) ** 2
+    assert np.abs(dz[ok] - pred[ok]).max() < 1e-6 + 1e-3 * o["amplitude_mm"]

@@ -42,7 +42,7 @@ from pmctl.tools.twin import nominal
 from pmctl.tools.twin.catalogue import DEFAULT_CAP
 from pmctl.tools.twin.effects import AXES, Context, Obs
 from pmctl.tools.twin.locate import locate, noise_level, windows
-from pmctl.tools.twin.unexplained import flexible_gain, unexplained
+from pmctl.tools.twin.unexplained import flexible_gain, left_structure, unexplained
 
 N_BLOCKS = 24
 N_FOLDS = 3
@@ -568,6 +568,7 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
         cum = cum + ev["fit"].pred
         y_before = y0 - cum
     for item, ev in zip(findings, accepted):
+        ev["left"] = left_structure(ctx, yfinal, ev["affected"])     # structure its channels keep
         item["confidence"] = round(calibration.confidence(calibration.features(ev)), 2)
     loc_after = locate(ctx, yfinal)
     unexp = unexplained(ctx, yfinal, loc_after, rejected)

@@ -123,7 +123,8 @@ from pmctl.tools.twin.catalogue import EFFECTS, ODDITIES, RUNS  # names shared w
 from pmctl.tools.twin.nominal import pose_of_joints
 
 # Which runs make an effect observable (thermal needs minutes; compliance needs force changes).
-RUNS_FOR = {"thermal_growth": ("warmup",), "compliance": ("calibration",)}
+RUNS_FOR = {"thermal_growth": ("warmup",), "compliance": ("calibration",),
+            "reversal_spike": ("raster",)}        # (an oddity: many reversals in a short run)
 TEMP_CHANNELS = ("temp_screw1", "temp_screw2", "temp_screw3", "temp_screwX", "temp_screwY")
 T_CAL_C = 20.0                     # geometry was calibrated at 20 °C
 SCREW_FIXED = np.array(SCREW_FIXED_END_MM)                   # fixed-bearing end of each screw
@@ -532,19 +533,126 @@ def _true_machine(machine: Machine, effects) -> Machine:
     return dataclasses.replace(machine, geometry=dataclasses.replace(g, nominal=False, **changes))
 
 
+def _reversals(q) -> np.ndarray:
+    """Indices where a commanded axis position changes its direction of motion (after the first move)."""
+    from pmctl.core.plant_effects import direction
+    d = direction(q, dead=1e-9)
+    return np.flatnonzero((d[1:] != d[:-1]) & (d[:-1] != 0)) + 1
+
+
 def make_oddity(kind: str, rng, run: Run) -> dict:
-    """A random instance of physics outside the catalogue (see ODDITIES)."""
+    """A random instance of physics outside the catalogue (see ODDITIES). ``channels``: the
+    measured channels it shows in (the answer key; a diagnosis should locate it there)."""
+    T = float(run.t[-1])
     if kind == "straightness":
         x = run.q[:, 3]
         return {"kind": kind, "channels": ["tip_y"], "center_mm": float(rng.uniform(np.quantile(x, 0.3), np.quantile(x, 0.7))),
                 "width_mm": float(max(np.ptp(x), 1.0) * rng.uniform(0.08, 0.2)),
                 "amplitude_mm": float(_sgn(rng) * rng.uniform(0.008, 0.02))}
     if kind == "chatter_burst":
-        T = float(run.t[-1])
         ln = T * rng.uniform(0.1, 0.2)
         return {"kind": kind, "channels": ["tip_x"], "t0_s": float(rng.uniform(0.2, 0.7) * T), "length_s": ln,
                 "freq_hz": float(rng.uniform(6, 15)), "amplitude_mm": float(rng.uniform(0.008, 0.02))}
+    if kind == "reversal_spike":
+        # stick-slip at reversals: the load side lurches ahead for a few tens of ms after each
+        # reversal of the axis that reverses most, then settles; the motor side does not see it
+        nrev = [len(_reversals(run.q[:, j])) for j in range(5)]
+        j = int(np.argmax(nrev))
+        ax = AXES[j]
+        chans = ["tip_x"] if ax == "X" else ["tip_y"] if ax == "Y" else ["tip_x", "tip_y", "tip_z"]
+        return {"kind": kind, "axis": ax, "channels": chans, "amplitude_mm": float(rng.uniform(0.008, 0.025)),
+                "tau_s": float(rng.uniform(0.02, 0.06))}
+    if kind == "crash_step":
+        # a collision (or a lost reference) displaces one axis at one instant; the drive's count
+        # sees it, the command does not, and nothing brings the axis back
+        ax = str(rng.choice(AXES))
+        return {"kind": kind, "axis": ax, "channels": [f"enc_{ax}"], "t_s": float(rng.uniform(0.3, 0.7) * T),
+                "offset_mm": float(_sgn(rng) * rng.uniform(0.02, 0.08))}
+    if kind == "encoder_glitch":
+        # an intermittent encoder: a few short bursts in which enc_* reads off by a number of
+        # pulses (the axis itself does not move); the twin's pose follows the encoder, so the
+        # tracker's residual shows the bursts too
+        ax = str(rng.choice(AXES))
+        nb = int(rng.integers(4, 9))
+        starts = np.sort(rng.uniform(0.05, 0.95, nb) * T)
+        return {"kind": kind, "axis": ax, "channels": [f"enc_{ax}"],
+                "bursts_s": [[float(a), float(a + rng.uniform(0.03, 0.12))] for a in starts],
+                "offset_mm": float(_sgn(rng) * rng.uniform(0.01, 0.04))}
+    if kind == "table_sag":
+        # pose-dependent compliance the model lacks: the long table sags (tip z) at the ends of its
+        # X travel, where it overhangs its saddle
+        x = run.q[:, 3]
+        return {"kind": kind, "channels": ["tip_z"], "center_mm": float(np.median(x)),
+                "half_span_mm": float(max(np.ptp(x), 1.0) / 2), "amplitude_mm": float(rng.uniform(0.008, 0.02))}
+    if kind == "pulse_train":
+        # a periodic disturbance unrelated to any screw (a press next door): every period_s a
+        # knock that rocks the tracker's stand at freq_hz (well below the tracker's rate) and dies away
+        return {"kind": kind, "channels": ["tip_x", "tip_y"], "period_s": float(rng.uniform(0.7, 2.5)),
+                "t0_s": float(rng.uniform(0, 0.5)), "freq_hz": float(rng.uniform(4, 10)),
+                "damping_ratio": float(rng.uniform(0.02, 0.05)), "amplitude_mm": float(rng.uniform(0.008, 0.02)),
+                "direction_rad": float(rng.uniform(0, 2 * np.pi))}
     raise InputError("--oddities", None, f"unknown {kind!r}; known: {', '.join(ODDITIES)}")
+
+
+def axis_oddities(oddities, t, q_cmd, q_mot, q_load):
+    """The oddities that act on the axes: (q_mot, q_load) with them (copies when changed)."""
+    for o in oddities:
+        if o["kind"] not in ("reversal_spike", "crash_step"):
+            continue
+        j = AXES.index(o["axis"])
+        q_mot, q_load = q_mot.copy(), q_load.copy()
+        if o["kind"] == "crash_step":
+            s = step_offset(t, o["t_s"], o["offset_mm"])
+            q_mot[:, j] += s
+            q_load[:, j] += s
+        else:
+            from pmctl.core.plant_effects import direction
+            d = direction(q_cmd[:, j], dead=1e-9)
+            rev = _reversals(q_cmd[:, j])
+            for i0, i1 in zip(rev, list(rev[1:]) + [len(t)]):
+                s = (t[i0:i1] - t[i0]) / o["tau_s"]
+                q_load[i0:i1, j] += d[i0] * o["amplitude_mm"] * s * np.exp(1.0 - s)
+    return q_mot, q_load
+
+
+def tip_oddities(oddities, t, q_load, tip):
+    """The oddities the tracker sees on the tool tip: tip (n, 3) with them (a copy when changed)."""
+    for o in oddities:
+        k = o["kind"]
+        if k == "straightness":          # a bent table guide: the part moves in y with X
+            xx = q_load[:, 3]
+            tip = tip.copy()
+            tip[:, 1] += o["amplitude_mm"] * np.exp(-((xx - o["center_mm"]) / o["width_mm"]) ** 2)
+        elif k == "chatter_burst":       # a vibration in one stretch of the run only
+            tip = tip.copy()
+            on = (t >= o["t0_s"]) & (t < o["t0_s"] + o["length_s"])
+            tip[:, 0] += np.where(on, o["amplitude_mm"] * np.sin(2 * np.pi * o["freq_hz"] * t), 0.0)
+        elif k == "table_sag":
+            tip = tip.copy()
+            tip[:, 2] -= o["amplitude_mm"] * ((q_load[:, 3] - o["center_mm"]) / o["half_span_mm"]) ** 2
+        elif k == "pulse_train":
+            s = np.mod(t - o["t0_s"], o["period_s"])
+            w = 2 * np.pi * o["freq_hz"]
+            ring = o["amplitude_mm"] * np.exp(-o["damping_ratio"] * w * s) * np.sin(w * s)
+            tip = tip.copy()
+            tip[:, 0] += np.cos(o["direction_rad"]) * ring
+            tip[:, 1] += np.sin(o["direction_rad"]) * ring
+    return tip
+
+
+def encoder_oddities(oddities, t, enc):
+    """The oddities of the encoder readings: enc (n, 5) with them (a copy when changed)."""
+    for o in oddities:
+        if o["kind"] == "encoder_glitch":
+            j = AXES.index(o["axis"])
+            enc = enc.copy()
+            for a, b in o["bursts_s"]:
+                enc[(t >= a) & (t < b), j] += o["offset_mm"]
+    return enc
+
+
+# oddities that only the drive's count (enc_*) shows: a case with one always records enc_*
+ENC_ODDITIES = ("crash_step", "encoder_glitch")
 
 
 def imperfect(cols: dict, rng, rate_hz: float) -> dict:
@@ -763,6 +871,7 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
     else:
         q_cmd, q_mot, q_load = (np.array(x, float) for x in plant)
         strain_extra = np.zeros((n, 3))
+    q_mot, q_load = axis_oddities(oddities, t, q_cmd, q_mot, q_load)
     for e in by.get("resonance", []):
         if "channel" in e.locator:
             p = e.parameters
@@ -804,8 +913,9 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
     for j, c in enumerate(CMD):
         cols[c] = q_cmd[:, j]
     if enc:
+        q_enc = encoder_oddities(oddities, t, q_mot)
         for j, c in enumerate(ENC):
-            cols[c] = np.round(q_mot[:, j] / PULSE_MM) * PULSE_MM
+            cols[c] = np.round(q_enc[:, j] / PULSE_MM) * PULSE_MM
     tracked = (np.arange(n) % tracker_div) == int(rng.integers(0, tracker_div))
     tracked &= rng.random(n) > 0.01                                # lost beam, single samples
     for _ in range(int(rng.integers(0, 3))):                       # and a few longer breaks
@@ -816,15 +926,7 @@ def simulate(run: Run, effects, rng, machine: Machine, *, enc=True, tool=True, t
         ts = t - e.parameters["delay_s"]
         tip_true = np.stack([np.interp(ts, t, tip_true[:, k]) for k in range(3)], 1)
         axis_true = np.stack([np.interp(ts, t, axis_true[:, k]) for k in range(3)], 1)
-    for o in oddities:
-        if o["kind"] == "straightness":          # a bent table guide: the part moves in y with X
-            xx = q_load[:, 3]
-            tip_true = tip_true.copy()
-            tip_true[:, 1] += o["amplitude_mm"] * np.exp(-((xx - o["center_mm"]) / o["width_mm"]) ** 2)
-        elif o["kind"] == "chatter_burst":       # a vibration in one stretch of the run only
-            tip_true = tip_true.copy()
-            on = (t >= o["t0_s"]) & (t < o["t0_s"] + o["length_s"])
-            tip_true[:, 0] += np.where(on, o["amplitude_mm"] * np.sin(2 * np.pi * o["freq_hz"] * t), 0.0)
+    tip_true = tip_oddities(oddities, t, q_load, tip_true)
     tip = tip_true + rng.normal(0, noise["tip_mm"], (n, 3))
     ax = axis_true + rng.normal(0, noise["tool"], (n, 3))
     ax /= np.linalg.norm(ax, axis=-1, keepdims=True)
@@ -928,7 +1030,7 @@ def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, mach
     by the control loop on the sim backend carrying the effects, :func:`loop_plant`)."""
     machine = machine or load_machine()
     names = [e.effect if isinstance(e, Effect) else e for e in effects]
-    kind = _pick_run(names, rng, run)
+    kind = _pick_run(names + [o if isinstance(o, str) else o["kind"] for o in oddities], rng, run)
     if duration_s is None:
         duration_s = 600.0 if kind == "warmup" else 60.0
     if rate_hz is None:
@@ -949,6 +1051,7 @@ def synth_case(rng, effects=(), *, run=None, duration_s=None, rate_hz=None, mach
         effs.append(cand)
     r = make_run(kind, rng, machine, duration_s, rate_hz, loads)
     enc = any(e.effect in ("servo_lag",) for e in effs) or rng.random() < 0.9
+    enc = enc or any((o if isinstance(o, str) else o["kind"]) in ENC_ODDITIES for o in oddities)
     tool = rng.random() < 0.75
     tracker_hz = float(rng.choice([50.0, 100.0, 100.0, 200.0])) if rate_hz >= 400 else min(100.0, rate_hz / 2)
     tracker_div = max(1, int(round(rate_hz / tracker_hz)))

@@ -13,14 +13,20 @@ N noisy samples give) gets an entry with
   energy that a simple description of that kind removes:
   * ``delay`` — proportional to the time derivative of the channel's prediction (a time offset);
   * ``reversal-locked`` — a level that flips with an axis' direction of motion, or a transient
-    after its reversals;
+    or a spike after its reversals;
   * ``spectral line F Hz`` — a sinusoid at the strongest line of its spectrum;
   * ``drift`` — a slow trend (a 10-knot piecewise-linear function of time);
   * ``position-dependent`` — a smooth function of one axis' position;
+  * ``step at T s`` — one level before an instant, another after (what a single level leaves:
+    an offset is no step); a crash or a lost reference seen by a drive's count;
+  * ``intermittent (K bursts)`` — two or more short stretches above noise, together under a
+    quarter of the run, holding the excess (an encoder that miscounts now and then);
   * ``transient`` — a channel that is clean except in one stretch of the run (judged inside that
     stretch, where a line there is still reported as a spectral line);
   a channel whose excess has none of these structures (none removes 30 %) is not reported: that
-  is a noise model that is off (coloured noise, coarse quantisation), not physics,
+  is a noise model that is off (coloured noise, coarse quantisation), not physics; a channel
+  clean but for a few short stretches is judged on those stretches together (30 % + 12/n of
+  their n samples),
 - ``evidence``: what was seen, the fractions, and the catalogue effects that were tried there and
   why they were refused (their own checks), so that a reader does not chase the nearest name.
 """
@@ -40,9 +46,12 @@ STRUCT_MIN = 0.3        # a signature must remove this fraction of the remaining
 
 def _frac(X, y):
     """Fraction of y's energy that least squares on the columns X removes."""
-    if X.shape[0] < X.shape[1] + 2:
+    if X.shape[0] < X.shape[1] + 2 or not (np.all(np.isfinite(X)) and np.all(np.isfinite(y))):
         return 0.0
-    c = _lstsq(X, y)
+    try:
+        c = _lstsq(X, y)
+    except np.linalg.LinAlgError:
+        return 0.0
     r = y - X @ c
     e = float(y @ y)
     return max(0.0, 1.0 - float(r @ r) / e) if e > 0 else 0.0
@@ -60,8 +69,56 @@ def _hat(t, knots):
     return B
 
 
-def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray) -> dict:
-    """Fraction of the channel's remaining (whitened) energy each kind of structure removes."""
+def _step(tt, yy, edge=0.05):
+    """(fraction of the energy that a level, a linear trend and a step at one instant remove, that
+    instant) — the best instant with at least ``edge`` of the samples on each side; 0 when the step
+    removes less than STRUCT_MIN of what the level and the trend leave (an offset or a steady
+    drift is no step; a step left over by a fitted offset and drift still is)."""
+    n = len(yy)
+    e = float(yy @ yy)
+    lo = max(int(edge * n), 3)
+    if n < 2 * lo + 2 or e <= 0 or np.ptp(tt) <= 0:
+        return (0.0, None)
+    Q, _ = np.linalg.qr(np.stack([np.ones(n), (tt - tt.mean()) / np.ptp(tt)], 1))
+    r = yy - Q @ (Q.T @ yy)
+    rr = float(r @ r)
+    if rr <= 0:
+        return (0.0, None)
+    # H_i = 1 from sample i on; h_i = H_i minus its projection on the level and trend:
+    # h_i·r = Σ_{j≥i} r_j (r is orthogonal to both), h_i·h_i = (n − i) − |Qᵀ H_i|²
+    tail = lambda x: np.cumsum(x[::-1])[::-1]            # noqa: E731  (Σ_{j≥i} x_j)
+    sr, q1, q2 = tail(r), tail(Q[:, 0]), tail(Q[:, 1])
+    i = np.arange(lo, n - lo)
+    hh = (n - i) - q1[i] ** 2 - q2[i] ** 2
+    gain = np.where(hh > 1e-9, sr[i] ** 2 / np.maximum(hh, 1e-9), 0.0)
+    k = int(np.argmax(gain))
+    if gain[k] / rr < STRUCT_MIN:
+        return (0.0, None)
+    j = i[k]
+    return (float((e - rr + gain[k]) / e), 0.5 * float(tt[j - 1] + tt[j]))
+
+
+def _bursts(tt, yy, wins, duration):
+    """(fraction of the energy inside the windows, their number) when the channel's excess lives in
+    two or more short stretches that together last less than a quarter of the run; else (0, None)."""
+    if len(wins) < 2 or sum(b - a for a, b in wins) > 0.25 * duration:
+        return (0.0, None)
+    pad = 0.01 * duration
+    inside = np.zeros(len(tt), bool)
+    for a, b in wins:
+        inside |= (tt >= a - pad) & (tt <= b + pad)
+    e = float(yy @ yy)
+    if e <= 0:
+        return (0.0, None)
+    # the noise inside the windows is not structure: count only the excess there
+    ex = float(yy[inside] @ yy[inside]) - inside.sum()
+    return (max(ex, 0.0) / e, len(wins))
+
+
+def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray, wins=()) -> dict:
+    """Fraction of the channel's remaining (whitened) energy each kind of structure removes, with
+    its detail (delay, axis, frequency, instant, number of bursts); ``wins``: the channel's windows
+    above noise (locate), for the intermittent signature."""
     o = ctx.obs
     idx = np.flatnonzero(m)
     idx = idx[np.argsort(o.row[idx], kind="stable")]
@@ -91,10 +148,12 @@ def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray) -> dict:
             mark[flips] = flips
             last = np.maximum.accumulate(mark)
             since = np.where(last > 0, ctx.t - ctx.t[last], np.inf)
-        s = since[rows]
+        s = np.minimum(since[rows], 1e3)          # (before the first reversal: long ago)
         dd = d[rows]
-        X = np.stack([dd, dd * np.exp(-s / 0.05), dd * np.exp(-s / 0.3), np.ones(len(rows))], 1)
-        f = _frac(X, yy) - _frac(X[:, 3:], yy)
+        X = np.stack([dd, dd * np.exp(-s / 0.05), dd * np.exp(-s / 0.3),       # a level, decaying transients
+                      dd * (s / 0.02) * np.exp(-s / 0.02), dd * (s / 0.06) * np.exp(-s / 0.06),   # a spike
+                      np.ones(len(rows))], 1)
+        f = _frac(X, yy) - _frac(X[:, 5:], yy)
         if f > best[0]:
             best = (f, ax)
     out["reversal-locked"] = best
@@ -108,6 +167,9 @@ def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray) -> dict:
     if np.ptp(tt) > 0:
         knots = np.linspace(tt[0], tt[-1], 10)
         out["drift"] = (_frac(_hat(tt, knots), yy), None)
+    # step: one level before an instant, another after (what a level alone leaves)
+    out["step"] = _step(tt, yy)
+    out["intermittent"] = _bursts(tt, yy, wins, ctx.duration)
     # position-dependent: a smooth function of one axis' position (10 knots over its range)
     bestp = (0.0, None)
     for a, ax in enumerate(AXES):
@@ -154,6 +216,15 @@ def flexible_gain(ctx: Context, y: np.ndarray, channel_mask: np.ndarray) -> floa
     return gain
 
 
+def left_structure(ctx: Context, y: np.ndarray, channel_mask: np.ndarray) -> float:
+    """log10(1 + g/n): g the energy the flexible description (:func:`flexible_gain`) still removes
+    from the final residual y of the given channels, n their number of samples. About 0.01-0.05 when
+    what is left is noise; large when a finding leaves its own channels clearly structured (a
+    partial description of something else)."""
+    n = int(channel_mask[ctx.obs.ch].sum())
+    return math.log10(1.0 + flexible_gain(ctx, y, channel_mask) / n) if n else 0.0
+
+
 def _region(ctx, loc_regions, name):
     best = None
     for k, regs in loc_regions.items():
@@ -191,27 +262,39 @@ def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> li
         ss = float(y[m] @ y[m])
         ms = ss / n
         excess = math.sqrt(max(ms - 1.0, 0.0))
-        local = None
+        local = local_ws = None
         glob = excess >= EXCESS_MIN and ss - n >= CHI_SIGMA * math.sqrt(2 * n)
-        sig = _signatures(ctx, name, m, y) if glob else {}
+        wins_all = loc_after["channels"].get(name, {}).get("windows_s", [])
+        sig = _signatures(ctx, name, m, y, wins_all) if glob else {}
         if not glob or max((v[0] for v in sig.values()), default=0.0) < STRUCT_MIN:
-            # not over the whole record: a stretch of it? (the longest window above 2.5 x noise)
+            # not over the whole record: a stretch of it? (the longest window above 2.5 x noise),
+            # or, short as each one may be, all of them together (a spike after each reversal,
+            # an encoder's bursts)
             wins = loc_after["channels"].get(name, {}).get("windows_s", [])
             tt_all = ctx.t[o.row]
-            for a, b in sorted(wins, key=lambda w: w[0] - w[1]):
-                mw = m & (tt_all >= a) & (tt_all <= b)
+            tries = [[w] for w in sorted(wins, key=lambda w: w[0] - w[1])]
+            if len(wins) >= 2 and sum(b - a for a, b in wins) < 0.25 * ctx.duration:
+                tries.insert(0, sorted(wins))
+            for ws in tries:
+                mw = np.zeros_like(m)
+                for a, b in ws:
+                    mw |= m & (tt_all >= a) & (tt_all <= b)
                 nw = int(mw.sum())
-                if nw < 20:
+                if nw < max(20, 5 * len(ws)):
                     continue
                 ssw = float(y[mw] @ y[mw])
                 exw = math.sqrt(max(ssw / nw - 1.0, 0.0))
-                if exw >= 1.5 and ssw - nw > CHI_SIGMA * math.sqrt(2 * nw) and (b - a) < 0.7 * ctx.duration:
-                    local = (a, b)
-                    m, excess = mw, exw
-                    break
-            if local is None:
+                span = sum(b - a for a, b in ws)
+                if exw >= 1.5 and ssw - nw > CHI_SIGMA * math.sqrt(2 * nw) and span < 0.7 * ctx.duration:
+                    sw = _signatures(ctx, name, mw, y)
+                    # a few dozen samples: a signature must beat what its columns take from noise
+                    if max((v[0] for v in sw.values()), default=0.0) >= STRUCT_MIN + 12.0 / nw:
+                        local = (ws[0][0], ws[-1][1]) if len(ws) == 1 else None
+                        local_ws = ws
+                        m, excess, sig = mw, exw, sw
+                        break
+            else:
                 continue
-            sig = _signatures(ctx, name, m, y)
         kind, frac, detail = "broadband", 0.0, None
         for k, (f, d) in sig.items():
             if f > frac:
@@ -228,12 +311,22 @@ def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> li
         elif kind in ("reversal-locked", "position-dependent"):
             label = kind
             axis = detail or axis
+        elif kind == "step":
+            label = f"step at {detail:.2f} s"
+        elif kind == "intermittent":
+            label = f"intermittent ({detail} bursts)"
         else:
             label = kind
         info = loc_after["channels"].get(name, {})
         tw = [list(local)] if local else info.get("windows_s", [])
+        if kind == "step":
+            tw = [[detail, detail]]
         region = _region(ctx, loc_after.get("regions", {}), name)
-        if kind == "reversal-locked" and axis:
+        if kind == "step":
+            region = f"from t = {detail:.2f} s on"
+        elif kind == "intermittent":
+            region = None                 # the bursts' windows say where
+        elif kind == "reversal-locked" and axis:
             region = f"{axis} reversals"
         elif kind == "position-dependent" and axis:
             region = f"{axis} position"
@@ -246,6 +339,10 @@ def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> li
         where = f" between {local[0]:.1f} and {local[1]:.1f} s only" if local else ""
         if local and kind == "drift":
             label = "transient"
+        if local_ws and len(local_ws) > 1:          # short stretches together
+            where = f" in {len(local_ws)} short stretches only"
+            if kind in ("drift", "step", "intermittent"):
+                label, region = f"intermittent ({len(local_ws)} bursts)", None
         ev_text = (f"{name} keeps {excess:.1f} x its noise{where} after the named effects; its structure: {fr} of "
                    f"the remaining energy.")
         if tried:

@@ -1,0 +1,116 @@
+"""Honesty of the diagnosis (issue 12): the signatures of what is left unexplained, and the calibrated
+confidence (pmctl.tools.twin.unexplained, pmctl.tools.twin.calibration)."""
+
+import math
+import runpy
+import shutil
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pmctl.core.config import load_machine
+from pmctl.tools.twin import calibration as C
+from pmctl.tools.twin import synth
+from pmctl.tools.twin.diagnose import diagnose
+from pmctl.tools.twin.unexplained import _bursts, _step
+
+M = load_machine()
+
+
+# ---------------------------------------------------------------- signatures
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(200, 3000), where=st.floats(0.15, 0.85), size=st.floats(5.0, 30.0),
+       level=st.floats(-5.0, 5.0), seed=st.integers(0, 2**16))
+def test_a_step_in_white_noise_is_found_at_its_instant(n, where, size, level, seed):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.01
+    ts = t[int(where * n)] - 0.005
+    y = level + size * (t > ts) + rng.normal(0, 1, n)
+    frac, at = _step(t, y)
+    assert at is not None and abs(at - ts) <= 0.01 * max(3, 40 / size ** 2)
+    # two levels leave only the noise (n samples of unit variance)
+    assert frac >= 1 - 1.35 * n / float(y @ y)
+
+
+def test_an_offset_or_a_slow_trend_is_no_step():
+    t = np.linspace(0, 10, 2000)
+    noise = np.random.default_rng(1).normal(0, 1, len(t))
+    assert _step(t, 7.0 + noise) == (0.0, None)
+    assert _step(t, 0.3 * t + noise) == (0.0, None)
+    frac, at = _step(t, 5.0 * (t > 4.3) - 0.5 * t + noise)     # a step left over by a fitted drift is one
+    assert abs(at - 4.3) < 0.02 and frac > 0.5
+
+
+def test_bursts_carry_the_excess_of_an_intermittent_channel():
+    t = np.linspace(0, 10, 2000)
+    y = np.random.default_rng(2).normal(0, 1, len(t))
+    wins = [[2.0, 2.1], [6.0, 6.15]]
+    for a, b in wins:
+        y[(t >= a) & (t <= b)] += 20.0
+    frac, k = _bursts(t, y, wins, 10.0)
+    assert k == 2 and frac > 0.9
+    assert _bursts(t, y, wins[:1], 10.0) == (0.0, None)                 # one stretch: a transient
+    assert _bursts(t, y, [[0.0, 2.0], [5.0, 7.0]], 10.0) == (0.0, None)  # 40 % of the run: not bursts
+
+
+# ---------------------------------------------------------------- calibration
+
+def test_the_logistic_fit_recovers_known_coefficients():
+    rng = np.random.default_rng(3)
+    true = {"const": -2.0, "snr": 1.5, "spread": -2.0, "rel": 3.0, "share": 1.0, "left": -2.5}
+    rows = []
+    for _ in range(6000):
+        f = {"snr": rng.uniform(-0.5, 2), "spread": rng.uniform(0, 1.5), "rel": rng.uniform(0, 1),
+             "share": rng.uniform(0.3, 1.5), "left": rng.uniform(0, 2)}
+        rows.append((f, rng.random() < C.confidence(f, true)))
+    fit = C.fit_logistic(rows)
+    for k, v in true.items():
+        assert abs(fit[k] - v) < 0.35 * max(1.0, abs(v)), (k, fit[k], v)
+    # calibrated by construction: the reliability table agrees with itself within sampling error
+    bins = C.reliability(rows, fit)
+    assert sum(b["n"] for b in bins) == len(rows) and C.ece(bins) < 0.03
+
+
+def test_reliability_bins_and_expected_calibration_error_by_hand():
+    coef = {"const": 0.0, "snr": 1.0}
+    rows = [({"snr": math.log(9)}, True)] * 9 + [({"snr": math.log(9)}, False)]      # 0.9 predicted, 9/10 right
+    rows += [({"snr": 0.0}, True)] * 1 + [({"snr": 0.0}, False)] * 3                  # 0.5 predicted, 1/4 right
+    bins = C.reliability(rows, coef)
+    assert [(b["bin"], b["n"], b["right"]) for b in bins] == [([0.5, 0.7], 4, 1), ([0.85, 0.95], 10, 9)]
+    assert abs(C.ece(bins) - (4 * 0.25 + 10 * 0.0) / 14) < 1e-3
+
+
+def test_write_fitted_replaces_only_the_fitted_block(tmp_path):
+    p = tmp_path / "calibration_copy.py"
+    shutil.copy(C.__file__, p)
+    before = p.read_text(encoding="utf-8")
+    coef = {"const": -1.25, "snr": 0.5, "spread": -1.0, "rel": 2.0, "share": 1.5, "left": -0.75}
+    calib = {"fit": {"seed_bases": [1, 2], "cases": 10}, "heldout": {"seed_bases": [3], "ece": 0.05}}
+    C.write_fitted(coef, calib, "a description", p)
+    ns = runpy.run_path(str(p))
+    assert ns["COEF"] == coef and ns["CALIBRATION"] == calib and ns["DESCRIPTION"] == "a description"
+    after = p.read_text(encoding="utf-8")
+    a, b = before.index("# BEGIN FITTED"), before.index("# END FITTED")
+    assert after.startswith(before[:a]) and after.endswith(before[b:].split("\n", 1)[1])
+
+
+def test_the_shipped_calibration_states_its_held_out_check():
+    assert set(C.COEF) == {"const", *C.KEYS}
+    h = C.CALIBRATION["heldout"]
+    assert h and not set(h["seed_bases"]) & set(C.CALIBRATION["fit"]["seed_bases"])   # other seeds
+    assert h["findings"] == sum(b["n"] for b in h["bins"]) and 0 <= h["ece"] <= 1
+
+
+# ---------------------------------------------------------------- a diagnosis
+
+def test_a_crash_that_moves_an_axis_is_located_as_a_step_not_named():
+    o = {"kind": "crash_step", "axis": "Y", "channels": ["enc_Y"], "t_s": 4.3, "offset_mm": 0.04}
+    case = synth.synth_case(np.random.default_rng(5), [], machine=M, seed=5, duration_s=10.0, rate_hz=250.0,
+                            run="calibration", oddities=[o])
+    rep, _ = diagnose(case.columns, M, cap=1500)
+    u = [e for e in rep["unexplained"] if "enc_Y" in e["channels"]]
+    assert u and u[0]["signature"].startswith("step at"), rep["unexplained"]
+    assert abs(float(u[0]["signature"].split()[2]) - 4.3) < 0.1 and u[0]["excess_over_noise"] > 10
+    assert not [f for f in rep["findings"] if f["confidence"] >= 0.5], rep["findings"]
