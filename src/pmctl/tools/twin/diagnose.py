@@ -344,6 +344,25 @@ def _line_evidence(ev, loc) -> bool:
     return bool(sel.any() and med > 0 and amp[sel].max() >= LINE_RATIO * med)
 
 
+OWN_MARGIN = (MIN_DSSE, 0.005)   # (absolute, relative) held-out gain another temperature must add
+
+
+def _rank(ev, pool) -> float:
+    """Sort key of an accepted candidate: its score, except that a thermal growth against another
+    temperature than the screw's own (effects.own_temperature) gives way to the own one when that
+    explains nearly as much: the screws of a machine warm together, so every screw temperature
+    follows the same warm-up and the fit alone cannot tell them apart; physics says the screw grows
+    with its own temperature."""
+    c = ev["cand"]
+    if c.effect != "thermal_growth" or c.channel in fx.own_temperature(c.target):
+        return ev["score"]
+    own = [e for e in pool if e["cand"].effect == "thermal_growth" and e["cand"].target == c.target
+           and e["cand"].channel in fx.own_temperature(c.target)]
+    if own and ev["score"] - own[0]["score"] < max(OWN_MARGIN[0], OWN_MARGIN[1] * abs(ev["d_cv"])):
+        return min(ev["score"], own[0]["score"]) - 1e-9
+    return ev["score"]
+
+
 def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, candidates=None, loc=None):
     """Greedy forward selection. Returns (accepted evaluations in order, final residual, refused
     evaluations). ``loc``: the locate stage's breakdown (its screw-position lines are evidence)."""
@@ -367,7 +386,8 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
                 ev["line_evidence"] = _line_evidence(ev, loc)
                 if accept(ev):
                     pool.append(ev)
-        pool.sort(key=lambda e: -e["score"])
+        ranks = [_rank(e, pool) for e in pool]
+        pool = [e for _, e in sorted(zip(ranks, pool), key=lambda re: -re[0])]
         best, refused = None, []
         for ev in pool:
             blocked = [r for r in refused if r["score"] > BLOCK_RATIO * ev["score"]
