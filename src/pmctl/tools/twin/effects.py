@@ -32,6 +32,8 @@ from pmctl.core.plant_effects import mode_response as resonance_response
 
 AXES = ("L1", "L2", "L3", "X", "Y")
 MAX_ALPHA = 1e-4   # /K, no solid screw expands more
+T_REF_PRIOR = (20.0, 3.0)    # °C: the temperature a machine's geometry holds at (ISO 1: 20 °C), ± 3 K
+T_REF_RANGE = (-10.0, 50.0)  # °C: a workshop's
 PRESCREEN = 10.0   # whitened SSE a start value of a nonlinear parameter must already remove
 TOOL_ROWS = {"tip_x": 0, "tip_y": 1, "tip_z": 2, "tool_i": 3, "tool_j": 4, "tool_k": 5}
 ENC = tuple(f"enc_{a}" for a in AXES)
@@ -550,9 +552,12 @@ class ThermalGrowth(AxisSignal):
     temperature, x_fixed the screw's fixed-bearing end (growth is zero there), T_ref the temperature
     the geometry was calibrated at.
 
-    Three physical parameters, none known to the twin. For a given x_fixed the model is linear in
-    α and α·T_ref, so x_fixed is searched (a grid over the screw's travel and beyond, refined) with
-    the other two solved exactly at each step. The constraint matters at small temperature rises:
+    Three physical parameters, none known to the twin. The model is linear in α, so x_fixed and
+    T_ref are searched (a grid over the screw's travel and beyond × workshop temperatures, refined
+    by a simplex) with α solved exactly at each step, from the moments of four basis columns.
+    T_ref carries a weak prior, 20 ± 3 °C (ISO 1's reference temperature; a whitened SSE penalty
+    ((T_ref − 20)/3)²): data that tell it overrule it, a 2.5 K warm-up that hardly does is not
+    left free to trade T_ref against x_fixed. The constraint matters at small temperature rises:
     the growth leaves a strong drift of the axis offset with T and a static scale error about
     x_fixed, and only a weak T·x cross term; a free constant (four linear terms) would throw the
     first two away against each other."""
@@ -600,19 +605,14 @@ class ThermalGrowth(AxisSignal):
         return ctx.extra[key]
 
     @staticmethod
-    def _solve(G, b, xf):
-        """Best (α, β) of α·(T−Tm)(x−xf) + β(x−xf) from the 4-term moments; (cost drop, coef)."""
-        M = np.array([[1.0, -xf, 0.0, 0.0], [0.0, 0.0, 1.0, -xf]])
-        G2, b2 = M @ G @ M.T, M @ b
-        sc = np.sqrt(np.maximum(np.diag(G2), 1e-300))
-        Gs = G2 / np.outer(sc, sc)
-        try:
-            c = np.linalg.solve(Gs, b2 / sc) / sc if np.linalg.cond(Gs) < 1e12 else None
-        except np.linalg.LinAlgError:
-            c = None
-        if c is None:
-            return 0.0, np.zeros(2)
-        return float(b2 @ c), c
+    def _gain(G, b, xf, tr, Tm):
+        """SSE drop and α of the column (T − T_ref)(x − x_f) for arrays of (x_f, T_ref), from the
+        moments of the basis (T − Tm)·x, T − Tm, x, 1."""
+        d = tr - Tm
+        m = np.stack([np.ones_like(xf), -xf, -d, d * xf], -1)
+        num = m @ b
+        den = np.maximum(np.einsum("...i,ij,...j->...", m, G, m), 1e-300)
+        return num * num / den, num / den
 
     def fit(self, ctx, y, train):
         B, Tm = self._basis(ctx)
@@ -620,15 +620,23 @@ class ThermalGrowth(AxisSignal):
         Bs, ys = B[sel], y[sel]
         G, b = Bs.T @ Bs, Bs.T @ ys
         lo, hi = self.xf_range(ctx)
-        grid = np.linspace(lo, hi, 49)
-        gains = np.array([self._solve(G, b, q)[0] for q in grid])
-        k = int(np.argmax(gains))
-        a_, b_ = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-        sol = optimize.minimize_scalar(lambda q: -self._solve(G, b, q)[0], bounds=(a_, b_), method="bounded",
-                                       options={"xatol": 1e-3 * (hi - lo)})
-        xf = float(sol.x) if -sol.fun >= gains[k] else float(grid[k])
-        dsse, (al, be) = self._solve(G, b, xf)
-        pred = (al * B[:, 0] + be * B[:, 2]) - xf * (al * B[:, 1] + be * B[:, 3])
+        t0, st = T_REF_PRIOR
+
+        def objective(q):                      # SSE drop minus the prior's penalty on T_ref
+            gain, _ = self._gain(G, b, q[..., 0], q[..., 1], Tm)
+            return gain - ((q[..., 1] - t0) / st) ** 2
+        XF, TR = np.meshgrid(np.linspace(lo, hi, 49), np.arange(T_REF_RANGE[0], T_REF_RANGE[1] + 0.5, 1.0))
+        grid = np.stack([XF, TR], -1)
+        k = np.unravel_index(int(np.argmax(objective(grid))), XF.shape)
+        q0 = grid[k]
+        sol = optimize.minimize(lambda q: -float(objective(np.asarray(q))), q0, method="Nelder-Mead",
+                                options={"xatol": 1e-3, "fatol": 1e-3, "maxiter": 200,
+                                         "initial_simplex": [q0, q0 + [0.02 * (hi - lo), 0], q0 + [0, 0.5]]})
+        xf, t_ref = (float(sol.x[0]), float(sol.x[1])) if -sol.fun >= objective(q0) else (float(q0[0]), float(q0[1]))
+        xf = min(max(xf, lo), hi)
+        dsse, al = (float(v) for v in self._gain(G, b, np.asarray(xf), np.asarray(t_ref), Tm))
+        d = t_ref - Tm
+        pred = al * ((B[:, 0] - xf * B[:, 1]) - d * (B[:, 2] - xf * B[:, 3]))
         # the temperature must carry the fit: a static scale error about a point (a·x + c, what a
         # wrong lead or a length error leaves) must do clearly worse
         c2 = _lstsq(Bs[:, 2:], ys)
@@ -640,10 +648,9 @@ class ThermalGrowth(AxisSignal):
         if key not in ctx.extra:
             Tfull = ctx.temps[self.channel]
             ctx.extra[key] = bool(np.ptp(Tfull) > 20 * max(noise_level(Tfull[np.isfinite(Tfull)]), 1e-3))
-        t_ref = Tm - be / al if al != 0 else float("nan")
         params = {"alpha_per_K": float(al), "channel": self.channel, "screw_fixed_end_mm": xf, "t_ref_C": float(t_ref)}
         edge = 0.02 * (hi - lo)
-        ok = bool(ctx.extra[key] and np.isfinite(t_ref) and np.ptp(ctx.q_cmd[:, self.a]) > 0
+        ok = bool(ctx.extra[key] and np.isfinite(al) and np.ptp(ctx.q_cmd[:, self.a]) > 0
                   and dsse - dsse_static > PRESCREEN)
         return Fit(params, pred, 3, ok=ok,
                    internal={"dsse_T": dsse - dsse_static, "at_edge": not lo + edge < xf < hi - edge,
@@ -659,7 +666,7 @@ class ThermalGrowth(AxisSignal):
             lo, hi = fit.internal["xf_range"]
             out.append(f"the fixed bearing lands at {p['screw_fixed_end_mm']:.0f} mm, the edge of where it can be "
                        f"({lo:.0f} … {hi:.0f} mm): not a screw growing from its bearing")
-        if not -10.0 <= tr <= 50.0:
+        if not T_REF_RANGE[0] < tr < T_REF_RANGE[1]:
             out.append(f"a calibration temperature of {tr:.1f} °C is no workshop's")
         return out
 
