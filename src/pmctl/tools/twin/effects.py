@@ -32,7 +32,7 @@ from pmctl.core.plant_effects import mode_response as resonance_response
 
 AXES = ("L1", "L2", "L3", "X", "Y")
 MAX_ALPHA = 1e-4   # /K, no solid screw expands more
-T_REF_PRIOR = (20.0, 3.0)    # °C: the temperature a machine's geometry holds at (ISO 1: 20 °C), ± 3 K
+T_REF = 20.0                 # °C: the temperature a machine's geometry holds at (ISO 1's reference)
 T_REF_RANGE = (-10.0, 50.0)  # °C: a workshop's
 PRESCREEN = 10.0   # whitened SSE a start value of a nonlinear parameter must already remove
 TOOL_ROWS = {"tip_x": 0, "tip_y": 1, "tip_z": 2, "tool_i": 3, "tool_j": 4, "tool_k": 5}
@@ -553,11 +553,12 @@ class ThermalGrowth(AxisSignal):
     the geometry was calibrated at.
 
     Three physical parameters, none known to the twin. The model is linear in α, so x_fixed and
-    T_ref are searched (a grid over the screw's travel and beyond × workshop temperatures, refined
-    by a simplex) with α solved exactly at each step, from the moments of four basis columns.
-    T_ref carries a weak prior, 20 ± 3 °C (ISO 1's reference temperature; a whitened SSE penalty
-    ((T_ref − 20)/3)²): data that tell it overrule it, a 2.5 K warm-up that hardly does is not
-    left free to trade T_ref against x_fixed. The constraint matters at small temperature rises:
+    T_ref are searched (a grid over the screw's travel and beyond × workshop temperatures, refined)
+    with α solved exactly at each step, from the moments of four basis columns. T_ref is the
+    reference temperature of ISO 1, 20 °C, unless freeing it gains more than one parameter's
+    worth (BIC, ln N): a warm-up of a kelvin or two cannot tell α from T_ref (α·(T − T_ref) is
+    what it sees), and a free T_ref would trade one against the other. The constraint matters at
+    small temperature rises:
     the growth leaves a strong drift of the axis offset with T and a static scale error about
     x_fixed, and only a weak T·x cross term; a free constant (four linear terms) would throw the
     first two away against each other."""
@@ -620,20 +621,30 @@ class ThermalGrowth(AxisSignal):
         Bs, ys = B[sel], y[sel]
         G, b = Bs.T @ Bs, Bs.T @ ys
         lo, hi = self.xf_range(ctx)
-        t0, st = T_REF_PRIOR
+        xgrid = np.linspace(lo, hi, 49)
 
-        def objective(q):                      # SSE drop minus the prior's penalty on T_ref
-            gain, _ = self._gain(G, b, q[..., 0], q[..., 1], Tm)
-            return gain - ((q[..., 1] - t0) / st) ** 2
-        XF, TR = np.meshgrid(np.linspace(lo, hi, 49), np.arange(T_REF_RANGE[0], T_REF_RANGE[1] + 0.5, 1.0))
-        grid = np.stack([XF, TR], -1)
-        k = np.unravel_index(int(np.argmax(objective(grid))), XF.shape)
-        q0 = grid[k]
-        sol = optimize.minimize(lambda q: -float(objective(np.asarray(q))), q0, method="Nelder-Mead",
+        def refine(f, q0, h):               # a bounded scalar search between q0's grid neighbours
+            sol = optimize.minimize_scalar(lambda q: -f(q), bounds=(max(q0 - h, lo), min(q0 + h, hi)),
+                                           method="bounded", options={"xatol": 1e-4 * (hi - lo)})
+            return (float(sol.x), -float(sol.fun)) if -sol.fun >= f(q0) else (q0, f(q0))
+
+        # T_ref at the reference temperature (ISO 1: 20 °C) ...
+        def g_ref(q):
+            return float(self._gain(G, b, np.asarray(q, float), np.asarray(T_REF), Tm)[0])
+        gains = self._gain(G, b, xgrid, np.full_like(xgrid, T_REF), Tm)[0]
+        xf, best = refine(g_ref, float(xgrid[int(np.argmax(gains))]), xgrid[1] - xgrid[0])
+        t_ref = T_REF
+        # ... or free, when the data say so beyond what one more parameter gains from noise
+        XF, TR = np.meshgrid(xgrid, np.arange(T_REF_RANGE[0], T_REF_RANGE[1] + 0.5, 1.0))
+        gfree = self._gain(G, b, XF, TR, Tm)[0]
+        k = np.unravel_index(int(np.argmax(gfree)), XF.shape)
+        q0 = np.array([XF[k], TR[k]])
+        sol = optimize.minimize(lambda q: -float(self._gain(G, b, np.asarray(q[0]), np.asarray(q[1]), Tm)[0]), q0,
+                                method="Nelder-Mead",
                                 options={"xatol": 1e-3, "fatol": 1e-3, "maxiter": 200,
                                          "initial_simplex": [q0, q0 + [0.02 * (hi - lo), 0], q0 + [0, 0.5]]})
-        xf, t_ref = (float(sol.x[0]), float(sol.x[1])) if -sol.fun >= objective(q0) else (float(q0[0]), float(q0[1]))
-        xf = min(max(xf, lo), hi)
+        if -sol.fun > best + math.log(max(len(ys), 2)) and lo <= sol.x[0] <= hi:
+            xf, t_ref = float(sol.x[0]), float(sol.x[1])
         dsse, al = (float(v) for v in self._gain(G, b, np.asarray(xf), np.asarray(t_ref), Tm))
         d = t_ref - Tm
         pred = al * ((B[:, 0] - xf * B[:, 1]) - d * (B[:, 2] - xf * B[:, 3]))
