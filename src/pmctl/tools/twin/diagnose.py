@@ -525,7 +525,8 @@ def _evidence_core(ev, ctx, loc, explained):
         x = np.abs(ctx.q_cmd[:, AXES.index(c.target)]).max()
         return (f"the error along {c.target} grows with {p['channel']} (ΔT = {np.ptp(T):.1f} K) and with the screw "
                 f"position; α = {p['alpha_per_K']:.3g} /K ({_fmt_um(abs(p['alpha_per_K']) * np.ptp(T) * x)} at "
-                f"{x:.0f} mm) explains {pct} of it on held-out samples.")
+                f"{x:.0f} mm), growing from a fixed bearing at {p['screw_fixed_end_mm']:.0f} mm, explains {pct} of it "
+                f"on held-out samples.")
     if eff == "compliance":
         a = AXES.index(c.target)
         if a >= 3:
