@@ -32,6 +32,8 @@ from pmctl.core.plant_effects import mode_response as resonance_response
 
 AXES = ("L1", "L2", "L3", "X", "Y")
 MAX_ALPHA = 1e-4   # /K, no solid screw expands more
+T_REF = 20.0                 # °C: the temperature a machine's geometry holds at (ISO 1's reference)
+T_REF_RANGE = (-10.0, 50.0)  # °C: a workshop's
 PRESCREEN = 10.0   # whitened SSE a start value of a nonlinear parameter must already remove
 TOOL_ROWS = {"tip_x": 0, "tip_y": 1, "tip_z": 2, "tool_i": 3, "tool_j": 4, "tool_k": 5}
 ENC = tuple(f"enc_{a}" for a in AXES)
@@ -422,9 +424,18 @@ class PitchError(AxisSignal):
         return []
 
     def _start_periods(self, ctx, y):
-        """Strongest lines of the axis-equivalent residual against screw position (binned, FFT)."""
+        """Periods to start from. A pitch error sits at the lead or one of its first harmonics,
+        known in advance: those lines, whatever the spectrum shows (a 2 µm error under 1.5 µm of
+        tracker noise hardly stands out of it, and an axis that moves in few samples has no
+        spectrum). A periodic error: the strongest lines of the axis-equivalent residual against
+        screw position (binned, FFT), refined in :meth:`fit` before the lead-harmonic test (a line
+        10 % off the lead falls into the lead's bin on a short travel)."""
         from pmctl.tools.twin.locate import axis_projection, spectrum_position
         _, e, rows = axis_projection(ctx, self.a, y)
+        span = float(np.ptp(ctx.q_cmd[rows, self.a])) if len(rows) else 0.0
+        if self.effect == "pitch_error":
+            lead = screw_lead(ctx, self.a)
+            return [lead / k for k in (1, 2, 3, 4) if span >= lead / k and k / lead < 5.0]
         if len(e) < 64:
             return []
         x = ctx.q_cmd[rows, self.a]
@@ -433,7 +444,6 @@ class PitchError(AxisSignal):
         if sp is None:
             return []
         f, amp = sp
-        span = float(np.ptp(x))
         ok = (f > 1.5 / max(span, 1e-9)) & (f < 1 / 0.2)
         if not ok.any():
             return []
@@ -442,14 +452,16 @@ class PitchError(AxisSignal):
         if len(pk) == 0:
             pk = np.array([int(np.argmax(ao))])
         pk = pk[np.argsort(ao[pk])[::-1]]
-        per = [1.0 / float(fo[k]) for k in pk]
-        if self.effect == "pitch_error":
-            # the lead's own lines are always candidates (a weak line at the lead is still the
-            # likeliest place of a pitch error), then the strongest peaks that are lead harmonics
-            lead = screw_lead(ctx, self.a)
-            mine = [lead / k for k in (1, 2, 3, 4) if 1.5 / max(span, 1e-9) < k / lead < 5.0]
-            return mine + [q for q in per if self._period_ok(ctx, q)][:2]
-        return [q for q in per if not lead_harmonic(q, screw_lead(ctx, self.a), 0.06)][:3]
+        return [1.0 / float(fo[k]) for k in pk][:3]
+
+    @staticmethod
+    def _parabola(grid, cost):
+        """Minimum of cost over grid, refined by a parabola through the best point's neighbours."""
+        k = int(np.clip(np.argmin(cost), 1, len(grid) - 2))
+        c0, c1, c2 = cost[k - 1:k + 2]
+        den = c0 - 2 * c1 + c2
+        h = grid[k + 1] - grid[k]
+        return float(np.clip(grid[k] + (0.5 * h * (c0 - c2) / den if den > 0 else 0.0), grid[0], grid[-1]))
 
     def fit(self, ctx, y, train):
         g = self.gain(ctx)
@@ -465,38 +477,37 @@ class PitchError(AxisSignal):
             ph = 2 * np.pi * xx / p
             return np.stack([gg * np.sin(ph), gg * np.cos(ph)], 1)
 
-        def res(pp):
-            X = design(pp[0], gs, xs)
-            return X @ _lstsq(X, ys) - ys
+        def cost(p):
+            X = design(p, gs, xs)
+            r = X @ _lstsq(X, ys) - ys
+            return float(r @ r)
 
         base = float(ys @ ys)
-        gains = [(base - float(r @ r), p0) for p0 in self._starts for r in [res([p0])]]
-        gains = [gp for gp in sorted(gains, reverse=True)[:1] if gp[0] > PRESCREEN]
-        best = None
-        if self.effect == "pitch_error" and gains:
-            # the period is a lead harmonic: a grid of ±2 % around it, refined by a parabola
-            p0 = gains[0][1]
+        found = []            # (cost, period)
+        if self.effect == "pitch_error":
+            # the period is a lead harmonic: the best of those lines, then a grid of ±2 % around
+            # it refined by a parabola (a screw's lead is made within that)
+            p0 = min(self._starts, key=cost)
             grid = p0 * np.linspace(0.98, 1.02, 9)
-            cost = np.array([float(r @ r) for r in (res([q]) for q in grid)])
-            k = int(np.clip(np.argmin(cost), 1, len(grid) - 2))
-            c0, c1, c2 = cost[k - 1:k + 2]
-            den = c0 - 2 * c1 + c2
-            h = grid[1] - grid[0]
-            p = float(np.clip(grid[k] + (0.5 * h * (c0 - c2) / den if den > 0 else 0.0), grid[0], grid[-1]))
-            gains = []
-            best = optimize.OptimizeResult(x=np.array([p]), cost=0.0)
-        for _, p0 in gains:
-            lo, hi = (0.5 * p0, 2 * p0)
-            try:
-                sol = optimize.least_squares(res, [p0], x_scale=[p0 * 1e-3], diff_step=[1e-6], max_nfev=20,
-                                             bounds=([lo], [hi]))
-            except ValueError:
-                continue
-            if best is None or sol.cost < best.cost:
-                best = sol
-        if best is None:
+            p = self._parabola(grid, np.array([cost(q) for q in grid]))
+            found.append((cost(p), p))
+        else:
+            # a local scan in spatial frequency around each line (± 1.5 resolution cells of the
+            # travel), refined by a parabola; the best one that is no lead harmonic
+            span = max(float(np.ptp(xs)), 1e-9)
+            for p0 in self._starts:
+                fgrid = 1 / p0 + np.linspace(-1.5, 1.5, 13) / span
+                fgrid = fgrid[fgrid > 1.0 / span]
+                if len(fgrid) < 3:
+                    continue
+                fr = self._parabola(fgrid, np.array([cost(1 / q) for q in fgrid]))
+                p = 1 / fr
+                if self._period_ok(ctx, p):
+                    found.append((cost(p), p))
+        found = [fp for fp in found if base - fp[0] > PRESCREEN]
+        if not found:
             return Fit({}, np.zeros_like(y), 3, ok=False)
-        p = float(best.x[0])
+        p = min(found)[1]
         c = _lstsq(design(p, gs, xs), ys)
         pred = design(p, g, x) @ c
         amp = float(np.hypot(*c))
@@ -530,15 +541,30 @@ class PeriodicError(PitchError):
         return []
 
 
-class ThermalGrowth(AxisSignal):
-    """Screw growth α·(T − T_ref)·(x − x_fixed) on actuator a: x the screw coordinate, T a temperature.
+def own_temperature(axis: str) -> tuple[str, ...]:
+    """Names a recording may give the temperature of axis ``axis``'s own screw (docs/recording.md:
+    ``temp_screw1`` for L1, ``temp_screwX`` for X; or ``temp_L1``, ``temp_X``)."""
+    return (f"temp_screw{axis.removeprefix('L')}", f"temp_{axis}")
 
-    The reference temperature (of the calibration) and the fixed-bearing end of the screw are not
-    known to the twin, so the expansion αTx − αT_ref·x − αx_fixed·T + const is fitted with four
-    linear terms; α is the coefficient of T·x, T_ref and x_fixed follow from the others."""
+
+class ThermalGrowth(AxisSignal):
+    """Screw growth δ = α·(T − T_ref)·(x − x_fixed) on actuator a: x the screw coordinate, T a
+    temperature, x_fixed the screw's fixed-bearing end (growth is zero there), T_ref the temperature
+    the geometry was calibrated at.
+
+    Three physical parameters, none known to the twin. The model is linear in α, so x_fixed and
+    T_ref are searched (a grid over the screw's travel and beyond × workshop temperatures, refined)
+    with α solved exactly at each step, from the moments of four basis columns. T_ref is the
+    reference temperature of ISO 1, 20 °C, unless freeing it gains more than one parameter's
+    worth (BIC, ln N): a warm-up of a kelvin or two cannot tell α from T_ref (α·(T − T_ref) is
+    what it sees), and a free T_ref would trade one against the other. The constraint matters at
+    small temperature rises:
+    the growth leaves a strong drift of the axis offset with T and a static scale error about
+    x_fixed, and only a weak T·x cross term; a free constant (four linear terms) would throw the
+    first two away against each other."""
 
     effect = "thermal_growth"
-    nparams = 4
+    nparams = 3
 
     def __init__(self, axis, channel):
         super().__init__(axis)
@@ -555,49 +581,105 @@ class ThermalGrowth(AxisSignal):
         T = ctx.temps.get(self.channel)
         return super().applicable(ctx) and T is not None and np.ptp(T) > 0
 
-    def design(self, ctx):
-        r = ctx.obs.row
-        T = ctx.temps[self.channel][r]
-        x = ctx.q_cmd[r, self.a]
-        Tm, xm = float(np.mean(T)), float(np.mean(x))
-        g = self.gain(ctx)
-        return np.stack([g * (T - Tm) * (x - xm), g * (T - Tm), g * (x - xm), g], 1)
+    def xf_range(self, ctx):
+        """Where the fixed bearing may be: the screw's travel (config limits, else the recorded
+        range) and half of it again on either side."""
+        lim = getattr(ctx.machine, "limits", None)
+        rng = None
+        if lim is not None:
+            rng = (lim.chain_length, lim.chain_length, lim.chain_length, lim.table_x, lim.table_y)[self.a]
+        x = ctx.q_cmd[:, self.a]
+        lo, hi = (float(rng[0]), float(rng[1])) if rng is not None else (float(x.min()), float(x.max()))
+        lo, hi = min(lo, float(x.min())), max(hi, float(x.max()))
+        return lo - 0.5 * (hi - lo), hi + 0.5 * (hi - lo)
 
-    def params_of(self, c, ctx):
-        r = ctx.obs.row
-        T = ctx.temps[self.channel][r]
-        x = ctx.q_cmd[r, self.a]
-        al = float(c[0])
-        out = {"alpha_per_K": al, "channel": self.channel}
-        if al != 0:
-            # α(T−Tm)(x−xm) + c1(T−Tm) + c2(x−xm) = α(T − Tm + c2/α)(x − xm + c1/α) + const
-            out["screw_fixed_end_mm"] = float(np.mean(x) - c[1] / al)
-            out["t_ref_C"] = float(np.mean(T) - c[2] / al)
-        return out
+    def _basis(self, ctx):
+        """(g·T·x, g·T, g·x, g) at every obs element; T centred on its mean (conditioning)."""
+        key = ("thermal_basis", self.a, self.channel)
+        if key not in ctx.extra:
+            r = ctx.obs.row
+            T = ctx.temps[self.channel][r]
+            Tm = float(np.mean(ctx.temps[self.channel]))
+            x = ctx.q_cmd[r, self.a]
+            g = self.gain(ctx)
+            ctx.extra[key] = (np.stack([g * (T - Tm) * x, g * (T - Tm), g * x, g], 1), Tm)
+        return ctx.extra[key]
+
+    @staticmethod
+    def _gain(G, b, xf, tr, Tm):
+        """SSE drop and α of the column (T − T_ref)(x − x_f) for arrays of (x_f, T_ref), from the
+        moments of the basis (T − Tm)·x, T − Tm, x, 1."""
+        d = tr - Tm
+        m = np.stack([np.ones_like(xf), -xf, -d, d * xf], -1)
+        num = m @ b
+        den = np.maximum(np.einsum("...i,ij,...j->...", m, G, m), 1e-300)
+        return num * num / den, num / den
 
     def fit(self, ctx, y, train):
-        f = super().fit(ctx, y, train)
-        r = ctx.obs.row
-        T = ctx.temps[self.channel][r]
-        x = ctx.q_cmd[r, self.a]
-        # the T·x term must carry the fit: drop it and the remaining three terms must do clearly worse
-        X, nz = self.cached_design(ctx)
-        sel = train & nz
-        c3 = _lstsq(X[sel][:, 1:], y[sel])
-        r3 = X[sel][:, 1:] @ c3 - y[sel]
-        r4 = X[sel] @ f.internal["coef"] - y[sel]
-        f.internal["dsse_Tx"] = float(r3 @ r3 - r4 @ r4)
-        # physical sanity: the temperature must really change (20 x its noise) and the growth
-        # coefficient must be one of a solid (|α| below 1e-4 /K; steel 1.2e-5, aluminium 2.3e-5)
+        B, Tm = self._basis(ctx)
+        sel = train & (B[:, 3] != 0)
+        Bs, ys = B[sel], y[sel]
+        G, b = Bs.T @ Bs, Bs.T @ ys
+        lo, hi = self.xf_range(ctx)
+        xgrid = np.linspace(lo, hi, 49)
+
+        def refine(f, q0, h):               # a bounded scalar search between q0's grid neighbours
+            sol = optimize.minimize_scalar(lambda q: -f(q), bounds=(max(q0 - h, lo), min(q0 + h, hi)),
+                                           method="bounded", options={"xatol": 1e-4 * (hi - lo)})
+            return (float(sol.x), -float(sol.fun)) if -sol.fun >= f(q0) else (q0, f(q0))
+
+        # T_ref at the reference temperature (ISO 1: 20 °C) ...
+        def g_ref(q):
+            return float(self._gain(G, b, np.asarray(q, float), np.asarray(T_REF), Tm)[0])
+        gains = self._gain(G, b, xgrid, np.full_like(xgrid, T_REF), Tm)[0]
+        xf, best = refine(g_ref, float(xgrid[int(np.argmax(gains))]), xgrid[1] - xgrid[0])
+        t_ref = T_REF
+        # ... or free, when the data say so beyond what one more parameter gains from noise
+        XF, TR = np.meshgrid(xgrid, np.arange(T_REF_RANGE[0], T_REF_RANGE[1] + 0.5, 1.0))
+        gfree = self._gain(G, b, XF, TR, Tm)[0]
+        k = np.unravel_index(int(np.argmax(gfree)), XF.shape)
+        q0 = np.array([XF[k], TR[k]])
+        sol = optimize.minimize(lambda q: -float(self._gain(G, b, np.asarray(q[0]), np.asarray(q[1]), Tm)[0]), q0,
+                                method="Nelder-Mead",
+                                options={"xatol": 1e-3, "fatol": 1e-3, "maxiter": 200,
+                                         "initial_simplex": [q0, q0 + [0.02 * (hi - lo), 0], q0 + [0, 0.5]]})
+        if -sol.fun > best + math.log(max(len(ys), 2)) and lo <= sol.x[0] <= hi:
+            xf, t_ref = float(sol.x[0]), float(sol.x[1])
+        dsse, al = (float(v) for v in self._gain(G, b, np.asarray(xf), np.asarray(t_ref), Tm))
+        d = t_ref - Tm
+        pred = al * ((B[:, 0] - xf * B[:, 1]) - d * (B[:, 2] - xf * B[:, 3]))
+        # the temperature must carry the fit: a static scale error about a point (a·x + c, what a
+        # wrong lead or a length error leaves) must do clearly worse
+        c2 = _lstsq(Bs[:, 2:], ys)
+        r2 = ys - Bs[:, 2:] @ c2
+        dsse_static = float(ys @ ys - r2 @ r2)
+        # physical sanity: the temperature must really change (20 x its noise)
         from pmctl.tools.twin.locate import noise_level
         key = ("temp_ok", self.channel)
         if key not in ctx.extra:
             Tfull = ctx.temps[self.channel]
             ctx.extra[key] = bool(np.ptp(Tfull) > 20 * max(noise_level(Tfull[np.isfinite(Tfull)]), 1e-3))
-        dT_ok = ctx.extra[key]
-        f.ok = bool(f.internal["dsse_Tx"] > PRESCREEN and dT_ok and np.ptp(x) > 0
-                    and abs(f.internal["coef"][0]) < MAX_ALPHA)
-        return f
+        params = {"alpha_per_K": float(al), "channel": self.channel, "screw_fixed_end_mm": xf, "t_ref_C": float(t_ref)}
+        edge = 0.02 * (hi - lo)
+        ok = bool(ctx.extra[key] and np.isfinite(al) and np.ptp(ctx.q_cmd[:, self.a]) > 0
+                  and dsse - dsse_static > PRESCREEN)
+        return Fit(params, pred, 3, ok=ok,
+                   internal={"dsse_T": dsse - dsse_static, "at_edge": not lo + edge < xf < hi - edge,
+                             "xf_range": (lo, hi)})
+
+    def check(self, ctx, fit, y):
+        p = fit.params
+        al, tr = p.get("alpha_per_K", 0.0), p.get("t_ref_C", float("nan"))
+        out = []
+        if not 0 < al < MAX_ALPHA:
+            out.append(f"α = {al:.3g} /K: a screw grows when it warms, by less than {MAX_ALPHA:g} /K")
+        if fit.internal.get("at_edge"):
+            lo, hi = fit.internal["xf_range"]
+            out.append(f"the fixed bearing lands at {p['screw_fixed_end_mm']:.0f} mm, the edge of where it can be "
+                       f"({lo:.0f} … {hi:.0f} mm): not a screw growing from its bearing")
+        if not T_REF_RANGE[0] < tr < T_REF_RANGE[1]:
+            out.append(f"a calibration temperature of {tr:.1f} °C is no workshop's")
+        return out
 
 
 class Compliance(AxisSignal):
