@@ -444,6 +444,9 @@ def run(args) -> int:
     st = initial_state(machine, counts0)
 
     job = load_job(args.job, machine, start=(st.tip, st.axis))
+    if not job.moves:                 # nothing to run (an empty file, only comments and M30): say so
+        from pmctl.core.errors import InputError
+        raise InputError(args.job, None, "no motion in the job (no move and no dwell): nothing to run")
     for line, text in job.messages:                  # G-code (MSG, ...): for the operator, before it runs
         log(f"message from {Path(args.job).name} line {line}: {text}")
     probe_segs = []
