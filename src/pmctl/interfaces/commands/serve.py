@@ -37,6 +37,19 @@ def run(args) -> int:
 
     if args.rate is not None and not 10 <= args.rate <= 20000:
         raise PmctlError(f"--rate must be within 10 .. 20000 Hz, got {args.rate:g}")
+    # every flag is checked before anything starts (no rt process, the state file untouched)
+    from pmctl import hal
+    if args.backend is not None and args.backend not in hal.BACKENDS:
+        raise PmctlError(f"--backend {args.backend!r}: unknown backend; known: {', '.join(sorted(hal.BACKENDS))}")
+    if args.record:
+        from pmctl.core.recording import check_target
+        check_target(args.record)
+    if args.console:
+        from pmctl.interfaces.console.port import check_console_spec
+        check_console_spec(args.console)
+    if args.socket:
+        from pmctl.interfaces.console.control import check_socket_path
+        check_socket_path(args.socket)
     svc = load_service_config(args.service)
     state = svc.loop.state_file if args.state is None else args.state
     d = Daemon(config=args.config, service=args.service, backend=args.backend, state_file=state,
