@@ -20,7 +20,7 @@ def add_parser(sub):
     p.add_argument("--backend", default=None, help="HAL backend (default: from the service config; 'sim')")
     p.add_argument("--console", default=None, metavar="pty:LINK|DEVICE",
                    help="grbl console: 'pty:LINK' creates a pty and symlinks LINK to it; a path opens a serial device")
-    p.add_argument("--socket", default=None, metavar="PATH", help="control socket (Unix, JSON lines; mode 0660)")
+    p.add_argument("--socket", default=None, metavar="PATH", help="control socket (Unix, JSON lines; mode 0660); its folder must exist")
     p.add_argument("--record", metavar="DIR", default=None, help="record the session into this folder")
     p.add_argument("--state", default=None, metavar="FILE",
                    help="pulse-counter state file (default: service config); the journal is FILE.journal")
