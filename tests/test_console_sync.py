@@ -108,5 +108,6 @@ def test_run_as_soon_as_a_motion_line_is_accepted(daemon):
     assert s.send("G21 G91 G1 Z-2 F600") == "ok"
     st = s.status()                                      # asked right after the ok
     assert st["state"] == "Run", st
+    assert s.send("$J=G91 X1 F100") == "error:8"         # a jog only when idle: the Z move is queued
     assert s.send("G1 Z2 F600") == "ok" and s.send("G90") == "ok" and s.send("G4 P0") == "ok"
     assert s.status()["state"] == "Idle"

@@ -403,7 +403,7 @@ class GrblConsole:
     # ------------------------------------------------------------ $ commands
     def _system(self, cmd: str):
         sup = self.sup
-        idle_like = sup.state_name() in ("Idle", "Alarm", "Check")
+        idle_like = self.state() in ("Idle", "Alarm", "Check")
         if cmd == "$":
             self.write(HELP)
         elif cmd == "$$":
@@ -445,7 +445,7 @@ class GrblConsole:
         elif cmd == "$H":
             if self.homing is None:
                 raise LineError(5, "homing is not available on this backend")
-            if sup.state_name() not in ("Idle", "Alarm"):
+            if self.state() not in ("Idle", "Alarm"):
                 raise LineError(8, "$H only when idle")
             ok, msg = self.homing()
             if not ok:
@@ -453,7 +453,7 @@ class GrblConsole:
             self.interp.sync(*sup.pose())
             self._persist()
         elif cmd.startswith("$J="):
-            if sup.state_name() not in ("Idle", "Jog"):
+            if self.state() not in ("Idle", "Jog"):
                 raise LineError(8 if not sup.alarm else 9, "jog only when idle or jogging")
             if self.jogger is None:
                 raise LineError(3, "jogging not available")
