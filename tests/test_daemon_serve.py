@@ -60,6 +60,8 @@ def test_stream_a_bundled_job_hold_resume_override_then_sigterm_and_restart(tmp_
         for _ in range(10):
             s.realtime(b"\x91")                      # feed override +10 % x 10 = 200 %
         lines = [ln for ln in JOB.read_text().splitlines()]
+        lines, end = lines[:-1], lines[-1]           # M30 waits for the job to run (grbl): sent after the hold
+        assert end == "M30"
         answers = s.stream(lines)
         assert answers == ["ok"] * len(lines)
         st = s.wait_state(("Run",), 60)
@@ -72,6 +74,8 @@ def test_stream_a_bundled_job_hold_resume_override_then_sigterm_and_restart(tmp_
         again = s.status()
         assert again["state"] == "Hold:0" and np.allclose(again["pos"], held["pos"], atol=2e-3)
         s.realtime(b"~")
+        n = len(s.pushed)
+        assert s.send(end, timeout=600) == "ok" and "[MSG:Pgm End]" in s.pushed[n:]
         done = s.wait_state(("Idle",), 600)
         assert done["state"] == "Idle"
         job = load_job(JOB, M, start=home_pose(M))

@@ -528,7 +528,7 @@ class ControlLoop:
                     # (the process descheduled), both count
                     st = _stopping(st, f"loop stalled: {(t1 - t1_prev) / 1e6:.1f} ms between two commands, "
                                        f"{(t1 - t0) / 1e6:.1f} ms of it computing "
-                                       f"(limit {stall_ns / 1e6:g} ms)")
+                                       f"(limit {stall_ns / 1e6:g} ms){stall_hint(t1 - t1_prev, t1 - t0)}")
                 t1_prev = t1
                 if cfg.realtime:
                     deadline += period
@@ -585,6 +585,15 @@ def _executed(st: NCState, e: HalError) -> NCState:
 
 def _halt(st: NCState, reason: str) -> NCState:
     return st.halted(reason)
+
+
+def stall_hint(gap_ns: int, compute_ns: int) -> str:
+    """What a stall reason adds when the time went to the scheduler, not to computing: the process
+    was not running (a loaded machine, no real-time priority); empty when computing took most of it."""
+    if compute_ns * 2 >= gap_ns:
+        return ""
+    return (f"; the process was not scheduled for {(gap_ns - compute_ns) / 1e6:.0f} ms: a loaded machine or no "
+            f"real-time priority (--no-realtime runs offline, ticks back to back)")
 
 
 def _stopping(st: NCState, reason: str) -> NCState:

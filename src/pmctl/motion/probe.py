@@ -140,7 +140,7 @@ class ProbeResult:
         """grbl's probe report: ``[PRB:x,y,z,a,b:ok]`` (tool tip in W, mm; A, B in degrees)."""
         p = self.point if self.contact else self.stop
         v = list(p) + list(self.ab_deg)
-        return "[PRB:" + ",".join(f"{x:.3f}" for x in v) + f":{1 if self.contact else 0}]"
+        return "[PRB:" + ",".join(f"{round(x, 3) + 0.0:.3f}" for x in v) + f":{1 if self.contact else 0}]"
 
     def as_dict(self) -> dict:
         return {"line": self.line, "mode": f"G38.{self.mode}", "contact": self.contact,

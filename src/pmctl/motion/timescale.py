@@ -83,9 +83,17 @@ def derivatives(q, dt_plan: float, q_before=None, q_after=None):
     """q_tau, q_tautau of samples q (n, k) by central differences; the neighbours outside the chunk
     (or, at a job's ends, a linear extension) close the ends."""
     q = np.asarray(q, float)
-    lin = lambda x, y: (2 * x - y)[None] if len(q) > 1 else x[None]     # noqa: E731  (linear extension)
-    a = lin(q[0], q[1 % len(q)]) if q_before is None else np.asarray(q_before, float).reshape(1, -1)
-    b = lin(q[-1], q[-2]) if q_after is None else np.asarray(q_after, float).reshape(1, -1)
+    n = len(q)
+    if n == 0:                      # nothing to differentiate (an item that plans to no samples)
+        return q.copy(), q.copy()
+    a = None if q_before is None else np.asarray(q_before, float).reshape(1, -1)
+    b = None if q_after is None else np.asarray(q_after, float).reshape(1, -1)
+    # a missing neighbour: the linear extension of the samples (one sample: mirrored about it
+    # through the other neighbour, or at rest when it stands alone)
+    if a is None:
+        a = (2 * q[0] - q[1])[None] if n > 1 else (q[:1] if b is None else 2 * q[:1] - b)
+    if b is None:
+        b = (2 * q[-1] - q[-2])[None] if n > 1 else 2 * q[-1:] - a
     ext = np.concatenate([a, q, b])
     qt = (ext[2:] - ext[:-2]) / (2 * dt_plan)
     qtt = (ext[2:] - 2 * ext[1:-1] + ext[:-2]) / dt_plan ** 2
@@ -110,7 +118,7 @@ def make_rows(tip, axis, q, line, dt_plan, params, *, rapid=None, rapid_mm_s=50.
     rows[:, S_LINE] = line
     if rapid is not None:
         rows[:, S_FLAGS] = np.where(np.asarray(rapid, bool), FLAG_RAPID, 0)
-    if end:
+    if end and n:
         rows[-1, S_FLAGS] += FLAG_END
     return rows
 

@@ -219,8 +219,9 @@ class Daemon:
                 ax = np.where(ok[:, None], pose.axis, np.nan)
             else:
                 tip = ax = np.full((len(rows), 3), np.nan)
+            strain = rows[:, R_STRAIN:R_STRAIN + 3] if load else np.full((len(rows), 3), np.nan)   # no gauges: NaN
             cols = [t, rows[:, R_COUNTS:R_COUNTS + 5] / ppm, rows[:, R_ENC:R_ENC + 5], tip, ax,
-                    rows[:, R_STRAIN:R_STRAIN + 3], rows[:, R_LINE], rows[:, R_SIGMA]]
+                    strain, rows[:, R_LINE], rows[:, R_SIGMA]]
             if load:         # batch over the drained rows, at the commanded (model) pose
                 f = load_columns(rows[:, R_STRAIN:R_STRAIN + 3], np.rint(rows[:, R_COUNTS:R_COUNTS + 5]) / ppm,
                                  sup.machine)

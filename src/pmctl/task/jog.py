@@ -61,6 +61,8 @@ def parse_jog(text: str, interp, start_tip, start_axis):
             continue
         else:
             raise LineError(16, f"{k} not allowed in a jog")
+    if vals.get("F", 0.0) < 0:
+        raise LineError(4, "jog feed F must not be negative")      # grbl: negative value
     if "F" not in vals or not vals["F"] > 0:
         raise LineError(22, "jog needs a feed F > 0")
     if not any(k in vals for k in AXES):

@@ -87,10 +87,11 @@ class RunSink:
     of a run is the ring, one chunk and the accumulator."""
 
     def __init__(self, machine, ppm, rate_hz: float, has_truth: bool, job_start: int, expect: int = 0,
-                 spindle=None, daq=None, writer=None, load: bool = False):
+                 spindle=None, daq=None, writer=None, load: bool = False, strain: bool = True):
         import numpy as np
         self.machine, self.ppm, self.rate_hz = machine, np.asarray(ppm, float), float(rate_hz)
         self.load = bool(load)        # load_fx/fy/fz from the gauges (a backend with strain in its cyclic data)
+        self.strain = bool(strain)    # strain_* sampled (False: the backend has no gauges in its cyclic data)
         self.has_truth = bool(has_truth)
         self.spindle, self.daq, self.writer = spindle, daq, writer
         self._comp = daq is not None and daq.opt.compensate      # comp_L1..3: the applied chain offsets
@@ -164,8 +165,8 @@ class RunSink:
             ang = np.arccos(np.clip(np.sum(axis * tg[:, 3:6], -1), -1.0, 1.0))
             e[~fin] = np.inf
             self.track.add(ticks, e.astype(np.float32), ang.astype(np.float32))
-        for i in range(3):
-            cols[f"strain_{i + 1}"] = rows[:, R_STRAIN + i]
+        for i in range(3):            # a backend without gauges in its cyclic data: not sampled (NaN), not 0
+            cols[f"strain_{i + 1}"] = rows[:, R_STRAIN + i] if self.strain else np.full(n, np.nan)
         if self.load:
             from pmctl.core.strain_sensing import load_columns
             cols.update(load_columns(rows[:, R_STRAIN:R_STRAIN + 3], q_cmd, self.machine))

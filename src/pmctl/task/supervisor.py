@@ -707,7 +707,8 @@ class Supervisor:
                     continue
                 rows_iter = self._rows_of(it.job, it.start, it)
                 it.planned = True
-                self._push_rows(rows_iter, it)
+                if self._push_rows(rows_iter, it) == 0:
+                    self._ended_without_samples(it)
             except _Aborted:
                 continue
             except PmctlError as e:
@@ -719,6 +720,27 @@ class Supervisor:
                 self._emit("error", {"msg": f"planning failed: {e}"})
                 if it.planned:
                     self._planning_failed_midway(it, e)
+            except Exception as e:           # a bug: never a silent dead planner with motion queued
+                self._planner_crashed(it, e)
+
+    def _ended_without_samples(self, it):
+        """An item (or a piece of one) planned to no samples at all (a job with no motion): the rt
+        side will never pass its end, so it counts as passed now; the item retires in its turn."""
+        with self._lock:
+            it.ends += 1
+
+    def _planner_crashed(self, it, e):
+        """An unexpected exception while planning: log it with its traceback, stop on the path, drop
+        the queue and raise an alarm saying why; the planner thread goes on (``$X`` unlocks)."""
+        import traceback
+        self.log(f"planner error on {it.name or it.kind}: {''.join(traceback.format_exception(e)).rstrip()}")
+        with self._lock:
+            self.items.clear()
+            self._gen += 1
+        if self.ch is not None and not self.rt_dead:
+            self.command(C.C_RESET)
+        self.raise_alarm(ALARM_ABORT, f"internal error planning {it.name or it.kind}: {type(e).__name__}: {e}; "
+                                      f"motion stopped, queue dropped")
 
     def _rows_of(self, job, start, it=None):
         """Sample rows of ``job`` planned from ``start`` (validated first), an iterator of chunks.
@@ -745,8 +767,11 @@ class Supervisor:
         return iter_stream_rows(pieces, self.machine, self.params, rapid_lines=rapid_lines,
                                 rapid_mm_s=rapid_mm_s)
 
-    def _push_rows(self, rows_iter, it):
+    def _push_rows(self, rows_iter, it) -> int:
+        """Push the rows as room frees up; returns how many were pushed."""
+        total = 0
         for rows in rows_iter:
+            total += len(rows)
             i = 0
             while i < len(rows):
                 if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
@@ -755,6 +780,7 @@ class Supervisor:
                 i += n
                 if n == 0:
                     time.sleep(0.005)
+        return total
 
     def _plan_probing(self, it):
         """An item with probing moves, piece by piece (pmctl.motion.probe.split_at_probes): a probing
@@ -770,7 +796,8 @@ class Supervisor:
             rows_iter = self._rows_of(piece, start, it if k == 0 else None)
             if probe is None:
                 it.planned = True
-                self._push_rows(rows_iter, it)
+                if self._push_rows(rows_iter, it) == 0:
+                    self._ended_without_samples(it)
                 last = [m for m in piece.moves if m.kind != DWELL]
                 if last:
                     start = (np.asarray(last[-1].tip, float), np.asarray(last[-1].axis, float))
@@ -896,12 +923,15 @@ class Supervisor:
             # retire finished items: the rt side counts the job ends it passed
             ended = int(s[C.ST_ENDED])
             with self._lock:
-                while self.items and self.items[0].planned and self._ended_base + 1 <= ended:
-                    self._ended_base += 1
+                while self.items and self.items[0].planned:
                     head = self.items[0]
-                    head.ends += 1
-                    if head.ends < head.parts:      # a piece of an item planned in pieces (probing)
-                        continue
+                    if head.ends < head.parts:      # items planned to no samples have all their ends
+                        if self._ended_base + 1 > ended:
+                            break
+                        self._ended_base += 1
+                        head.ends += 1
+                        if head.ends < head.parts:  # a piece of an item planned in pieces (probing)
+                            continue
                     done = self.items.popleft()
                     self._emit("item_done", {"kind": done.kind, "name": done.name, "index": done.index})
                     self._spindle_at_job_end(done)

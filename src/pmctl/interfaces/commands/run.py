@@ -276,6 +276,9 @@ def run(args) -> int:
     st = initial_state(machine, counts0)
 
     job = load_job(args.job, machine, start=(st.tip, st.axis))
+    if not job.moves:                 # nothing to run (an empty file, only comments and M30): say so
+        from pmctl.core.errors import InputError
+        raise InputError(args.job, None, "no motion in the job (no move and no dwell): nothing to run")
     for line, text in job.messages:                  # G-code (MSG, ...): for the operator, before it runs
         log(f"message from {Path(args.job).name} line {line}: {text}")
     if any(m.probe for m in job.moves):
@@ -382,7 +385,7 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
         sup.open_devices(spindle=bool(rpm0))   # the VFD link answers (and the DAQ) before the drives enable
         try:
             sink = RunSink(machine, params.pulses_per_mm, cfg.rate_hz, has_truth, 1 << 62, 0, sup.spindle, sup.daq,
-                           load=strain_in_loop)
+                           load=strain_in_loop, strain=strain_in_loop)
             if args.record:
                 plant = hal.create(backend_name, machine, dt, svc.backend_tables.get(backend_name, {})) \
                     if has_truth else None          # not opened: its options describe the simulated plant

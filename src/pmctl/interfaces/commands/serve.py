@@ -20,7 +20,7 @@ def add_parser(sub):
     p.add_argument("--backend", default=None, help="HAL backend (default: from the service config; 'sim')")
     p.add_argument("--console", default=None, metavar="pty:LINK|DEVICE",
                    help="grbl console: 'pty:LINK' creates a pty and symlinks LINK to it; a path opens a serial device")
-    p.add_argument("--socket", default=None, metavar="PATH", help="control socket (Unix, JSON lines; mode 0660)")
+    p.add_argument("--socket", default=None, metavar="PATH", help="control socket (Unix, JSON lines; mode 0660); its folder must exist")
     p.add_argument("--record", metavar="DIR", default=None, help="record the session into this folder")
     p.add_argument("--state", default=None, metavar="FILE",
                    help="pulse-counter state file (default: service config); the journal is FILE.journal")
@@ -37,6 +37,19 @@ def run(args) -> int:
 
     if args.rate is not None and not 10 <= args.rate <= 20000:
         raise PmctlError(f"--rate must be within 10 .. 20000 Hz, got {args.rate:g}")
+    # every flag is checked before anything starts (no rt process, the state file untouched)
+    from pmctl import hal
+    if args.backend is not None and args.backend not in hal.BACKENDS:
+        raise PmctlError(f"--backend {args.backend!r}: unknown backend; known: {', '.join(sorted(hal.BACKENDS))}")
+    if args.record:
+        from pmctl.core.recording import check_target
+        check_target(args.record)
+    if args.console:
+        from pmctl.interfaces.console.port import check_console_spec
+        check_console_spec(args.console)
+    if args.socket:
+        from pmctl.interfaces.console.control import check_socket_path
+        check_socket_path(args.socket)
     svc = load_service_config(args.service)
     state = svc.loop.state_file if args.state is None else args.state
     d = Daemon(config=args.config, service=args.service, backend=args.backend, state_file=state,

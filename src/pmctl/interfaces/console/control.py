@@ -28,6 +28,20 @@ import threading
 import time
 
 
+def check_socket_path(path: str) -> None:
+    """Refuse a --socket whose folder does not exist (it is not created here: in production
+    systemd's RuntimeDirectory= creates /run/pmctl) or that names something other than a socket."""
+    import stat
+
+    from pmctl.core.errors import PmctlError
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise PmctlError(f"--socket {path}: the folder {parent} does not exist (create it first; the systemd "
+                         f"unit's RuntimeDirectory= does for /run/pmctl)")
+    if os.path.lexists(path) and not stat.S_ISSOCK(os.lstat(path).st_mode):
+        raise PmctlError(f"--socket {path}: exists and is not a socket; choose another name")
+
+
 class ControlServer:
     def __init__(self, daemon, path: str):
         self.daemon = daemon
@@ -35,9 +49,9 @@ class ControlServer:
         self.path = str(path)
         self._stop = threading.Event()
         self._threads = []
+        check_socket_path(self.path)
         if os.path.exists(self.path):
             os.unlink(self.path)
-        os.makedirs(os.path.dirname(os.path.abspath(self.path)), exist_ok=True)
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         old = os.umask(0o117)
         try:

@@ -22,6 +22,7 @@ A bad line changes nothing: not the queued motion, not the parser state, not the
 from __future__ import annotations
 
 import copy
+import math
 import os
 import queue
 import select
@@ -31,7 +32,9 @@ import time
 import numpy as np
 
 from pmctl import __version__
+from pmctl.motion import channel as C
 from pmctl.task.interp import AXES, WCS_NAMES, LineError, LineInterpreter, moves_job
+from pmctl.task.job import DWELL
 from pmctl.task.supervisor import MotionRefused, roll_pitch_deg
 
 RX_BUFFER = 128
@@ -142,12 +145,12 @@ class GrblConsole:
             if b == RT_STATUS:
                 self.write(self.status_report())
             elif b == RT_HOLD:
-                state = self.sup.state_name()
-                if state == "Run":
+                state = self.state()
+                if state in ("Run", "Idle"):  # grbl 1.1: a hold while idle is a hold too (Hold:0)
                     self.sup.hold()
                 elif state == "Jog":          # grbl: a feed hold during a jog cancels the jog
                     self.jog_cancel()
-                # Idle, Alarm, Check, Hold: nothing to hold
+                # Alarm, Check, Hold: nothing to hold
             elif b == RT_START:
                 self.sup.resume()
             elif b == RT_RESET:
@@ -211,9 +214,25 @@ class GrblConsole:
             self.interp.sync(*self.sup.pose())
 
     # ------------------------------------------------------------ status
+    def state(self) -> str:
+        """The machine state as the sender sees it: Run as soon as a motion line is accepted (it
+        may still wait in the batch that goes to the supervisor)."""
+        state = self.sup.state_name()
+        return "Run" if state == "Idle" and self.batch else state
+
+    def n_word(self) -> int:
+        """The N word of the line being executed (0: the line had none; grbl reports Ln only then)."""
+        sup = self.sup
+        line = int(sup.raw()[C.ST_LINE])
+        with sup._lock:
+            for it in sup.items:
+                if line in it.lines:
+                    return int(it.lines[line] or 0)
+        return 0
+
     def status_report(self) -> str:
         sup = self.sup
-        state = sup.state_name()
+        state = self.state()
         tip, axis = sup.pose()
         a, b = roll_pitch_deg(axis)
         m = [float(tip[0]), float(tip[1]), float(tip[2]), a, b]
@@ -225,21 +244,20 @@ class GrblConsole:
             self.speed = 0.0
         wco = self.interp.wco()
         if self.settings[10] & 1:
-            pos = "MPos:" + ",".join(f"{v:.3f}" for v in m)
+            pos = "MPos:" + mm3(m)
         else:
-            pos = "WPos:" + ",".join(f"{m[i] - wco[i]:.3f}" for i in range(5))
+            pos = "WPos:" + mm3(m[i] - wco[i] for i in range(5))
         parts = [state, pos, f"FS:{self.speed:.0f},0"]
         if self.settings[10] & 2:
             parts.append(f"Bf:{max(0, 15 - sup.queued_items())},{RX_BUFFER}")
-        line = sup.current_line()
+        line = self.n_word()
         if line > 0 and state not in ("Idle", "Alarm", "Jog"):
             parts.append(f"Ln:{line}")
-        from pmctl.motion import channel as C
         raw = sup.raw()
         fo = int(round(raw[C.ST_FEED_OV] * 100)) or self.feed_ov
         ro = int(round(raw[C.ST_RAPID_OV] * 100)) or self.rapid_ov
         parts.append(f"Ov:{fo},{ro},{self.spindle_ov}")
-        parts.append("WCO:" + ",".join(f"{v:.3f}" for v in wco))
+        parts.append("WCO:" + mm3(wco))
         return "<" + "|".join(parts) + ">"
 
     # ------------------------------------------------------------ lines
@@ -299,20 +317,35 @@ class GrblConsole:
             return self._probe(moves, n_word, st0, gen)
         if flags.get("sync"):
             self._persist()
-        if self.sup.check_mode or not moves:
-            if flags.get("end"):
-                self._flush(gen)
-                self.write("[MSG:Pgm End]")
-            return
-        if not self.batch:
+        # grbl synchronises on G4 (mc_dwell) and M2/M30: the answer comes once all queued motion
+        # has run (and the dwell elapsed) -- a sender's way to know the buffer is empty
+        sync = not self.sup.check_mode and (flags.get("end") or any(m.kind == DWELL for m in moves))
+        if moves and not self.sup.check_mode:
+            if not self.batch:
+                self.batch_t = time.monotonic()
+            self.batch.extend(moves)
+            self.batch_lines[self.seq] = n_word
             self.batch_t = time.monotonic()
-        self.batch.extend(moves)
-        self.batch_lines[self.seq] = n_word
-        self.batch_t = time.monotonic()
-        if len(self.batch) >= BATCH_MOVES or flags.get("end"):
+        if len(self.batch) >= BATCH_MOVES or flags.get("end") or sync:
             self._flush(gen)          # waits (the answer with it) while the motion queue is full
+        if sync and not self._synchronize(gen):
+            return                    # a soft reset dropped the line: no answer
         if flags.get("end"):
             self.write("[MSG:Pgm End]")
+
+    def _synchronize(self, gen) -> bool:
+        """grbl's protocol_buffer_synchronize: wait until every queued item has run and the machine
+        is at rest. The reader goes on meanwhile (status, hold, resume, overrides); a soft reset ends
+        the wait (False: the line is dropped unanswered); an alarm answers it with error:9."""
+        while not self._stop.is_set():
+            if gen != self._reset_gen:
+                return False
+            if self.sup.alarm or self.sup.rt_dead:
+                raise MotionRefused("an alarm stopped the motion this line waited for", 9)
+            if not self.sup.busy():
+                return True
+            time.sleep(0.005)
+        return False
 
     def _flush(self, gen=None):
         if not self.batch:
@@ -323,11 +356,12 @@ class GrblConsole:
                 return None
             time.sleep(0.01)
         batch, lines = self.batch, self.batch_lines
-        self.batch, self.batch_lines = [], {}
-        try:
+        try:                          # the batch stays visible (state Run) until the item is queued
             return self.sup.submit(moves_job(batch, "console"), kind="gcode", name="console", lines=lines)
         except MotionRefused:
             return None
+        finally:
+            self.batch, self.batch_lines = [], {}
 
     def _probe(self, moves, n_word, st0, gen):
         """A G38.2/G38.3 line, as grbl runs it: the motion queued before it goes first, the probe is
@@ -369,7 +403,7 @@ class GrblConsole:
     # ------------------------------------------------------------ $ commands
     def _system(self, cmd: str):
         sup = self.sup
-        idle_like = sup.state_name() in ("Idle", "Alarm", "Check")
+        idle_like = self.state() in ("Idle", "Alarm", "Check")
         if cmd == "$":
             self.write(HELP)
         elif cmd == "$$":
@@ -377,11 +411,11 @@ class GrblConsole:
                 self.write(f"${k}={v}")
         elif cmd == "$#":
             for n in WCS_NAMES:
-                self.write(f"[{n}:" + ",".join(f"{v:.3f}" for v in self.interp.wcs[n]) + "]")
+                self.write(f"[{n}:" + mm3(self.interp.wcs[n]) + "]")
             z = ",".join(["0.000"] * 5)
             self.write(f"[G28:{z}]")
             self.write(f"[G30:{z}]")
-            self.write("[G92:" + ",".join(f"{v:.3f}" for v in self.interp.g92) + "]")
+            self.write("[G92:" + mm3(self.interp.g92) + "]")
             self.write("[TLO:0.000]")
             self.write(self.last_prb.prb() if self.last_prb is not None else f"[PRB:{z}:0]")
         elif cmd == "$G":
@@ -411,7 +445,7 @@ class GrblConsole:
         elif cmd == "$H":
             if self.homing is None:
                 raise LineError(5, "homing is not available on this backend")
-            if sup.state_name() not in ("Idle", "Alarm"):
+            if self.state() not in ("Idle", "Alarm"):
                 raise LineError(8, "$H only when idle")
             ok, msg = self.homing()
             if not ok:
@@ -419,17 +453,19 @@ class GrblConsole:
             self.interp.sync(*sup.pose())
             self._persist()
         elif cmd.startswith("$J="):
-            if sup.state_name() not in ("Idle", "Jog"):
+            if self.state() not in ("Idle", "Jog"):
                 raise LineError(8 if not sup.alarm else 9, "jog only when idle or jogging")
             if self.jogger is None:
                 raise LineError(3, "jogging not available")
             self.jogger(cmd[3:], self.interp)
         elif cmd.startswith("$") and "=" in cmd:
             k, _, v = cmd[1:].partition("=")
-            try:
+            try:                            # grbl: a setting number or value that is no number
                 k, v = int(k), float(v)
             except ValueError:
-                raise LineError(3, "bad $ setting") from None
+                raise LineError(2, "bad number format in a $ setting") from None
+            if not math.isfinite(v):
+                raise LineError(2, "bad number format in a $ setting")
             if k != 10:
                 raise LineError(3, f"${k} is read-only on pmctl")
             if v != int(v) or not 0 <= v <= 255:
@@ -443,7 +479,6 @@ class GrblConsole:
 
     def _settings_list(self):
         m, p = self.sup.machine, self.sup.params
-        from pmctl.motion import channel as C
         switches = self.sup.ch is not None and self.sup.raw()[C.ST_HOME_IN] >= 0
         out = [(10, self.settings[10]), (13, 0), (20, 1), (21, 0), (22, 1 if self.homing and switches else 0)]
         ppm = m.resolution.pulses_per_mm
@@ -456,6 +491,11 @@ class GrblConsole:
         for i in range(5):
             out.append((130 + i, f"{p.upper[i] - p.lower[i]:.3f}"))
         return out
+
+
+def mm3(values) -> str:
+    """Numbers as grbl prints positions: 3 decimals, comma separated, never ``-0.000``."""
+    return ",".join(f"{round(float(v), 3) + 0.0:.3f}" for v in values)
 
 
 def axis_index(letter: str) -> int:

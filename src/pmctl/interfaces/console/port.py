@@ -10,6 +10,23 @@ import tty
 from pmctl.core.errors import PmctlError
 
 
+def check_console_spec(spec: str) -> None:
+    """Refuse a --console that cannot be opened, before anything starts: ``pty:LINK`` needs a LINK
+    whose folder exists (and LINK not a file of its own), a device path must exist."""
+    if spec.startswith("pty:"):
+        link = spec[4:]
+        if not link:
+            raise PmctlError("--console pty:LINK needs a LINK path")
+        parent = os.path.dirname(os.path.abspath(link))
+        if not os.path.isdir(parent):
+            raise PmctlError(f"--console {spec}: the folder {parent} does not exist")
+        if os.path.lexists(link) and not os.path.islink(link):
+            raise PmctlError(f"--console {spec}: {link} exists and is not a link; choose another name")
+        return
+    if not os.path.exists(spec):
+        raise PmctlError(f"--console {spec}: no such device (a serial device path, or pty:LINK for a pty)")
+
+
 class ConsolePort:
     def __init__(self, spec: str):
         self.spec = spec

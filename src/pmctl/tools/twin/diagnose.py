@@ -136,9 +136,10 @@ def build_context(columns: dict, machine, *, cap=DEFAULT_CAP, bounds=None) -> Co
     obs_names = [k for k in columns if k in nominal.PREDICTABLE]
     sampled, ana, noi = {}, {}, {}
     for k in obs_names:
-        ok = np.flatnonzero(np.isfinite(np.asarray(columns[k], float)) & settled)
-        if len(ok) < 10:
-            continue
+        col = np.asarray(columns[k], float)
+        ok = np.flatnonzero(np.isfinite(col) & settled)
+        if len(ok) < 10 or np.ptp(col[ok]) == 0.0:
+            continue        # not sampled: all empty, or one value throughout (a backend without gauges wrote 0)
         sampled[k] = ok
         ana[k] = _spread(ok, cap)
         noi[k] = _noise_rows(ok)
