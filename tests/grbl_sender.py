@@ -51,6 +51,18 @@ def stop_serve(p, sig=signal.SIGTERM, timeout=60):
     return p.returncode
 
 
+def serve_session(tmp_path_factory, name: str):
+    """A module fixture's body: ``pmctl serve`` on the sim with its console on a fresh pty and a
+    reset sender; yields (sender, folder, pty link), then closes the sender and stops the daemon."""
+    tmp = tmp_path_factory.mktemp(name)
+    p, link = start_serve(tmp)
+    s = Sender(link)
+    s.reset()
+    yield s, tmp, link
+    s.close()
+    stop_serve(p)
+
+
 class Sender:
     def __init__(self, link):
         self.fd = os.open(str(link), os.O_RDWR | os.O_NOCTTY)

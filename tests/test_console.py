@@ -8,18 +8,12 @@ import time
 import numpy as np
 import pytest
 
-from grbl_sender import Sender, start_serve, stop_serve
+from grbl_sender import Sender, serve_session
 
 
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("console")
-    p, link = start_serve(tmp)
-    s = Sender(link)
-    s.reset()
-    yield s, tmp, link
-    s.close()
-    stop_serve(p)
+    yield from serve_session(tmp_path_factory, "console")
 
 
 def test_reset_prints_the_banner_and_status_has_five_axes(daemon):

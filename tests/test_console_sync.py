@@ -9,22 +9,16 @@ import time
 import numpy as np
 import pytest
 
-from grbl_sender import Sender, start_serve, stop_serve
+from grbl_sender import serve_session
 
 
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("console_sync")
-    p, link = start_serve(tmp)
-    s = Sender(link)
-    s.reset()
-    yield s, tmp
-    s.close()
-    stop_serve(p)
+    yield from serve_session(tmp_path_factory, "console_sync")
 
 
 def test_a_dwell_of_zero_is_ok_and_motion_after_it_runs(daemon):
-    s, _ = daemon
+    s, *_ = daemon
     for dwell in ("G4 P0", "G4 P0.001", "N3 G4 P0"):
         p0 = np.array(s.status()["pos"])
         assert s.send(dwell) == "ok"
@@ -36,7 +30,7 @@ def test_a_dwell_of_zero_is_ok_and_motion_after_it_runs(daemon):
 
 
 def test_g4_and_m30_answer_once_the_queued_motion_has_run(daemon):
-    s, _ = daemon
+    s, *_ = daemon
     p0 = np.array(s.status()["pos"])
     assert s.send("G21 G91 G1 X-6 F600") == "ok"
     assert s.send("G4 P0.01") == "ok"                   # the way interface.md detects an empty buffer
@@ -52,7 +46,7 @@ def test_g4_and_m30_answer_once_the_queued_motion_has_run(daemon):
 
 
 def test_realtime_bytes_work_during_the_wait_and_a_reset_ends_it(daemon):
-    s, _ = daemon
+    s, *_ = daemon
     p0 = np.array(s.status()["pos"])
     assert s.send("G21 G91 G1 Y-8 F300") == "ok"
     n = len(s.answers)
@@ -75,7 +69,7 @@ def test_realtime_bytes_work_during_the_wait_and_a_reset_ends_it(daemon):
 
 
 def test_ln_only_for_lines_with_an_n_word(daemon):
-    s, _ = daemon
+    s, *_ = daemon
     seen = []
     s.stream(["G21 G91", "G1 X2 F300", "N15 G1 X-2 F300", "G90"])
     while True:
@@ -90,7 +84,7 @@ def test_ln_only_for_lines_with_an_n_word(daemon):
 
 
 def test_grbl_error_codes_hold_while_idle_and_no_negative_zero(daemon):
-    s, _ = daemon
+    s, *_ = daemon
     assert s.send("$J=G91 X1 F-5") == "error:4"          # negative value
     assert s.send("$10=abc") == "error:2"                # bad number format
     assert s.send("$10=1") == "ok"
@@ -104,7 +98,7 @@ def test_grbl_error_codes_hold_while_idle_and_no_negative_zero(daemon):
 
 
 def test_run_as_soon_as_a_motion_line_is_accepted(daemon):
-    s, _ = daemon
+    s, *_ = daemon
     assert s.send("G21 G91 G1 Z-2 F600") == "ok"
     st = s.status()                                      # asked right after the ok
     assert st["state"] == "Run", st

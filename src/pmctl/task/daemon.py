@@ -13,7 +13,6 @@ recording and the journal are finalised.
 
 from __future__ import annotations
 
-import math
 import os
 import signal
 import sys
@@ -90,6 +89,7 @@ class Daemon:
                                                 f"{self.journal.data.get('line', 0)}: confirm the position with $X")
         self.log(self.position_note)
         if self.record_dir:
+            sup.open_devices()              # the DAQ connected first: the recording knows its channels
             self._open_recording()
         sup.start(counts)
         if alarm:
@@ -176,23 +176,20 @@ class Daemon:
         return self.record_dir
 
     def _open_recording(self):
-        from pmctl.core.recording import RecordingWriter
-        from pmctl.motion.recorder import R_COUNTS, R_ENC, R_LINE, R_SIGMA, R_STRAIN, R_TICK, R_TRUTH
-        sup = self.sup
-        names = ("L1", "L2", "L3", "X", "Y")
-        chans = (["t"] + [f"cmd_{a}" for a in names] + [f"enc_{a}" for a in names]
-                 + ["tip_x", "tip_y", "tip_z", "tool_i", "tool_j", "tool_k"]
-                 + [f"strain_{i}" for i in (1, 2, 3)] + ["line", "sigma"])
+        """The session recording: the channels of ``pmctl run``'s (pmctl.task.run_sink.RunSink, one
+        piece for both) plus ``line`` and ``sigma``, the time running on across an rt restart."""
         from pmctl import hal
-        from pmctl.core.strain_sensing import LOAD_CHANNELS, LOAD_NOTE, load_columns
-        load = getattr(hal.backend_class(sup.backend), "strain_in_loop", True)   # gauges in the cyclic data
-        if load:
-            chans += list(LOAD_CHANNELS)
+        from pmctl.core.recording import RecordingWriter
+        from pmctl.hal.base import Backend
+        from pmctl.task.run_sink import RunSink
+        sup = self.sup
+        cls = hal.backend_class(sup.backend)
+        load = getattr(cls, "strain_in_loop", True)         # gauges in the cyclic data
+        rs = RunSink(sup.machine, sup.machine.resolution.pulses_per_mm, sup.rate_hz, cls.truth is not Backend.truth,
+                     1 << 62, 0, None, sup.daq, load=load, strain=load, session=True,
+                     spindle_of=lambda: sup.spindle, spindle_opt=sup.svc.spindle)
+        chans, notes = rs.channels()
         folder = Path(self.record_dir)
-        notes = {f"cmd_{a}": {"source": "pulse counter x resolution at the tick start"} for a in names}
-        notes["line"] = {"source": "line of the job or console stream being executed (console lines are counted)"}
-        notes["sigma"] = {"source": "feed factor of the time-scaling (1 = as planned)"}
-        notes.update({c: {"source": LOAD_NOTE} for c in (LOAD_CHANNELS if load else ())})
         folder.mkdir(parents=True, exist_ok=True)
         machine_ref = str(self.config)
         if machine_ref.endswith(".toml"):
@@ -202,34 +199,12 @@ class Daemon:
         self.rec = RecordingWriter(folder, chans, machine=machine_ref, sample_rate_hz=sup.rate_hz,
                                    description=f"pmctl serve session on backend {sup.backend}", channel_notes=notes)
         self.rec.__enter__()
-        ppm = sup.machine.resolution.pulses_per_mm
-        dt = sup.dt
-        st = {"off": 0.0, "last": -math.inf}
 
         def sink(rows):
-            t = rows[:, R_TICK] * dt + st["off"]
-            if t[0] <= st["last"]:                     # a restarted rt process counts from 0 again
-                st["off"] += st["last"] + dt - t[0]
-                t = rows[:, R_TICK] * dt + st["off"]
-            st["last"] = float(t[-1])
-            truth = rows[:, R_TRUTH:R_TRUTH + 5]
-            if np.all(np.isfinite(truth)):
-                pose, ok = K.fk_batch(truth, sup.machine)
-                tip = np.where(ok[:, None], pose.tip, np.nan)
-                ax = np.where(ok[:, None], pose.axis, np.nan)
-            else:
-                tip = ax = np.full((len(rows), 3), np.nan)
-            strain = rows[:, R_STRAIN:R_STRAIN + 3] if load else np.full((len(rows), 3), np.nan)   # no gauges: NaN
-            cols = [t, rows[:, R_COUNTS:R_COUNTS + 5] / ppm, rows[:, R_ENC:R_ENC + 5], tip, ax,
-                    strain, rows[:, R_LINE], rows[:, R_SIGMA]]
-            if load:         # batch over the drained rows, at the commanded (model) pose
-                f = load_columns(rows[:, R_STRAIN:R_STRAIN + 3], np.rint(rows[:, R_COUNTS:R_COUNTS + 5]) / ppm,
-                                 sup.machine)
-                cols += [f[c] for c in LOAD_CHANNELS]
-            out = np.column_stack(cols)
             with self._rec_lock:
+                rs.writer = self.rec
                 if self.rec is not None:
-                    self.rec.append(out)
+                    rs(rows)
         sup.record_sink = sink
 
     # ------------------------------------------------------------ run

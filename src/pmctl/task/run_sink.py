@@ -84,11 +84,21 @@ class RunSink:
     pmctl.motion.recorder): converts it to the recording's channels, vectorised (one fk_batch a
     chunk for the load-side tool pose), appends them to a RecordingWriter (when recording), and
     adds the chunk's tool-tip errors to a TrackingAccumulator. Nothing else is kept: the memory
-    of a run is the ring, one chunk and the accumulator."""
+    of a run is the ring, one chunk and the accumulator.
+
+    ``session=True`` (a ``pmctl serve`` session recording): the channels ``line`` and ``sigma`` too, and
+    the time runs on across a restarted rt process (whose ticks count from 0 again). ``spindle_of``:
+    a callable returning the spindle session, for one that is connected later (the daemon's, at the
+    first M3/M4); ``spindle_opt`` then gives its options (the channel exists from the start)."""
 
     def __init__(self, machine, ppm, rate_hz: float, has_truth: bool, job_start: int, expect: int = 0,
-                 spindle=None, daq=None, writer=None, load: bool = False, strain: bool = True):
+                 spindle=None, daq=None, writer=None, load: bool = False, strain: bool = True,
+                 session: bool = False, spindle_of=None, spindle_opt=None):
         import numpy as np
+        self.session = bool(session)
+        self._t_off, self._t_last = 0.0, -np.inf
+        self.spindle_of = spindle_of if spindle_of is not None else (lambda: self.spindle)
+        self.spindle_opt = spindle.opt if spindle is not None else spindle_opt
         self.machine, self.ppm, self.rate_hz = machine, np.asarray(ppm, float), float(rate_hz)
         self.load = bool(load)        # load_fx/fy/fz from the gauges (a backend with strain in its cyclic data)
         self.strain = bool(strain)    # strain_* sampled (False: the backend has no gauges in its cyclic data)
@@ -116,9 +126,13 @@ class RunSink:
             names += list(LOAD_CHANNELS)
             for c in LOAD_CHANNELS:
                 notes[c] = {"source": LOAD_NOTE}
-        if self.spindle is not None:
+        if self.session:
+            names += ["line", "sigma"]
+            notes["line"] = {"source": "line of the job or console stream being executed (console lines are counted)"}
+            notes["sigma"] = {"source": "feed factor of the time-scaling (1 = as planned)"}
+        if self.spindle_opt is not None:
             names.append("spindle_rpm")
-            notes["spindle_rpm"] = {"source": f"VFD speed register polled every {self.spindle.opt.poll_ms:g} ms "
+            notes["spindle_rpm"] = {"source": f"VFD speed register polled every {self.spindle_opt.poll_ms:g} ms "
                                               f"by the supervisor, held between polls (negative: M4)"}
         if self.daq is not None:
             for i in range(3):
@@ -140,7 +154,13 @@ class RunSink:
         from pmctl.motion.recorder import R_COUNTS, R_ENC, R_STRAIN, R_TARGET, R_TICK, R_TRUTH
         ticks = rows[:, R_TICK].astype(np.int64)
         n = len(ticks)
-        cols = {"t": ticks / self.rate_hz}
+        t = ticks / self.rate_hz
+        if self.session:
+            if t[0] + self._t_off <= self._t_last:     # a restarted rt process counts from 0 again
+                self._t_off = self._t_last + 1.0 / self.rate_hz - t[0]
+            t = t + self._t_off
+            self._t_last = float(t[-1])
+        cols = {"t": t}
         q_cmd = np.rint(rows[:, R_COUNTS:R_COUNTS + 5]) / self.ppm
         for i, a in enumerate(AXES):
             cols[f"cmd_{a}"] = q_cmd[:, i]
@@ -170,10 +190,15 @@ class RunSink:
         if self.load:
             from pmctl.core.strain_sensing import load_columns
             cols.update(load_columns(rows[:, R_STRAIN:R_STRAIN + 3], q_cmd, self.machine))
-        if self.spindle is not None:
-            mon = self.spindle.monitor
+        if self.session:
+            from pmctl.motion.recorder import R_LINE, R_SIGMA
+            cols["line"] = rows[:, R_LINE]
+            cols["sigma"] = rows[:, R_SIGMA]
+        if self.spindle_opt is not None:
+            sp = self.spindle_of()
+            mon = sp.monitor if sp is not None else None
             v = _held(mon.samples, ticks, lambda s: s[1]) if mon is not None else None
-            cols["spindle_rpm"] = np.full(n, np.nan) if v is None else v * self.spindle.direction
+            cols["spindle_rpm"] = np.full(n, np.nan) if v is None else v * sp.direction
         if self.daq is not None:
             d = self.daq.daq
             for i in range(3):
