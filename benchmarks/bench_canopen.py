@@ -44,7 +44,7 @@ import numpy as np
 from pmctl import hal
 from pmctl.core.config import load_machine
 from pmctl.hal import cia402 as C
-from pmctl.hal.canopen_csp import HISTORY, CanopenCSP, CanopenOptions
+from pmctl.hal.canopen_csp import HISTORY, RPDO_BYTES, TPDO_BYTES, CanopenCSP, CanopenOptions
 from pmctl.hal.slcan_link import SlcanLinkBus
 from pmctl.motion.loop import AbsoluteSleeper, setup_realtime, undo_realtime
 from pmctl.motion.service_config import load_service_config
@@ -208,7 +208,7 @@ def main(argv=None):
           f"CAN cycle {o.cycle_ms:g} ms = {o.cycle_ms / (dt * 1e3):g} ticks")
     print(f"computed: {bl.text}")
     for k in (1, 2, 3, 4):
-        b = C.bus_load(len(o.node_ids), 6, 6, k * dt, o.bitrate, heartbeat_s=o.heartbeat_ms / 1e3,
+        b = C.bus_load(len(o.node_ids), RPDO_BYTES, TPDO_BYTES, k * dt, o.bitrate, heartbeat_s=o.heartbeat_ms / 1e3,
                        host_heartbeat_s=o.host_heartbeat_ms / 1e3)
         verdict = "refused (> 70 %)" if b.load > C.MAX_BUS_LOAD else "accepted"
         print(f"  cycle {k * dt * 1e3:g} ms ({k} ticks): {b.load * 100:6.1f} %  {verdict}")
