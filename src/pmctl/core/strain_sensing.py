@@ -128,7 +128,8 @@ def contact_onset(filtered, window: int, resolution: float = 0.05) -> float:
     speed into a linear surface); its moving average is that ramp convolved with the box, quadratic
     for ``window`` ticks, then linear. ``filtered`` (n, 3) holds the averaged departures of the last
     n ticks; the onset c (index into them, may be < 0) and the slopes a_i are fitted by least
-    squares: a coarse search over whole ticks, then a fine one at ``resolution`` around the best.
+    squares: a coarse search over whole ticks (from 4 ticks before the first raw tick the averages
+    cover), then a fine one at ``resolution`` around the best.
     Robust against the ringing a straight-line extrapolation picks up when the ramp is short."""
     y = np.asarray(filtered, float)
     n = len(y)
@@ -143,7 +144,7 @@ def contact_onset(filtered, window: int, resolution: float = 0.05) -> float:
             resid = np.where(bb > 0, yy - (by * by).sum(-1) / bb, np.inf)
         return float(cands[int(np.argmin(resid))])
 
-    c = best(np.arange(-float(window), n - 1.0))
+    c = best(np.arange(-float(window) - 4.0, n - 1.0))   # an onset up to 4 ticks before the first one held
     return best(np.arange(c - 1.0, c + 1.0 + 1e-9, resolution))
 
 
