@@ -408,7 +408,10 @@ def test_streamed_random_jobs_are_the_whole_plan(machine, text, window):
     job = gjob(machine, text)
     try:
         traj = plan(job, machine, DT)
-    except InputError as e:              # out of the workspace: the stream refuses it the same way
+    except InputError as e:
+        if "batch planner holds at most" in str(e):
+            return                       # the whole plan's size bound: the stream has none, by design
+        # out of the workspace: the stream refuses it the same way
         with pytest.raises(InputError) as e2:
             streamed(job, machine, window=window)
         assert e2.value.line == e.line
@@ -465,3 +468,20 @@ def test_a_long_job_is_planned_in_bounded_pieces(machine, monkeypatch):
     assert n > 240_000 and biggest <= SAMPLE_CHUNK and max(at_once) <= SAMPLE_CHUNK
     assert np.array_equal(last.tip[-1], [-5.0, 0.0, 65.0])
     assert np.all(last.line[-1000:] == 22)            # the dwell's samples carry its line
+
+
+@pytest.mark.parametrize("tip_mm", [0.0, 2e-6, 1e-5, 1e-3, 0.1])
+def test_a_tilt_with_a_tiny_tip_motion_takes_what_the_tilt_takes(machine, tip_mm):
+    """A 1.9 degree tilt whose tip moves 0-0.1 mm: the joints move ~10 mm, a fraction of a second at
+    their limits. Parameterised by the tip's 1e-5 mm it took 2300 s (dq/ds of 1e6 crawled the
+    acceleration caps), and 2e-6 mm could not be planned at all. All limits hold; whole = streamed."""
+    z0 = 47.774892
+    text = f"G0 X0 Y0 Z{z0} A4.643225 B-2.0\nF600\nG1 X0 Y0 Z{z0 - tip_mm:.7f} A4.636478 B-3.899152\n"
+    job = gjob(machine, text)
+    traj = plan(job, machine, DT)
+    check_limits(traj, machine, DT)
+    moving = traj.line == 3
+    assert moving.sum() * DT < 1.0                          # the tilt itself: ~0.5 s, not minutes
+    assert traj.duration < 5.0
+    cat, _ = streamed(job, machine, window=2)
+    assert_same_plan(traj, cat, tol_mm=1e-6)

@@ -23,12 +23,12 @@ class _Sup(Supervisor):
     """The real supervisor; an item named ``boom`` hits a planning bug, one named ``nothing``
     plans to no samples at all."""
 
-    def _rows_of(self, job, start):
+    def _rows_of(self, job, start, it=None):
         if job.source == "boom":
             raise ZeroDivisionError("a bug in planning")
         if job.source == "nothing":
             return iter(())
-        return super()._rows_of(job, start)
+        return super()._rows_of(job, start, it)
 
 
 @pytest.fixture(scope="module")

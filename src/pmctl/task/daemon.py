@@ -89,7 +89,7 @@ class Daemon:
                                                 f"{self.journal.data.get('line', 0)}: confirm the position with $X")
         self.log(self.position_note)
         if self.record_dir:
-            sup.open_devices()              # the DAQ connected first: the recording knows its channels
+            sup.open_devices(at=counts)     # the DAQ connected first: the recording knows its channels
             self._open_recording()
         sup.start(counts)
         if alarm:

@@ -15,7 +15,8 @@ last programmed point; ``Trajectory.points`` holds the job's programmed points.
 How it works (all vectorised with numpy):
 
 1. **Geometry.** Each move becomes a segment with a path parameter s: the tip's arc length (for a
-   pure reorientation, ``rotation_length_mm`` x the slerp angle). Tip: straight line, or arc/helix in
+   pure reorientation, or a tilt whose tip travels under ``ROT_SWITCH`` of it, ``rotation_length_mm``
+   x the slerp angle). Tip: straight line, or arc/helix in
    XY about the centre; tool axis: slerp between the end axes. The path is exactly the programmed one:
    corners are never rounded.
 2. **Limits along the path** on a grid in s (``grid_mm``): the feed (F x override, or the rapid speed)
@@ -85,6 +86,8 @@ __all__ = ["PlannerLimits", "plan", "plan_stream", "validate", "home_pose", "loa
 
 
 VIOLATION_TOL = 1e-6      # relative overshoot of a limit on the samples that triggers re-planning
+ROT_SWITCH = 0.1          # a move whose tip travels less than this x its rotation length is parameterised
+                          # by the rotation (see _Path); above it, by the tip (faster with the caps as built)
 MAX_SAMPLES = 1_200_000   # ticks of one planned job (20 min at 1 kHz; ~0.9 GB at the planner's peak)
 MAX_GRID_POINTS = 2_000_000   # points of the limit grid along the path
 # the streaming planner (plan_stream)
@@ -136,6 +139,7 @@ class _Path:
         phi, r0, r1, th0, sweep, length, vmax_, rpm_ = (np.zeros(nm) for _ in range(8))
         cc = np.zeros((nm, 2))
         rot_ = np.zeros(nm, bool)
+        tip_len = np.zeros(nm)             # the length the feed applies to (the tip's; s for a pure rotation)
         line_ = np.zeros(nm, int)
         n = 0
         stop = {0}                    # boundaries (index = segments completed) with an exact stop
@@ -162,7 +166,11 @@ class _Path:
             else:
                 ltip = float(np.linalg.norm(t1 - tip))
             rot = ltip < 1e-6
-            ln = limits.rotation_length_mm * ph if rot else ltip
+            # s is the tip's arc length, but for a tilt with a tiny tip motion (under ROT_SWITCH x
+            # the rotation length) it is the rotation length: with 1e-5 mm of tip for 2 degrees the
+            # joint derivatives dq/ds would be 1e6 and the acceleration caps crawl (2300 s for a
+            # 3 s move). The feed still caps the tip's speed (v <= F / |dtip/ds|).
+            ln = limits.rotation_length_mm * ph if rot or ltip < ROT_SWITCH * limits.rotation_length_mm * ph else ltip
             if ln < 1e-9:
                 tip, axis = t1, a_1        # nothing moves: the point is the current pose
                 continue
@@ -177,6 +185,7 @@ class _Path:
                 kind[n], cc[n], r0[n], r1[n] = 1, c, rr0, rr1
                 th0[n], sweep[n] = float(np.arctan2(tip[1] - c[1], tip[0] - c[0])), float(m.sweep)
             line_[n], rpm_[n], length[n], rot_[n], vmax_[n] = m.line, m.spindle_rpm, ln, rot, vm
+            tip_len[n] = ln if rot else ltip
             n += 1
             tip, axis = t1, a_1
         self.n = n
@@ -196,6 +205,7 @@ class _Path:
         self.th0, self.sweep, self.length, self.vmax = th0[:n].copy(), sweep[:n].copy(), length[:n].copy(), \
             vmax_[:n].copy()
         self.rot = rot_[:n].copy()
+        self.feed_length = tip_len[:n].copy()
         self.line = line_[:n].copy()
         self.rpm = rpm_[:n].copy()
         self._bounds(self.start_axis / np.linalg.norm(self.start_axis))
@@ -216,7 +226,7 @@ class _Path:
         stops only where the job has one (the job's ends, dwells, spindle changes)."""
         p = object.__new__(_Path)
         for k in ("kind", "p0", "p1", "a0", "a1", "phi", "c", "r0", "r1", "th0", "sweep", "length", "vmax",
-                  "rot", "line", "rpm"):
+                  "rot", "feed_length", "line", "rpm"):
             setattr(p, k, getattr(self, k)[i0:i1])
         p.n = i1 - i0
         p.stop, p.dwell, p.dwell_line = self.stop[i0:i1 + 1], self.dwell[i0:i1 + 1], self.dwell_line[i0:i1 + 1]
@@ -596,14 +606,14 @@ def _check_size(path: _Path, job, dt, limits: PlannerLimits, max_samples=None, w
     exceeds the bounds (the batch planner's, unless given; ``whole_grid=False``: no bound on the
     whole grid); the line named is where the bound is crossed."""
     # Lower bound of the duration at every boundary: each segment at its top speed, dwells in full.
-    seg_t = path.length / path.vmax if path.n else np.zeros(0)
+    seg_t = path.feed_length / path.vmax if path.n else np.zeros(0)
     t_b = np.cumsum(path.dwell) + np.concatenate([[0.0], np.cumsum(seg_t)])   # at boundary b (dwell incl.)
     limit_t = (MAX_SAMPLES if max_samples is None else max_samples) * dt
     if not t_b[-1] < limit_t:
         b = int(np.argmax(~(t_b < limit_t)))
         if b > 0 and t_b[b] - path.dwell[b] >= limit_t:          # crossed while moving into boundary b
             line = path.line[b - 1]
-            what = (f"this move alone takes at least {seg_t[b - 1]:.4g} s ({path.length[b - 1]:.4g} mm at "
+            what = (f"this move alone takes at least {seg_t[b - 1]:.4g} s ({path.feed_length[b - 1]:.4g} mm at "
                     f"{path.vmax[b - 1] * 60:.4g} mm/min)" if seg_t[b - 1] >= 0.5 * limit_t
                     else f"the job takes at least {t_b[-1]:.4g} s, over the bound by this line")
         else:                                                     # crossed during the dwell at b

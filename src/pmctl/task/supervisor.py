@@ -145,7 +145,8 @@ class Supervisor:
         self._devices_open = False
         self._speed_points = collections.deque()   # (ring row, signed rpm) of queued C_HOLD_AT speed changes
         self._hold_at_seen = 0
-        self._strain = [0.0, 0.0, 0.0]    # the plant's strain of the last drained record (a simulated DAQ serves it)
+        self._strain = None               # the plant's strain of the last drained record (a simulated DAQ serves it)
+        self._rest_strain = [0.0, 0.0, 0.0]   # before the first record: the plant at rest at its start pose
         self.device_fault = ""            # the spindle's or the DAQ's fault that stopped motion
         self.spindle_off_at_job_end = True   # M5 when a job ends with the spindle off (pmctl run: at shutdown)
         self._spindle_note = False
@@ -154,7 +155,7 @@ class Supervisor:
     def start(self, counts0, timeout_s: float = 60.0):
         """Create the channel, start the rt process at pulse counters ``counts0`` and the threads."""
         self.counts0 = np.asarray(counts0, np.int64)
-        self.open_devices()               # a device that does not answer: refused before the drives enable
+        self.open_devices(at=self.counts0)   # a device that does not answer: refused before the drives enable
         try:
             self.ch = C.Channel(create=True, sample_capacity=self.sample_capacity)
             self._spawn(self.counts0, timeout_s)
@@ -232,10 +233,14 @@ class Supervisor:
         return counts
 
     # ------------------------------------------------------------ devices out of the tick
-    def open_devices(self, spindle: bool = False):
+    def open_devices(self, spindle: bool = False, at=None):
         """Connect the strain DAQ (and, with ``spindle``, the spindle VFD now rather than at the first
         job that needs it); ``start`` calls it. pmctl run calls it before ``start`` so that the
-        recording knows its channels and the spindle is at speed at the first tick."""
+        recording knows its channels and the spindle is at speed at the first tick. ``at``: the pulse
+        counters the machine starts at (a simulated DAQ serves the plant's strain at rest there until
+        the first record: its weight, not a zero that a slow estimate would take for the truth)."""
+        if at is not None and self._strain is None:
+            self._rest_strain = self._strain_at_rest(at)
         if spindle and self.spindle is None and self.svc.spindle is not None:
             self._spindle_session()
         if self._devices_open:
@@ -251,9 +256,19 @@ class Supervisor:
             return
         from pmctl.hal.modbus_daq import DaqSession
         # slow compensation ([daq] compensate): each estimate becomes the NC's chain-length offsets
-        self.daq = DaqSession(self.svc.daq, lambda: self._strain, self.log, self.machine,
+        self.daq = DaqSession(self.svc.daq, lambda: self._strain or self._rest_strain, self.log, self.machine,
                               self._set_chain_offsets).connect()
         self.daq.watch(self._tick, self._device_fault)
+
+    def _strain_at_rest(self, counts):
+        """The static strain (microstrain per chain) of the platform's weight at pulse counters ``counts``."""
+        from pmctl.core import kinematics as K
+        from pmctl.core.statics import static_strain
+        try:
+            pose = K.fk(np.asarray(counts, float) / self.params.pulses_per_mm, self.machine)
+            return [float(x) for x in static_strain(pose.P, pose.R, self.machine)]
+        except Exception:                  # noqa: BLE001 -- no pose there: the first record says
+            return [0.0, 0.0, 0.0]
 
     def _spindle_session(self):
         from pmctl.hal.modbus_vfd import SpeedChanger, SpindleSession

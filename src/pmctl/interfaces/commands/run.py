@@ -382,7 +382,7 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
         log(where)
         for m in notes:
             log(m)
-        sup.open_devices(spindle=bool(rpm0))   # the VFD link answers (and the DAQ) before the drives enable
+        sup.open_devices(spindle=bool(rpm0), at=counts0)   # the VFD link answers (and the DAQ) before the drives enable
         try:
             sink = RunSink(machine, params.pulses_per_mm, cfg.rate_hz, has_truth, 1 << 62, 0, sup.spindle, sup.daq,
                            load=strain_in_loop, strain=strain_in_loop)
