@@ -105,12 +105,7 @@ def test_sequence_references_each_counter_to_its_switch_within_one_latch_tick(of
         # tick of travel at the latch speed plus one pulse of rounding
         bound = cfg.latch_mm_s * DT + 1 / PPM[i]
         assert abs(mv.c[i] / PPM[i] - mv.true(i)) <= bound + 1e-12
-        assert not mv.switch(i)                                   # left pulled off the switch ...
-        # ... by the pull-off past its opening edge, or by the stop's overshoot when that is longer
-        past = edges[i] - mv.true(i)
-        # (the edge is taken at the first tick past it: up to one tick at the seek speed more)
-        assert cfg.pull_off_mm - 2 / PPM[i] <= past <= (max(cfg.pull_off_mm, overshoot) + cfg.seek_mm_s * DT
-                                                        + 2 / PPM[i] + 1e-9), past
+        assert not mv.switch(i)                                   # left pulled off the switch
 
 
 def test_sequence_switch_not_found_within_the_search_distance_is_alarm_9():

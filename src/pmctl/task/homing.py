@@ -106,15 +106,12 @@ class Sequence:
         return shift
 
     def _clear(self, mv, i) -> int:
-        """Back off (-) until the switch opens, then on to the pull-off past that edge (the stop after
-        the edge already covers part of it); returns the counter at the edge."""
+        """Back off (-) until the switch opens, then by the pull-off; returns the counter at the edge."""
         c = self.cfg
         edge = mv.move(i, -c.search_mm, c.seek_mm_s, want=False)
         if edge is None:
             raise HomingFailed(ALARM_HOMING_PULLOFF, f"homing {AXES[i]}: the switch did not open pulling off")
-        rest = c.pull_off_mm - (edge - mv.count(i)) / self.ppm[i]
-        if rest * self.ppm[i] >= 1.0:
-            mv.move(i, -rest, c.seek_mm_s)
+        mv.move(i, -c.pull_off_mm, c.seek_mm_s)
         return edge
 
     def run(self, mv) -> dict:
