@@ -189,17 +189,28 @@ class RtMover:
         return latched
 
     def set_count(self, i, n):
+        """Re-reference counter ``i`` to ``n`` (at rest). The rt side takes the command only at rest with
+        nothing queued (a tick after a stop may still be settling) and then moves its start counters by
+        the shift (ST_COUNTS0): unchanged after the ack, it was not taken and goes again. Afterwards the
+        NC, restarted from the new counters, may close a pulse or two of sub-pulse residue (or, on
+        drives, what the position feedback moved while the reference was taken), counted like any motion."""
         from pmctl.motion import channel as C
         sup = self.sup
-        sup.wait_ack(sup.command(C.C_SET_COUNTS, float(i), float(n)), 10.0)
+        c0 = float(self._s()[C.ST_COUNTS0 + i])
         t0 = time.monotonic()
-        # the counter is n at the re-reference; the NC restarted from it may then close a pulse or two of
-        # sub-pulse residue against the feedback (drives), counted like any motion
-        while abs(self.count(i) - n) > 2:
+        while True:
+            if self.count(i) == n:
+                return
+            sup.wait_ack(sup.command(C.C_SET_COUNTS, float(i), float(n)), 10.0)
+            if float(self._s()[C.ST_COUNTS0 + i]) != c0:
+                return
+            self._check()
             if time.monotonic() - t0 > 10.0:
+                s = self._s()
                 raise HomingFailed(ALARM_HOMING_APPROACH, f"homing {AXES[i]}: the rt side did not re-reference "
-                                                          f"the counter (not at rest?)")
-            time.sleep(0.005)
+                                                          f"the counter in 10 s (not at rest: sigma {s[C.ST_SIGMA]:g}, "
+                                                          f"{int(s[C.ST_QUEUED])} samples queued, mode {int(s[C.ST_MODE])})")
+            time.sleep(0.02)
 
 
 class _Latched(Exception):
