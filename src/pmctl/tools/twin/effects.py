@@ -1228,7 +1228,52 @@ class ForcedVibration(Candidate):
         if len(amps) >= 3 and min(amps) < 0.33 * max(amps):
             return [f"its amplitude is not steady over the record (quarters: "
                     f"{', '.join(f'{x / max(amps):.2f}' for x in amps)} of the largest): a burst, not a steady source"]
+        return _steady_line_check(g, t, y, f, ctx.t[0], ctx.t[-1])
+
+
+STEADY_CHI2 = 2.5     # windows' scatter about the whole record's line, per degree of freedom, above which a
+                      # line is not one steady sinusoid (steady synth lines: 0.06-1.4; periodic knocks: 3.2-62)
+
+
+def _steady_line_check(g, t, y, f, t0, t1, cycles=2.0, min_window_s=0.2):
+    """A steady source is one sinusoid: its phase and amplitude hold over the record. Fitted on short
+    windows (``cycles`` periods, at least ``min_window_s``), every window's sine and cosine
+    coefficients are the whole record's, up to the window's noise (``y`` is whitened: unit noise, so
+    a window's coefficient covariance is (A^T A)^-1 of its 2x2 normal matrix A^T A). Rings that
+    restart and die away (periodic knocks, a press next door) scatter the windows far beyond that,
+    even where one window's line is at its noise. Returns the reasons it is not steady (empty: steady)."""
+    m_all = g != 0
+    ts, gs, ys = t[m_all], g[m_all], y[m_all]
+    wl = max(cycles / f, min_window_s)
+    nwin = int((t1 - t0) // wl)
+    if nwin < 4:
         return []
+    k = np.minimum(((ts - t0) // wl).astype(int), nwin - 1)
+    w = 2 * np.pi * f
+    S, C = gs * np.sin(w * ts), gs * np.cos(w * ts)
+    # per-window 2x2 normal equations, all windows at once
+    a11 = np.bincount(k, S * S, nwin)
+    a12 = np.bincount(k, S * C, nwin)
+    a22 = np.bincount(k, C * C, nwin)
+    b1 = np.bincount(k, S * ys, nwin)
+    b2 = np.bincount(k, C * ys, nwin)
+    det = a11 * a22 - a12 ** 2
+    ok = (np.bincount(k, minlength=nwin) >= 12) & (det > 1e-12 * np.maximum(a11 * a22, 1e-300))
+    if ok.sum() < 4:
+        return []
+    a11, a12, a22, b1, b2, det = (v[ok] for v in (a11, a12, a22, b1, b2, det))
+    cs = (a22 * b1 - a12 * b2) / det
+    cc = (a11 * b2 - a12 * b1) / det
+    cg = _lstsq(np.stack([S, C], 1), ys)
+    ds, dc = cs - cg[0], cc - cg[1]
+    chi = float(np.mean(a11 * ds * ds + 2 * a12 * ds * dc + a22 * dc * dc) / 2.0)
+    if chi <= STEADY_CHI2:
+        return []
+    amp = np.hypot(cs, cc)
+    p10, p90 = np.percentile(amp, [10, 90])
+    return [f"its phase and amplitude do not hold over the record: {wl:.2g} s windows scatter about the whole "
+            f"record's line {chi:.1f}x their noise (steady: about 1; window amplitudes from {p10 / max(p90, 1e-300):.2f} "
+            f"to 1 of the largest): rings that restart, such as periodic knocks, not a steady source"]
 
 
 class Geometry(Candidate):
