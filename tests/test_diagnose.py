@@ -118,3 +118,18 @@ def test_a_steady_line_is_named_forced_vibration_not_a_resonance():
     rep, sc = _diagnose(case)
     assert sc["all_found"], rep["findings"]
     assert not any(f["effect"] == "resonance" for f in rep["findings"])
+
+
+def test_a_gauge_mode_is_named_on_its_channel_not_on_the_axis():
+    """A 48.7 Hz plate-link mode that only strain_1 sees, in a 250 Hz log thinned to 2000 rows (8 ms
+    apart on the gauge: its band ends at 62.5 Hz). The axis candidate L1 (tool channels + that gauge,
+    one gain each) fitted it with the gauge's gain alone and took the name; the gauge's own
+    candidate failed to start, its only spectral start sitting at the band's edge. The tool does
+    not see it (the tool column's gain is within its noise), so the name is the channel's."""
+    e = synth.Effect("resonance", {"channel": "strain_1"}, {"freq_hz": 48.7, "damping_ratio": 0.03},
+                     {"peak_ue": 12.5})
+    case = _case([e], 31, duration=12.0, rate=250.0, run="circle")
+    rep, ex = diagnose(case.columns, M, cap=2000)
+    sc = score(rep, case.answer, noise=ex["ctx"].obs.sigma)
+    assert sc["all_found"], rep["findings"]
+    assert not any(f["effect"] == "resonance" and f.get("axis") for f in rep["findings"]), rep["findings"]

@@ -96,7 +96,16 @@ def test_jittered_time_stamps_of_a_fixed_rate_log_go_back_on_its_grid(rate, seed
     keep = rng.random(n) > 0.02
     keep[0] = keep[-1] = True
     t = t_true[keep] + rng.uniform(-jitter, jitter, keep.sum()) / rate
-    assert np.allclose(regular_times(t), t_true[keep], atol=1e-9 + 1e-6 / rate)
+    r = regular_times(t)
+    # exactly on a grid: origin + step x the sample's true index (the lost rows skipped) ...
+    idx = np.flatnonzero(keep).astype(float)
+    A = np.stack([np.ones_like(idx), idx], 1)
+    (a, b), *_ = np.linalg.lstsq(A, r, rcond=None)
+    assert np.allclose(r, a + b * idx, rtol=0, atol=1e-9)
+    # ... and that grid is the true one within what a least-squares line through jitter of std
+    # jitter/sqrt(3) samples can place (6 standard errors at the ends: 2/sqrt(n) of the std)
+    tol = 6 * (jitter / np.sqrt(3)) * 2 / np.sqrt(keep.sum()) / rate
+    assert np.allclose(r, t_true[keep], rtol=0, atol=1e-9 + tol)
 
 
 def test_irregular_time_stamps_are_left_alone():
