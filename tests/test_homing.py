@@ -223,9 +223,19 @@ def test_sigkill_mid_job_restart_home_and_resume_from_the_line(tmp_path):
                 break
             time.sleep(0.05)
         assert j["job"] == str(job) and j["line"] >= 5
+        from test_daemon_serve import rt_pid_of
+        rt = rt_pid_of(p.pid)
         p.send_signal(signal.SIGKILL)                 # the supervisor dies: the rt side holds on the path
         p.wait(10)
-        time.sleep(3.0)
+        t0 = time.time()                              # ... saves its counters and exits
+        while rt is not None and time.time() - t0 < 30:
+            try:
+                os.kill(rt, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.05)
+        else:
+            time.sleep(3.0)
     finally:
         stop_serve(p)
     line = json.loads(journal.read_text())["line"]
