@@ -37,7 +37,7 @@ C0 = np.rint(Q0 * PPM).astype(np.int64)
 REF = np.array([400.0, 400.0, 400.0, 5.0, 5.0])           # [homing] reference_mm (shipped)
 SW = Q0 + np.array([1.0, 0.7, 1.3, 0.9, 1.1])             # where the switches really are (motor frame, mm)
 SW_PULSES = np.rint(SW * PPM).astype(np.int64)
-FAST = {"seek_mm_s": 20.0, "latch_mm_s": 1.0, "pull_off_mm": 0.5}
+FAST = {"seek_mm_s": 20.0, "latch_mm_s": 4.0, "pull_off_mm": 0.5}     # bounds below scale with latch_mm_s
 CYCLE_S = 2e-3                                            # the shipped CAN cycle
 
 

@@ -352,6 +352,48 @@ def test_daq_stale_data_and_timeout_name_device_and_register(daq):
     assert "timeout" in str(e.value)
 
 
+class LateAnswerDAQ:
+    """A DAQ model whose sample counter the test sets; it reads the counter, then answers
+    ``delay_s`` later (a busy link or host: the sample is older than its arrival)."""
+
+    def __init__(self):
+        self.n, self.delay_s = 7, 0.0
+
+    def read(self, addr):
+        if not 0 <= addr <= 3:
+            return None
+        if addr < 3:
+            return 0
+        n = self.n
+        time.sleep(self.delay_s)
+        return n
+
+    def write(self, addr, value):
+        return False
+
+
+def test_daq_a_late_answer_is_no_stale_data_but_a_stuck_counter_is():
+    from pmctl.hal.modbus_sim import ModbusSimServer
+    dev = LateAnswerDAQ()
+    srv = ModbusSimServer(dev, port=0, input_registers=True).start()
+    daq = StrainDAQ(DaqOptions.from_dict({"port": srv.port, "timeout_ms": 5000.0, "poll_ms": 10.0,
+                                          "max_age_ms": 500.0})).connect()      # counter 7, at once
+    try:
+        # asked right after: the DAQ has not sampled again yet (7), its answer comes 1 s later,
+        # within the timeout. Nothing says the counter stood still for 1 s: no stale data
+        dev.delay_s = 1.0
+        t, n, _ = daq.poll()
+        assert n == 7
+        # asked again (at once): 7 still, now read more than max_age after the first 7 arrived
+        dev.delay_s = 0.0
+        with pytest.raises(HalError) as e:
+            daq.poll()
+        assert "stale data" in str(e.value) and "(sample counter) stuck at 7 for" in str(e.value)
+    finally:
+        daq.close()
+        srv.stop()
+
+
 def test_k_theta_source_too_slow_for_the_chain_mode_is_refused():
     f = chain_mode_hz(M)
     assert 200 < f < 300                                     # 20 N/um, 25 kg / 3: 246 Hz

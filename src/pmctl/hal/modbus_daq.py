@@ -200,11 +200,14 @@ class StrainDAQ:
         regs = rr.registers
         strain = [((v - 65536) if v >= 32768 else v) * self.opt.ue_per_count for v in regs[:3]]
         n = regs[3]
+        # the DAQ read its counter somewhere between the request and the answer: an unchanged
+        # counter is known stuck only from the arrival of the answer that first showed it to this
+        # request (a late answer, within the timeout, says nothing about the time after the request)
         if self._last is None or n != self._last[1]:
             self._t_counter = t
-        elif (t - self._t_counter) * 1e3 > self.opt.max_age_ms:
+        elif (t_req - self._t_counter) * 1e3 > self.opt.max_age_ms:
             raise HalError(f"{self.device}: stale data: {self.reg_name(3)} stuck at {n} for "
-                           f"{(t - self._t_counter) * 1e3:.0f} ms (max age {self.opt.max_age_ms:g} ms)")
+                           f"{(t_req - self._t_counter) * 1e3:.0f} ms (max age {self.opt.max_age_ms:g} ms)")
         self._last = (t, n, strain)
         return self._last
 
