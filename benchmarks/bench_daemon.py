@@ -89,16 +89,33 @@ def attached(seconds):
     tty.setraw(fd)
     buf = b""
     lat = []
+    reports = 0
+    oks = 0
 
     def pump(t=0.0):
-        nonlocal buf
+        """Read what the console sent; count `ok`s and status reports line by line (an `ok` that
+        arrives before a report is an `ok`, not part of it)."""
+        nonlocal buf, reports, oks
         r, _, _ = select.select([fd], [], [], t)
         if r:
             buf += os.read(fd, 65536)
+        while b"\n" in buf:
+            line, buf = buf.split(b"\n", 1)
+            line = line.strip()
+            if line == b"ok":
+                oks += 1
+                if pending:
+                    pending.pop(0)
+            elif line.startswith(b"error"):
+                raise SystemExit(f"the console answered {line!r}")
+            elif line.startswith(b"<"):
+                reports += 1
+                last_report[0] = line
 
     lines = program(seconds)
     lines[0] = lines[0] + f" Z{tip[2] - 5}"
-    pending, oks, sent = [], 0, 0
+    pending, sent = [], 0
+    last_report = [b""]
     t_end = time.monotonic() + seconds + 30
     last_q = 0.0
     while time.monotonic() < t_end:
@@ -110,21 +127,17 @@ def attached(seconds):
         now = time.monotonic()
         if now - last_q > 0.1:
             last_q = now
+            n0 = reports
             t0 = time.perf_counter()
             os.write(fd, b"?")
-            while b">" not in buf:
+            while reports == n0 and time.perf_counter() - t0 < 5:
                 pump(0.5)
             lat.append(time.perf_counter() - t0)
-            i = buf.index(b">")
-            rep, buf = buf[:i + 1], buf[i + 1:]
-            if b"<Idle" in rep and sent == len(lines) and oks >= len(lines):
+            if last_report[0].startswith(b"<Idle") and sent == len(lines) and oks >= len(lines):
                 break
         pump(0.01)
-        while b"ok\r\n" in buf:
-            buf = buf.replace(b"ok\r\n", b"", 1)
-            oks += 1
-            if pending:
-                pending.pop(0)
+    else:
+        print(f"warning: the job did not end within {seconds + 30:.0f} s ({oks}/{len(lines)} lines answered)")
     con.stop()
     sup.shutdown()
     port.close()
