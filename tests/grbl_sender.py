@@ -17,12 +17,14 @@ RX_BUFFER = 128
 STATUS = re.compile(r"<([^|>]+)\|(MPos|WPos):([^|>]+)(.*)>")
 
 
-def start_serve(tmp: Path, *, state=None, record=None, env=None, extra=()):
+def start_serve(tmp: Path, *, state=None, record=None, env=None, extra=(), realtime=False):
+    """`pmctl serve` on the sim with its console on a pty at tmp/tty; offline ticks (--no-realtime)
+    unless realtime, which runs it as an operator or an outside sender would."""
     link = tmp / "tty"
     if link.exists() or link.is_symlink():
         link.unlink()
     cmd = [sys.executable, "-m", "pmctl.interfaces.cli", "serve", "--config", "config/prototype.toml", "--backend",
-           "sim", "--console", f"pty:{link}", "--state", str(state or tmp / "state.json"), "--no-realtime", *extra]
+           "sim", "--console", f"pty:{link}", "--state", str(state or tmp / "state.json"), *([] if realtime else ["--no-realtime"]), *extra]
     if record:
         cmd += ["--record", str(record)]
     err = open(tmp / "serve.err", "ab")
