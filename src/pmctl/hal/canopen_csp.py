@@ -854,8 +854,23 @@ class CanopenCSP(Backend):
         try:
             self._cw = C.CW_QUICK_STOP
             self._send_cycle()
+            self._confirm_stop()
         except Exception:               # noqa: BLE001 -- a dead bus: the drives stop on the host heartbeat
             pass
+
+    def _confirm_stop(self, timeout: float = 0.5):
+        """After a quick stop: SYNC again (the drives report their statusword only in the TPDO that
+        answers a SYNC) until every drive that still answers has left Operation enabled, at most
+        ``timeout``; a silent drive stops on its own heartbeat consumer."""
+        t_end = time.monotonic() + timeout
+        while time.monotonic() < t_end:
+            with self._cond:
+                n0 = [d.answers for d in self.drives]
+                self._cond.wait_for(lambda: all(d.answers > a for d, a in zip(self.drives, n0))
+                                    or time.monotonic() >= t_end, timeout=max(4 * self.cycle_s, 0.02))
+                if all(C.state_of(d.sw) != C.OPERATION_ENABLED for d in self.drives):
+                    return
+            self._send_cycle()
 
     def status(self) -> Status:
         return Status(not self._fault, self._fault)
