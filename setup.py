@@ -34,7 +34,7 @@ class BuildExt(build_ext):
 ext = Extension(
     "pmctl.motion.ncore._ncore",
     sources=[f"{NCORE}/ncore.c", f"{NCORE}/_ncoremodule.c"],
-    depends=[f"{NCORE}/ncore.h"],
+    depends=[f"{NCORE}/ncore.h", f"{NCORE}/pymodule.h"],
     include_dirs=[NCORE],
     extra_compile_args=["-std=c99", "-O2", "-fno-fast-math", "-ffp-contract=off"] if os.name == "posix" else [],
     libraries=["m"] if os.name == "posix" else [],
@@ -43,7 +43,7 @@ ext = Extension(
 plant = Extension(          # the loopback sim plant's tick (pmctl.hal.sim), with the core's FK
     "pmctl.hal._simplant",
     sources=["src/pmctl/hal/simplant.c", f"{NCORE}/ncore.c"],
-    depends=[f"{NCORE}/ncore.h"],
+    depends=[f"{NCORE}/ncore.h", f"{NCORE}/pymodule.h"],
     include_dirs=[NCORE],
     extra_compile_args=ext.extra_compile_args,
     libraries=ext.libraries,
@@ -53,8 +53,8 @@ FOLLOW = "src/pmctl/motion/follow"
 follow = Extension(         # the loop's path follower (pmctl.motion.timescale.CompiledFollower)
     "pmctl.motion._follow",
     sources=[f"{FOLLOW}/follow.c", f"{FOLLOW}/_followmodule.c"],
-    depends=[f"{FOLLOW}/follow.h"],
-    include_dirs=[FOLLOW],
+    depends=[f"{FOLLOW}/follow.h", f"{NCORE}/pymodule.h"],
+    include_dirs=[FOLLOW, NCORE],
     extra_compile_args=ext.extra_compile_args,
     libraries=ext.libraries,
 )

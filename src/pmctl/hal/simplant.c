@@ -5,6 +5,7 @@
  * sample. Buffers belong to the caller; nothing is allocated per tick. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include "pymodule.h"
 #include <math.h>
 #include <string.h>
 
@@ -305,18 +306,9 @@ static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_simplant", "pmctl s
 
 PyMODINIT_FUNC PyInit__simplant(void)
 {
-    PyObject *m;
-    if (PyType_Ready(&PlantType) < 0)
-        return NULL;
-    m = PyModule_Create(&moddef);
+    PyObject *m = pmctl_module_with_type(&moddef, &PlantType, "Plant");
     if (m == NULL)
         return NULL;
-    Py_INCREF(&PlantType);
-    if (PyModule_AddObject(m, "Plant", (PyObject *)&PlantType) < 0) {
-        Py_DECREF(&PlantType);
-        Py_DECREF(m);
-        return NULL;
-    }
 #define C(name, v) PyModule_AddIntConstant(m, name, v)
     C("D_LEN", D_LEN); C("K_LEN", K_LEN); C("D_CMD", D_CMD); C("D_MOTOR", D_MOTOR); C("D_VM", D_VM);
     C("D_Y", D_Y); C("D_YD", D_YD); C("D_Q", D_Q); C("D_P", D_P); C("D_R", D_R);

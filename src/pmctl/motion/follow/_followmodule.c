@@ -3,6 +3,7 @@
  * runs one tick on them and returns the target object. No allocation per tick. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include "pymodule.h"
 
 #include "follow.h"
 
@@ -190,18 +191,9 @@ static struct PyModuleDef followmodule = {
 
 PyMODINIT_FUNC PyInit__follow(void)
 {
-    PyObject *m;
-    if (PyType_Ready(&FollowerType) < 0)
-        return NULL;
-    m = PyModule_Create(&followmodule);
+    PyObject *m = pmctl_module_with_type(&followmodule, &FollowerType, "Follower");
     if (m == NULL)
         return NULL;
-    Py_INCREF(&FollowerType);
-    if (PyModule_AddObject(m, "Follower", (PyObject *)&FollowerType) < 0) {
-        Py_DECREF(&FollowerType);
-        Py_DECREF(m);
-        return NULL;
-    }
 #define C(name) PyModule_AddIntConstant(m, #name, name)
     C(FL_SIGMA); C(FL_DSIGMA); C(FL_FEED_OV); C(FL_RAPID_OV); C(FL_HOLD); C(FL_ACCEL); C(FL_JERK);
     C(FL_FRAC); C(FL_LINE); C(FL_STATE); C(FL_S_TOTAL); C(FL_ENDED); C(FL_AT_END); C(FL_HAS_REST);

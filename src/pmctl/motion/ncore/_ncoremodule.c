@@ -3,6 +3,7 @@
  * or memory shared with another process); step() runs one tick on them. No allocation per tick. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include "pymodule.h"
 #include <string.h>
 
 #include "ncore.h"
@@ -230,18 +231,9 @@ static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_ncore", "pmctl comp
 
 PyMODINIT_FUNC PyInit__ncore(void)
 {
-    PyObject *m;
-    if (PyType_Ready(&CoreType) < 0)
-        return NULL;
-    m = PyModule_Create(&moddef);
+    PyObject *m = pmctl_module_with_type(&moddef, &CoreType, "Core");
     if (m == NULL)
         return NULL;
-    Py_INCREF(&CoreType);
-    if (PyModule_AddObject(m, "Core", (PyObject *)&CoreType) < 0) {
-        Py_DECREF(&CoreType);
-        Py_DECREF(m);
-        return NULL;
-    }
 #define C(name) PyModule_AddIntConstant(m, #name, name)
     C(NC_C_LEN); C(NC_S_LEN); C(NC_N_LEN);
     C(NC_S_ACC); C(NC_S_QDOT); C(NC_S_P); C(NC_S_R); C(NC_S_TIP); C(NC_S_AXIS); C(NC_S_PERR);
