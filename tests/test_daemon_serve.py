@@ -197,3 +197,94 @@ def test_sd_notify_ready_and_watchdog(tmp_path):
     assert "READY=1" in text and text.count("WATCHDOG=1") >= 3
     assert "STATUS=" in text
     assert text.index("READY=1") < text.index("WATCHDOG=1")
+
+
+# ---------------------------------------------------------------- work offsets across a restart
+
+WCS = ("G54", "G55", "G56", "G57", "G58", "G59")
+
+
+def hash_report(s):
+    """``$#`` as {name: 5 floats} (G54-G59, G28, G30, G92) plus the raw lines."""
+    n = len(s.pushed)
+    assert s.send("$#") == "ok"
+    lines = [ln for ln in s.pushed[n:] if ln.startswith("[") and ":" in ln]
+    out = {}
+    for ln in lines:
+        name, _, vals = ln[1:-1].partition(":")
+        if name in WCS + ("G28", "G30", "G92"):
+            out[name] = [float(x) for x in vals.split(",")]
+    assert set(WCS + ("G92",)) <= set(out), lines
+    return out, [ln for ln in lines if ln[1:4] in {w[:3] for w in WCS + ("G92",)} and not ln.startswith("[PRB")]
+
+
+def active_wcs(s):
+    import re
+    n = len(s.pushed)
+    assert s.send("$G") == "ok"
+    gc = next(ln for ln in s.pushed[n:] if ln.startswith("[GC:"))
+    return re.search(r"\bG5[4-9]\b", gc).group(0)
+
+
+def wco_of(st):
+    return np.array([float(x) for x in st["WCO"].split(",")])
+
+
+def test_work_offsets_and_g92_come_back_after_sigterm_and_a_restart(tmp_path):
+    """G10 L2 P2 (G55), G10 L20 P1 (G54 from the current position), G92, the active system and $10:
+    after SIGTERM and a restart on the same --state, ``$#`` shows the same offsets, the status
+    report the same WPos and WCO, and WPos = MPos - WCO with WCO = active system + G92."""
+    state = tmp_path / "state.json"
+    p, link = start_serve(tmp_path, state=state)
+    s = Sender(link)
+    try:
+        s.reset()
+        m0 = np.array(s.wait_state(("Idle",), 60)["pos"])            # $10=1 (default): MPos
+        for line in ("G21 G90", "G10 L2 P2 X12.5 Y-7.25 Z3.125 A1.5 B-2", "G10 L20 P1 X1 Y2 Z-3",
+                     "G55", "G92 X4 Y-5 Z6"):
+            assert s.send(line) == "ok", line
+        off, lines = hash_report(s)
+        # the offsets are what the lines asked for (grbl's G10 L2 / L20 and G92 definitions)
+        assert np.allclose(off["G55"], [12.5, -7.25, 3.125, 1.5, -2], atol=1e-9)
+        assert np.allclose(off["G54"], [m0[0] - 1, m0[1] - 2, m0[2] + 3, 0, 0], atol=1.5e-3)
+        assert np.allclose(off["G92"][:3], m0[:3] - off["G55"][:3] - [4, -5, 6], atol=1.5e-3)
+        mpos = s.status()
+        assert mpos["kind"] == "MPos" and np.allclose(mpos["pos"], m0, atol=1.5e-3)     # nothing moved
+        assert np.allclose(wco_of(mpos), np.add(off["G55"], off["G92"]), atol=1.5e-3)
+        assert s.send("$10=0") == "ok"
+        # the last thing before the stop: back to G54 (a selection, no offset changes with it)
+        assert s.send("G54") == "ok" and active_wcs(s) == "G54"
+        wpos = s.status()
+        assert wpos["kind"] == "WPos" and np.allclose(wco_of(wpos), np.add(off["G54"], off["G92"]), atol=1.5e-3)
+        assert np.allclose(wpos["pos"], np.array(mpos["pos"]) - wco_of(wpos), atol=2e-3)
+    finally:
+        s.close()
+        assert stop_serve(p) == 0                                  # SIGTERM
+    assert load_counters(state, machine=M.name).clean
+    p, link = start_serve(tmp_path, state=state)
+    s = Sender(link)
+    try:
+        off2, lines2 = hash_report(s)
+        assert lines2 == lines                                     # the same offsets, to the digit
+        assert active_wcs(s) == "G54"                              # the system active at the stop
+        w2 = s.status()
+        assert w2["kind"] == "WPos"                                # $10 came back too
+        assert np.allclose(w2["pos"], wpos["pos"], atol=1.5e-3) and w2["WCO"] == wpos["WCO"]
+        assert s.send("$10=1") == "ok"
+        m2 = s.status()
+        assert m2["kind"] == "MPos" and np.allclose(m2["pos"], mpos["pos"], atol=1.5e-3)
+        wco = wco_of(m2)
+        assert np.allclose(wco, np.add(off2["G54"], off2["G92"]), atol=1.5e-3)
+        assert np.allclose(np.array(m2["pos"]) - wco, w2["pos"], atol=2e-3)
+        # G55 selected after the restart: its offset plus G92; the selection is journalled before the
+        # ok, and a soft reset (grbl: back to G54, offsets kept) is journalled before the banner
+        journal = Path(str(state) + ".journal")
+        assert s.send("G55") == "ok"
+        assert np.allclose(wco_of(s.status()), np.add(off2["G55"], off2["G92"]), atol=1.5e-3)
+        assert json.loads(journal.read_text())["offsets"]["active"] == "G55"
+        s.reset()
+        assert active_wcs(s) == "G54" and json.loads(journal.read_text())["offsets"]["active"] == "G54"
+        assert hash_report(s)[1] == lines
+    finally:
+        s.close()
+        assert stop_serve(p) == 0
