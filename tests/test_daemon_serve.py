@@ -288,3 +288,75 @@ def test_work_offsets_and_g92_come_back_after_sigterm_and_a_restart(tmp_path):
     finally:
         s.close()
         assert stop_serve(p) == 0
+
+
+# ---------------------------------------------------------------- a killed session's recording
+
+def test_sigkill_of_serve_leaves_a_readable_partial_recording_that_ends_at_the_saved_counters(tmp_path):
+    """``pmctl serve --record DIR`` killed by SIGKILL after a move: DIR.partial reads as an incomplete
+    recording with every drained tick (time monotonic, one tick apart), the move on its programmed
+    line, and a last row whose pulse counters are the ones the rt process saved (clean) once it
+    found the supervisor gone: the machine was at rest, so not a pulse differs."""
+    state, rec = tmp_path / "state.json", tmp_path / "rec"
+    data = tmp_path / "rec.partial" / "data.csv"
+    p, link = start_serve(tmp_path, state=state, record=rec)
+    s = Sender(link)
+    rt = None
+    try:
+        s.reset()
+        p0 = np.array(s.wait_state(("Idle",), 60)["pos"])
+        assert s.send("G21 G91 G1 F600 X-8") == "ok"
+        t0 = time.time()                 # the move has run (planning can take a while on a loaded machine)
+        st = s.status()
+        while not (st["state"] == "Idle" and st["pos"][0] < p0[0] - 7.99) and time.time() - t0 < 120:
+            time.sleep(0.05)
+            st = s.status()
+        assert st["state"] == "Idle" and np.allclose(st["pos"][:3], p0[:3] - [8, 0, 0], atol=1.5e-3)
+        # evidence, not a sleep: 300 ticks of rest after the move are on disk
+        n_idle = data.read_bytes().count(b"\n")
+        t0 = time.time()
+        while data.read_bytes().count(b"\n") < n_idle + 300 and time.time() - t0 < 120:
+            time.sleep(0.05)
+        rt = rt_pid_of(p.pid)
+        assert rt is not None
+        p.send_signal(signal.SIGKILL)
+        p.wait(10)
+        t0 = time.time()                 # the rt process holds, saves its counters and exits
+        while time.time() - t0 < 60:
+            try:
+                os.kill(rt, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.05)
+        else:
+            os.kill(rt, signal.SIGKILL)
+            pytest.fail("rt process kept running after the supervisor died")
+    finally:
+        s.close()
+        stop_serve(p)
+    # nothing under the name (serve creates DIR empty at the start): the rows are in DIR.partial
+    assert not rec.exists() or not any(rec.iterdir())
+    r = read_recording(tmp_path / "rec.partial")
+    assert r.meta["complete"] is False
+    assert {"line", "sigma", "tip_x", "enc_L1"} <= set(r.columns)
+    dt = 1.0 / r.sample_rate_hz
+    t = r["t"]
+    assert r.n > 1000 and np.all(np.diff(t) > 0)
+    np.testing.assert_allclose(np.diff(t), dt, rtol=1e-9)      # no tick lost between drained chunks
+    ppm = M.resolution.pulses_per_mm
+    cmd = np.column_stack([r[f"cmd_{a}"] for a in ("L1", "L2", "L3", "X", "Y")])
+    assert np.all(np.isfinite(cmd))
+    counts = np.rint(cmd * ppm).astype(np.int64)              # cmd_* = pulse counter / resolution
+    assert np.abs(np.diff(cmd, axis=0)).max() < 0.1           # continuous: < 100 mm/s on any joint
+    # the move is in the recording, every tool tip on its programmed line
+    tip = np.column_stack([r["tip_x"], r["tip_y"], r["tip_z"]])
+    assert np.all(np.isfinite(tip))
+    assert np.abs(tip[:, 1:] - p0[1:3]).max() < 2e-3
+    assert tip[:, 0].min() > p0[0] - 8 - 2e-3 and tip[:, 0].max() < p0[0] + 2e-3
+    assert abs(tip[0, 0] - p0[0]) < 2e-3 and abs(tip[-1, 0] - (p0[0] - 8)) < 2e-3
+    # the counters: the rt side saved them (clean) after the recording's last row; at rest, equal
+    saved = load_counters(state, machine=M.name, pulses_per_mm=ppm)
+    assert saved.clean and saved.pulses_per_mm.tolist() == ppm.tolist()
+    assert np.array_equal(counts[-1], saved.counts), (counts[-1], saved.counts)
+    assert np.all(counts[-300:] == counts[-1])                # the tail is the rest after the move
+    assert json.loads((tmp_path / "state.json.journal").read_text())["running"] is False
