@@ -360,3 +360,86 @@ def test_sigkill_of_serve_leaves_a_readable_partial_recording_that_ends_at_the_s
     assert np.array_equal(counts[-1], saved.counts), (counts[-1], saved.counts)
     assert np.all(counts[-300:] == counts[-1])                # the tail is the rest after the move
     assert json.loads((tmp_path / "state.json.journal").read_text())["running"] is False
+
+
+# ---------------------------------------------------------------- the watchdog follows the rt side
+
+def _proc_state(pid):
+    """The kernel's one-letter state of ``pid`` (R, S, T stopped, ...), None once it is gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return None
+    return stat[stat.rindex(")") + 2]
+
+
+def test_watchdog_pings_stop_while_the_rt_process_is_stopped_and_resume_after(tmp_path):
+    """systemd's watchdog is fed only while the rt side is on time: with the rt process stopped
+    (SIGSTOP: alive, but no tick), WATCHDOG=1 stops for many watchdog intervals while the supervisor
+    still answers on the console; after SIGCONT the pings come back."""
+    path = str(tmp_path / "notify.sock")
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    srv.bind(path)
+    usec = 200_000                                   # WatchdogSec=0.2: a ping every 0.1 s while healthy
+    interval = usec / 1e6
+    p, link = start_serve(tmp_path, env={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": str(usec)})
+    s = Sender(link)
+    rt, stopped = None, False
+
+    def pings(n, timeout=60.0):
+        """Wait for ``n`` WATCHDOG=1 (and READY=1 before them); the messages received."""
+        got, t0 = [], time.time()
+        srv.settimeout(1.0)
+        while time.time() - t0 < timeout and "".join(got).count("WATCHDOG=1") < n:
+            try:
+                got.append(srv.recv(4096).decode())
+            except socket.timeout:
+                pass
+        return "".join(got)
+
+    try:
+        first = pings(3)
+        assert "READY=1" in first and first.count("WATCHDOG=1") >= 3          # healthy: fed
+        rt = rt_pid_of(p.pid)
+        assert rt is not None
+        srv.setblocking(False)                       # what was sent so far is not "after the stop"
+        try:
+            while True:
+                srv.recv(4096)
+        except BlockingIOError:
+            pass
+        os.kill(rt, signal.SIGSTOP)
+        stopped = True
+        t0 = time.time()
+        while _proc_state(rt) != "T" and time.time() - t0 < 30:                 # the stop is evident
+            time.sleep(0.01)
+        assert _proc_state(rt) == "T"
+        # the pings stop: a silence of 8 watchdog intervals must come (within a generous minute); the
+        # pings before it are only those of the status block's freshness window (0.5 s after the rt
+        # side's last tick, at most one per half interval), none for a stopped rt process after that
+        gap = 8 * interval
+        srv.settimeout(gap)
+        after, silent, t0 = 0, False, time.time()
+        while time.time() - t0 < 60:
+            try:
+                after += srv.recv(4096).decode().count("WATCHDOG=1")
+            except socket.timeout:
+                silent = True
+                break
+        assert silent, f"WATCHDOG=1 kept coming while the rt process was stopped ({after} pings)"
+        assert after <= int(0.5 / (interval / 2)) + 2, after
+        assert _proc_state(rt) == "T" and p.poll() is None
+        st = s.status()                              # the supervisor is up: it is the rt side that is late
+        assert st is not None
+        os.kill(rt, signal.SIGCONT)
+        stopped = False
+        srv.setblocking(True)
+        again = pings(3)
+        assert again.count("WATCHDOG=1") >= 3, again                              # fed again
+        assert rt_pid_of(p.pid) == rt                                              # the same rt process
+    finally:
+        if stopped and rt is not None:
+            os.kill(rt, signal.SIGCONT)
+        s.close()
+        stop_serve(p)
+        srv.close()
