@@ -82,8 +82,8 @@ def _fmt_ppm(ppm) -> str:
     """Per-axis pulses per mm as the machine config gives them: chain (L1 L2 L3) and table (X Y)."""
     v = [float(x) for x in ppm]
 
-    def one(xs):
-        return f"{xs[0]:g}" if len(set(xs)) == 1 else "/".join(f"{x:g}" for x in xs)
+    def one(xs):             # 12 digits: two resolutions told apart never print the same
+        return f"{xs[0]:.12g}" if len(set(xs)) == 1 else "/".join(f"{x:.12g}" for x in xs)
     if len(v) == 5:
         return f"chain {one(v[:3])}, table {one(v[3:])} pulses/mm"
     return one(v) + " pulses/mm"
