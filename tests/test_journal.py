@@ -41,6 +41,17 @@ def test_journal_round_trip_and_damaged_file(tmp_path):
         with pytest.raises(InputError) as e:
             Journal(p, M.name).load()
         assert key in str(e.value)
+    # offsets and $10 are not guessed either: a bad one is named, never replaced by a default
+    for key, d in (("offsets.active", {"offsets": {"active": "G53"}}),
+                   ("offsets.wcs.G60", {"offsets": {"wcs": {"G60": [0, 0, 0, 0, 0]}}}),
+                   ("offsets.wcs.G55", {"offsets": {"wcs": {"G55": [0, 0, "1", 0, 0]}}}),
+                   ("offsets.wcs.G56", {"offsets": {"wcs": {"G56": [0, 0, float("nan"), 0, 0]}}}),
+                   ("offsets.g92", {"offsets": {"g92": [0, 0, True, 0, 0]}}),
+                   ("settings.10", {"settings": {"10": 256}}), ("settings.10", {"settings": {"10": "1"}})):
+        p.write_text(json.dumps({"format": "pmctl-journal/1", "machine": M.name, **d}))
+        with pytest.raises(InputError) as e:
+            Journal(p, M.name).load()
+        assert key in str(e.value) and str(p) in str(e.value)
     j.save(job="/jobs/a.ngc", line=7, job_start=[0, 0, 173, 0, 0, 1], homed=True)
     k = Journal(p, M.name).load()
     assert k.data["job_start"] == [0, 0, 173, 0, 0, 1] and k.data["homed"] is True
