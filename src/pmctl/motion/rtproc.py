@@ -307,15 +307,16 @@ class RtHook:
         return st
 
 
-def _restore_offset(be, state_file, machine_name, log):
+def _restore_offset(be, state_file, machine_name, log, pulses_per_mm=None):
     """A backend that keeps a reference offset (homing on drives that keep their positions) gets the one
-    saved with the counters it starts from."""
+    saved with the counters it starts from (at the same resolution: offsets in counts of another one
+    are not restored)."""
     if not state_file or be.reference_offset() is None:
         return
     from pmctl.core.errors import PmctlError
     from pmctl.motion.state_store import load_counters
     try:
-        saved = load_counters(state_file, machine=machine_name)
+        saved = load_counters(state_file, machine=machine_name, pulses_per_mm=pulses_per_mm)
     except PmctlError as e:
         log(f"reference offsets not restored: {e}")
         return
@@ -383,11 +384,12 @@ def rt_main(spec: dict) -> int:
     counts = np.array(spec["counts"], np.int64)
     be = hal.create(spec["backend"], machine, dt, svc.backend_tables.get(spec["backend"], {}))
     state_file = spec.get("state_file") or ""
-    _restore_offset(be, state_file, machine.name, log)
+    _restore_offset(be, state_file, machine.name, log, machine.resolution.pulses_per_mm)
     be.open(counts)
     st = initial_state(machine, counts)
     fol = make_follower(ch.samples, params, dt, pose=st.tip.tolist() + st.axis.tolist())
-    writer = CounterWriter(state_file, machine=machine.name) if state_file else None
+    ppm = machine.resolution.pulses_per_mm                # the counters' resolution, saved with them
+    writer = CounterWriter(state_file, machine=machine.name, pulses_per_mm=ppm) if state_file else None
 
     class _Null(Recorder):           # the supervisor drains the record ring
         inline = False
@@ -424,7 +426,7 @@ def rt_main(spec: dict) -> int:
             if writer is not None:
                 writer.stop()
                 save_counters(state_file, final.counts, machine=machine.name, clean=bool(clean), tick=lp.tick,
-                              offsets=be.reference_offset())
+                              offsets=be.reference_offset(), pulses_per_mm=ppm)
             ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = final.counts.tolist()
             ch.set_reason(getattr(lp, "quit_reason", "") or (res.reason if res else "rt process error"))
             fb = lp.last_fb

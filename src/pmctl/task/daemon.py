@@ -63,7 +63,8 @@ class Daemon:
         if self.state_file:
             self.lock = StateLock(self.state_file)
         self.journal = Journal(journal_path(self.state_file) if self.state_file else None, m.name).load()
-        saved = load_counters(self.state_file, machine=m.name) if self.state_file else None
+        saved = (load_counters(self.state_file, machine=m.name, pulses_per_mm=m.resolution.pulses_per_mm)
+                 if self.state_file else None)
         alarm = None
         if saved is None:
             tip, axis = home_pose(m)
@@ -79,6 +80,8 @@ class Daemon:
                                       f"write was a periodic snapshot: a crash or power cut may have lost up to one "
                                       f"persist interval of motion): confirm with $X or home with $H")
                 alarm = (ALARM_HOMING_REQUIRED, self.position_note)
+            if saved.note:
+                self.position_note += f"; {saved.note}"
         job = self.journal.data.get("job")
         if self.journal.data.get("running") and job:
             self.position_note += f"; job {job} was interrupted at line {self.journal.data.get('line', 0)}"

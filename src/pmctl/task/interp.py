@@ -101,7 +101,9 @@ class LineInterpreter:
         """Soft reset: G0 G54 G17 G21 G90 G94 M5, no feed (offsets are kept)."""
         st = self.st
         st.units, st.absolute, st.motion, st.feed, st.s, st.spindle_on = 1.0, True, None, None, 0.0, False
-        self.active = "G54"
+        if self.active != "G54":
+            self.active = "G54"
+            self.changed = True           # journalled (the console persists after the reset)
 
     def parser_state(self) -> str:
         st = self.st
@@ -140,7 +142,11 @@ class LineInterpreter:
             if k == "G":
                 c = round(v * 10)
                 if c in (540, 550, 560, 570, 580, 590):
-                    self.active = WCS_NAMES[(c - 540) // 10]
+                    name = WCS_NAMES[(c - 540) // 10]
+                    if name != self.active:       # the active system is journalled with the offsets
+                        self.active = name
+                        self.changed = True
+                        flags["sync"] = True
                     continue
                 if c in (591, 592, 593):
                     raise LineError(29, "G59.1-G59.3 are not supported")
@@ -202,6 +208,8 @@ class LineInterpreter:
         if end:
             flags["end"] = True
             self.reset_modal()
+            if self.changed:
+                flags["sync"] = True      # M2/M30 went back to G54: journalled
         ends = [m for m in moves if m.kind != DWELL]
         if ends:
             tips = np.array([m.tip for m in ends])

@@ -11,6 +11,7 @@ damaged journal is an error naming the file: the daemon does not guess offsets.
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -18,6 +19,13 @@ from pmctl.core.errors import InputError
 from pmctl.motion.state_store import atomic_write      # shared with the pulse counters
 
 FORMAT = "pmctl-journal/1"
+WCS_NAMES = ("G54", "G55", "G56", "G57", "G58", "G59")
+
+
+def _numbers(v, n) -> bool:
+    """``v`` is a list of ``n`` finite numbers (no booleans)."""
+    return isinstance(v, list) and len(v) == n and all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
 
 
 def journal_path(state_file) -> Path:
@@ -53,12 +61,22 @@ class Journal:
         off = d.get("offsets", {})
         if not isinstance(off, dict):
             raise InputError(self.path, 1, "offsets: expected an object")
-        for k, v in off.get("wcs", {}).items():
-            if not (isinstance(v, list) and len(v) == 5 and all(isinstance(x, (int, float)) for x in v)):
+        wcs = off.get("wcs", {})
+        if not isinstance(wcs, dict):
+            raise InputError(self.path, 1, "offsets.wcs: expected an object")
+        for k, v in wcs.items():
+            if k not in WCS_NAMES:
+                raise InputError(self.path, 1, f"offsets.wcs.{k}: not a work coordinate system (G54-G59)")
+            if not _numbers(v, 5):
                 raise InputError(self.path, 1, f"offsets.wcs.{k}: expected 5 numbers")
-        g92 = off.get("g92", [0.0] * 5)
-        if not (isinstance(g92, list) and len(g92) == 5):
+        if not _numbers(off.get("g92", [0.0] * 5), 5):
             raise InputError(self.path, 1, "offsets.g92: expected 5 numbers")
+        if off.get("active", "G54") not in WCS_NAMES:
+            raise InputError(self.path, 1, f"offsets.active: expected one of G54-G59, got {off.get('active')!r}")
+        settings = d.get("settings", {})
+        s10 = settings.get("10", 1) if isinstance(settings, dict) else None
+        if isinstance(s10, bool) or not isinstance(s10, int) or not 0 <= s10 <= 255:
+            raise InputError(self.path, 1, "settings.10: expected the $10 mask, an integer 0..255")
         job = d.get("job")
         if job is not None and not isinstance(job, str):
             raise InputError(self.path, 1, "job: expected a file name or null")

@@ -263,11 +263,13 @@ def run(args) -> int:
 
     # Where the machine is: saved counters, else home (said only once everything has been checked).
     lock = StateLock(state_file) if state_file else None      # noqa: F841 (held until the process exits)
-    saved = load_counters(state_file, machine=machine.name) if state_file else None
+    saved = (load_counters(state_file, machine=machine.name, pulses_per_mm=machine.resolution.pulses_per_mm)
+             if state_file else None)
     if saved is not None:
         counts0 = saved.counts
         where = (f"position from {state_file} (tick {saved.tick}"
-                 + (", clean stop)" if saved.clean else "; NOT a clean stop: re-home if in doubt)"))
+                 + (", clean stop)" if saved.clean else "; NOT a clean stop: re-home if in doubt)")
+                 + (f"; {saved.note}" if saved.note else ""))
     else:
         from pmctl.task.planner import home_pose
         h_tip, h_axis = home_pose(machine)
