@@ -108,6 +108,35 @@ def test_power_cut_comes_back_in_alarm_at_the_last_snapshot_not_trusted(tmp_path
     assert "NOT trusted" in err and " s old" in err
 
 
+def test_a_journal_without_its_counter_file_comes_back_in_alarm_not_homed(tmp_path):
+    """The counter file lost or moved away while the journal of the session stays: the position is not
+    known, so the daemon comes up in Alarm (not homed, motion refused) instead of trusting the home
+    pose it starts from."""
+    state = tmp_path / "state.json"
+    p, link = start_serve(tmp_path, state=state)
+    s = Sender(link)
+    try:
+        s.reset()
+        assert s.send("G21 G91 G1 F600 X-3") == "ok"
+        assert s.wait_state(("Idle",), 120)["state"] == "Idle"
+    finally:
+        s.close()
+        assert stop_serve(p) == 0
+    assert (tmp_path / "state.json.journal").exists()
+    state.unlink()
+    p, link = start_serve(tmp_path, state=state)
+    s = Sender(link)
+    try:
+        assert s.status()["state"] == "Alarm"
+        assert s.send("G1 X1") == "error:9"
+        assert s.send("$X") == "ok"
+        assert s.wait_state(("Idle",), 30)["state"] == "Idle"
+    finally:
+        s.close()
+        stop_serve(p)
+    assert "the position is NOT known" in (tmp_path / "serve.err").read_text()
+
+
 # ---------------------------------------------------------------- the counters' resolution
 
 from hypothesis import given, settings, strategies as st  # noqa: E402

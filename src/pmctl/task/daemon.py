@@ -70,6 +70,13 @@ class Daemon:
             tip, axis = home_pose(m)
             counts = counts_of(K.ik(tip, axis, m).q, sup.params)
             self.position_note = "no saved position: starting at the home pose"
+            if self.state_file and journal_path(self.state_file).exists():
+                # a journal of an earlier session without its counters: the counter file was lost or
+                # moved away, so the machine is anywhere; the home pose is only a placeholder
+                self.position_note = (f"no saved position in {self.state_file}, but the journal of an earlier "
+                                      f"session is there (the counter file was lost or moved): the position is "
+                                      f"NOT known; home with $H (or confirm the home pose with $X)")
+                alarm = (ALARM_HOMING_REQUIRED, self.position_note)
         else:
             counts = saved.counts
             age = max(0.0, time.time() - saved.wall_time)
