@@ -78,15 +78,17 @@ class Daemon:
                 self.position_note = (f"position from {self.state_file} is {age:.0f} s old and NOT trusted (the last "
                                       f"write was a periodic snapshot: a crash or power cut may have lost up to one "
                                       f"persist interval of motion): confirm with $X or home with $H")
-                alarm = (ALARM_HOMING_REQUIRED, self.position_note)
+                alarm = ALARM_HOMING_REQUIRED
         job = self.journal.data.get("job")
         if self.journal.data.get("running") and job:
             self.position_note += f"; job {job} was interrupted at line {self.journal.data.get('line', 0)}"
             if job != "console":
                 self.interrupted = (job, int(self.journal.data.get("line", 0)), self.journal.data.get("job_start"))
             if alarm is None:
-                alarm = (ALARM_HOMING_REQUIRED, f"job {job} was interrupted at line "
-                                                f"{self.journal.data.get('line', 0)}: confirm the position with $X")
+                self.position_note += ": confirm the position with $X"
+                alarm = ALARM_HOMING_REQUIRED
+        if alarm:                          # the alarm's reason says all of it: age, trust, the job
+            alarm = (alarm, self.position_note)
         self.log(self.position_note)
         if self.record_dir:
             sup.open_devices(at=counts)     # the DAQ connected first: the recording knows its channels

@@ -94,9 +94,9 @@ class GrblConsole:
     def _on_event(self, event, detail):
         if event == "alarm":
             self.write(f"ALARM:{detail['code']}")
-            self.write(f"[MSG:{detail['msg']}]")
+            self.write(f"[MSG:{one_line(detail['msg'])}]")
         elif event == "error":
-            self.write(f"[MSG:{detail['msg']}]")
+            self.write(f"[MSG:{one_line(detail['msg'])}]")
 
     # ------------------------------------------------------------ life
     def start(self):
@@ -112,10 +112,19 @@ class GrblConsole:
             t.join(2.0)
 
     def welcome(self):
+        """grbl's start-up message (at start and after a soft reset). In alarm, as grbl: the unlock
+        reminder right after the banner; then the alarm itself, ``ALARM:n`` and ``[MSG:reason]``:
+        an alarm raised before the console started (the daemon's start-up alarm: the saved position
+        not trusted, a job interrupted) or before the reset is said, not only hinted at."""
+        sup = self.sup
         self.write("")
         self.write(BANNER)
-        if self.sup.alarm:
+        if sup.alarm or sup.rt_dead:
             self.write("[MSG:'$H'|'$X' to unlock]")
+            if sup.alarm:
+                self.write(f"ALARM:{sup.alarm}")
+                if sup.alarm_msg:
+                    self.write(f"[MSG:{one_line(sup.alarm_msg)}]")
 
     # ------------------------------------------------------------ reader
     def _reader(self):
@@ -491,6 +500,11 @@ class GrblConsole:
         for i in range(5):
             out.append((130 + i, f"{p.upper[i] - p.lower[i]:.3f}"))
         return out
+
+
+def one_line(text) -> str:
+    """A message as one line (a ``[MSG:...]`` may not break the line protocol)."""
+    return " ".join(str(text).split())
 
 
 def mm3(values) -> str:
