@@ -1,0 +1,90 @@
+"""Overrides on the grbl console of `pmctl serve`, over a real pty, judged by the motion itself:
+the rapid override bytes (0x95 100 %, 0x96 50 %, 0x97 25 %) scale the G0 speed in the session
+recording and leave G1 alone, the feed override bytes leave G0 alone, and `Ov:` reports them; the
+spindle override bytes (0x99-0x9D) set the frequency set-point of a Modbus VFD (a simulated one, a
+pymodbus server run by the test) to the programmed S times the override."""
+
+import time
+
+import numpy as np
+
+from grbl_sender import Sender, start_serve, stop_serve
+from pmctl.core import kinematics as K
+from pmctl.core.recording import read_recording
+from pmctl.task.planner import PlannerLimits
+
+RAPID = PlannerLimits().rapid_mm_s          # the G0 tool-tip speed at 100 %, mm/s
+JOINTS = ("L1", "L2", "L3", "X", "Y")
+WINDOW = 10                                  # ticks a speed is measured over (1 pulse / 10 ticks: 0.05 mm/s)
+
+
+def wait_ov(s, want, timeout=30.0):
+    """The status report's Ov: once it says ``want`` (the rt side applied the override)."""
+    t0 = time.time()
+    st = s.status()
+    while st["Ov"] != want and time.time() - t0 < timeout:
+        time.sleep(0.02)
+        st = s.status()
+    return st["Ov"]
+
+
+def move_speeds(rec):
+    """Per console line that moved the tool: (line, peak tool-tip speed mm/s, ticks in motion), in
+    order, from the recording's commanded pulse counters (FK) -- the motion the drives were given."""
+    r = read_recording(rec)
+    c = r.columns
+    q = np.stack([c[f"cmd_{a}"] for a in JOINTS], 1)
+    pose, ok = K.fk_batch(q, r.machine)
+    assert ok.all()
+    tip, t, line = pose.tip, c["t"], c["line"].astype(int)
+    step = np.linalg.norm(np.diff(tip, axis=0), axis=1)
+    v = np.linalg.norm(tip[WINDOW:] - tip[:-WINDOW], axis=1) / (t[WINDOW:] - t[:-WINDOW])
+    out = []
+    for ln in dict.fromkeys(line[1:][step > 0]):          # lines in the order they ran
+        moving = (line[1:] == ln) & (step > 0)
+        if moving.sum() < 50:
+            continue
+        idx = np.flatnonzero(line[:-WINDOW] == ln)
+        out.append((int(ln), float(v[idx].max()), int(moving.sum())))
+    return out
+
+
+def test_rapid_override_scales_g0_only_and_feed_override_leaves_g0_alone(tmp_path):
+    rec = tmp_path / "rec"
+    p, link = start_serve(tmp_path, record=rec)
+    s = Sender(link)
+    plan = [  # realtime bytes before the move, the Ov: they give, the move
+        (b"", "100,100,100", "G0 X20"),
+        (b"\x97", "100,25,100", "G0 X-20"),
+        (b"\x96", "100,50,100", "G0 X20"),
+        (b"\x95" + b"\x92" * 5, "50,100,100", "G0 X-20"),        # feed 50 %: G0 unchanged
+        (b"\x90" + b"\x97", "100,25,100", "G1 X20 F600"),       # rapid 25 %: G1 unchanged
+        (b"\x95", "100,100,100", "G1 X-20 F600"),
+    ]
+    try:
+        s.reset()
+        p0 = np.array(s.status()["pos"])
+        assert s.send("G21 G91") == "ok"
+        for i, (rt, ov, line) in enumerate(plan):
+            s.realtime(rt)
+            assert wait_ov(s, ov) == ov, line
+            assert s.send(line) == "ok" and s.send("G4 P0") == "ok"          # answered once it ran
+            st = s.status()
+            assert st["state"] == "Idle" and st["Ov"] == ov
+            want = p0 + [20 if i % 2 == 0 else 0, 0, 0, 0, 0]
+            assert np.allclose(st["pos"], want, atol=2e-3), (line, st)      # the whole move, and only it
+        assert s.send("G90") == "ok"
+    finally:
+        s.close()
+        stop_serve(p)
+    moves = move_speeds(rec)
+    assert len(moves) == len(plan), moves
+    (_, v100, n100), (_, v25, n25), (_, v50, _), (_, v_f50, n_f50), (_, g1_r25, m25), (_, g1_r100, m100) = moves
+    tol = 0.3                                                 # mm/s: pulse quantisation over the window
+    assert abs(v100 - RAPID) <= tol, v100                     # G0 at the rapid speed
+    assert abs(v25 - 0.25 * RAPID) <= tol, v25                # 25 %: a quarter of it, never more
+    assert abs(v50 - 0.50 * RAPID) <= tol, v50
+    assert 3.5 <= n25 / n100 <= 4.5, (n25, n100)              # ~4x the ticks for the same 20 mm
+    assert abs(v_f50 - RAPID) <= tol and abs(n_f50 - n100) <= 0.02 * n100   # feed bytes: G0 unchanged
+    assert abs(g1_r25 - 10.0) <= tol and abs(g1_r100 - 10.0) <= tol        # F600 = 10 mm/s either way
+    assert abs(m25 - m100) <= 0.02 * m100                                   # rapid bytes: G1 unchanged
