@@ -88,3 +88,94 @@ def test_rapid_override_scales_g0_only_and_feed_override_leaves_g0_alone(tmp_pat
     assert abs(v_f50 - RAPID) <= tol and abs(n_f50 - n100) <= 0.02 * n100   # feed bytes: G0 unchanged
     assert abs(g1_r25 - 10.0) <= tol and abs(g1_r100 - 10.0) <= tol        # F600 = 10 mm/s either way
     assert abs(m25 - m100) <= 0.02 * m100                                   # rapid bytes: G1 unchanged
+
+
+# ---------------------------------------------------------------- spindle override on a Modbus VFD
+
+def _vfd_service(tmp, port):
+    p = tmp / "service.toml"
+    p.write_text('[loop]\nrate_hz = 1000\nstall_timeout_ms = 5000\nmax_overruns_in_row = 100000\nstate_file = ""\n'
+                 '[hal]\nbackend = "sim"\n'
+                 f'[spindle]\nhost = "127.0.0.1"\nport = {port}\nsimulate = false\npoll_ms = 20\n'
+                 f'max_rpm = {MAX_RPM}\nmax_hz = {MAX_HZ}\n')
+    return p
+
+
+MAX_RPM, MAX_HZ = 24000.0, 400.0
+
+
+def setpoint_of(rpm):
+    """The frequency set-point register for ``rpm`` (0 .. 10000 of the maximum frequency)."""
+    return int(round(rpm / MAX_RPM * 10000))
+
+
+def test_spindle_override_sets_the_vfd_frequency(tmp_path):
+    from pymodbus.client import ModbusTcpClient
+
+    from pmctl.hal.modbus_vfd import VfdOptions, simulated
+    opt = VfdOptions.from_dict({"simulate": True, "port": 0, "sim_ramp_rpm_per_s": 200000.0,
+                                "max_rpm": MAX_RPM, "max_hz": MAX_HZ})
+    srv, dev = simulated(opt)                 # the VFD: a pymodbus server in this process
+    reg = opt.registers
+    client = ModbusTcpClient("127.0.0.1", port=opt.port, timeout=2.0)
+    assert client.connect()
+
+    def read(addr):
+        rr = client.read_holding_registers(addr, count=1, device_id=opt.device_id)
+        assert not rr.isError(), rr
+        return rr.registers[0]
+
+    def wait_setpoint(want, timeout=30.0):
+        t0 = time.time()
+        while read(reg.setpoint) != want and time.time() - t0 < timeout:
+            time.sleep(0.02)
+        return read(reg.setpoint)
+
+    p, link = start_serve(tmp_path, extra=("--service", str(_vfd_service(tmp_path, opt.port))))
+    s = Sender(link)
+    try:
+        s.reset()
+        assert s.send("G21 G91 M3 S6000") == "ok"
+        assert s.send("G1 X1 F600") == "ok" and s.send("G4 P0", timeout=120) == "ok"   # at speed, then moved
+        assert read(reg.setpoint) == setpoint_of(6000) and read(reg.command) == reg.run_forward
+        st = s.status()
+        assert st["Ov"] == "100,100,100" and st["FS"].endswith(",6000")
+        # grbl's spindle override: +10 / -10 / +1 / -1 %, 0x99 back to 100 %, limits 10 and 200 %
+        for rt, ov, rpm in ((b"\x9a\x9a", 120, 7200), (b"\x9d", 119, 7140), (b"\x9b" * 20, 10, 600),
+                            (b"\x9c", 11, 660), (b"\x99", 100, 6000), (b"\x9a" * 15, 200, 12000)):
+            s.realtime(rt)
+            assert wait_setpoint(setpoint_of(rpm)) == setpoint_of(rpm), (rt, ov)
+            assert read(reg.command) == reg.run_forward
+            assert wait_ov(s, f"100,100,{ov}") == f"100,100,{ov}"
+            assert s.status()["FS"].endswith(f",{rpm}")
+            assert abs(read(reg.setpoint) / 10000 * MAX_HZ - rpm / MAX_RPM * MAX_HZ) <= MAX_HZ / 10000   # Hz
+        # 200 % of S20000 is beyond the VFD's maximum: the set-point stops at it
+        assert s.send("S20000") == "ok" and s.send("G1 X-1 F600") == "ok" and s.send("G4 P0", timeout=120) == "ok"
+        assert read(reg.setpoint) == 10000
+        s.realtime(b"\x99")
+        assert wait_setpoint(setpoint_of(20000)) == setpoint_of(20000)
+        # M5: stopped; an override then changes nothing at the VFD until the next M3, which uses it
+        assert s.send("M5") == "ok" and s.send("G1 X1 F600") == "ok" and s.send("G4 P0", timeout=120) == "ok"
+        t0 = time.time()
+        while read(reg.command) != reg.stop and time.time() - t0 < 30:
+            time.sleep(0.02)
+        assert read(reg.command) == reg.stop
+        n = len(dev.commands)
+        s.realtime(b"\x9a")                                   # 110 %
+        assert wait_ov(s, "100,100,110") == "100,100,110" and s.status()["FS"].endswith(",0")
+        assert s.send("M3 S6000") == "ok" and s.send("G1 X-1 F600") == "ok"
+        assert s.send("G4 P0", timeout=120) == "ok"
+        assert dev.commands[n:] == [(reg.setpoint, setpoint_of(6600)), (reg.command, reg.run_forward)]
+        # a soft reset stops the spindle and sets the override back to 100 %
+        s.reset()
+        assert wait_ov(s, "100,100,100") == "100,100,100"
+        t0 = time.time()
+        while read(reg.command) != reg.stop and time.time() - t0 < 30:
+            time.sleep(0.02)
+        assert read(reg.command) == reg.stop and read(reg.setpoint) == setpoint_of(6600)
+        assert s.send("G90") == "ok"
+    finally:
+        s.close()
+        stop_serve(p)
+        client.close()
+        srv.stop()
