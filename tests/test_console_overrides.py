@@ -1,8 +1,9 @@
 """Overrides on the grbl console of `pmctl serve`, over a real pty, judged by the motion itself:
 the rapid override bytes (0x95 100 %, 0x96 50 %, 0x97 25 %) scale the G0 speed in the session
 recording and leave G1 alone, the feed override bytes leave G0 alone, and `Ov:` reports them; the
-spindle override bytes (0x99-0x9D) set the frequency set-point of a Modbus VFD (a simulated one, a
-pymodbus server run by the test) to the programmed S times the override."""
+spindle override bytes (0x99-0x9D) and the control socket's spindle override set the frequency
+set-point of a Modbus VFD (a simulated one, a pymodbus server run by the test) to the programmed S
+times the override, within the VFD's maximum, and never start a stopped spindle."""
 
 import time
 
@@ -11,6 +12,7 @@ import numpy as np
 from grbl_sender import Sender, start_serve, stop_serve
 from pmctl.core import kinematics as K
 from pmctl.core.recording import read_recording
+from pmctl.interfaces.commands.ctl import request
 from pmctl.task.planner import PlannerLimits
 
 RAPID = PlannerLimits().rapid_mm_s          # the G0 tool-tip speed at 100 %, mm/s
@@ -131,7 +133,8 @@ def test_spindle_override_sets_the_vfd_frequency(tmp_path):
             time.sleep(0.02)
         return read(reg.setpoint)
 
-    p, link = start_serve(tmp_path, extra=("--service", str(_vfd_service(tmp_path, opt.port))))
+    sock = tmp_path / "pmctl.sock"
+    p, link = start_serve(tmp_path, extra=("--service", str(_vfd_service(tmp_path, opt.port)), "--socket", str(sock)))
     s = Sender(link)
     try:
         s.reset()
@@ -149,6 +152,18 @@ def test_spindle_override_sets_the_vfd_frequency(tmp_path):
             assert wait_ov(s, f"100,100,{ov}") == f"100,100,{ov}"
             assert s.status()["FS"].endswith(f",{rpm}")
             assert abs(read(reg.setpoint) / 10000 * MAX_HZ - rpm / MAX_RPM * MAX_HZ) <= MAX_HZ / 10000   # Hz
+        # the control socket's spindle override: the same set-point; the console's steps go on from it
+        assert request(sock, {"cmd": "override", "spindle": 0.75})["ok"]
+        assert wait_setpoint(setpoint_of(4500)) == setpoint_of(4500)
+        st = request(sock, {"cmd": "status"})
+        assert st["spindle_override"] == 0.75 and st["spindle_rpm"] == 4500
+        assert s.status()["Ov"] == "100,100,75"
+        s.realtime(b"\x9a")
+        assert wait_setpoint(setpoint_of(5100)) == setpoint_of(5100)
+        bad = request(sock, {"cmd": "override", "spindle": 2.5})
+        assert not bad["ok"] and "0.1 .. 2.0" in bad["error"]
+        assert request(sock, {"cmd": "override", "spindle": 2.0})["ok"]
+        assert wait_setpoint(setpoint_of(12000)) == setpoint_of(12000)
         # 200 % of S20000 is beyond the VFD's maximum: the set-point stops at it
         assert s.send("S20000") == "ok" and s.send("G1 X-1 F600") == "ok" and s.send("G4 P0", timeout=120) == "ok"
         assert read(reg.setpoint) == 10000
