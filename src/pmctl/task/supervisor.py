@@ -347,6 +347,7 @@ class Supervisor:
             return
         sp = self.spindle or self._spindle_session()
         if sp.vfd.rpm_cmd == self._spindle_rpm(rpm):
+            self.spindle_prog = float(rpm)
             return
         s = self.raw()
         if sp.monitor is None or (s[C.ST_QUEUED] <= 1 and s[C.ST_SIGMA] == 0):
