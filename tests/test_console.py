@@ -1,6 +1,8 @@
 """The grbl 1.1 console of `pmctl serve`, driven over a real pty as a sender does: banner, answers,
 status reports, $ commands, work offsets, bad input (garbage, over-long lines, floods, binary,
-a disconnect) that never disturbs the next valid line, check mode, jog and jog cancel."""
+a disconnect) that never disturbs the next valid line, check mode, jog and jog cancel; absolute jogs
+(G90 in work, G53 in machine coordinates), A/B jogs that tilt about the tip, jogs queued behind a
+running one and a cancel that drops them -- each judged by the final MPos."""
 
 import json
 import time
@@ -155,3 +157,71 @@ def test_soft_reset_during_motion_stops_on_the_line_and_keeps_position(daemon):
     time.sleep(0.5)
     assert np.allclose(s.status()["pos"], p1, atol=2e-3)     # the queue is gone: nothing moves
     assert s.send("$G") == "ok" and any("G90" in x for x in s.pushed[-2:])
+
+
+def _jog_to_rest(s, line, timeout=60):
+    """Send a jog, expect ok, return the report once the machine is Idle again."""
+    assert s.send(line) == "ok", line
+    st = s.wait_state(("Idle",), timeout)
+    assert st["state"] == "Idle", (line, st)
+    return np.array(st["pos"])
+
+
+def test_absolute_jogs_g90_in_work_and_g53_in_machine_coordinates(daemon):
+    s, *_ = daemon
+    p0 = np.array(s.status()["pos"])
+    assert s.send("G10 L2 P1 X1 Y-2 Z170") == "ok"             # G54: W = M - (1, -2, 170)
+    assert s.status()["WCO"] == "1.000,-2.000,170.000,0.000,0.000"
+    p = _jog_to_rest(s, "$J=G90 X0 Y0 F600")                   # work zero of X and Y
+    assert np.allclose(p, [1, -2, p0[2], p0[3], p0[4]], atol=2e-3), p
+    p = _jog_to_rest(s, "$J=G90 Z2.5 F600")                     # Z alone; X Y stay
+    assert np.allclose(p, [1, -2, 172.5, p0[3], p0[4]], atol=2e-3), p
+    p = _jog_to_rest(s, "$J=G53 X-1.5 Y0.5 F600")               # machine coordinates, offsets ignored
+    assert np.allclose(p, [-1.5, 0.5, 172.5, p0[3], p0[4]], atol=2e-3), p
+    p = _jog_to_rest(s, "$J=G21 G53 G90 X0.25 F600")            # G90 with G53 is still machine
+    assert np.allclose(p, [0.25, 0.5, 172.5, p0[3], p0[4]], atol=2e-3), p
+    assert s.send("$G") == "ok" and "G90" in s.pushed[-1]       # the jog's modes were its own
+    p = _jog_to_rest(s, f"$J=G53 X{p0[0]:.4f} Y{p0[1]:.4f} Z{p0[2]:.4f} F600")
+    assert np.allclose(p, p0, atol=2e-3)
+    assert s.send("G10 L2 P1 X0 Y0 Z0") == "ok"
+
+
+def test_a_b_jogs_tilt_the_tool_about_its_tip(daemon):
+    s, *_ = daemon
+    p0 = np.array(s.status()["pos"])
+    p = _jog_to_rest(s, "$J=G91 A3 F600")
+    assert np.allclose(p[:3], p0[:3], atol=2e-3) and abs(p[3] - (p0[3] + 3)) <= 2e-3 and abs(p[4] - p0[4]) <= 2e-3, p
+    p = _jog_to_rest(s, "$J=G90 B-2 F600")                      # absolute B (WCO B is 0)
+    assert np.allclose(p[:3], p0[:3], atol=2e-3) and abs(p[3] - (p0[3] + 3)) <= 2e-3 and abs(p[4] + 2) <= 2e-3, p
+    p = _jog_to_rest(s, "$J=G91 X1 A-3 B2 F600")                # tip and tilt together
+    assert np.allclose(p, p0 + [1, 0, 0, 0, 0], atol=2e-3), p
+    p = _jog_to_rest(s, "$J=G91 X-1 F600")
+    assert np.allclose(p, p0, atol=2e-3)
+
+
+def test_a_jog_sent_while_one_runs_is_queued_and_a_cancel_drops_the_queue(daemon):
+    s, *_ = daemon
+    p0 = np.array(s.status()["pos"])
+    # queued: the second jog starts where the first ends (G91 from the end of the queued motion)
+    assert s.send("$J=G91 X4 F300") == "ok"
+    assert s.status()["state"] == "Jog"
+    assert s.send("$J=G91 Y3 F300") == "ok"
+    assert s.send("$J=G91 X-1 Y-1 F300") == "ok"
+    st = s.wait_state(("Idle",), 60)
+    p1 = np.array(st["pos"])
+    assert np.allclose(p1 - p0, [3, 2, 0, 0, 0], atol=2e-3), p1 - p0
+    # cancel during the first of two jogs: it stops on its own line, the second never runs
+    assert s.send("$J=G91 X-10 F200") == "ok"
+    assert s.send("$J=G91 Y-10 F300") == "ok"
+    t0 = time.time()
+    while s.status()["pos"][0] - p1[0] > -0.5 and time.time() - t0 < 60:    # moving along the first
+        time.sleep(0.02)
+    s.realtime(b"\x85")
+    st = s.wait_state(("Idle",), 30)
+    p2 = np.array(st["pos"])
+    assert -10 < p2[0] - p1[0] < -0.5                            # part-way along X ...
+    assert np.allclose((p2 - p1)[1:], 0, atol=2e-3), p2 - p1     # ... on its line; no Y at all
+    assert s.send("G4 P0") == "ok"
+    assert np.allclose(s.status()["pos"], p2, atol=2e-3)        # nothing queued is left to run
+    p = _jog_to_rest(s, f"$J=G53 X{p0[0]:.4f} Y{p0[1]:.4f} F600")
+    assert np.allclose(p, p0, atol=2e-3)

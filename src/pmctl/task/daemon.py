@@ -76,7 +76,7 @@ class Daemon:
                 self.position_note = (f"no saved position in {self.state_file}, but the journal of an earlier "
                                       f"session is there (the counter file was lost or moved): the position is "
                                       f"NOT known; home with $H (or confirm the home pose with $X)")
-                alarm = (ALARM_HOMING_REQUIRED, self.position_note)
+                alarm = ALARM_HOMING_REQUIRED
         else:
             counts = saved.counts
             age = max(0.0, time.time() - saved.wall_time)
@@ -86,7 +86,7 @@ class Daemon:
                 self.position_note = (f"position from {self.state_file} is {age:.0f} s old and NOT trusted (the last "
                                       f"write was a periodic snapshot: a crash or power cut may have lost up to one "
                                       f"persist interval of motion): confirm with $X or home with $H")
-                alarm = (ALARM_HOMING_REQUIRED, self.position_note)
+                alarm = ALARM_HOMING_REQUIRED
             if saved.note:
                 self.position_note += f"; {saved.note}"
         job = self.journal.data.get("job")
@@ -95,8 +95,10 @@ class Daemon:
             if job != "console":
                 self.interrupted = (job, int(self.journal.data.get("line", 0)), self.journal.data.get("job_start"))
             if alarm is None:
-                alarm = (ALARM_HOMING_REQUIRED, f"job {job} was interrupted at line "
-                                                f"{self.journal.data.get('line', 0)}: confirm the position with $X")
+                self.position_note += ": confirm the position with $X"
+                alarm = ALARM_HOMING_REQUIRED
+        if alarm:                          # the alarm's reason says all of it: age, trust, the job
+            alarm = (alarm, self.position_note)
         self.log(self.position_note)
         if self.record_dir:
             sup.open_devices(at=counts)     # the DAQ connected first: the recording knows its channels

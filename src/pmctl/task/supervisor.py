@@ -150,6 +150,10 @@ class Supervisor:
         self.device_fault = ""            # the spindle's or the DAQ's fault that stopped motion
         self.spindle_off_at_job_end = True   # M5 when a job ends with the spindle off (pmctl run: at shutdown)
         self._spindle_note = False
+        self.spindle_prog = 0.0           # the programmed speed (signed rpm; 0: M5), before the override
+        self.spindle_ov = 1.0             # grbl's spindle speed override, 0.1 .. 2.0
+        self._spindle_ov_lock = threading.Lock()   # the override's set-point writes vs a stop's
+        self._spindle_ov_wake = None
 
     # ------------------------------------------------------------ lifecycle
     def start(self, counts0, timeout_s: float = 60.0):
@@ -275,17 +279,20 @@ class Supervisor:
         self.spindle = SpindleSession(self.svc.spindle, self.log).connect()
         # speed changes inside a job: the rt side holds on the path (C_HOLD_AT); the monitor's
         # thread sends the new speed and releases the hold once at speed
-        self.spindle.changer = SpeedChanger(self.spindle.vfd, _RtLoopView(self), [])
+        self.spindle.changer = SpeedChanger(_OvLockedVfd(self.spindle.vfd, self._spindle_ov_lock), _RtLoopView(self), [])
         return self.spindle
 
     def spindle_start(self, rpm: float):
         """M3/M4 S``rpm`` (0: M5) and wait until at speed (the path waits: call between jobs); the
         spindle is watched from then on."""
         sp = self.spindle or self._spindle_session()
+        self.spindle_prog = float(rpm)
         if rpm == 0:
-            sp.vfd.stop()
+            with self._spindle_ov_lock:
+                sp.vfd.stop()
             return
-        sp.start(rpm)
+        sp.start(self._spindle_rpm(rpm))
+        self._apply_spindle_ov()          # an override changed during the spin-up
         if sp.monitor is None:
             sp.watch(self._tick, self._device_fault)
             if self.ch is not None and sp.monitor.samples:      # at speed now, not at the rt side's tick 0
@@ -339,7 +346,8 @@ class Supervisor:
                          f"is not executed")
             return
         sp = self.spindle or self._spindle_session()
-        if sp.vfd.rpm_cmd == rpm:
+        if sp.vfd.rpm_cmd == self._spindle_rpm(rpm):
+            self.spindle_prog = float(rpm)
             return
         s = self.raw()
         if sp.monitor is None or (s[C.ST_QUEUED] <= 1 and s[C.ST_SIGMA] == 0):
@@ -414,7 +422,61 @@ class Supervisor:
                 ch.next += 1
                 ch.sent = False
                 ch.held_ticks.append([int(s[C.ST_TICK]), None])
-                ch.pending = rpm
+                self.spindle_prog = float(rpm)
+                ch.pending = self._spindle_rpm(rpm)
+
+    # ------------------------------------------------------------ spindle override
+    def _spindle_rpm(self, rpm: float) -> float:
+        """The speed sent to the VFD for the programmed ``rpm``: scaled by the spindle override, which
+        never takes it past the VFD's maximum (grbl: ``$30``; a programmed S beyond it stays the VFD's
+        error), signed as ``rpm``."""
+        if not rpm or self.spindle_ov == 1.0:
+            return float(rpm)
+        v = abs(float(rpm)) * self.spindle_ov
+        if self.svc.spindle is not None:
+            v = min(v, max(float(self.svc.spindle.max_rpm), abs(float(rpm))))
+        return math.copysign(v, rpm)
+
+    def spindle_override(self, f: float):
+        """grbl's spindle speed override: the programmed speed x ``f`` (0.1 .. 2.0). A running spindle
+        gets the new set-point at once, from a thread of its own (a Modbus write is no business of
+        the caller's); a stopped one starts with it at its next M3/M4. Without ``[spindle]``: kept only."""
+        self.spindle_ov = min(2.0, max(0.1, float(f)))
+        if self.svc.spindle is None:
+            return
+        with self._lock:
+            if self._spindle_ov_wake is None:
+                self._spindle_ov_wake = threading.Event()
+                threading.Thread(target=self._spindle_ov_loop, daemon=True, name="pmctl-spindle-ov").start()
+        self._spindle_ov_wake.set()
+
+    def _spindle_ov_loop(self):
+        while not self._stop.is_set():
+            if not self._spindle_ov_wake.wait(0.2):
+                continue
+            self._spindle_ov_wake.clear()
+            t_end = time.monotonic() + self.svc.spindle.spinup_timeout_s
+            try:                          # a speed change the path waits for goes first (scaled already)
+                while not self._apply_spindle_ov() and time.monotonic() < t_end and not self._stop.is_set():
+                    time.sleep(0.01)
+            except Exception as e:        # noqa: BLE001 (the monitor reports a lost link)
+                self.log(f"warning: spindle override: {e}")
+
+    def _apply_spindle_ov(self) -> bool:
+        """The running spindle's set-point to the programmed speed with the current override; False:
+        not now, a speed change inside the job is under way. Never starts a stopped spindle: a stop
+        clears ``spindle_prog`` before its write, and every write holds ``_spindle_ov_lock``."""
+        with self._spindle_ov_lock:
+            sp = self.spindle
+            vfd = sp.vfd if sp is not None else None
+            if vfd is None or vfd.client is None or not self.spindle_prog or not vfd.rpm_cmd:
+                return True
+            if sp.changer is not None and sp.changer.pending is not None:
+                return False
+            want = self._spindle_rpm(self.spindle_prog)
+            if want != vfd.rpm_cmd and (want > 0) == (vfd.rpm_cmd > 0):
+                vfd.start(want)
+            return True
 
     # ------------------------------------------------------------ status
     def raw(self) -> np.ndarray:
@@ -965,12 +1027,14 @@ class Supervisor:
     def _spindle_off(self, when: str):
         """M5 from a thread of its own (a Modbus write is no business of the caller's thread)."""
         sp = self.spindle
+        self.spindle_prog = 0.0           # before the write: an override must not start it again
         if sp is None or sp.vfd is None or not sp.vfd.rpm_cmd:
             return
 
         def stop():
             try:
-                sp.vfd.stop()
+                with self._spindle_ov_lock:
+                    sp.vfd.stop()
             except Exception as e:            # noqa: BLE001 (the monitor reports a lost link)
                 self.log(f"warning: M5 {when}: {e}")
         threading.Thread(target=stop, daemon=True, name="pmctl-m5").start()
@@ -978,6 +1042,21 @@ class Supervisor:
 
 class _Aborted(Exception):
     pass
+
+
+class _OvLockedVfd:
+    """The VFD as the speed changer inside a job sees it: its writes exclude the spindle override's
+    (Supervisor._apply_spindle_ov), so neither lands between the other's set-point and command."""
+
+    def __init__(self, vfd, lock):
+        self._vfd, self._ov_lock = vfd, lock
+
+    def start(self, rpm):
+        with self._ov_lock:
+            self._vfd.start(rpm)
+
+    def __getattr__(self, name):
+        return getattr(self._vfd, name)
 
 
 class _RtLoopView:

@@ -3,7 +3,7 @@
     pmctl ctl --socket PATH status | hold | resume | stop | estop | unlock | home
     pmctl ctl --socket PATH resume-job [--line N] [--clearance MM]
     pmctl ctl --socket PATH record start DIR | record stop
-    pmctl ctl --socket PATH override [--feed F] [--rapid R]
+    pmctl ctl --socket PATH override [--feed F] [--rapid R] [--spindle S]
     pmctl ctl --socket PATH queue add FILE | queue list
     pmctl ctl --socket PATH subscribe [--period S]
 """
@@ -22,6 +22,8 @@ def add_parser(sub):
     p.add_argument("args", nargs="*", help="queue: 'add FILE' or 'list'; record: 'start DIR' or 'stop'")
     p.add_argument("--feed", type=float, default=None, help="override: feed factor 0.1 .. 2.0")
     p.add_argument("--rapid", type=float, default=None, help="override: rapid factor 0.25, 0.5 or 1.0")
+    p.add_argument("--spindle", type=float, default=None, help="override: spindle speed factor 0.1 .. 2.0 (the VFD's "
+                                                                "set-point, when a [spindle] is configured)")
     p.add_argument("--period", type=float, default=0.5, help="subscribe: seconds between status lines")
     p.add_argument("--line", type=int, default=None, help="resume-job: the line to resume from (default: the "
                                                           "line the journal recorded)")
@@ -76,6 +78,8 @@ def run(args) -> int:
             req["feed"] = args.feed
         if args.rapid is not None:
             req["rapid"] = args.rapid
+        if args.spindle is not None:
+            req["spindle"] = args.spindle
     try:
         if args.what == "subscribe":
             req["period_s"] = args.period

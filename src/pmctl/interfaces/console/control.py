@@ -5,7 +5,9 @@ JSON lines, for scripts and a future UI. One request per line, one JSON answer p
     {"cmd": "queue", "add": "FILE"}            -> {"ok": true, "index": n}   (checked before it is queued)
     {"cmd": "queue", "list": true}             -> {"ok": true, "items": [{"index", "kind", "name", "planned"}]}
     {"cmd": "hold"} / {"cmd": "resume"}        -> {"ok": true}
-    {"cmd": "override", "feed": 1.2, "rapid": 0.5}
+    {"cmd": "override", "feed": 1.2, "rapid": 0.5, "spindle": 1.1}
+                                               -> feed 0.1 .. 2.0, rapid 0.25 / 0.5 / 1.0, spindle 0.1 .. 2.0
+                                                  (the VFD's set-point, when a [spindle] is configured)
     {"cmd": "stop"}                            -> soft reset: stop on the path, queue dropped, position kept
     {"cmd": "estop"}                           -> immediate halt, Alarm 10 until unlock
     {"cmd": "unlock"}                          -> $X: confirm the position, clear the alarm
@@ -128,6 +130,7 @@ class ControlServer:
         f.flush()
 
     def status(self) -> dict:
+        from pmctl.interfaces.console.grbl import spindle_rpm
         from pmctl.motion import channel as C
         from pmctl.task.supervisor import roll_pitch_deg
         sup = self.sup
@@ -138,7 +141,8 @@ class ControlServer:
                 "counts": [int(x) for x in s[C.ST_COUNTS:C.ST_COUNTS + 5]], "line": sup.current_line(),
                 "sent": [int(x) for x in s[C.ST_SENT:C.ST_SENT + 5]], "homed": bool(sup.homed),
                 "sigma": float(s[C.ST_SIGMA]), "feed_override": float(s[C.ST_FEED_OV]),
-                "rapid_override": float(s[C.ST_RAPID_OV]), "queued_items": sup.queued_items(),
+                "rapid_override": float(s[C.ST_RAPID_OV]), "spindle_override": float(sup.spindle_ov),
+                "spindle_rpm": spindle_rpm(sup), "queued_items": sup.queued_items(),
                 "alarm": sup.alarm, "alarm_msg": sup.alarm_msg, "rt_alive": not sup.rt_dead,
                 "tick": int(s[C.ST_TICK]), "dropped_records": int(s[C.ST_DROPPED])}
 
@@ -176,6 +180,13 @@ class ControlServer:
                 sup.rapid_override(r)
                 if getattr(self.daemon, "console", None) is not None:
                     self.daemon.console.rapid_ov = int(round(r * 100))
+            if "spindle" in req:
+                sv = float(req["spindle"])
+                if not 0.1 <= sv <= 2.0:
+                    return {"ok": False, "error": "spindle override must be within 0.1 .. 2.0"}
+                sup.spindle_override(sv)
+                if getattr(self.daemon, "console", None) is not None:
+                    self.daemon.console.spindle_ov = int(round(sv * 100))     # Ov: and the +/- steps
         elif cmd == "stop":
             sup.soft_reset()
         elif cmd == "estop":

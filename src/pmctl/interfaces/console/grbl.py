@@ -4,7 +4,8 @@ Two threads:
 - the reader takes bytes as they come. Realtime bytes act at once, also in the middle of a line:
   ``?`` status report, ``!`` feed hold, ``~`` cycle start, 0x18 soft reset, 0x85 jog cancel,
   0x90-0x94 feed override (100 %, +10, -10, +1, -1; 10-200 %), 0x95-0x97 rapid override (100, 50,
-  25 %), 0x99-0x9D spindle override (reported only: no spindle drive here). Other bytes collect into
+  25 %), 0x99-0x9D spindle override (100 %, +10, -10, +1, -1; 10-200 %: the VFD's set-point when a
+  ``[spindle]`` is configured). Other bytes collect into
   lines (``\\n`` or ``\\r`` ends one); a line longer than ``LINE_MAX`` is dropped whole with error:11.
 - the worker executes lines in order and answers each with ``ok`` or ``error:N``. A motion line is
   answered once it is checked (reader, reachability) and queued; when the motion queue is full the
@@ -94,9 +95,9 @@ class GrblConsole:
     def _on_event(self, event, detail):
         if event == "alarm":
             self.write(f"ALARM:{detail['code']}")
-            self.write(f"[MSG:{detail['msg']}]")
+            self.write(f"[MSG:{one_line(detail['msg'])}]")
         elif event == "error":
-            self.write(f"[MSG:{detail['msg']}]")
+            self.write(f"[MSG:{one_line(detail['msg'])}]")
 
     # ------------------------------------------------------------ life
     def start(self):
@@ -112,10 +113,19 @@ class GrblConsole:
             t.join(2.0)
 
     def welcome(self):
+        """grbl's start-up message (at start and after a soft reset). In alarm, as grbl: the unlock
+        reminder right after the banner; then the alarm itself, ``ALARM:n`` and ``[MSG:reason]``:
+        an alarm raised before the console started (the daemon's start-up alarm: the saved position
+        not trusted, a job interrupted) or before the reset is said, not only hinted at."""
+        sup = self.sup
         self.write("")
         self.write(BANNER)
-        if self.sup.alarm:
+        if sup.alarm or sup.rt_dead:
             self.write("[MSG:'$H'|'$X' to unlock]")
+            if sup.alarm:
+                self.write(f"ALARM:{sup.alarm}")
+                if sup.alarm_msg:
+                    self.write(f"[MSG:{one_line(sup.alarm_msg)}]")
 
     # ------------------------------------------------------------ reader
     def _reader(self):
@@ -186,6 +196,7 @@ class GrblConsole:
             s = self.spindle_ov
             s = {0x99: 100, 0x9A: s + 10, 0x9B: s - 10, 0x9C: s + 1, 0x9D: s - 1}[b]
             self.spindle_ov = min(200, max(10, s))
+            self.sup.spindle_override(self.spindle_ov / 100.0)
         # 0x84 door, 0x9E spindle stop, 0xA0/0xA1 coolant: no such hardware here; others: not commands
 
     def soft_reset(self):
@@ -206,6 +217,7 @@ class GrblConsole:
         self.feed_ov = self.rapid_ov = self.spindle_ov = 100
         self.sup.feed_override(1.0)
         self.sup.rapid_override(1.0)
+        self.sup.spindle_override(1.0)
         self.welcome()
 
     def jog_cancel(self):
@@ -247,7 +259,7 @@ class GrblConsole:
             pos = "MPos:" + mm3(m)
         else:
             pos = "WPos:" + mm3(m[i] - wco[i] for i in range(5))
-        parts = [state, pos, f"FS:{self.speed:.0f},0"]
+        parts = [state, pos, f"FS:{self.speed:.0f},{spindle_rpm(sup):.0f}"]
         if self.settings[10] & 2:
             parts.append(f"Bf:{max(0, 15 - sup.queued_items())},{RX_BUFFER}")
         line = self.n_word()
@@ -491,6 +503,19 @@ class GrblConsole:
         for i in range(5):
             out.append((130 + i, f"{p.upper[i] - p.lower[i]:.3f}"))
         return out
+
+
+def spindle_rpm(sup) -> float:
+    """The speed the spindle VFD is commanded to (the programmed S with the spindle override; 0:
+    stopped or no ``[spindle]``), as grbl's ``FS:`` reports it. No Modbus request: the last command."""
+    sp = sup.spindle
+    vfd = getattr(sp, "vfd", None)
+    return abs(float(vfd.rpm_cmd)) if vfd is not None else 0.0
+
+
+def one_line(text) -> str:
+    """A message as one line (a ``[MSG:...]`` may not break the line protocol)."""
+    return " ".join(str(text).split())
 
 
 def mm3(values) -> str:
