@@ -286,6 +286,7 @@ class Supervisor:
         """M3/M4 S``rpm`` (0: M5) and wait until at speed (the path waits: call between jobs); the
         spindle is watched from then on."""
         sp = self.spindle or self._spindle_session()
+        self._m5_written()
         self.spindle_prog = float(rpm)
         if rpm == 0:
             with self._spindle_ov_lock:
@@ -346,6 +347,7 @@ class Supervisor:
                          f"is not executed")
             return
         sp = self.spindle or self._spindle_session()
+        self._m5_written()
         if sp.vfd.rpm_cmd == self._spindle_rpm(rpm):
             self.spindle_prog = float(rpm)
             return
@@ -1037,7 +1039,18 @@ class Supervisor:
                     sp.vfd.stop()
             except Exception as e:            # noqa: BLE001 (the monitor reports a lost link)
                 self.log(f"warning: M5 {when}: {e}")
-        threading.Thread(target=stop, daemon=True, name="pmctl-m5").start()
+        self._m5 = threading.Thread(target=stop, daemon=True, name="pmctl-m5")
+        self._m5.start()
+
+    _m5 = None
+
+    def _m5_written(self):
+        """Wait for an M5 under way in its thread: until it is written, the VFD's last command still
+        says running, and a job queued meanwhile at the same speed would skip its M3 and then run
+        with the spindle stopped by that late M5."""
+        t = self._m5
+        if t is not None and t is not threading.current_thread():
+            t.join()
 
 
 class _Aborted(Exception):
