@@ -161,3 +161,37 @@ def test_values_the_reader_would_refuse_are_refused_at_write_time(tmp_path):
     with pytest.raises(InputError, match=r"tip_x.*row 1.*out of range"):
         write_recording(tmp_path / "r", cols, sample_rate_hz=1000)
     assert not (tmp_path / "r").exists() and not (tmp_path / "r.partial").exists()
+
+
+@settings(max_examples=25, deadline=None)
+@given(cut=st.floats(0.0, 1.0, exclude_max=True))
+def test_a_row_cut_by_a_kill_is_left_out_of_an_incomplete_recording_only(tmp_path_factory, cut):
+    """A writer killed in the middle of a row leaves a last line without its newline: an incomplete
+    recording loads without it (whole reader and chunked reader alike, every whole row kept); a
+    recording that says it is complete still refuses it, naming the line."""
+    from pmctl.core.recording_chunks import read_columns
+    tmp = tmp_path_factory.mktemp("torn")
+    cols = _columns(30)
+    with RecordingWriter(tmp / "s", list(cols), sample_rate_hz=1000) as w:
+        w.append(cols)
+        w.finish(complete=False, reason="killed")
+    data = tmp / "s" / "data.csv"
+    text = data.read_bytes()
+    last = text[:-1].rfind(b"\n") + 1                 # the last row, cut somewhere before its newline
+    data.write_bytes(text[:last + int(cut * (len(text) - 1 - last))])
+    rec = read_recording(tmp / "s")
+    assert rec.n == 29 and np.array_equal(rec.t, cols["t"][:29])
+    _, _, c = read_columns(tmp / "s")
+    assert np.array_equal(c["t"], cols["t"][:29]) and np.allclose(c["cmd_L1"], cols["cmd_L1"][:29], atol=1e-9)
+    meta = _meta(tmp / "s")
+    meta["complete"] = True
+    (tmp / "s" / "recording.json").write_text(json.dumps(meta))
+    body = data.read_bytes()
+    tail = body[body.rfind(b"\n") + 1:]
+    if not tail:
+        assert read_recording(tmp / "s").n == 29      # nothing was cut (the cut fell on the row's start)
+    elif tail.count(b",") < len(cols) - 1:            # a row short of fields: refused, the line named
+        with pytest.raises(InputError, match="data.csv"):
+            read_recording(tmp / "s")
+    else:                                             # cut inside the last number: a CSV reader cannot know
+        assert read_recording(tmp / "s").n == 30

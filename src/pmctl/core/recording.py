@@ -409,8 +409,15 @@ def _row_lines(body: bytes, first_line: int) -> np.ndarray | None:
     return np.array([first_line + k for k, ln in enumerate(body.split(b"\n")) if ln.strip()], dtype=np.int64)
 
 
-def read_data(path: str | Path) -> tuple[list[str], np.ndarray, np.ndarray | None]:
-    """Parse and validate data.csv -> (names, data (n, ncol) float64, row lines or None)."""
+def torn_tail(meta: dict) -> bool:
+    """Whether a cut last line of data.csv is dropped rather than refused: in a recording marked
+    incomplete (``"complete": false``), whose writer may have been killed in the middle of a row."""
+    return meta.get("complete", True) is False
+
+
+def read_data(path: str | Path, drop_torn_tail: bool = False) -> tuple[list[str], np.ndarray, np.ndarray | None]:
+    """Parse and validate data.csv -> (names, data (n, ncol) float64, row lines or None).
+    ``drop_torn_tail``: a last line without its newline is left out (see :func:`torn_tail`)."""
     path = Path(path)
     try:
         with open(path, "rb") as f:
@@ -424,6 +431,8 @@ def read_data(path: str | Path) -> tuple[list[str], np.ndarray, np.ndarray | Non
         raw = raw[3:]
     names, start = _header(raw, path)
     body = raw[start:]
+    if drop_torn_tail and body and not body.endswith(b"\n"):
+        body = body[:body.rfind(b"\n") + 1]
     if b"\r" in body:
         body = body.replace(b"\r\n", b"\n")
     ncol = len(names)
@@ -468,7 +477,7 @@ def read_recording(folder: str | Path) -> Recording:
     if folder.name in (META_FILE, DATA_FILE) and folder.is_file():
         folder = folder.parent
     meta, machine_path, _ = read_meta(folder)
-    names, data, lines = read_data(folder / DATA_FILE)
+    names, data, lines = read_data(folder / DATA_FILE, drop_torn_tail=torn_tail(meta))
     machine = load_machine(machine_path)
     columns = {nm: np.ascontiguousarray(data[:, j]) for j, nm in enumerate(names)}
     unknown = [nm for nm in names if channel_kind(nm) is None]

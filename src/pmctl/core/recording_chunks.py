@@ -34,7 +34,7 @@ import numpy as np
 from pmctl.core.config import load_machine
 from pmctl.core.errors import InputError
 from pmctl.core.recording import (CMD, DATA_FILE, META_FILE, REQUIRED, _fast_parse, _header, _slow_parse,
-                                  channel_kind, read_meta)
+                                  channel_kind, read_meta, torn_tail)
 
 BLOCK_BYTES = 16 << 20
 
@@ -46,8 +46,9 @@ def _folder(folder) -> Path:
     return folder
 
 
-def iter_chunks(folder, *, block_bytes=BLOCK_BYTES, progress=None):
-    """Yield (names, first_row, block) over data.csv (see the module docstring)."""
+def iter_chunks(folder, *, block_bytes=BLOCK_BYTES, progress=None, drop_torn_tail=False):
+    """Yield (names, first_row, block) over data.csv (see the module docstring); ``drop_torn_tail``:
+    a last line without its newline is left out (pmctl.core.recording.torn_tail)."""
     path = _folder(folder) / DATA_FILE
     try:
         fh = open(path, "rb")
@@ -78,6 +79,8 @@ def iter_chunks(folder, *, block_bytes=BLOCK_BYTES, progress=None):
                 body, carry = data[:cut + 1], data[cut + 1:]
             else:
                 body, carry = data, b""
+                if drop_torn_tail and body and not body.endswith(b"\n"):
+                    body = body[:body.rfind(b"\n") + 1]
             if body:
                 nlines = body.count(b"\n") + (0 if body.endswith(b"\n") else 1)
                 b = body.replace(b"\r\n", b"\n") if b"\r" in body else body
@@ -153,7 +156,8 @@ def read_columns(folder, channels=None, *, measured_dtype=np.float32, block_byte
     parts: dict[str, list] = {}
     keep = None
     total = 0
-    for names, row0, arr in iter_chunks(folder, block_bytes=block_bytes, progress=progress):
+    for names, row0, arr in iter_chunks(folder, block_bytes=block_bytes, progress=progress,
+                                        drop_torn_tail=torn_tail(meta)):
         total = row0 + len(arr)
         if keep is None:
             want = [n for n in names if channel_kind(n) is not None] if channels is None else \
