@@ -194,3 +194,72 @@ def test_spindle_override_sets_the_vfd_frequency(tmp_path):
         stop_serve(p)
         client.close()
         srv.stop()
+
+
+def test_spindle_stop_in_a_hold_and_cycle_start_waits_for_the_spindle(tmp_path):
+    """grbl's 0x9E: ignored while moving; in Hold:0 it stops the spindle (the VFD's run command goes
+    to stop), again starts it; cycle start brings it back and the path goes on only once the spindle
+    is at its speed (2 %), read from the simulated VFD itself when the tool starts to move again."""
+    from pymodbus.client import ModbusTcpClient
+
+    from pmctl.hal.modbus_vfd import VfdOptions, simulated
+    opt = VfdOptions.from_dict({"simulate": True, "port": 0, "sim_ramp_rpm_per_s": 4000.0,
+                                "max_rpm": MAX_RPM, "max_hz": MAX_HZ})
+    srv, dev = simulated(opt)                 # spin-up from rest to 6000 rpm: 1.5 s
+    reg = opt.registers
+    client = ModbusTcpClient("127.0.0.1", port=opt.port, timeout=2.0)
+    assert client.connect()
+
+    def command():
+        rr = client.read_holding_registers(reg.command, count=1, device_id=opt.device_id)
+        assert not rr.isError(), rr
+        return rr.registers[0]
+
+    def wait_command(want, timeout=30.0):
+        t0 = time.time()
+        while command() != want and time.time() - t0 < timeout:
+            time.sleep(0.02)
+        return command()
+
+    p, link = start_serve(tmp_path, extra=("--service", str(_vfd_service(tmp_path, opt.port)),))
+    s = Sender(link)
+    try:
+        s.reset()
+        assert s.send("G21 G91 M3 S6000") == "ok"
+        assert s.send("G1 X12 F300") == "ok"
+        t0 = time.time()                      # at speed and cutting
+        while s.status()["pos"][0] < 0.5 and time.time() - t0 < 120:
+            time.sleep(0.02)
+        s.realtime(b"\x9e")                   # moving: ignored
+        time.sleep(0.3)
+        assert command() == reg.run_forward and s.status()["state"] == "Run"
+        s.realtime(b"!")
+        held = s.wait_state(("Hold:0",), 60)
+        s.realtime(b"\x9e")                   # in the hold: the spindle stops
+        assert wait_command(reg.stop) == reg.stop
+        assert s.status()["FS"].endswith(",0")
+        s.realtime(b"\x9e")                   # again: it starts back
+        assert wait_command(reg.run_forward) == reg.run_forward
+        s.realtime(b"\x9e")                   # and stops again
+        assert wait_command(reg.stop) == reg.stop
+        t0 = time.time()
+        while dev.rpm > 100 and time.time() - t0 < 30:      # let it run down
+            time.sleep(0.05)
+        assert dev.rpm <= 100
+        s.realtime(b"~")                      # cycle start: spindle first, then the path
+        t0 = time.time()
+        st = s.status()
+        while np.allclose(st["pos"], held["pos"], atol=1e-3) and time.time() - t0 < 60:
+            st = s.status()
+        rpm_when_moving = dev.rpm
+        assert not np.allclose(st["pos"], held["pos"], atol=1e-3), "the path never went on"
+        assert rpm_when_moving >= 0.98 * 6000, rpm_when_moving
+        assert command() == reg.run_forward
+        assert s.send("G4 P0", timeout=120) == "ok"
+        done = s.status()
+        assert abs(done["pos"][0] - 12.0) < 2e-3 and done["FS"].endswith(",6000")
+    finally:
+        s.close()
+        stop_serve(p)
+        client.close()
+        srv.stop()

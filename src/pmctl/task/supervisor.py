@@ -609,10 +609,66 @@ class Supervisor:
         return False
 
     def hold(self):
+        self.operator_hold = True
         self.command(C.C_HOLD)
 
+    operator_hold = False                # a feed hold asked for (console !, socket hold), until resumed
+
     def resume(self):
-        if not self.homing:              # the homing cycle's stops are its own
+        if self.homing:                  # the homing cycle's stops are its own
+            return
+        self.operator_hold = False
+        if self.spindle_stopped_in_hold:
+            # grbl: cycle start after a spindle stop in a hold brings the spindle back to its speed
+            # first; the path goes on once it is there (a thread: the Modbus writes and the spin-up wait
+            # are no business of the caller's, the console's reader)
+            threading.Thread(target=self._restore_spindle, args=(True,), daemon=True,
+                             name="pmctl-spindle-restore").start()
+            return
+        self.command(C.C_RESUME)
+
+    spindle_stopped_in_hold = False
+
+    def spindle_stop_toggle(self) -> bool:
+        """grbl's 0x9E: in a completed hold (Hold:0) with the spindle running, stop it; again (still in
+        the hold), start it back at its speed. Cycle start restores it and waits until it is at speed
+        before the path goes on. Anywhere else, and without a spindle VFD, nothing happens (False)."""
+        if (self.svc.spindle is None or self.spindle is None or not self.operator_hold
+                or self.state_name() != "Hold:0"):
+            return False                 # (a hold of the path for a spindle speed change is not one)
+        if self.spindle_stopped_in_hold:
+            threading.Thread(target=self._restore_spindle, args=(False,), daemon=True,
+                             name="pmctl-spindle-restore").start()
+            return True
+        if not self.spindle_prog or not self.spindle.vfd.rpm_cmd:
+            return False
+        self.spindle_stopped_in_hold = True
+        sp = self.spindle
+
+        def stop():
+            try:
+                with self._spindle_ov_lock:
+                    sp.vfd.stop()         # spindle_prog stays: the speed to come back to
+            except Exception as e:        # noqa: BLE001 (the monitor reports a lost link)
+                self.log(f"warning: spindle stop in the hold: {e}")
+        self._m5 = threading.Thread(target=stop, daemon=True, name="pmctl-m5")
+        self._m5.start()
+        return True
+
+    def _restore_spindle(self, then_resume: bool):
+        self._m5_written()
+        sp, rpm = self.spindle, self.spindle_prog
+        try:
+            if sp is not None and rpm and self.spindle_stopped_in_hold:
+                with self._spindle_ov_lock:
+                    sp.vfd.start(self._spindle_rpm(rpm))
+                sp.vfd.wait_at_speed()
+                self.log(f"spindle back at speed after the stop in the hold ({abs(self._spindle_rpm(rpm)):g} rpm)")
+        except Exception as e:            # noqa: BLE001
+            self._device_fault(f"spindle VFD: restoring the speed after a stop in the hold: {e}")
+            return
+        self.spindle_stopped_in_hold = False
+        if then_resume:
             self.command(C.C_RESUME)
 
     def feed_override(self, f: float):
@@ -655,6 +711,7 @@ class Supervisor:
     def _stop_queue(self, timeout_s=10.0):
         """Stop on the path, drop every queued item and sample, wait until at rest."""
         self._abort.set()
+        self.operator_hold = False
         with self._lock:
             self.items.clear()
             self._gen += 1
@@ -1030,6 +1087,7 @@ class Supervisor:
         """M5 from a thread of its own (a Modbus write is no business of the caller's thread)."""
         sp = self.spindle
         self.spindle_prog = 0.0           # before the write: an override must not start it again
+        self.spindle_stopped_in_hold = False
         if sp is None or sp.vfd is None or not sp.vfd.rpm_cmd:
             return
 

@@ -5,7 +5,7 @@ Two threads:
   ``?`` status report, ``!`` feed hold, ``~`` cycle start, 0x18 soft reset, 0x85 jog cancel,
   0x90-0x94 feed override (100 %, +10, -10, +1, -1; 10-200 %), 0x95-0x97 rapid override (100, 50,
   25 %), 0x99-0x9D spindle override (100 %, +10, -10, +1, -1; 10-200 %: the VFD's set-point when a
-  ``[spindle]`` is configured). Other bytes collect into
+  ``[spindle]`` is configured), 0x9E spindle stop in a hold. Other bytes collect into
   lines (``\\n`` or ``\\r`` ends one); a line longer than ``LINE_MAX`` is dropped whole with error:11.
 - the worker executes lines in order and answers each with ``ok`` or ``error:N``. A motion line is
   answered once it is checked (reader, reachability) and queued; when the motion queue is full the
@@ -197,7 +197,9 @@ class GrblConsole:
             s = {0x99: 100, 0x9A: s + 10, 0x9B: s - 10, 0x9C: s + 1, 0x9D: s - 1}[b]
             self.spindle_ov = min(200, max(10, s))
             self.sup.spindle_override(self.spindle_ov / 100.0)
-        # 0x84 door, 0x9E spindle stop, 0xA0/0xA1 coolant: no such hardware here; others: not commands
+        elif b == 0x9E:
+            self.sup.spindle_stop_toggle()    # only in Hold:0 with a running spindle VFD (else ignored)
+        # 0x84 door, 0xA0/0xA1 coolant: no such hardware here; others: not commands
 
     def soft_reset(self):
         self._reset_gen += 1
