@@ -253,6 +253,9 @@ def run(args) -> int:
     dt = cfg.dt
     from pmctl.motion.service_config import nc_setup
     setup = nc_setup(svc, machine, dt, backend_name)     # chain modes, K_theta auto, shaper
+    # The supervisor checks the K_theta source as well (pmctl serve); this check stays because it sees the
+    # K_theta the config asks for, before a backend without strain in its cyclic data switches it off below
+    # (canopen: the supervisor then gets K_theta = 0), so run and serve refuse the same configs.
     from pmctl.hal.modbus_daq import check_k_theta_source
     check_k_theta_source(svc.daq, svc.nc.k_theta_per_s, machine, f"{svc.source}: daq")
     strain_in_loop = getattr(hal.backend_class(backend_name), "strain_in_loop", True)
