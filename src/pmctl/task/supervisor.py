@@ -1024,42 +1024,57 @@ class Supervisor:
             if i:
                 del lst[:i]           # appends by the polling thread go on at the end (one list op each)
 
+    def _take_fault(self, ch, s):
+        """A fault the rt side reported (status ``s``) and not yet taken: the queue dropped, the alarm
+        raised with its reason."""
+        if s[C.ST_REASON_SEQ] == self._fault_seen or s[C.ST_FAULT] == C.F_NONE:
+            return
+        self._fault_seen = s[C.ST_REASON_SEQ]
+        reason = ch.reason()
+        with self._lock:
+            self.items.clear()
+            self._gen += 1
+            self._ended_base = int(s[C.ST_ENDED])
+        self._drop_speed_changes()
+        code = ALARM_SOFT_LIMIT if reason.startswith(("soft limit", "path error")) else (
+            ALARM_ESTOP if reason.startswith("E-stop") else ALARM_MOTOR_FAULT)
+        if code == ALARM_MOTOR_FAULT:
+            self.homed = False        # following error / lost backend: the position may be wrong
+        if not self.alarm:
+            self.raise_alarm(code, reason)
+
     def _monitor(self):
         while not self._stop.wait(0.01):
             ch = self.ch
             if ch is None:
                 continue
             self._drain_records()
+            s = ch.status()
+            self._last_status = s
+            if s[C.ST_HOLD_AT_SEQ] != self._hold_at_seen:
+                self._follow_speed_points(s)
+            self._take_fault(ch, s)
             if self.proc is not None and not self.proc.is_alive() and not self.rt_dead and not self._stop.is_set() \
                     and not self._quitting:
+                self._take_fault(ch, ch.status())     # its last word: a fault it stopped on, written before it left
+                r = ch.result()
+                if not self.alarm and r and r.get("status") == "fault" and r.get("reason"):
+                    self.homed = False
+                    self.raise_alarm(ALARM_MOTOR_FAULT, str(r["reason"]))
                 self.rt_dead = True
                 self.homed = False            # the counters are kept, but not trusted
                 with self._lock:
                     self.items.clear()
                     self._gen += 1
                 code = self.proc.exitcode
-                self.raise_alarm(ALARM_MOTOR_FAULT, f"rt motion process died (exit code {code}); last counters "
-                                                    f"kept, not trusted until homed or confirmed")
+                died = (f"rt motion process died (exit code {code}); last counters kept, not trusted until "
+                        f"homed or confirmed")
+                if self.alarm:                # it stopped on a fault it reported (read above): that is the reason
+                    self.log(f"{died} (after: {self.alarm_msg})")
+                else:
+                    self.raise_alarm(ALARM_MOTOR_FAULT, died)
                 self._emit("rt_dead", {"exitcode": code})
                 continue
-            s = ch.status()
-            self._last_status = s
-            if s[C.ST_HOLD_AT_SEQ] != self._hold_at_seen:
-                self._follow_speed_points(s)
-            if s[C.ST_REASON_SEQ] != self._fault_seen and s[C.ST_FAULT] != C.F_NONE:
-                self._fault_seen = s[C.ST_REASON_SEQ]
-                reason = ch.reason()
-                with self._lock:
-                    self.items.clear()
-                    self._gen += 1
-                    self._ended_base = int(s[C.ST_ENDED])
-                self._drop_speed_changes()
-                code = ALARM_SOFT_LIMIT if reason.startswith(("soft limit", "path error")) else (
-                    ALARM_ESTOP if reason.startswith("E-stop") else ALARM_MOTOR_FAULT)
-                if code == ALARM_MOTOR_FAULT:
-                    self.homed = False        # following error / lost backend: the position may be wrong
-                if not self.alarm:
-                    self.raise_alarm(code, reason)
             # retire finished items: the rt side counts the job ends it passed
             ended = int(s[C.ST_ENDED])
             with self._lock:
