@@ -22,7 +22,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
