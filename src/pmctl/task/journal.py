@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import threading
 import time
 from pathlib import Path
 
@@ -40,6 +41,7 @@ class Journal:
         self.data = {"format": FORMAT, "machine": machine, "offsets": {}, "settings": {"10": 1},
                      "homed": False, "job": None, "line": 0, "running": False, "wall_time": 0.0}
         self.loaded = False
+        self._save_lock = threading.Lock()
 
     def load(self):
         if self.path is None:
@@ -94,7 +96,11 @@ class Journal:
         return self
 
     def save(self, **changes):
-        self.data.update(changes)
-        self.data["wall_time"] = time.time()
-        if self.path is not None:
-            atomic_write(self.path, json.dumps(self.data) + "\n")
+        """Update and write the whole journal. One writer at a time: the console (offsets) and the
+        daemon's job tracking (line, homed) save from their own threads, and a write that took its
+        copy of the data before another's update must not land after it."""
+        with self._save_lock:
+            self.data.update(changes)
+            self.data["wall_time"] = time.time()
+            if self.path is not None:
+                atomic_write(self.path, json.dumps(self.data) + "\n")
