@@ -169,3 +169,21 @@ def parse_status(s):
             k, v = f.split(":", 1)
             out[k] = v
     return out
+
+
+def kill_supervisor_wait_rt(p, rt_pid, timeout=60.0):
+    """SIGKILL the supervisor ``p`` and wait for its rt process ``rt_pid`` to notice, hold on the path,
+    save its counters and exit by itself; if it is still there after ``timeout``, kill it too and
+    fail the test."""
+    import pytest
+    p.send_signal(signal.SIGKILL)
+    p.wait(10)
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        try:
+            os.kill(rt_pid, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.05)
+    os.kill(rt_pid, signal.SIGKILL)
+    pytest.fail(f"the rt process kept running {timeout:g} s after the supervisor died")

@@ -13,6 +13,7 @@ import time
 import numpy as np
 import pytest
 
+from grbl_sender import kill_supervisor_wait_rt
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.motion import channel as C
@@ -107,18 +108,7 @@ def test_supervisor_killed_the_rt_process_holds_on_the_path_saves_counters_and_e
                          stdout=subprocess.PIPE, text=True)
     try:
         rt_pid = int(p.stdout.readline())
-        p.send_signal(signal.SIGKILL)
-        p.wait(10)
-        t0 = time.time()
-        while time.time() - t0 < 20:
-            try:
-                os.kill(rt_pid, 0)
-            except ProcessLookupError:
-                break
-            time.sleep(0.05)
-        else:
-            os.kill(rt_pid, signal.SIGKILL)
-            pytest.fail("the rt process did not stop after the supervisor died")
+        kill_supervisor_wait_rt(p, rt_pid, timeout=20)
     finally:
         if p.poll() is None:
             p.kill()

@@ -12,10 +12,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 from scipy.spatial import cKDTree
 
-from grbl_sender import Sender, start_serve, stop_serve
+from grbl_sender import Sender, kill_supervisor_wait_rt, start_serve, stop_serve
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.core.recording import read_recording
@@ -141,19 +140,7 @@ def test_sigkill_of_the_rt_process_and_of_the_supervisor(tmp_path):
         t0 = time.time()                 # and it moves
         while s.status()["pos"][1] - st2["pos"][1] < 0.1 and time.time() - t0 < 60:
             time.sleep(0.05)
-        rt = rt_pid_of(p.pid)
-        p.send_signal(signal.SIGKILL)
-        p.wait(10)
-        t0 = time.time()
-        while time.time() - t0 < 60:
-            try:
-                os.kill(rt, 0)
-            except ProcessLookupError:
-                break
-            time.sleep(0.05)
-        else:
-            os.kill(rt, signal.SIGKILL)
-            pytest.fail("rt process kept running after the supervisor died")
+        kill_supervisor_wait_rt(p, rt_pid_of(p.pid))
     finally:
         s.close()
         stop_serve(p)
@@ -319,18 +306,7 @@ def test_sigkill_of_serve_leaves_a_readable_partial_recording_that_ends_at_the_s
             time.sleep(0.05)
         rt = rt_pid_of(p.pid)
         assert rt is not None
-        p.send_signal(signal.SIGKILL)
-        p.wait(10)
-        t0 = time.time()                 # the rt process holds, saves its counters and exits
-        while time.time() - t0 < 60:
-            try:
-                os.kill(rt, 0)
-            except ProcessLookupError:
-                break
-            time.sleep(0.05)
-        else:
-            os.kill(rt, signal.SIGKILL)
-            pytest.fail("rt process kept running after the supervisor died")
+        kill_supervisor_wait_rt(p, rt)  # the rt process holds, saves its counters and exits
     finally:
         s.close()
         stop_serve(p)
