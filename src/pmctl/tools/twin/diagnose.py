@@ -261,7 +261,10 @@ def _cv_pred(cand, ctx, y, folds, fold_params=None):
             return None
         pred[test] = f.pred[test]
         if fold_params is not None:
-            fold_params.append(f.params)
+            fp = dict(f.params)
+            if "t_bracket" in f.internal:        # (the span of time the fold's data allow a step in)
+                fp["_t_bracket"] = f.internal["t_bracket"]
+            fold_params.append(fp)
     return pred
 
 
@@ -273,7 +276,10 @@ DERIVED = {"t_ref_C", "screw_fixed_end_mm", "stribeck_speed_mm_s", "stribeck_mm"
 def fold_spread(params, fold_params, ctx) -> float:
     """Largest deviation of a fold's parameter from the full fit, in units of its tolerance
     (> 1: not identifiable). Tolerances: a frequency or period 5 %, a step time 1.5 time blocks,
-    a gain deviation, an amplitude, width, stiffness or delay 50 % of its value."""
+    a gain deviation, an amplitude, width, stiffness or delay 50 % of its value. A step time is
+    compared with the span between the fold's last sample before its step and first sample after
+    it (``_t_bracket``): a fold that lacks the step's block, and maybe a tracker drop-out next to
+    it, cannot tell where in that gap the step is, and a step anywhere in it agrees with the fold."""
     worst = 0.0
     for k, v in params.items():
         if k in DERIVED or isinstance(v, str):
@@ -294,6 +300,10 @@ def fold_spread(params, fold_params, ctx) -> float:
             fv = np.atleast_1d(np.asarray(fp[k], float)) - (1 if k == "gain" else 0)
             if fv.shape != vv.shape:
                 return float("inf")
+            if k == "t_s" and "_t_bracket" in fp:
+                lo, hi = fp["_t_bracket"]
+                worst = max(worst, max(lo - float(vv[0]), float(vv[0]) - hi, 0.0) / max(scale, 1e-300))
+                continue
             worst = max(worst, float(np.linalg.norm(fv - vv)) / max(scale, 1e-300))
     return worst
 
