@@ -66,6 +66,27 @@ def _floor(name, machine):
     return 1e-6
 
 
+TOOL_SCALE_FLOOR = 0.25  # a tool_* element's noise scale is at least this share of the channel's median
+
+
+def noise_scale(name, pred) -> np.ndarray:
+    """Relative noise of each sample of a channel (1 for most). A ``tool_*`` channel is a component
+    c of the measured unit tool axis: a tracker's angular noise σ, isotropic and renormalised onto
+    the unit sphere, moves that component by σ·√(1 − c²). So tool_k of an axis near vertical is
+    far quieter than tool_i and tool_j, and grows with the tilt: a calibration run that tilts the
+    platform early and then stays near level has a tool_k noise that changes several-fold within
+    the run. Returned relative to the channel's median (the median element is 1), floored at
+    TOOL_SCALE_FLOOR of it (an axis exactly vertical still has the prediction's own error)."""
+    pred = np.asarray(pred, float)
+    if not name.startswith("tool_") or not len(pred):
+        return np.ones(len(pred))
+    s = np.sqrt(np.clip(1.0 - pred * pred, 0.0, 1.0))
+    med = float(np.median(s[np.isfinite(s)])) if np.isfinite(s).any() else 0.0
+    if not med > 0:
+        return np.ones(len(pred))
+    return np.maximum(np.nan_to_num(s / med, nan=1.0), TOOL_SCALE_FLOOR)
+
+
 def _spread(idx, cap):
     if len(idx) <= cap:
         return idx
@@ -149,9 +170,10 @@ def build_context(columns: dict, machine, *, cap=DEFAULT_CAP, bounds=None) -> Co
     sub = {k: np.asarray(v, float)[rows_all] for k, v in columns.items()}
     state = nominal.nominal_state(sub, machine, statics=True) if len(rows_all) else None
     pred = nominal.predict_columns(sub, machine, names, state=state) if names else {}
-    sig = {}
+    sig, scale = {}, {}
     for k in names:
-        r = sub[k] - pred[k]
+        scale[k] = noise_scale(k, pred[k])     # per sample, relative to the channel's noise sig[k]
+        r = (sub[k] - pred[k]) / scale[k]
         parts = [r[np.searchsorted(rows_all, c)] for c in noi[k]]
         sig[k] = float(np.median([noise_level(p, _floor(k, machine)) for p in parts]))
     rows = np.unique(np.concatenate([ana[k] for k in names])) if names else np.zeros(0, int)
@@ -161,10 +183,11 @@ def build_context(columns: dict, machine, *, cap=DEFAULT_CAP, bounds=None) -> Co
         j = np.searchsorted(rows_all, ana[k])
         r = sub[k][j] - pred[k][j]
         good = np.isfinite(r)
-        ys.append(r[good] / sig[k])
+        w = 1.0 / (sig[k] * scale[k][j][good])
+        ys.append(r[good] * w)
         chs.append(np.full(good.sum(), ci))
         rws.append(ana[k][good])
-        ws.append(np.full(good.sum(), 1 / sig[k]))
+        ws.append(w)
         preds.append(pred[k][j][good])
 
     def cat(lst, dt=float):
@@ -238,7 +261,10 @@ def _cv_pred(cand, ctx, y, folds, fold_params=None):
             return None
         pred[test] = f.pred[test]
         if fold_params is not None:
-            fold_params.append(f.params)
+            fp = dict(f.params)
+            if "t_bracket" in f.internal:        # (the span of time the fold's data allow a step in)
+                fp["_t_bracket"] = f.internal["t_bracket"]
+            fold_params.append(fp)
     return pred
 
 
@@ -250,7 +276,10 @@ DERIVED = {"t_ref_C", "screw_fixed_end_mm", "stribeck_speed_mm_s", "stribeck_mm"
 def fold_spread(params, fold_params, ctx) -> float:
     """Largest deviation of a fold's parameter from the full fit, in units of its tolerance
     (> 1: not identifiable). Tolerances: a frequency or period 5 %, a step time 1.5 time blocks,
-    a gain deviation, an amplitude, width, stiffness or delay 50 % of its value."""
+    a gain deviation, an amplitude, width, stiffness or delay 50 % of its value. A step time is
+    compared with the span between the fold's last sample before its step and first sample after
+    it (``_t_bracket``): a fold that lacks the step's block, and maybe a tracker drop-out next to
+    it, cannot tell where in that gap the step is, and a step anywhere in it agrees with the fold."""
     worst = 0.0
     for k, v in params.items():
         if k in DERIVED or isinstance(v, str):
@@ -271,6 +300,10 @@ def fold_spread(params, fold_params, ctx) -> float:
             fv = np.atleast_1d(np.asarray(fp[k], float)) - (1 if k == "gain" else 0)
             if fv.shape != vv.shape:
                 return float("inf")
+            if k == "t_s" and "_t_bracket" in fp:
+                lo, hi = fp["_t_bracket"]
+                worst = max(worst, max(lo - float(vv[0]), float(vv[0]) - hi, 0.0) / max(scale, 1e-300))
+                continue
             worst = max(worst, float(np.linalg.norm(fv - vv)) / max(scale, 1e-300))
     return worst
 

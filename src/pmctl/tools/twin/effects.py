@@ -854,10 +854,15 @@ class LostSteps(AxisSignal):
         score = np.where(gg > 0, gy * gy / np.where(gg > 0, gg, 1), 0)
         score[0] = 0
         k = int(np.argmax(score))
-        ts = float(0.5 * (tt[order[k - 1]] + tt[order[k]]))
+        hi = float(tt[order[k]])
+        before = tt[order[:k]]
+        before = before[before < hi]
+        lo = float(before.max()) if len(before) else hi      # (elements of one row share its time)
+        ts = float(0.5 * (tt[order[k - 1]] + hi))
         off = float(gy[k] / gg[k])
         pred = g * off * (tt >= ts)
-        return Fit({"t_s": ts, "offset_mm": off}, pred, 2)
+        # the data place the step anywhere between the last sample before it and the first after
+        return Fit({"t_s": ts, "offset_mm": off}, pred, 2, internal={"t_bracket": (lo, hi)})
 
 
 TOOL_T_MIN = 5.0      # an axis resonance's tool-channel gain, in standard errors, below which only the gauge rings

@@ -133,11 +133,16 @@ def locate(ctx: Context, y=None) -> dict:
     for name in o.channels:
         t, r = channel_series(ctx, name, yy)
         sig = o.sigma[name]
+        # excess and windows against each sample's own noise (the whitened residual: a tool_*
+        # component's noise changes with the tilt, diagnose.noise_scale)
+        m = o.ch == o.channels.index(name)
+        rw = yy[m][np.argsort(o.row[m], kind="stable")]
         rms = float(np.sqrt(np.mean(r * r))) if len(r) else 0.0
-        excess = math.sqrt(max(rms * rms - sig * sig, 0.0)) / sig if sig > 0 else 0.0
+        msw = float(np.mean(rw * rw)) if len(rw) else 0.0
+        excess = math.sqrt(max(msw - 1.0, 0.0)) if sig > 0 else 0.0
         info = {"n": int(len(r)), "rms": rms, "noise": sig, "excess": excess, "mean": float(np.mean(r)) if len(r) else 0}
         nwin = max(5, len(r) // 100)
-        flag = moving_rms(r, nwin) > 2.5 * sig if len(r) else np.zeros(0, bool)
+        flag = moving_rms(rw, nwin) > 2.5 if len(r) else np.zeros(0, bool)
         info["windows_s"] = windows(t, flag, tspan / 50)
         if flag.any():
             all_flags_t.append(t[flag])
