@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 
+from pmctl.core.compensation import STILL_MM_S
 from pmctl.core.config import Machine
 from pmctl.motion import nc as _nc
 from pmctl.motion.nc import MODEL_LOST, ModelFK, NCParams, NCState
@@ -65,6 +66,8 @@ def constants(machine: Machine, params: NCParams | None, model: ModelFK | None =
     a = np.array(c, float)
     if len(a) != _ncore.NC_C_LEN:
         raise AssertionError(f"ncore constants: {len(a)} values, the core takes {_ncore.NC_C_LEN}")
+    if _ncore.NC_COMP_STILL != STILL_MM_S:
+        raise AssertionError(f"ncore NC_COMP_STILL {_ncore.NC_COMP_STILL} != compensation.STILL_MM_S {STILL_MM_S}")
     return a
 
 

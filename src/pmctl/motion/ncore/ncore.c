@@ -107,9 +107,9 @@ static void comp_tick(const nc_const *c, const double x[5], const double prev[5]
         double di = d0[i], v = prev[i], bl = t[4 * i], step = t[4 * i + 1] * c->dt, tgt, bi, sc = 0.0;
         int m = (int)t[4 * i + 2];
         const double *P = t + (int)t[4 * i + 3];
-        if (v > 0.0)
+        if (v > NC_COMP_STILL)
             di = 1.0;
-        else if (v < 0.0)
+        else if (v < -NC_COMP_STILL)
             di = -1.0;
         tgt = -0.5 * bl * di;
         bi = b0[i];

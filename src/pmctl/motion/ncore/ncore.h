@@ -59,6 +59,10 @@
 #define NC_N_ITER 13    /* Newton iterations of the last solve */
 #define NC_N_LEN 14
 
+/* compensation: a commanded rate below this (mm/s) leaves an axis's direction as it was
+ * (pmctl.core.compensation.STILL_MM_S) */
+#define NC_COMP_STILL 1e-9
+
 /* Constants: filled once by nc_setup from a flat array of NC_C_LEN doubles, in this order. */
 typedef struct {
     /* model (ModelFK) */
