@@ -7,7 +7,7 @@ The NC's model joints are q = counts x resolution + c, where the compensation c 
 
 - x = counts x resolution, the motor-side position (mm);
 - d = the direction of the axis: +1 / -1 by the sign of the last commanded joint rate, held while
-  the rate is zero, 0 before the first move;
+  the rate is zero (below ``STILL_MM_S``), 0 before the first move;
 - b = the backlash term: it moves toward -d * backlash/2 at no more than ``backlash_rate_mm_s``
   (starting at 0, the middle of the play). Moving up, the load lags the motor by half the play
   (b = -backlash/2); after a reversal the motor first crosses the play, and the model says so;
@@ -37,6 +37,13 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core.errors import ConfigError
+
+# A commanded rate below this (mm/s; a pulse in about six days) leaves the direction as it was: the
+# pseudo-inverse leaves rounding residue (~1e-17 mm/s) on a joint that does not move while others
+# do, and its sign is no direction (the two NCs, whose pseudo-inverses differ in the last bits,
+# would read opposite ones, and the backlash term would jump half the play on a standing joint).
+# ncore.h NC_COMP_STILL is the same number.
+STILL_MM_S = 1e-9
 
 AXES = ("L1", "L2", "L3", "X", "Y")
 MAX_POINTS = 10_000                # per axis table
@@ -146,9 +153,9 @@ def comp_tick(comp: Compensation, x, qdot_prev, d, b, dt):
     for i, a in enumerate(comp.axes):
         di = d[i]
         v = qdot_prev[i]
-        if v > 0.0:
+        if v > STILL_MM_S:
             di = 1.0
-        elif v < 0.0:
+        elif v < -STILL_MM_S:
             di = -1.0
         tgt = -0.5 * a.backlash_mm * di
         step = a.backlash_rate_mm_s * dt

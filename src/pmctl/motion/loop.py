@@ -410,8 +410,9 @@ class ControlLoop:
         done_at = -1
         stop_from_hold = False
         held_at = -1                    # tick at which a stop's feed hold reached sigma = 0
-        # held on the path, the servo dithers within a pulse or two of the target (K_v x a pulse's
-        # worth of error): that is at rest; qdot is never exactly zero there
+        # held on the path, the NC's rest deadband zeroes the rates within half a pulse of the target;
+        # K_theta answering the chains' ringing may still ask for a pulse or two's worth (K_v x a
+        # pulse's worth of error): that is at rest too
         rest_rate = (2.0 * p.kv / p.pulses_per_mm).tolist()
         deadline = mono() + period
         t1_prev = deadline - period     # end of the previous tick: the last command sent
@@ -504,8 +505,8 @@ class ControlLoop:
                         status, reason = ("stopped" if _was_stop(st) else "fault"), st.reason
                         break
                     if stop_from_hold and st.mode == RUN and fol.sigma == 0.0:
-                        # held on the path: halt once the joints are at rest (within a pulse or two
-                        # of dither), or at the latest after the settling time
+                        # held on the path: halt once the joints are at rest (rates within a pulse
+                        # or two's worth), or at the latest after the settling time
                         if held_at < 0:
                             held_at = k
                         if all(abs(v) <= r for v, r in zip(st.qdot.tolist(), rest_rate)) \

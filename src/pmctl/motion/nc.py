@@ -10,6 +10,21 @@ Each tick:
      (LinuxCNC FERROR scaled with speed, floor MIN_FERROR) and path error stop motion with a reason;
   6. V-F converters (pmctl.core.vf.vf_tick, the per-tick form of vf_step) -> signed pulses per axis; pulse counters += pulses.
 
+Rest deadband (between steps 3 and 4): while the target stands still (its feed-forward, the six
+velocity components, all exactly zero: a dwell, a feed hold once sigma is 0, a job's end, the idle
+rest pose; the slowest feed still moves the target every tick), a joint whose desired rate is
+worth at most ``rest_deadband_pulses`` (half a pulse) of position error, |qdot_i| <= kv x 0.5 /
+pulses_per_mm_i, is commanded rate zero, and once its rate is zero its V-F residue is dropped
+(nothing is owed: the counter is the pulse nearest the target, as at a stop's halt). The desired
+rate there is the whole V-F input, the pose error through J+ plus the strain term, so a joint
+pushed out of the band (a new target, K_theta, a compensation or chain-offset change) is driven
+at once by the full, unchanged law, and only a disturbance that lasts (its integral reaches a
+pulse while out of the band) moves it: a chain mode ringing about the band's edge is not rectified
+into pulses. Without the deadband, a target between two pulses makes the correction integrate in
+the V-F residue, pass the threshold, overshoot by the remaining fraction and come back: a one-pulse
+limit cycle at rest (LinuxCNC's stepgen likewise leaves a position within half a step alone).
+While the target moves nothing changes, and pulses + residue = the integral of the rate.
+
 With a compensation (``NCParams.compensation``, the machine config's [compensation]), the joints of
 step 1 (and of the soft limits) are counts x resolution + the per-axis backlash and screw
 correction (pmctl.core.compensation.comp_tick); the following error stays on the motor side.
@@ -366,6 +381,11 @@ class NCParams:
     # the chain-length offset input (slow compensation): bound of its magnitude and its slew rate
     chain_offset_max_mm: float = 0.2
     chain_offset_rate_mm_s: float = 0.05
+    # rest deadband: while the target's feed-forward is zero, a joint whose desired rate is worth at
+    # most this many pulses of position error (|qdot| <= kv x this / pulses_per_mm) gets rate zero
+    # and its V-F residue is dropped; 0.5 to 1, or 0 = off (the loop then corrects sub-pulse errors
+    # at rest: a one-pulse limit cycle)
+    rest_deadband_pulses: float = 0.5
 
     def __post_init__(self):
         # Arrays are frozen too (use dataclasses.replace to change a limit), so the plain-float
@@ -395,6 +415,14 @@ class NCParams:
                 raise ValueError(f"{f} must be a finite number >= 0, got {v!r}")
             object.__setattr__(self, f, v)
         object.__setattr__(self, "_off_step", self.chain_offset_rate_mm_s * self.dt)    # mm per tick
+        db = float(self.rest_deadband_pulses)
+        if not (db == 0.0 or 0.5 <= db <= 1.0):
+            # below half a pulse a target can sit where neither neighbouring pulse is in the band:
+            # the joint would step back and forth between them (the limit cycle again)
+            raise ValueError(f"rest_deadband_pulses must be 0 (off) or in [0.5, 1], got {self.rest_deadband_pulses!r}")
+        object.__setattr__(self, "rest_deadband_pulses", db)
+        # the band in rate units per axis, mm/s (kv x pulses / pulses_per_mm)
+        object.__setattr__(self, "_rest_band", [float(self.kv) * db / x for x in self._l.ppm])
 
     @classmethod
     def from_machine(cls, machine: Machine, dt: float, *, max_pulses_per_tick=None, k_theta=0.0,
@@ -674,6 +702,7 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK, 
     P, R, tip, axis, perr = state.P, state.R, state.tip, state.axis, state.path_error
     kth_st = state.kth
     qdot_des = _ZERO5
+    held = None
     if mode == RUN:
         try:
             qa = np.array(qj)
@@ -715,6 +744,14 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK, 
             else:
                 qd[:3] -= params.k_theta * defl
         qdot_des = qd.tolist()
+        if not (t[6] or t[7] or t[8] or t[9] or t[10] or t[11]):
+            # the target at rest: no correction for a joint within the deadband (module docstring)
+            band = params._rest_band
+            held = [False] * 5
+            for i in range(5):
+                if band[i] > 0.0 and abs(qdot_des[i]) <= band[i]:     # (a band of 0: off)
+                    qdot_des[i] = 0.0
+                    held[i] = True
         if perr > params.max_path_error_mm:
             mode, reason = STOPPING, path_error_text(perr, params)
         elif R[2][2] < math.cos(params.theta2_max_rad) - 1e-12:
@@ -732,6 +769,10 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK, 
     ppm = L.ppm
     pl, al = vf_tick(state.acc.tolist(), [qdot[i] * ppm[i] for i in range(5)], params.dt, 1.0,
                      params.max_pulses_per_tick)
+    if held is not None and mode == RUN:
+        for i in range(5):
+            if held[i] and qdot[i] == 0.0:      # held in the rest deadband: no sub-pulse residue is owed
+                al[i] = 0.0
     pulses, acc = np.array(pl, np.int64), np.array(al)
     if mode == STOPPING and not any(qdot):
         # Braked to rest: drop the sub-pulse residue (no pulse is owed) and halt.

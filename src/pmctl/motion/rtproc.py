@@ -180,8 +180,9 @@ class RtHook:
                 fol.clear()
                 ch.set_reason(st.reason)
                 ch.st[C.ST_FAULT] = C.F_FAULT if st.mode == HALTED and not _was_stop(st) else C.F_STOP
-        # at rest: the path clock stopped (not still braking) for 50 ticks; the NC then only closes
-        # the sub-pulse residue (kv x half a pulse ~ 0.1 mm/s)
+        # at rest: the path clock stopped (not still braking) for 50 ticks; the NC then holds each
+        # joint within half a pulse of its target (its rest deadband) and sends no pulses unless a
+        # disturbance pushes a joint out of it
         self.rest_ticks = self.rest_ticks + 1 if (sc.sigma == 0.0 and fol.state != 2) else 0     # 2 = HOLDING
         at_rest = self.rest_ticks >= 50
         if self.resetting and at_rest:

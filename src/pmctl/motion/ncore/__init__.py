@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 
+from pmctl.core.compensation import STILL_MM_S
 from pmctl.core.config import Machine
 from pmctl.motion import nc as _nc
 from pmctl.motion.nc import MODEL_LOST, ModelFK, NCParams, NCState
@@ -50,7 +51,7 @@ def constants(machine: Machine, params: NCParams | None, model: ModelFK | None =
     c += m._off + m._tip_p + m._axis_p
     c += [m.z_table, m.tol, float(m.max_iter), m.cos_max_tilt, m._fz] + m._com + [m._keps]
     if params is None:           # FK only (the sim's gravity strain): no NC limits
-        c += [0.0] * 61
+        c += [0.0] * 66
     else:
         L = params._l
         c += [params.dt] + L.ppm + L.vmax + L.amax + L.adt + L.lower + L.upper
@@ -61,9 +62,12 @@ def constants(machine: Machine, params: NCParams | None, model: ModelFK | None =
               params.max_path_error_mm, float(bool(params.static_strain_comp)), float(params._kth_on)]
         c += L.leak + list(params._inv_w2) + list(params._acc_lp) + [float(bool(params.deflection_ff)), float(params._kth_modal)]
         c += [params.chain_offset_max_mm, params._off_step]
+        c += list(params._rest_band)
     a = np.array(c, float)
     if len(a) != _ncore.NC_C_LEN:
         raise AssertionError(f"ncore constants: {len(a)} values, the core takes {_ncore.NC_C_LEN}")
+    if _ncore.NC_COMP_STILL != STILL_MM_S:
+        raise AssertionError(f"ncore NC_COMP_STILL {_ncore.NC_COMP_STILL} != compensation.STILL_MM_S {STILL_MM_S}")
     return a
 
 

@@ -244,5 +244,9 @@ PyMODINIT_FUNC PyInit__ncore(void)
     C(NC_EV_SOFT_LIMIT);
     C(NC_RUN); C(NC_STOPPING); C(NC_HALTED); C(NC_DONE);
 #undef C
+    if (PyModule_AddObject(m, "NC_COMP_STILL", PyFloat_FromDouble(NC_COMP_STILL)) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
     return m;
 }

@@ -37,6 +37,7 @@ int nc_setup(nc_const *c, const double *f, int n)
     for (i = 0; i < 3; i++) TAKE(c->acc_lp[i]);
     TAKE(c->defl_ff); TAKE(c->kth_modal);
     TAKE(c->off_max); TAKE(c->off_step);
+    for (i = 0; i < 5; i++) TAKE(c->rest_band[i]);
 #undef TAKE
     c->comp = NULL;
     return k == NC_C_LEN ? 0 : -1;
@@ -106,9 +107,9 @@ static void comp_tick(const nc_const *c, const double x[5], const double prev[5]
         double di = d0[i], v = prev[i], bl = t[4 * i], step = t[4 * i + 1] * c->dt, tgt, bi, sc = 0.0;
         int m = (int)t[4 * i + 2];
         const double *P = t + (int)t[4 * i + 3];
-        if (v > 0.0)
+        if (v > NC_COMP_STILL)
             di = 1.0;
-        else if (v < 0.0)
+        else if (v < -NC_COMP_STILL)
             di = -1.0;
         tgt = -0.5 * bl * di;
         bi = b0[i];
@@ -507,7 +508,7 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
     double ql[5], prev[5], qd_des[5] = {0, 0, 0, 0, 0}, qdot[5], *ev = s + NC_S_EV;
     double qj[5], cc[5], cd[5], cb[5];
     int64_t mode0 = n[NC_N_MODE], mode = mode0;
-    int i, event = NC_EV_NONE;
+    int i, event = NC_EV_NONE, held[5] = {0, 0, 0, 0, 0};
 
     n[NC_N_EVENT] = NC_EV_NONE;
     if (mode0 == NC_HALTED || mode0 == NC_DONE) {
@@ -624,6 +625,15 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
         n[NC_N_HAS_QM] = 1;
         n[NC_N_ITER] = iters;
         memcpy(qd_des, qd, sizeof qd);
+        if (t[6] == 0.0 && t[7] == 0.0 && t[8] == 0.0 && t[9] == 0.0 && t[10] == 0.0 && t[11] == 0.0) {
+            /* the target at rest (feed-forward exactly zero): no correction for a joint whose
+             * desired rate is worth at most the deadband's position error (nc.py, rest deadband) */
+            for (i = 0; i < 5; i++)
+                if (c->rest_band[i] > 0.0 && fabs(qd_des[i]) <= c->rest_band[i]) {     /* (a band of 0: off) */
+                    qd_des[i] = 0.0;
+                    held[i] = 1;
+                }
+        }
         if (perr > c->max_path_error) {
             mode = NC_STOPPING;
             event = NC_EV_PATH_ERROR;
@@ -672,6 +682,8 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
                 a = 1.0;
             else if (a < -1.0)
                 a = -1.0;
+            if (held[i] && mode == NC_RUN && qdot[i] == 0.0)
+                a = 0.0;        /* held in the rest deadband: no sub-pulse residue is owed */
             n[NC_N_PULSES + i] = (int64_t)m;
             s[NC_S_ACC + i] = a;
             s[NC_S_QDOT + i] = qdot[i];

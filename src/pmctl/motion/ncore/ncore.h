@@ -1,6 +1,6 @@
 /* pmctl compiled NC core: one tick of the closed-loop NC (model FK by Newton with the predictor
- * warm start, tool Jacobian, damped pseudo-inverse, rate/acceleration limits, soft-limit and
- * following-error supervision, the K_theta strain term, V-F converters), portable C99.
+ * warm start, tool Jacobian, damped pseudo-inverse, the rest deadband, rate/acceleration limits,
+ * soft-limit and following-error supervision, the K_theta strain term, V-F converters), portable C99.
  *
  * The readable reference is pmctl/motion/nc.py (nc_step, ModelFK); this file does the same
  * arithmetic in the same order. No allocation: the caller owns every buffer (constants, state,
@@ -59,6 +59,10 @@
 #define NC_N_ITER 13    /* Newton iterations of the last solve */
 #define NC_N_LEN 14
 
+/* compensation: a commanded rate below this (mm/s) leaves an axis's direction as it was
+ * (pmctl.core.compensation.STILL_MM_S) */
+#define NC_COMP_STILL 1e-9
+
 /* Constants: filled once by nc_setup from a flat array of NC_C_LEN doubles, in this order. */
 typedef struct {
     /* model (ModelFK) */
@@ -73,9 +77,10 @@ typedef struct {
     const double *comp;
     double leak[3], inv_w2[3], acc_lp[3], defl_ff, kth_modal;    /* soft-chain K_theta (nc._kth_modal_l) */
     double off_max, off_step;    /* chain-length offset: bound (mm) and slew per tick (mm) (nc._slew_offset) */
+    double rest_band[5];         /* rest deadband per axis, mm/s (NCParams._rest_band: kv x pulses / ppm) */
 } nc_const;
 
-#define NC_C_LEN 106     /* model 45 (27 + 9 + 5 + 3 + 1), params 61 (1 + 30 + 5 + 3 + 3 + 6 + 11 + 2) */
+#define NC_C_LEN 111     /* model 45 (27 + 9 + 5 + 3 + 1), params 66 (1 + 30 + 5 + 3 + 3 + 6 + 11 + 2 + 5) */
 
 /* Returns 0, or -1 if n != NC_C_LEN. */
 int nc_setup(nc_const *c, const double *flat, int n);

@@ -13,8 +13,8 @@ so it runs from wherever the tool is.
 removed by a zero-phase 2.5 Hz high-pass):
 - the modes' frequencies and damping ratios from an ARX fit of the gauge's strain to the chain's
   motor-side length (encoders, else the pulse counters) over the whole recording (:func:`arx_modes`):
-  the gauge's input is known, so every motion is excitation -- including the pose loop's one-pulse
-  dithering at rest, which keeps ringing the mode during the dwells and spoils free-decay fits;
+  the gauge's input is known, so every motion is excitation (free-decay fits of the dwells were
+  spoilt by the pose loop's one-pulse dithering at rest, before the NC's rest deadband);
 - the PSD of the first 0.2 s of each dwell, per chain, for the figure (its peak is printed too);
 - shapers (pmctl.core.shaper) designed at the mode: residual vibration at the mode and the worst
   within +-10 % (drift, mistuning), the time each stop costs (the shaper's duration) and the corner
@@ -196,7 +196,7 @@ def arx_modes(u, y, fs: float, n_modes: int = 1, fmin: float = 0.0, fmax: float 
     the motor-side chain length u (the mode answers the motor's acceleration: a constant velocity
     leaves no deflection) and y the gauge strain, both high-passed; the poles of the AR part mapped to continuous time,
     s = ln(z) fs. Unlike an accelerometer, the gauge's input is known (the encoders), so any motion
-    -- strokes, stops, the pose loop's one-pulse dithering at rest -- serves as excitation.
+    -- strokes, stops, pulses at rest -- serves as excitation.
     Returns ([(freq Hz, damping ratio)] sorted by frequency, residual RMS)."""
     a_coef, rms, _ = _arx_fit(u, y, fs, n_modes)
     z = np.roots(np.r_[1.0, -a_coef])
