@@ -3,6 +3,8 @@ slcan links (loopback TCP and a pty), driven by the canopen backend through the 
 wire checked with python-can's own ``slcan`` interface; faults injected across the process
 boundary; a simulator that dies is a controlled stop."""
 
+import time
+
 import can
 import numpy as np
 from hypothesis import given, settings
@@ -53,6 +55,13 @@ def _run(opts, during=None):
     be = hal.create("canopen", M, DT, opts)
     be.open(c0)
     extra = during(be) if during else None
+    if isinstance(extra, Listener):
+        # the listener is on the wire once it hears the drives' heartbeats (an offline loop runs
+        # its ticks back to back: started before it listens, the first part of the job is unseen)
+        t0 = time.monotonic()
+        while not extra.frames and time.monotonic() - t0 < 10:
+            time.sleep(0.005)
+        assert extra.frames, "the listener heard nothing on the simulator's link"
     cfg = LoopConfig(rate_hz=1000, realtime=False, stall_timeout_s=5.0)
     lp = ControlLoop(M, be, p, tg, cfg, initial_state(M, c0), log=lambda m: None)
     try:

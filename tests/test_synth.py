@@ -310,7 +310,9 @@ def test_the_control_loop_on_the_sim_and_the_batch_plant_agree_on_the_same_comma
     assert np.max(np.abs(q_mot - b_mot)) < 1e-9 and np.max(np.abs(q_load - b_load)) < 1e-9
     assert np.ptp(q_load[:, 3] - q_mot[:, 3]) == pytest.approx(0.02)            # backlash flips by its width
     assert np.ptp(q_load[:, 1] - q_mot[:, 1]) > 0.009                           # pitch error ±5 µm
-    assert np.ptp(q_mot[:, 4] - q_cmd[:, 4]) == pytest.approx(0.03, abs=1e-3)   # friction ±(c + c_s) at rest
+    # friction: at rest the motor stays behind its command by c + c_s, against its last motion (Y moves
+    # one way in this run; a controller dithering at rest used to show both signs)
+    assert np.max(np.abs(q_mot[:, 4] - q_cmd[:, 4])) == pytest.approx(0.015, abs=1e-3)
 
 
 def test_a_loop_case_and_a_batch_case_diagnose_to_the_same_effect():
