@@ -187,3 +187,11 @@ def kill_supervisor_wait_rt(p, rt_pid, timeout=60.0):
         time.sleep(0.05)
     os.kill(rt_pid, signal.SIGKILL)
     pytest.fail(f"the rt process kept running {timeout:g} s after the supervisor died")
+
+
+def assert_locked_then_unlocked(s):
+    """In Alarm, G-code is refused (error:9) until ``$X``, after which the machine is Idle."""
+    assert s.status()["state"] == "Alarm"
+    assert s.send("G1 X1") == "error:9"
+    assert s.send("$X") == "ok"
+    assert s.wait_state(("Idle",), 30)["state"] == "Idle"

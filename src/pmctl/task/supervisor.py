@@ -647,16 +647,7 @@ class Supervisor:
         if not self.spindle_prog or not self.spindle.vfd.rpm_cmd:
             return False
         self.spindle_stopped_in_hold = True
-        sp = self.spindle
-
-        def stop():
-            try:
-                with self._spindle_ov_lock:
-                    sp.vfd.stop()         # spindle_prog stays: the speed to come back to
-            except Exception as e:        # noqa: BLE001 (the monitor reports a lost link)
-                self.log(f"warning: spindle stop in the hold: {e}")
-        self._m5 = threading.Thread(target=stop, daemon=True, name="pmctl-m5")
-        self._m5.start()
+        self._stop_vfd(self.spindle, "spindle stop in the hold")   # spindle_prog stays: the speed to come back to
         return True
 
     def _restore_spindle(self, then_resume: bool):
@@ -1109,13 +1100,17 @@ class Supervisor:
         self.spindle_stopped_in_hold = False
         if sp is None or sp.vfd is None or not sp.vfd.rpm_cmd:
             return
+        self._stop_vfd(sp, f"M5 {when}")
 
+    def _stop_vfd(self, sp, what: str):
+        """Stop the spindle VFD from a thread of its own (``_m5``, which ``_m5_written`` waits for);
+        the write excludes the override's (``_spindle_ov_lock``)."""
         def stop():
             try:
                 with self._spindle_ov_lock:
                     sp.vfd.stop()
             except Exception as e:            # noqa: BLE001 (the monitor reports a lost link)
-                self.log(f"warning: M5 {when}: {e}")
+                self.log(f"warning: {what}: {e}")
         self._m5 = threading.Thread(target=stop, daemon=True, name="pmctl-m5")
         self._m5.start()
 

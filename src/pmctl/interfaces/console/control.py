@@ -166,27 +166,21 @@ class ControlServer:
         elif cmd == "resume":
             sup.resume()
         elif cmd == "override":
-            if "feed" in req:
-                f = float(req["feed"])
-                if not 0.1 <= f <= 2.0:
-                    return {"ok": False, "error": "feed override must be within 0.1 .. 2.0"}
-                sup.feed_override(f)
+            for key, allowed, error, apply, console_attr in (
+                    ("feed", lambda v: 0.1 <= v <= 2.0, "feed override must be within 0.1 .. 2.0",
+                     sup.feed_override, "feed_ov"),
+                    ("rapid", lambda v: v in (0.25, 0.5, 1.0), "rapid override is 0.25, 0.5 or 1.0",
+                     sup.rapid_override, "rapid_ov"),
+                    ("spindle", lambda v: 0.1 <= v <= 2.0, "spindle override must be within 0.1 .. 2.0",
+                     sup.spindle_override, "spindle_ov")):
+                if key not in req:
+                    continue
+                v = float(req[key])
+                if not allowed(v):
+                    return {"ok": False, "error": error}
+                apply(v)
                 if getattr(self.daemon, "console", None) is not None:
-                    self.daemon.console.feed_ov = int(round(f * 100))     # the console's +/- steps start here
-            if "rapid" in req:
-                r = float(req["rapid"])
-                if r not in (0.25, 0.5, 1.0):
-                    return {"ok": False, "error": "rapid override is 0.25, 0.5 or 1.0"}
-                sup.rapid_override(r)
-                if getattr(self.daemon, "console", None) is not None:
-                    self.daemon.console.rapid_ov = int(round(r * 100))
-            if "spindle" in req:
-                sv = float(req["spindle"])
-                if not 0.1 <= sv <= 2.0:
-                    return {"ok": False, "error": "spindle override must be within 0.1 .. 2.0"}
-                sup.spindle_override(sv)
-                if getattr(self.daemon, "console", None) is not None:
-                    self.daemon.console.spindle_ov = int(round(sv * 100))     # Ov: and the +/- steps
+                    setattr(self.daemon.console, console_attr, int(round(v * 100)))   # Ov: and its +/- steps
         elif cmd == "stop":
             sup.soft_reset()
         elif cmd == "estop":
