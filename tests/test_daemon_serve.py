@@ -419,3 +419,24 @@ def test_watchdog_pings_stop_while_the_rt_process_is_stopped_and_resume_after(tm
         s.close()
         stop_serve(p)
         srv.close()
+
+
+def test_sigterm_during_the_start_up_is_a_clean_stop(tmp_path):
+    """A SIGTERM while the daemon is still starting (its position note is out, the rt process and the
+    console are coming up) is a stop like any other once it has started: exit 0, the counters saved
+    as a clean stop, not a process killed unsaved by the signal's default action."""
+    import subprocess
+    import sys
+    state, err = tmp_path / "state.json", tmp_path / "serve.err"
+    cmd = [sys.executable, "-m", "pmctl.interfaces.cli", "serve", "--config", "config/prototype.toml",
+           "--backend", "sim", "--console", f"pty:{tmp_path / 'tty'}", "--state", str(state), "--no-realtime"]
+    with open(err, "wb") as e:
+        p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=e, cwd=Path(__file__).resolve().parents[1])
+    t0 = time.time()                             # the daemon has said where it starts: start-up under way
+    while "starting at the home pose" not in err.read_text() and time.time() - t0 < 120 and p.poll() is None:
+        time.sleep(0.002)
+    p.send_signal(signal.SIGTERM)
+    assert p.wait(120) == 0, err.read_text()[-2000:]
+    saved = load_counters(state, machine=M.name)
+    assert saved is not None and saved.clean
+    assert "stopping (SIGTERM)" in err.read_text()

@@ -220,10 +220,16 @@ class Daemon:
         sup.record_sink = sink
 
     # ------------------------------------------------------------ run
-    def serve_forever(self):
-        from pmctl.task.notify import watchdog_period_s
+    def catch_stop_signals(self):
+        """SIGTERM, SIGINT and SIGHUP ask for a stop (feed hold, position saved). Called before
+        ``start``: a signal during the start-up (the console link may already be there) is kept and
+        acted on as soon as ``serve_forever`` runs, instead of killing the process unsaved."""
         for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
             signal.signal(sig, self._on_signal)
+
+    def serve_forever(self):
+        from pmctl.task.notify import watchdog_period_s
+        self.catch_stop_signals()
         wd = watchdog_period_s()
         try:
             self._watch(wd)

@@ -55,6 +55,7 @@ def run(args) -> int:
     d = Daemon(config=args.config, service=args.service, backend=args.backend, state_file=state,
                record_dir=args.record, console=args.console, realtime=not args.no_realtime and svc.loop.realtime,
                rate_hz=args.rate, socket_path=args.socket)
+    d.catch_stop_signals()
     try:
         d.start()
     except BaseException:
