@@ -167,6 +167,10 @@ def run_from_twin(args):
     n = len(twin_link._findings(report))
     out = twin_link.write_calibrated(m, report, args.out, source=args.report)
     print(f"applied {n} geometry finding(s); wrote {args.out} (machine '{out.name}')")
+    for f in twin_link.lookalike_findings(report):
+        alts = ", ".join(str(a.get("effect")) for a in f["alternatives"] if isinstance(a, dict))
+        print(f"not applied: the geometry finding for chain {f.get('chain')!r}: the recording could not tell it "
+              f"from {alts} ({f.get('separate_by') or 'record a run that separates them'})")
     return 0
 
 

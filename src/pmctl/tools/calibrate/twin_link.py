@@ -27,10 +27,21 @@ from pmctl.core.errors import InputError
 from pmctl.tools.calibrate import configio, model as Mo
 
 
-def _findings(report):
+def _geometry(report):
     if isinstance(report, dict):
         report = report.get("findings", [report] if "effect" in report else [])
     return [f for f in report if isinstance(f, dict) and f.get("effect") == "geometry"]
+
+
+def _findings(report):
+    """The geometry findings to apply: not those with look-alikes (``alternatives``: the recording
+    could not tell them from another effect, docs/diagnosis-report.md "Look-alikes")."""
+    return [f for f in _geometry(report) if not f.get("alternatives")]
+
+
+def lookalike_findings(report):
+    """Geometry findings left out because the recording could not tell them from another effect."""
+    return [f for f in _geometry(report) if f.get("alternatives")]
 
 
 def _vec(v, n, where):

@@ -38,6 +38,7 @@ from pmctl.core import kinematics as kin
 from pmctl.core.compensation import compensated_columns
 from pmctl.tools.twin import calibration
 from pmctl.tools.twin import effects as fx
+from pmctl.tools.twin import lookalikes as lk
 from pmctl.tools.twin import nominal
 from pmctl.tools.twin.catalogue import DEFAULT_CAP
 from pmctl.tools.twin.effects import AXES, Context, Obs
@@ -430,6 +431,35 @@ def _rank(ev, pool) -> float:
     return ev["score"]
 
 
+def _passes(ev, ctx, y) -> bool:
+    if "problems" not in ev:
+        ev["problems"] = own_checks(ev, ctx)
+        if not ev["problems"]:
+            ev["share"] = _share(ev, ctx, y)
+            if ev["share"] < SHARE_MIN:
+                ev["problems"].append("a partial fit of something else")
+    return not ev["problems"]
+
+
+def _among_lookalikes(best, pool, ctx, y):
+    """The one to name among the candidates that predict what ``best`` predicts within noise
+    (pmctl.tools.twin.lookalikes); the others go with it as its alternatives."""
+    group = [best]
+    for ev in pool:
+        if ev is best or ev["cand"].key() == best["cand"].key():
+            continue
+        if lk.lookalike_d2(ev["fit"].pred, best["fit"].pred) > lk.LOOK_D2 or not _passes(ev, ctx, y):
+            continue
+        group.append(ev)
+    if len(group) == 1:
+        return best
+    k, ws = lk.choose([{"effect": e["cand"].effect, "params": e["fit"].params, "score": e["score"]} for e in group])
+    chosen = group[k]
+    chosen["alternatives"] = [(e, w) for i, (e, w) in enumerate(zip(group, ws)) if i != k]
+    chosen["weight_share"] = ws[k] / sum(ws) if sum(ws) > 0 else 1.0 / len(group)
+    return chosen
+
+
 def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, candidates=None, loc=None):
     """Greedy forward selection. Returns (accepted evaluations in order, final residual, refused
     evaluations). ``loc``: the locate stage's breakdown (its screw-position lines are evidence)."""
@@ -473,6 +503,8 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
                 continue
             best = ev
             break
+        if best is not None:
+            best = _among_lookalikes(best, pool, ctx, y)
         for r in refused:
             if r["cand"].key() not in {e["cand"].key() for e in rejected}:
                 rejected.append(r)
@@ -507,6 +539,10 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
 
 
 # ---------------------------------------------------------------- report
+
+def _params_text(p: dict) -> str:
+    return ", ".join(f"{k} = {v}" for k, v in p.items())
+
 
 def _rms_by_channel(ctx, y, channels):
     o = ctx.obs
@@ -548,6 +584,12 @@ def _evidence_core(ev, ctx, loc, explained):
     pct = f"{100 * explained:.0f} %"
     eff = c.effect
     if eff == "backlash":
+        dirs = fx.axis_direction(ctx, c.a)
+        moving = dirs[dirs != 0]
+        if not np.any(moving[1:] != moving[:-1]):
+            return (f"{c.target} travels one way only, and the tool error along it is an offset of "
+                    f"{_fmt_um(p['width_mm'] / 2)} on the side that this travel sets; a {p['width_mm']:.4f} mm "
+                    f"backlash on {c.target} explains {pct} of it on held-out samples.")
         d = loc["direction"].get(c.target, {})
         jump = abs(d.get("jump_mm", p["width_mm"]))
         return (f"the tool error along {c.target} flips by {_fmt_um(jump)} when {c.target} reverses "
@@ -633,6 +675,18 @@ def _finding(ev, ctx, y_before, y0, y_after_cum, loc_before):
             "heldout": True}
     if c.effect == "pitch_error":
         item["where"]["spatial_frequency_per_mm"] = _r(1 / f.params["period_mm"])
+    if ev.get("alternatives"):
+        item["alternatives"] = [{"effect": e["cand"].effect, e["cand"].target_key: e["cand"].target,
+                                 "parameters": {k: _r(v, 7 if k == "gain" else 4) for k, v in e["fit"].params.items()},
+                                 "weight": _r(w, 3)} for e, w in ev["alternatives"]]
+        how = lk.separate_by([c.effect] + [e["cand"].effect for e, _ in ev["alternatives"]])
+        alt = "; ".join(f"{a['effect']} on {e['cand'].target_key} {a[e['cand'].target_key]} ({_params_text(a['parameters'])})"
+                        for a, (e, _) in zip(item["alternatives"], ev["alternatives"]))
+        item["evidence"] += (f" This recording cannot tell it from {alt}: they predict the same data within "
+                             f"noise; it is named for its physics (pmctl.tools.twin.lookalikes)"
+                             + (f"; {how} would separate them." if how else "."))
+        if how:
+            item["separate_by"] = how
     return item, explained
 
 
@@ -657,7 +711,10 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
         y_before = y0 - cum
     for item, ev in zip(findings, accepted):
         ev["left"] = left_structure(ctx, yfinal, ev["affected"])     # structure its channels keep
-        item["confidence"] = round(calibration.confidence(calibration.features(ev)), 2)
+        conf = calibration.confidence(calibration.features(ev))
+        if "weight_share" in ev:            # look-alikes: at most its share of their weights
+            conf = min(conf, ev["weight_share"])
+        item["confidence"] = round(conf, 2)
     loc_after = locate(ctx, yfinal)
     unexp = unexplained(ctx, yfinal, loc_after, rejected)
     if unexp:

@@ -864,6 +864,23 @@ class LostSteps(AxisSignal):
         # the data place the step anywhere between the last sample before it and the first after
         return Fit({"t_s": ts, "offset_mm": off}, pred, 2, internal={"t_bracket": (lo, hi)})
 
+    EDGE = 0.02     # share of the record (and at least EDGE_N samples) the step needs on each side
+
+    def check(self, ctx, fit, y):
+        ts = fit.params.get("t_s")
+        if ts is None:
+            return []
+        g = self.gain(ctx)
+        tt = ctx.t[ctx.obs.row][g != 0]
+        t0, t1 = float(ctx.t[0]), float(ctx.t[-1])
+        n_before, n_after = int(np.sum(tt < ts)), int(np.sum(tt >= ts))
+        if min(ts - t0, t1 - ts) < self.EDGE * (t1 - t0) or min(n_before, n_after) < self.EDGE_N:
+            return [f"the step at t = {ts:.3g} s is at the record's edge ({n_before} samples before it, "
+                    f"{n_after} after): it cannot be told from an offset"]
+        return []
+
+    EDGE_N = 10
+
 
 TOOL_T_MIN = 5.0      # an axis resonance's tool-channel gain, in standard errors, below which only the gauge rings
 

@@ -52,6 +52,11 @@ def compensation_from_findings(machine, accepted, existing: Compensation | None 
     for ev in accepted:
         c, f = ev["cand"], ev["fit"]
         eff = c.effect
+        if ev.get("alternatives"):      # a look-alike: compensating the wrong one adds the error
+            alts = ", ".join(e["cand"].effect for e, _ in ev["alternatives"])
+            notes.append(f"{c.target}: {eff} -> not written: this recording cannot tell it from {alts}; "
+                         "record a run that separates them (the report's separate_by) first")
+            continue
         if eff in COMPENSABLE and getattr(c, "target_key", "axis") == "axis" and c.target in AXES:
             a = AXES.index(c.target)
             used = True
