@@ -238,7 +238,7 @@ def calibrate(res, held, fit_bases, held_bases, write=False):
     if not rows or len({ok for _, ok in rows}) < 2:
         print("\ncalibration: need right and wrong findings to fit")
         return None
-    coef = calibration.fit_logistic(rows)
+    coef = calibration.fit(rows)
     print(f"\nfitted on {len(rows)} findings ({sum(ok for _, ok in rows)} right) of {len(res)} cases, seed bases "
           f"{fit_bases or 'as saved'}:\n  coefficients {json.dumps({k: round(v, 3) for k, v in coef.items()})}")
     print("in-sample reliability (the fit's own findings):")
@@ -278,7 +278,7 @@ def calibrate(res, held, fit_bases, held_bases, write=False):
             fit_rows = _rows([r for r in res if r["k"] % 2 != part])
             test_rows = _rows([r for r in res if r["k"] % 2 == part])
             if fit_rows and test_rows and len({ok for _, ok in fit_rows}) == 2:
-                c = calibration.fit_logistic(fit_rows)
+                c = calibration.fit(fit_rows)
                 held += [(calibration.confidence(f, c), ok) for f, ok in test_rows]
         if held:
             print("\nheld-out by case parity (no held-out seed bases given; fit on even k, judge odd k, and back):")

@@ -127,3 +127,25 @@ def test_a_backlash_with_one_reversal_is_named_though_a_fold_lacks_the_start_of_
     f = [f for f in rep["findings"] if f.get("axis") == "L3"]
     assert f and f[0]["effect"] == "backlash", rep["findings"]
     assert abs(f[0]["parameters"]["width_mm"] / truth["parameters"]["width_mm"] - 1) < 0.2
+
+
+def test_a_lost_step_inside_a_tracker_drop_out_is_placed_in_the_middle_of_the_gap():
+    """Blind case 5000/lost_steps/4: the step (t = 7.22 s) fell inside a 1.9 s tracker drop-out, and
+    one noisy sample at the gap's edge pinned the fit to the gap's start (6.19 s). Every split within
+    noise of the best is as likely: the bracket is the gap, and the fit takes its middle."""
+    seed = 68356
+    case = synth.synth_case(np.random.default_rng(seed), ["lost_steps"], machine=M, seed=seed, duration_s=10.0,
+                            rate_hz=1000.0, imperfections=True)
+    truth = case.answer["effects"][0]["parameters"]
+    t = case.columns["t"]
+    tip = np.isfinite(np.asarray(case.columns["tip_x"], float))
+    tt = t[tip]
+    i = int(np.argmax(np.diff(tt)))
+    gap = (float(tt[i]), float(tt[i + 1]))
+    assert gap[1] - gap[0] > 1.0 and gap[0] < truth["t_s"] < gap[1]       # the premise: a step in a drop-out
+    ctx = build_context(case.columns, M, cap=2000)
+    f = fx.LostSteps(case.answer["effects"][0]["axis"]).fit(ctx, ctx.obs.y, np.ones(len(ctx.obs.y), bool))
+    lo, hi = f.internal["t_bracket"]
+    assert lo <= gap[0] + 0.02 and hi >= gap[1] - 1e-9                     # the data allow the whole gap
+    assert abs(f.params["t_s"] - 0.5 * (gap[0] + gap[1])) < 0.02
+    assert abs(f.params["offset_mm"] / truth["offset_mm"] - 1) < 0.05

@@ -73,6 +73,24 @@ def test_the_logistic_fit_recovers_known_coefficients():
     assert sum(b["n"] for b in bins) == len(rows) and C.ece(bins) < 0.03
 
 
+@settings(max_examples=30, deadline=None)
+@given(n_part=st.integers(1, 40), right=st.floats(0, 1), seed=st.integers(0, 2**16))
+def test_a_partial_description_is_capped_at_the_fraction_right_among_partial_findings(n_part, right, seed):
+    rng = np.random.default_rng(seed)
+    whole = [({"snr": rng.uniform(0, 2), "share": 1.0, "left": 0.0}, bool(rng.random() < 0.8)) for _ in range(60)]
+    k = int(round(right * n_part))
+    part = [({"snr": 3.0, "share": rng.uniform(0.3, 0.54), "left": 0.1}, i < k) for i in range(n_part)]
+    part += [({"snr": 3.0, "share": 1.0, "left": rng.uniform(0.56, 3)}, False) for _ in range(n_part)]
+    coef = C.fit(whole + part)
+    assert coef["partial_cap"] == round(k / (2 * n_part), 3)
+    for f, _ in part:
+        assert C.partial(f) and C.confidence(f, coef) <= coef["partial_cap"]
+    logistic = {k: v for k, v in coef.items() if k != "partial_cap"}
+    for f, _ in whole:           # the others keep the logistic, fitted on them alone
+        assert not C.partial(f) and C.confidence(f, coef) == C.confidence(f, logistic)
+    assert logistic == C.fit_logistic(whole)
+
+
 def test_reliability_bins_and_expected_calibration_error_by_hand():
     coef = {"const": 0.0, "snr": 1.0}
     rows = [({"snr": math.log(9)}, True)] * 9 + [({"snr": math.log(9)}, False)]      # 0.9 predicted, 9/10 right
@@ -97,7 +115,7 @@ def test_write_fitted_replaces_only_the_fitted_block(tmp_path):
 
 
 def test_the_shipped_calibration_states_its_held_out_check():
-    assert set(C.COEF) == {"const", *C.KEYS}
+    assert set(C.COEF) == {"const", "partial_cap", *C.KEYS} and 0 <= C.COEF["partial_cap"] < 0.5
     h = C.CALIBRATION["heldout"]
     assert h and not set(h["seed_bases"]) & set(C.CALIBRATION["fit"]["seed_bases"])   # other seeds
     assert h["findings"] == sum(b["n"] for b in h["bins"]) and 0 <= h["ece"] <= 1

@@ -863,15 +863,30 @@ class LostSteps(AxisSignal):
         score = np.where(gg > 0, gy * gy / np.where(gg > 0, gg, 1), 0)
         score[0] = 0
         k = int(np.argmax(score))
-        hi = float(tt[order[k]])
-        before = tt[order[:k]]
-        before = before[before < hi]
+        # every split whose gain is within noise of the best is as likely (a step inside a tracker
+        # drop-out: one noisy sample at the gap's edge must not pin it there): the data place the
+        # step anywhere from the last sample before the first such split to the first sample
+        # after the last one, and the fit takes the middle of that bracket
+        near = score >= score[k] - self.TIE
+        k0, k1 = k, k
+        while k0 > 1 and near[k0 - 1]:
+            k0 -= 1
+        while k1 + 1 < len(score) and near[k1 + 1]:
+            k1 += 1
+        hi = float(tt[order[k1]])
+        before = tt[order[:k0]]
+        before = before[before < tt[order[k0]]]
         lo = float(before.max()) if len(before) else hi      # (elements of one row share its time)
-        ts = float(0.5 * (tt[order[k - 1]] + hi))
+        if k0 == k1:
+            ts = float(0.5 * (tt[order[k - 1]] + hi))
+        else:
+            ts = float(0.5 * (lo + hi))
+            k = min(max(int(np.searchsorted(tt[order], ts, side="left")), 1), len(order) - 1)
         off = float(gy[k] / gg[k])
         pred = g * off * (tt >= ts)
-        # the data place the step anywhere between the last sample before it and the first after
         return Fit({"t_s": ts, "offset_mm": off}, pred, 2, internal={"t_bracket": (lo, hi)})
+
+    TIE = 4.0      # whitened SSE: splits of the record this close to the best one are as likely (2 σ)
 
     EDGE = 0.02     # share of the record (and at least EDGE_N samples) the step needs on each side
 
