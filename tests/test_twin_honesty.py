@@ -132,3 +132,19 @@ def test_a_crash_that_moves_an_axis_is_located_as_a_step_not_named():
     assert u and u[0]["signature"].startswith("step at"), rep["unexplained"]
     assert abs(float(u[0]["signature"].split()[2]) - 4.3) < 0.1 and u[0]["excess_over_noise"] > 10
     assert not [f for f in rep["findings"] if f["confidence"] >= 0.5], rep["findings"]
+
+
+def test_a_spike_after_the_one_reversal_of_a_short_run_is_located_as_a_burst_not_named():
+    """Blind case 6000/oddity/2: a pocket run whose table reverses once; the load lurches ahead after
+    that reversal (stick-slip, outside the catalogue) for 17 tracker samples at 3.7 x noise. Too short
+    for its structure to be judged, it used to go unreported; it is now a burst after that reversal."""
+    seed = 6000 + 7919 * 20 + 2               # eval_diagnosis's seed of that case
+    rng = np.random.default_rng(seed)
+    case = synth.synth_case(rng, [], machine=M, seed=seed, duration_s=10.0, rate_hz=1000.0,
+                            oddities=["reversal_spike"])
+    odd = case.answer["oddities"][0]
+    assert case.answer["run"] == "raster"
+    rep, _ = diagnose(case.columns, M, cap=2000)
+    u = [e for e in rep["unexplained"] if set(e["channels"]) & set(odd["channels"])]
+    assert u and u[0]["signature"] == f"burst after a reversal of {odd['axis']}", rep["unexplained"]
+    assert not rep["findings"], rep["findings"]

@@ -23,6 +23,9 @@ N noisy samples give) gets an entry with
     quarter of the run, holding the excess (an encoder that miscounts now and then);
   * ``transient`` — a channel that is clean except in one stretch of the run (judged inside that
     stretch, where a line there is still reported as a spectral line);
+  * ``burst`` (``burst after a reversal of AX``) — one stretch of 10 to 19 samples, too short for
+    its structure to be judged, but over 3.2 x noise and 25 σ beyond it counted with the noise's
+    correlation in time (a spike after the one reversal of a short run);
   a channel whose excess has none of these structures (none removes 30 %) is not reported: that
   is a noise model that is off (coloured noise, coarse quantisation), not physics; a channel
   clean but for a few short stretches is judged on those stretches together (30 % + 12/n of
@@ -247,6 +250,43 @@ def _axis_of_channel(name):
     return None
 
 
+SHORT_N = 10            # a lone stretch of 10 to 19 samples ...
+SHORT_EXCESS = 3.0      # ... is reported as a burst when its rms is over 3.2 x noise
+SHORT_Z = 25.0          # ... and its chi-square excess is 25 σ with the noise's correlation in time
+
+
+def _short_burst(ctx, y, m, mw):
+    """(excess, {"burst": (fraction, axis reversed just before or None)}) of a lone stretch too short
+    for its structure to be judged, when it stands far above noise; else None.
+
+    The noise of a tracker is coloured (its samples correlate), so a short excursion of white-noise
+    size is common; the chi-square excess of the stretch is judged against the effective number of
+    independent samples n(1 − ρ)/(1 + ρ), ρ the lag-1 correlation of the channel's residual in time."""
+    o = ctx.obs
+    nw = int(mw.sum())
+    ssw = float(y[mw] @ y[mw])
+    exw = math.sqrt(max(ssw / nw - 1.0, 0.0))
+    if exw < SHORT_EXCESS:
+        return None
+    tt = ctx.t[o.row]
+    yy = y[m][np.argsort(tt[m], kind="stable")]
+    rho = float(np.corrcoef(yy[:-1], yy[1:])[0, 1]) if len(yy) > 3 and np.std(yy) > 0 else 0.0
+    rho = min(max(rho, 0.0), 0.95)
+    neff = nw * (1 - rho) / (1 + rho)
+    if (ssw / nw - 1.0) * neff < SHORT_Z * math.sqrt(2 * neff):
+        return None
+    a, b = float(tt[mw].min()), float(tt[mw].max())
+    rev = None
+    for j, ax in enumerate(AXES):          # an axis that reversed within 0.2 s before it, or in it
+        d = axis_direction(ctx, j)
+        sel = (ctx.t >= a - 0.2) & (ctx.t <= b)
+        dd = d[sel][d[sel] != 0]
+        if len(dd) > 1 and np.any(dd[1:] != dd[:-1]):
+            rev = ax
+            break
+    return exw, {"burst": (1.0 - 1.0 / (ssw / nw), rev)}
+
+
 def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> list[dict]:
     """Entries for the channels the accepted effects leave clearly above noise (see module doc).
 
@@ -281,6 +321,11 @@ def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> li
                     mw |= m & (tt_all >= a) & (tt_all <= b)
                 nw = int(mw.sum())
                 if nw < max(20, 5 * len(ws)):
+                    if len(ws) == 1 and nw >= SHORT_N:
+                        b = _short_burst(ctx, y, m, mw)
+                        if b is not None:
+                            local, local_ws, m, excess, sig = (ws[0][0], ws[0][1]), ws, mw, b[0], b[1]
+                            break
                     continue
                 ssw = float(y[mw] @ y[mw])
                 exw = math.sqrt(max(ssw / nw - 1.0, 0.0))
@@ -315,6 +360,9 @@ def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> li
             label = f"step at {detail:.2f} s"
         elif kind == "intermittent":
             label = f"intermittent ({detail} bursts)"
+        elif kind == "burst":
+            label = f"burst after a reversal of {detail}" if detail else "burst"
+            axis = detail or axis
         else:
             label = kind
         info = loc_after["channels"].get(name, {})
@@ -345,6 +393,11 @@ def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> li
                 label, region = f"intermittent ({len(local_ws)} bursts)", None
         ev_text = (f"{name} keeps {excess:.1f} x its noise{where} after the named effects; its structure: {fr} of "
                    f"the remaining energy.")
+        if kind == "burst":
+            ev_text = (f"{name} has one burst of {int(m.sum())} samples at {excess:.1f} x its noise between "
+                       f"{local[0]:.2f} and {local[1]:.2f} s, far beyond its noise even counted with the noise's "
+                       f"correlation in time, and too short for its structure to be judged"
+                       + (f"; {detail} reversed just before it." if detail else "."))
         if tried:
             ev_text += " Refused by their own checks: " + "; ".join(dict.fromkeys(tried)) + "."
         else:
