@@ -148,3 +148,21 @@ def test_a_spike_after_the_one_reversal_of_a_short_run_is_located_as_a_burst_not
     u = [e for e in rep["unexplained"] if set(e["channels"]) & set(odd["channels"])]
     assert u and u[0]["signature"] == f"burst after a reversal of {odd['axis']}", rep["unexplained"]
     assert not rep["findings"], rep["findings"]
+
+
+def test_steps_of_two_axes_at_one_instant_are_not_named_lost_steps():
+    """Missed pulses are one drive's fault. Two axes stepping at the same instant have a common cause
+    the catalogue lacks (a collision; in blind runs a sagging table, seen as steps when the table
+    reached its overhang): neither is named, both are refused with that reason, and the residual
+    is left to ``unexplained``."""
+    effects = [synth.Effect("lost_steps", {"axis": "L1"}, {"t_s": 5.0, "offset_mm": 0.03}),
+               synth.Effect("lost_steps", {"axis": "X"}, {"t_s": 5.0, "offset_mm": -0.025})]
+    case = synth.synth_case(np.random.default_rng(11), effects, machine=M, seed=11, duration_s=10.0, rate_hz=1000.0,
+                            run="calibration")
+    rep, ex = diagnose(case.columns, M, cap=1500)
+    assert not [f for f in rep["findings"] if f["effect"] == "lost_steps"], rep["findings"]
+    refused = [ev for ev in ex["rejected"] if ev["cand"].effect == "lost_steps"
+               and any("one common cause" in p for p in ev["problems"])]
+    assert {ev["cand"].target for ev in refused} >= {"L1", "X"}
+    assert all(abs(ev["fit"].params["t_s"] - 5.0) < 0.1 for ev in refused)
+    assert rep["unexplained"] and rep["verdict"] == "unexplained mismatch"

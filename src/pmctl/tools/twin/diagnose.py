@@ -460,6 +460,18 @@ def _among_lookalikes(best, pool, ctx, y):
     return chosen
 
 
+SAME_INSTANT_S = 0.25   # lost steps of several axes this close in time share one cause
+
+
+def _shared_step(ev, others) -> list:
+    """The lost steps among ``others`` on other axes at the instant of lost step ``ev``."""
+    if ev["cand"].effect != "lost_steps":
+        return []
+    t = ev["fit"].params["t_s"]
+    return [e for e in others if e["cand"].effect == "lost_steps" and e["cand"].target != ev["cand"].target
+            and abs(e["fit"].params["t_s"] - t) <= SAME_INSTANT_S]
+
+
 def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, candidates=None, loc=None):
     """Greedy forward selection. Returns (accepted evaluations in order, final residual, refused
     evaluations). ``loc``: the locate stage's breakdown (its screw-position lines are evidence)."""
@@ -469,8 +481,11 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
     y = y0.copy()
     accepted, rejected = [], []
     bar = _Progress(len(cands) * 2, progress)
-    for rnd in range(max_findings):
-        taken = {ev["cand"].key() for ev in accepted}
+    withdrawn = []          # lost steps that several axes shared (refused together)
+    for rnd in range(max_findings + 4):
+        if len(accepted) >= max_findings:
+            break
+        taken = {ev["cand"].key() for ev in accepted} | {ev["cand"].key() for ev in withdrawn}
         pool = []
         for c in cands:
             bar.step(c.label)
@@ -510,6 +525,21 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
                 rejected.append(r)
         if best is None:
             break
+        shared = _shared_step(best, accepted + withdrawn)
+        if shared:
+            # missed pulses are one drive's fault: steps of several axes at one instant have a
+            # common cause (a collision, the measurement shifting) that the catalogue lacks
+            for ev in [best] + shared:
+                if ev in accepted:
+                    accepted.remove(ev)
+                    y = y + ev["fit"].pred
+                others = ", ".join(e["cand"].target for e in [best] + shared if e is not ev)
+                ev["problems"] = [f"a step at {ev['fit'].params['t_s']:.2f} s shared by {others} within "
+                                  f"{SAME_INSTANT_S} s: not lost pulses of one drive but one common cause"]
+                if ev not in withdrawn:
+                    withdrawn.append(ev)
+                    rejected.append(ev)
+            continue
         accepted.append(best)
         y = y - best["fit"].pred
     bar.done()
