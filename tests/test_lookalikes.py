@@ -12,6 +12,7 @@ from pmctl.tools.twin import lookalikes as lk
 from pmctl.tools.twin import synth
 from pmctl.tools.twin.diagnose import diagnose
 from pmctl.tools.twin.effects import direction
+from pmctl.tools.twin.fix import compensation_from_findings
 
 M = load_machine()
 
@@ -81,7 +82,7 @@ def test_a_backlash_on_a_leg_that_never_reverses_is_named_with_its_look_alike():
                             run="raster")
     q = case.columns["cmd_L3"]
     assert _reversals(q) == 0 and np.ptp(q) > 1.0          # the premise: L3 moves, one way only
-    rep, _ = diagnose(case.columns, M, cap=2000)
+    rep, ex = diagnose(case.columns, M, cap=2000)
     f = [f for f in rep["findings"] if f.get("axis") == "L3" or f.get("chain") == 3]
     assert len(f) == 1, rep["findings"]
     f = f[0]
@@ -91,3 +92,6 @@ def test_a_backlash_on_a_leg_that_never_reverses_is_named_with_its_look_alike():
     assert math.isclose(abs(alt[0]["parameters"]["length_offset_mm"]), f["parameters"]["width_mm"] / 2, rel_tol=0.02)
     assert "reverses the axis" in f["separate_by"] and "cannot tell it from geometry" in f["evidence"]
     assert f["confidence"] <= 2 / 3 + 1e-9
+    # never compensated: a backlash table on a leg whose error is a length offset adds the play
+    comp, notes = compensation_from_findings(M, ex["accepted"])
+    assert comp is None and any("L3: backlash -> not written" in n for n in notes), notes

@@ -991,7 +991,7 @@ def _write_compensation(args, report, extras, machine, folder):
     from pmctl.tools.twin.fix import compensation_from_findings, write_compensation
     comp, notes = compensation_from_findings(machine, extras["accepted"], getattr(machine, "compensation", None))
     if comp is None:
-        print(f"\n  No backlash, pitch or periodic error was found: {args.write_compensation} not written."
+        print(f"\n  No backlash, pitch or periodic error to write: {args.write_compensation} not written."
               + "".join(f"\n    {n}" for n in notes), file=sys.stderr)
         return
     write_compensation(args.write_compensation, comp, recording=_display_name(folder),
