@@ -83,3 +83,20 @@ def test_from_twin_cli(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "1 geometry finding" in r.stdout
     assert load_machine(tmp_path / "c.toml").geometry.length_offsets.tolist() == [0.1, 0.0, 0.0]
+
+
+def test_from_twin_leaves_out_a_geometry_finding_that_has_look_alikes(tmp_path):
+    """A length offset the recording could not tell from a backlash (docs/diagnosis-report.md,
+    "Look-alikes") is not applied: the written config keeps that leg's length, and says why."""
+    alike = {"effect": "geometry", "chain": 2, "parameters": {"length_offset_mm": 0.011},
+             "alternatives": [{"effect": "backlash", "axis": "L2", "parameters": {"width_mm": 0.022}, "weight": 2.0}],
+             "separate_by": "a run that reverses the axis"}
+    rp = tmp_path / "report.json"
+    rp.write_text(json.dumps(report({"effect": "geometry", "chain": 1, "parameters": {"length_offset_mm": 0.1}},
+                                    alike)))
+    r = subprocess.run([sys.executable, "-m", "pmctl.interfaces.cli", "calibrate", "from-twin", str(rp),
+                        "--out", str(tmp_path / "c.toml")], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "applied 1 geometry finding" in r.stdout and "not applied: the geometry finding for chain 2" in r.stdout
+    assert "backlash" in r.stdout and "reverses the axis" in r.stdout
+    assert load_machine(tmp_path / "c.toml").geometry.length_offsets.tolist() == [0.1, 0.0, 0.0]
