@@ -317,6 +317,15 @@ def _affected(ctx, pred):
     return e >= 0.02 * e.max()
 
 
+PREDICTS_MIN = 9.0      # whitened energy of a prediction on a channel that counts as predicting there (3 σ)
+
+
+def _predicts(ctx, pred):
+    """Channels where ``pred`` carries more than PREDICTS_MIN of whitened energy."""
+    e = np.bincount(ctx.obs.ch, pred * pred, minlength=len(ctx.obs.channels))
+    return e >= PREDICTS_MIN
+
+
 def evaluate(cand, ctx, y, folds):
     """Full fit + held-out score of one candidate on residual y. None when it is no candidate."""
     o = ctx.obs
@@ -340,12 +349,17 @@ def evaluate(cand, ctx, y, folds):
     aff = _affected(ctx, full.pred)
     m = aff[o.ch]
     base = float(y[m] @ y[m])
-    d_cv = base - float((y[m] - cv[m]) @ (y[m] - cv[m]))
+    rel_gain = base - float((y[m] - cv[m]) @ (y[m] - cv[m]))
+    # the held-out gain counts every channel the effect predicts beyond noise, not only its main
+    # ones: a tool length error moves the tip along the tilted tool, mostly z but also x and y, and
+    # those x and y predictions are what tells it from an offset of the z channel
+    mw = _predicts(ctx, full.pred)[o.ch]
+    d_cv = float(y[mw] @ y[mw]) - float((y[mw] - cv[mw]) @ (y[mw] - cv[mw]))
     big = float(np.quantile(np.abs(full.pred[m]), 0.99)) if m.any() else 0.0
     enc_only = all(o.channels[i].startswith("enc_") for i in np.flatnonzero(aff))
     return {"cand": cand, "fit": full, "cv": cv, "d_cv": d_cv, "d_in": d_in, "pen": pen, "big": big,
             "enc_only": enc_only,
-            "rel": d_cv / base if base > 0 else 0.0, "affected": aff,
+            "rel": rel_gain / base if base > 0 else 0.0, "affected": aff,
             "score": d_cv - 0.5 * pen, "fold_params": fps, "y": y}
 
 

@@ -883,7 +883,11 @@ class LostSteps(AxisSignal):
             ts = float(0.5 * (lo + hi))
             k = min(max(int(np.searchsorted(tt[order], ts, side="left")), 1), len(order) - 1)
         off = float(gy[k] / gg[k])
-        pred = g * off * (tt >= ts)
+        # between the last sample before the step and the first after, the step's time is unknown:
+        # a sample there (a held-out one: the fit's own samples are all outside) is predicted by
+        # the expected value of a step placed anywhere in that span, a ramp across it
+        ramp = np.clip((tt - lo) / (hi - lo), 0.0, 1.0) if hi > lo else (tt >= ts).astype(float)
+        pred = g * off * ramp
         return Fit({"t_s": ts, "offset_mm": off}, pred, 2, internal={"t_bracket": (lo, hi)})
 
     TIE = 4.0      # whitened SSE: splits of the record this close to the best one are as likely (2 σ)
