@@ -95,3 +95,12 @@ def test_a_backlash_on_a_leg_that_never_reverses_is_named_with_its_look_alike():
     # never compensated: a backlash table on a leg whose error is a length offset adds the play
     comp, notes = compensation_from_findings(M, ex["accepted"])
     assert comp is None and any("L3: backlash -> not written" in n for n in notes), notes
+
+
+def test_a_compensation_is_written_only_when_every_look_alike_leaves_it_right():
+    assert lk.compensation_safe("backlash", [])
+    assert lk.compensation_safe("backlash", ["friction"])           # both flip at each reversal
+    assert not lk.compensation_safe("backlash", ["geometry"])       # a length offset does not
+    assert not lk.compensation_safe("backlash", ["friction", "sensor_offset"])
+    assert lk.compensation_safe("pitch_error", ["periodic_error"])
+    assert lk.separate_by(["backlash", "friction"]).startswith("encoders on the motor side")

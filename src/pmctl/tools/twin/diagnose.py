@@ -353,7 +353,7 @@ def evaluate(cand, ctx, y, folds):
     # the held-out gain counts every channel the effect predicts beyond noise, not only its main
     # ones: a tool length error moves the tip along the tilted tool, mostly z but also x and y, and
     # those x and y predictions are what tells it from an offset of the z channel
-    mw = _predicts(ctx, full.pred)[o.ch]
+    mw = (_predicts(ctx, full.pred) | aff)[o.ch]
     d_cv = float(y[mw] @ y[mw]) - float((y[mw] - cv[mw]) @ (y[mw] - cv[mw]))
     big = float(np.quantile(np.abs(full.pred[m]), 0.99)) if m.any() else 0.0
     enc_only = all(o.channels[i].startswith("enc_") for i in np.flatnonzero(aff))
@@ -455,12 +455,16 @@ def _passes(ev, ctx, y) -> bool:
     return not ev["problems"]
 
 
-def _among_lookalikes(best, pool, ctx, y):
-    """The one to name among the candidates that predict what ``best`` predicts within noise
-    (pmctl.tools.twin.lookalikes); the others go with it as its alternatives."""
+def _among_lookalikes(best, pool, ctx, y, refused=()):
+    """The one to name among the candidates of other effects that predict what ``best`` predicts
+    within noise (pmctl.tools.twin.lookalikes); the others go with it as its alternatives. (Another
+    parametrisation of the same effect, or a thermal growth against another temperature, competes
+    by score as before; a candidate that a stronger refused one blocks stays out.)"""
     group = [best]
     for ev in pool:
-        if ev is best or ev["cand"].key() == best["cand"].key():
+        if ev is best or ev["cand"].effect == best["cand"].effect:
+            continue
+        if any(r["score"] > BLOCK_RATIO * ev["score"] and np.any(r["affected"] & ev["affected"]) for r in refused):
             continue
         if lk.lookalike_d2(ev["fit"].pred, best["fit"].pred) > lk.LOOK_D2 or not _passes(ev, ctx, y):
             continue
@@ -533,7 +537,7 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
             best = ev
             break
         if best is not None:
-            best = _among_lookalikes(best, pool, ctx, y)
+            best = _among_lookalikes(best, pool, ctx, y, refused)
         for r in refused:
             if r["cand"].key() not in {e["cand"].key() for e in rejected}:
                 rejected.append(r)
@@ -552,7 +556,7 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
                                   f"{SAME_INSTANT_S} s: not lost pulses of one drive but one common cause"]
                 if ev not in withdrawn:
                     withdrawn.append(ev)
-                    rejected.append(ev)
+                    rejected[:] = [r for r in rejected if r["cand"].key() != ev["cand"].key()] + [ev]
             continue
         accepted.append(best)
         y = y - best["fit"].pred
@@ -572,9 +576,12 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
     for j, ev in enumerate(accepted):
         others = sum((e["fit"].pred for k, e in enumerate(accepted) if k != j), np.zeros_like(y0))
         c = ev["cand"]
-        if hasattr(c, "reset"):
-            c.reset()
-        cv = _cv_pred(c, ctx, y0 - others, folds) if len(accepted) > 1 else ev["cv"]
+        cv = ev["cv"]
+        if len(accepted) > 1:
+            if hasattr(c, "reset"):
+                c.reset()
+            c.fit(ctx, y0 - others, allm)        # (the fit on all samples first, as in evaluate)
+            cv = _cv_pred(c, ctx, y0 - others, folds)
         ev["cv"] = cv if cv is not None else ev["fit"].pred
     yfinal = y0 - sum((e["fit"].pred for e in accepted), np.zeros_like(y0))
     for ev in accepted + rejected:

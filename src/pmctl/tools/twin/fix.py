@@ -25,6 +25,7 @@ import math
 import numpy as np
 
 from pmctl.core.compensation import AXES, MAX_POINTS, AxisComp, Compensation, NO_COMPENSATION
+from pmctl.tools.twin.lookalikes import compensation_safe
 
 COMPENSABLE = ("backlash", "pitch_error", "periodic_error")
 GEOMETRY = ("geometry",)
@@ -52,8 +53,9 @@ def compensation_from_findings(machine, accepted, existing: Compensation | None 
     for ev in accepted:
         c, f = ev["cand"], ev["fit"]
         eff = c.effect
-        if ev.get("alternatives"):      # a look-alike: compensating the wrong one adds the error
-            alts = ", ".join(e["cand"].effect for e, _ in ev["alternatives"])
+        alt_names = [e["cand"].effect for e, _ in ev.get("alternatives", ())]
+        if alt_names and not compensation_safe(eff, alt_names):   # compensating the wrong one adds the error
+            alts = ", ".join(alt_names)
             notes.append(f"{c.target}: {eff} -> not written: this recording cannot tell it from {alts}; "
                          "record a run that separates them (the report's separate_by) first")
             continue

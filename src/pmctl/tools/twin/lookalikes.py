@@ -55,11 +55,24 @@ SEPARATE_BY = {
     frozenset({"compliance", "geometry"}): "a run that changes the axial force (a calibration run with loads)",
     frozenset({"sensor_gain", "sensor_offset"}): "a run that changes the channel's signal",
     frozenset({"backlash", "lost_steps"}): "a run that reverses the axis",
+    frozenset({"backlash", "friction"}): "encoders on the motor side, or a log fast enough to resolve the play's "
+                                         "take-up (a friction offset flips with the velocity, a play only once the "
+                                         "motor has crossed it)",
     frozenset({"backlash", "sensor_offset"}): "a run that reverses the axis (a backlash flips sign at a reversal, "
                                               "a sensor offset does not)",
     frozenset({"geometry", "sensor_offset"}): "a run over a wider range of poses",
     frozenset({"geometry", "lost_steps"}): "a longer run of the axis before and after the step",
 }
+
+
+# Alternatives that leave a compensation right: a backlash table flips the correction at each
+# reversal, which also corrects a Coulomb friction's reversal-locked offset.
+COMPENSATION_SAFE = {"backlash": {"friction"}, "pitch_error": {"periodic_error"}, "periodic_error": {"pitch_error"}}
+
+
+def compensation_safe(effect: str, alternatives) -> bool:
+    """Whether a compensation table of ``effect`` is right whichever of its look-alikes is the cause."""
+    return set(alternatives) <= COMPENSATION_SAFE.get(effect, set())
 
 
 def plausibility(effect: str, params: dict) -> float:
