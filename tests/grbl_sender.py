@@ -171,6 +171,48 @@ def parse_status(s):
     return out
 
 
+def rt_pid_of(pid):
+    """The pid of the rt motion process that supervisor ``pid`` started (None when there is none)."""
+    for t in os.listdir(f"/proc/{pid}/task"):
+        for k in Path(f"/proc/{pid}/task/{t}/children").read_text().split():
+            try:
+                if b"pmctl.motion.rtproc" in Path(f"/proc/{k}/cmdline").read_bytes():
+                    return int(k)
+            except FileNotFoundError:          # (a child that just exited)
+                continue
+    return None
+
+
+def power_cut_mid_move(tmp: Path, state: Path):
+    """Start ``pmctl serve`` with ``state``, move X by −12 mm at F300 and, once the journal records the
+    running job, the tool has moved 0.5 mm and a periodic snapshot (every 100 ticks) is past, SIGKILL
+    the rt process and the supervisor at once: a power cut, nobody saves anything. Returns the
+    position before the move."""
+    import json
+    import numpy as np
+    p, link = start_serve(tmp, state=state)
+    s = Sender(link)
+    try:
+        s.reset()
+        p0 = np.array(s.status()["pos"])
+        assert s.send("G21 G91 G1 F300 X-12") == "ok"
+        s.wait_state(("Run",), 60)
+        journal = Path(str(state) + ".journal")
+        t0 = time.time()                 # the journal has recorded the running job ...
+        while not json.loads(journal.read_text()).get("running") and time.time() - t0 < 60:
+            time.sleep(0.05)
+        t0 = time.time()                 # ... the tool moves (the first plan can take a second) ...
+        while s.status()["pos"][0] - p0[0] > -0.5 and time.time() - t0 < 60:
+            time.sleep(0.05)
+        time.sleep(0.3)                  # ... and a periodic snapshot is past
+        os.kill(rt_pid_of(p.pid), signal.SIGKILL)
+        p.send_signal(signal.SIGKILL)
+        p.wait(10)
+    finally:
+        s.close()
+    return p0
+
+
 def kill_supervisor_wait_rt(p, rt_pid, timeout=60.0):
     """SIGKILL the supervisor ``p`` and wait for its rt process ``rt_pid`` to notice, hold on the path,
     save its counters and exit by itself; if it is still there after ``timeout``, kill it too and

@@ -4,17 +4,13 @@ exists, and the console says so -- grbl's start-up message, ``[MSG:'$H'|'$X' to 
 after it, then ``ALARM:11`` and ``[MSG:reason]`` with the position's age, that it is not trusted
 and the interrupted job -- at start and again after each soft reset while the alarm lasts."""
 
-import json
 import os
-import signal
 import termios
-import time
 import tty
-from pathlib import Path
 
 import numpy as np
 
-from grbl_sender import Sender, start_serve, stop_serve
+from grbl_sender import Sender, power_cut_mid_move, start_serve, stop_serve
 
 BANNER = "Grbl 1.1h ['$' for help]"
 UNLOCK = "[MSG:'$H'|'$X' to unlock]"
@@ -30,14 +26,6 @@ def open_keeping(link) -> Sender:
     return s
 
 
-def rt_pid_of(pid):
-    for t in os.listdir(f"/proc/{pid}/task"):
-        for k in Path(f"/proc/{pid}/task/{t}/children").read_text().split():
-            if b"pmctl.motion.rtproc" in Path(f"/proc/{k}/cmdline").read_bytes():
-                return int(k)
-    return None
-
-
 def _alarm_block(pushed, start=0):
     """The start-up message at or after ``start`` and the lines after it: (index of the banner, the
     three lines that follow it)."""
@@ -47,27 +35,7 @@ def _alarm_block(pushed, start=0):
 
 def test_a_crash_comes_back_in_alarm_and_the_console_says_why(tmp_path):
     state = tmp_path / "state.json"
-    p, link = start_serve(tmp_path, state=state)
-    s = Sender(link)
-    try:
-        s.reset()
-        p0 = np.array(s.status()["pos"])
-        assert s.send("G21 G91 G1 F300 X-12") == "ok"
-        s.wait_state(("Run",), 60)
-        journal = tmp_path / "state.json.journal"
-        t0 = time.time()                 # the journal has recorded the running job ...
-        while not json.loads(journal.read_text()).get("running") and time.time() - t0 < 60:
-            time.sleep(0.05)
-        t0 = time.time()                 # ... and the tool moves
-        while s.status()["pos"][0] - p0[0] > -0.5 and time.time() - t0 < 60:
-            time.sleep(0.05)
-        time.sleep(0.3)                  # past a periodic snapshot (every 100 ticks)
-        rt = rt_pid_of(p.pid)
-        os.kill(rt, signal.SIGKILL)      # a power cut: nobody saves anything
-        p.send_signal(signal.SIGKILL)
-        p.wait(10)
-    finally:
-        s.close()
+    p0 = power_cut_mid_move(tmp_path, state)
     p, link = start_serve(tmp_path, state=state)
     s = open_keeping(link)
     try:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from grbl_sender import Sender, kill_supervisor_wait_rt, start_serve, stop_serve
+from grbl_sender import Sender, kill_supervisor_wait_rt, rt_pid_of, start_serve, stop_serve
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.core.recording import read_recording
@@ -25,15 +25,6 @@ from pmctl.task.planner import load_job, plan
 M = load_machine()
 ROOT = Path(__file__).resolve().parents[1]
 JOB = ROOT / "examples" / "jobs" / "cone.ngc"
-
-
-def rt_pid_of(pid):
-    for t in os.listdir(f"/proc/{pid}/task"):
-        kids = Path(f"/proc/{pid}/task/{t}/children").read_text().split()
-        for k in kids:
-            if "pmctl.motion.rtproc" in Path(f"/proc/{k}/cmdline").read_bytes().decode(errors="replace"):
-                return int(k)
-    return None
 
 
 def dist_to_polyline(points, poly):

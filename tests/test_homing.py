@@ -223,7 +223,7 @@ def test_sigkill_mid_job_restart_home_and_resume_from_the_line(tmp_path):
                 break
             time.sleep(0.05)
         assert j["job"] == str(job) and j["line"] >= 5
-        from test_daemon_serve import rt_pid_of
+        from grbl_sender import rt_pid_of
         rt = rt_pid_of(p.pid)
         p.send_signal(signal.SIGKILL)                 # the supervisor dies: the rt side holds on the path
         p.wait(10)

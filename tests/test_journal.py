@@ -4,14 +4,12 @@ daemon comes back in Alarm at the last periodic snapshot, saying its age and tha
 trusted, until the operator confirms."""
 
 import json
-import os
-import signal
 import time
 
 import numpy as np
 import pytest
 
-from grbl_sender import Sender, assert_locked_then_unlocked, start_serve, stop_serve
+from grbl_sender import Sender, assert_locked_then_unlocked, power_cut_mid_move, start_serve, stop_serve
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.core.errors import InputError
@@ -60,34 +58,9 @@ def test_journal_round_trip_and_damaged_file(tmp_path):
         Journal(p, M.name).load()
 
 
-def rt_pid_of(pid):
-    from pathlib import Path
-    for t in os.listdir(f"/proc/{pid}/task"):
-        for k in Path(f"/proc/{pid}/task/{t}/children").read_text().split():
-            if b"pmctl.motion.rtproc" in Path(f"/proc/{k}/cmdline").read_bytes():
-                return int(k)
-    return None
-
-
 def test_power_cut_comes_back_in_alarm_at_the_last_snapshot_not_trusted(tmp_path):
     state = tmp_path / "state.json"
-    p, link = start_serve(tmp_path, state=state)
-    s = Sender(link)
-    try:
-        s.reset()
-        p0 = np.array(s.status()["pos"])
-        assert s.send("G21 G91 G1 F300 X-12") == "ok"
-        s.wait_state(("Run",), 60)
-        t0 = time.time()                 # moving (the first plan can take a second on a loaded machine) ...
-        while s.status()["pos"][0] - p0[0] > -0.5 and time.time() - t0 < 60:
-            time.sleep(0.05)
-        time.sleep(0.3)                  # ... and past a periodic snapshot
-        rt = rt_pid_of(p.pid)
-        os.kill(rt, signal.SIGKILL)                 # both at once: nobody can save anything
-        p.send_signal(signal.SIGKILL)
-        p.wait(10)
-    finally:
-        s.close()
+    p0 = power_cut_mid_move(tmp_path, state)
     saved = load_counters(state, machine=M.name)
     assert not saved.clean                          # a periodic snapshot
     tip = K.fk_batch((saved.counts / M.resolution.pulses_per_mm)[None], M)[0].tip[0]

@@ -893,6 +893,7 @@ class LostSteps(AxisSignal):
     TIE = 4.0      # whitened SSE: splits of the record this close to the best one are as likely (2 σ)
 
     EDGE = 0.02     # share of the record (and at least EDGE_N samples) the step needs on each side
+    EDGE_N = 10
 
     def check(self, ctx, fit, y):
         ts = fit.params.get("t_s")
@@ -906,8 +907,6 @@ class LostSteps(AxisSignal):
             return [f"the step at t = {ts:.3g} s is at the record's edge ({n_before} samples before it, "
                     f"{n_after} after): it cannot be told from an offset"]
         return []
-
-    EDGE_N = 10
 
 
 TOOL_T_MIN = 5.0      # an axis resonance's tool-channel gain, in standard errors, below which only the gauge rings
