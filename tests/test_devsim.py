@@ -48,6 +48,17 @@ def slcan_listener(path):
     return Listener(None, can.Bus(interface="slcan", channel=path, bitrate=1_000_000, sleep_after_open=0))
 
 
+def _answered(frames) -> bool:
+    """Every drive (nodes 1-5) sent a TPDO after the last RPDO it received."""
+    frames = list(frames)
+    for n in range(1, 6):
+        rx = [i for i, (cid, _) in enumerate(frames) if cid == 0x200 + n]
+        tx = [i for i, (cid, _) in enumerate(frames) if cid == 0x180 + n]
+        if not tx or (rx and tx[-1] < rx[-1]):
+            return False
+    return True
+
+
 def _run(opts, during=None):
     tr, p = start_counts()
     tg = prepare(M, p, tr, DT, None)
@@ -67,6 +78,12 @@ def _run(opts, during=None):
     try:
         res = lp.run()
         before = be.devsim.call("drives", "positions") if be.devsim.alive() else None
+        if isinstance(extra, Listener):
+            # the serial link runs behind the loop: let the listener read every drive's answer to its
+            # last set-point before the simulator goes (a TPDO after each node's last RPDO)
+            t0 = time.monotonic()
+            while not _answered(extra.frames) and time.monotonic() - t0 < 10:
+                time.sleep(0.01)
     finally:
         be.close()
         if extra is not None:
