@@ -302,11 +302,17 @@ CRASH_SCRIPT = textwrap.dedent("""
     import sys, numpy as np
     sys.path.insert(0, {tests!r})
     from test_loop import line_traj, rp, run
+    from pmctl.motion.service_config import LoopConfig
     from pmctl.motion.state_store import CounterWriter
     w = CounterWriter({path!r}, machine="prototype")
     tr = line_traj([0, 0, 5], [40, 20, 5], rp(0, 0), rp(0, 0), 10.0, 1e-3)
+    # paced in real time as in the rt process: run flat out, the loop holds the GIL and the writer
+    # thread may not get a write in before the line ends (CI saw none in a whole run)
+    cfg = LoopConfig(rate_hz=1000.0, realtime=True, rt_priority=1, lock_memory=False,
+                     max_overruns_in_row=10**9, stall_timeout_s=5.0)
     print("start", flush=True)
-    run(tr, writer=w)
+    run(tr, writer=w, cfg=cfg)
+    print("ended", flush=True)
 """)
 
 
@@ -319,12 +325,13 @@ def test_counters_survive_a_crash(tmp_path):
     try:
         assert proc.stdout.readline().strip() == "start"
         t0 = time.time()
-        while time.time() - t0 < 30:
+        while time.time() - t0 < 30 and proc.poll() is None:
             if f.exists():
                 s = load_counters(f, machine="prototype")
                 if s.tick >= 500:
                     break
             time.sleep(0.05)
+        assert proc.poll() is None, "the run ended before a snapshot at tick 500 was seen"
         proc.send_signal(signal.SIGKILL)
         proc.wait(10)
     finally:
