@@ -1008,17 +1008,30 @@ class Resonance(Candidate):
         """Columns of the fit at obs elements ``idx`` (default: all)."""
         _, dt, resample = self._uniform(ctx)
         a, W, _ = self._weights(ctx)
-
-        def one(tt, x):
-            if resample is None:
-                return resonance_response(x, dt, f, z)
-            tu = np.arange(tt[0], tt[-1] + dt / 2, dt)
-            return np.interp(tt, tu, resonance_response(on_grid(tt, x, tu), dt, f, z))
-        h = per_run(ctx, one, ctx.t, ctx.q_cmd[:, a])
+        if resample is None:
+            h = per_run(ctx, lambda x: resonance_response(x, dt, f, z), ctx.q_cmd[:, a])
+        else:
+            h = np.concatenate([np.interp(tt, tu, resonance_response(xu, dt, f, z))
+                                for tt, tu, xu in self._gridded(ctx, a, dt)])
         o = ctx.obs
         if idx is None:
             return (W * h[o.row]).T
         return (W[:, idx] * h[o.row[idx]]).T
+
+    @staticmethod
+    def _gridded(ctx, a, dt):
+        """Per run of rows: (its times, the uniform grid, axis a's command on it), made once."""
+        key = ("res_grid", a)
+        if key not in ctx.extra:
+            pieces = []
+
+            def one(tt, x):
+                tu = np.arange(tt[0], tt[-1] + dt / 2, dt)
+                pieces.append((tt, tu, on_grid(tt, x, tu)))
+                return x
+            per_run(ctx, one, ctx.t, ctx.q_cmd[:, a])
+            ctx.extra[key] = pieces
+        return ctx.extra[key]
 
     def _f_candidates(self, ctx, y):
         """Peaks of the spectrum of the target residual (uniform grid), strongest first."""
