@@ -42,6 +42,9 @@ def _close_ptys(ptys):
                 pass
 
 
+
+PENDING_MAX = 1 << 20    # bytes a link's reader may fall behind (about 7 s of a 2 ms cycle) before it is given up
+
 class Hub:
     """slcan links joined into one wire, plus a python-can bus for the local nodes. Links: ptys
     (``n_pty``, made now) and loopback TCP connections (accepted on ``tcp_port`` as they come).
@@ -68,6 +71,7 @@ class Hub:
         self.local: queue.SimpleQueue = queue.SimpleQueue()
         self.frames = 0
         self.dropped_links = set()
+        self._pending = {}                  # link fd -> bytes its reader has not taken yet, in order
         self._wlock = threading.Lock()
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, daemon=True, name="pmctl-devsim-hub")
@@ -89,22 +93,48 @@ class Hub:
             for fd in list(self.fds):
                 if fd == exclude or fd in self.dropped_links:
                     continue
-                data = line
-                t_end = None
-                while data:
-                    try:
-                        data = data[os.write(fd, data):]
-                    except BlockingIOError:
-                        # the link's buffer is full: its reader stalls; wait a little, then give the
-                        # link up (a listener that went away must not stop the wire)
-                        t_end = t_end or time.monotonic() + 0.2
-                        if time.monotonic() > t_end:
-                            self.dropped_links.add(fd)
-                            break
-                        select.select([], [fd], [], 0.01)
-                    except OSError:
-                        self.dropped_links.add(fd)
-                        break
+                self._write(fd, line)
+
+    def _write(self, fd: int, data: bytes) -> None:
+        """``data`` to link ``fd`` without waiting (under _wlock): what its reader has not room for
+        yet is kept in order and written as the link drains (the hub thread), so a reader that
+        stalls a moment (a listener thread on a loaded host; a pty holds 4 kB, a few cycles) delays
+        only its own link and loses nothing. Past PENDING_MAX the link is given up: a listener that
+        went away must not hold the wire's memory."""
+        buf = self._pending.get(fd)
+        if buf is not None:
+            buf += data
+            if len(buf) > PENDING_MAX:
+                self._pending.pop(fd, None)
+                self.dropped_links.add(fd)
+            return
+        try:
+            n = os.write(fd, data)
+        except BlockingIOError:
+            n = 0
+        except OSError:
+            self.dropped_links.add(fd)
+            return
+        if n < len(data):
+            self._pending[fd] = bytearray(data[n:])
+
+    def _flush(self, fds) -> None:
+        with self._wlock:
+            for fd in fds:
+                buf = self._pending.get(fd)
+                if buf is None:
+                    continue
+                try:
+                    n = os.write(fd, buf)
+                except BlockingIOError:
+                    continue
+                except OSError:
+                    self._pending.pop(fd, None)
+                    self.dropped_links.add(fd)
+                    continue
+                del buf[:n]
+                if not buf:
+                    self._pending.pop(fd, None)
 
     def _accept(self):
         import socket
@@ -121,6 +151,7 @@ class Hub:
         with self._wlock:
             self.fds.pop(fd, None)
             self.dropped_links.discard(fd)
+            self._pending.pop(fd, None)
             sock = self.socks.pop(fd, None)
         if sock is not None:
             sock.close()
@@ -129,7 +160,11 @@ class Hub:
         from pmctl.hal.slcan_link import CR, decode
         while not self._stop.is_set():
             watch = list(self.fds) + ([self.listener.fileno()] if self.listener is not None else [])
-            r, _, _ = select.select(watch, [], [], 0.1)
+            with self._wlock:
+                backlog = [fd for fd in self._pending if fd in self.fds]
+            r, w, _ = select.select(watch, backlog, [], 0.1 if not backlog else 0.005)
+            if w:
+                self._flush(w)
             for fd in r:
                 if self.listener is not None and fd == self.listener.fileno():
                     self._accept()
@@ -155,10 +190,7 @@ class Hub:
                     if msg is None:
                         if ln[:1] in (b"S", b"O", b"C", b"L", b"V", b"N", b"s"):
                             with self._wlock:      # an adapter's answer to a command
-                                try:
-                                    os.write(fd, b"V1013\r" if ln[:1] == b"V" else CR)
-                                except OSError:
-                                    pass
+                                self._write(fd, b"V1013\r" if ln[:1] == b"V" else CR)
                         continue
                     self.frames += 1
                     self.broadcast(ln + CR, exclude=fd)
