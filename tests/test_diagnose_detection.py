@@ -203,16 +203,23 @@ def test_an_axis_mode_is_not_fitted_above_the_tracker_nyquist_frequency():
     assert own_checks(ev, ctx) == [], ev["fold_params"]
 
 
+def _blind_mode_named_right(seed, rate, axis, freq_hz):
+    """The blind eval's resonance case of ``seed`` (10 s, with recording imperfections), checked to
+    be the mode of ``axis`` at ``freq_hz``, is named with every parameter within tolerance."""
+    case = _case(["resonance"], seed, run=None, duration=10.0, rate=rate, imperfections=True)
+    (e,) = case.answer["effects"]
+    assert e["axis"] == axis and abs(e["parameters"]["freq_hz"] - freq_hz) < 0.01
+    rep, sc = _found(case)
+    r = sc["effects"][0]
+    assert r["named"] and r["params_ok"], (rep["findings"], r)
+    return rep
+
+
 def test_no_training_fold_fits_an_axis_mode_at_an_alias_above_the_tracker_nyquist_frequency():
     # blind case 6000/resonance/1: one training fold fitted a 27 Hz mode of L2 at 77 Hz, above the
     # 62.5 Hz Nyquist limit of its 125 Hz tracker; the mode was refused as not identifiable and its
     # gauge's mode named instead
-    case = _case(["resonance"], 61434, run=None, duration=10.0, rate=250.0, imperfections=True)
-    (e,) = case.answer["effects"]
-    assert e["axis"] == "L2" and abs(e["parameters"]["freq_hz"] - 27.05) < 0.01
-    rep, sc = _found(case)
-    r = sc["effects"][0]
-    assert r["named"] and r["params_ok"], (rep["findings"], r)
+    _blind_mode_named_right(61434, 250.0, "L2", 27.05)
 
 
 def test_a_mode_in_a_circle_run_is_named_not_its_static_part_as_a_geometry_error():
@@ -220,10 +227,5 @@ def test_a_mode_in_a_circle_run_is_named_not_its_static_part_as_a_geometry_error
     # the position like a geometry error; only the block where it rings pins the mode. The training
     # fold without it went to 23 Hz for 13 Hz (its cost at 13 Hz only 6.6 higher), the mode was
     # refused as not identifiable and a platform joint named with confidence 0.96
-    case = _case(["resonance"], 60437, run=None, duration=10.0, rate=1000.0, imperfections=True)
-    (e,) = case.answer["effects"]
-    assert e["axis"] == "L3" and abs(e["parameters"]["freq_hz"] - 13.10) < 0.01
-    rep, sc = _found(case)
-    r = sc["effects"][0]
-    assert r["named"] and r["params_ok"], (rep["findings"], r)
+    rep = _blind_mode_named_right(60437, 1000.0, "L3", 13.10)
     assert not any(f["effect"] == "geometry" for f in rep["findings"]), rep["findings"]
