@@ -51,6 +51,17 @@ def test_samples_at_one_screw_position_count_as_at_most_20_per_channel(dwells, p
         assert np.ptp(w[m]) == 0                                          # equally
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 10_000), st.floats(1e-7, 1e-2), st.floats(0.0, 1e3))
+def test_the_noise_a_prediction_carries_is_told_from_its_smooth_signal(seed, sigma, amp):
+    # a smooth signal (a few slow sines, any size) plus white noise sigma: the estimate is sigma
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 10.0, 3000)
+    sig = amp * sigma * sum(rng.normal() * np.sin(2 * np.pi * f * t + rng.uniform(0, 6)) for f in (0.1, 0.37, 1.3))
+    est = fx.prediction_noise(sig + sigma * rng.normal(size=t.size))
+    assert abs(est / sigma - 1) < 0.12
+
+
 def test_two_dwells_do_not_outweigh_the_travel_in_a_pitch_fit():
     """Blind case 7000/pitch_error/1: a calibration run at 250 Hz with coloured tracker noise spends
     1600 of its 2960 tracker samples dwelling at two screw positions. They measured two values of

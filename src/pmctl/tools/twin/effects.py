@@ -1493,13 +1493,35 @@ class Geometry(Candidate):
         return {names[0]: v[0] if len(v) == 1 else v}
 
 
+GAIN_SIGNAL_MIN = 3.0    # a gain is seen where the predicted signal varies this many times its own noise
+
+
+def prediction_noise(pred_in_time_order) -> float:
+    """The white noise a channel's prediction carries (encoder noise through the kinematics):
+    robustly, from its second differences, which a smooth signal hardly has (MAD / 0.6745 / √6)."""
+    d2 = np.diff(np.asarray(pred_in_time_order, float), 2)
+    return float(np.median(np.abs(d2 - np.median(d2))) / 0.6745 / math.sqrt(6.0)) if len(d2) else 0.0
+
+
 class SensorGain(Candidate):
+    """A channel reads g times the signal: δ = (g − 1)·prediction.
+
+    Applicable only where the predicted signal varies by more than :data:`GAIN_SIGNAL_MIN` times
+    the noise the prediction itself carries. Where it does not (a tool direction that a job without
+    tilts keeps vertical, predicted from encoders with their noise), a "gain" of about 0 would
+    explain that noise, not the sensor (a sim run read tool_i as "−1000007 ppm of its predicted
+    value" with confidence 0.97)."""
+
     effect = "sensor_gain"
     target_key = "channel"
 
     def applicable(self, ctx):
         o = ctx.obs
-        return self.target in o.channels and np.ptp(o.pred[o.mask_of(self.target)]) > 0
+        if self.target not in o.channels:
+            return False
+        m = o.mask_of(self.target)
+        p = o.pred[m][np.argsort(o.row[m], kind="stable")]
+        return np.ptp(p) > 0 and float(np.std(p)) > GAIN_SIGNAL_MIN * prediction_noise(p)
 
     def design(self, ctx):
         o = ctx.obs
@@ -1522,8 +1544,7 @@ class SensorOffset(Candidate):
         return np.where(o.mask_of(self.target), o.w, 0.0)[:, None]
 
     def params_of(self, c, ctx):
-        sig = ctx.obs.sigma[self.target]
-        return {"offset": float(c[0])} if sig else {"offset": float(c[0])}
+        return {"offset": float(c[0])}
 
 
 def catalogue(ctx: Context) -> list[Candidate]:
