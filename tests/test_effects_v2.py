@@ -2,7 +2,6 @@
 run, and each effect's own checks refuse its look-alikes. Contexts are built once per case."""
 
 import numpy as np
-import pytest
 
 from pmctl.core.config import load_machine
 from pmctl.tools.twin import effects as fx

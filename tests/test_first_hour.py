@@ -6,7 +6,6 @@ said about the machine, and the messages say what the user typed."""
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys

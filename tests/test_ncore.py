@@ -327,9 +327,9 @@ def test_a_restart_keeps_the_applied_chain_offset(impl):
     c = counts_of(np.array([M.geometry.z_home] * 3 + [0.0, 0.0]) + np.r_[off, 0.0, 0.0], params)
     st0 = initial_state(M, c, offset=off)
     tip0 = initial_state(M, c).tip
-    for given, moved in ((True, False), (False, True)):
+    for with_offset, moved in ((True, False), (False, True)):
         nc = make_nc(M, params, impl)
-        s = nc.load(initial_state(M, c, offset=off if given else None))
+        s = nc.load(initial_state(M, c, offset=off if with_offset else None))
         target = np.r_[np.array(s.tip, float), np.array(s.axis, float), np.zeros(6)]   # the rest pose (rtproc)
         be = hal.create("sim", M, dt, {})
         be.open(c)

@@ -12,10 +12,10 @@ from hypothesis import given, settings, strategies as st
 from pmctl import hal
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
-from pmctl.motion.loop import ControlLoop, prepare, target_samples
+from pmctl.motion.loop import ControlLoop, prepare
 from pmctl.motion.nc import NCParams, counts_of, initial_state
 from pmctl.motion.recorder import REC_CAPACITY, REC_WIDTH, Recorder
-from pmctl.motion.ring import ArraySource, Ring
+from pmctl.motion.ring import Ring
 from pmctl.motion.service_config import LoopConfig
 from pmctl.motion.timescale import (FLAG_END, HELD, S_FLAGS, WIDTH, TimeScaler, backward_pass, iter_job_rows,
                                     make_follower)
