@@ -644,7 +644,7 @@ def _evidence_core(ev, ctx, loc, explained):
         d = loc["direction"].get(c.target, {})
         jump = abs(d.get("jump_mm", p["width_mm"]))
         return (f"the tool error along {c.target} flips by {_fmt_um(jump)} when {c.target} reverses "
-                f"(t = {abs(d.get('t_value', 0)):.0f}), independent of pose; a {p['width_mm']:.4f} mm backlash "
+                f"(t-statistic {abs(d.get('t_value', 0)):.0f}), independent of pose; a {p['width_mm']:.4f} mm backlash "
                 f"on {c.target} explains {pct} of it on held-out samples.")
     if eff == "pitch_error":
         return (f"the error along {c.target} is periodic in the screw position with a period of "
@@ -860,7 +860,7 @@ def format_text(report, extras) -> str:
             parts.append(f"tool-equivalent rms {_fmt_um(v['tool_equiv_rms_mm'])}")
         d = loc["direction"].get(ax)
         if d:
-            parts.append(f"+/- motion jump {_fmt_um(d['jump_mm'])} (t = {d['t_value']:.1f})")
+            parts.append(f"+/- motion jump {_fmt_um(d['jump_mm'])} (t-statistic {d['t_value']:.1f})")
         if v.get("screw_peak_per_mm"):
             parts.append(f"screw-position peak {v['screw_peak_per_mm']:.3f} /mm "
                          f"(period {v['screw_peak_period_mm']:.2f} mm, {v['screw_peak_ratio']:.0f}x median)")
