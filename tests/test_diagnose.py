@@ -9,6 +9,7 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from pmctl.interfaces.cli import main
 from pmctl.core.config import load_machine
@@ -72,8 +73,13 @@ def test_cli_writes_the_recording_md_report_and_plots(tmp_path, capsys):
     assert set(rep) == {"recording", "verdict", "samples", "findings", "unexplained", "confidence_calibration"}
     assert rep["samples"]["total"] == rep["samples"]["analysed"] == len(case.columns["t"])
     f = rep["findings"][0]
-    assert set(f) == {"effect", "axis", "parameters", "where", "evidence", "rms_before", "rms_after", "heldout",
-                      "confidence"}
+    assert set(f) == {"effect", "axis", "parameters", "uncertainty", "where", "evidence", "rms_before",
+                      "rms_after", "heldout", "confidence"}
+    truth = case.answer["effects"][0]["parameters"]["width_mm"]
+    se = f["uncertainty"]["width_mm"]
+    assert set(f["uncertainty"]) == {"width_mm"} and 0 < se < 0.2 * f["parameters"]["width_mm"]
+    assert abs(f["parameters"]["width_mm"] - truth) < 5 * se + 0.02 * truth
+    assert f"width_mm = {f['parameters']['width_mm']} ± " in out
     assert 0.5 < f["confidence"] <= 1.0
     assert set(f["where"]) >= {"channels", "time_windows_s", "direction_dependent", "frequency_hz"}
     assert f["effect"] == "backlash" and f["where"]["direction_dependent"] is True
@@ -184,3 +190,17 @@ def test_a_lost_step_inside_a_folds_gap_agrees_with_that_fold():
     rep, ex = diagnose(case.columns, M, cap=2000)
     sc = score(rep, case.answer, noise=ex["ctx"].obs.sigma)
     assert sc["all_found"], (case.answer["effects"], rep["findings"])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=8))
+def test_the_fold_uncertainty_of_a_mean_is_the_standard_error_of_the_group_means(g):
+    # K groups with means g_j; leaving group k out, the mean is that of the others. The
+    # delete-a-group jackknife then gives exactly the standard error of the mean of the K groups.
+    from pmctl.tools.twin.diagnose import fold_uncertainty
+    g = np.asarray(g)
+    K = len(g)
+    folds = [{"v": float((g.sum() - g[k]) / (K - 1)), "t_s": 1.0, "period_mm": [1.0, 2.0]} for k in range(K)]
+    se = fold_uncertainty({"v": float(g.mean()), "t_s": 1.0, "period_mm": [1.0, 2.0]}, folds)
+    assert set(se) == {"v"}                             # a step time and a list are left out
+    assert se["v"] == pytest.approx(np.std(g, ddof=1) / np.sqrt(K), rel=1e-9, abs=1e-9)

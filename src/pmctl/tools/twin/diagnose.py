@@ -309,6 +309,28 @@ def fold_spread(params, fold_params, ctx) -> float:
     return worst
 
 
+def fold_uncertainty(params, fold_params) -> dict:
+    """Standard error of each scalar parameter by the delete-a-group jackknife over the K training
+    folds (each leaves out one interleaved group of time blocks, so noise correlated within a block
+    stays with its block): se² = (K − 1)/K · Σ(θ_k − θ̄)². With K = 3 it is a rough figure (two
+    degrees of freedom): its order of magnitude, not its second digit. A step time is left out: a
+    fold without the step's block cannot place it."""
+    K = len(fold_params)
+    out = {}
+    if K < 2:
+        return out
+    for k, v in params.items():
+        if k in DERIVED or k == "t_s" or isinstance(v, (str, bool)) or np.ndim(v) != 0:
+            continue
+        vals = [fp.get(k) for fp in fold_params]
+        if any(x is None or np.ndim(x) != 0 for x in vals):
+            continue
+        th = np.asarray(vals, float)
+        if np.all(np.isfinite(th)):
+            out[k] = float(np.sqrt((K - 1) / K * np.sum((th - th.mean()) ** 2)))
+    return out
+
+
 def _affected(ctx, pred):
     o = ctx.obs
     e = np.bincount(o.ch, pred * pred, minlength=len(o.channels))
@@ -716,7 +738,8 @@ def _finding(ev, ctx, y_before, y0, y_after_cum, loc_before):
     target_key = c.target_key
     tgt = c.target
     params = {k: _r(v, 7 if k == "gain" else 4) for k, v in f.params.items()}
-    item = {"effect": c.effect, target_key: tgt, "parameters": params,
+    unc = {k: _r(v, 2) for k, v in fold_uncertainty(f.params, ev.get("fold_params", [])).items()}
+    item = {"effect": c.effect, target_key: tgt, "parameters": params, "uncertainty": unc,
             "where": {"channels": aff, "time_windows_s": [[round(a, 3), round(b, 3)] for a, b in tw],
                       "direction_dependent": c.effect == "backlash",
                       "frequency_hz": _r(f.params["freq_hz"]) if c.effect == "resonance" else None},
@@ -882,8 +905,9 @@ def format_text(report, extras) -> str:
     L += ["", "WHY: " + report["verdict"], ""]
     for i, f in enumerate(report["findings"], 1):
         tk = "chain" if "chain" in f else ("channel" if "channel" in f else "axis")
+        unc = f.get("uncertainty", {})
         L.append(f"  {i}. {f['effect']} on {tk} {f[tk]}: " +
-                 ", ".join(f"{k} = {v}" for k, v in f["parameters"].items()))
+                 ", ".join(f"{k} = {v}" + (f" ± {unc[k]:.2g}" if k in unc else "") for k, v in f["parameters"].items()))
         L.append(f"     {f['evidence']}")
         L.append("     held-out rms: " + ", ".join(
             f"{k} {f['rms_before'][k]:.3g} -> {f['rms_after'][k]:.3g}" for k in f["rms_before"])
