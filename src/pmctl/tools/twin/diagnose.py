@@ -309,6 +309,9 @@ def fold_spread(params, fold_params, ctx) -> float:
     return worst
 
 
+LOOSE = 0.2             # a parameter whose standard error exceeds this share of it is said to be loosely pinned
+
+
 def fold_uncertainty(params, fold_params) -> dict:
     """Standard error of each scalar parameter by the delete-a-group jackknife over the K training
     folds (each leaves out one interleaved group of time blocks, so noise correlated within a block
@@ -749,6 +752,13 @@ def _finding(ev, ctx, y_before, y0, y_after_cum, loc_before):
             "heldout": True}
     if c.effect == "pitch_error":
         item["where"]["spatial_frequency_per_mm"] = _r(1 / f.params["period_mm"])
+    loose = []
+    for k, se in unc.items():
+        ref = abs(f.params[k] - (1.0 if k == "gain" else 0.0))
+        if ref > 0 and se > LOOSE * ref:
+            loose.append(f"{k} only to ± {100 * se / ref:.0f} %")
+    if loose:
+        item["evidence"] += f" This run pins {', '.join(loose)} (the scatter of its training folds)."
     if ev.get("alternatives"):
         item["alternatives"] = [{"effect": e["cand"].effect, e["cand"].target_key: e["cand"].target,
                                  "parameters": {k: _r(v, 7 if k == "gain" else 4) for k, v in e["fit"].params.items()},
