@@ -318,11 +318,17 @@ def test_host_killed_mid_move_the_bridge_stops_within_its_watchdog_time_and_says
     log = bridge.edges()
     rises = log[log["kind"] == bp.EDGE_HIGH]
     assert _dt_us(_us32(rises["t"].max()), s.last_tick_rx_us) <= 1 + 200_000     # nothing after the trip
-    # every tick it accepted was executed (the queue ran out before the trip), nothing else
-    assert s.done == s.next_tick > 300
-    assert np.array_equal(s.counters, np.array([100, -100, 50, 20, 0]) * s.next_tick)
+    # every tick it started ran in full (the last one 200 ms before the trip), and every tick it
+    # accepted is either executed or reported as not executed. Only fewer than the 2 priming ticks
+    # can be left: when a host starved on a loaded machine let the queue run dry, the bridge waits
+    # for 2 ticks again before stepping, and a host killed just then leaves 1 waiting (seen in CI)
+    per_tick = np.array([100, -100, 50, 20, 0])
+    assert s.next_tick > 300 and s.done == s.started
+    left = s.next_tick - s.done
+    assert 0 <= left < 2 and (left == 0 or s.underruns > 0)
+    assert np.array_equal(s.counters, per_tick * s.done)
     assert np.array_equal(bp.executed_steps(log), s.counters)
-    assert s.not_executed == (0, 0, 0, 0, 0)
+    assert np.array_equal(s.not_executed, per_tick * left)
 
 
 def test_a_watchdog_trip_with_ticks_queued_reports_what_was_not_executed(bridge):
