@@ -39,6 +39,7 @@ import time
 from collections import Counter
 
 import can
+import pmctl  # noqa: F401,I001  (before numpy: its one-BLAS-thread default, pmctl/__init__.py)
 import numpy as np
 
 from pmctl import hal

@@ -30,6 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import pmctl  # noqa: F401,I001  (before numpy: its one-BLAS-thread default, pmctl/__init__.py)
 import numpy as np
 
 CHILD = r"""

@@ -15,6 +15,7 @@ import math
 import os
 import time
 
+import pmctl  # noqa: F401,I001  (before numpy: its one-BLAS-thread default, pmctl/__init__.py)
 import numpy as np
 
 from pmctl.core import kinematics as K

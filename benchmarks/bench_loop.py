@@ -37,6 +37,7 @@ import os
 import sys
 import time
 
+import pmctl  # noqa: F401,I001  (before numpy: its one-BLAS-thread default, pmctl/__init__.py)
 import numpy as np
 
 from pmctl import hal

@@ -20,6 +20,7 @@ import statistics
 import time
 from pathlib import Path
 
+import pmctl  # noqa: F401,I001  (before numpy: its one-BLAS-thread default, pmctl/__init__.py)
 import numpy as np
 
 from pmctl.task.cldata import cl_job, parse_cl

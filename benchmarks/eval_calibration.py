@@ -24,6 +24,7 @@ import math
 import time
 from dataclasses import replace
 
+import pmctl  # noqa: F401,I001  (before numpy: its one-BLAS-thread default, pmctl/__init__.py)
 import numpy as np
 
 from pmctl.core import kinematics as K

@@ -45,6 +45,7 @@ import json
 import sys
 import time
 
+import pmctl  # noqa: F401,I001  (before numpy: its one-BLAS-thread default, pmctl/__init__.py)
 import numpy as np
 
 from pmctl.core.config import load_machine

@@ -33,6 +33,7 @@ import argparse
 import math
 import sys
 
+import pmctl  # noqa: F401,I001  (before numpy: its one-BLAS-thread default, pmctl/__init__.py)
 import numpy as np
 from scipy.optimize import curve_fit
 
