@@ -213,6 +213,9 @@ def build_context(columns: dict, machine, *, cap=DEFAULT_CAP, bounds=None) -> Co
     uniform = float(np.mean(dt)) if len(dt) and np.ptp(dt) <= 1e-6 * np.mean(dt) + 1e-12 else None
     ctx = Context(machine, t, q_cmd, q_motor, has_enc, temps, rows, J, geo, forces, obs, uniform)
     ctx.extra["P"], ctx.extra["R"] = P, R
+    # each channel's own sample step in the record (a tracker slower than the log), before the cap
+    # thins the analysis: the Nyquist limit of what the channel saw
+    ctx.extra["native_dt"] = {k: float(np.median(np.diff(t[ok]))) for k, ok in sampled.items() if len(ok) > 2}
     if runs:
         ctx.extra["bounds"] = bounds
         ctx.extra["cuts"] = t[bounds[1:-1]]
@@ -317,7 +320,8 @@ def fold_uncertainty(params, fold_params) -> dict:
     folds (each leaves out one interleaved group of time blocks, so noise correlated within a block
     stays with its block): se² = (K − 1)/K · Σ(θ_k − θ̄)². With K = 3 it is a rough figure (two
     degrees of freedom): its order of magnitude, not its second digit. A step time is left out: a
-    fold without the step's block cannot place it."""
+    fold without the step's block cannot place it. So is a parameter that every fold kept at the
+    full fit's value (a mode whose folds could not refute it): their scatter measured nothing."""
     K = len(fold_params)
     out = {}
     if K < 2:
@@ -329,8 +333,11 @@ def fold_uncertainty(params, fold_params) -> dict:
         if any(x is None or np.ndim(x) != 0 for x in vals):
             continue
         th = np.asarray(vals, float)
-        if np.all(np.isfinite(th)):
-            out[k] = float(np.sqrt((K - 1) / K * np.sum((th - th.mean()) ** 2)))
+        se = float(np.sqrt((K - 1) / K * np.sum((th - th.mean()) ** 2))) if np.all(np.isfinite(th)) else 0.0
+        # folds that all kept the full fit's value (a mode whose folds cannot refute it keeps it)
+        # measured nothing: no figure rather than a standard error of 0
+        if se > 1e-9 * abs(float(v)):
+            out[k] = se
     return out
 
 

@@ -1083,8 +1083,15 @@ class Resonance(Candidate):
         pk = pk[np.argsort(ratio[pk])[::-1]][:3]
         return [float(fq[k]) for k in pk if ratio[k] > 6]
 
-    def _nyquist(self, ctx, rows_mask):
+    def _nyquist(self, ctx, rows_mask, native=True):
+        """Nyquist frequency of the elements ``rows_mask``: of the channels as recorded
+        (``native``: a tracker slower than the log), or of the analysis samples the cap kept."""
         nyq = 0.5 / self._uniform(ctx)[1]
+        nd = ctx.extra.get("native_dt")
+        if native and nd is not None:
+            chans = np.unique(ctx.obs.ch[rows_mask])
+            steps = [nd[ctx.obs.channels[c]] for c in chans if ctx.obs.channels[c] in nd]
+            return min([nyq] + [0.5 / d for d in steps if d > 0])
         rows = np.unique(ctx.obs.row[rows_mask])
         if len(rows) > 2:
             nyq = min(nyq, 0.5 / float(np.median(np.diff(ctx.t[rows]))))
@@ -1097,9 +1104,15 @@ class Resonance(Candidate):
         # higher, but a mode there is taken only when it fits clearly better (ALIAS_D2): where
         # the gauge does not tell, a 15 Hz mode seen by a 125 Hz tracker fits as well at its 110 Hz
         # alias
+        # The cap thins a long log's analysis samples (every 3rd row of a 1 kHz log): the mode is
+        # filtered on the full grid and compared at the kept samples, so a mode above their Nyquist
+        # frequency is still told from its alias by its forced part, but only with enough signal.
+        # The bands: below the kept samples' limit first; then below the tool channels' own limit,
+        # then the gauge's, each taken only when it fits clearly better (ALIAS_D2)
         _, W, sup = self._weights(ctx)
         nyq_all = self._nyquist(ctx, sup)
         nyq_own = min(nyq_all, self._nyquist(ctx, W[0] != 0))
+        nyq_thin = min(nyq_own, self._nyquist(ctx, W[0] != 0, native=False))
         if self._starts is None:
             # (a coarser start grid on long records: each start filters the whole record)
             ng = 20 if len(ctx.t) <= 200_000 else 10
@@ -1157,11 +1170,12 @@ class Resonance(Candidate):
                     best = optimize.OptimizeResult(x=np.array([math.log(self._full[0]), self._full[1]]),
                                                    cost=0.5 * float(r @ r))
             return best
-        best, nyq = search(nyq_own), nyq_own
-        if nyq_all > 1.05 * nyq_own:
-            wide = search(nyq_all)
-            if wide is not None and (best is None or wide.cost < best.cost - 0.5 * ALIAS_D2):
-                best, nyq = wide, nyq_all
+        best, nyq = search(nyq_thin), nyq_thin
+        for band in (nyq_own, nyq_all):
+            if band > 1.05 * nyq:
+                wide = search(band)
+                if wide is not None and (best is None or wide.cost < best.cost - 0.5 * ALIAS_D2):
+                    best, nyq = wide, band
         if best is None:
             return Fit({}, np.zeros_like(y), 3, ok=False)
         f, z = math.exp(best.x[0]), float(best.x[1])
