@@ -245,6 +245,21 @@ def test_an_axis_mode_is_not_fitted_above_the_tracker_nyquist_frequency():
     assert own_checks(ev, ctx) == [], ev["fold_params"]
 
 
+def test_a_mode_above_the_thinned_samples_nyquist_frequency_is_found_at_its_own():
+    # a 180 Hz mode of gauge 1 in a 1 kHz log: the cap keeps every 5th row (a 100 Hz Nyquist limit),
+    # but the gauge was sampled at 1 kHz and the mode is filtered on the full grid. It was searched
+    # below 0.9 x 100 Hz only and missed. (So were the 246.6 Hz chain modes of the README's demo
+    # run, whose 1 kHz tool channels the cap thins to every 3rd row: refused at the band's edge,
+    # their static part was named a table compliance with confidence 0.95.)
+    e = synth.Effect("resonance", {"channel": "strain_1"}, {"freq_hz": 180.0, "damping_ratio": 0.03},
+                     {"peak_ue": 15.0})
+    case = _case([e], 41, run="circle", duration=10.0, rate=1000.0)
+    rep, sc = _found(case, cap=2000)
+    r = sc["effects"][0]
+    assert r["named"] and r["params_ok"], (rep["findings"], r)
+    assert sc["extra_findings"] == [], rep["findings"]
+
+
 def _blind_mode_named_right(seed, rate, axis, freq_hz):
     """The blind eval's resonance case of ``seed`` (10 s, with recording imperfections), checked to
     be the mode of ``axis`` at ``freq_hz``, is named with every parameter within tolerance."""
