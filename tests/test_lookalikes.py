@@ -104,3 +104,20 @@ def test_a_compensation_is_written_only_when_every_look_alike_leaves_it_right():
     assert not lk.compensation_safe("backlash", ["friction", "sensor_offset"])
     assert lk.compensation_safe("pitch_error", ["periodic_error"])
     assert lk.separate_by(["backlash", "friction"]).startswith("encoders on the motor side")
+
+
+def test_a_gain_on_a_steady_tracker_channel_stays_the_offsets_look_alike():
+    """Blind case 12000/sensor_gain/1: a gain of 0.9998 on tip_z in a circle run, where the tip's
+    height hardly changes (0.4 µm peak to peak, below the noise the prediction carries). A gain on
+    that steady 139 mm level reads exactly as a −28 µm offset: the two are look-alikes, and the
+    report must say so. When the gain was refused for a signal that does not vary beyond its noise,
+    the offset was named alone with confidence 0.99."""
+    seed = 83272
+    case = synth.synth_case(np.random.default_rng(seed), ["sensor_gain"], machine=load_machine(), seed=seed,
+                            duration_s=10.0, rate_hz=250.0, imperfections=True)
+    (e,) = case.answer["effects"]
+    assert e["channel"] == "tip_z" and case.answer["run"] == "circle"
+    rep, _ = diagnose(case.columns, load_machine(), cap=2000)
+    (f,) = [f for f in rep["findings"] if f.get("channel") == "tip_z"]
+    assert {a["effect"] for a in f.get("alternatives", [])} | {f["effect"]} == {"sensor_gain", "sensor_offset"}
+    assert f["confidence"] <= 0.67 + 1e-9

@@ -1507,7 +1507,7 @@ class Geometry(Candidate):
         return {names[0]: v[0] if len(v) == 1 else v}
 
 
-GAIN_SIGNAL_MIN = 3.0    # a gain is seen where the predicted signal varies this many times its own noise
+GAIN_SIGNAL_MIN = 3.0    # a gain is tried where the predicted signal is this many times its own noise
 
 
 def prediction_noise(pred_in_time_order) -> float:
@@ -1520,11 +1520,12 @@ def prediction_noise(pred_in_time_order) -> float:
 class SensorGain(Candidate):
     """A channel reads g times the signal: δ = (g − 1)·prediction.
 
-    Applicable only where the predicted signal varies by more than :data:`GAIN_SIGNAL_MIN` times
-    the noise the prediction itself carries. Where it does not (a tool direction that a job without
-    tilts keeps vertical, predicted from encoders with their noise), a "gain" of about 0 would
-    explain that noise, not the sensor (a sim run read tool_i as "−1000007 ppm of its predicted
-    value" with confidence 0.97)."""
+    Applicable only where the predicted signal (its rms about zero: a steady level counts, and a
+    gain on it is an offset's look-alike) is more than :data:`GAIN_SIGNAL_MIN` times the noise the
+    prediction itself carries. Where it is not (the i component of a tool direction that a job
+    without tilts keeps vertical, predicted from encoders with their noise), a "gain" of about 0
+    would explain that noise, not the sensor (a sim run read tool_i as "−1000007 ppm of its
+    predicted value" with confidence 0.97)."""
 
     effect = "sensor_gain"
     target_key = "channel"
@@ -1535,7 +1536,7 @@ class SensorGain(Candidate):
             return False
         m = o.mask_of(self.target)
         p = o.pred[m][np.argsort(o.row[m], kind="stable")]
-        return np.ptp(p) > 0 and float(np.std(p)) > GAIN_SIGNAL_MIN * prediction_noise(p)
+        return np.ptp(p) > 0 and float(np.sqrt(np.mean(p * p))) > GAIN_SIGNAL_MIN * prediction_noise(p)
 
     def design(self, ctx):
         o = ctx.obs
