@@ -534,21 +534,22 @@ class PitchError(AxisSignal):
             ph = 2 * np.pi * xx / p
             return np.stack([gg * np.sin(ph), gg * np.cos(ph)], 1)
 
-        def cost(p, sw):
-            X = design(p, gs, xs) * sw[:, None]
-            r = X @ _lstsq(X, ys * sw) - ys * sw
-            return float(r @ r)
+        def loss(p, sw):
+            """Minus the weighted squared residual a sine of period p removes (sw: √weights)."""
+            X, yw = design(p, gs, xs) * sw[:, None], ys * sw
+            r = X @ _lstsq(X, yw) - yw
+            return float(r @ r - yw @ yw)
 
-        found = []            # (cost, period, weights)
+        found = []            # (loss, period, √weights)
         if self.effect == "pitch_error":
             # the period is a lead harmonic: the best of those lines, then a grid of ±2 % around
             # it refined by a parabola (a screw's lead is made within that)
             sws = {p0: np.sqrt(position_weights(chs, xs, p0)) for p0 in self._starts}
-            p0 = min(self._starts, key=lambda q: cost(q, sws[q]) - float((ys * sws[q]) @ (ys * sws[q])))
+            p0 = min(self._starts, key=lambda q: loss(q, sws[q]))
             sw = sws[p0]
             grid = p0 * np.linspace(0.98, 1.02, 9)
-            p = self._parabola(grid, np.array([cost(q, sw) for q in grid]))
-            found.append((cost(p, sw), p, sw))
+            p = self._parabola(grid, np.array([loss(q, sw) for q in grid]))
+            found.append((loss(p, sw), p, sw))
         else:
             # a local scan in spatial frequency around each line (± 1.5 resolution cells of the
             # travel), refined by a parabola; the best one that is no lead harmonic
@@ -559,14 +560,14 @@ class PitchError(AxisSignal):
                 if len(fgrid) < 3:
                     continue
                 sw = np.sqrt(position_weights(chs, xs, p0))
-                fr = self._parabola(fgrid, np.array([cost(1 / q, sw) for q in fgrid]))
+                fr = self._parabola(fgrid, np.array([loss(1 / q, sw) for q in fgrid]))
                 p = 1 / fr
                 if self._period_ok(ctx, p):
-                    found.append((cost(p, sw), p, sw))
-        found = [fp for fp in found if float((ys * fp[2]) @ (ys * fp[2])) - fp[0] > PRESCREEN]
+                    found.append((loss(p, sw), p, sw))
+        found = [fp for fp in found if -fp[0] > PRESCREEN]
         if not found:
             return Fit({}, np.zeros_like(y), 3, ok=False)
-        _, p, sw = min(found, key=lambda fp: fp[0] - float((ys * fp[2]) @ (ys * fp[2])))
+        _, p, sw = min(found, key=lambda fp: fp[0])
         c = _lstsq(design(p, gs, xs) * sw[:, None], ys * sw)
         pred = design(p, g, x) @ c
         amp = float(np.hypot(*c))
@@ -1103,12 +1104,10 @@ class Resonance(Candidate):
         # is searched below its tool channels' limit first; its gauge, at the log's rate, may see
         # higher, but a mode there is taken only when it fits clearly better (ALIAS_D2): where
         # the gauge does not tell, a 15 Hz mode seen by a 125 Hz tracker fits as well at its 110 Hz
-        # alias
-        # The cap thins a long log's analysis samples (every 3rd row of a 1 kHz log): the mode is
-        # filtered on the full grid and compared at the kept samples, so a mode above their Nyquist
-        # frequency is still told from its alias by its forced part, but only with enough signal.
-        # The bands: below the kept samples' limit first; then below the tool channels' own limit,
-        # then the gauge's, each taken only when it fits clearly better (ALIAS_D2)
+        # alias. Below both comes the limit of the samples the cap kept (every 3rd row of a long
+        # 1 kHz log): the mode is filtered on the full grid, so above that limit it is still told
+        # from its alias by its forced part, but only with enough signal. So the bands are the kept
+        # samples', the tool channels', the gauge's, each wider one taken only when clearly better
         _, W, sup = self._weights(ctx)
         nyq_all = self._nyquist(ctx, sup)
         nyq_own = min(nyq_all, self._nyquist(ctx, W[0] != 0))
