@@ -42,8 +42,8 @@ def _close_ptys(ptys):
                 pass
 
 
-
 PENDING_MAX = 1 << 20    # bytes a link's reader may fall behind (about 7 s of a 2 ms cycle) before it is given up
+
 
 class Hub:
     """slcan links joined into one wire, plus a python-can bus for the local nodes. Links: ptys
