@@ -1509,13 +1509,6 @@ class Geometry(Candidate):
 GAIN_SIGNAL_MIN = 3.0    # a gain is tried where the predicted signal is this many times its own noise
 
 
-def prediction_noise(pred_in_time_order) -> float:
-    """The white noise a channel's prediction carries (encoder noise through the kinematics):
-    robustly, from its second differences, which a smooth signal hardly has (MAD / 0.6745 / √6)."""
-    d2 = np.diff(np.asarray(pred_in_time_order, float), 2)
-    return float(np.median(np.abs(d2 - np.median(d2))) / 0.6745 / math.sqrt(6.0)) if len(d2) else 0.0
-
-
 class SensorGain(Candidate):
     """A channel reads g times the signal: δ = (g − 1)·prediction.
 
@@ -1533,9 +1526,10 @@ class SensorGain(Candidate):
         o = ctx.obs
         if self.target not in o.channels:
             return False
+        from pmctl.tools.twin.locate import noise_level     # (locate imports this module)
         m = o.mask_of(self.target)
-        p = o.pred[m][np.argsort(o.row[m], kind="stable")]
-        return np.ptp(p) > 0 and float(np.sqrt(np.mean(p * p))) > GAIN_SIGNAL_MIN * prediction_noise(p)
+        p = o.pred[m][np.argsort(o.row[m], kind="stable")]     # in time order: its own noise from 2nd differences
+        return np.ptp(p) > 0 and float(np.sqrt(np.mean(p * p))) > GAIN_SIGNAL_MIN * noise_level(p)
 
     def design(self, ctx):
         o = ctx.obs
