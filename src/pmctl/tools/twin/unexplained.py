@@ -118,6 +118,26 @@ def _bursts(tt, yy, wins, duration):
     return (max(ex, 0.0) / e, len(wins))
 
 
+def _refined_line(tt, yy, f0, n=61):
+    """(fraction of the energy, frequency) of the best line near a spectral peak f0. The Welch
+    spectrum's bins are coarse (a few tenths of a hertz on a record, about 1 Hz on a one-second
+    stretch), and a line fitted half a bin off takes far less than it should: a 14.4 Hz burst in a
+    one-second stretch, fitted at its peak's 14.9 Hz, took 38 % of the stretch's energy instead of
+    about 90 %. So the fit scans ±max(2/span, 3 %) around the peak, then refines the best step."""
+    from scipy.optimize import minimize_scalar
+
+    def frac(f):
+        return _frac(np.stack([np.sin(2 * np.pi * f * tt), np.cos(2 * np.pi * f * tt)], 1), yy)
+    half = max(2.0 / max(float(np.ptp(tt)), 1e-9), 0.03 * f0)
+    grid = np.linspace(max(f0 - half, 1e-3), f0 + half, n)
+    fr = [frac(f) for f in grid]
+    i = int(np.argmax(fr))
+    step = grid[1] - grid[0]
+    r = minimize_scalar(lambda f: -frac(f), bounds=(grid[i] - step, grid[i] + step), method="bounded",
+                        options={"xatol": 1e-4 * step})
+    return (float(-r.fun), float(r.x)) if r.success and -r.fun > fr[i] else (float(fr[i]), float(grid[i]))
+
+
 def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray, wins=()) -> dict:
     """Fraction of the channel's remaining (whitened) energy each kind of structure removes, with
     its detail (delay, axis, frequency, instant, number of bursts); ``wins``: the channel's windows
@@ -163,9 +183,7 @@ def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray, wins=()) 
     # spectral line
     fl = _line_frequencies(tt, yy, fmin=0.5, k=1, ratio_min=10.0, cuts=ctx.extra.get("cuts"))
     if fl:
-        f0 = fl[0]
-        X = np.stack([np.sin(2 * np.pi * f0 * tt), np.cos(2 * np.pi * f0 * tt)], 1)
-        out["spectral line"] = (_frac(X, yy), f0)
+        out["spectral line"] = _refined_line(tt, yy, fl[0])
     # drift: slow trend in time
     if np.ptp(tt) > 0:
         knots = np.linspace(tt[0], tt[-1], 10)
