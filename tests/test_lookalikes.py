@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pmctl.core.config import load_machine
+from pmctl.tools.twin import calibration
 from pmctl.tools.twin import lookalikes as lk
 from pmctl.tools.twin import synth
 from pmctl.tools.twin.diagnose import diagnose
@@ -117,7 +118,11 @@ def test_a_gain_on_a_steady_tracker_channel_stays_the_offsets_look_alike():
                             duration_s=10.0, rate_hz=250.0, imperfections=True)
     (e,) = case.answer["effects"]
     assert e["channel"] == "tip_z" and case.answer["run"] == "circle"
-    rep, _ = diagnose(case.columns, load_machine(), cap=2000)
+    rep, ex = diagnose(case.columns, load_machine(), cap=2000)
     (f,) = [f for f in rep["findings"] if f.get("channel") == "tip_z"]
     assert {a["effect"] for a in f.get("alternatives", [])} | {f["effect"]} == {"sensor_gain", "sensor_offset"}
     assert f["confidence"] <= 0.67 + 1e-9
+    # the features a blind evaluation saves give back the confidence the report printed, cap included
+    for item, feat in zip(rep["findings"], ex["features"]):
+        assert round(calibration.confidence(feat), 2) == item["confidence"]
+    assert ex["features"][rep["findings"].index(f)]["weight_share"] <= 0.67 + 1e-9

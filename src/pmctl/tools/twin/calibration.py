@@ -39,13 +39,18 @@ DESCRIPTION = "logistic in held-out gain over threshold, fold spread of the para
 
 
 def features(ev) -> dict:
+    """The five numbers of the logistic, plus ``weight_share`` for a finding named among look-alikes
+    (its share of their weights: a cap, not a feature of the fit)."""
     from pmctl.tools.twin.diagnose import MIN_DSSE
     thr = max(MIN_DSSE, ev["pen"])
-    return {"snr": math.log10(max(ev["d_cv"] / thr, 1e-3)),
-            "spread": float(min(ev.get("spread", 0.0), 5.0)),
-            "rel": float(min(max(ev["rel"], 0.0), 1.0)),
-            "share": float(min(ev.get("share", 1.0), 1.5)),
-            "left": float(min(ev.get("left", 0.0), 5.0))}
+    out = {"snr": math.log10(max(ev["d_cv"] / thr, 1e-3)),
+           "spread": float(min(ev.get("spread", 0.0), 5.0)),
+           "rel": float(min(max(ev["rel"], 0.0), 1.0)),
+           "share": float(min(ev.get("share", 1.0), 1.5)),
+           "left": float(min(ev.get("left", 0.0), 5.0))}
+    if "weight_share" in ev:
+        out["weight_share"] = float(ev["weight_share"])
+    return out
 
 
 # A partial description: a finding that describes less than this share of its channels' structure,
@@ -53,7 +58,9 @@ def features(ev) -> dict:
 # than a logistic in these numbers can say (on the fit's blind runs of 26 November 2026, 5 of 33 such
 # findings were right, against 69 of 71 of the others). Its confidence is the fraction right among
 # such findings on the fit's runs (``partial_cap`` in COEF) at most, and the logistic is fitted on the others.
-# (A look-alike's confidence is capped further in the diagnosis: pmctl.tools.twin.lookalikes.)
+# A look-alike's confidence is capped further, at its share of the look-alikes' weights (``weight_share``
+# in its features; pmctl.tools.twin.lookalikes). The saved features carry it, so a blind evaluation
+# that recomputes confidences from them judges what the report printed.
 PARTIAL_SHARE = 0.55
 PARTIAL_LEFT = 0.55
 
@@ -68,6 +75,8 @@ def confidence(feat: dict, coef: dict | None = None) -> float:
     p = 1.0 / (1.0 + math.exp(-max(min(z, 40.0), -40.0)))
     if "partial_cap" in c and partial(feat):
         p = min(p, c["partial_cap"])
+    if "weight_share" in feat:          # a look-alike: at most its share (pmctl.tools.twin.lookalikes)
+        p = min(p, feat["weight_share"])
     return p
 
 

@@ -802,10 +802,7 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
         y_before = y0 - cum
     for item, ev in zip(findings, accepted):
         ev["left"] = left_structure(ctx, yfinal, ev["affected"])     # structure its channels keep
-        conf = calibration.confidence(calibration.features(ev))
-        if "weight_share" in ev:            # look-alikes: at most its share of their weights
-            conf = min(conf, ev["weight_share"])
-        item["confidence"] = round(conf, 2)
+        item["confidence"] = round(calibration.confidence(calibration.features(ev)), 2)
     loc_after = locate(ctx, yfinal)
     unexp = unexplained(ctx, yfinal, loc_after, rejected)
     if unexp:
