@@ -8,7 +8,9 @@ Recordings (pmctl-recording/1 folders at 1 kHz, one hidden backlash of 0.02 mm o
 - beyond: a 200 s synth run written by pmctl.core.recording.write_recording, whose rows are then
   repeated with continuing times, one tile of text at a time (no more than one tile is ever in
   memory). At each join the positions jump back to the run's start in one sample, in the commands
-  and the measurements alike: one sample in 200 000 that no run of the diagnosis needs.
+  and the measurements alike, and the simulated play restarts on the side the run's first motion
+  pushes: a state a continuous machine cannot reach. The diagnosis flags the kept runs that hold a
+  join (tip_x about 4 x its noise until X moves; docs/diagnosis-report.md).
 
 Each size is then diagnosed in a fresh child process exactly as ``pmctl twin diagnose`` does
 (pmctl.tools.twin.diagnose.read_for_diagnosis, then diagnose with the default cap), and the child

@@ -30,6 +30,31 @@ def test_chunks_in_any_block_size_give_the_whole_file_readers_columns(tmp_path_f
     assert meta["format"] == "pmctl-recording/1" and machine.name == ref.machine.name
 
 
+@settings(max_examples=25, deadline=None)
+@given(st.integers(64, 4000), st.integers(0, 1000), st.lists(st.integers(0, 299), min_size=1, max_size=6, unique=True))
+def test_the_direction_of_each_commands_last_motion_before_each_kept_range(tmp_path_factory, block, seed, cuts):
+    # commands that dwell (runs of equal values) and move both ways, read in blocks of any size: for
+    # each kept range, the sign of the command's last change before its first row (0: none yet)
+    rng = np.random.default_rng(seed)
+    n = 300
+    t = np.cumsum(rng.uniform(0.5e-3, 1.5e-3, n))
+    steps = np.where(rng.random((n, 5)) < 0.15, rng.normal(0, 1, (n, 5)), 0.0)
+    cols = {"t": t, **{f"cmd_{a}": np.cumsum(steps[:, i]) for i, a in enumerate(("L1", "L2", "L3", "X", "Y"))}}
+    folder = write_recording(tmp_path_factory.mktemp("d") / "r", cols, sample_rate_hz=1000)
+    starts = sorted(cuts)
+    rows = [(a, b) for a, b in zip(starts, starts[1:] + [n]) if b > a]
+    info = {}
+    read_columns(folder, block_bytes=block, rows=rows, info=info)
+    for (a, _), got in zip(rows, info["cmd_direction_before"]):
+        for name, x in cols.items():
+            if name == "t":
+                continue
+            dx = np.diff(x[:a])
+            moved = np.flatnonzero(dx != 0)
+            want = float(np.sign(dx[moved[-1]])) if len(moved) else 0.0
+            assert got.get(name, 0.0) == want, (a, name)
+
+
 def test_measured_channels_in_float32_keep_the_commands_exact(tmp_path):
     folder, _ = _rec(tmp_path)
     ref = read_recording(folder)

@@ -16,7 +16,10 @@ numbers, ``t`` on every row and strictly increasing (checked across block bounda
   Memory: the kept columns plus one block. ``progress(done_bytes, total_bytes)`` is called per
   block. ``rows=[(start, stop), ...]`` (sorted, disjoint row ranges) keeps only those rows: every
   row is still read and checked, but memory is the kept rows plus one block, whatever the file's
-  length. ``info`` (a dict), when given, receives ``rows_total`` (rows in the file).
+  length. ``info`` (a dict), when given, receives ``rows_total`` (rows in the file) and, with
+  ``rows``, ``cmd_direction_before``: per range, {cmd_*: the direction of that command's last
+  motion before the range's first row (+1/-1; 0: it had not moved)}, read from the skipped rows: a
+  play's side or a friction's sign at the start of a range depends on it.
 - :func:`count_rows(folder)`: an upper bound of the data rows (the file's line count minus the
   header; exact without blank lines), from one pass over the bytes without parsing.
 - :func:`plan_segments(n, max_rows, n_segments)`: the row ranges a bounded reader keeps of an
@@ -146,6 +149,26 @@ def plan_segments(n: int, max_rows: int, n_segments: int) -> list[tuple[int, int
     return [(int(s), int(s) + length) for s in starts]
 
 
+def _motion_before(names, row0, arr, rows, motion, before):
+    """For every row range starting in this block: the direction (+1/-1, 0: none yet) of each
+    command's last motion before its first row, carried over blocks in ``motion``."""
+    starts = [(k, a) for k, (a, _) in enumerate(rows) if row0 < a <= row0 + len(arr)]
+    for n, (last, d) in list(motion.items()):
+        x = arr[:, names.index(n)]
+        dx = np.diff(x, prepend=x[0] if last is None else last)
+        s = np.sign(dx)
+        moved = np.flatnonzero(s != 0)
+        if starts:
+            # index of the last motion at or before each row of the block (-1: none in it)
+            at = np.full(len(x), -1)
+            at[moved] = moved
+            np.maximum.accumulate(at, out=at)
+            for k, a in starts:
+                i = at[a - 1 - row0]
+                before[k][n] = float(s[i]) if i >= 0 else d
+        motion[n] = (x[-1], float(s[moved[-1]]) if len(moved) else d)
+
+
 def read_columns(folder, channels=None, *, measured_dtype=np.float32, block_bytes=BLOCK_BYTES,
                  progress=None, rows=None, info=None):
     """(meta, machine, columns) with only ``channels`` kept (default: all known channels) and, with
@@ -156,6 +179,8 @@ def read_columns(folder, channels=None, *, measured_dtype=np.float32, block_byte
     parts: dict[str, list] = {}
     keep = None
     total = 0
+    motion = None           # per command: (its last value, direction of its last motion) so far
+    before = [{} for _ in rows] if rows is not None else None
     for names, row0, arr in iter_chunks(folder, block_bytes=block_bytes, progress=progress,
                                         drop_torn_tail=torn_tail(meta)):
         total = row0 + len(arr)
@@ -164,7 +189,9 @@ def read_columns(folder, channels=None, *, measured_dtype=np.float32, block_byte
                 [n for n in names if n in set(channels) | set(REQUIRED)]
             keep = [(n, names.index(n), np.float64 if n in REQUIRED or n in CMD else measured_dtype) for n in want]
             parts = {n: [] for n, _, _ in keep}
+            motion = {n: (None, 0.0) for n in names if n in CMD}
         if rows is not None:
+            _motion_before(names, row0, arr, rows, motion, before)
             sel = [np.arange(max(a, row0), min(b, total)) - row0 for a, b in rows if a < total and b > row0]
             if not sel:
                 continue
@@ -173,6 +200,8 @@ def read_columns(folder, channels=None, *, measured_dtype=np.float32, block_byte
             parts[n].append(arr[:, j].astype(dt))
     if info is not None:
         info["rows_total"] = total
+        if before is not None:
+            info["cmd_direction_before"] = before
     columns = {}
     for n, _, dt in keep:
         p = parts.pop(n)

@@ -130,12 +130,14 @@ def regular_times(t) -> np.ndarray:
     return t0 + step * idx
 
 
-def build_context(columns: dict, machine, *, cap=DEFAULT_CAP, bounds=None) -> Context:
+def build_context(columns: dict, machine, *, cap=DEFAULT_CAP, bounds=None, direction_before=None) -> Context:
     """Residuals of the nominal twin (pmctl.tools.twin.nominal) at the analysis rows, whitened and stacked.
     ``bounds``: indices where contiguous runs of the rows start and end ([0, ..., n]; default one
     run), for a recording kept as runs (:func:`read_for_diagnosis`): no analysis row lies in the
-    first MARGIN_S of a run (the state of lags, modes and reversals carried over a gap is unknown
-    there), and the dynamic effects restart at every run (ctx.extra["bounds"])."""
+    first MARGIN_S of a run (the state of lags and modes carried over a gap is unknown there), and
+    the dynamic effects restart at every run (ctx.extra["bounds"]). ``direction_before``: per run,
+    each axis' direction of motion before it (read from the rows skipped between runs): until an
+    axis moves in a run, its play and friction keep that side (ctx.extra["direction_before"])."""
     t = np.asarray(columns["t"], float)
     n = len(t)
     bounds = np.asarray([0, n] if bounds is None else bounds, int)
@@ -219,6 +221,8 @@ def build_context(columns: dict, machine, *, cap=DEFAULT_CAP, bounds=None) -> Co
     if runs:
         ctx.extra["bounds"] = bounds
         ctx.extra["cuts"] = t[bounds[1:-1]]
+        if direction_before is not None:
+            ctx.extra["direction_before"] = np.asarray(direction_before, float).reshape(len(bounds) - 1, len(AXES))
     if len(rows) and state.tip_force is not None:
         ctx.extra["tip_force"] = np.nan_to_num(state.tip_force[at])
     return ctx
@@ -786,7 +790,8 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
     """Run the whole diagnosis. Returns (report per docs/diagnosis-report.md, extras for text and plots).
     ``span``: how the rows were kept of a longer recording (:func:`read_for_diagnosis`)."""
     columns = compensated_columns(columns, getattr(machine, "compensation", None))     # the NC's joints
-    ctx = build_context(columns, machine, cap=cap, bounds=span["bounds"] if span else None)
+    ctx = build_context(columns, machine, cap=cap, bounds=span["bounds"] if span else None,
+                        direction_before=span.get("direction_before") if span else None)
     if span:
         ctx.extra["span"] = span
     loc0 = locate(ctx)
@@ -837,7 +842,8 @@ def read_for_diagnosis(folder, *, progress=False, max_rows=MAX_ROWS, n_segments=
     each run is long enough for the dynamic effects (lags, modes, reversals) to show in full, and
     the runs span the whole record for the slow ones (drift, thermal growth, a step). ``span``:
     {"rows_total", "rows": [(start, stop), ...] file rows kept, "bounds": run boundaries as
-    indices into the kept rows}, for :func:`diagnose`."""
+    indices into the kept rows, "direction_before": per run, the direction of each axis' last
+    commanded motion before it (AXES order; 0: none)}, for :func:`diagnose`."""
     from pmctl.core.recording_chunks import count_rows, plan_segments, read_columns
     bar = _Progress(1000, progress, "reading   ")
 
@@ -852,11 +858,14 @@ def read_for_diagnosis(folder, *, progress=False, max_rows=MAX_ROWS, n_segments=
     bar.done()
     kept = len(cols["t"])
     if len(plan) == 1:
-        plan, bounds = [(0, kept)], [0, kept]
+        plan, bounds, before = [(0, kept)], [0, kept], [[0.0] * len(AXES)]
     else:      # (blank lines make the estimate high: the last runs may end short)
+        before = [[d.get(f"cmd_{a}", 0.0) for a in AXES]
+                  for (a0, _), d in zip(plan, info["cmd_direction_before"]) if a0 < info["rows_total"]]
         plan = [(a, min(b, info["rows_total"])) for a, b in plan if a < info["rows_total"]]
         bounds = np.concatenate([[0], np.cumsum([b - a for a, b in plan])]).tolist()
-    return meta, machine, cols, {"rows_total": info["rows_total"], "rows": plan, "bounds": bounds}
+    return meta, machine, cols, {"rows_total": info["rows_total"], "rows": plan, "bounds": bounds,
+                                 "direction_before": before}
 
 
 def format_text(report, extras) -> str:

@@ -186,10 +186,23 @@ def axis_velocity(ctx, a) -> np.ndarray:
 
 
 def axis_direction(ctx, a) -> np.ndarray:
-    """:func:`direction` of cmd_a at every row, computed once per context."""
+    """:func:`direction` of cmd_a at every row, computed once per context. A recording kept as
+    runs: per run, no jump across a gap counts as motion, and until the axis moves in a run it
+    keeps the direction it had before (ctx.extra["direction_before"]; 0 when unknown)."""
     key = ("direction", a)
     if key not in ctx.extra:
-        ctx.extra[key] = direction(ctx.q_cmd[:, a])
+        b = ctx.extra.get("bounds")
+        if b is None:
+            ctx.extra[key] = direction(ctx.q_cmd[:, a])
+        else:
+            before = ctx.extra.get("direction_before")
+            parts = []
+            for k, (s, e) in enumerate(zip(b[:-1], b[1:])):
+                d = direction(ctx.q_cmd[s:e, a])
+                if before is not None:
+                    d[d == 0] = before[k, a]          # (0 only before its first move in the run)
+                parts.append(d)
+            ctx.extra[key] = np.concatenate(parts) if parts else np.zeros(0)
     return ctx.extra[key]
 
 
@@ -378,7 +391,9 @@ class Backlash(AxisSignal):
         if key not in ctx.extra:
             dd = axis_direction(ctx, self.a)
             turn = np.flatnonzero(np.diff(dd) != 0)
-            idx = np.unique(np.concatenate([[0], turn, turn + 1, rows, [len(x) - 1]]))
+            b = ctx.extra.get("bounds")
+            starts = np.asarray(b[:-1] if b is not None else [], int)      # (each run's first row)
+            idx = np.unique(np.concatenate([[0], turn, turn + 1, rows, [len(x) - 1], starts]))
             ctx.extra[key] = (idx, np.searchsorted(idx, np.arange(len(x))))
         idx, where = ctx.extra[key]
         xs = x[idx]
@@ -388,7 +403,7 @@ class Backlash(AxisSignal):
         sols = {}
         for st0 in (0.0, -1.0, 1.0):
             def res(p, st0=st0):
-                return gs * play_error(xs, p[0], st0)[rsi] - ys
+                return gs * self._play(ctx, xs, idx, p[0], st0)[rsi] - ys
 
             try:
                 sols[st0] = optimize.least_squares(res, [w0], bounds=([0.0], [np.inf]), x_scale=[max(w0, 1e-6)],
@@ -404,8 +419,20 @@ class Backlash(AxisSignal):
         w, st0 = (float(best[1].x[0]), best[0]) if best else (w0, 0.0)
         if bool(np.all(train)):
             self._start_full = st0
-        pred = g * play_error(xs, w, st0)[where[rows]]
+        pred = g * self._play(ctx, xs, idx, w, st0)[where[rows]]
         return Fit({"width_mm": w}, pred, 1, ok=w > 0, internal={"start": st0})
+
+    def _play(self, ctx, xs, idx, w, st0):
+        """The play's error at the rows ``idx`` (positions ``xs``), starting at ``st0`` (-1, 0, 1: the
+        flank or the middle). A recording kept as runs with the directions before each run known
+        (ctx.extra["direction_before"]): every later run starts on the flank its axis' last motion
+        before it left the load on (a jump across the gap is no motion); else one play throughout."""
+        b, before = ctx.extra.get("bounds"), ctx.extra.get("direction_before")
+        if b is None or before is None:
+            return play_error(xs, w, st0)
+        cut = np.searchsorted(idx, b[:-1]).tolist() + [len(idx)]
+        return np.concatenate([play_error(xs[s:e], w, st0 if k == 0 else -before[k, self.a])
+                               for k, (s, e) in enumerate(zip(cut[:-1], cut[1:])) if e > s])
 
 
 def screw_lead(ctx: Context, a: int) -> float:
