@@ -1474,13 +1474,19 @@ SIDEBAND = (40.0, 0.15)    # a second line near a steady one refuses it when it 
                            # 68-5600 (shares 0.26-0.87): a knock train is a comb of lines 1/period apart
 
 
+SIDEBAND_FREQS = 4000       # at most this many frequencies in the scan (a 10^7-row record spans 10^4 s)
+
+
 def _sideband_check(g, t, y, f, t0, t1, oversample=2):
     """A steady source is one line: after it is fitted, the band around it (±max(1.5 Hz, 30 %)) holds
     noise only. A ring that restarts every P seconds (a knock train, a press next door) is a comb of
     lines 1/P apart, all locked together; a single line takes one of them and leaves its neighbours,
     which a scan of the residual finds far above noise (``y`` whitened: a line of pure noise explains
     about 2). Far more sensitive than the windows of :func:`_steady_line_check` where the tracker
-    sees a few samples per cycle. Returns the reasons (empty: one line)."""
+    sees a few samples per cycle. On a record longer than the scan's grid resolves with
+    :data:`SIDEBAND_FREQS` frequencies (1000 s for a line under 5 Hz), it scans the record's middle
+    stretch of that length, where a comb 1/period apart shows as well. Returns the reasons (empty:
+    one line)."""
     m = g != 0
     ts, gs, ys = t[m], g[m], y[m]
     T = float(t1 - t0)
@@ -1492,6 +1498,13 @@ def _sideband_check(g, t, y, f, t0, t1, oversample=2):
     amp0 = float(np.hypot(*c))
     r = ys - X @ c
     half = max(1.5, 0.3 * f)
+    longest = SIDEBAND_FREQS / (2 * half * oversample)     # the record the scan's grid resolves
+    if T > longest:        # a long record: the scan looks at its middle stretch of that length
+        mid = 0.5 * (t0 + t1)
+        inside = np.abs(ts - mid) <= 0.5 * longest
+        ts, gs, r, T = ts[inside], gs[inside], r[inside], longest
+        if len(ts) < 24:
+            return []
     fr = np.arange(max(f - half, 1.0 / T), f + half, 1.0 / (oversample * T))
     fr = fr[np.abs(fr - f) > 1.5 / T]
     if not len(fr) or amp0 <= 0:
