@@ -151,12 +151,18 @@ def plan_segments(n: int, max_rows: int, n_segments: int) -> list[tuple[int, int
 
 def _motion_before(names, row0, arr, rows, motion, before):
     """For every row range starting in this block: the direction (+1/-1, 0: none yet) of each
-    command's last motion before its first row, carried over blocks in ``motion``."""
+    command's last motion before its first row, carried over blocks in ``motion`` (its last finite
+    value and direction). An empty cell is no motion: the command holds its last value through it."""
     starts = [(k, a) for k, (a, _) in enumerate(rows) if row0 < a <= row0 + len(arr)]
     for n, (last, d) in list(motion.items()):
         x = arr[:, names.index(n)]
+        ok = np.isfinite(x)
+        if not ok.all():                     # hold the last finite value through empty cells
+            at = np.where(ok, np.arange(len(x)), -1)
+            np.maximum.accumulate(at, out=at)
+            x = np.where(at >= 0, x[np.maximum(at, 0)], np.nan if last is None else last)
         dx = np.diff(x, prepend=x[0] if last is None else last)
-        s = np.sign(dx)
+        s = np.where(np.isfinite(dx), np.sign(dx), 0.0)
         moved = np.flatnonzero(s != 0)
         if starts:
             # index of the last motion at or before each row of the block (-1: none in it)
@@ -166,7 +172,7 @@ def _motion_before(names, row0, arr, rows, motion, before):
             for k, a in starts:
                 i = at[a - 1 - row0]
                 before[k][n] = float(s[i]) if i >= 0 else d
-        motion[n] = (x[-1], float(s[moved[-1]]) if len(moved) else d)
+        motion[n] = (x[-1] if np.isfinite(x[-1]) else last, float(s[moved[-1]]) if len(moved) else d)
 
 
 def read_columns(folder, channels=None, *, measured_dtype=np.float32, block_bytes=BLOCK_BYTES,

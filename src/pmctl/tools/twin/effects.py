@@ -392,7 +392,7 @@ class Backlash(AxisSignal):
             dd = axis_direction(ctx, self.a)
             turn = np.flatnonzero(np.diff(dd) != 0)
             b = ctx.extra.get("bounds")
-            starts = np.asarray(b[:-1] if b is not None else [], int)      # (each run's first row)
+            starts = np.asarray(b[:-1][np.diff(b) > 0] if b is not None else [], int)   # (each run's first row)
             idx = np.unique(np.concatenate([[0], turn, turn + 1, rows, [len(x) - 1], starts]))
             ctx.extra[key] = (idx, np.searchsorted(idx, np.arange(len(x))))
         idx, where = ctx.extra[key]
@@ -1261,6 +1261,8 @@ MODE_BLOCKS = 8            # a mode's gain fitted on each eighth of the record .
 MODE_GAIN_CHI2 = 25.0      # ... scatters about 1 by at most this, per block, in units of its noise. Measured:
                            # 48 synth modes (8 bases, 250 Hz and 1 kHz, imperfections) 0.0-10.6; chatter bursts
                            # that a lightly damped mode half fitted 94-1060
+MODE_GAIN_OFF = 0.5        # ... or no eighth's gain is this far from 1 (a strong mode whose gain varies a little
+                           # with the pose passes; the chatter burst's eighths needed -0.16 to 1.84)
 
 
 def _gain_over_time_check(ctx, pred, y):
@@ -1277,7 +1279,7 @@ def _gain_over_time_check(ctx, pred, y):
         return []
     s = py[ok] / pp[ok]                 # each block's gain; its variance is 1/pp (unit noise)
     chi = float(np.mean((s - 1.0) ** 2 * pp[ok]))
-    if chi <= MODE_GAIN_CHI2:
+    if chi <= MODE_GAIN_CHI2 or np.max(np.abs(s - 1.0)) <= MODE_GAIN_OFF:
         return []
     return [f"its amplitude does not follow the motion: scaled to each eighth of the record on its own, the "
             f"mode needs gains from {s.min():.2f} to {s.max():.2f} ({chi:.0f}x their noise; a mode: about 1): a "
@@ -1484,8 +1486,8 @@ def _sideband_check(g, t, y, f, t0, t1, oversample=2):
     which a scan of the residual finds far above noise (``y`` whitened: a line of pure noise explains
     about 2). Far more sensitive than the windows of :func:`_steady_line_check` where the tracker
     sees a few samples per cycle. On a record longer than the scan's grid resolves with
-    :data:`SIDEBAND_FREQS` frequencies (1000 s for a line under 5 Hz), it scans the record's middle
-    stretch of that length, where a comb 1/period apart shows as well. Returns the reasons (empty:
+    :data:`SIDEBAND_FREQS` frequencies (667 s for a line under 5 Hz), it scans the stretch of that
+    length about the record's middle sample, where a comb 1/period apart shows as well. Returns the reasons (empty:
     one line)."""
     m = g != 0
     ts, gs, ys = t[m], g[m], y[m]
@@ -1499,8 +1501,9 @@ def _sideband_check(g, t, y, f, t0, t1, oversample=2):
     r = ys - X @ c
     half = max(1.5, 0.3 * f)
     longest = SIDEBAND_FREQS / (2 * half * oversample)     # the record the scan's grid resolves
-    if T > longest:        # a long record: the scan looks at its middle stretch of that length
-        mid = 0.5 * (t0 + t1)
+    if T > longest:        # a long record: the scan looks at a stretch of that length about its
+        k = len(ts) // 2                  # middle sample (a recording kept as runs: not in a gap)
+        mid = float(np.partition(ts, k)[k])
         inside = np.abs(ts - mid) <= 0.5 * longest
         ts, gs, r, T = ts[inside], gs[inside], r[inside], longest
         if len(ts) < 24:
