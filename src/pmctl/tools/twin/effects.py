@@ -185,6 +185,14 @@ def axis_velocity(ctx, a) -> np.ndarray:
     return ctx.extra[key]
 
 
+def refine_max(f, q0, h, lo=-np.inf, hi=np.inf, xatol=1e-6):
+    """(q, f(q)) at the maximum of f near a grid's best point q0: a bounded scalar search between
+    q0's grid neighbours (q0 ± h, within [lo, hi]), kept only when it beats f(q0)."""
+    sol = optimize.minimize_scalar(lambda q: -f(q), bounds=(max(q0 - h, lo), min(q0 + h, hi)),
+                                   method="bounded", options={"xatol": xatol})
+    return (float(sol.x), -float(sol.fun)) if -sol.fun >= f(q0) else (q0, f(q0))
+
+
 def axis_direction(ctx, a) -> np.ndarray:
     """:func:`direction` of cmd_a at every row, computed once per context. A recording kept as
     runs: per run, no jump across a gap counts as motion, and until the axis moves in a run it
@@ -710,10 +718,8 @@ class ThermalGrowth(AxisSignal):
         lo, hi = self.xf_range(ctx)
         xgrid = np.linspace(lo, hi, 49)
 
-        def refine(f, q0, h):               # a bounded scalar search between q0's grid neighbours
-            sol = optimize.minimize_scalar(lambda q: -f(q), bounds=(max(q0 - h, lo), min(q0 + h, hi)),
-                                           method="bounded", options={"xatol": 1e-4 * (hi - lo)})
-            return (float(sol.x), -float(sol.fun)) if -sol.fun >= f(q0) else (q0, f(q0))
+        def refine(f, q0, h):
+            return refine_max(f, q0, h, lo, hi, xatol=1e-4 * (hi - lo))
 
         # T_ref at the reference temperature (ISO 1: 20 °C) ...
         def g_ref(q):

@@ -40,7 +40,7 @@ import math
 
 import numpy as np
 
-from pmctl.tools.twin.effects import AXES, Context, _line_frequencies, _lstsq, axis_direction
+from pmctl.tools.twin.effects import AXES, Context, _line_frequencies, _lstsq, axis_direction, refine_max
 
 EXCESS_MIN = 1.0        # remaining rms ≥ 1.41 x noise ...
 CHI_SIGMA = 8.0         # ... and Σ(y²) − N beyond 8 standard deviations of noise (√(2N))
@@ -124,18 +124,14 @@ def _refined_line(tt, yy, f0, n=61):
     stretch), and a line fitted half a bin off takes far less than it should: a 14.4 Hz burst in a
     one-second stretch, fitted at its peak's 14.9 Hz, took 38 % of the stretch's energy instead of
     about 90 %. So the fit scans ±max(2/span, 3 %) around the peak, then refines the best step."""
-    from scipy.optimize import minimize_scalar
-
     def frac(f):
         return _frac(np.stack([np.sin(2 * np.pi * f * tt), np.cos(2 * np.pi * f * tt)], 1), yy)
     half = max(2.0 / max(float(np.ptp(tt)), 1e-9), 0.03 * f0)
     grid = np.linspace(max(f0 - half, 1e-3), f0 + half, n)
-    fr = [frac(f) for f in grid]
-    i = int(np.argmax(fr))
+    i = int(np.argmax([frac(f) for f in grid]))
     step = grid[1] - grid[0]
-    r = minimize_scalar(lambda f: -frac(f), bounds=(grid[i] - step, grid[i] + step), method="bounded",
-                        options={"xatol": 1e-4 * step})
-    return (float(-r.fun), float(r.x)) if r.success and -r.fun > fr[i] else (float(fr[i]), float(grid[i]))
+    f, best = refine_max(frac, float(grid[i]), step, xatol=1e-4 * step)
+    return float(best), float(f)
 
 
 def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray, wins=()) -> dict:
