@@ -1493,8 +1493,8 @@ def _sideband_check(g, t, y, f, t0, t1, oversample=2):
     about 2). Far more sensitive than the windows of :func:`_steady_line_check` where the tracker
     sees a few samples per cycle. On a record longer than the scan's grid resolves with
     :data:`SIDEBAND_FREQS` frequencies (667 s for a line under 5 Hz), it scans the stretch of that
-    length about the record's middle sample, where a comb 1/period apart shows as well. Returns the reasons (empty:
-    one line)."""
+    length about the record's middle sample, where a comb 1/period apart shows as well. Returns the
+    reasons (empty: one line)."""
     m = g != 0
     ts, gs, ys = t[m], g[m], y[m]
     T = float(t1 - t0)
@@ -1537,7 +1537,7 @@ def _sideband_check(g, t, y, f, t0, t1, oversample=2):
         return []
     return [f"it is not alone: a second line at {fq:.2f} Hz, {abs(fq - f):.2f} Hz away with {amp / amp0:.2f} of its "
             f"amplitude, explains {gain:.0f}x the noise (a line of noise: about 2). A steady source is one line; "
-            f"a ring that restarts every 1/{abs(fq - f):.2f} Hz (periodic knocks) is a comb of them"]
+            f"a ring that restarts every {1 / abs(fq - f):.2f} s (periodic knocks) is a comb of them"]
 
 
 STEADY_CHI2 = (2.5, 5.0)   # windows' scatter about the whole record's line, per degree of freedom: above the
