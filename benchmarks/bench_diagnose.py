@@ -8,9 +8,10 @@ Recordings (pmctl-recording/1 folders at 1 kHz, one hidden backlash of 0.02 mm o
 - beyond: a 200 s synth run written by pmctl.core.recording.write_recording, whose rows are then
   repeated with continuing times, one tile of text at a time (no more than one tile is ever in
   memory). At each join the positions jump back to the run's start in one sample, in the commands
-  and the measurements alike, and the simulated play restarts on the side the run's first motion
-  pushes: a state a continuous machine cannot reach. The diagnosis flags the kept runs that hold a
-  join (tip_x about 4 x its noise until X moves; docs/diagnosis-report.md).
+  and the measurements alike. The simulated play restarts on the side the run's first motion
+  pushes, so the run is cut where X's last motion and that jump go the same way (``_seamless``):
+  uncut, a join was a reset of the play that no continuous machine can do, and the diagnosis
+  rightly flagged the kept runs holding one (tip_x 4 x its noise until X moved).
 
 Each size is then diagnosed in a fresh child process exactly as ``pmctl twin diagnose`` does
 (pmctl.tools.twin.diagnose.read_for_diagnosis, then diagnose with the default cap), and the child
@@ -62,6 +63,19 @@ def _synth(duration_s, seed=5):
                             duration_s=duration_s, rate_hz=1000.0, machine=load_machine(), seed=seed)
 
 
+def _seamless(cols):
+    """The run cut at its last row from which repeating it keeps the play continuous. The synth starts
+    X's play on the side X's first motion pushes, so at a join X's last motion and the jump back to
+    the run's start must both go that way (or the jump be none): the join then reads as one more
+    motion in that direction, and the play's side needs no reset a continuous machine cannot do."""
+    from pmctl.core.plant_effects import direction, first_direction
+    x = np.asarray(cols["cmd_X"], float)
+    d0 = first_direction(x)
+    ok = (direction(x) == d0) & (np.sign(x[0] - x) * d0 >= 0)
+    e = int(np.flatnonzero(ok)[-1]) + 1
+    return {k: np.asarray(v)[:e] for k, v in cols.items()}
+
+
 def make(n, folder):
     """Write the recording of n samples under folder; returns its path."""
     from pmctl.core.recording import DATA_FILE, META_FILE, write_recording
@@ -74,7 +88,7 @@ def make(n, folder):
     # of text at a time
     tile = Path(folder) / f"n{n}" / "tile"
     case = _synth(TILE_S)
-    write_recording(tile, case.columns, sample_rate_hz=1000.0,
+    write_recording(tile, _seamless(case.columns), sample_rate_hz=1000.0,
                     description=f"bench {n}: a {TILE_S:g} s synth run repeated")
     with open(tile / DATA_FILE, "rb") as fh:
         head = fh.readline()
