@@ -87,8 +87,8 @@ def test_a_run_that_starts_in_a_dwell_keeps_the_side_its_axis_last_moved_to(tmp_
     the rows skipped before it. The diagnosis used to read it from the jump across the gap, and a
     run that starts in a dwell kept the wrong side until X moved: in this 40 s calibration run kept
     as 8 runs of 1 s, tip_x then kept a "drift" at 3.5 x noise, the backlash was fitted 25 % narrow
-    with confidence 0.15, and the verdict was "unexplained mismatch" (the 10^7-sample benchmark's
-    stretches of 4 x noise were the same)."""
+    with confidence 0.15, and the verdict was "unexplained mismatch" (one of the 10^7-sample
+    benchmark's three stretches at 4 x noise was the same)."""
     case = synth.synth_case(np.random.default_rng(2), [synth.Effect("backlash", {"axis": "X"}, {"width_mm": 0.02})],
                             run="calibration", duration_s=40.0, rate_hz=1000.0, machine=M, seed=2)
     synth.write_case(tmp_path, "c", case)
