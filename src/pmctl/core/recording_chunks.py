@@ -36,6 +36,7 @@ import numpy as np
 
 from pmctl.core.config import load_machine
 from pmctl.core.errors import InputError
+from pmctl.core.plant_effects import direction
 from pmctl.core.recording import (CMD, DATA_FILE, META_FILE, REQUIRED, _fast_parse, _header, _slow_parse,
                                   channel_kind, read_meta, torn_tail)
 
@@ -161,18 +162,13 @@ def _motion_before(names, row0, arr, rows, motion, before):
             at = np.where(ok, np.arange(len(x)), -1)
             np.maximum.accumulate(at, out=at)
             x = np.where(at >= 0, x[np.maximum(at, 0)], np.nan if last is None else last)
-        dx = np.diff(x, prepend=x[0] if last is None else last)
-        s = np.where(np.isfinite(dx), np.sign(dx), 0.0)
-        moved = np.flatnonzero(s != 0)
-        if starts:
-            # index of the last motion at or before each row of the block (-1: none in it)
-            at = np.full(len(x), -1)
-            at[moved] = moved
-            np.maximum.accumulate(at, out=at)
-            for k, a in starts:
-                i = at[a - 1 - row0]
-                before[k][n] = float(s[i]) if i >= 0 else d
-        motion[n] = (x[-1] if np.isfinite(x[-1]) else last, float(s[moved[-1]]) if len(moved) else d)
+        # the direction held through stops, from the previous block's last value on; before the
+        # command's first move in this block, the direction carried in
+        held = direction(np.concatenate([[x[0] if last is None else last], x]))[1:]
+        held[held == 0] = d
+        for k, a in starts:
+            before[k][n] = float(held[a - 1 - row0])
+        motion[n] = (x[-1] if np.isfinite(x[-1]) else last, float(held[-1]))
 
 
 def read_columns(folder, channels=None, *, measured_dtype=np.float32, block_bytes=BLOCK_BYTES,

@@ -199,18 +199,11 @@ def axis_direction(ctx, a) -> np.ndarray:
     keeps the direction it had before (ctx.extra["direction_before"]; 0 when unknown)."""
     key = ("direction", a)
     if key not in ctx.extra:
-        b = ctx.extra.get("bounds")
-        if b is None:
-            ctx.extra[key] = direction(ctx.q_cmd[:, a])
-        else:
-            before = ctx.extra.get("direction_before")
-            parts = []
-            for k, (s, e) in enumerate(zip(b[:-1], b[1:])):
-                d = direction(ctx.q_cmd[s:e, a])
-                if before is not None:
-                    d[d == 0] = before[k, a]          # (0 only before its first move in the run)
-                parts.append(d)
-            ctx.extra[key] = np.concatenate(parts) if parts else np.zeros(0)
+        d = per_run(ctx, direction, ctx.q_cmd[:, a])
+        b, before = ctx.extra.get("bounds"), ctx.extra.get("direction_before")
+        if b is not None and before is not None:      # (0 only before the axis' first move in a run)
+            d = np.where(d == 0, before[np.repeat(np.arange(len(b) - 1), np.diff(b)), a], d)
+        ctx.extra[key] = d
     return ctx.extra[key]
 
 
