@@ -86,3 +86,24 @@ def test_run_refuses_a_daq_too_slow_for_k_theta_before_anything_starts(tmp_path,
     _says_too_slow(lines[0], svc)
     assert "result:" not in r.stdout and "rt motion process" not in r.stderr
     assert not state.exists() and not (tmp_path / "state.json.lock").exists() and not (tmp_path / "rec").exists()
+
+
+@pytest.mark.parametrize("backend", ["sim", "canopen"])
+def test_k_theta_runs_only_where_the_backend_carries_strain_in_its_cyclic_data(backend):
+    """The canopen drives carry no strain gauges: K_theta is off for pmctl serve as for pmctl run (the
+    Supervisor resolves it, and the rt process, which resolves the service config again from the
+    Supervisor's overrides, gets the same gains). The sim plant's gauges are in its cyclic data: on."""
+    import numpy as np
+
+    from pmctl.motion.rtproc import apply_nc_overrides
+    from pmctl.motion.service_config import load_service_config, nc_setup
+    from pmctl.task.supervisor import Supervisor
+    sup = Supervisor("prototype", service=str(SHIPPED), backend=backend, state_file="")
+    want = np.zeros(3) if backend == "canopen" else np.full(3, 200.0)
+    assert np.array_equal(sup.params.k_theta, want)
+    off = [n for n in sup.nc_setup.notes if n.startswith("K_theta off")]
+    assert off == (["K_theta off: backend canopen carries no strain gauges in its cyclic data"]
+                   if backend == "canopen" else [])
+    svc = apply_nc_overrides(load_service_config(str(SHIPPED)), sup.nc_overrides)      # as the rt process
+    rt = svc.nc.params(sup.machine, sup.dt, where=svc.source, modes=nc_setup(svc, sup.machine, sup.dt, backend).modes)
+    assert np.array_equal(rt.k_theta, want)

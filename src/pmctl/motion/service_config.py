@@ -411,9 +411,16 @@ class NCSetup:
     notes: list
 
 
+def strain_in_loop(backend: str) -> bool:
+    """Whether ``backend`` carries the strain gauges in its cyclic data (the per-tick strain K_theta
+    damps with and the recording's strain_* and load_* channels); the canopen drives carry none."""
+    from pmctl import hal
+    return bool(getattr(hal.backend_class(backend), "strain_in_loop", True))
+
+
 def nc_setup(svc: ServiceConfig, machine: Machine, dt: float, backend: str | None = None) -> NCSetup:
-    """Resolve the chain modes, ``k_theta_per_s = "auto"`` (written back into svc.nc as numbers) and
-    the shaper. Then ``svc.nc.params(machine, dt, modes=setup.modes)`` builds the NC parameters and
+    """Resolve the chain modes, ``k_theta_per_s = "auto"`` (written back into svc.nc as numbers; 0 on a
+    ``backend`` without strain in its cyclic data, after the K_theta source check) and the shaper. Then ``svc.nc.params(machine, dt, modes=setup.modes)`` builds the NC parameters and
     pmctl.motion.timescale.shape_trajectory applies ``setup.shaper`` to the plan."""
     nc = svc.nc
     modes = chain_modes(svc, machine, backend)
@@ -429,6 +436,14 @@ def nc_setup(svc: ServiceConfig, machine: Machine, dt: float, backend: str | Non
         nc.k_theta_auto = False
         notes.append("K_theta auto: [" + ", ".join(f"{k:.0f}" for k in nc.k_theta_per_s)
                      + "]/s per chain (sampled eq. 3.1 model: the smallest gain damping the chain mode to 0.3)")
+    # [daq] k_theta_source = "daq": refused when the DAQ samples slower than twice the chain mode. It
+    # sees the K_theta the config asks for (auto resolved), before a backend without strain switches it
+    # off below, so every backend refuses the same configs (pmctl run, pmctl serve, the rt process).
+    from pmctl.hal.modbus_daq import check_k_theta_source
+    check_k_theta_source(svc.daq, nc.k_theta_per_s, machine, f"{svc.source}: daq")
+    if backend is not None and any(nc.k_theta_per_s) and not strain_in_loop(backend):
+        nc.k_theta_per_s = (0.0,) * 3
+        notes.append(f"K_theta off: backend {backend} carries no strain gauges in its cyclic data")
     if modes is not None and any(nc.k_theta_per_s):
         soft = modes.soft(nc.kv_per_s)
         if np.any(soft):

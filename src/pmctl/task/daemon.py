@@ -59,6 +59,8 @@ class Daemon:
         sup = Supervisor(self.config, service=self.service, backend=self.backend, state_file=self.state_file,
                          realtime=self.realtime, rate_hz=self.rate_hz, log=self.log)
         self.sup = sup
+        for note in sup.nc_setup.notes:     # chain modes, K_theta (auto, or off), the shaper: as resolved
+            self.log(note)
         m = sup.machine
         if self.state_file:
             self.lock = StateLock(self.state_file)
@@ -195,8 +197,9 @@ class Daemon:
         from pmctl.hal.base import Backend
         from pmctl.task.run_sink import RunSink
         sup = self.sup
+        from pmctl.motion.service_config import strain_in_loop
         cls = hal.backend_class(sup.backend)
-        load = getattr(cls, "strain_in_loop", True)         # gauges in the cyclic data
+        load = strain_in_loop(sup.backend)                  # gauges in the cyclic data
         rs = RunSink(sup.machine, sup.machine.resolution.pulses_per_mm, sup.rate_hz, cls.truth is not Backend.truth,
                      1 << 62, 0, None, sup.daq, load=load, strain=load, session=True,
                      spindle_of=lambda: sup.spindle, spindle_opt=sup.svc.spindle)

@@ -96,11 +96,9 @@ class Supervisor:
         self.rate_hz = float(rate_hz or self.svc.loop.rate_hz)
         self.dt = 1.0 / self.rate_hz
         from pmctl.motion.service_config import nc_setup
-        self.nc_setup = nc_setup(self.svc, self.machine, self.dt, self.backend)   # chain modes, K_theta auto, shaper
-        # [daq] k_theta_source = "daq" with K_theta on: refused when the DAQ samples slower than twice the
-        # chain mode (pmctl serve and pmctl run alike, before the devices, the rt process or the state file)
-        from pmctl.hal.modbus_daq import check_k_theta_source
-        check_k_theta_source(self.svc.daq, self.svc.nc.k_theta_per_s, self.machine, f"{self.svc.source}: daq")
+        # chain modes, K_theta auto (off on a backend without strain), the shaper; [daq] k_theta_source
+        # checked (pmctl serve and pmctl run alike, before the devices, the rt process or the state file)
+        self.nc_setup = nc_setup(self.svc, self.machine, self.dt, self.backend)
         self.params = self.svc.nc.params(self.machine, self.dt, where=self.svc.source, modes=self.nc_setup.modes)
         self.svc.homing.check(self.params, self.svc.source)        # [homing] against this machine's joints
         self.plan_machine = self.machine

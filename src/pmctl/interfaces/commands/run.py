@@ -252,16 +252,9 @@ def run(args) -> int:
     state_file = cfg.state_file if args.state is None else args.state
     dt = cfg.dt
     from pmctl.motion.service_config import nc_setup
-    setup = nc_setup(svc, machine, dt, backend_name)     # chain modes, K_theta auto, shaper
-    # The supervisor checks the K_theta source as well (pmctl serve); this check stays because it sees the
-    # K_theta the config asks for, before a backend without strain in its cyclic data switches it off below
-    # (canopen: the supervisor then gets K_theta = 0), so run and serve refuse the same configs.
-    from pmctl.hal.modbus_daq import check_k_theta_source
-    check_k_theta_source(svc.daq, svc.nc.k_theta_per_s, machine, f"{svc.source}: daq")
-    strain_in_loop = getattr(hal.backend_class(backend_name), "strain_in_loop", True)
-    if not strain_in_loop and any(svc.nc.k_theta_per_s):
-        log(f"K_theta off: backend {backend_name} carries no strain gauges in its cyclic data")
-        svc.nc.k_theta_per_s = (0.0,) * 3
+    setup = nc_setup(svc, machine, dt, backend_name)     # chain modes, K_theta auto or off, shaper; checked
+    from pmctl.motion.service_config import strain_in_loop as _strain_in_loop
+    strain_in_loop = _strain_in_loop(backend_name)
     params = svc.nc.params(machine, dt, where=svc.source, modes=setup.modes)
 
     # Where the machine is: saved counters, else home (said only once everything has been checked).
