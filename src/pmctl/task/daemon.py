@@ -26,6 +26,9 @@ from pmctl.core import kinematics as K
 from pmctl.motion import channel as C
 
 
+RT_FRESH_S = 0.5      # the rt status older than this (or than the ping period, if shorter) stops the pings
+
+
 class Daemon:
     def __init__(self, *, config="prototype", service=None, backend=None, state_file="", record_dir=None,
                  console=None, realtime=True, rate_hz=None, socket_path=None, log=None):
@@ -250,7 +253,7 @@ class Daemon:
         while not self._stop.wait(0.05):
             sup = self.sup
             now = time.monotonic()
-            if wd and now - last_ping >= wd and self.rt_on_time():
+            if wd and now - last_ping >= wd and self.rt_on_time(min(RT_FRESH_S, wd)):
                 sd_notify("WATCHDOG=1")
                 last_ping = now
             if sup.homed != self.journal.data.get("homed"):
@@ -283,13 +286,15 @@ class Daemon:
                     self.log(f"journal write failed: {e}")
                 last_line = (running, line)
 
-    def rt_on_time(self) -> bool:
-        """The rt side is alive and its last ticks were on time (the watchdog's condition)."""
+    def rt_on_time(self, max_age_s: float = 0.5) -> bool:
+        """The rt side is alive and its last ticks were on time (the watchdog's condition): its status
+        block written less than ``max_age_s`` ago (the watchdog passes 0.5 s, or its ping period when
+        WatchdogSec is under 1 s, so a stalled rt side misses the next ping whatever the interval)."""
         sup = self.sup
         if sup.rt_dead or sup.ch is None:
             return False
         s = sup.raw()
-        fresh = time.monotonic() - s[C.ST_MONO] < 0.5
+        fresh = time.monotonic() - s[C.ST_MONO] < max_age_s
         return bool(fresh and (s[C.ST_ONTIME] > 0 or not self.realtime))
 
     def _on_signal(self, signum, frame):
