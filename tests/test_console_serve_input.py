@@ -1,6 +1,7 @@
 """`pmctl serve` refuses bad flags as `pmctl run` does: one line naming the flag or file, exit 1,
 before anything starts (no rt process, no console link, the state file untouched)."""
 
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -13,12 +14,14 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.mark.parametrize("flags, says", [
     (["--backend", "nope"], "--backend 'nope': unknown backend"),
     (["--record", "{tmp}/afile"], "{tmp}/afile: exists and is not a folder"),
+    (["--record", "{tmp}/rec"], "{tmp}/rec: a recording is already there; choose another name"),
     (["--console", "ptyy:{tmp}/tty"], "--console ptyy:{tmp}/tty: no such device"),
     (["--console", "pty:{tmp}/missing/tty"], "--console pty:{tmp}/missing/tty: the folder {tmp}/missing does not exist"),
     (["--socket", "{tmp}/missing/sock"], "--socket {tmp}/missing/sock: the folder {tmp}/missing does not exist"),
 ])
 def test_bad_flags_are_refused_before_anything_starts(tmp_path, flags, says):
     (tmp_path / "afile").write_text("not a recording\n")
+    shutil.copytree(ROOT / "examples" / "recordings" / "backlash-circle" / "recording", tmp_path / "rec")
     state = tmp_path / "state.json"
     state.write_text('{"keep": "me"}')
     flags = [f.format(tmp=tmp_path) for f in flags]
@@ -29,5 +32,6 @@ def test_bad_flags_are_refused_before_anything_starts(tmp_path, flags, says):
     assert r.returncode == 1, r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and says.format(tmp=tmp_path) in lines[0], r.stderr
+    assert "--force" not in r.stderr          # pmctl run's flag; serve has none and never replaces one
     assert state.read_text() == '{"keep": "me"}' and not (tmp_path / "state.json.journal").exists()
     assert not (tmp_path / "tty").is_symlink() and not (tmp_path / "missing").exists()

@@ -549,7 +549,8 @@ class RecordingWriter:
     """
 
     def __init__(self, folder, channels, *, machine="prototype", sample_rate_hz, description="",
-                 channel_notes=None, digits=10, exact=False, extra_meta=None, overwrite=False):
+                 channel_notes=None, digits=10, exact=False, extra_meta=None, overwrite=False,
+                 force_flag="--force"):
         self.folder = Path(folder)
         for nm in channels:
             _check_name(nm, self.folder)
@@ -567,7 +568,7 @@ class RecordingWriter:
             # (a path relative to a folder that does not exist yet is resolved lexically)
             raise InputError(self.folder, None, f"unknown machine {machine!r}")
         self.overwrite = bool(overwrite)
-        check_target(self.folder, overwrite=self.overwrite)
+        check_target(self.folder, overwrite=self.overwrite, force_flag=force_flag)
         self.channels = _order(list(channels))
         self._perm = [list(channels).index(c) for c in self.channels]
         self.meta = {"format": FORMAT, "machine": machine, "sample_rate_hz": sample_rate_hz,
@@ -706,9 +707,10 @@ def _is_recording_dir(p: Path) -> bool:
         any(q.name in (META_FILE, DATA_FILE) for q in entries)
 
 
-def check_target(folder, *, overwrite=False) -> None:
+def check_target(folder, *, overwrite=False, force_flag="--force") -> None:
     """Refuse a recording target that exists (an empty directory is fine) unless ``overwrite``;
-    never replace something that is not a recording. Raises InputError naming the folder."""
+    never replace something that is not a recording. Raises InputError naming the folder (and
+    ``force_flag``, the caller's way to replace a recording; None: it has none)."""
     folder = Path(folder)
     if not folder.exists() and not folder.is_symlink():
         parent = folder.parent if str(folder.parent) else Path(".")
@@ -725,11 +727,11 @@ def check_target(folder, *, overwrite=False) -> None:
             raise InputError(folder, None, "its parent folder is not writable")
         return
     if not _is_recording_dir(folder):
-        raise InputError(folder, None, "exists and holds files that are not a recording; "
-                                       "choose another name (not even --force replaces it)")
+        raise InputError(folder, None, "exists and holds files that are not a recording; choose another name"
+                         + (f" (not even {force_flag} replaces it)" if force_flag else ""))
     if not overwrite:
-        raise InputError(folder, None, "a recording is already there; choose another name, "
-                                       "or --force to replace it")
+        raise InputError(folder, None, "a recording is already there; choose another name"
+                         + (f", or {force_flag} to replace it" if force_flag else ""))
 
 
 def _remove_recording_dir(p: Path, missing_ok=False):

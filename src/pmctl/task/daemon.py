@@ -215,7 +215,8 @@ class Daemon:
             p = Path(machine_ref).resolve()
             machine_ref = p.stem if p.parent == CONFIG_DIR.resolve() else os.path.relpath(p, folder.resolve())
         self.rec = RecordingWriter(folder, chans, machine=machine_ref, sample_rate_hz=sup.rate_hz,
-                                   description=f"pmctl serve session on backend {sup.backend}", channel_notes=notes)
+                                   description=f"pmctl serve session on backend {sup.backend}", channel_notes=notes,
+                                   force_flag=None)
         self.rec.__enter__()
 
         def sink(rows):

@@ -43,7 +43,7 @@ def run(args) -> int:
         raise PmctlError(f"--backend {args.backend!r}: unknown backend; known: {', '.join(sorted(hal.BACKENDS))}")
     if args.record:
         from pmctl.core.recording import check_target
-        check_target(args.record)
+        check_target(args.record, force_flag=None)          # serve never replaces a recording
     if args.console:
         from pmctl.interfaces.console.port import check_console_spec
         check_console_spec(args.console)
