@@ -189,7 +189,10 @@ def test_serve_home_on_drives_then_the_reference_offset_survives_a_restart(tmp_p
     finally:
         s.close()
         assert stop_serve(p) == 0
-    assert "pulses sent = counter change: yes" in (tmp_path / "serve.err").read_text()
+    err = (tmp_path / "serve.err").read_text()
+    assert "pulses sent = counter change: yes" in err
+    assert "K_theta off: backend canopen carries no strain gauges in its cyclic data" in err
+    assert "drive positions = counters: yes (within a pulse)" in err        # the drives hold no counters
     saved = load_counters(state, machine=M.name)
     assert saved.clean and saved.offsets is not None and saved.offsets[0] == shift1 and not saved.offsets[1:].any()
     # restart: the drives' positions (counters - offset) and the counters agree; the switch is where

@@ -440,11 +440,28 @@ def rt_main(spec: dict) -> int:
             ch.st[C.ST_PHASE] = C.PH_EXITED
             if os.getppid() != int(spec["ppid"]):
                 ch.close(unlink=True)             # the supervisor died: nobody else removes the segment
-            dev_ok = fb is None or fb.counts is None or bool(np.array_equal(fb.counts, final.counts))
             log(f"stopped: {getattr(lp, 'quit_reason', '') or (res.reason if res else '')}; counters "
                 f"{final.counts.tolist()} saved; pulses sent = counter change: {'yes' if sent_ok else 'NO'}; "
-                f"device counters = counters: {'yes' if dev_ok else 'NO'}")
+                + device_agreement(fb, final.counts, ppm))
     return 0
+
+
+def device_agreement(fb, counts, ppm) -> str:
+    """What the devices said last against the counters saved: a backend with pulse counters (the
+    bridge, the sim) must hold exactly the saved ones; drives without counters (canopen) report their
+    positions, which must be within a pulse of them (at rest). No feedback read: said so."""
+    if fb is None:
+        return "device counters: none read"
+    if fb.counts is not None:
+        return f"device counters = counters: {'yes' if np.array_equal(fb.counts, counts) else 'NO'}"
+    off = np.rint(np.asarray(fb.enc, float) * np.asarray(ppm, float)) - np.asarray(counts, float)
+    if not np.all(np.isfinite(off)):
+        return "drive positions = counters: unknown (no position read)"
+    if np.all(np.abs(off) <= 1):
+        return "drive positions = counters: yes (within a pulse)"
+    i = int(np.argmax(np.abs(off)))
+    return (f"drive positions = counters: NO ({('L1', 'L2', 'L3', 'X', 'Y')[i]} {int(off[i]):+d} pulses: "
+            f"the drive stopped elsewhere, or was still moving)")
 
 
 if __name__ == "__main__":
