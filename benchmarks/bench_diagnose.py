@@ -16,7 +16,9 @@ Recordings (pmctl-recording/1 folders at 1 kHz, one hidden backlash of 0.02 mm o
 Each size is then diagnosed in a fresh child process exactly as ``pmctl twin diagnose`` does
 (pmctl.tools.twin.diagnose.read_for_diagnosis, then diagnose with the default cap), and the child
 reports its CPU time (read and diagnose apart), its wall time and its peak resident memory
-(ru_maxrss), so sizes do not share an allocator. The machine's load average is printed per size:
+(VmHWM of /proc/self/status), so sizes do not share an allocator. Not ru_maxrss: Linux carries it
+across fork and exec, so a child forked while this process held the 10^6 synth run reported that
+run's memory (1302 MB, where the diagnosis itself peaks at 847 MB). The machine's load average is printed per size:
 the CPU and wall time of a loaded 2-core machine vary more than its memory. The recordings are
 removed at the end unless --keep names a folder for them.
 """
@@ -37,8 +39,11 @@ import pmctl  # noqa: F401,I001  (before numpy: its one-BLAS-thread default, pmc
 import numpy as np
 
 CHILD = r"""
-import json, resource, sys, time
+import json, sys, time
 from pmctl.tools.twin.diagnose import diagnose, read_for_diagnosis
+def peak_mb():      # this process's own peak resident set (VmHWM is reset by exec; ru_maxrss is not)
+    with open("/proc/self/status") as f:
+        return next(int(ln.split()[1]) for ln in f if ln.startswith("VmHWM:")) / 1024
 w0, t0 = time.perf_counter(), time.process_time()
 meta, machine, cols, span = read_for_diagnosis(sys.argv[1])
 t1 = time.process_time()
@@ -46,7 +51,7 @@ rep, extras = diagnose(cols, machine, span=span)
 t2, w2 = time.process_time(), time.perf_counter()
 print(json.dumps({"read_cpu_s": t1 - t0, "diagnose_cpu_s": t2 - t1, "wall_s": w2 - w0,
                   "n": span["rows_total"], "analysed": len(cols["t"]),
-                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                  "peak_rss_mb": peak_mb(),
                   "verdict": rep["verdict"],
                   "findings": [(f["effect"], f.get("axis"), f["parameters"], f["confidence"]) for f in rep["findings"]]}))
 """
