@@ -207,8 +207,7 @@ class Daemon:
                      1 << 62, 0, None, sup.daq, load=load, strain=load, session=True,
                      spindle_of=lambda: sup.spindle, spindle_opt=sup.svc.spindle)
         chans, notes = rs.channels()
-        folder = Path(self.record_dir)
-        folder.mkdir(parents=True, exist_ok=True)
+        folder = Path(self.record_dir)       # written into folder.partial, renamed on finishing
         machine_ref = str(self.config)
         if machine_ref.endswith(".toml"):
             from pmctl.core.config import CONFIG_DIR
