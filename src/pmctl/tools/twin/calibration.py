@@ -9,7 +9,9 @@ A finding's confidence is a logistic function of five numbers measured on it:
 - ``rel``: the fraction of the residual energy of its channels that it removes on held-out data;
 - ``share``: its in-sample gain over that of a flexible, physics-free description of its channels
   (functions of time, of each axis' position, and of each axis' direction; see
-  :func:`pmctl.tools.twin.unexplained.flexible_gain`); below 0.3 the effect is refused;
+  :func:`pmctl.tools.twin.unexplained.flexible_gain`); the effect is refused when the same ratio of
+  the gains beyond chance (``net_share``, carried in the features but not in the logistic) is
+  below 0.3;
 - ``left``: the structure its channels keep after all findings: log10(1 + g/n), g what the
   flexible description still removes from the final residual of its channels, n their samples
   (:func:`pmctl.tools.twin.unexplained.left_structure`; ~0 when only noise is left).
@@ -50,6 +52,8 @@ def features(ev) -> dict:
            "left": float(min(ev.get("left", 0.0), 5.0))}
     if "weight_share" in ev:
         out["weight_share"] = float(ev["weight_share"])
+    if "net_share" in ev:               # the share beyond chance (the SHARE_MIN rule's; not in the logistic)
+        out["net_share"] = float(min(ev["net_share"], 1.5))
     return out
 
 

@@ -201,11 +201,14 @@ def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray, wins=()) 
     return out
 
 
-def flexible_gain(ctx: Context, y: np.ndarray, channel_mask: np.ndarray) -> float:
+def flexible_gain(ctx: Context, y: np.ndarray, channel_mask: np.ndarray, *, with_dof=False):
     """SSE that a flexible, physics-free description removes from y in the given channels (one
     fit per channel): 10-knot piecewise-linear functions of time and of each moving axis'
     position, plus a level per direction of motion of each axis. A named effect that removes only
-    a small share of this is a partial description of something else."""
+    a small share of this is a partial description of something else. ``with_dof``: (gain, dof),
+    dof the rank of its basis summed over the channels fitted (the hats of one variable sum to
+    one, so it is less than the columns), which is what it removes on average from white noise of
+    unit variance (y is whitened)."""
     o = ctx.obs
     key = ("flex_basis",)
     if key not in ctx.extra:
@@ -220,7 +223,7 @@ def flexible_gain(ctx: Context, y: np.ndarray, channel_mask: np.ndarray) -> floa
             cols.append(axis_direction(ctx, a)[rows][:, None])
         ctx.extra[key] = np.concatenate(cols, 1) if cols else np.ones((len(rows), 1))
     B = ctx.extra[key]
-    gain = 0.0
+    gain, dof = 0.0, 0
     for ci in np.flatnonzero(channel_mask):
         m = o.ch == ci
         if m.sum() <= B.shape[1] + 2:
@@ -230,7 +233,12 @@ def flexible_gain(ctx: Context, y: np.ndarray, channel_mask: np.ndarray) -> floa
         c = _lstsq(X, yy)
         r = yy - X @ c
         gain += float(yy @ yy - r @ r)
-    return gain
+        if with_dof:
+            rk = ("flex_rank", int(ci))
+            if rk not in ctx.extra:
+                ctx.extra[rk] = int(np.linalg.matrix_rank(X))
+            dof += ctx.extra[rk]
+    return (gain, dof) if with_dof else gain
 
 
 def left_structure(ctx: Context, y: np.ndarray, channel_mask: np.ndarray) -> float:
