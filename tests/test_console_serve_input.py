@@ -15,6 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
     (["--backend", "nope"], "--backend 'nope': unknown backend"),
     (["--record", "{tmp}/afile"], "{tmp}/afile: exists and is not a folder"),
     (["--record", "{tmp}/rec"], "{tmp}/rec: a recording is already there; choose another name"),
+    (["--record", "{tmp}/killed"], "--record {tmp}/killed: {tmp}/killed.partial exists (a session that was killed"),
     (["--console", "ptyy:{tmp}/tty"], "--console ptyy:{tmp}/tty: no such device"),
     (["--console", "pty:{tmp}/missing/tty"], "--console pty:{tmp}/missing/tty: the folder {tmp}/missing does not exist"),
     (["--socket", "{tmp}/missing/sock"], "--socket {tmp}/missing/sock: the folder {tmp}/missing does not exist"),
@@ -22,6 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_bad_flags_are_refused_before_anything_starts(tmp_path, flags, says):
     (tmp_path / "afile").write_text("not a recording\n")
     shutil.copytree(ROOT / "examples" / "recordings" / "backlash-circle" / "recording", tmp_path / "rec")
+    shutil.copytree(tmp_path / "rec", tmp_path / "killed.partial")      # what a killed session leaves
     state = tmp_path / "state.json"
     state.write_text('{"keep": "me"}')
     flags = [f.format(tmp=tmp_path) for f in flags]

@@ -59,8 +59,14 @@ def test_control_socket_queue_hold_resume_override_subscribe(tmp_path):
                 break
             time.sleep(0.2)
         assert np.allclose(np.subtract(st["mpos"], st0["mpos"])[:3], [6, 4, 0], atol=2e-3)   # both jobs ran
-        # record start / stop: the recording holds the move made while it was on, finalised at stop
+        # record start refused (a killed session's rec.partial is there): nothing changes, the next start works
         rec = tmp_path / "rec"
+        (tmp_path / "rec.partial").mkdir()
+        refused = request(sock, {"cmd": "record", "start": str(rec)})
+        assert not refused["ok"] and "rec.partial exists" in refused["error"], refused
+        assert not request(sock, {"cmd": "record", "stop": True})["ok"]          # not recording
+        (tmp_path / "rec.partial").rmdir()
+        # record start / stop: the recording holds the move made while it was on, finalised at stop
         out = subprocess.run([sys.executable, "-m", "pmctl.interfaces.cli", "ctl", "--socket", str(sock), "record",
                               "start", str(rec)], capture_output=True, text=True, cwd=ROOT)
         assert out.returncode == 0 and json.loads(out.stdout)["folder"] == str(rec)

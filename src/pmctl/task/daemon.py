@@ -177,8 +177,12 @@ class Daemon:
         with self._rec_lock:
             if self.rec is not None:
                 raise PmctlError(f"already recording into {self.record_dir}")
-            self.record_dir = str(folder)
-        self._open_recording()
+            before, self.record_dir = self.record_dir, str(folder)
+        try:
+            self._open_recording()
+        except BaseException:
+            self.record_dir = before        # refused (a folder or its .partial there): nothing changed
+            raise
         return self.record_dir
 
     def record_stop(self):
@@ -213,10 +217,11 @@ class Daemon:
             from pmctl.core.config import CONFIG_DIR
             p = Path(machine_ref).resolve()
             machine_ref = p.stem if p.parent == CONFIG_DIR.resolve() else os.path.relpath(p, folder.resolve())
-        self.rec = RecordingWriter(folder, chans, machine=machine_ref, sample_rate_hz=sup.rate_hz,
-                                   description=f"pmctl serve session on backend {sup.backend}", channel_notes=notes,
-                                   force_flag=None)
-        self.rec.__enter__()
+        rec = RecordingWriter(folder, chans, machine=machine_ref, sample_rate_hz=sup.rate_hz,
+                              description=f"pmctl serve session on backend {sup.backend}", channel_notes=notes,
+                              force_flag=None)
+        rec.__enter__()                     # (refuses an existing folder.partial: then nothing is kept)
+        self.rec = rec
 
         def sink(rows):
             with self._rec_lock:
