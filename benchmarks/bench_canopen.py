@@ -133,8 +133,7 @@ def tick_compute(a, o, svc) -> int:
     from pmctl.task.planner import home_pose, plan
     m = load_machine()
     dt = svc.loop.dt
-    setup = nc_setup(svc, m, dt, "canopen")
-    svc.nc.k_theta_per_s = (0.0,) * 3          # as pmctl run: this backend carries no strain
+    setup = nc_setup(svc, m, dt, "canopen")     # K_theta off: this backend carries no strain
     params = svc.nc.params(m, dt, where=svc.source, modes=setup.modes)
     tip, axis = home_pose(m)
     tr = plan(parse_gcode(BENCH_JOB, "bench.ngc", tip, axis), m, dt, start=(tip, axis))

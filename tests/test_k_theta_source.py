@@ -92,7 +92,8 @@ def test_run_refuses_a_daq_too_slow_for_k_theta_before_anything_starts(tmp_path,
 def test_k_theta_runs_only_where_the_backend_carries_strain_in_its_cyclic_data(backend):
     """The canopen drives carry no strain gauges: K_theta is off for pmctl serve as for pmctl run (the
     Supervisor resolves it, and the rt process, which resolves the service config again from the
-    Supervisor's overrides, gets the same gains). The sim plant's gauges are in its cyclic data: on."""
+    Supervisor's overrides and K_theta as resolved, gets the same gains). The sim plant's gauges are in
+    its cyclic data: on."""
     import numpy as np
 
     from pmctl.motion.rtproc import apply_nc_overrides
@@ -104,6 +105,6 @@ def test_k_theta_runs_only_where_the_backend_carries_strain_in_its_cyclic_data(b
     off = [n for n in sup.nc_setup.notes if n.startswith("K_theta off")]
     assert off == (["K_theta off: backend canopen carries no strain gauges in its cyclic data"]
                    if backend == "canopen" else [])
-    svc = apply_nc_overrides(load_service_config(str(SHIPPED)), sup.nc_overrides)      # as the rt process
+    svc = apply_nc_overrides(load_service_config(str(SHIPPED)), sup._rt_nc())   # as the rt process, from its spec
     rt = svc.nc.params(sup.machine, sup.dt, where=svc.source, modes=nc_setup(svc, sup.machine, sup.dt, backend).modes)
     assert np.array_equal(rt.k_theta, want)

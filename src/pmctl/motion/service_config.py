@@ -423,6 +423,7 @@ def nc_setup(svc: ServiceConfig, machine: Machine, dt: float, backend: str | Non
     ``backend`` without strain in its cyclic data, after the K_theta source check) and the shaper. Then ``svc.nc.params(machine, dt, modes=setup.modes)`` builds the NC parameters and
     pmctl.motion.timescale.shape_trajectory applies ``setup.shaper`` to the plan."""
     nc = svc.nc
+    backend = backend or svc.backend
     modes = chain_modes(svc, machine, backend)
     notes = []
     if modes is not None:

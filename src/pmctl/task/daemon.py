@@ -62,8 +62,6 @@ class Daemon:
         sup = Supervisor(self.config, service=self.service, backend=self.backend, state_file=self.state_file,
                          realtime=self.realtime, rate_hz=self.rate_hz, log=self.log)
         self.sup = sup
-        for note in sup.nc_setup.notes:     # chain modes, K_theta (auto, or off), the shaper: as resolved
-            self.log(note)
         m = sup.machine
         if self.state_file:
             self.lock = StateLock(self.state_file)
@@ -104,6 +102,8 @@ class Daemon:
                 alarm = ALARM_HOMING_REQUIRED
         if alarm:                          # the alarm's reason says all of it: age, trust, the job
             alarm = (alarm, self.position_note)
+        for note in sup.nc_setup.notes:     # chain modes, K_theta (auto, or off), the shaper: as resolved
+            self.log(note)
         self.log(self.position_note)
         if self.record_dir:
             sup.open_devices(at=counts)     # the DAQ connected first: the recording knows its channels
@@ -291,7 +291,7 @@ class Daemon:
                     self.log(f"journal write failed: {e}")
                 last_line = (running, line)
 
-    def rt_on_time(self, max_age_s: float = 0.5) -> bool:
+    def rt_on_time(self, max_age_s: float = RT_FRESH_S) -> bool:
         """The rt side is alive and its last ticks were on time (the watchdog's condition): its status
         block written less than ``max_age_s`` ago (the watchdog passes 0.5 s, or its ping period when
         WatchdogSec is under 1 s, so a stalled rt side misses the next ping whatever the interval)."""

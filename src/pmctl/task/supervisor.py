@@ -173,6 +173,12 @@ class Supervisor:
             t.start()
             self._threads.append(t)
 
+    def _rt_nc(self) -> dict:
+        """The rt process's NC overrides: the run's, plus K_theta as resolved here (auto, or off on a
+        backend without strain), so both sides run the same gains whatever the config file says now."""
+        return {**self.nc_overrides, "k_theta_per_s": [float(k) for k in self.svc.nc.k_theta_per_s],
+                "k_theta_auto": False}
+
     def _spawn(self, counts, timeout_s):
         ch = self.ch
         ch.st[:] = 0.0                    # nothing of a previous rt process's status may count
@@ -186,7 +192,7 @@ class Supervisor:
         ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = np.asarray(counts, float)
         spec = {"shm": ch.name, "config": str(self.config), "service": self.service, "backend": self.backend,
                 "state_file": self.state_file, "rate_hz": self.rate_hz, "realtime": self.realtime,
-                "offline": self.offline, "nc": self.nc_overrides,
+                "offline": self.offline, "nc": self._rt_nc(),
                 "counts": [int(c) for c in counts], "ppid": os.getpid()}
         import json
         import subprocess
