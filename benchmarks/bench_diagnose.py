@@ -18,7 +18,7 @@ Each size is then diagnosed in a fresh child process exactly as ``pmctl twin dia
 reports its CPU time (read and diagnose apart), its wall time and its peak resident memory
 (VmHWM of /proc/self/status), so sizes do not share an allocator. Not ru_maxrss: Linux carries it
 across fork and exec, so a child forked while this process held the 10^6 synth run reported that
-run's memory (1302 MB, where the diagnosis itself peaks at 847 MB). The machine's load average is printed per size:
+run's memory (1302 MB, where the diagnosis itself peaks at 820 MB). The machine's load average is printed per size:
 the CPU and wall time of a loaded 2-core machine vary more than its memory. The recordings are
 removed at the end unless --keep names a folder for them.
 """

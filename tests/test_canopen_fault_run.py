@@ -92,7 +92,6 @@ def test_drive_fault_mid_job_through_pmctl_run_is_a_controlled_stop_naming_node_
         assert len(stop) == 1, err
         assert "backend fault: canopen node 4 (X): EMCY 0x2310 (current)" in stop[0]
         assert "pulses sent = counter change: yes" in stop[0] and "pulses sent = pulse counters: yes" in out
-        print(stop[0])
         # the drives hold no counters: their last positions against the counters, short of them here
         assert re.search(r"drive positions = counters: NO \((L1|L2|L3|X|Y) [-+]\d+ pulses", stop[0]), stop[0]
 

@@ -427,7 +427,8 @@ def _share(ev, ctx, y):
     d_eff = float(y[m] @ y[m] - (y[m] - p[m]) @ (y[m] - p[m]))
     d_flex, dof = flexible_gain(ctx, y, ev["affected"], with_dof=True)
     net_flex = d_flex - dof
-    ev["net_share"] = min((d_eff - ev["fit"].nparams) / net_flex, 2.0) if net_flex > 0 else 2.0
+    net_eff = d_eff - ev["fit"].nparams
+    ev["net_share"] = min(net_eff / net_flex, 2.0) if net_flex > 0 else (2.0 if net_eff > 0 else 0.0)
     return min(d_eff / d_flex, 2.0) if d_flex > 0 else 2.0
 
 
