@@ -38,6 +38,7 @@ import queue
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -51,6 +52,21 @@ from pmctl.motion.timescale import HELD, HOLDING, MOVING, STARVED
 ALARM_HARD_LIMIT, ALARM_SOFT_LIMIT, ALARM_ABORT, ALARM_HOMING_RESET = 1, 2, 3, 6
 ALARM_HOMING_PULLOFF, ALARM_HOMING_APPROACH, ALARM_ESTOP, ALARM_HOMING_REQUIRED, ALARM_MOTOR_FAULT = 8, 9, 10, 11, 17
 ALARM_PROBE_FAIL_CONTACT = 5      # G38.2 ended without contact
+
+
+def config_digest(machine, svc) -> dict:
+    """{file: sha256 of its bytes} of the configs the rt process loads at each (re)start: the machine
+    config, its compensation file, the service config (a missing file digests as None)."""
+    import hashlib
+    files = [machine.source, getattr(getattr(machine, "compensation", None), "source", ""), svc.source]
+    out = {}
+    for f in files:
+        if f and f not in out and not str(f).startswith("<"):
+            try:
+                out[str(f)] = hashlib.sha256(Path(f).read_bytes()).hexdigest()
+            except OSError:
+                out[str(f)] = None
+    return out
 
 
 class MotionRefused(PmctlError):
@@ -109,6 +125,7 @@ class Supervisor:
             lim = replace(self.machine.limits, chain_speed=float(self.params.vmax[:3].min()),
                           table_speed=float(self.params.vmax[3:].min()))
             self.plan_machine = replace(self.machine, limits=lim)
+        self._config_digest = config_digest(self.machine, self.svc)   # the files the rt process reads again
         self.state_file = state_file
         self.realtime = bool(realtime)
         self.log = log or (lambda m: None)
@@ -180,6 +197,11 @@ class Supervisor:
                 "k_theta_auto": False}
 
     def _spawn(self, counts, timeout_s):
+        changed = [f for f, d in config_digest(self.machine, self.svc).items() if d != self._config_digest.get(f)]
+        if changed:                      # the rt process would read them as they are now, the supervisor did not
+            raise MotionRefused(f"{', '.join(changed)} changed since the controller started: the rt motion process "
+                                f"is not restarted with settings the supervisor does not run; put the file back, "
+                                f"or restart the service to apply it", 9)
         ch = self.ch
         ch.st[:] = 0.0                    # nothing of a previous rt process's status may count
         ch.st[C.ST_PHASE] = C.PH_STARTING

@@ -442,7 +442,12 @@ class GrblConsole:
             self.write("$N1=")
         elif cmd == "$X":
             if sup.alarm or sup.rt_dead:
-                sup.unlock()
+                try:
+                    sup.unlock()
+                except MotionRefused as e:     # say why before the error code (the rt side stays down)
+                    self.write(f"[MSG:{e}]")
+                    self.log(f"$X refused: {e}")
+                    raise
                 self.interp.sync(*sup.pose())
                 self.write("[MSG:Caution: Unlocked]")
         elif cmd == "$C":
