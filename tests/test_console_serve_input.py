@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
     (["--backend", "nope"], "--backend 'nope': unknown backend"),
     (["--record", "{tmp}/afile"], "{tmp}/afile: exists and is not a folder"),
     (["--record", "{tmp}/rec"], "{tmp}/rec: a recording is already there; choose another name"),
-    (["--record", "{tmp}/killed"], "--record {tmp}/killed: {tmp}/killed.partial exists (a session that was killed"),
+    (["--record", "{tmp}/killed"], "{tmp}/killed: {tmp}/killed.partial exists (a killed run or session left it"),
     (["--console", "ptyy:{tmp}/tty"], "--console ptyy:{tmp}/tty: no such device"),
     (["--console", "pty:{tmp}/missing/tty"], "--console pty:{tmp}/missing/tty: the folder {tmp}/missing does not exist"),
     (["--socket", "{tmp}/missing/sock"], "--socket {tmp}/missing/sock: the folder {tmp}/missing does not exist"),

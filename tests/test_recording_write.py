@@ -62,6 +62,19 @@ def test_empty_folder_is_a_fine_target_and_other_folders_are_never_replaced(tmp_
         check_target(tmp_path / "file", overwrite=True)
 
 
+def test_a_killed_writers_partial_is_refused_before_anything_is_written_unless_replaced(tmp_path):
+    target = tmp_path / "rec"
+    partial_path(target).mkdir()                     # what a killed run or session leaves
+    with pytest.raises(InputError, match=r"rec\.partial exists .*move it away, or --force to replace it"):
+        check_target(target)
+    with pytest.raises(InputError, match=r"rec\.partial exists .*move it away, or choose another name"):
+        check_target(target, force_flag=None)        # (pmctl serve: no --force)
+    with pytest.raises(InputError, match=r"rec\.partial exists"):
+        RecordingWriter(target, list(_columns(3)), sample_rate_hz=1000)
+    assert not target.exists() and not any(partial_path(target).iterdir())
+    check_target(target, overwrite=True)             # --force: the writer replaces it
+
+
 def test_the_target_appears_only_when_complete_and_the_partial_is_readable(tmp_path):
     cols = _columns(300)
     target = tmp_path / "run"

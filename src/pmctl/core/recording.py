@@ -709,9 +709,15 @@ def _is_recording_dir(p: Path) -> bool:
 
 def check_target(folder, *, overwrite=False, force_flag="--force") -> None:
     """Refuse a recording target that exists (an empty directory is fine) unless ``overwrite``;
-    never replace something that is not a recording. Raises InputError naming the folder (and
+    never replace something that is not a recording, and refuse its ``<folder>.partial`` sibling (a
+    killed writer's rows) unless ``overwrite``. Raises InputError naming the folder (and
     ``force_flag``, the caller's way to replace a recording; None: it has none)."""
     folder = Path(folder)
+    part = partial_path(folder)
+    if not overwrite and (part.exists() or part.is_symlink()):
+        raise InputError(folder, None, f"{part} exists (a killed run or session left it; it reads as an incomplete "
+                                       "recording); move it away"
+                         + (f", or {force_flag} to replace it" if force_flag else ", or choose another name"))
     if not folder.exists() and not folder.is_symlink():
         parent = folder.parent if str(folder.parent) else Path(".")
         anc = parent

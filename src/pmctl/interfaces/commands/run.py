@@ -206,7 +206,7 @@ def run(args) -> int:
     from pmctl.core import kinematics as K
     from pmctl.core.config import load_machine
     from pmctl.core.errors import PmctlError
-    from pmctl.core.recording import check_target, partial_path
+    from pmctl.core.recording import check_target
     from pmctl.motion.nc import counts_of, initial_state
     from pmctl.motion.service_config import load_service_config
     from pmctl.motion.state_store import StateLock, load_counters
@@ -229,11 +229,7 @@ def run(args) -> int:
         raise PmctlError("--force replaces an existing --record folder; there is no --record")
     if args.record:               # find out now, not after the run, that the recording cannot be written
         folder = Path(args.record)
-        check_target(folder, overwrite=args.force)
-        part = partial_path(folder)
-        if part.exists() and not args.force:
-            raise PmctlError(f"--record {folder}: {part} exists (a run that was killed left it; it reads as an "
-                             f"incomplete recording); move it away, or --force to replace it")
+        check_target(folder, overwrite=args.force)          # (and its .partial, which a killed run left)
     machine = load_machine(args.config)
     svc = load_service_config(args.service)
     cfg = svc.loop

@@ -43,14 +43,7 @@ def run(args) -> int:
         raise PmctlError(f"--backend {args.backend!r}: unknown backend; known: {', '.join(sorted(hal.BACKENDS))}")
     if args.record:
         from pmctl.core.recording import check_target
-        from pathlib import Path
-
-        from pmctl.core.recording import partial_path
-        check_target(args.record, force_flag=None)          # serve never replaces a recording
-        part = partial_path(Path(args.record))
-        if part.exists() or part.is_symlink():
-            raise PmctlError(f"--record {args.record}: {part} exists (a session that was killed left it; it reads "
-                             f"as an incomplete recording); move it away, or choose another name")
+        check_target(args.record, force_flag=None)          # serve never replaces a recording (nor a .partial)
     if args.console:
         from pmctl.interfaces.console.port import check_console_spec
         check_console_spec(args.console)
