@@ -490,12 +490,16 @@ def _rank(ev, pool) -> float:
 
 
 def _passes(ev, ctx, y) -> bool:
+    """Its own checks and the SHARE_MIN rule (once per evaluation; the reasons in ev["problems"])."""
     if "problems" not in ev:
         ev["problems"] = own_checks(ev, ctx)
         if not ev["problems"]:
             ev["share"] = _share(ev, ctx, y)
             if ev["net_share"] < SHARE_MIN:
-                ev["problems"].append("a partial fit of something else")
+                ev["problems"].append(
+                    f"it removes only {100 * max(ev['net_share'], 0.0):.0f} % of what a flexible description "
+                    "of time, position and direction removes beyond chance from its channels (a partial "
+                    "fit of something else)")
     return not ev["problems"]
 
 
@@ -568,15 +572,7 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
                        and np.any(r["affected"] & ev["affected"])]
             if blocked:
                 continue
-            ev["problems"] = own_checks(ev, ctx)
-            if not ev["problems"]:
-                ev["share"] = _share(ev, ctx, y)
-                if ev["net_share"] < SHARE_MIN:
-                    ev["problems"].append(
-                        f"it removes only {100 * max(ev['net_share'], 0.0):.0f} % of what a flexible description "
-                        "of time, position and direction removes beyond chance from its channels (a partial "
-                        "fit of something else)")
-            if ev["problems"]:
+            if not _passes(ev, ctx, y):          # (a fresh evaluation: checked here for the first time)
                 refused.append(ev)
                 continue
             best = ev
