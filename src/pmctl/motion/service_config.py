@@ -420,8 +420,9 @@ def strain_in_loop(backend: str) -> bool:
 
 def nc_setup(svc: ServiceConfig, machine: Machine, dt: float, backend: str | None = None) -> NCSetup:
     """Resolve the chain modes, ``k_theta_per_s = "auto"`` (written back into svc.nc as numbers; 0 on a
-    ``backend`` without strain in its cyclic data, after the K_theta source check) and the shaper. Then ``svc.nc.params(machine, dt, modes=setup.modes)`` builds the NC parameters and
-    pmctl.motion.timescale.shape_trajectory applies ``setup.shaper`` to the plan."""
+    ``backend`` (default: the service's) without strain in its cyclic data, after the K_theta source
+    check) and the shaper. Then ``svc.nc.params(machine, dt, modes=setup.modes)`` builds the NC
+    parameters and pmctl.motion.timescale.shape_trajectory applies ``setup.shaper`` to the plan."""
     nc = svc.nc
     backend = backend or svc.backend
     modes = chain_modes(svc, machine, backend)

@@ -248,9 +248,9 @@ def run(args) -> int:
     state_file = cfg.state_file if args.state is None else args.state
     dt = cfg.dt
     from pmctl.motion.service_config import nc_setup
+    from pmctl.motion.service_config import strain_in_loop as carries_strain
     setup = nc_setup(svc, machine, dt, backend_name)     # chain modes, K_theta auto or off, shaper; checked
-    from pmctl.motion.service_config import strain_in_loop as _strain_in_loop
-    strain_in_loop = _strain_in_loop(backend_name)
+    strain_in_loop = carries_strain(backend_name)
     params = svc.nc.params(machine, dt, where=svc.source, modes=setup.modes)
 
     # Where the machine is: saved counters, else home (said only once everything has been checked).
