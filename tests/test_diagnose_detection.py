@@ -54,19 +54,23 @@ def test_a_2_um_pitch_error_in_a_250_hz_log_with_imperfections_passes_the_share_
     assert sc["extra_findings"] == []
 
 
-@settings(max_examples=10, deadline=None)
+@settings(max_examples=6, deadline=None)
 @given(st.integers(0, 2**31 - 1), st.sampled_from(["circle", "raster", "calibration"]), st.sampled_from([250.0, 1000.0]))
-def test_the_flexible_description_removes_about_its_coefficients_from_white_noise(seed, run, rate):
-    # the chance gain the share rule takes off: on whitened noise alone, each coefficient removes
-    # one unit on average (chi-square with dof degrees of freedom: sd sqrt(2 dof))
+def test_the_flexible_description_removes_about_its_rank_from_white_noise(seed, run, rate):
+    # the chance gain the share rule takes off: on whitened noise alone, the fit removes its rank on
+    # average (chi-square with dof degrees of freedom). Averaged over 100 draws (sd sqrt(2 dof / 100)),
+    # so counting the basis' columns instead (the hats of one variable sum to one) would fail
     from pmctl.tools.twin.unexplained import flexible_gain
     case = _case([], 7, run=run, duration=10.0, rate=rate)
     ctx = build_context(case.columns, M, cap=2000)
-    y = np.random.default_rng(seed).standard_normal(len(ctx.obs.y))
+    rng = np.random.default_rng(seed)
     mask = np.zeros(len(ctx.obs.channels), bool)
     mask[[i for i, c in enumerate(ctx.obs.channels) if c.startswith("tip_")]] = True
-    gain, dof = flexible_gain(ctx, y, mask, with_dof=True)
-    assert dof > 0 and abs(gain - dof) < 5 * np.sqrt(2 * dof), (gain, dof)
+    gains = [flexible_gain(ctx, rng.standard_normal(len(ctx.obs.y)), mask, with_dof=True) for _ in range(100)]
+    dof = gains[0][1]
+    mean = float(np.mean([g for g, _ in gains]))
+    cols = ctx.extra[("flex_basis",)].shape[1] * int(mask.sum())
+    assert 0 < dof < cols and abs(mean - dof) < 5 * np.sqrt(2 * dof / 100), (mean, dof, cols)
 
 
 @settings(max_examples=60, deadline=None)
