@@ -261,22 +261,44 @@ class Fit:
     internal: dict = field(default_factory=dict)
 
 
+LSTSQ_COND = 1e10      # _lstsq solves the normal equations below this condition number ...
+LSTSQ_RCOND = 1e-10    # ... else least squares keeps the directions above this share of the largest
+
+
+def _scaled(X):
+    sc = np.sqrt(np.einsum("ij,ij->j", X, X))
+    sc[sc == 0] = 1.0
+    return X / sc, sc
+
+
 def _lstsq(X, y):
     """Least squares for few columns: scaled normal equations (lstsq fallback when singular)."""
     if X.shape[1] == 0 or X.shape[0] == 0:
         return np.zeros(X.shape[1])
-    sc = np.sqrt(np.einsum("ij,ij->j", X, X))
-    sc[sc == 0] = 1.0
-    Xs = X / sc
+    Xs, sc = _scaled(X)
     G = Xs.T @ Xs
     b = Xs.T @ y
     try:
-        if np.linalg.cond(G) < 1e10:
+        if np.linalg.cond(G) < LSTSQ_COND:
             return np.linalg.solve(G, b) / sc
     except np.linalg.LinAlgError:
         pass
-    c, *_ = np.linalg.lstsq(Xs, y, rcond=1e-10)
+    c, *_ = np.linalg.lstsq(Xs, y, rcond=LSTSQ_RCOND)
     return c / sc
+
+
+def lstsq_rank(X) -> int:
+    """The number of directions :func:`_lstsq` fits with X: what it removes on average from white
+    noise of unit variance (all columns when it solves the normal equations; else the singular values
+    its least squares keeps: nearly dependent columns, such as hats of axes that move together, add
+    directions a numerical rank counts but the fit drops)."""
+    if X.shape[1] == 0 or X.shape[0] == 0:
+        return 0
+    Xs, _ = _scaled(X)
+    s = np.linalg.svd(Xs, compute_uv=False)
+    if s[0] > 0 and (s[-1] / s[0]) ** 2 > 1.0 / LSTSQ_COND:
+        return X.shape[1]
+    return int(np.sum(s > LSTSQ_RCOND * s[0]))
 
 
 class Candidate:

@@ -40,7 +40,7 @@ import math
 
 import numpy as np
 
-from pmctl.tools.twin.effects import AXES, Context, _line_frequencies, _lstsq, axis_direction, refine_max
+from pmctl.tools.twin.effects import AXES, Context, _line_frequencies, _lstsq, axis_direction, lstsq_rank, refine_max
 
 EXCESS_MIN = 1.0        # remaining rms ≥ 1.41 x noise ...
 CHI_SIGMA = 8.0         # ... and Σ(y²) − N beyond 8 standard deviations of noise (√(2N))
@@ -206,9 +206,10 @@ def flexible_gain(ctx: Context, y: np.ndarray, channel_mask: np.ndarray, *, with
     fit per channel): 10-knot piecewise-linear functions of time and of each moving axis'
     position, plus a level per direction of motion of each axis. A named effect that removes only
     a small share of this is a partial description of something else. ``with_dof``: (gain, dof),
-    dof the rank of its basis summed over the channels fitted (the hats of one variable sum to
-    one, so it is less than the columns), which is what it removes on average from white noise of
-    unit variance (y is whitened)."""
+    dof the directions the fit uses summed over the channels fitted (:func:`lstsq_rank`: the hats of
+    one variable sum to one, and hats of axes that move together are nearly dependent, so it is less
+    than the columns), which is what it removes on average from white noise of unit variance (y is
+    whitened)."""
     o = ctx.obs
     key = ("flex_basis",)
     if key not in ctx.extra:
@@ -236,7 +237,7 @@ def flexible_gain(ctx: Context, y: np.ndarray, channel_mask: np.ndarray, *, with
         if with_dof:
             rk = ("flex_rank", int(ci))
             if rk not in ctx.extra:
-                ctx.extra[rk] = int(np.linalg.matrix_rank(X))
+                ctx.extra[rk] = lstsq_rank(X)
             dof += ctx.extra[rk]
     return (gain, dof) if with_dof else gain
 
