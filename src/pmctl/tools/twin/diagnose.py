@@ -421,7 +421,7 @@ def _share(ev, ctx, y):
     beyond chance (each less its number of coefficients, what a fit removes from white noise), which
     the SHARE_MIN rule judges: near the noise floor the flexible description's ~50 coefficients a
     channel fit noise as well, and a 2 µm pitch error under 1.5 µm of tracker noise came out at
-    0.2 of it where its gain beyond chance is 0.4 of the flexible's."""
+    0.2 of it where its gain beyond chance is 0.34 of the flexible's."""
     m = ev["affected"][ctx.obs.ch]
     p = ev["fit"].pred
     d_eff = float(y[m] @ y[m] - (y[m] - p[m]) @ (y[m] - p[m]))
