@@ -5,10 +5,15 @@ from where the previous one ended (the first from the planner's start pose) to i
 
 - ``RAPID``  straight line at the planner's rapid speed (G0, CL links);
 - ``LINE``   straight line at ``feed`` (G1, CL cutting points);
-- ``ARC``    circular/helical arc in the XY plane (G2/G3, G17) about ``center`` (x, y), sweeping
-             ``sweep`` radians (positive counter-clockwise seen from +z); the radius goes linearly from
-             the start radius to the end radius (a tolerated mismatch becomes a tiny spiral), z linearly;
-- ``DWELL``  no motion for ``dwell`` seconds (G4).
+- ``ARC``    circular/helical arc (G2/G3) in the plane whose unit normal is ``normal`` (None: +z, the XY
+             plane of G17; G18: +y, G19: +x, as LinuxCNC's canon) about the axis through ``center`` (a
+             point in W; a 2-vector (x, y) is an XY arc's centre), sweeping ``sweep`` radians (positive:
+             counter-clockwise seen from the tip of ``normal``); the radius goes linearly from the
+             start radius to the end radius (a tolerated mismatch becomes a tiny spiral), the
+             component along ``normal`` linearly (a helix);
+- ``DWELL``  no motion for ``dwell`` seconds (G4);
+- ``EVENT``  no motion: what happens when the path reaches this point, in program order (``events``,
+             below). The planner makes it an exact stop and marks the stop's sample (Trajectory.marks).
 
 A probing move (G38.2 / G38.3) is a ``LINE`` with ``probe`` = 2 or 3: planned like any feed line to
 its target, it is where the control loop stops on contact (pmctl.motion.probe); ``probe`` = 2 makes a
@@ -16,7 +21,20 @@ move that ends without contact an error (grbl's probe-fail alarm), 3 does not.
 
 The tool axis of every moving kind is interpolated by slerp from the start axis to the end axis.
 ``line`` is the source line (1-based; 0 for moves the reader added), ``spindle_rpm`` the commanded
-spindle speed during the move (0 = off).
+spindle speed during the move (0 = off; negative: M4).
+
+Fields added for the full RS-274 reader (each defaults to the old meaning):
+- ``tool_offset``: the tool length offset in force (G43 H / G43.1, mm; 0 with G49): the tool is that much
+  longer than the machine config's reference tool (``geometry.tool_length``), so the platform sits
+  ``tool_offset`` further up the tool axis for the same tip; every IK of the move's poses uses
+  ``tool_length + tool_offset``;
+- ``duration``: G93 inverse-time feed: the move takes this many seconds at 100 % feed (0: ``feed`` applies);
+- ``tolerance``: G64 P, the path tolerance (mm) the planner may use to blend or merge (0: exact path);
+- ``events``: for ``EVENT``, a tuple of (name, value) in program order: ``("spindle", rpm)`` (signed, 0
+  = stop), ``("coolant", "mist" | "flood" | "off")``, ``("tool_change", n)`` (M6: wait for the operator),
+  ``("pause", "M0" | "M1" | "M60")``, ``("output", (name, index, value))`` (M62-M68; the sim records them),
+  ``("message", text)``, ``("user_m", (code, p, q))`` (a configured M100-M199);
+- ``file``: the source file when it is not the job's own (an external O-word subroutine); "" otherwise.
 
 ``load_job(path, machine)`` reads a file of either format by its suffix; ``read_job_text(path)`` is how
 both readers get the text (UTF-8, at most ``MAX_JOB_BYTES`` and ``MAX_JOB_LINES``; a bad byte is reported with its line and
@@ -35,8 +53,8 @@ import numpy as np
 from pmctl.core import kinematics as K
 from pmctl.core.errors import InputError
 
-RAPID, LINE, ARC, DWELL = "rapid", "line", "arc", "dwell"
-KINDS = (RAPID, LINE, ARC, DWELL)
+RAPID, LINE, ARC, DWELL, EVENT = "rapid", "line", "arc", "dwell", "event"
+KINDS = (RAPID, LINE, ARC, DWELL, EVENT)
 
 GCODE_SUFFIXES = (".ngc", ".nc", ".gcode", ".tap")
 CL_SUFFIXES = (".cl", ".cls", ".txt", ".csv")
@@ -54,10 +72,16 @@ class Move:
     line: int = 0                    # source line, 1-based (0: added by the reader)
     feed: float = 0.0                # mm/s for LINE and ARC (0 for RAPID and DWELL)
     spindle_rpm: float = 0.0
-    center: np.ndarray | None = None  # ARC: centre (x, y) in W
-    sweep: float = 0.0               # ARC: signed sweep angle, rad (+ = counter-clockwise from +z)
+    center: np.ndarray | None = None  # ARC: a point on the arc's axis in W (x, y, z), or (x, y) for XY
+    sweep: float = 0.0               # ARC: signed sweep angle, rad (+ = counter-clockwise about normal)
     dwell: float = 0.0               # DWELL: seconds
     probe: int = 0                   # LINE: 0, or 2 / 3 for a G38.2 / G38.3 probing move
+    normal: np.ndarray | None = None  # ARC: unit normal of the arc's plane (None: +z)
+    tool_offset: float = 0.0         # mm the tool is longer than the reference tool (G43 H / G43.1)
+    duration: float = 0.0            # G93: seconds for the move at 100 % feed (0: use feed)
+    tolerance: float = 0.0           # G64 P: path tolerance the planner may use, mm (0: exact)
+    events: tuple = ()               # EVENT: ((name, value), ...) in program order
+    file: str = ""                   # source file if not the job's own (external subroutine)
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,9 @@ class Trajectory:
     spindle_rpm: np.ndarray      # (N,) commanded spindle speed (0 = off)
     source: str = ""             # the job file
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # the job's programmed tip points in W
+    # EVENT moves reached by this piece: ((sample index in this piece, line, events), ...) in order; the
+    # sample is the exact stop where the events take effect (pmctl.task.job EVENT)
+    marks: tuple = ()
 
     def __len__(self):
         return len(self.tip)
@@ -43,4 +46,8 @@ class Trajectory:
         first = parts[0]
         cat = {k: np.concatenate([getattr(p, k) for p in parts]) for k in
                ("tip", "axis", "tip_vel", "axis_vel", "line", "spindle_rpm")}
-        return cls(first.dt, source=first.source, points=first.points, **cat)
+        marks, off = [], 0
+        for p in parts:
+            marks.extend((i + off, line, ev) for i, line, ev in p.marks)
+            off += len(p)
+        return cls(first.dt, source=first.source, points=first.points, marks=tuple(marks), **cat)
