@@ -1,0 +1,118 @@
+"""The NC's safety rules pinned at their boundaries, in both implementations (the Python reference
+pmctl.motion.nc and the compiled core pmctl.motion.ncore), so that a rule loosened in one of them,
+or in both, fails here:
+
+- the following-error limit at 0.95x and 1.05x, at rest (MIN_FERROR) and at speed (FERROR scaled
+  with the rate): no trip, then a trip, with the reason naming the axis;
+- a soft limit approached near top speed: both NCs send the same pulses tick for tick, the stop is
+  the soft limit's, and the axis comes to rest inside its limit (a braking distance estimated 10 %
+  short in either core leaves it beyond, or makes the two differ).
+
+Direct calls and closed loops against the loopback sim; no clock.
+"""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from pmctl.core import kinematics as K
+from pmctl.core.config import load_machine
+from pmctl.hal.base import Feedback
+from pmctl.motion.nc import HALTED, RUN, NCParams, PythonNC, counts_of, initial_state, make_nc
+from test_ncore import closed_loop
+
+M = load_machine()
+DT = 1e-3
+NAMES = ("L1", "L2", "L3", "X", "Y")
+HOME = np.array([M.geometry.z_home] * 3 + [0.0, 0.0])
+
+
+def _one_tick(impl, params, axis, rate_share, fe_share):
+    """One NC tick from the home counters with axis ``axis`` moving at ``rate_share`` x its speed
+    limit (the previous tick's rate) and its encoder ``fe_share`` x the following-error limit
+    behind the counters. Returns (mode, reason, limit mm)."""
+    st0 = initial_state(M, counts_of(HOME, params))
+    qdot = np.zeros(5)
+    qdot[axis] = rate_share * params.vmax[axis]
+    st0 = replace(st0, qdot=qdot)
+    lim = max(params.min_ferror_mm, params.ferror_mm * abs(qdot[axis]) / params.vmax[axis])
+    fb = Feedback()
+    fb.enc[:] = st0.counts / params.pulses_per_mm
+    fb.enc[axis] -= fe_share * lim
+    tg = np.concatenate([st0.tip, st0.axis, np.zeros(6)])
+    nc = PythonNC(M, params) if impl == "python" else make_nc(M, params, "compiled")
+    pulses, st = nc.step(nc.load(st0), tg, fb)
+    return st.mode, st.reason, lim, pulses
+
+
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+@pytest.mark.parametrize("rate_share", [0.0, 0.6])
+def test_following_error_trips_between_095_and_105_of_its_limit(impl, rate_share):
+    """At rest the limit is MIN_FERROR (10 um), at 60 % of the speed limit FERROR x 0.6 (0.6 mm):
+    an encoder 0.95 x the limit behind runs on, 1.05 x the limit behind halts at once with no pulse,
+    the reason naming the axis, the error and the limit. Every axis, both cores."""
+    params = NCParams.from_machine(M, DT, kv=400.0)
+    for axis in range(5):
+        mode, reason, lim, _ = _one_tick(impl, params, axis, rate_share, 0.95)
+        assert mode == RUN, (NAMES[axis], reason)
+        mode, reason, lim, pulses = _one_tick(impl, params, axis, rate_share, 1.05)
+        assert mode == HALTED and not pulses.any(), NAMES[axis]
+        assert reason.startswith(f"following error: {NAMES[axis]} off by {1.05 * lim:.4f} mm "
+                                 f"(limit {lim:.4f} mm"), reason
+    # the two limits really are the two regimes
+    assert params.min_ferror_mm == pytest.approx(0.01) and params.ferror_mm * 0.6 > 10 * params.min_ferror_mm
+
+
+def _toward_limit(axis_idx, start, speed_share, beyond_mm, params, dt):
+    """Target rows that accelerate joint(s) ``axis_idx`` from ``start`` (joint positions) at 90 % of
+    the acceleration limit to ``speed_share`` x the speed limit and keep going until ``beyond_mm`` past
+    the upper limit: the NC must stop on its own, by the soft limit."""
+    ax = list(np.atleast_1d(axis_idx))
+    v = speed_share * float(np.min(params.vmax[ax]))
+    a = 0.9 * float(np.min(params.amax[ax]))
+    dist = float(np.max(params.upper[ax] - start[ax])) + beyond_mm
+    t_acc = v / a
+    T = t_acc + (dist - 0.5 * a * t_acc ** 2) / v
+    t = np.arange(int(T / dt) + 2) * dt
+    s = np.where(t < t_acc, 0.5 * a * t ** 2, 0.5 * a * t_acc ** 2 + v * (t - t_acc))
+    q = np.repeat(start[None], len(t), 0)
+    for i in ax:
+        q[:, i] = start[i] + s
+    pose, ok = K.fk_batch(q, M)
+    assert np.all(ok)
+    rows = np.zeros((len(t), 12))
+    rows[:, :3], rows[:, 3:6] = pose.tip, pose.axis
+    rows[:-1, 6:9] = np.diff(pose.tip, axis=0) / dt
+    rows[:-1, 9:12] = np.diff(pose.axis, axis=0) / dt
+    return rows
+
+
+@pytest.mark.parametrize("case", ["X", "Y", "chains"])
+def test_a_soft_limit_approached_near_top_speed_stops_inside_it_in_both_cores(case):
+    """X (or Y, or the three chains together) driven at 95 % of its top speed towards its upper soft
+    limit and on past it: both NCs send the same pulses tick for tick, stop for the soft limit while
+    still at speed (the braking distance v^2/2a is 2.3 mm here, not negligible), and every joint
+    comes to rest inside its limits."""
+    params = NCParams.from_machine(M, DT, kv=400.0)
+    start = HOME.copy()
+    if case == "X":
+        axes, start[3] = [3], 40.0
+    elif case == "Y":
+        axes, start[4] = [4], 40.0
+    else:
+        axes = [0, 1, 2]
+        start[:3] = params.upper[0] - 30.0
+    rows = _toward_limit(axes, start, 0.95, 10.0, params, DT)
+    ticks, sp, sc, moved = closed_loop(M, params, rows, start, {}, every=1)
+    assert sp.mode == sc.mode == HALTED
+    assert sp.reason.startswith("soft limit: ") and sp.reason == sc.reason
+    # the stop began at speed: the reason's rate is near the top speed
+    v_stop = float(sp.reason.split(" moving at ")[1].split(" mm/s")[0])
+    assert abs(v_stop) > 0.8 * params.vmax[axes[0]], sp.reason
+    q_end = sp.counts / params.pulses_per_mm
+    assert np.all(q_end <= params.upper) and np.all(q_end >= params.lower), (q_end, params.upper)
+    # ... and close to it: the stop did not brake early either (within the margin of two ticks and
+    # the rounding of the stop's start to a tick)
+    gap = params.upper[axes] - q_end[axes]
+    assert np.all(gap < 4 * params.vmax[axes] * DT), gap
