@@ -19,7 +19,7 @@ import pytest
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.hal.base import Feedback
-from pmctl.motion.nc import HALTED, RUN, NCParams, PythonNC, counts_of, initial_state, make_nc
+from pmctl.motion.nc import HALTED, RUN, STOPPING, NCParams, PythonNC, counts_of, initial_state, make_nc
 from test_ncore import closed_loop
 
 M = load_machine()
@@ -116,3 +116,59 @@ def test_a_soft_limit_approached_near_top_speed_stops_inside_it_in_both_cores(ca
     # the rounding of the stop's start to a tick)
     gap = params.upper[axes] - q_end[axes]
     assert np.all(gap < 4 * params.vmax[axes] * DT), gap
+
+
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_a_dead_encoder_halts_at_once_with_its_name(impl, bad):
+    """An encoder reading NaN or infinite (a lost or broken sensor) must not blind the following-
+    error check (NaN compares false): a halt at once, no pulse, the encoder named. Every axis."""
+    params = NCParams.from_machine(M, DT, kv=400.0)
+    st0 = initial_state(M, counts_of(HOME, params))
+    tg = np.concatenate([st0.tip, st0.axis, np.zeros(6)])
+    for axis in range(5):
+        fb = Feedback()
+        fb.enc[:] = st0.counts / params.pulses_per_mm
+        fb.enc[axis] = bad
+        nc = PythonNC(M, params) if impl == "python" else make_nc(M, params, "compiled")
+        pulses, st = nc.step(nc.load(st0), tg, fb)
+        assert st.mode == HALTED and not pulses.any()
+        assert st.reason == f"feedback fault: encoder {NAMES[axis]} reads {bad}", st.reason
+
+
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+@pytest.mark.parametrize("rate_sign", [0.0, -1.0])
+def test_a_joint_beyond_its_soft_limit_is_stopped_whichever_way_it_moves(impl, rate_sign):
+    """Counters past X's upper limit (a restart after the limits were narrowed), the joint at rest
+    or already moving back: the NC stops for the soft limit, naming the axis, and sends only the
+    braking pulses (none at rest)."""
+    params = NCParams.from_machine(M, DT, kv=400.0)
+    q = HOME.copy()
+    q[3] = params.upper[3] + 0.2
+    st0 = initial_state(M, counts_of(q, params))
+    st0 = replace(st0, qdot=np.array([0.0, 0.0, 0.0, rate_sign * 5.0, 0.0]))
+    fb = Feedback()
+    fb.enc[:] = st0.counts / params.pulses_per_mm
+    tg = np.concatenate([st0.tip, st0.axis, np.zeros(6)])
+    nc = PythonNC(M, params) if impl == "python" else make_nc(M, params, "compiled")
+    pulses, st = nc.step(nc.load(st0), tg, fb)
+    assert st.reason.startswith("soft limit: X = "), st.reason
+    assert st.mode == (HALTED if rate_sign == 0.0 else STOPPING)
+
+
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+def test_the_path_error_stop_trips_between_095_and_105_of_its_limit(impl):
+    """The target 0.95 x max_path_error away from the model tool tip: the NC runs on (correcting);
+    1.05 x: a controlled stop naming the path error (from rest it is at rest at once: HALTED)."""
+    params = NCParams.from_machine(M, DT, kv=400.0)
+    st0 = initial_state(M, counts_of(HOME, params))
+    fb = Feedback()
+    fb.enc[:] = st0.counts / params.pulses_per_mm
+    for share, mode in ((0.95, RUN), (1.05, HALTED)):
+        tg = np.concatenate([st0.tip + [share * params.max_path_error_mm, 0.0, 0.0], st0.axis, np.zeros(6)])
+        nc = PythonNC(M, params) if impl == "python" else make_nc(M, params, "compiled")
+        pulses, st = nc.step(nc.load(st0), tg, fb)
+        assert st.mode == mode, (share, st.reason)
+        if mode == HALTED:
+            assert not pulses.any()
+            assert st.reason.startswith(f"path error {share * params.max_path_error_mm:.4f} mm over"), st.reason
