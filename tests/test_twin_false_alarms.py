@@ -82,16 +82,19 @@ def test_an_offset_just_below_the_threshold_is_not_reported_and_just_above_it_is
     assert rep["findings"][0]["parameters"]["offset"] == pytest.approx(share * sigma, rel=0.1)
 
 
+@pytest.fixture(scope="module")
+def calibration_context():
+    return D.build_context(_clean(11, "calibration", 400.0, 15.0, False, None), M, cap=CAP)
+
+
 @pytest.mark.parametrize("channel", ["tip_x", "strain_2", "enc_X"])
-def test_an_excess_without_structure_is_not_reported_and_one_with_structure_is(channel):
+def test_an_excess_without_structure_is_not_reported_and_one_with_structure_is(channel, calibration_context):
     """The rule itself, on the residual of a real recording's context: a channel left at 1.8 x its
     noise level, white (a noise level estimated wrong: no physics), gives no ``unexplained`` entry;
     the same channel with a 7.3 Hz line of twice the noise on it gives one, signed by the line."""
     from pmctl.tools.twin.locate import locate
     from pmctl.tools.twin.unexplained import unexplained
-    rng = np.random.default_rng(11)
-    case = synth.synth_case(rng, [], machine=M, seed=11, duration_s=15.0, rate_hz=400.0, run="calibration")
-    ctx = D.build_context(case.columns, M, cap=CAP)
+    ctx = calibration_context
     o = ctx.obs
     m = o.mask_of(channel)
     assert m.sum() > 1000
