@@ -119,3 +119,12 @@ def test_a_whole_pulse_missed_by_rounding_is_reached_and_a_real_shortfall_is_not
         p2, r2 = vf.vf_tick([sign * a0], [0.0], 1e-3, 1.0, 3)
         assert int(p1[0]) == p2[0] == sign * want, a0
         assert r1[0] == r2[0] == sign * a0 - p2[0]             # pulses + residue = the integral
+
+
+def test_the_defaults_are_the_seeds_converter():
+    """Called without a threshold and a pulse cap, both forms are the seed's converter: threshold 1,
+    at most one pulse per sample (the excess beyond one threshold dropped)."""
+    p, a = vf.vf_step(np.zeros(2), np.array([1.5, 2.5]), 1.0)
+    assert p.tolist() == [1, 1] and a.tolist() == [0.5, 1.0]
+    p2, a2 = vf.vf_tick([0.0, 0.0], [1.5, 2.5], 1.0)
+    assert p2 == [1, 1] and a2 == [0.5, 1.0]
