@@ -12,17 +12,10 @@ import pytest
 from pmctl.core.config import load_machine
 from pmctl.hal import bridge_protocol as bp
 from pmctl.hal.stepdir import BridgeFault, StepDirBackend
-from stepdir_support import Bridge
+from test_stepdir import bridge  # noqa: F401  (the fixture: the host bridge on a pty)
 
 M = load_machine()
 DT = 1e-3
-
-
-@pytest.fixture
-def bridge(tmp_path):
-    b = Bridge(tmp_path)
-    yield b
-    b.stop()
 
 
 def _stream(be, pulses_list):

@@ -12,9 +12,7 @@ at 1 kHz; the joints follow within the NC's lag. Offline ticks except where the 
 
 import json
 import signal
-import subprocess
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -33,7 +31,8 @@ from pmctl.motion.timescale import (FLAG_RAPID, HELD, S_FLAGS, STARVED, WIDTH, i
 from pmctl.task.gcode import parse_gcode
 from pmctl.task.job import RAPID, home_pose
 from pmctl.task.planner import PlannerLimits, plan
-from test_run_client import PMCTL, ROOT, _service
+from test_first_hour import _start_and_wait_for_loop
+from test_run_client import PMCTL, _service
 
 M = load_machine()
 DT = 1e-3
@@ -171,13 +170,8 @@ def test_sigterm_during_a_rapid_stops_it_on_the_line_within_v_over_a(tmp_path):
     state = tmp_path / "state.json"
     args = [*PMCTL, "run", "--job", str(job), "--service", str(_service(tmp_path)), "--state", str(state),
             "--record", str(tmp_path / "rec"), "--quiet"]
-    p = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    p, _ = _start_and_wait_for_loop(args)
     try:
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < 120:
-            line = p.stderr.readline()
-            if not line or "streamed to the rt motion process" in line:
-                break
         time.sleep(2.6)                    # the second G0 runs at full speed from 1.7 to 4.2 s: the signal lands in it
         assert p.poll() is None, "the run ended before the signal"
         p.send_signal(signal.SIGTERM)
