@@ -64,21 +64,22 @@ def test_following_error_trips_between_095_and_105_of_its_limit(impl, rate_share
     assert params.min_ferror_mm == pytest.approx(0.01) and params.ferror_mm * 0.6 > 10 * params.min_ferror_mm
 
 
-def _toward_limit(axis_idx, start, speed_share, beyond_mm, params, dt):
+def _toward_limit(axis_idx, start, speed_share, beyond_mm, params, dt, sign=1.0):
     """Target rows that accelerate joint(s) ``axis_idx`` from ``start`` (joint positions) at 90 % of
     the acceleration limit to ``speed_share`` x the speed limit and keep going until ``beyond_mm`` past
-    the upper limit: the NC must stop on its own, by the soft limit."""
+    the upper limit (``sign`` -1: the lower one): the NC must stop on its own, by the soft limit."""
     ax = list(np.atleast_1d(axis_idx))
     v = speed_share * float(np.min(params.vmax[ax]))
     a = 0.9 * float(np.min(params.amax[ax]))
-    dist = float(np.max(params.upper[ax] - start[ax])) + beyond_mm
+    room = params.upper[ax] - start[ax] if sign > 0 else start[ax] - params.lower[ax]
+    dist = float(np.max(room)) + beyond_mm
     t_acc = v / a
     T = t_acc + (dist - 0.5 * a * t_acc ** 2) / v
     t = np.arange(int(T / dt) + 2) * dt
     s = np.where(t < t_acc, 0.5 * a * t ** 2, 0.5 * a * t_acc ** 2 + v * (t - t_acc))
     q = np.repeat(start[None], len(t), 0)
     for i in ax:
-        q[:, i] = start[i] + s
+        q[:, i] = start[i] + sign * s
     pose, ok = K.fk_batch(q, M)
     assert np.all(ok)
     rows = np.zeros((len(t), 12))
@@ -88,34 +89,53 @@ def _toward_limit(axis_idx, start, speed_share, beyond_mm, params, dt):
     return rows
 
 
-@pytest.mark.parametrize("case", ["X", "Y", "chains"])
+@pytest.mark.parametrize("case", ["X", "Y", "chains", "X-lower", "chains-lower", "X-slow"])
 def test_a_soft_limit_approached_near_top_speed_stops_inside_it_in_both_cores(case):
     """X (or Y, or the three chains together) driven at 95 % of its top speed towards its upper soft
-    limit and on past it: both NCs send the same pulses tick for tick, stop for the soft limit while
-    still at speed (the braking distance v^2/2a is 2.3 mm here, not negligible), and every joint
-    comes to rest inside its limits."""
+    limit (or its lower one) and on past it: both NCs send the same pulses tick for tick, stop for
+    the soft limit while still at speed (the braking distance v^2/2a is 2.3 mm here, not
+    negligible), and every joint comes to rest inside its limits, close to the limit. Slowly (X at
+    0.5 mm/s): the same, the stop from under a micrometre of braking distance."""
     params = NCParams.from_machine(M, DT, kv=400.0)
     start = HOME.copy()
-    if case == "X":
-        axes, start[3] = [3], 40.0
+    sign, share = (-1.0 if case.endswith("lower") else 1.0), (0.005 if case.endswith("slow") else 0.95)
+    if case.startswith("X"):
+        axes = [3]
+        start[3] = sign * (params.upper[3] - 0.3 if share < 0.1 else 40.0)
     elif case == "Y":
         axes, start[4] = [4], 40.0
     else:
         axes = [0, 1, 2]
-        start[:3] = params.upper[0] - 30.0
-    rows = _toward_limit(axes, start, 0.95, 10.0, params, DT)
+        start[:3] = (params.upper[0] - 30.0) if sign > 0 else (params.lower[0] + 30.0)
+    rows = _toward_limit(axes, start, share, 10.0 if share > 0.1 else 0.2, params, DT, sign)
     ticks, sp, sc, moved = closed_loop(M, params, rows, start, {}, every=1)
     assert sp.mode == sc.mode == HALTED
     assert sp.reason.startswith("soft limit: ") and sp.reason == sc.reason
-    # the stop began at speed: the reason's rate is near the top speed
+    # the stop began at speed: the reason's rate is near the speed of the approach
     v_stop = float(sp.reason.split(" moving at ")[1].split(" mm/s")[0])
-    assert abs(v_stop) > 0.8 * params.vmax[axes[0]], sp.reason
+    assert sign * v_stop > 0.8 * share * params.vmax[axes[0]], sp.reason
     q_end = sp.counts / params.pulses_per_mm
     assert np.all(q_end <= params.upper) and np.all(q_end >= params.lower), (q_end, params.upper)
     # ... and close to it: the stop did not brake early either (within the margin of two ticks and
-    # the rounding of the stop's start to a tick)
-    gap = params.upper[axes] - q_end[axes]
-    assert np.all(gap < 4 * params.vmax[axes] * DT), gap
+    # the rounding of the stop's start to a tick, at least a few pulses)
+    gap = (params.upper[axes] - q_end[axes]) if sign > 0 else (q_end[axes] - params.lower[axes])
+    assert np.all(gap < np.maximum(4 * share * params.vmax[axes] * DT, 5 / params.pulses_per_mm[axes])), gap
+
+
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_a_dead_strain_gauge_halts_at_once_with_its_name(impl, bad):
+    params = NCParams.from_machine(M, DT, kv=400.0, k_theta=200.0)
+    st0 = initial_state(M, counts_of(HOME, params))
+    tg = np.concatenate([st0.tip, st0.axis, np.zeros(6)])
+    for gauge in range(3):
+        fb = Feedback()
+        fb.enc[:] = st0.counts / params.pulses_per_mm
+        fb.strain[gauge] = bad
+        nc = PythonNC(M, params) if impl == "python" else make_nc(M, params, "compiled")
+        pulses, st = nc.step(nc.load(st0), tg, fb)
+        assert st.mode == HALTED and not pulses.any()
+        assert st.reason == f"feedback fault: strain gauge {gauge + 1} reads {bad}", st.reason
 
 
 @pytest.mark.parametrize("impl", ["python", "compiled"])

@@ -46,7 +46,9 @@ GROUPS = {
     "nc": ("src/pmctl/motion/nc.py",
            ["x__stopping_violation", "x__ferror_violation", "x__nonfinite_feedback", "x__limit_rates_l",
             "x__slew_offset"],
-           ["tests/test_safety_nc.py", "tests/test_nc.py"], None),
+           ["tests/test_safety_nc.py", "tests/test_nc.py", "tests/test_ncore.py"],
+           "not tick_for_tick and not same_pulses_with and not same_pulses_at_rest and not long_run "
+           "and not bit_for_bit and not fk_equals_model_fk"),
     "vf": ("src/pmctl/core/vf.py", ["x_vf_step", "x_vf_tick"], ["tests/test_vf.py", "tests/test_nc.py"], None),
     "timescale": ("src/pmctl/motion/timescale.py",
                   ["xǁTimeScalerǁstep", "xǁTimeScalerǁset_feed_override", "xǁTimeScalerǁset_rapid_override",
