@@ -192,3 +192,22 @@ def test_the_path_error_stop_trips_between_095_and_105_of_its_limit(impl):
         if mode == HALTED:
             assert not pulses.any()
             assert st.reason.startswith(f"path error {share * params.max_path_error_mm:.4f} mm over"), st.reason
+
+
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+@pytest.mark.parametrize("side", [-1.0, 1.0])
+def test_a_joint_just_inside_its_limit_moving_away_runs_on(impl, side):
+    """X one pulse inside its lower (upper) limit, moving away from it at 0.5 mm/s towards a target
+    that moves away too: no stop (the braking distance counts only towards the limit it approaches)."""
+    params = NCParams.from_machine(M, DT, kv=400.0)
+    q = HOME.copy()
+    q[3] = (params.lower[3] + 0.0005) if side < 0 else (params.upper[3] - 0.0005)      # one pulse inside
+    v = -side * 0.5
+    st0 = initial_state(M, counts_of(q, params))
+    st0 = replace(st0, qdot=np.array([0.0, 0.0, 0.0, v, 0.0]))
+    fb = Feedback()
+    fb.enc[:] = st0.counts / params.pulses_per_mm
+    tg = np.concatenate([st0.tip - [v * DT, 0.0, 0.0], st0.axis, [-v, 0.0, 0.0], np.zeros(3)])
+    nc = PythonNC(M, params) if impl == "python" else make_nc(M, params, "compiled")
+    pulses, st = nc.step(nc.load(st0), tg, fb)
+    assert st.mode == RUN, st.reason
