@@ -162,7 +162,7 @@ def test_a_starved_follower_keeps_the_speed_that_can_still_stop_with_the_margin(
 
 def test_sigterm_during_a_rapid_stops_it_on_the_line_within_v_over_a(tmp_path):
     """`pmctl run` (real time: the signal must arrive during a move) of a job of nothing but long
-    rapids; SIGTERM once the loop runs: a controlled stop (exit 3) in the middle of a rapid, far
+    rapids; SIGTERM once the table moves through the middle of one: a controlled stop (exit 3) there, far
     from every programmed point, on the line (Y and the chains never move), the table braking from
     the rapid's speed to rest within 1/accel + the jerk ramp + the NC's lag."""
     job = tmp_path / "rapids.ngc"
@@ -172,7 +172,18 @@ def test_sigterm_during_a_rapid_stops_it_on_the_line_within_v_over_a(tmp_path):
             "--record", str(tmp_path / "rec"), "--quiet"]
     p, _ = _start_and_wait_for_loop(args)
     try:
-        time.sleep(2.6)                    # the second G0 runs at full speed from 1.7 to 4.2 s: the signal lands in it
+        # the signal goes once the counters the rt process saves every 100 ticks show the table moving
+        # through the middle of a rapid (10 < |X| < 30 mm: full speed there), whatever the machine's load
+        t0, seen = time.monotonic(), None
+        while time.monotonic() - t0 < 120 and p.poll() is None:
+            try:
+                x = json.loads(state.read_text())["counts"][3] / 2000.0
+            except (OSError, ValueError, KeyError):
+                x = None
+            if x is not None and seen is not None and x != seen and 10.0 < abs(x) < 30.0:
+                break
+            seen = x
+            time.sleep(0.01)
         assert p.poll() is None, "the run ended before the signal"
         p.send_signal(signal.SIGTERM)
         out, err = p.communicate(timeout=120)
