@@ -26,8 +26,8 @@ from pmctl.motion.nc import NCParams, counts_of, initial_state
 from pmctl.motion.recorder import REC_CAPACITY, REC_WIDTH, Recorder
 from pmctl.motion.ring import ArraySource, Ring
 from pmctl.motion.service_config import LoopConfig
-from pmctl.motion.timescale import (FLAG_RAPID, HELD, S_FLAGS, STARVED, WIDTH, iter_job_rows, make_follower,
-                                    scaling_limits)
+from pmctl.motion.timescale import (FLAG_RAPID, HELD, IDLE, S_FLAGS, STARVED, WIDTH, iter_job_rows,
+                                    make_follower, scaling_limits)
 from pmctl.task.gcode import parse_gcode
 from pmctl.task.job import RAPID, home_pose
 from pmctl.task.planner import PlannerLimits, plan
@@ -43,9 +43,10 @@ STOP_TICKS = int(np.ceil((1.0 / ACCEL + ACCEL / JERK) / DT)) + 10      # 1/accel
 HOLD_AT = 600                 # mid-G0: 0.6 s into a 1.4 s rapid, at full speed
 
 
-def _rows(text):
-    """Follower rows of a G-code job from home, its rapids flagged as the supervisor flags them."""
-    tip, axis = home_pose(M)
+def _rows(text, start=None):
+    """Follower rows of a G-code job from home (or ``start``: tip, axis), its rapids flagged as the
+    supervisor flags them."""
+    tip, axis = start if start is not None else home_pose(M)
     job = parse_gcode(text, "t.ngc", tip, axis)
     tr = plan(job, M, DT, start=(tip, axis))
     rapid = np.isin(tr.line, [m.line for m in job.moves if m.kind == RAPID])
@@ -124,6 +125,41 @@ def test_the_counters_stop_after_a_hold_in_a_g0(impl):
     still = counts[settle:]
     assert len(still) > 800 and np.abs(still - still[0]).max() <= 1, np.abs(still - still[0]).max(0)
     assert np.array_equal(c0 + res.pulses_sent, res.state.counts) and np.array_equal(be.counts, res.state.counts)
+
+
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+def test_jobs_back_to_back_stop_on_each_end_and_an_empty_queue_holds_the_rest_pose(impl):
+    """Nothing queued: the target is the rest pose, at rest (IDLE, HELD under a hold). A job: the
+    follower stops exactly on its last sample, counts it once, stays there at rest; a hold there is
+    HELD; a second job queued behind it starts from it and ends on its own last sample, counted."""
+    tip0, axis0 = (np.asarray(x, float) for x in home_pose(M))
+    ring = Ring(8192, WIDTH)
+    fol = make_follower(ring, PARAMS, DT, implementation=impl, pose=list(tip0) + list(axis0))
+    for hold, want in ((False, IDLE), (True, HELD), (False, IDLE)):
+        fol.scaler.hold = hold
+        tg = fol.next_target()
+        assert fol.state == want and np.array_equal(tg, np.r_[tip0, axis0, np.zeros(6)])
+    a, tra = _rows("G21 G90\nG0 X-8\n")
+    b, trb = _rows("G21 G90\nG1 X-2 Y3 F1200\n", start=(tra.tip[-1], tra.axis[-1]))
+    ring.push(a)
+    ends = []
+    for k in range(3000):
+        tg = fol.next_target().copy()
+        ends.append(fol.ended_jobs)
+        if k == 2000:
+            ring.push(b)
+        if 1500 <= k < 1600:
+            assert fol.at_end and fol.state == IDLE and fol.ended_jobs == 1
+            assert np.array_equal(tg, np.r_[tra.tip[-1], tra.axis[-1], np.zeros(6)])
+        if k == 1600:
+            fol.scaler.hold = True
+        if k == 1601:
+            assert fol.state == HELD and np.array_equal(tg[:6], np.r_[tra.tip[-1], tra.axis[-1]])
+        if k == 1700:
+            fol.scaler.hold = False
+    assert fol.at_end and fol.ended_jobs == 2 and fol.state == IDLE and ring.count() == 1
+    assert np.array_equal(tg, np.r_[trb.tip[-1], trb.axis[-1], np.zeros(6)])
+    assert ends.count(1) > 1000 and sorted(set(ends)) == [0, 1, 2]      # each end counted once
 
 
 def _steady_sigma(impl, ahead):
@@ -239,3 +275,25 @@ def test_a_console_hold_during_a_g0_stops_it_and_the_position_stays(tmp_path):
     finally:
         s.close()
         assert stop_serve(p) == 0
+
+
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+def test_the_rapid_override_takes_only_grbls_three_values_and_scales_rapids_not_feeds(impl):
+    """0.25, 0.5 or 1 (the nearest, whatever is asked); a G0 then runs at that share of the rapid
+    speed, the G1 after it at its own feed (the feed override 1)."""
+    rows, tr = _rows(G0_JOB)
+    fol = make_follower(ArraySource(rows), PARAMS, DT, implementation=impl)
+    sc = fol.scaler
+    for ask, got in ((0.3, 0.25), (0.4, 0.5), (0.1, 0.25), (2.0, 1.0), (0.74, 0.5), (0.76, 1.0)):
+        assert sc.set_rapid_override(ask) == got and sc.rapid_override == got
+    sc.set_rapid_override(0.5)
+    sigmas, rapid = [], []
+    for _ in range(6000):
+        r0 = fol.src.row(0) if fol.src.count() else None
+        fol.next_target()
+        sigmas.append(fol.sigma)
+        rapid.append(r0 is not None and bool(int(r0[S_FLAGS]) & FLAG_RAPID))
+        if fol.at_end:
+            break
+    sigmas, rapid = np.array(sigmas), np.array(rapid)
+    assert np.max(sigmas[rapid]) == 0.5 and np.max(sigmas[~rapid]) == 1.0
