@@ -103,3 +103,57 @@ def test_every_ident_field_in_its_place():
         bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, payload + b"\0"))
     with pytest.raises(ValueError, match="PMSB"):
         bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, bp.MAGIC[:3]))
+
+
+def test_two_bytes_of_an_impossible_frame_are_refused_without_waiting_for_more():
+    p = bp.Parser()
+    assert p.feed(bytes((bp.SYNC, 3))) == []
+    assert (p.bad_frames, p.dropped_bytes, len(p.buf)) == (1, 2, 0)
+
+
+def test_corrupted_frames_are_counted_once_each_with_every_byte_dropped():
+    good = bp.frame(5, bp.T_END)
+    bad = []
+    for k, pl in enumerate((b"\x01\x02\x03", b"\x10" * 9)):
+        f = bytearray(bp.frame(k, bp.T_TICK, pl))
+        f[-1] ^= 0x55                                    # the CRC's low byte wrong
+        assert bp.SYNC not in f[1:]
+        bad.append(bytes(f))
+    p = bp.Parser()
+    assert p.feed(b"".join(bad) + good) == [bp.Frame(5, bp.T_END, b"")]
+    assert (p.bad_frames, p.dropped_bytes) == (2, sum(len(b) for b in bad))
+
+
+def test_an_ident_reply_is_refused_for_the_right_reason():
+    with pytest.raises(ValueError, match=r"^not a pmctl step/dir bridge \(no PMSB magic\)$"):
+        bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, b"GRBL" + bytes(46)))
+    # the magic and a version but nothing else: the version check speaks (6 bytes is enough to read it)
+    with pytest.raises(ValueError, match=f"^bridge speaks protocol version {bp.PROTO_VERSION}; "):
+        bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, bp.MAGIC + struct.pack("<H", bp.PROTO_VERSION)))
+    with pytest.raises(ValueError, match="^bridge speaks protocol version 32770; "):      # unsigned
+        bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, bp.MAGIC + struct.pack("<H", 0x8002) + bytes(44)))
+
+
+def test_ident_names_keep_their_own_characters_and_survive_bad_bytes():
+    payload = struct.pack("<4sHBBIIIIBB8s16s", bp.MAGIC, bp.PROTO_VERSION, 5, 64, 1_000_000, 2500, 5000, 50_000,
+                          32, 4, b"fw-XX\xff\0\0", b"boardX\0")
+    i = bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, payload))
+    assert (i.firmware, i.board) == ("fw-XX\ufffd", "boardX")
+
+
+def test_executed_steps_counts_rising_edges_in_the_direction_last_set():
+    """The host bridge's edge log (the oracle of "pulses counted = pulses sent"): every axis starts
+    positive; a direction record changes the sign of the rising edges after it; falling edges and
+    tick marks do not count."""
+    E = bp
+    rows = [(0, E.EDGE_HIGH), (0, E.EDGE_LOW), (0, E.EDGE_HIGH), (0, E.EDGE_DIR_NEG), (0, E.EDGE_HIGH),
+            (0, E.EDGE_HIGH), (0, E.EDGE_HIGH), (0, E.EDGE_DIR_POS), (0, E.EDGE_HIGH),
+            (1, E.EDGE_DIR_NEG), (1, E.EDGE_HIGH), (1, E.EDGE_LOW), (1, E.EDGE_HIGH), (2, E.EDGE_TICK),
+            (4, E.EDGE_DIR_POS), (4, E.EDGE_HIGH)]
+    import numpy as np
+    log = np.zeros(len(rows), dtype=np.dtype(bp.EDGE_DTYPE))
+    log["axis"] = [a for a, _ in rows]
+    log["kind"] = [k for _, k in rows]
+    log["t"] = np.arange(len(rows))
+    out = bp.executed_steps(log)
+    assert out.dtype == np.int64 and out.tolist() == [0, -2, 0, 0, 1]
