@@ -11,6 +11,7 @@ at 1 kHz; the joints follow within the NC's lag. Offline ticks except where the 
 """
 
 import json
+import os
 import signal
 import time
 
@@ -196,9 +197,11 @@ def test_a_starved_follower_keeps_the_speed_that_can_still_stop_with_the_margin(
 
 # ---------------------------------------------------------------- SIGTERM and the console, in real time
 
-def test_sigterm_during_a_rapid_stops_it_on_the_line_within_v_over_a(tmp_path):
+@pytest.mark.parametrize("to", ["client", "rt"])
+def test_sigterm_during_a_rapid_stops_it_on_the_line_within_v_over_a(tmp_path, to):
     """`pmctl run` (real time: the signal must arrive during a move) of a job of nothing but long
-    rapids; SIGTERM once the table moves through the middle of one: a controlled stop (exit 3) there, far
+    rapids; SIGTERM, to the client or to the rt process alone (systemctl stop signals both), once the
+    table moves through the middle of one: a controlled stop there, the counters saved clean, far
     from every programmed point, on the line (Y and the chains never move), the table braking from
     the rapid's speed to rest within 1/accel + the jerk ramp + the NC's lag."""
     job = tmp_path / "rapids.ngc"
@@ -206,7 +209,8 @@ def test_sigterm_during_a_rapid_stops_it_on_the_line_within_v_over_a(tmp_path):
     state = tmp_path / "state.json"
     args = [*PMCTL, "run", "--job", str(job), "--service", str(_service(tmp_path)), "--state", str(state),
             "--record", str(tmp_path / "rec"), "--quiet"]
-    p, _ = _start_and_wait_for_loop(args)
+    p, seen_lines = _start_and_wait_for_loop(args)
+    rt_pid = int(seen_lines[-1].split("(pid ")[1].split(")")[0])
     try:
         # the signal goes once the counters the rt process saves every 100 ticks show the table moving
         # through the middle of a rapid (10 < |X| < 30 mm: full speed there), whatever the machine's load
@@ -221,13 +225,19 @@ def test_sigterm_during_a_rapid_stops_it_on_the_line_within_v_over_a(tmp_path):
             seen = x
             time.sleep(0.01)
         assert p.poll() is None, "the run ended before the signal"
-        p.send_signal(signal.SIGTERM)
+        if to == "client":
+            p.send_signal(signal.SIGTERM)
+        else:                              # systemctl stop signals every process of the unit: the rt side brakes by itself
+            os.kill(rt_pid, signal.SIGTERM)
         out, err = p.communicate(timeout=120)
     finally:
         if p.poll() is None:
             p.kill()
             p.wait()
-    assert p.returncode == 3 and "result: stopped (stop requested (SIGTERM" in out, out + err
+    if to == "client":
+        assert p.returncode == 3 and "result: stopped (stop requested (SIGTERM" in out, out + err
+    else:                                  # (the client reports the rt side's exit as a fault: its own matter)
+        assert "pmctl rt: stopped: SIGTERM;" in err, out + err
     assert json.loads(state.read_text())["clean"] is True
     rec = read_recording(tmp_path / "rec")
     x = rec["cmd_X"]
