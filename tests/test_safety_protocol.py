@@ -136,9 +136,9 @@ def test_an_ident_reply_is_refused_for_the_right_reason():
 
 def test_ident_names_keep_their_own_characters_and_survive_bad_bytes():
     payload = struct.pack("<4sHBBIIIIBB8s16s", bp.MAGIC, bp.PROTO_VERSION, 5, 64, 1_000_000, 2500, 5000, 50_000,
-                          32, 4, b"fw-XX\xff\0\0", b"boardX\0")
+                          32, 4, b"fw-X\xffX\0\0", b"bd\xfe-X\0")
     i = bp.decode_ident(bp.Frame(0, bp.T_IDENT_REPLY, payload))
-    assert (i.firmware, i.board) == ("fw-XX\ufffd", "boardX")
+    assert (i.firmware, i.board) == ("fw-X\ufffdX", "bd\ufffd-X")
 
 
 def test_executed_steps_counts_rising_edges_in_the_direction_last_set():
