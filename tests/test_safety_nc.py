@@ -11,6 +11,7 @@ or in both, fails here:
 Direct calls and closed loops against the loopback sim; no clock.
 """
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -211,3 +212,26 @@ def test_a_joint_just_inside_its_limit_moving_away_runs_on(impl, side):
     nc = PythonNC(M, params) if impl == "python" else make_nc(M, params, "compiled")
     pulses, st = nc.step(nc.load(st0), tg, fb)
     assert st.mode == RUN, st.reason
+
+
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+def test_a_chain_offset_beyond_its_bound_is_clipped_and_a_nan_one_holds(impl):
+    """The chain-length offset input (slow compensation) at rest: -1 mm on L1 with a bound of
+    0.2 mm slews down at 2 mm/s to -0.2 mm and stays; NaN on L2 holds its offset (0); +0.1 mm on L3
+    slews up to it. The applied offset moves at most the slew step a tick."""
+    params = NCParams.from_machine(M, DT, kv=400.0, chain_offset_max_mm=0.2, chain_offset_rate_mm_s=2.0)
+    st = initial_state(M, counts_of(HOME, params))
+    tg = np.concatenate([st.tip, st.axis, np.zeros(6)])
+    nc = PythonNC(M, params) if impl == "python" else make_nc(M, params, "compiled")
+    s = nc.load(st)
+    step = 2.0 * DT
+    prev = np.zeros(3)
+    for k in range(1, 160):
+        fb = Feedback()
+        fb.enc[:] = s.counts / params.pulses_per_mm if impl == "python" else s.snapshot().counts / params.pulses_per_mm
+        _, s = nc.step(s, tg, fb, np.array([-1.0, math.nan, 0.1]))
+        off = (s if impl == "python" else s.snapshot()).offset
+        assert np.all(np.abs(off - prev) <= step * (1 + 1e-12)) and s.mode == RUN
+        prev = off
+        want = [-min(k * step, 0.2), 0.0, min(k * step, 0.1)]
+        assert np.allclose(off, want, atol=1e-12), (k, off, want)
