@@ -124,7 +124,7 @@ class Daemon:
             from pmctl.task.jog import make_jogger
             self.port = ConsolePort(self.console_spec)
             self.console = GrblConsole(sup, self.port.fd, self.journal, log=self.log, jogger=make_jogger(sup),
-                                       homing=self.home)
+                                       homing=self.home, present=self.port.client_present)
             self.console.start()
             self.log(f"console on {self.port.device}" + (f" (link {self.port.link})" if self.port.link else ""))
         from pmctl.task.notify import sd_notify

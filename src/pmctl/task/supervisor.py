@@ -77,9 +77,10 @@ class MotionRefused(PmctlError):
         self.code = code
 
 
-@dataclass
+@dataclass(eq=False)
 class Item:
-    """One planned piece of motion: a job file, a batch of console lines, a jog, a homing move."""
+    """One planned piece of motion: a job file, a batch of console lines, a jog, a homing move. Items
+    compare by identity (``it in sup.items``: the queue holds this very item)."""
     kind: str                       # "job" | "gcode" | "jog" | "home"
     job: object                     # pmctl.task.job.Job
     start: tuple                    # (tip, axis) it starts from
