@@ -26,7 +26,8 @@ How it works (all vectorised with numpy):
 3. **Junctions** (grbl/Klipper-style look-ahead, adapted to a sampled trajectory that passes through
    the corner point): the velocity direction changes within one tick, so the corner speed is limited
    to v_j <= a_max dt / |d_out - d_in| for the tip and each joint. Exact stops at the start and end,
-   dwells (G4), spindle changes and reversals.
+   dwells (G4), EVENT moves (spindle, coolant, tool change, pause...: pmctl.task.job), spindle changes
+   and reversals.
 4. **Velocity profile**: backward and forward passes of v^2 <= v_prev^2 + 2 a ds in closed form
    (prefix sums and running minima), giving a time-optimal, acceleration-limited profile s(t).
 5. **Jerk limit**: s(t) is averaged over a moving window T = 2 a_t / j (exactly, via the integral of
@@ -38,7 +39,13 @@ How it works (all vectorised with numpy):
    programmed pose itself (tip and axis, bit for bit). The warped clock lags real time by D(t), a
    monotone (PCHIP) interpolant of the lags at the ends, so the warp rate 1 - D' is <= 1: it only ever
    slows the profile (by at most about one tick per segment) and never breaks a limit. Samples held at
-   a stop sit exactly on the point with zero velocity; those of a dwell carry the G4's line.
+   a stop sit exactly on the point with zero velocity; those of a dwell carry the G4's line. Each
+   EVENT move puts a mark (sample index in the piece, line, events) into ``Trajectory.marks`` on a
+   sample held at its stop: the boundary's own tick, or, where a dwell is programmed at the same
+   point, the dwell's sample after the part of the dwell programmed before the EVENT. Marks are in
+   program order and the same from ``plan`` and ``plan_stream`` (``Trajectory.join`` keeps them); a job
+   that does not move (only EVENTs and dwells) plans to its dwells' samples (one sample without a
+   dwell) at the start pose, carrying the marks.
 7. **Check and iterate**: the samples go through ``ik_batch``; an unreachable sample raises InputError
    with the job line; joint speed/acceleration, tip speed and acceleration are measured on the samples
    by finite differences, and where one exceeds its limit by more than ``VIOLATION_TOL`` the caps around
@@ -79,7 +86,7 @@ from scipy.interpolate import PchipInterpolator
 
 from pmctl.core import kinematics as K
 from pmctl.core.errors import InputError, PmctlError
-from pmctl.task.job import ARC, DWELL, MAX_MOVES, RAPID, Job, home_pose, load_job  # noqa: F401  (re-exported)
+from pmctl.task.job import ARC, DWELL, EVENT, MAX_MOVES, RAPID, Job, home_pose, load_job  # noqa: F401  (re-exported)
 from pmctl.task.trajectory import Trajectory
 
 __all__ = ["PlannerLimits", "plan", "plan_stream", "validate", "home_pose", "load_job", "PlanningError"]
@@ -144,6 +151,7 @@ class _Path:
         n = 0
         stop = {0}                    # boundaries (index = segments completed) with an exact stop
         dwell, dwell_line = {}, {}
+        ev_b, ev_before, ev_line, ev_data = [], [], [], []     # EVENT moves: boundary, dwell before, line
         rpm_prev = None
         self.start_line = job.moves[0].line if job.moves else 0
         for m in job.moves:
@@ -152,6 +160,13 @@ class _Path:
                 stop.add(b)
                 dwell[b] = dwell.get(b, 0.0) + float(m.dwell)
                 dwell_line[b] = m.line
+                continue
+            if m.kind == EVENT:       # an exact stop; its mark goes on the stop's sample (after the
+                stop.add(n)           # dwells programmed before it at this point)
+                ev_b.append(n)
+                ev_before.append(dwell.get(n, 0.0))
+                ev_line.append(int(m.line))
+                ev_data.append(tuple(m.events))
                 continue
             t1 = np.asarray(m.tip, float)
             a_1 = np.asarray(m.axis, float)
@@ -197,6 +212,8 @@ class _Path:
         for b, d in dwell.items():
             self.dwell[b] = d
             self.dwell_line[b] = dwell_line[b]
+        self.ev_b, self.ev_before = np.array(ev_b, int), np.array(ev_before, float)
+        self.ev_line, self.ev_data = np.array(ev_line, int), tuple(ev_data)
         self.end_tip, self.end_axis = tip, axis
         self.start_tip, self.start_axis = np.asarray(start[0], float), np.asarray(start[1], float)
         self.kind = kind[:n].copy()
@@ -236,7 +253,16 @@ class _Path:
         p.s_end, p.s_start, p.b_s = self.s_end[i0:i1], self.s_start[i0:i1], self.b_s[i0:i1 + 1]
         p.total = float(self.b_s[i1])
         p.b_tip, p.b_axis = self.b_tip[i0:i1 + 1], self.b_axis[i0:i1 + 1]
+        e0, e1 = np.searchsorted(self.ev_b, i0, "left"), np.searchsorted(self.ev_b, i1, "right")
+        p.ev_b, p.ev_before, p.ev_line = self.ev_b[e0:e1] - i0, self.ev_before[e0:e1], self.ev_line[e0:e1]
+        p.ev_data = self.ev_data[e0:e1]
         return p
+
+    def rest_marks(self, dt, n_samples):
+        """Marks of a path that does not move (n == 0): every EVENT at boundary 0, after the dwells
+        before it: ((sample, line, events), ...)."""
+        return tuple((min(int(round(b4 / dt)), n_samples - 1), int(ln), ev)
+                     for b4, ln, ev in zip(self.ev_before, self.ev_line, self.ev_data))
 
     def pose(self, seg, u):
         seg = np.asarray(seg, int)
@@ -417,7 +443,7 @@ def plan(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: Pl
         axis = np.repeat(path.b_axis[:1], nt, 0)
         z = np.zeros((nt, 3))
         return Trajectory(dt, tip, axis, z, z.copy(), np.full(nt, path.start_line, int), np.zeros(nt),
-                          job.source, np.asarray(job.points, float))
+                          job.source, np.asarray(job.points, float), marks=path.rest_marks(dt, nt))
     _check_reachable(path, job, machine)
     grid = _limit_grid(path, machine, limits, dt, T)
     scale = np.ones(len(grid["s"]))
@@ -514,11 +540,13 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
     points = np.asarray(job.points, float).reshape(-1, 3)
     if path.n == 0:
         nt = int(np.ceil(path.dwell.sum() / dt)) + 1
+        marks = path.rest_marks(dt, nt)
         for k0 in range(0, nt, SAMPLE_CHUNK):
             m = min(nt, k0 + SAMPLE_CHUNK) - k0
             z = np.zeros((m, 3))
             yield Trajectory(dt, np.repeat(path.start_tip[None], m, 0), np.repeat(path.b_axis[:1], m, 0), z,
-                             z.copy(), np.full(m, path.start_line, int), np.zeros(m), job.source, points)
+                             z.copy(), np.full(m, path.start_line, int), np.zeros(m), job.source, points,
+                             marks=tuple((i - k0, ln, ev) for i, ln, ev in marks if k0 <= i < k0 + m))
         return
     # reach of what a window's result depends on: the erosion of the caps, the jerk filter, the
     # re-planning radius around a violation (all ~ v T), and the look-ahead of the speeds (checked)
@@ -533,12 +561,13 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
             except _NotLocal:
                 margin *= 2
         if kept is not None:
-            for part in kept:
-                yield Trajectory(dt, *part, job.source, points)
+            for k0, part in kept:
+                yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k0 + len(part[0])))
         else:
             for k0 in range(rng[0], rng[1], SAMPLE_CHUNK):
-                part, _ = tm.samples(k0, min(rng[1], k0 + SAMPLE_CHUNK))
-                yield Trajectory(dt, *part, job.source, points)
+                k1 = min(rng[1], k0 + SAMPLE_CHUNK)
+                part, _ = tm.samples(k0, k1)
+                yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k1))
 
 
 def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job):
@@ -577,7 +606,7 @@ def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job):
             q = _check_samples(part[0], part[1], part[4], machine, job)
             if keep is not None and k1 > e0 and k0 < e1:
                 a, b = max(k0, e0) - k0, min(k1, e1) - k0
-                keep.append(tuple(x[a:b] for x in part))
+                keep.append((k0 + a, tuple(x[a:b] for x in part)))
             cur = (q, part[0], v, sf, seg)
             if prev is not None:       # two samples of overlap: the differences across the chunk edge
                 cur_x = tuple(np.concatenate([p_[-2:], c_]) for p_, c_ in zip(prev, cur))
@@ -829,6 +858,22 @@ class _Timing:
             extra = (hi_ - lo_) - nd
             a = lo_ + (0 if b == 0 else (extra // 2 if b < n else extra))
             self.dwells[int(b)] = (a, a + nd + 1)
+        # The tick of every EVENT's mark: the boundary's own tick (the exact stop, at rest), or inside
+        # a dwell at that point after the part of the dwell programmed before the EVENT (within the
+        # samples held on the point).
+        mk = K_b[path.ev_b].astype(int) if len(path.ev_b) else np.zeros(0, int)
+        for i, b in enumerate(path.ev_b):
+            if int(b) in self.dwells:
+                a, e = self.dwells[int(b)]
+                lo_, hi_ = self.hold[int(b)]
+                mk[i] = max(lo_, min(a + int(round(path.ev_before[i] / dt)), e - 1, hi_ - 1, self.n_samples - 1))
+        self.mark_tick = mk
+
+    def marks(self, k0, k1):
+        """The marks on ticks k0 .. k1-1, in program order, indexed from k0."""
+        p = self.path
+        sel = np.nonzero((self.mark_tick >= k0) & (self.mark_tick < k1))[0]
+        return tuple((int(self.mark_tick[i]) - k0, int(p.ev_line[i]), p.ev_data[i]) for i in sel)
 
     def _clock(self, k):
         """Profile time and warp rate of ticks k."""
@@ -905,7 +950,7 @@ def _sample(path: _Path, grid, scale, machine, limits, dt, T, job):
     (tip, axis, tip_vel, axis_vel, line, rpm), (sf, v, seg) = tm.samples(0, tm.n_samples)
     q = _check_samples(tip, axis, line, machine, job)
     traj = Trajectory(dt, tip, axis, tip_vel, axis_vel, line, rpm, job.source,
-                      np.asarray(job.points, float).reshape(-1, 3))
+                      np.asarray(job.points, float).reshape(-1, 3), marks=tm.marks(0, tm.n_samples))
     worst = _violations(q, tip, v, sf, seg, path, machine, limits, dt)
     return traj, worst
 

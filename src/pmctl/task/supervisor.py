@@ -589,7 +589,7 @@ class Supervisor:
     def submit(self, job, kind="job", name="", lines=None, source="") -> Item:
         """Queue a Job (planned from where the previous item ends). Raises MotionRefused in alarm."""
         self._check_motion_allowed()
-        moves = [m for m in job.moves if m.kind != "dwell"]
+        moves = [m for m in job.moves if m.kind not in ("dwell", "event")]     # those do not move
         with self._lock:
             start = self.end_pose()
             end = (np.asarray(moves[-1].tip, float), np.asarray(moves[-1].axis, float)) if moves else start
