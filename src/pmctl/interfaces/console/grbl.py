@@ -24,6 +24,12 @@ Two threads:
   without contact; after ``ALARM:5`` for a G38.2 without contact) then ``ok`` -- and the lines after
   it are read from where the probe stopped.
 
+- M-codes take effect in program order where the stream gets to them: a line's spindle (M3 M4 M5 S),
+  coolant (M7 M8 M9), tool change (M6), pause (M0 M1), output and message words come from the
+  interpreter as EVENT moves (pmctl.task.job) queued with the motion; the supervisor holds the path
+  where each takes effect (a lone one at once when idle). ``_bridge_events`` makes them from the
+  line's change of the parser state while the line interpreter gives none (spindle, coolant).
+
 A bad line changes nothing: not the queued motion, not the parser state, not the next line.
 """
 
@@ -34,6 +40,7 @@ import copy
 import math
 import os
 import queue
+import re
 import select
 import threading
 import time
@@ -43,7 +50,7 @@ import numpy as np
 from pmctl import __version__
 from pmctl.motion import channel as C
 from pmctl.task.interp import AXES, WCS_NAMES, LineError, LineInterpreter, moves_job
-from pmctl.task.job import DWELL
+from pmctl.task.job import DWELL, EVENT, Move
 from pmctl.task.supervisor import MotionRefused, roll_pitch_deg
 
 RX_BUFFER = 128
@@ -114,7 +121,7 @@ class GrblConsole:
         if event == "alarm":
             self.write(f"ALARM:{detail['code']}")
             self.write(f"[MSG:{one_line(detail['msg'])}]")
-        elif event == "error":
+        elif event in ("error", "pause", "message"):
             self.write(f"[MSG:{one_line(detail['msg'])}]")
 
     # ------------------------------------------------------------ life
@@ -310,6 +317,9 @@ class GrblConsole:
         else:
             pos = "WPos:" + mm3(m[i] - wco[i] for i in range(5))
         parts = [state, pos, f"FS:{self.speed:.0f},{spindle_rpm(sup):.0f}"]
+        acc = accessories(sup)
+        if acc:
+            parts.append(f"A:{acc}")
         if self.settings[10] & 2:
             parts.append(f"Bf:{max(0, PLANNER_BLOCKS - self.queued_blocks())},{max(0, RX_BUFFER - self._rx_pending)}")
         line = self.n_word()
@@ -432,7 +442,15 @@ class GrblConsole:
             if last != "gcode":
                 self.interp.sync(*self.sup.end_pose())
         st0 = copy.deepcopy(self.interp.st)     # a refused probe line changes nothing
-        moves, n_word, flags = self.interp.execute(text, self.seq)
+        try:
+            moves, n_word, flags = self.interp.execute(text, self.seq)
+        except LineError as e:
+            zero = _G43_1_ZERO.fullmatch(text.upper().replace(" ", ""))
+            if e.code != 20 or not zero:
+                raise
+            # bCNC's reset and CNCjs's probe widget: G43.1 with a zero offset is no offset (G49)
+            moves, n_word, flags = self.interp.execute(zero.group(1) + "G49" + zero.group(3), self.seq)
+        moves = self._bridge_events(st0, text, moves, flags)
         if any(m.probe for m in moves) and not self.sup.check_mode:
             return self._probe(moves, n_word, st0, gen)
         if flags.get("sync"):
@@ -463,6 +481,27 @@ class GrblConsole:
                     self.write("[MSG:Pgm End]")
         if sync and not self._synchronize(gen):
             return                    # a soft reset dropped the line: no answer
+
+    def _bridge_events(self, st0, text, moves, flags):
+        """EVENT moves for a line whose interpreter gives none (the line interpreter before the RS-274
+        one): the spindle as the line changed the parser state (M3/M4 S, M5, and M2/M30, which stop
+        it), then coolant M7/M8/M9 in the line's order; at the line's start point, before its
+        motion (RS-274's order). A line that brought its own EVENT moves is left alone."""
+        if any(m.kind == EVENT for m in moves):
+            return moves
+        st = self.interp.st
+        rpm0 = st0.s * st0.spindle_on if st0.spindle_on else 0.0
+        rpm1 = st.s * st.spindle_on if st.spindle_on else 0.0
+        events = [("spindle", float(rpm1))] if rpm1 != rpm0 else []
+        code = _COMMENT.sub("", text.upper())
+        events += [("coolant", {7: "mist", 8: "flood", 9: "off"}[int(m)]) for m in _COOLANT.findall(code)]
+        if flags.get("end"):
+            events.append(("coolant", "off"))
+        if not events:
+            return moves
+        from pmctl.core import kinematics as K
+        axis = K.axis_from_roll_pitch(math.radians(st0.a), math.radians(st0.b))
+        return [Move(EVENT, np.array(st0.pos, float), axis, line=self.seq, events=tuple(events)), *moves]
 
     def _synchronize(self, gen) -> bool:
         """grbl's protocol_buffer_synchronize: wait until every queued item has run and the machine
@@ -634,6 +673,18 @@ class GrblConsole:
         return out
 
 
+_G43_1_ZERO = re.compile(r"(.*?)G0*43\.1((?:[XYZAB][+-]?0*(?:\.0*)?(?![0-9.]))+)(.*)")
+_COMMENT = re.compile(r"\([^)]*\)|;.*")
+_COOLANT = re.compile(r"M0*([789])(?![0-9.])")
+
+
+def accessories(sup) -> str:
+    """grbl's ``A:`` field: S spindle clockwise, C counter-clockwise, F flood, M mist ("" when none)."""
+    rpm = spindle_rpm(sup, signed=True)
+    out = "S" if rpm > 0 else "C" if rpm < 0 else ""
+    return out + ("F" if "flood" in sup.coolant else "") + ("M" if "mist" in sup.coolant else "")
+
+
 class _Dropped:
     """The item of blocks whose batch the supervisor refused: they left the queue."""
 
@@ -641,12 +692,13 @@ class _Dropped:
 _DROPPED = _Dropped()
 
 
-def spindle_rpm(sup) -> float:
+def spindle_rpm(sup, signed=False) -> float:
     """The speed the spindle VFD is commanded to (the programmed S with the spindle override; 0:
     stopped or no ``[spindle]``), as grbl's ``FS:`` reports it. No Modbus request: the last command."""
     sp = sup.spindle
     vfd = getattr(sp, "vfd", None)
-    return abs(float(vfd.rpm_cmd)) if vfd is not None else 0.0
+    rpm = float(vfd.rpm_cmd) if vfd is not None else 0.0
+    return rpm if signed else abs(rpm)
 
 
 def one_line(text) -> str:
