@@ -62,6 +62,14 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _subparser(parser, name):
+    """The parser of subcommand ``name`` (None when there is none)."""
+    for act in parser._actions:
+        if isinstance(act, argparse._SubParsersAction):
+            return act.choices.get(name)
+    return None
+
+
 # A value such as "-5,0,173" looks like an option to argparse; glue it to its option.
 _NEGATIVE_LIST = re.compile(r"^-\.?\d[\d.eE+-]*(,.*)?$")
 
@@ -104,7 +112,11 @@ def main(argv=None) -> int:
 def _main(argv) -> int:
     try:
         parser = build_parser()
-        args = parser.parse_args(_glue_negative_values(sys.argv[1:] if argv is None else list(argv)))
+        argv = _glue_negative_values(sys.argv[1:] if argv is None else list(argv))
+        args, extra = parser.parse_known_args(argv)
+        if extra:                 # an unknown option of a subcommand: that subcommand's usage, not pmctl's
+            sub = _subparser(parser, getattr(args, "command", None))
+            (sub or parser).error(f"unrecognized arguments: {' '.join(extra)}")
         if not getattr(args, "func", None):
             parser.print_help()
             return EXIT_USAGE

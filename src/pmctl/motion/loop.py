@@ -542,7 +542,10 @@ class ControlLoop:
                         if t1 - last_warn > 1_000_000_000:
                             last_warn = t1
                             self.log(f"warning: tick {k} overran its deadline by {(t1 - deadline + missed * period) / 1e3:.0f} us "
-                                     f"({overruns} overruns so far)")
+                                     f"({overruns} overruns so far)" + ("" if overruns > 1 else
+                                     f": the computer is too busy for {cfg.rate_hz:g} Hz; stop other work, give the "
+                                     f"loop real-time priority and a core of its own (docs/service.md: PREEMPT_RT, "
+                                     f"isolcpus) or lower [loop] rate_hz"))
                         if in_row >= cfg.max_overruns_in_row and st.mode == RUN:
                             st = _stopping(st, f"{in_row} deadlines missed in a row at {cfg.rate_hz:g} Hz")
                     else:

@@ -42,6 +42,9 @@ from pmctl.hal.base import as_inputs
 from pmctl.motion import channel as C
 
 
+FINISHED = "finished: the job ran to its end"     # the quit of a run that is done (C_QUIT 1)
+
+
 def apply_nc_overrides(svc, nc: dict | None):
     """A run's NC settings that differ from the service config file (``pmctl run --k-theta --shaper
     --pulse-mode``), applied to ``svc.nc`` the same way in the supervisor and in the rt process."""
@@ -120,8 +123,8 @@ class RtHook:
                 sc.hold = True
                 if self.probe is not None:
                     self.probe.cancel(fol)
-            elif code == C.C_QUIT:
-                self.quitting = "stopped by the supervisor"
+            elif code == C.C_QUIT:       # a1 = 1: the job ran to its end (pmctl run), else a stop
+                self.quitting = FINISHED if a1 == 1.0 else "stopped by the supervisor"
                 sc.hold = True
             elif code == C.C_ESTOP:
                 st = _halt(st, "E-stop (software)")
@@ -440,7 +443,8 @@ def rt_main(spec: dict) -> int:
             ch.st[C.ST_PHASE] = C.PH_EXITED
             if os.getppid() != int(spec["ppid"]):
                 ch.close(unlink=True)             # the supervisor died: nobody else removes the segment
-            log(f"stopped: {getattr(lp, 'quit_reason', '') or (res.reason if res else '')}; counters "
+            why = getattr(lp, 'quit_reason', '') or (res.reason if res else '')
+            log(f"{why if why == FINISHED else 'stopped: ' + why}; counters "
                 f"{final.counts.tolist()} saved; pulses sent = counter change: {'yes' if sent_ok else 'NO'}; "
                 + device_agreement(fb, final.counts, ppm))
     return 0

@@ -47,23 +47,38 @@ class StateLock:
         self._fd = None
         self.path = Path(str(state_path) + ".lock")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                raise PmctlError(f"{state_path}: another pmctl run holds {self.path} "
+                                 f"(one controller per machine)") from None
+            try:                         # the holder before may have removed the file it locked
+                same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
             os.close(fd)
-            raise PmctlError(f"{state_path}: another pmctl run holds {self.path} "
-                             f"(one controller per machine)") from None
         self._fd = fd
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
 
-    def release(self):
+    def release(self, remove: bool = False):
+        """Drop the lock; ``remove`` (a clean exit): the lock file goes too, removed while held."""
         if self._fd is not None:
+            if remove:
+                try:
+                    os.unlink(self.path)
+                except OSError:
+                    pass
             os.close(self._fd)
             self._fd = None
 
-    __del__ = release
+    def __del__(self):                   # the run or the service ended: nothing is left behind
+        self.release(remove=True)
 
 
 @dataclass

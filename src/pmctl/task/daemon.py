@@ -327,5 +327,7 @@ class Daemon:
         self.journal.save(running=False)
         if self.port is not None:
             self.port.close()
+        if self.lock is not None:
+            self.lock.release(remove=True)
         self.log(f"stopped; counters {None if counts is None else counts.tolist()}")
         return 0

@@ -103,6 +103,9 @@ class Item:
     probe_results: list = field(default_factory=list)   # pmctl.motion.probe.ProbeResult of each probe, in order
     parts: int = 1                               # pieces planned one after the other (probing splits an item)
     ends: int = 0                                # of which the rt side has passed the end
+    pushed: int = 0                              # samples queued for the rt side so far
+    pushed_line: int = 0                         # the job line of the last of them
+    all_pushed: bool = False                     # every sample of it is queued (its length is known)
 
 
 class Supervisor:
@@ -263,7 +266,7 @@ class Supervisor:
         self._quitting = True         # the rt side's exit from here on is the asked-for one, not a death (ALARM 17)
         counts = None
         if self.proc is not None and self.proc.is_alive():
-            self.ch.command(C.C_QUIT)
+            self.ch.command(C.C_QUIT, 1.0 if reason == "done" else 0.0)
             self.proc.join(timeout_s)
             if self.proc.is_alive():
                 self.proc.terminate()
@@ -973,6 +976,7 @@ class Supervisor:
                 it.planned = True
                 if self._push_rows(rows_iter, it) == 0:
                     self._ended_without_samples(it)
+                it.all_pushed = True
             except _Aborted:
                 continue
             except PmctlError as e:
@@ -1031,6 +1035,7 @@ class Supervisor:
 
     def _push_rows(self, rows_iter, it) -> int:
         """Push the rows as room frees up; returns how many were pushed."""
+        from pmctl.motion.timescale import S_LINE
         total = 0
         for rows in rows_iter:
             total += len(rows)
@@ -1042,6 +1047,9 @@ class Supervisor:
                 i += n
                 if n == 0:
                     time.sleep(0.005)
+                else:
+                    it.pushed += n
+                    it.pushed_line = int(rows[i - 1, S_LINE])
         return total
 
     def _plan_probing(self, it):

@@ -297,12 +297,27 @@ def _catch_stop_signals(handler) -> dict:
 
 class _RunView:
     """What the progress display reads of a job streamed to the rt process: ticks since the job
-    was submitted, an estimate of its length from the line being executed, and the NC mode."""
+    was submitted, an estimate of its length, and the NC mode. The length is the ticks so far plus
+    the samples planned and not yet run (the rt side runs one a tick at 100 % feed); while the
+    planner is still ahead of the machine (a job longer than the sample ring), the samples not yet
+    planned are extrapolated from the job line the planned ones reached."""
 
-    def __init__(self, sup, last_line: int):
+    def __init__(self, sup, last_line: int, job=None):
         from pmctl.motion import channel as C
         self.C, self.sup, self.last_line = C, sup, max(int(last_line), 1)
         self.tick0 = None
+        self.item = None                 # the job's supervisor Item, once submitted
+        self.s0 = 0.0                    # the rt side's path clock (samples run) when it was submitted
+        self.lines, self.share = _nominal_shares(job) if job is not None else (None, None)
+
+    def _planned_share(self, line: int) -> float:
+        """The share of the job planned once its samples reached ``line``: by the moves' nominal
+        times (length / feed, rapids at the planner's rapid speed, dwells), else by lines."""
+        if self.lines is None or not len(self.lines):
+            return min(1.0, line / self.last_line)
+        import numpy as np
+        k = int(np.searchsorted(self.lines, line, "right"))
+        return float(self.share[k - 1]) if k else 0.0
 
     def _st(self):
         ch = self.sup.ch
@@ -317,14 +332,51 @@ class _RunView:
 
     @property
     def n_ticks(self):
-        st = self._st()
-        frac = min(1.0, float(st[self.C.ST_LINE]) / self.last_line) if st is not None else 0.0
-        return int(self.tick / frac) if frac > 0 else self.tick
+        st, it = self._st(), self.item
+        if st is None or it is None or not it.pushed:
+            return self.tick
+        total = float(it.pushed)
+        if not it.all_pushed:
+            total /= max(self._planned_share(it.pushed_line), 1e-3)
+        return self.tick + int(max(0.0, total - (float(st[self.C.ST_S]) - self.s0)))
 
     @property
     def mode(self):
         st = self._st()
         return int(st[self.C.ST_MODE]) if st is not None else 0
+
+
+def _nominal_shares(job):
+    """(lines, share of the job's nominal time up to and including each line), lines increasing."""
+    import numpy as np
+
+    from pmctl.task.job import ARC, DWELL, RAPID
+    from pmctl.task.planner import PlannerLimits
+    rapid = PlannerLimits().rapid_mm_s
+    t, lines, prev = [], [], None
+    for m in job.moves:
+        tip = np.asarray(m.tip, float)
+        if m.kind == DWELL:
+            dt = float(m.dwell)
+        elif prev is None:
+            dt = 0.0
+        else:
+            if m.kind == ARC and m.center is not None:
+                r = float(np.hypot(*(tip[:2] - np.asarray(m.center, float)[:2])))
+                length = float(np.hypot(abs(m.sweep) * r, tip[2] - prev[2]))
+            else:
+                length = float(np.linalg.norm(tip - prev))
+            dt = length / (rapid if m.kind == RAPID or not m.feed else min(float(m.feed), rapid))
+        if m.kind != DWELL:
+            prev = tip
+        t.append(dt)
+        lines.append(int(m.line))
+    if not t or sum(t) <= 0:
+        return None, None
+    order = np.argsort(lines, kind="stable")
+    ls, share = np.asarray(lines)[order], np.cumsum(np.asarray(t)[order]) / sum(t)
+    keep = np.r_[ls[1:] != ls[:-1], True]                 # the last entry of each line
+    return ls[keep], share[keep]
 
 
 def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, counts0, st, job, nc_over,
@@ -415,7 +467,7 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
             f"backend {backend_name}, V-F {mode}, K_theta "
             f"{'/'.join(f'{k:.4g}' for k in sorted(set(sup.svc.nc.k_theta_per_s)))}/s, "
             f"{'real-time' if cfg.realtime else 'no real-time (ticks back to back, waiting for samples)'}")
-        view = _RunView(sup, max((m.line for m in job.moves), default=1))
+        view = _RunView(sup, max((m.line for m in job.moves), default=1), job)
         prog = _Progress(view, Path(args.job).name, dt, args.quiet, out)
         return _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick, s0, rec_err, sink, rec,
                                        machine, cfg, dt, counts0, backend_name, state_file)
@@ -444,6 +496,7 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
             s0.append(float(s[C.ST_S]))
             ended0 = int(s[C.ST_ENDED])
             it = sup.submit(job, kind="job", name=Path(args.job).name, source=str(args.job))
+            view.item, view.s0 = it, s0[0]
         prog.start()
         done_tick = None
         while True:
