@@ -163,6 +163,19 @@ class Sender:
         return [s for s in self.pushed[n0:]]
 
 
+def hold_still_resume(s, settle=0.3, atol=1e-3, timeout=60):
+    """Feed hold (``!``): the machine comes to Hold:0 and stays where it held for ``settle`` s; then
+    cycle start (``~``). Returns the held status."""
+    import numpy as np
+    s.realtime(b"!")
+    held = s.wait_state(("Hold:0",), timeout)
+    assert held["state"] == "Hold:0", held
+    time.sleep(settle)
+    assert np.allclose(s.status()["pos"], held["pos"], atol=atol)
+    s.realtime(b"~")
+    return held
+
+
 def parse_status(s):
     m = STATUS.match(s)
     if not m:

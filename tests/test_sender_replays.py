@@ -19,7 +19,7 @@ import time
 import numpy as np
 import pytest
 
-from grbl_sender import serve_session
+from grbl_sender import hold_still_resume, serve_session
 
 
 @pytest.fixture(scope="module")
@@ -46,12 +46,7 @@ def test_ugs_connect_jog_pause_resume_cancel(daemon):
     lines = ["G21 G90", "G91", "G1 X3 F300", "G1 Y3", "G1 X-3", "G1 Y-3", "G90"]
     s.stream(lines)
     assert s.wait_state(("Run",), 30)["state"] == "Run"
-    s.realtime(b"!")
-    held = s.wait_state(("Hold:0",), 30)
-    assert held["state"] == "Hold:0"
-    time.sleep(0.3)
-    assert np.allclose(s.status()["pos"], held["pos"], atol=1e-3)
-    s.realtime(b"~")
+    hold_still_resume(s)
     assert s.wait_state(("Run",), 30)["state"] == "Run"
     s.realtime(b"!")                                      # cancel: pause, wait until still, soft reset
     assert s.wait_state(("Hold:0",), 30)["state"] == "Hold:0"
