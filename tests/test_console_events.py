@@ -1,9 +1,10 @@
 """M-codes take effect in program order where the stream gets to them, as grbl's planner sync does.
 
 Over the pty of `pmctl serve` (sim, simulated Modbus VFD): a lone M3 S.. starts the spindle and a lone
-M5 stops it while the machine is idle; mid-stream, M5 and the coolant words M8/M9 take effect at the
-stop between the moves around them, never during the move before (judged by the position reported
-with the spindle speed and the ``A:`` accessory field); G43.1 with a zero offset (bCNC's reset) and
+M5 stops it while the machine is idle, and so do M4, an S change, M7, M8 and M9 (``FS:`` and ``A:``);
+mid-stream, M5, an S change and the coolant words M8/M9 take effect at the stop between the moves
+around them, never during the move before (judged by the position reported with the spindle speed
+and the ``A:`` accessory field); G43.1 with a zero offset (bCNC's reset) and
 G49 are accepted. Through the supervisor (EVENT moves as the RS-274 interpreter makes them): a tool
 change M6 and M0 hold the path until cycle start and say why, M1 only with the optional stop on,
 outputs and messages are recorded where the path reaches them."""
@@ -42,6 +43,16 @@ def test_a_lone_m3_starts_and_a_lone_m5_stops_the_spindle_when_idle(daemon):
     assert "S" not in st.get("A", "") and st["state"] in ("Idle", "Run")
 
 
+def test_lone_m4_s_change_m7_m8_m9_take_effect_when_idle(daemon):
+    s, *_ = daemon
+    for line, rpm, acc in (("M4 S5000", 5000, "C"), ("S9000", 9000, "C"), ("M3", 9000, "S"), ("M7", 9000, "SM"),
+                           ("M8", 9000, "SFM"), ("M9", 9000, "S"), ("M5", 0, "")):
+        assert s.send(line) == "ok", line
+        assert s.wait_for(lambda: (lambda st: spindle(st) == rpm and st.get("A", "") == acc)(s.status()), 30), \
+            (line, s.status())
+    assert s.wait_state(("Idle",), 30)["state"] == "Idle"
+
+
 def test_mid_stream_m5_and_coolant_take_effect_between_the_moves(daemon):
     s, *_ = daemon
     assert s.send("M3 S6000") == "ok" and s.send("G4 P0") == "ok"
@@ -72,6 +83,27 @@ def test_mid_stream_m5_and_coolant_take_effect_between_the_moves(daemon):
                 assert rpm == 0 and "F" in acc, seen
     assert out and not rising, seen
     assert seen[-1][2] == "", seen
+
+
+def test_mid_stream_speed_change_takes_effect_at_the_stop(daemon):
+    s, *_ = daemon
+    assert s.send("M3 S6000") == "ok" and s.send("G4 P0") == "ok"
+    x0 = s.status()["pos"][0]
+    s.stream(["G21 G91 G1 X3 F300", "S9000", "G1 X-3 F300", "M5", "G90"])
+    seen = []
+    t0 = time.time()
+    while time.time() - t0 < 60:
+        st = s.status()
+        seen.append((st["pos"][0] - x0, spindle(st)))
+        if st["state"] == "Idle" and len(seen) > 3:
+            break
+        time.sleep(0.02)
+    back = False
+    for dx, rpm in seen:
+        back = back or dx > 2.999
+        if 0.05 < dx < 2.95:
+            assert rpm == (9000 if back else 6000), seen
+    assert back and seen[-1][1] == 0, seen
 
 
 def test_g43_1_with_a_zero_offset_and_g49_are_accepted(daemon):

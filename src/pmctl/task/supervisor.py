@@ -787,19 +787,25 @@ class Supervisor:
         return True
 
     def _restore_spindle(self, then_resume: bool):
+        """The spindle back at its speed after a stop in the hold. 0x9E again (``then_resume`` False):
+        the start is written and the spindle counts as running at once, so a further 0x9E during the
+        spin-up stops it again. Cycle start (True): the path goes on once it is at speed."""
         self._m5_written()
         sp, rpm = self.spindle, self.spindle_prog
         try:
             if sp is not None and rpm and self.spindle_stopped_in_hold:
                 with self._spindle_ov_lock:
                     sp.vfd.start(self._spindle_rpm(rpm))
+                    if not then_resume:
+                        self.spindle_stopped_in_hold = False
                 sp.vfd.wait_at_speed()
-                self.log(f"spindle back at speed after the stop in the hold ({abs(self._spindle_rpm(rpm)):g} rpm)")
+                if sp.vfd.rpm_cmd:
+                    self.log(f"spindle back at speed after the stop in the hold ({abs(sp.vfd.rpm_cmd):g} rpm)")
         except Exception as e:            # noqa: BLE001
             self._device_fault(f"spindle VFD: restoring the speed after a stop in the hold: {e}")
             return
-        self.spindle_stopped_in_hold = False
         if then_resume:
+            self.spindle_stopped_in_hold = False
             self.command(C.C_RESUME)
 
     def feed_override(self, f: float):
@@ -1233,7 +1239,8 @@ class Supervisor:
         sp = self.spindle
         if any(m.kind == "event" and any(n == "spindle" for n, _ in m.events) for m in it.job.moves):
             return
-        moves = [m for m in it.job.moves if m.kind != "dwell"] or list(it.job.moves)
+        moves = [m for m in it.job.moves if m.kind not in ("dwell", "event")] \
+            or [m for m in it.job.moves if m.kind == "dwell"]       # (EVENT moves carry no speed)
         if not self.spindle_off_at_job_end or sp is None or not sp.vfd.rpm_cmd or not moves \
                 or getattr(moves[-1], "spindle_rpm", 0.0) or self.items:
             return

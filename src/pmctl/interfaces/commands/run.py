@@ -544,7 +544,8 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
         status, reason = "fault", r.get("reason", "")
     ticks = int(r["ticks"])
     if state_file and r.get("clean") is False and status != "fault":
-        log(f"warning: the rt side did not save {state_file} as a clean stop")
+        log(f"warning: the rt side did not save {state_file} as a clean stop: the position may be off by the "
+            f"motion of the last persist interval; home the machine (or check it) before the next job")
 
     probes = list(getattr(it, "probe_results", None) or []) if it is not None else []
     probe_err = next((p.error for p in probes if p.error), "")
@@ -554,7 +555,8 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
     # ---- the recording first (the run's data must not depend on stdout staying open), then the report
     rec_error = rec_err[0] if rec_err else ""
     if rec_error:
-        log(f"warning: the recorder stopped at row {sink.rows}: {rec_error}")
+        log(f"warning: the recorder stopped at row {sink.rows}: {rec_error}; the recording ends there (marked "
+            f"incomplete): check the disk (space, permissions) and run the job again to record all of it")
     j0 = job_tick[0] if job_tick[0] is not None else (stop_tick if stop_tick is not None else ticks)
     res = SimpleNamespace(job_start=j0, ticks=ticks, status=status, reason=reason, dt=dt)
     i0, i1, track_note = tracking_window(res, stop_tick)
@@ -613,14 +615,16 @@ def _finish_recording(rec, args, backend_name, cfg, log, status, reason, ts, tm,
            else f"recording error: {rec_error}" if rec_error
            else f"{rec.rows} rows for {ticks} ticks")
     if rec._done:
-        log(f"warning: the recording {args.record} was abandoned during the run ({rec_error})")
+        log(f"warning: the recording {args.record} was abandoned during the run ({rec_error}); nothing of it was "
+            f"kept: check the disk (space, permissions) and run the job again to record it")
     else:
         try:
             rec_rows = rec.rows
             rec.finish(complete=not missing, reason=why if missing else "",
                        extra_meta={"description": desc, "run": run_meta})
         except Exception as e:
-            log(f"warning: the recording {args.record} could not be finished: {e}")
+            log(f"warning: the recording {args.record} could not be finished: {e}; what was written "
+                f"may be left in {args.record}.partial (it reads as an incomplete recording)")
             rec_rows = None
     return rec_rows
 
