@@ -2,8 +2,8 @@
 `pmctl serve` on the sim over its console pty, through CNCjs's socket.io API as its web UI does
 (tests/cncjs_driver.js): open the port as a Grbl controller, load and start the bundled cone job,
 feed override +100 %, hold (gcode:pause) and resume, to the end with no error and no alarm; a jog as
-the Axes widget sends it (G91, G0 X.., G90); a forced stop (gcode:stop: feed hold, then ctrl-X)
-mid-job, after which the machine is Idle where it stopped and takes the next line."""
+the Axes widget sends it (G91, G0 X.., G90); pause and a forced stop mid-job (gcode:stop sends ctrl-X
+once the machine holds), after which the machine is Idle where it stopped, without an alarm."""
 
 import json
 import os
@@ -147,6 +147,8 @@ def test_cncjs_streams_the_cone_with_override_hold_resume_then_jogs_and_stops(ri
     c.emit("command", str(link), "gcode:start")
     c.wait(lambda: c.active() == "Run", 60, "Run again")
     c.wait(lambda: c.sender.get("received", 0) >= 4, 60, "4 lines acknowledged")
+    c.emit("command", str(link), "gcode:pause")           # pause, then stop: CNCjs's forced stop sends ctrl-X
+    c.wait(lambda: c.active() == "Hold", 60, "Hold")      # only if its next status (500 ms on) says Hold
     n = len(c.read_lines())
     c.emit("command", str(link), "gcode:stop", {"force": True})
     c.wait(lambda: any(x.startswith("Grbl ") for x in c.read_lines()[n:]), 60, "the banner after the reset")

@@ -55,7 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="pmctl",
         description="Controller and digital twin for the 3-RPS + XY-table hybrid milling machine.",
         epilog="Each command has --help. Documentation: README.md and docs/ in the repository "
-               "(docs/README.md is the index).")
+               "(docs/README.md is the index). Exit status: 0 done, 1 an error pmctl reports (bad input, "
+               "config, a refused request), 2 usage (the command's own usage is printed), 70 internal "
+               "error, 130 interrupted; pmctl run also 3 (controlled stop) and 4 (fault).")
     p.add_argument("--version", action="version", version=f"pmctl {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     add_module_parsers(sub, [f"pmctl.interfaces.commands.{name}" for name in COMMANDS])

@@ -23,7 +23,6 @@ Two threads:
   alone, and the line is answered once the probe has ended -- ``[PRB:x,y,z,a,b:1]`` (``:0``
   without contact; after ``ALARM:5`` for a G38.2 without contact) then ``ok`` -- and the lines after
   it are read from where the probe stopped.
-
 - M-codes take effect in program order where the stream gets to them: a line's spindle (M3 M4 M5 S),
   coolant (M7 M8 M9), tool change (M6), pause (M0 M1), output and message words come from the
   interpreter as EVENT moves (pmctl.task.job) queued with the motion; the supervisor holds the path
@@ -87,6 +86,7 @@ class GrblConsole:
         self.batch: list = []
         self.batch_lines: dict = {}
         self.blocks = collections.deque()     # [console line, blocks, item (None: still in the batch)] accepted, not run
+        self._blocks_lock = threading.Lock()  # the reader (Bf:) and the worker both take run blocks off its front
         self._rx_lock = threading.Lock()
         self._rx_pending = 0                  # bytes of lines received and not yet answered (Bf:'s second field)
         self._line_bytes = 0
@@ -264,7 +264,8 @@ class GrblConsole:
         with self._rx_lock:
             self._rx_pending = 0              # the unanswered lines are dropped (grbl clears its RX buffer)
         self.batch, self.batch_lines = [], {}
-        self.blocks.clear()
+        with self._blocks_lock:
+            self.blocks.clear()
         self._pgm_end.clear()
         self.sup.soft_reset()
         self.interp.reset_modal()
@@ -336,6 +337,10 @@ class GrblConsole:
     def queued_blocks(self) -> int:
         """Blocks in the planner queue: accepted (answered) and not yet run past by the rt side; the
         ones run past are dropped from its front (they complete in order)."""
+        with self._blocks_lock:
+            return self._queued_blocks()
+
+    def _queued_blocks(self) -> int:
         sup, blocks = self.sup, self.blocks
         line = None
         while blocks:
@@ -471,7 +476,8 @@ class GrblConsole:
             self.batch_lines[self.seq] = n_word
             self.batch_t = time.monotonic()
             if n:
-                self.blocks.append([self.seq, n, None])
+                with self._blocks_lock:
+                    self.blocks.append([self.seq, n, None])
         if flags.get("end") or sync:
             it = self._flush(gen)     # waits (the answer with it) while the motion queue is full
             if flags.get("end") and not self.sup.check_mode:
@@ -534,9 +540,10 @@ class GrblConsole:
             return None
         finally:
             self.batch, self.batch_lines = [], {}
-            for b in self.blocks:
-                if b[2] is None:
-                    b[2] = it if it is not None else _DROPPED
+            with self._blocks_lock:
+                for b in self.blocks:
+                    if b[2] is None:
+                        b[2] = it if it is not None else _DROPPED
 
     def _probe(self, moves, n_word, st0, gen):
         """A G38.2/G38.3 line, as grbl runs it: the motion queued before it goes first, the probe is
