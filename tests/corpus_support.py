@@ -17,6 +17,7 @@ offending block on stderr (no line number: ``run_rs274`` finds the block's line 
 from __future__ import annotations
 
 import gzip
+import json
 import hashlib
 import re
 import shutil
@@ -196,3 +197,55 @@ def program_words(text: str) -> set[str]:
             if letter not in "GMN":
                 found.add(letter)
     return found
+
+
+# ------------------------------------------------------------------ pmctl check --json, as specified
+CHECK_KINDS = ("syntax", "unsupported", "machine", "planning")
+PROBLEM_FIELDS = ("file", "line", "column", "kind", "message")
+
+
+def judge_check(exit_code: int | None, stdout: str, stderr: str = "") -> dict:
+    """The verdict on one ``pmctl check FILE --json`` run, by its specification: it prints
+    ``{"ok": bool, "problems": [{"file", "line", "column", "kind", "message"}], "summary": {...}}`` and
+    exits 0 when the job can run, 1 when it cannot. A program is *understood* when no problem is of
+    kind syntax or unsupported, *accepted* when ok.
+
+    Returns {"crash": reason or None, "ok", "understood", "problems", "summary"}. A crash is a
+    traceback on stderr, an exit code other than 0 or 1 (or none: a timeout), output that is not that
+    JSON, or an exit code that contradicts ``ok``; then ok and understood are False."""
+    def crash(reason):
+        return {"crash": reason, "ok": False, "understood": False, "problems": [], "summary": {}}
+
+    if exit_code is None:
+        return crash("timeout")
+    if "Traceback (most recent call last)" in stderr:
+        last = [ln for ln in stderr.strip().splitlines() if ln.strip()][-1:]
+        return crash("traceback: " + (last[0].strip() if last else "?"))
+    if exit_code not in (0, 1):
+        return crash(f"exit code {exit_code}")
+    try:
+        doc = json.loads(stdout)
+    except ValueError:
+        return crash("output is not JSON")
+    if not isinstance(doc, dict) or not isinstance(doc.get("ok"), bool) or not isinstance(doc.get("problems"), list) \
+            or not isinstance(doc.get("summary", {}), dict):
+        return crash("JSON is not {ok: bool, problems: [...], summary: {...}}")
+    problems = doc["problems"]
+    for p in problems:
+        if not isinstance(p, dict) or any(k not in p for k in PROBLEM_FIELDS) or p["kind"] not in CHECK_KINDS \
+                or not isinstance(p["message"], str):
+            return crash(f"malformed problem {p!r}"[:200])
+    if doc["ok"] != (exit_code == 0):
+        return crash(f"exit code {exit_code} with ok={doc['ok']}")
+    if doc["ok"] and problems and any(p["kind"] in ("syntax", "unsupported") for p in problems):
+        return crash("ok with a syntax or unsupported problem")
+    understood = not any(p["kind"] in ("syntax", "unsupported") for p in problems)
+    return {"crash": None, "ok": doc["ok"], "understood": understood, "problems": problems,
+            "summary": doc.get("summary", {})}
+
+
+def message_pattern(message: str) -> str:
+    """A problem message with its numbers and quoted values replaced by N and '...', so that the same
+    refusal on different lines or values counts as one message."""
+    s = re.sub(r"'[^']*'|\"[^\"]*\"", "'...'", message)
+    return re.sub(r"(?<![A-Za-z_\d.])[-+]?\d+(?:\.\d+)?", "N", s)
