@@ -496,8 +496,12 @@ class GrblConsole:
         if any(m.kind == EVENT for m in moves):
             return moves
         st = self.interp.st
-        rpm0 = st0.s * st0.spindle_on if st0.spindle_on else 0.0
-        rpm1 = st.s * st.spindle_on if st.spindle_on else 0.0
+        try:
+            rpm0 = st0.s * st0.spindle_on if st0.spindle_on else 0.0
+            rpm1 = st.s * st.spindle_on if st.spindle_on else 0.0
+            pos, a, b = st0.pos, st0.a, st0.b
+        except AttributeError:        # the RS-274 interpreter's state: it gives its EVENT moves itself
+            return moves
         events = [("spindle", float(rpm1))] if rpm1 != rpm0 else []
         code = _COMMENT.sub("", text.upper())
         events += [("coolant", {7: "mist", 8: "flood", 9: "off"}[int(m)]) for m in _COOLANT.findall(code)]
@@ -506,8 +510,8 @@ class GrblConsole:
         if not events:
             return moves
         from pmctl.core import kinematics as K
-        axis = K.axis_from_roll_pitch(math.radians(st0.a), math.radians(st0.b))
-        return [Move(EVENT, np.array(st0.pos, float), axis, line=self.seq, events=tuple(events)), *moves]
+        axis = K.axis_from_roll_pitch(math.radians(a), math.radians(b))
+        return [Move(EVENT, np.array(pos, float), axis, line=self.seq, events=tuple(events)), *moves]
 
     def _synchronize(self, gen) -> bool:
         """grbl's protocol_buffer_synchronize: wait until every queued item has run and the machine
