@@ -110,7 +110,29 @@ def test_g43_1_with_a_zero_offset_and_g49_are_accepted(daemon):
     s, *_ = daemon
     for line in ("G43.1Z0.000", "G43.1 Z0", "G49"):
         assert s.send(line) == "ok", line
-    assert s.send("G43.1 Z0.5").startswith("error:")     # a real offset needs the tool model
+
+
+def _rs274():
+    import importlib.util
+    return importlib.util.find_spec("pmctl.task.rs274") is not None
+
+
+@pytest.mark.skipif(not _rs274(), reason="the console's M6, M0, M62 and (MSG,) words come with the RS-274 "
+                                         "interpreter (pmctl.task.rs274); the supervisor's side is tested below")
+def test_tool_change_pause_output_and_message_over_the_pty(daemon):
+    s, *_ = daemon
+    x0 = s.status()["pos"][0]
+    n = len(s.pushed)
+    for line in ("G21 G91 G1 X2 F600", "T2 M6", "G1 X-2", "M0", "M62 P1", "(MSG, check the part)", "G90"):
+        assert s.send(line) == "ok", line
+    for what, x in (("tool change: load tool 2", 2.0), ("program paused (M0)", 0.0)):
+        st = s.wait_state(("Hold:0",), 60)
+        assert abs(st["pos"][0] - x0 - x) < 1e-3, (what, st)           # held where the program says it
+        assert s.wait_for(lambda: any(what in m for m in s.pushed[n:]), 10), s.pushed[n:]
+        s.realtime(b"~")
+        assert s.wait_state(("Run", "Idle"), 30)["state"] in ("Run", "Idle")
+    assert s.wait_for(lambda: "[MSG:check the part]" in s.pushed[n:], 30)
+    assert s.wait_state(("Idle",), 60)["state"] == "Idle"
 
 
 def _service(tmp_path):
