@@ -88,12 +88,7 @@ class CncJs:
 
     def close(self):
         for p in (self.driver, self.server):
-            if p.poll() is None:
-                p.terminate()
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+            stop_serve(p, timeout=10)             # SIGTERM, then SIGKILL after 10 s
 
 
 @pytest.fixture
