@@ -552,9 +552,9 @@ class Supervisor:
             self.spindle_prog = rpm
             if want == sp.vfd.rpm_cmd:
                 return
-            sp.vfd.start(want)
+            _patient(sp.vfd, lambda: sp.vfd.start(want))
         t0 = time.monotonic()
-        sp.vfd.wait_at_speed()
+        _patient(sp.vfd, sp.vfd.wait_at_speed)
         self.log(f"spindle {'M5' if not rpm else ('M3' if rpm > 0 else 'M4') + f' S{abs(rpm):g}'}: "
                  f"{'stopped' if not rpm else 'at speed'} after {time.monotonic() - t0:.2f} s")
         if rpm and sp.monitor is None:
@@ -1280,6 +1280,21 @@ class Supervisor:
 
 class _Aborted(Exception):
     pass
+
+
+def _patient(vfd, request):
+    """A VFD request (idempotent: a start, a wait at speed) tried again after an unanswered Modbus
+    request, up to the ``max_missed_polls`` the spindle monitor allows in a row (a busy computer or
+    link can miss one); then the link counts as lost."""
+    from pmctl.hal import HalTimeout
+    missed = 0
+    while True:
+        try:
+            return request()
+        except HalTimeout:
+            missed += 1
+            if missed >= vfd.opt.max_missed_polls:
+                raise
 
 
 class _RtProc:
