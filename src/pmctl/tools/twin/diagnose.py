@@ -130,34 +130,14 @@ def regular_times(t) -> np.ndarray:
     return t0 + step * idx
 
 
-def build_context(columns: dict, machine, *, cap=DEFAULT_CAP, bounds=None, direction_before=None) -> Context:
-    """Residuals of the nominal twin (pmctl.tools.twin.nominal) at the analysis rows, whitened and stacked.
-    ``bounds``: indices where contiguous runs of the rows start and end ([0, ..., n]; default one
-    run), for a recording kept as runs (:func:`read_for_diagnosis`): no analysis row lies in the
-    first MARGIN_S of a run (the state of lags and modes carried over a gap is unknown there), and
-    the dynamic effects restart at every run (ctx.extra["bounds"]). ``direction_before``: per run,
-    each axis' direction of motion before it (read from the rows skipped between runs): until an
-    axis moves in a run, its play and friction keep that side (ctx.extra["direction_before"])."""
-    t = np.asarray(columns["t"], float)
-    n = len(t)
-    bounds = np.asarray([0, n] if bounds is None else bounds, int)
-    runs = len(bounds) > 2
-    if not runs:        # (runs of a long recording: their gaps are no missing rows)
-        t = regular_times(t)
-    settled = np.ones(n, bool)
-    if runs:
-        for a, b in zip(bounds[:-1], bounds[1:]):
-            if b > a:
-                settled[a:np.searchsorted(t[a:b], t[a] + min(MARGIN_S, 0.1 * (t[b - 1] - t[a])), "left") + a] = False
-    q_cmd = np.stack([fx.fill_gaps(t, np.asarray(columns[f"cmd_{a}"], float)) for a in AXES], 1)
-    has_enc = np.array([f"enc_{a}" in columns and np.isfinite(columns[f"enc_{a}"]).any() for a in AXES])
-    q_motor = q_cmd.copy()
-    for i, a in enumerate(AXES):
-        if has_enc[i]:
-            q_motor[:, i] = fx.fill_gaps(t, np.asarray(columns[f"enc_{a}"], float))
-    temps = {k: fx.fill_gaps(t, np.asarray(v, float)) for k, v in columns.items()
-             if k.startswith("temp_") and np.isfinite(v).sum() >= 2}
-    obs_names = [k for k in columns if k in nominal.PREDICTABLE]
+def observations(columns, obs_names, predict_at, settled, cap, floor):
+    """The stacked, whitened residual of the measured channels (effects.Obs), shared by the
+    prototype's context and a generic machine's (pmctl.tools.twin.axes). A channel counts when it
+    has at least 10 settled samples that are not all one value; at most ``cap`` of them, evenly
+    spread, are analysed. ``predict_at(rows, names) -> (columns at rows, {name: prediction})`` is
+    the nominal twin at the given rows; each channel's noise level is the median of the robust level
+    of its residual over a few stretches (:func:`_noise_rows`), at least ``floor(name)``.
+    Returns (obs, analysis rows, rows predicted, {channel: its sampled rows})."""
     sampled, ana, noi = {}, {}, {}
     for k in obs_names:
         col = np.asarray(columns[k], float)
@@ -170,17 +150,14 @@ def build_context(columns: dict, machine, *, cap=DEFAULT_CAP, bounds=None, direc
     names = list(sampled)
     rows_all = np.unique(np.concatenate([ana[k] for k in names] + [c for k in names for c in noi[k]])) \
         if names else np.zeros(0, int)
-    sub = {k: np.asarray(v, float)[rows_all] for k, v in columns.items()}
-    state = nominal.nominal_state(sub, machine, statics=True) if len(rows_all) else None
-    pred = nominal.predict_columns(sub, machine, names, state=state) if names else {}
+    sub, pred = predict_at(rows_all, names)
     sig, scale = {}, {}
     for k in names:
         scale[k] = noise_scale(k, pred[k])     # per sample, relative to the channel's noise sig[k]
         r = (sub[k] - pred[k]) / scale[k]
         parts = [r[np.searchsorted(rows_all, c)] for c in noi[k]]
-        sig[k] = float(np.median([noise_level(p, _floor(k, machine)) for p in parts]))
+        sig[k] = float(np.median([noise_level(p, floor(k)) for p in parts]))
     rows = np.unique(np.concatenate([ana[k] for k in names])) if names else np.zeros(0, int)
-    at = np.searchsorted(rows_all, rows)
     ys, chs, rws, ws, preds = [], [], [], [], []
     for ci, k in enumerate(names):
         j = np.searchsorted(rows_all, ana[k])
@@ -198,6 +175,79 @@ def build_context(columns: dict, machine, *, cap=DEFAULT_CAP, bounds=None, direc
 
     row = cat(rws, int)
     obs = Obs(names, sig, cat(ys), cat(chs, int), row, np.searchsorted(rows, row), cat(ws), cat(preds))
+    return obs, rows, rows_all, sampled
+
+
+def settled_rows(t, bounds, runs):
+    """Rows that may be analysed: all of one run; of a recording kept as runs, none in the first
+    MARGIN_S (at most 10 %) of each run (what a lag or a mode carried over the gap is unknown)."""
+    settled = np.ones(len(t), bool)
+    if runs:
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            if b > a:
+                settled[a:np.searchsorted(t[a:b], t[a] + min(MARGIN_S, 0.1 * (t[b - 1] - t[a])), "left") + a] = False
+    return settled
+
+
+def uniform_step(t, bounds) -> float | None:
+    """The sample step when ``t`` is uniform within its runs (a gap between two runs is no step)."""
+    dt = np.diff(t)
+    if len(bounds) > 2:
+        dt = np.delete(dt, np.asarray(bounds[1:-1], int) - 1)
+    return float(np.mean(dt)) if len(dt) and np.ptp(dt) <= 1e-6 * np.mean(dt) + 1e-12 else None
+
+
+def record_runs(ctx, bounds, sampled, direction_before):
+    """What a context keeps of how its rows were sampled: each channel's own step before the cap
+    thinned it (``native_dt``: a tracker slower than the log, the Nyquist limit of what it saw) and,
+    for a recording kept as runs, the run bounds, their start times and each axis' direction
+    before each run."""
+    t = ctx.t
+    ctx.extra["native_dt"] = {k: float(np.median(np.diff(t[ok]))) for k, ok in sampled.items() if len(ok) > 2}
+    if len(bounds) > 2:
+        ctx.extra["bounds"] = bounds
+        ctx.extra["cuts"] = t[bounds[1:-1]]
+        if direction_before is not None:
+            ctx.extra["direction_before"] = np.asarray(direction_before, float).reshape(len(bounds) - 1,
+                                                                                      ctx.q_cmd.shape[1])
+
+
+def build_context(columns: dict, machine, *, cap=DEFAULT_CAP, bounds=None, direction_before=None) -> Context:
+    """Residuals of the nominal twin (pmctl.tools.twin.nominal) at the analysis rows, whitened and stacked.
+    ``bounds``: indices where contiguous runs of the rows start and end ([0, ..., n]; default one
+    run), for a recording kept as runs (:func:`read_for_diagnosis`): no analysis row lies in the
+    first MARGIN_S of a run (the state of lags and modes carried over a gap is unknown there), and
+    the dynamic effects restart at every run (ctx.extra["bounds"]). ``direction_before``: per run,
+    each axis' direction of motion before it (read from the rows skipped between runs): until an
+    axis moves in a run, its play and friction keep that side (ctx.extra["direction_before"])."""
+    t = np.asarray(columns["t"], float)
+    n = len(t)
+    bounds = np.asarray([0, n] if bounds is None else bounds, int)
+    runs = len(bounds) > 2
+    if not runs:        # (runs of a long recording: their gaps are no missing rows)
+        t = regular_times(t)
+    settled = settled_rows(t, bounds, runs)
+    q_cmd = np.stack([fx.fill_gaps(t, np.asarray(columns[f"cmd_{a}"], float)) for a in AXES], 1)
+    has_enc = np.array([f"enc_{a}" in columns and np.isfinite(columns[f"enc_{a}"]).any() for a in AXES])
+    q_motor = q_cmd.copy()
+    for i, a in enumerate(AXES):
+        if has_enc[i]:
+            q_motor[:, i] = fx.fill_gaps(t, np.asarray(columns[f"enc_{a}"], float))
+    temps = {k: fx.fill_gaps(t, np.asarray(v, float)) for k, v in columns.items()
+             if k.startswith("temp_") and np.isfinite(v).sum() >= 2}
+    obs_names = [k for k in columns if k in nominal.PREDICTABLE]
+    hold = {}
+
+    def predict_at(rows_all, names):
+        sub = {k: np.asarray(v, float)[rows_all] for k, v in columns.items()}
+        hold["state"] = nominal.nominal_state(sub, machine, statics=True) if len(rows_all) else None
+        pred = nominal.predict_columns(sub, machine, names, state=hold["state"]) if names else {}
+        return sub, pred
+
+    obs, rows, rows_all, sampled = observations(columns, obs_names, predict_at, settled, cap,
+                                                lambda k: _floor(k, machine))
+    state = hold.get("state")
+    at = np.searchsorted(rows_all, rows)
     if len(rows):
         P, R = state.P[at], state.R[at]
         bad = ~np.all(np.isfinite(P), -1)
@@ -209,20 +259,9 @@ def build_context(columns: dict, machine, *, cap=DEFAULT_CAP, bounds=None, direc
     else:
         P, R = np.zeros((0, 3)), np.zeros((0, 3, 3))
         J, geo, forces = np.zeros((0, 6, 5)), {}, np.zeros((0, 3))
-    dt = np.diff(t)
-    if runs:                     # the step within the runs (a gap between two runs is no step)
-        dt = np.delete(dt, bounds[1:-1] - 1)
-    uniform = float(np.mean(dt)) if len(dt) and np.ptp(dt) <= 1e-6 * np.mean(dt) + 1e-12 else None
-    ctx = Context(machine, t, q_cmd, q_motor, has_enc, temps, rows, J, geo, forces, obs, uniform)
+    ctx = Context(machine, t, q_cmd, q_motor, has_enc, temps, rows, J, geo, forces, obs, uniform_step(t, bounds))
     ctx.extra["P"], ctx.extra["R"] = P, R
-    # each channel's own sample step in the record (a tracker slower than the log), before the cap
-    # thins the analysis: the Nyquist limit of what the channel saw
-    ctx.extra["native_dt"] = {k: float(np.median(np.diff(t[ok]))) for k, ok in sampled.items() if len(ok) > 2}
-    if runs:
-        ctx.extra["bounds"] = bounds
-        ctx.extra["cuts"] = t[bounds[1:-1]]
-        if direction_before is not None:
-            ctx.extra["direction_before"] = np.asarray(direction_before, float).reshape(len(bounds) - 1, len(AXES))
+    record_runs(ctx, bounds, sampled, direction_before)
     if len(rows) and state.tip_force is not None:
         ctx.extra["tip_force"] = np.nan_to_num(state.tip_force[at])
     return ctx

@@ -347,16 +347,45 @@ class Candidate:
         return Fit(self.params_of(c, ctx), X @ c, X.shape[1], internal={"coef": c})
 
 
+def axis_names(ctx: Context) -> tuple:
+    """The axes of the context's machine: the prototype's L1..Y, or a generic recording's
+    (``"machine": "axes"``: its cmd_<A> columns, pmctl.tools.twin.axes)."""
+    return ctx.extra.get("axes", AXES)
+
+
+def axis_index(ctx: Context, name: str) -> int:
+    return list(axis_names(ctx)).index(name)
+
+
+def excited_axis(ctx: Context, channel: str) -> int:
+    """The axis whose motion drives a channel's mode: chain i for the prototype's strain_i; axis A
+    for a generic machine's acc_<A> or effort_<A>."""
+    if "axes" in ctx.extra:
+        return axis_index(ctx, channel.split("_", 1)[1])
+    return int(channel[-1]) - 1
+
+
 def axis_gain(ctx: Context, a: int, site: str = "load") -> np.ndarray:
     """(N,) whitened obs response to a unit error on actuator a.
 
     load: the tool channels move by J[:, a]; motor: enc_a sees it, and the tool channels too when
-    axis a has no encoder (the twin then predicted the tool from cmd)."""
+    axis a has no encoder (the twin then predicted the tool from cmd). A machine of independent
+    axes: the load side is its load_<A> encoder, the motor side its enc_<A> (and load_<A> when the
+    axis has no enc_<A>, predicted from cmd_<A>)."""
     key = ("axis_gain", a, site)
     if key in ctx.extra:
         return ctx.extra[key]
     o = ctx.obs
     g = np.zeros(o.y.shape)
+    if "axes" in ctx.extra:
+        A = ctx.extra["axes"][a]
+        names = [f"load_{A}"] if site == "load" else [f"enc_{A}"] + ([] if ctx.has_enc[a] else [f"load_{A}"])
+        for name in names:
+            if name in o.channels:
+                m = o.ch == o.channels.index(name)
+                g[m] = o.w[m]
+        ctx.extra[key] = g
+        return g
     for name, r in TOOL_ROWS.items():
         if name in o.channels and (site == "load" or not ctx.has_enc[a]):
             m = o.ch == o.channels.index(name)
@@ -375,9 +404,9 @@ class AxisSignal(Candidate):
 
     site = "load"
 
-    def __init__(self, axis):
+    def __init__(self, axis, index=None):
         super().__init__(axis)
-        self.a = AXES.index(axis)
+        self.a = AXES.index(axis) if index is None else index      # (index: a generic machine's axis)
         self._g = None
 
     def gain(self, ctx):
@@ -458,13 +487,18 @@ class Backlash(AxisSignal):
                                for k, (s, e) in enumerate(zip(cut[:-1], cut[1:])) if e > s])
 
 
-def screw_lead(ctx: Context, a: int) -> float:
+def screw_lead(ctx: Context, a: int) -> float | None:
+    """The lead of axis a's screw (mm); a generic machine's only when its recording gives it."""
+    if "axes" in ctx.extra:
+        return ctx.machine.lead_mm.get(ctx.extra["axes"][a])
     r = ctx.machine.resolution
     return float(r.screw_lead if a < 3 else r.table_screw_lead)
 
 
 def lead_harmonic(period, lead, tol=0.04):
-    """k when period is lead/k (k = 1..4) within ``tol`` relative, else 0."""
+    """k when period is lead/k (k = 1..4) within ``tol`` relative, else 0 (and 0 without a lead)."""
+    if not lead:
+        return 0
     for k in (1, 2, 3, 4):
         if abs(period * k / lead - 1) <= tol:
             return k
@@ -542,7 +576,7 @@ class PitchError(AxisSignal):
         span = float(np.ptp(ctx.q_cmd[rows, self.a])) if len(rows) else 0.0
         if self.effect == "pitch_error":
             lead = screw_lead(ctx, self.a)
-            return [lead / k for k in (1, 2, 3, 4) if span >= lead / k and k / lead < 5.0]
+            return [lead / k for k in (1, 2, 3, 4) if span >= lead / k and k / lead < 5.0] if lead else []
         if len(e) < 64:
             return []
         x = ctx.q_cmd[rows, self.a]
@@ -676,8 +710,8 @@ class ThermalGrowth(AxisSignal):
     effect = "thermal_growth"
     nparams = 3
 
-    def __init__(self, axis, channel):
-        super().__init__(axis)
+    def __init__(self, axis, channel, index=None):
+        super().__init__(axis, index)
         self.channel = channel
 
     @property
@@ -1040,9 +1074,9 @@ class Resonance(Candidate):
         if ctx.uniform_dt is None and len(ctx.t) < 16:
             return False
         if self.target_key == "axis":
-            a = AXES.index(self.target)
+            a = axis_index(ctx, self.target)
             return bool(np.any(axis_gain(ctx, a) != 0)) and np.ptp(ctx.q_cmd[:, a]) > 0
-        return self.target in ctx.obs.channels and np.ptp(ctx.q_cmd[:, int(self.target[-1]) - 1]) > 0
+        return self.target in ctx.obs.channels and np.ptp(ctx.q_cmd[:, excited_axis(ctx, self.target)]) > 0
 
     def _uniform(self, ctx):
         if "uniform" not in ctx.extra:
@@ -1059,7 +1093,7 @@ class Resonance(Candidate):
         if key not in ctx.extra:
             o = ctx.obs
             # an axis mode is excited by that axis; a gauge's plate-link mode by its own chain
-            a = AXES.index(self.target) if self.target_key == "axis" else int(self.target[-1]) - 1
+            a = axis_index(ctx, self.target) if self.target_key == "axis" else excited_axis(ctx, self.target)
             ws = []
             if self.target_key == "axis":
                 ws.append(axis_gain(ctx, a))
@@ -1105,7 +1139,7 @@ class Resonance(Candidate):
         """Peaks of the spectrum of the target residual (uniform grid), strongest first."""
         o = ctx.obs
         if self.target_key == "axis":
-            g = axis_gain(ctx, AXES.index(self.target))
+            g = axis_gain(ctx, axis_index(ctx, self.target))
             m = g != 0
             sig = np.zeros(len(ctx.t))
             tt = ctx.t[o.row[m]]
@@ -1260,7 +1294,7 @@ class Resonance(Candidate):
             except (np.linalg.LinAlgError, KeyError, IndexError):
                 t_tool = np.inf
             if t_tool < TOOL_T_MIN:
-                gauge = f"strain_{AXES.index(self.target) + 1}"
+                gauge = f"strain_{axis_index(ctx, self.target) + 1}"
                 return [f"the tool does not see it ({t_tool:.1f} standard errors on the tool channels): only "
                         f"{gauge} rings, a mode of that channel, not of axis {self.target}"]
         # ringing decays after each acceleration; a line of constant amplitude at the same
@@ -1416,12 +1450,12 @@ class ForcedVibration(Candidate):
     def _w(self, ctx):
         o = ctx.obs
         if self.target_key == "axis":
-            return axis_gain(ctx, AXES.index(self.target))
+            return axis_gain(ctx, axis_index(ctx, self.target))
         return np.where(o.ch == o.channels.index(self.target), o.w, 0.0)
 
     def applicable(self, ctx):
         if self.target_key == "axis":
-            return bool(np.any(axis_gain(ctx, AXES.index(self.target)) != 0))
+            return bool(np.any(axis_gain(ctx, axis_index(ctx, self.target)) != 0))
         return self.target in ctx.obs.channels
 
     def _series(self, ctx, y):
