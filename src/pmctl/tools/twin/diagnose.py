@@ -51,6 +51,12 @@ MIN_DSSE = 30.0         # whitened: ~ 5 sigma of the held-out SSE difference of 
 REL_MIN = 0.04          # the effect must explain this fraction of its channels' residual energy
 MIN_PEAK = 1.5         # ... and reach 1.5 x noise on at least 1 % of its samples
 MAX_FINDINGS = 6
+BACKFIT_GENERIC = 12    # a drive's force model is several linear terms on one channel: refit to convergence
+
+
+def is_axes_machine(machine) -> bool:
+    """A machine of independent axes (``"machine": "axes"``, pmctl.core.recording_axes)."""
+    return getattr(machine, "name", None) == "axes" and hasattr(machine, "axes")
 
 
 
@@ -577,9 +583,11 @@ def _shared_step(ev, others) -> list:
             and abs(e["fit"].params["t_s"] - t) <= SAME_INSTANT_S]
 
 
-def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, candidates=None, loc=None):
+def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, candidates=None, loc=None,
+                   backfit=2):
     """Greedy forward selection. Returns (accepted evaluations in order, final residual, refused
-    evaluations). ``loc``: the locate stage's breakdown (its screw-position lines are evidence)."""
+    evaluations). ``loc``: the locate stage's breakdown (its screw-position lines are evidence);
+    ``backfit``: passes of the final refit of each accepted effect with the others held."""
     y0 = ctx.obs.y
     folds = folds_of(ctx)
     cands = fx.catalogue(ctx) if candidates is None else candidates
@@ -643,7 +651,7 @@ def select_effects(ctx: Context, *, max_findings=MAX_FINDINGS, progress=False, c
     bar.done()
     # backfitting: refit each accepted effect with the others held at their current fits
     allm = np.ones(len(y0), bool)
-    for _ in range(2 if len(accepted) > 1 else 0):
+    for _ in range(backfit if len(accepted) > 1 else 0):
         for j, ev in enumerate(accepted):
             others = sum((e["fit"].pred for k, e in enumerate(accepted) if k != j), np.zeros_like(y0))
             c = ev["cand"]
@@ -732,11 +740,13 @@ def _evidence_core(ev, ctx, loc, explained):
                 f"a screw pitch error explains {pct} of it on held-out samples.")
     if eff == "thermal_growth":
         T = ctx.temps[p["channel"]]
-        x = np.abs(ctx.q_cmd[:, AXES.index(c.target)]).max()
+        x = np.abs(ctx.q_cmd[:, fx.axis_index(ctx, c.target)]).max()
         return (f"the error along {c.target} grows with {p['channel']} (ΔT = {np.ptp(T):.1f} K) and with the screw "
                 f"position; α = {p['alpha_per_K']:.3g} /K ({_fmt_um(abs(p['alpha_per_K']) * np.ptp(T) * x)} at "
                 f"{x:.0f} mm), growing from a fixed bearing at {p['screw_fixed_end_mm']:.0f} mm, explains {pct} of it "
                 f"on held-out samples.")
+    if "axes" in ctx.extra and eff in GENERIC_EFFECTS and "coulomb_mm" not in p:
+        return _generic_evidence(ev, ctx, pct)
     if eff == "compliance":
         a = AXES.index(c.target)
         if a >= 3:
@@ -749,7 +759,7 @@ def _evidence_core(ev, ctx, loc, explained):
                 f"({f.min():.0f} … {f.max():.0f} N); a stiffness of {p['stiffness_N_per_mm']:.0f} N/mm explains "
                 f"{pct} of it on held-out samples.")
     if eff == "servo_lag":
-        v = np.abs(np.gradient(ctx.q_cmd[:, AXES.index(c.target)], ctx.t)).max()
+        v = np.abs(np.gradient(ctx.q_cmd[:, fx.axis_index(ctx, c.target)], ctx.t)).max()
         return (f"enc_{c.target} trails cmd_{c.target} in proportion to speed ({_fmt_um(v * p['tau_s'])} at "
                 f"{v:.0f} mm/s); a first-order servo lag τ = {1000 * p['tau_s']:.2f} ms explains {pct} of it "
                 f"on held-out samples.")
@@ -771,6 +781,41 @@ def _evidence_core(ev, ctx, loc, explained):
         pp = ", ".join(f"{k} = {np.round(np.atleast_1d(v), 4).tolist()}" for k, v in p.items())
         return (f"the tool error is a smooth function of pose; kinematic deltas of {who} ({pp}) explain {pct} of it "
                 f"on held-out samples.")
+    return f"explains {pct} of the residual on held-out samples."
+
+
+GENERIC_EFFECTS = ("inertia", "friction", "force_offset", "servo_tracking", "cogging", "compliance")
+
+
+def _generic_evidence(ev, ctx, pct):
+    """Evidence of the effects of a machine of independent axes (pmctl.tools.twin.drive)."""
+    c, p = ev["cand"], ev["fit"].params
+    A, eff = c.target, c.effect
+    m = ctx.machine
+    fu = m.effort_unit(A) if hasattr(m, "effort_unit") else "N"
+    pu = m.pos_unit(A) if hasattr(m, "pos_unit") else "mm"
+    v = ", ".join(f"{k} = {val:.4g}" for k, val in p.items() if isinstance(val, float))
+    if eff == "inertia":
+        return (f"effort_{A} follows the acceleration of {A} ({v}); the moving {'inertia' if m.rotary.get(A) else 'mass'} "
+                f"explains {pct} of it on held-out samples.")
+    if eff == "friction":
+        kind = "by direction" if any("_pos_" in k for k in p) else "the same both ways"
+        return (f"effort_{A} flips with the direction of motion of {A} and grows with its speed ({v}; viscous "
+                f"{kind}); Coulomb and viscous friction explain {pct} of it on held-out samples.")
+    if eff == "force_offset":
+        return (f"effort_{A} holds a constant {next(iter(p.values())):+.4g} {fu} whatever the motion (gravity, a "
+                f"counterweight, a cable's pull or the sensor's zero); it explains {pct} of it on held-out samples.")
+    if eff == "servo_tracking":
+        return (f"enc_{A} trails cmd_{A} by {1000 * p['lag_s']:.3g} ms of its velocity (a first-order loop of "
+                f"{p['bandwidth_hz']:.3g} Hz) and {p['accel_lag_s2']:.3g} s² of its acceleration; that following "
+                f"error explains {pct} of it on held-out samples.")
+    if eff == "cogging":
+        per = p.get("period_mm")
+        return (f"effort_{A} is periodic in the position of {A} with a period of {per:.4g} {pu} ({v}): cogging or "
+                f"a once-per-turn force; it explains {pct} of it on held-out samples.")
+    if eff == "compliance":
+        return (f"load_{A} gives way against enc_{A} in proportion to effort_{A} ({v}): the screw, nut, bearings "
+                f"and coupling act as a spring; it explains {pct} of it on held-out samples.")
     return f"explains {pct} of the residual on held-out samples."
 
 
@@ -833,13 +878,24 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
              cap=DEFAULT_CAP, span=None) -> tuple[dict, dict]:
     """Run the whole diagnosis. Returns (report per docs/diagnosis-report.md, extras for text and plots).
     ``span``: how the rows were kept of a longer recording (:func:`read_for_diagnosis`)."""
-    columns = compensated_columns(columns, getattr(machine, "compensation", None))     # the NC's joints
-    ctx = build_context(columns, machine, cap=cap, bounds=span["bounds"] if span else None,
-                        direction_before=span.get("direction_before") if span else None)
+    generic = is_axes_machine(machine)
+    kw = dict(cap=cap, bounds=span["bounds"] if span else None,
+              direction_before=span.get("direction_before") if span else None)
+    if generic:           # a machine of independent axes (pmctl.tools.twin.axes, .drive)
+        from pmctl.tools.twin import axes as gx
+        from pmctl.tools.twin import drive
+        ctx = gx.build_context(columns, machine, **kw)
+        cands = drive.catalogue(ctx)
+        limit = min(MAX_FINDINGS + 4 * len(machine.axes), 20)
+    else:
+        columns = compensated_columns(columns, getattr(machine, "compensation", None))     # the NC's joints
+        ctx = build_context(columns, machine, **kw)
+        cands, limit = None, MAX_FINDINGS
     if span:
         ctx.extra["span"] = span
     loc0 = locate(ctx)
-    accepted, yfinal, rejected = select_effects(ctx, progress=progress, loc=loc0)
+    accepted, yfinal, rejected = select_effects(ctx, progress=progress, loc=loc0, candidates=cands,
+                                                max_findings=limit, backfit=BACKFIT_GENERIC if generic else 2)
     y0 = ctx.obs.y
     findings, cum, y_before = [], np.zeros_like(y0), y0.copy()
     for ev in accepted:
@@ -869,6 +925,10 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
               "locate_after": loc_after, "rejected": rejected,
               "features": [calibration.features(ev) for ev in accepted]}
     return report, extras
+
+
+def _axes_of(machine):
+    return machine.axes if is_axes_machine(machine) else AXES
 
 
 MAX_ROWS = 1_000_000    # rows of a recording the diagnosis holds at once (the working set)
@@ -902,9 +962,9 @@ def read_for_diagnosis(folder, *, progress=False, max_rows=MAX_ROWS, n_segments=
     bar.done()
     kept = len(cols["t"])
     if len(plan) == 1:
-        plan, bounds, before = [(0, kept)], [0, kept], [[0.0] * len(AXES)]
+        plan, bounds, before = [(0, kept)], [0, kept], [[0.0] * len(_axes_of(machine))]
     else:      # (blank lines make the estimate high: the last runs may end short)
-        before = [[d.get(f"cmd_{a}", 0.0) for a in AXES]
+        before = [[d.get(f"cmd_{a}", 0.0) for a in _axes_of(machine)]
                   for (a0, _), d in zip(plan, info["cmd_direction_before"]) if a0 < info["rows_total"]]
         plan = [(a, min(b, info["rows_total"])) for a, b in plan if a < info["rows_total"]]
         bounds = np.concatenate([[0], np.cumsum([b - a for a, b in plan])]).tolist()

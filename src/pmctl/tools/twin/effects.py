@@ -1115,6 +1115,10 @@ class Resonance(Candidate):
         else:
             h = np.concatenate([np.interp(tt, tu, resonance_response(xu, dt, f, z))
                                 for tt, tu, xu in self._gridded(ctx, a, dt)])
+        if self.target_key == "channel" and self.target.startswith("acc_") and "axes" in ctx.extra:
+            # an accelerometer on the axis reads the mode's acceleration, y'' (its base part, the
+            # commanded acceleration, is the nominal prediction)
+            h = per_run(ctx, lambda tt, x: np.gradient(np.gradient(x, tt), tt) if len(x) > 2 else 0 * x, ctx.t, h)
         o = ctx.obs
         if idx is None:
             return (W * h[o.row]).T
