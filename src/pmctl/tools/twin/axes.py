@@ -99,8 +99,13 @@ def build_context(columns: dict, machine: AxesMachine, *, cap=DEFAULT_CAP, bound
         return sub, predict_columns(columns, machine, names, rows_all, bounds)
 
     settled = settled_rows(t, bounds, runs)
+    # the force model differentiates the filtered motor position: its first and last few filter
+    # lengths of each run are edge transients, not motion; effort is analysed inside them
+    from pmctl.tools.twin.drive import edge_rows
+    inner = settled & ~edge_rows(t, bounds)
+    settled_by = {k: (inner if channel_kind(k) == "effort" else settled) for k in obs_names}
     floors = {k: _floor(k, columns) for k in obs_names}
-    obs, rows, _, sampled = observations(columns, obs_names, predict_at, settled, cap, floors.get)
+    obs, rows, _, sampled = observations(columns, obs_names, predict_at, settled_by, cap, floors.get)
     m = len(rows)
     ctx = Context(machine, t, q_cmd, q_motor, has_enc, temps, rows, np.zeros((m, 0, len(axes))), {},
                   np.zeros((m, 0)), obs, uniform_step(t, bounds))

@@ -141,13 +141,14 @@ def observations(columns, obs_names, predict_at, settled, cap, floor):
     prototype's context and a generic machine's (pmctl.tools.twin.axes). A channel counts when it
     has at least 10 settled samples that are not all one value; at most ``cap`` of them, evenly
     spread, are analysed. ``predict_at(rows, names) -> (columns at rows, {name: prediction})`` is
-    the nominal twin at the given rows; each channel's noise level is the median of the robust level
+    the nominal twin at the given rows (``settled``: the rows that may be analysed, or a dict of
+    them per channel); each channel's noise level is the median of the robust level
     of its residual over a few stretches (:func:`_noise_rows`), at least ``floor(name)``.
     Returns (obs, analysis rows, rows predicted, {channel: its sampled rows})."""
     sampled, ana, noi = {}, {}, {}
     for k in obs_names:
         col = np.asarray(columns[k], float)
-        ok = np.flatnonzero(np.isfinite(col) & settled)
+        ok = np.flatnonzero(np.isfinite(col) & (settled[k] if isinstance(settled, dict) else settled))
         if len(ok) < 10 or np.ptp(col[ok]) == 0.0:
             continue        # not sampled: all empty, or one value throughout (a backend without gauges wrote 0)
         sampled[k] = ok
@@ -323,7 +324,14 @@ def _cv_pred(cand, ctx, y, folds, fold_params=None):
 
 # how far a training fold's estimate may stray from the full fit, per parameter, before the
 # parameter counts as not identifiable: (scale of the parameter, allowed deviation / scale)
-DERIVED = {"t_ref_C", "screw_fixed_end_mm", "stribeck_speed_mm_s", "stribeck_mm", "channel"}
+DERIVED = {"t_ref_C", "screw_fixed_end_mm", "stribeck_speed_mm_s", "stribeck_mm", "channel",
+           # a drive's friction: the Stribeck term (a grid speed and what it adds at low speed) and the
+           # viscous coefficient of each direction are details of the friction, whose Coulomb and mean
+           # viscous coefficients carry its identifiability; the bandwidth is the lag's reciprocal
+           "stribeck_N", "stribeck_Nm", "stribeck_A", "stribeck_speed_deg_s", "bandwidth_hz",
+           "viscous_pos_N_s_per_m", "viscous_neg_N_s_per_m", "viscous_pos_Nm_s_per_rad",
+           "viscous_neg_Nm_s_per_rad", "viscous_pos_A_s_per_m", "viscous_neg_A_s_per_m",
+           "viscous_pos_A_s_per_rad", "viscous_neg_A_s_per_rad"}
 
 
 def fold_spread(params, fold_params, ctx) -> float:
@@ -437,7 +445,9 @@ def evaluate(cand, ctx, y, folds):
     mw = (_predicts(ctx, full.pred) | aff)[o.ch]
     d_cv = float(y[mw] @ y[mw]) - float((y[mw] - cv[mw]) @ (y[mw] - cv[mw]))
     big = float(np.quantile(np.abs(full.pred[m]), 0.99)) if m.any() else 0.0
-    enc_only = all(o.channels[i].startswith("enc_") for i in np.flatnonzero(aff))
+    # (a machine of independent axes counts its load side with a second encoder, load_<A>)
+    encoders = ("enc_", "load_") if "axes" in ctx.extra else ("enc_",)
+    enc_only = all(o.channels[i].startswith(encoders) for i in np.flatnonzero(aff))
     return {"cand": cand, "fit": full, "cv": cv, "d_cv": d_cv, "d_in": d_in, "pen": pen, "big": big,
             "enc_only": enc_only,
             "rel": rel_gain / base if base > 0 else 0.0, "affected": aff,

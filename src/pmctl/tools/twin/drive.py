@@ -47,8 +47,7 @@ def drive_motion(ctx, a):
     key = ("drive_motion", a)
     if key not in ctx.extra:
         dt = float(np.median(np.diff(ctx.t))) if len(ctx.t) > 1 else 1.0
-        fc = min(DRIVE_FILTER_HZ, 0.1 / dt)
-        b, aa = signal.butter(4, min(fc * 2 * dt, 0.99))
+        b, aa = signal.butter(4, min(filter_hz(ctx.t) * 2 * dt, 0.99))
 
         def vel(tt, x):
             xf = signal.filtfilt(b, aa, x) if len(x) > 30 else x
@@ -61,13 +60,53 @@ def drive_motion(ctx, a):
     return ctx.extra[key]
 
 
+SETTLED_S = 0.1              # the command at rest this long: the motor stands still, whatever its counts say
+
+
+def filter_hz(t) -> float:
+    """The motion's low-pass cut-off for a log with these time stamps."""
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    return min(DRIVE_FILTER_HZ, 0.1 / dt)
+
+
+EDGE_PERIODS = 3.0      # of the low-pass: rows this many periods from a run's ends are edge transients
+
+
+def edge_rows(t, bounds) -> np.ndarray:
+    """Rows within EDGE_PERIODS periods of the motion filter from either end of a run."""
+    t = np.asarray(t, float)
+    edge = np.zeros(len(t), bool)
+    w = EDGE_PERIODS / filter_hz(t)
+    for s, e in zip(bounds[:-1], bounds[1:]):
+        if e > s:
+            tt = t[s:e]
+            edge[s:e] = (tt < tt[0] + w) | (tt > tt[-1] - w)
+    return edge
+
+
 def moving(ctx, a):
-    """sign of axis a's motor speed, 0 at standstill (|v| under DEAD_SHARE of its 99th percentile)."""
+    """sign of axis a's motor speed, 0 at standstill: |v| at most 3 x the rms of the filtered speed
+    where the command has rested for SETTLED_S (an encoder's counts, differentiated, are not
+    motion), and at least DEAD_SHARE of the speed's 99th percentile."""
     key = ("drive_sign", a)
     if key not in ctx.extra:
         v = drive_motion(ctx, a)[0]
-        ctx.extra[key] = moving_sign(v, DEAD_SHARE * float(np.quantile(np.abs(v), 0.99)) if len(v) else 0.0)
+        dead = DEAD_SHARE * float(np.quantile(np.abs(v), 0.99)) if len(v) else 0.0
+        rest = resting(ctx, a)
+        if rest.sum() >= 20:
+            dead = max(dead, 3.0 * float(np.sqrt(np.mean(v[rest] ** 2))))
+        ctx.extra[key] = moving_sign(v, dead)
     return ctx.extra[key]
+
+
+def resting(ctx, a):
+    """Rows where axis a's command has not moved for SETTLED_S."""
+    x = ctx.q_cmd[:, a]
+    still = np.r_[False, np.diff(x) == 0]
+    # time since the command last moved
+    idx = np.where(~still, np.arange(len(x)), 0)
+    np.maximum.accumulate(idx, out=idx)
+    return still & (ctx.t - ctx.t[idx] >= SETTLED_S)
 
 
 def effort_mask(ctx, axis):
@@ -153,6 +192,9 @@ class DriveFriction(DriveTerm):
     effect = "friction"
     nparams = 2
 
+    def reset(self):
+        self._full = None         # the form (by direction or not, Stribeck speed) the full fit chose
+
     def _base(self, ctx):
         v = drive_motion(ctx, self.a)[0]
         d = moving(ctx, self.a)
@@ -179,6 +221,9 @@ class DriveFriction(DriveTerm):
         options = [("sym", None), ("asym", None)]
         if vmax > 0:          # a Stribeck speed well inside the motion (else it is the Coulomb term again)
             options += [(k, vmax * f) for k in ("sym", "asym") for f in (0.01, 0.03, 0.1)]
+        full = getattr(self, "_full", None)
+        if full is not None and not train.all():
+            options = [full]          # a training fold fits the full fit's form, so their parameters compare
         # a constant rides along in the fit (and is left out of the prediction): a constant load
         # is |v|'s look-alike wherever the axis moves at a steady speed, so without it a viscous
         # coefficient by direction would take the offset in (the EMPS bench: 165/244 N s/m and
@@ -195,6 +240,8 @@ class DriveFriction(DriveTerm):
             if best is None or crit < best[0]:
                 best = (crit, kind, vs, c[:-1], X)
         _, kind, vs, c, X = best
+        if train.all():
+            self._full = (kind, vs)
         fu, rot = _names(ctx, self.target)
         si = _si(rot)
         vu = "rad" if rot else "m"

@@ -1301,6 +1301,10 @@ class Resonance(Candidate):
                 gauge = f"strain_{axis_index(ctx, self.target) + 1}"
                 return [f"the tool does not see it ({t_tool:.1f} standard errors on the tool channels): only "
                         f"{gauge} rings, a mode of that channel, not of axis {self.target}"]
+        if "axes" in ctx.extra:
+            qs = _quasi_static_check(self, ctx, fit, y, f, sup)
+            if qs:
+                return qs
         # ringing decays after each acceleration; a line of constant amplitude at the same
         # frequency (forced vibration) must not explain as much
         t = ctx.t[ctx.obs.row]
@@ -1314,6 +1318,34 @@ class Resonance(Candidate):
             out.append(f"a steady {f:.2f} Hz line of constant amplitude explains it as well: forced "
                        "vibration, not a mode excited by the motion")
         return out + _gain_over_time_check(ctx, fit.pred, y)
+
+
+QS_SHARE = 0.7             # a mode whose quasi-static part alone explains this share of it does not ring
+
+
+def _quasi_static_check(res, ctx, fit, y, f, sup):
+    """Far below its frequency a mode's response is quasi-static, −a/ω²: a column proportional to
+    the acceleration. On a drive's force that is an inertia term (or what the force model's filtered
+    acceleration left of it), on an accelerometer the command's fourth derivative. When that column
+    alone explains QS_SHARE of what the mode explains, nothing rings: it is no resonance."""
+    a, W, _ = res._weights(ctx)
+    key = ("qs_col", a)
+    if key not in ctx.extra:
+        acc = per_run(ctx, lambda tt, x: np.gradient(np.gradient(x, tt), tt) if len(x) > 2 else 0 * x,
+                      ctx.t, ctx.q_cmd[:, a])
+        ctx.extra[key] = acc
+    h = ctx.extra[key]
+    if res.target_key == "channel" and res.target.startswith("acc_"):
+        h = per_run(ctx, lambda tt, x: np.gradient(np.gradient(x, tt), tt) if len(x) > 2 else 0 * x, ctx.t, h)
+    X = (W * h[ctx.obs.row]).T[sup]
+    c = _lstsq(X, y[sup])
+    g_qs = float(y[sup] @ y[sup] - (y[sup] - X @ c) @ (y[sup] - X @ c))
+    r = y[sup] - fit.pred[sup]
+    g_mode = float(y[sup] @ y[sup] - r @ r)
+    if g_mode > 0 and g_qs >= QS_SHARE * g_mode:
+        return [f"its quasi-static part alone (a term in the acceleration, as a mode far above the motion "
+                f"gives) explains {100 * g_qs / g_mode:.0f} % of it: nothing rings at {f:.1f} Hz"]
+    return []
 
 
 MODE_BLOCKS = 8            # a mode's gain fitted on each eighth of the record ...
