@@ -322,9 +322,13 @@ class Mode:
 # ---------------------------------------------------------------- the drive's force
 
 def moving_sign(v, v_dead=0.0):
-    """sign(v), 0 where |v| <= v_dead (standing still: friction holds whatever it must)."""
+    """The direction friction opposes: sign(v) beyond ±v_dead, v/v_dead within it (0 standing still:
+    friction then holds whatever it must; a ramp, not a step, through the pre-sliding band, so that
+    a speed known to a fraction of v_dead gives the force to that fraction of the Coulomb level)."""
     v = np.asarray(v, float)
-    return np.where(v > v_dead, 1.0, np.where(v < -v_dead, -1.0, 0.0))
+    if not v_dead > 0:
+        return np.sign(v)
+    return np.clip(v / v_dead, -1.0, 1.0)
 
 
 def drive_force(v, a, *, mass, viscous, coulomb, offset=0.0, stribeck=0.0, stribeck_speed=1.0,

@@ -128,9 +128,8 @@ def synth_axes_case(rng, effects=(), *, params=None, oddities=(), duration_s=20.
     ext = None
     if "external_force" in oddities:
         t0 = float(rng.uniform(0.3, 0.6) * t[-1])
-        width = 0.4
-        push = float(rng.choice([-1, 1]) * rng.uniform(40, 80))
-        bump = push * np.exp(-0.5 * ((t - t0) / (width / 4)) ** 2)
+        push = float(rng.choice([-1, 1]) * rng.uniform(20, 40))
+        bump = push * np.exp(-0.5 * ((t - t0) / 0.05) ** 2)        # a push of about 0.2 s
         F = F + bump                          # the drive holds the axis against the push
         ext = {"kind": "external_force", "channels": [f"effort_{axis}"], "t_s": t0, "peak_N": push}
     load = motor.copy()
