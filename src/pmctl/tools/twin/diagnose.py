@@ -938,7 +938,9 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
                "runs": len(span["bounds"]) - 1 if span else 1}
     report = {"recording": name, "verdict": verdict, "samples": samples, "findings": findings, "unexplained": unexp,
               "confidence_calibration": calibration.DESCRIPTION}
+    report["units"] = {k: channel_unit(k, machine) for k in ctx.obs.channels}
     extras = {"ctx": ctx, "locate": loc0, "accepted": accepted, "y_final": yfinal,
+              "columns": columns, "machine": machine,
               "locate_after": loc_after, "rejected": rejected,
               "features": [calibration.features(ev) for ev in accepted]}
     return report, extras
@@ -989,6 +991,14 @@ def read_for_diagnosis(folder, *, progress=False, max_rows=MAX_ROWS, n_segments=
                                  "direction_before": before}
 
 
+def channel_unit(name, machine) -> str:
+    """The unit of a measured channel as the report gives it: the prototype's mm (enc, tip), 1
+    (tool axis components), µε (strain); a generic machine's from its recording's notes."""
+    if is_axes_machine(machine):
+        return machine.units.get(name, "")
+    return {"tool": "1", "strain": "µε"}.get(name.split("_")[0], "mm")
+
+
 def format_text(report, extras) -> str:
     ctx, loc = extras["ctx"], extras["locate"]
     smp = report.get("samples") or {"total": len(ctx.t), "analysed": len(ctx.t), "runs": 1}
@@ -997,7 +1007,8 @@ def format_text(report, extras) -> str:
     L = [f"recording: {report['recording']}  ({smp['total']} samples, {ctx.duration:.1f} s{held})", "",
          "WHERE the recording differs from the nominal twin", ""]
     after = extras.get("locate_after", {}).get("channels", {}) if report["findings"] else {}
-    L.append(f"  {'channel':10s} {'samples':>8s} {'rms':>11s} {'noise':>11s} {'excess/noise':>12s}"
+    units = report.get("units") or {}
+    L.append(f"  {'channel':10s} {'unit':>7s} {'samples':>8s} {'rms':>11s} {'noise':>11s} {'excess/noise':>12s}"
              + (f" {'rms after':>11s}" if after else "") + "  windows (s)")
     hidden = []
     for k, v in loc["channels"].items():
@@ -1010,15 +1021,19 @@ def format_text(report, extras) -> str:
                 mark = "*"
                 hidden.append(k)
             col = f" {ra:10.4g}{mark or ' '}" if ra is not None else f" {'-':>11s}"
-        L.append(f"  {k:10s} {v['n']:8d} {v['rms']:11.4g} {v['noise']:11.3g} {v['excess']:12.1f}{col}  {win}")
-    if after:
-        L.append("  (noise: estimated from each channel's own residual; rms after: with the findings below)")
+        L.append(f"  {k:10s} {units.get(k, ''):>7s} {v['n']:8d} {v['rms']:11.4g} {v['noise']:11.3g} {v['excess']:12.1f}"
+                 f"{col}  {win}")
+    L.append("  (rms, noise and rms after in the channel's unit; noise: estimated from each channel's own residual"
+             + ("; rms after: with all the findings below" if after else "") + ")")
     if hidden:
         L.append(f"  * {', '.join(hidden)}: the findings bring the rms far below the estimated noise, so what "
                  "looked like noise there is explained structure (e.g. a mode ringing faster than the "
                  "noise estimate can tell from noise).")
     L.append("")
-    L.append("  by axis (load-side equivalent seen by the tool; direction split; spectrum against screw position)")
+    if is_axes_machine(ctx.machine):
+        L.append("  by axis (motor side enc-cmd; load side load-enc; direction split; spectrum against position)")
+    else:
+        L.append("  by axis (load-side equivalent seen by the tool; direction split; spectrum against screw position)")
     for ax, v in loc["axes"].items():
         parts = []
         if "enc_rms_mm" in v:
@@ -1033,6 +1048,15 @@ def format_text(report, extras) -> str:
                          f"(period {v['screw_peak_period_mm']:.2f} mm, {v['screw_peak_ratio']:.0f}x median)")
         if parts:
             L.append(f"  {ax:3s} " + "; ".join(parts))
+    servo = loc.get("servo") or {}
+    if servo:
+        L.append("")
+        L.append("  servo tracking (following error enc - cmd, and its fit -(lag·v + k_a·a) on the command)")
+        for ax, v in servo.items():
+            pu = ctx.machine.pos_unit(ax)
+            L.append(f"  {ax:3s} rms {v['fe_rms']:.4g} {pu}, largest {v['fe_max']:.4g} {pu}; lag {1000 * v['lag_s']:.3g} ms "
+                     f"({v['lag_s'] * v['v_max']:.3g} {pu} at its top speed {v['v_max']:.4g} {pu}/s), "
+                     f"k_a {v['accel_lag_s2']:.3g} s²")
     if loc["regions"]:
         L.append("")
         L.append("  by pose region (rms of residual / noise, terciles)")
@@ -1047,6 +1071,10 @@ def format_text(report, extras) -> str:
     if loc["windows_s"]:
         L.append("  residual above noise in: " + ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in loc["windows_s"]))
     L += ["", "WHY: " + report["verdict"], ""]
+    if report["findings"]:
+        L += ["  (\"explains N %\": of the residual its channels still held after the findings listed above it,",
+              "   on held-out samples, not cumulative; \"held-out rms a -> b\": the nominal twin's residual -> the",
+              "   residual with this finding and all those above it, cumulative, in the channel's unit)", ""]
     for i, f in enumerate(report["findings"], 1):
         tk = "chain" if "chain" in f else ("channel" if "channel" in f else "axis")
         unc = f.get("uncertainty", {})
@@ -1054,7 +1082,8 @@ def format_text(report, extras) -> str:
                  ", ".join(f"{k} = {v}" + (f" ± {unc[k]:.2g}" if k in unc else "") for k, v in f["parameters"].items()))
         L.append(f"     {f['evidence']}")
         L.append("     held-out rms: " + ", ".join(
-            f"{k} {f['rms_before'][k]:.3g} -> {f['rms_after'][k]:.3g}" for k in f["rms_before"])
+            f"{k} {f['rms_before'][k]:.3g} -> {f['rms_after'][k]:.3g}{(' ' + units[k]) if units.get(k) else ''}"
+            for k in f["rms_before"])
             + (f"; confidence {f['confidence']:.2f}" if "confidence" in f else ""))
     for u in report.get("unexplained", []):
         where = u["region"] or ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in u["time_windows_s"][:3]) or "-"
