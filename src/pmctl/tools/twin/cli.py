@@ -63,6 +63,35 @@ def add_synth_parser(sub):
     return p
 
 
+def add_import_parser(sub):
+    p = sub.add_parser("import", help="turn a bench log (CSV/TSV, halsampler, halscope, .mat, Klipper) into a "
+                                      "recording of independent axes",
+                       description="Write OUT_DIR as a recording of independent axes (\"machine\": \"axes\", "
+                                   "docs/recording.md) from SRC: a CSV or TSV with a header row, LinuxCNC halsampler "
+                                   "output or a halscope log, a MATLAB .mat file, or Klipper's raw accelerometer CSV. "
+                                   "Then: pmctl twin diagnose OUT_DIR.")
+    p.add_argument("src", metavar="SRC", help="the log to import")
+    p.add_argument("out_dir", metavar="OUT_DIR", help="the recording folder to write (refused if it exists, "
+                                                     "unless --force)")
+    p.add_argument("--format", choices=("csv", "halsampler", "halscope", "mat", "klipper"), default=None,
+                   help="the source's format (default: told by the file)")
+    p.add_argument("--map", action="append", metavar="CH=SRC[,CH=SRC]",
+                   help="which source column (name, or 1-based number) or .mat variable becomes which channel: "
+                        "cmd_<A> (required per axis), enc_<A>, load_<A>, effort_<A>, acc_<A>, temp_<name>; "
+                        "SRC*K or SRC/K scales it (K a number or a scalar variable of the .mat file)")
+    p.add_argument("--unit", action="append", metavar="CH=UNIT[,CH=UNIT]",
+                   help="each channel's unit as logged (mm, m, um, deg, rad, N, N m, A, m/s^2, g ...; "
+                        "default mm, deg for an axis whose command is an angle, N, mm/s^2)")
+    p.add_argument("--time", metavar="COLUMN", help="the time column (default: --rate)")
+    p.add_argument("--time-unit", metavar="UNIT", help="unit of --time (s, ms, us; default s)")
+    p.add_argument("--rate", type=float, metavar="HZ", help="sample rate when the log has no time column "
+                                                            "(halsampler: the sampled thread's rate)")
+    p.add_argument("--force", action="store_true", help="replace OUT_DIR if it holds a recording")
+    p.set_defaults(func=lazy("pmctl.tools.twin.importers:_cmd"))
+    return p
+
+
 def add_parser(sub):
     add_diagnose_parser(sub)
     add_synth_parser(sub)
+    add_import_parser(sub)
