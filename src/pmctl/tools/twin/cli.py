@@ -58,6 +58,11 @@ def add_synth_parser(sub):
                         "catalogue); loop: the run machined by the real control loop (no real time) on the sim "
                         "backend carrying the effects (backlash, pitch/periodic error, friction, servo lag; "
                         "plus the sensor, geometry and compliance effects)")
+    p.add_argument("--machine", choices=("prototype", "axes"), default="prototype",
+                   help="prototype (default): runs of the machine; axes: bench runs of one ball-screw axis, a "
+                        "recording of independent axes (cmd, enc, effort, load, acc) with the physics of real drives: "
+                        "inertia, friction, force_offset, servo_tracking, backlash, compliance, resonance, cogging "
+                        "(--effects from those; random: the force model and --max-effects others)")
     p.add_argument("--force", action="store_true", help="replace cases that already exist in OUT_DIR")
     p.set_defaults(func=lazy("pmctl.tools.twin.synth:_cmd"))
     return p
