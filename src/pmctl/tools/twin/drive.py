@@ -34,7 +34,7 @@ from scipy import signal
 
 from pmctl.core.plant_effects import moving_sign
 from pmctl.tools.twin.effects import (AxisSignal, Candidate, Fit, PeriodicError, _lstsq, axis_names,
-                                      axis_velocity, per_run)
+                                      axis_velocity, per_run, position_lines)
 
 DRIVE_FILTER_HZ = 100.0      # the motion's low-pass: at most this, and at most a tenth of the log's rate
 DEAD_SHARE = 1e-3            # standing still: |v| below this share of the 99th percentile of |v|
@@ -368,27 +368,11 @@ class Cogging(PeriodicError):
         return p >= 0.2
 
     def _start_periods(self, ctx, y):
-        from pmctl.tools.twin.locate import spectrum_position
         o = ctx.obs
         m = effort_mask(ctx, self.target)
         rows = o.row[m]
-        x = ctx.q_cmd[rows, self.a]
-        v = axis_velocity(ctx, self.a)[rows]
-        e = y[m] / o.w[m]
-        span = float(np.ptp(x)) if len(x) else 0.0
-        sp = spectrum_position(x, e, np.abs(v) > 0.05 * max(np.abs(v).max(), 1e-12))
-        if sp is None:
-            return []
-        f, amp = sp
-        ok = (f > 2.5 / max(span, 1e-9)) & (f < 1 / 0.2)
-        if not ok.any():
-            return []
-        fo, ao = f[ok], amp[ok]
-        pk, _ = signal.find_peaks(ao)
-        if len(pk) == 0:
-            return []
-        pk = pk[np.argsort(ao[pk])[::-1]]
-        return [1.0 / float(fo[k]) for k in pk][:3]
+        return position_lines(ctx.q_cmd[rows, self.a], y[m] / o.w[m], axis_velocity(ctx, self.a)[rows], 0.05, 2.5,
+                              strongest_if_none=False)
 
     def fit(self, ctx, y, train):
         f = super().fit(ctx, y, train)

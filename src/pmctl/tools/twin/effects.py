@@ -535,6 +535,30 @@ def position_weights(ch, x, period) -> np.ndarray:
     return np.minimum(1.0, PER_BIN / cnt[inv])
 
 
+def position_lines(x, e, v, moving_share, min_cycles, strongest_if_none=True) -> list[float]:
+    """Periods (mm) of the strongest lines of the error ``e`` against the position ``x`` (samples
+    moving faster than ``moving_share`` of the top speed ``v``), at least ``min_cycles`` over the
+    travel and at least 0.2 mm, strongest first (at most 3); without a peak, the spectrum's
+    maximum when ``strongest_if_none``."""
+    from pmctl.tools.twin.locate import spectrum_position
+    span = float(np.ptp(x)) if len(x) else 0.0
+    sp = spectrum_position(x, e, np.abs(v) > moving_share * max(np.abs(v).max(initial=0.0), 1e-12))
+    if sp is None:
+        return []
+    f, amp = sp
+    ok = (f > min_cycles / max(span, 1e-9)) & (f < 1 / 0.2)
+    if not ok.any():
+        return []
+    fo, ao = f[ok], amp[ok]
+    pk, _ = signal.find_peaks(ao)
+    if len(pk) == 0:
+        if not strongest_if_none:
+            return []
+        pk = np.array([int(np.argmax(ao))])
+    pk = pk[np.argsort(ao[pk])[::-1]]
+    return [1.0 / float(fo[k]) for k in pk][:3]
+
+
 class PitchError(AxisSignal):
     """Screw lead error periodic in the screw position x: δq = A·sin(2πx/p + φ).
 
@@ -579,21 +603,7 @@ class PitchError(AxisSignal):
             return [lead / k for k in (1, 2, 3, 4) if span >= lead / k and k / lead < 5.0] if lead else []
         if len(e) < 64:
             return []
-        x = ctx.q_cmd[rows, self.a]
-        v = axis_velocity(ctx, self.a)[rows]
-        sp = spectrum_position(x, e, np.abs(v) > 1e-3 * max(np.abs(v).max(), 1e-12))
-        if sp is None:
-            return []
-        f, amp = sp
-        ok = (f > 1.5 / max(span, 1e-9)) & (f < 1 / 0.2)
-        if not ok.any():
-            return []
-        fo, ao = f[ok], amp[ok]
-        pk, _ = signal.find_peaks(ao)
-        if len(pk) == 0:
-            pk = np.array([int(np.argmax(ao))])
-        pk = pk[np.argsort(ao[pk])[::-1]]
-        return [1.0 / float(fo[k]) for k in pk][:3]
+        return position_lines(ctx.q_cmd[rows, self.a], e, axis_velocity(ctx, self.a)[rows], 1e-3, 1.5)
 
     @staticmethod
     def _parabola(grid, cost):
