@@ -196,3 +196,13 @@ def test_a_rotary_axis_reports_inertia_and_torques(tmp_path):
     assert inertia["inertia_kg_m2"] == pytest.approx(60.0, rel=0.03)
     assert fric["coulomb_Nm"] == pytest.approx(25.0, rel=0.03)
     assert fric["viscous_Nm_s_per_rad"] == pytest.approx(180.0, rel=0.03)
+
+
+def test_diagnose_json_alone_prints_the_report_on_stdout(tmp_path, capsys):
+    from pmctl.interfaces.cli import main
+    write_axes_case(tmp_path, "c", synth_axes_case(np.random.default_rng(18), [], clean=True, duration_s=6.0))
+    assert main(["twin", "diagnose", str(tmp_path / "c" / "recording"), "--json"]) == 0
+    cap = capsys.readouterr()
+    rep = json.loads(cap.out)                     # stdout is the JSON report only
+    assert rep["verdict"] == "consistent with the nominal twin" and rep["units"]["enc_X"] == "mm"
+    assert "WHERE the recording differs" in cap.err

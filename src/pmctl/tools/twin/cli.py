@@ -14,7 +14,9 @@ def add_diagnose_parser(sub):
                                    "The report and its JSON form are described in docs/diagnosis-report.md.")
     p.add_argument("folder", help="recording folder (holding recording.json and data.csv); a folder with "
                                   "one recording in a sub-folder is accepted too")
-    p.add_argument("--json", metavar="PATH", help="also write the report as JSON here (docs/diagnosis-report.md)")
+    p.add_argument("--json", metavar="PATH", nargs="?", const="-",
+                   help="also write the report as JSON here (docs/diagnosis-report.md); --json alone (or "
+                        "--json -) prints the JSON on stdout and the text report on stderr")
     p.add_argument("--plots", metavar="DIR", help="write PNG plots here")
     p.add_argument("--config", metavar="PATH", help="machine config (default: the one the recording names)")
     p.add_argument("--cap", type=int, default=DEFAULT_CAP,

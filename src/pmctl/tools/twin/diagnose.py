@@ -1188,11 +1188,15 @@ def _run(args) -> int:
     report, extras = diagnose(columns, machine, name=_display_name(folder), progress=prog, cap=args.cap,
                               span=span)
     notes = plant_notes(report, meta)
-    print(format_text(report, extras))
+    to_stdout = args.json == "-"          # --json alone: the JSON report is what stdout carries
+    out = sys.stderr if to_stdout else sys.stdout
+    print(format_text(report, extras), file=out)
     if notes:
         print("\n  Simulated recording: " + "; ".join(notes) + ". The findings are the simulation's flexible "
-              "chain modes (config/service.toml [hal.sim]), which the nominal twin does not model.")
-    if args.json:
+              "chain modes (config/service.toml [hal.sim]), which the nominal twin does not model.", file=out)
+    if to_stdout:
+        print(json.dumps(report, indent=2, ensure_ascii=False))
+    elif args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(report, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
     if getattr(args, "write_compensation", None):
@@ -1200,7 +1204,7 @@ def _run(args) -> int:
     if args.plots:
         from pmctl.tools.twin.plots import write_plots
         for pth in write_plots(report, extras, args.plots):
-            print(f"plot: {pth}")
+            print(f"plot: {pth}", file=out)
     return 0
 
 
@@ -1214,4 +1218,5 @@ def _write_compensation(args, report, extras, machine, folder):
         return
     write_compensation(args.write_compensation, comp, recording=_display_name(folder),
                        machine_source=getattr(machine, "source", "?"), notes=notes)
-    print(f"\n  Compensation table written to {args.write_compensation}:" + "".join(f"\n    {n}" for n in notes))
+    print(f"\n  Compensation table written to {args.write_compensation}:" + "".join(f"\n    {n}" for n in notes),
+          file=sys.stderr if args.json == "-" else sys.stdout)
