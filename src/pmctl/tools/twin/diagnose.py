@@ -1211,6 +1211,10 @@ def _run(args) -> int:
 def _write_compensation(args, report, extras, machine, folder):
     """--write-compensation FILE (pmctl.tools.twin.fix)."""
     from pmctl.tools.twin.fix import compensation_from_findings, write_compensation
+    if is_axes_machine(machine):
+        print(f"\n  A recording of independent axes has no machine config to compensate: "
+              f"{args.write_compensation} not written.", file=sys.stderr)
+        return
     comp, notes = compensation_from_findings(machine, extras["accepted"], getattr(machine, "compensation", None))
     if comp is None:
         print(f"\n  No backlash, pitch or periodic error to write: {args.write_compensation} not written."

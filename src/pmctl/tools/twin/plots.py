@@ -106,7 +106,11 @@ def write_plots(report, extras, out_dir) -> list[Path]:
     a2.set_xlim(0, 1.0)
     a2.set_xlabel("spatial frequency along the screw (1/mm)  — a 5 mm pitch is a line at 0.2")
     a2.set_ylabel("amplitude of the load-side error (µm)")
-    a2.legend(fontsize=8)
+    if a2.get_legend_handles_labels()[0]:
+        a2.legend(fontsize=8)
+    else:
+        a2.text(0.5, 0.5, "no load-side channel: no error against position", ha="center", va="center",
+                transform=a2.transAxes, fontsize=9, color="0.4")
     fig.suptitle("spectrum of the residual against time and against screw position")
     fig.tight_layout()
     p = out / "spectrum.png"
