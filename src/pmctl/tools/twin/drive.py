@@ -40,11 +40,11 @@ DRIVE_FILTER_HZ = 100.0      # the motion's low-pass: at most this, and at most 
 DEAD_SHARE = 1e-3            # standing still: |v| below this share of the 99th percentile of |v|
 
 
-def drive_motion(ctx, a):
+def drive_motion(ctx, a, source="motor"):
     """(v, acc) of axis a's motor side at every row (units/s, units/s²): enc_<A> (else cmd_<A>)
     through a zero-phase 4th-order Butterworth low-pass at min(DRIVE_FILTER_HZ, fs/10), then
-    central differences; per run of a recording kept as runs."""
-    key = ("drive_motion", a)
+    central differences; per run of a recording kept as runs. ``source="cmd"``: of the command."""
+    key = ("drive_motion", a, source)
     if key not in ctx.extra:
         dt = float(np.median(np.diff(ctx.t))) if len(ctx.t) > 1 else 1.0
         b, aa = signal.butter(4, min(filter_hz(ctx.t) * 2 * dt, 0.99))
@@ -55,7 +55,7 @@ def drive_motion(ctx, a):
 
         def acc(tt, v):
             return np.gradient(v, tt) if len(v) > 1 else np.zeros_like(v)
-        v = per_run(ctx, vel, ctx.t, ctx.q_motor[:, a])
+        v = per_run(ctx, vel, ctx.t, (ctx.q_cmd if source == "cmd" else ctx.q_motor)[:, a])
         ctx.extra[key] = (v, per_run(ctx, acc, ctx.t, v))
     return ctx.extra[key]
 
@@ -304,12 +304,8 @@ class ServoTracking(AxisSignal):
     def design(self, ctx):
         g = self.gain(ctx)
         r = ctx.obs.row
-        v = axis_velocity(ctx, self.a)
-        key = ("cmd_acc", self.a)
-        if key not in ctx.extra:
-            ctx.extra[key] = per_run(ctx, lambda tt, x: np.gradient(x, tt) if len(x) > 1 else 0 * x, ctx.t, v)
-        acc = ctx.extra[key]
-        return np.stack([g * -v[r], g * -acc[r]], 1)
+        v, acc = drive_motion(ctx, self.a, "cmd")      # (filtered: a logged reference's rounding, differentiated
+        return np.stack([g * -v[r], g * -acc[r]], 1)   # twice, is noise the error model would carry)
 
     def params_of(self, c, ctx):
         tau = float(c[0])

@@ -160,6 +160,12 @@ def spectrum_panel(ax, report, extras, c):
     t1, r1 = channel_series(ctx, c, yf)
     if len(r1) >= 64:
         nyq = 0.5 / float(np.median(np.diff(t1)))
+        if full is not None and len(r1) < len(r0):       # thinned: before and after at the same samples too
+            tb, rb = channel_series(ctx, c)
+            spb = welch_runs(tb, rb, cuts)
+            if spb is not None:
+                ax.semilogy(spb[0][1:], spb[1][1:], color="0.75", lw=0.8,
+                            label=f"nominal twin, {len(rb)} analysis samples (to {nyq:.0f} Hz)")
         sp1 = welch_runs(t1, r1, cuts)
         if sp1 is not None:
             ax.semilogy(sp1[0][1:], sp1[1][1:], color="C3",
