@@ -10,7 +10,10 @@ from pmctl.tools.twin.catalogue import DEFAULT_CAP, EFFECTS, RUNS
 def add_diagnose_parser(sub):
     p = sub.add_parser("diagnose", help="where and why a recording differs from the nominal twin",
                        description="Locate the mismatch between a recording and the nominal twin, name the "
-                                   "physics it left out, fit it and show the held-out fit improve. "
+                                   "physics it left out, fit it and show the held-out fit improve. A recording of "
+                                   "independent axes (\"machine\": \"axes\", e.g. from pmctl twin import) gets the "
+                                   "drive's force model (mass, friction, constant load), servo tracking, backlash and "
+                                   "compliance of a load encoder, cogging and resonances. "
                                    "The report and its JSON form are described in docs/diagnosis-report.md.")
     p.add_argument("folder", help="recording folder (holding recording.json and data.csv); a folder with "
                                   "one recording in a sub-folder is accepted too")

@@ -22,6 +22,11 @@ Pipeline (pure functions; the CLI at the bottom is a thin layer):
    are refitted inside every training fold, so the held-out score includes their search.
 4. :func:`diagnose` returns the report of docs/diagnosis-report.md (a dict) plus the locate summary;
    :func:`format_text` renders it, ``pmctl.tools.twin.plots`` draws it.
+
+A recording of independent axes (``"machine": "axes"``, pmctl.core.recording_axes) takes the same
+pipeline with its own context (pmctl.tools.twin.axes: enc = cmd, load = enc, effort = 0, acc =
+cmd'') and catalogue (pmctl.tools.twin.drive: the drive's force model, servo tracking, load
+compliance, cogging, with the catalogue's effects that apply to single axes).
 """
 
 from __future__ import annotations
