@@ -1188,6 +1188,10 @@ def _run(args) -> int:
         why = meta.get("incomplete_reason") or "the run that wrote it did not finish"
         print(f"pmctl: warning: {folder} is an incomplete recording ({why}); diagnosing the "
               f"{n} samples it holds", file=sys.stderr)
+    if args.config and is_axes_machine(rec_machine):
+        from pmctl.core.errors import InputError
+        raise InputError(args.config, None, f"{folder} is a recording of independent axes (\"machine\": \"axes\"): "
+                                            "it is compared with no machine config; leave --config out")
     machine = load_machine(args.config) if args.config else rec_machine
     prog = forced or (show and n >= 100_000)
     report, extras = diagnose(columns, machine, name=_display_name(folder), progress=prog, cap=args.cap,
