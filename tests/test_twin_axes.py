@@ -206,3 +206,17 @@ def test_diagnose_json_alone_prints_the_report_on_stdout(tmp_path, capsys):
     rep = json.loads(cap.out)                     # stdout is the JSON report only
     assert rep["verdict"] == "consistent with the nominal twin" and rep["units"]["enc_X"] == "mm"
     assert "WHERE the recording differs" in cap.err
+
+
+def test_synth_machine_axes_writes_cases_with_their_answers_outside(tmp_path, capsys):
+    from pmctl.interfaces.cli import main
+    assert main(["twin", "synth", str(tmp_path / "o"), "--machine", "axes", "--effects", "inertia,backlash",
+                 "--duration", "3", "--count", "2", "--seed", "5"]) == 0
+    for k in ("case-000", "case-001"):
+        ans = json.loads((tmp_path / "o" / k / "answer.json").read_text())
+        assert [e["effect"] for e in ans["effects"]] == ["inertia", "backlash"]
+        rec = read_recording(tmp_path / "o" / k / "recording")
+        assert rec.machine.axes == ("X",) and "load_X" in rec and "answer.json" not in \
+            [p.name for p in (tmp_path / "o" / k / "recording").iterdir()]
+    with pytest.raises(InputError, match="not an effect of a bench axis"):
+        main(["twin", "synth", str(tmp_path / "p"), "--machine", "axes", "--effects", "geometry"])
