@@ -27,7 +27,9 @@ Fields added for the full RS-274 reader (each defaults to the old meaning):
 - ``tool_offset``: the tool length offset in force (G43 H / G43.1, mm; 0 with G49): the tool is that much
   longer than the machine config's reference tool (``geometry.tool_length``), so the platform sits
   ``tool_offset`` further up the tool axis for the same tip; every IK of the move's poses uses
-  ``tool_length + tool_offset``;
+  ``tool_length + tool_offset``, which is IK of ``controlled_point(tip, axis, tool_offset)`` with the
+  reference tool: the planner converts every pose it plans, once, and its samples are of that point;
+  a change of offset is taken up by the move after it;
 - ``duration``: G93 inverse-time feed: the move takes this many seconds at 100 % feed (0: ``feed`` applies);
 - ``tolerance``: G64 P, the path tolerance (mm) the planner may use to blend or merge (0: exact path);
 - ``events``: for ``EVENT``, a tuple of (name, value) in program order: ``("spindle", rpm)`` (signed, 0
@@ -119,6 +121,19 @@ def read_job_text(path) -> str:
         raise InputError(path, line, f"byte 0x{raw[e.start]:02x} is not UTF-8 text", column=col) from None
 
 
+def controlled_point(tip, axis, tool_offset):
+    """The point the machine's model must put its tip on for the tool tip ``tip`` with the tool axis
+    ``axis`` (unit) and a tool ``tool_offset`` mm longer than the reference tool: ``tip + tool_offset *
+    axis`` (any leading dimensions; ``tool_offset`` broadcasts). The machine model (pmctl.core.kinematics,
+    the rt side, the simulation, recordings) knows only the reference tool (``geometry.tool_length``):
+    IK of this point with it is IK of ``tip`` with a tool of ``tool_length + tool_offset``. The planner
+    applies it, once, to every pose it plans (its samples are of this point); this is the one place
+    where the conversion is written."""
+    tip = np.asarray(tip, float)
+    off = np.asarray(tool_offset, float)
+    return tip + off[..., None] * np.asarray(axis, float)
+
+
 def home_pose(machine):
     """Tool tip (W) and axis at home: P = (0, 0, Z_home), level platform, table at X = Y = 0."""
     g = machine.geometry
@@ -126,8 +141,9 @@ def home_pose(machine):
     return tip, axis / np.linalg.norm(axis)
 
 
-def check_reach(tip, axis, lines, machine, path) -> K.IKResult:
-    """IK of every pose; InputError at the first line whose pose is out of the tilt range or unreachable."""
+def check_reach(tip, axis, lines, machine, path, tool_offset=None) -> K.IKResult:
+    """IK of every pose (with the tool length offsets ``tool_offset`` of the poses, mm; None: the
+    reference tool); InputError at the first line whose pose is out of the tilt range or unreachable."""
     lo, hi = machine.limits.theta2_deg
     tilt = np.degrees(np.arccos(np.clip(axis[:, 2], -1.0, 1.0)))
     bad = tilt > min(abs(lo), abs(hi)) + 1e-9
@@ -135,6 +151,8 @@ def check_reach(tip, axis, lines, machine, path) -> K.IKResult:
         k = int(np.argmax(bad))
         raise InputError(path, int(lines[k]), f"tool axis tilted {tilt[k]:.4f} deg, beyond the machine's "
                                               f"theta2 limit {min(abs(lo), abs(hi)):g} deg")
+    if tool_offset is not None:
+        tip = controlled_point(tip, axis / np.linalg.norm(axis, axis=-1, keepdims=True), tool_offset)
     r = K.ik_batch(tip, axis, machine)
     if not np.all(r.ok):
         k = int(np.argmax(~r.ok))

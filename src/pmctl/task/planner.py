@@ -86,7 +86,8 @@ from scipy.interpolate import PchipInterpolator
 
 from pmctl.core import kinematics as K
 from pmctl.core.errors import InputError, PmctlError
-from pmctl.task.job import ARC, DWELL, EVENT, MAX_MOVES, RAPID, Job, home_pose, load_job  # noqa: F401  (re-exported)
+from pmctl.task.job import (ARC, DWELL, EVENT, MAX_MOVES, RAPID, Job, controlled_point, home_pose,  # noqa: F401
+                            load_job)  # (re-exported)
 from pmctl.task.trajectory import Trajectory
 
 __all__ = ["PlannerLimits", "plan", "plan_stream", "validate", "home_pose", "load_job", "PlanningError"]
@@ -132,19 +133,50 @@ class PlannerLimits:
 
 # ---------------------------------------------------------------- geometry
 
+def _arc_frame(p_start, p_end, m):
+    """The frame of an ARC move from ``p_start``: (centre point, unit normal, e1, e2, r0, r1, h0, h1);
+    the tip is c + h n + r (cos(sweep u) e1 + sin(sweep u) e2) with r and h linear in u (e1 towards the
+    start, e2 = n x e1: a positive sweep turns counter-clockwise seen from the tip of n). A 2-vector
+    centre is an XY arc's (x, y); a missing normal is +z (G17)."""
+    c = np.asarray(m.center, float)
+    if c.shape == (2,):
+        c = np.array([c[0], c[1], 0.0])
+    n = np.array([0.0, 0.0, 1.0]) if m.normal is None else np.asarray(m.normal, float)
+    n = n / np.linalg.norm(n)
+    w0, w1 = p_start - c, p_end - c
+    h0, h1 = float(np.dot(w0, n)), float(np.dot(w1, n))
+    d0, d1 = w0 - h0 * n, w1 - h1 * n
+    r0, r1 = float(np.linalg.norm(d0)), float(np.linalg.norm(d1))
+    if r0 > 1e-12:
+        e1 = d0 / r0
+    elif r1 > 1e-12:              # starting on the axis: e1 is where the end lies, turned back by the sweep
+        f1 = d1 / r1
+        e1 = np.cos(m.sweep) * f1 - np.sin(m.sweep) * np.cross(n, f1)
+    else:
+        e1 = K._perp_basis(n)[0]
+    return c, n, e1, np.cross(n, e1), r0, r1, h0, h1
+
+
+_SEG_FIELDS = ("kind", "p0", "p1", "a0", "a1", "phi", "c", "nrm", "e1", "e2", "r0", "r1", "h0", "h1", "sweep",
+               "length", "vmax", "rot", "feed_length", "line", "rpm", "off0", "off1")
+
+
 class _Path:
-    """Segments of a job as arrays; pose(seg, u) evaluates any number of points at once."""
+    """Segments of a job as arrays; pose(seg, u) evaluates any number of points at once.
+
+    The tip is the programmed (cutting) tip; ``controlled`` adds the tool length offset
+    (pmctl.task.job.controlled_point): the point the machine's model, built for the reference tool,
+    must put its tip on. Every IK of the planner and every sample it hands out is of that point."""
 
     def __init__(self, job: Job, start, limits: PlannerLimits, feed_override: float):
         tip, axis = (np.asarray(start[0], float), np.asarray(start[1], float))
         axis = axis / np.linalg.norm(axis)
         # Filled move by move into arrays of the job's size (no per-move objects: a long job's index
-        # stays at ~0.3 kB per move), trimmed to the segments at the end.
+        # stays at ~0.4 kB per move), trimmed to the segments at the end.
         nm = len(job.moves)
         kind = np.zeros(nm, int)
-        p0, p1, a0, a1 = (np.zeros((nm, 3)) for _ in range(4))
-        phi, r0, r1, th0, sweep, length, vmax_, rpm_ = (np.zeros(nm) for _ in range(8))
-        cc = np.zeros((nm, 2))
+        p0, p1, a0, a1, cc, nrm, e1, e2 = (np.zeros((nm, 3)) for _ in range(8))
+        phi, r0, r1, h0, h1, sweep, length, vmax_, rpm_, off0, off1 = (np.zeros(nm) for _ in range(11))
         rot_ = np.zeros(nm, bool)
         tip_len = np.zeros(nm)             # the length the feed applies to (the tip's; s for a pure rotation)
         line_ = np.zeros(nm, int)
@@ -153,6 +185,7 @@ class _Path:
         dwell, dwell_line = {}, {}
         ev_b, ev_before, ev_line, ev_data = [], [], [], []     # EVENT moves: boundary, dwell before, line
         rpm_prev = None
+        off = 0.0                     # the tool length offset at the start pose: none (the reference tool)
         self.start_line = job.moves[0].line if job.moves else 0
         for m in job.moves:
             if m.kind == DWELL:
@@ -171,38 +204,46 @@ class _Path:
             t1 = np.asarray(m.tip, float)
             a_1 = np.asarray(m.axis, float)
             a_1 = a_1 / np.linalg.norm(a_1)
+            o1 = float(m.tool_offset)
             ph = float(np.arccos(np.clip(np.dot(axis, a_1), -1.0, 1.0)))
             if m.kind == ARC:
-                c = np.asarray(m.center, float)[:2]
-                rr0 = float(np.hypot(*(tip[:2] - c)))
-                rr1 = float(np.hypot(*(t1[:2] - c)))
-                rm = 0.5 * (rr0 + rr1)
-                ltip = float(np.hypot(rm * m.sweep, t1[2] - tip[2]))
+                arc = _arc_frame(tip, t1, m)
+                ltip = float(np.hypot(0.5 * (arc[4] + arc[5]) * m.sweep, arc[7] - arc[6]))
             else:
                 ltip = float(np.linalg.norm(t1 - tip))
             rot = ltip < 1e-6
             # s is the tip's arc length, but for a tilt with a tiny tip motion (under ROT_SWITCH x
             # the rotation length) it is the rotation length: with 1e-5 mm of tip for 2 degrees the
             # joint derivatives dq/ds would be 1e6 and the acceleration caps crawl (2300 s for a
-            # 3 s move). The feed still caps the tip's speed (v <= F / |dtip/ds|).
-            ln = limits.rotation_length_mm * ph if rot or ltip < ROT_SWITCH * limits.rotation_length_mm * ph else ltip
+            # 3 s move). The feed still caps the tip's speed (v <= F / |dtip/ds|). A change of the
+            # tool length offset alone moves the machine by that change along the tool axis.
+            rl = limits.rotation_length_mm * ph + abs(o1 - off)
+            ln = rl if rot or ltip < ROT_SWITCH * rl else ltip
             if ln < 1e-9:
-                tip, axis = t1, a_1        # nothing moves: the point is the current pose
+                tip, axis, off = t1, a_1, o1     # nothing moves: the point is the current pose
                 continue
             if rpm_prev is not None and m.spindle_rpm != rpm_prev:
                 stop.add(n)
             rpm_prev = m.spindle_rpm
-            vm = limits.rapid_mm_s if m.kind == RAPID else min(m.feed * feed_override, limits.rapid_mm_s)
+            flen = ln if rot else ltip
+            if m.kind == RAPID:
+                vm = limits.rapid_mm_s
+            elif m.duration > 0:          # G93: the move takes `duration` s at 100 % feed
+                vm = min(flen / float(m.duration) * feed_override, limits.rapid_mm_s)
+            else:
+                vm = min(m.feed * feed_override, limits.rapid_mm_s)
             if not vm > 0:
                 raise InputError(job.source, m.line, f"move has no positive feed ({vm!r} mm/s)")
             p0[n], p1[n], a0[n], a1[n], phi[n] = tip, t1, axis, a_1, ph
+            off0[n], off1[n] = off, o1
             if m.kind == ARC:
-                kind[n], cc[n], r0[n], r1[n] = 1, c, rr0, rr1
-                th0[n], sweep[n] = float(np.arctan2(tip[1] - c[1], tip[0] - c[0])), float(m.sweep)
+                kind[n] = 1
+                cc[n], nrm[n], e1[n], e2[n], r0[n], r1[n], h0[n], h1[n] = arc
+                sweep[n] = float(m.sweep)
             line_[n], rpm_[n], length[n], rot_[n], vmax_[n] = m.line, m.spindle_rpm, ln, rot, vm
-            tip_len[n] = ln if rot else ltip
+            tip_len[n] = flen
             n += 1
-            tip, axis = t1, a_1
+            tip, axis, off = t1, a_1, o1
         self.n = n
         stop.add(n)
         self.stop = np.zeros(n + 1, bool)
@@ -216,15 +257,12 @@ class _Path:
         self.ev_line, self.ev_data = np.array(ev_line, int), tuple(ev_data)
         self.end_tip, self.end_axis = tip, axis
         self.start_tip, self.start_axis = np.asarray(start[0], float), np.asarray(start[1], float)
-        self.kind = kind[:n].copy()
-        self.p0, self.p1, self.a0, self.a1 = p0[:n].copy(), p1[:n].copy(), a0[:n].copy(), a1[:n].copy()
-        self.phi, self.c, self.r0, self.r1 = phi[:n].copy(), cc[:n].copy(), r0[:n].copy(), r1[:n].copy()
-        self.th0, self.sweep, self.length, self.vmax = th0[:n].copy(), sweep[:n].copy(), length[:n].copy(), \
-            vmax_[:n].copy()
-        self.rot = rot_[:n].copy()
-        self.feed_length = tip_len[:n].copy()
-        self.line = line_[:n].copy()
-        self.rpm = rpm_[:n].copy()
+        local = dict(kind=kind, p0=p0, p1=p1, a0=a0, a1=a1, phi=phi, c=cc, nrm=nrm, e1=e1, e2=e2, r0=r0, r1=r1,
+                     h0=h0, h1=h1, sweep=sweep, length=length, vmax=vmax_, rot=rot_, feed_length=tip_len,
+                     line=line_, rpm=rpm_, off0=off0, off1=off1)
+        for k in _SEG_FIELDS:
+            setattr(self, k, local[k][:n].copy())
+        self.has_off = bool(np.any(self.off0) or np.any(self.off1))
         self._bounds(self.start_axis / np.linalg.norm(self.start_axis))
 
     def _bounds(self, start_axis):
@@ -235,17 +273,19 @@ class _Path:
         # Boundary poses, exact: b = 0 the start, b = i + 1 the end of segment i.
         self.b_tip = np.vstack([self.start_tip[None], self.p1]) if n else self.start_tip[None].copy()
         self.b_axis = np.vstack([start_axis[None], self.a1]) if n else self.start_axis[None].copy()
+        self.b_off = np.concatenate([[0.0], self.off1])
+        self.b_ctl = controlled_point(self.b_tip, self.b_axis, self.b_off) if self.has_off else self.b_tip
         self.b_s = np.concatenate([[0.0], self.s_end])
 
     def sub(self, i0, i1):
         """The segments i0 .. i1-1 as a path of their own, in the job's path coordinate s (the same
         floats as the whole job's, so a window computes with the same numbers). Its ends are exact
-        stops only where the job has one (the job's ends, dwells, spindle changes)."""
+        stops only where the job has one (the job's ends, dwells, EVENTs, spindle changes)."""
         p = object.__new__(_Path)
-        for k in ("kind", "p0", "p1", "a0", "a1", "phi", "c", "r0", "r1", "th0", "sweep", "length", "vmax",
-                  "rot", "feed_length", "line", "rpm"):
+        for k in _SEG_FIELDS:
             setattr(p, k, getattr(self, k)[i0:i1])
         p.n = i1 - i0
+        p.has_off = self.has_off
         p.stop, p.dwell, p.dwell_line = self.stop[i0:i1 + 1], self.dwell[i0:i1 + 1], self.dwell_line[i0:i1 + 1]
         p.start_tip, p.start_axis = self.b_tip[i0], self.b_axis[i0]
         p.end_tip, p.end_axis = self.b_tip[i1], self.b_axis[i1]
@@ -253,6 +293,7 @@ class _Path:
         p.s_end, p.s_start, p.b_s = self.s_end[i0:i1], self.s_start[i0:i1], self.b_s[i0:i1 + 1]
         p.total = float(self.b_s[i1])
         p.b_tip, p.b_axis = self.b_tip[i0:i1 + 1], self.b_axis[i0:i1 + 1]
+        p.b_off, p.b_ctl = self.b_off[i0:i1 + 1], self.b_ctl[i0:i1 + 1]
         e0, e1 = np.searchsorted(self.ev_b, i0, "left"), np.searchsorted(self.ev_b, i1, "right")
         p.ev_b, p.ev_before, p.ev_line = self.ev_b[e0:e1] - i0, self.ev_before[e0:e1], self.ev_line[e0:e1]
         p.ev_data = self.ev_data[e0:e1]
@@ -265,6 +306,7 @@ class _Path:
                      for b4, ln, ev in zip(self.ev_before, self.ev_line, self.ev_data))
 
     def pose(self, seg, u):
+        """Programmed tip and unit tool axis at (seg, u)."""
         seg = np.asarray(seg, int)
         u = np.asarray(u, float)
         uu = u[..., None]
@@ -272,11 +314,10 @@ class _Path:
         tip = p0 + uu * (p1 - p0)
         arc = self.kind[seg] == 1
         if np.any(arc):
-            th = self.th0[seg] + self.sweep[seg] * u
-            r = self.r0[seg] + (self.r1[seg] - self.r0[seg]) * u
-            c = self.c[seg]
-            at = np.stack([c[..., 0] + r * np.cos(th), c[..., 1] + r * np.sin(th),
-                           p0[..., 2] + u * (p1[..., 2] - p0[..., 2])], -1)
+            th = (self.sweep[seg] * u)[..., None]
+            r = (self.r0[seg] + (self.r1[seg] - self.r0[seg]) * u)[..., None]
+            h = (self.h0[seg] + (self.h1[seg] - self.h0[seg]) * u)[..., None]
+            at = self.c[seg] + h * self.nrm[seg] + r * (np.cos(th) * self.e1[seg] + np.sin(th) * self.e2[seg])
             tip = np.where(arc[..., None], at, tip)
         phi = self.phi[seg][..., None]
         a0, a1 = self.a0[seg], self.a1[seg]
@@ -288,6 +329,20 @@ class _Path:
         axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
         return tip, axis
 
+    def controlled(self, seg, u, tip, axis):
+        """The point the reference tool's tip goes to for the programmed ``tip``, ``axis`` at (seg, u):
+        the tool length offset goes linearly from the segment's start to its end (a change of offset
+        is taken up by the move after it, as in LinuxCNC)."""
+        if not self.has_off:
+            return tip
+        u = np.asarray(u, float)
+        return controlled_point(tip, axis, self.off0[seg] * (1.0 - u) + self.off1[seg] * u)
+
+    def point(self, seg, u):
+        """Controlled point and axis at (seg, u) (what IK and the samples take)."""
+        tip, axis = self.pose(seg, u)
+        return self.controlled(seg, u, tip, axis), axis
+
     def derivatives(self, seg, u, machine, delta=1e-3):
         """d/ds and d2/ds2 of tip, axis and joints at (seg, u), central differences of step delta mm."""
         seg = np.asarray(seg, int)
@@ -295,7 +350,7 @@ class _Path:
         uu = np.concatenate([u - du, u, u + du])
         ss = np.concatenate([seg, seg, seg])
         tip, axis = self.pose(ss, uu)
-        q = K.ik_batch(tip, axis, machine, check_limits=False).q
+        q = K.ik_batch(self.controlled(ss, uu, tip, axis), axis, machine, check_limits=False).q
         m = len(seg)
         out = {}
         for name, x in (("tip", tip), ("axis", axis), ("q", q)):
@@ -516,7 +571,7 @@ def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits
         c = counts[i:j]
         seg = np.repeat(np.arange(i, j), c)
         u = (np.arange(len(seg)) - np.repeat(np.cumsum(c) - c, c)) / np.repeat(c, c)
-        tip, axis = path.pose(seg, u)
+        tip, axis = path.point(seg, u)
         _check_samples(tip, axis, path.line[seg], machine, job)
         i = j
     return path
@@ -602,12 +657,12 @@ def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job):
         prev = None
         for k0 in range(k_lo, k_hi, SAMPLE_CHUNK):
             k1 = min(k_hi, k0 + SAMPLE_CHUNK)
-            part, (sf, v, seg) = tm.samples(k0, k1)
+            part, (sf, v, seg, tip) = tm.samples(k0, k1)
             q = _check_samples(part[0], part[1], part[4], machine, job)
             if keep is not None and k1 > e0 and k0 < e1:
                 a, b = max(k0, e0) - k0, min(k1, e1) - k0
                 keep.append((k0 + a, tuple(x[a:b] for x in part)))
-            cur = (q, part[0], v, sf, seg)
+            cur = (q, tip, v, sf, seg)
             if prev is not None:       # two samples of overlap: the differences across the chunk edge
                 cur_x = tuple(np.concatenate([p_[-2:], c_]) for p_, c_ in zip(prev, cur))
             else:
@@ -665,7 +720,7 @@ def _check_size(path: _Path, job, dt, limits: PlannerLimits, max_samples=None, w
 def _check_reachable(path, job, machine):
     for b0 in range(1, path.n + 1, SAMPLE_CHUNK):        # the boundaries after the start, in chunks
         b1 = min(path.n + 1, b0 + SAMPLE_CHUNK)
-        r = K.ik_batch(path.b_tip[b0:b1], path.b_axis[b0:b1], machine)
+        r = K.ik_batch(path.b_ctl[b0:b1], path.b_axis[b0:b1], machine)
         if not np.all(r.ok):
             i = int(np.argmax(~r.ok))
             raise InputError(job.source, int(path.line[b0 + i - 1]), f"pose unreachable: {r.reason[i]}")
@@ -900,7 +955,9 @@ class _Timing:
         return lo
 
     def samples(self, k0, k1):
-        """Ticks k0 .. k1-1: (tip, axis, tip_vel, axis_vel, line, rpm) and, for the limit check, (s, v, seg)."""
+        """Ticks k0 .. k1-1: (tip, axis, tip_vel, axis_vel, line, rpm) of the controlled point (the tip
+        of the reference tool: pmctl.task.job.controlled_point) and, for the limit check, (s, v, seg,
+        programmed tip)."""
         path, K_b, n = self.path, self.K_b, self.path.n
         k = np.arange(k0, k1)
         sf, v = self._s(k)
@@ -925,6 +982,7 @@ class _Timing:
             axis[lo:hi] = path.b_axis[b]
         tip[K_b[on] - k0] = path.b_tip[on]
         axis[K_b[on] - k0] = path.b_axis[on]
+        ctl = path.controlled(seg, u, tip, axis)          # on boundaries and holds: exactly b_ctl (u is 0 or 1)
         der_tip, der_ax = _tangent(path, seg, u)
         tip_vel = der_tip * v[:, None]
         axis_vel = der_ax * v[:, None]
@@ -938,7 +996,7 @@ class _Timing:
             a, e = max(a, k0), min(e, k1)
             if a < e:
                 line[a - k0:e - k0] = path.dwell_line[b]
-        return (tip, axis, tip_vel, axis_vel, line.astype(int), rpm.astype(float)), (sf, v, seg)
+        return (ctl, axis, tip_vel, axis_vel, line.astype(int), rpm.astype(float)), (sf, v, seg, tip)
 
 
 SAMPLE_CHUNK = 20_000     # ticks sampled at once (the planner's peak is ~0.75 kB per sample)
@@ -947,9 +1005,9 @@ SAMPLE_CHUNK = 20_000     # ticks sampled at once (the planner's peak is ~0.75 k
 def _sample(path: _Path, grid, scale, machine, limits, dt, T, job):
     """The whole path sampled at once (the batch planner): (Trajectory, violations or None)."""
     tm = _Timing(path, grid, scale, dt, T, job, max_samples=MAX_SAMPLES)
-    (tip, axis, tip_vel, axis_vel, line, rpm), (sf, v, seg) = tm.samples(0, tm.n_samples)
-    q = _check_samples(tip, axis, line, machine, job)
-    traj = Trajectory(dt, tip, axis, tip_vel, axis_vel, line, rpm, job.source,
+    (ctl, axis, tip_vel, axis_vel, line, rpm), (sf, v, seg, tip) = tm.samples(0, tm.n_samples)
+    q = _check_samples(ctl, axis, line, machine, job)
+    traj = Trajectory(dt, ctl, axis, tip_vel, axis_vel, line, rpm, job.source,
                       np.asarray(job.points, float).reshape(-1, 3), marks=tm.marks(0, tm.n_samples))
     worst = _violations(q, tip, v, sf, seg, path, machine, limits, dt)
     return traj, worst
@@ -966,10 +1024,10 @@ def _check_samples(tip, axis, line, machine, job):
 
 
 def _tangent(path, seg, u, delta=1e-4):
-    """d(tip)/ds, d(axis)/ds by central differences inside the segment's own geometry."""
+    """d(controlled point)/ds, d(axis)/ds by central differences inside the segment's own geometry."""
     du = delta / path.length[seg]
-    tp, ap = path.pose(seg, u + du)
-    tm, am = path.pose(seg, u - du)
+    tp, ap = path.point(seg, u + du)
+    tm, am = path.point(seg, u - du)
     return (tp - tm) / (2 * delta), (ap - am) / (2 * delta)
 
 
