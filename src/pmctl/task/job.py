@@ -40,8 +40,8 @@ Fields added for the full RS-274 reader (each defaults to the old meaning):
 
 ``load_job(path, machine)`` reads a file of either format by its suffix; ``read_job_text(path)`` is how
 both readers get the text (UTF-8, at most ``MAX_JOB_BYTES`` and ``MAX_JOB_LINES``; a bad byte is reported with its line and
-column). A job holds at most ``MAX_MOVES`` moves (the batch planner's bound; the readers refuse the
-line that crosses it). ``Job.messages`` holds the program's operator messages (G-code ``(MSG, ...)`` comments) as
+column). There is no bound on the number of moves: the streaming planner holds an index of the
+job's segments and one window of it (docs/planning.md). ``Job.messages`` holds the program's operator messages (G-code ``(MSG, ...)`` comments) as
 (line, text) pairs, for the operator to see before the job runs.
 """
 
@@ -53,7 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core import kinematics as K
-from pmctl.core.errors import InputError
+from pmctl.core.errors import InputError, JobProblems, Problem
 
 RAPID, LINE, ARC, DWELL, EVENT = "rapid", "line", "arc", "dwell", "event"
 KINDS = (RAPID, LINE, ARC, DWELL, EVENT)
@@ -62,8 +62,6 @@ GCODE_SUFFIXES = (".ngc", ".nc", ".gcode", ".tap")
 CL_SUFFIXES = (".cl", ".cls", ".txt", ".csv")
 MAX_JOB_BYTES = 8 * 2**20         # a job file larger than this is refused before it is parsed (~300k lines)
 MAX_JOB_LINES = 200_000           # lines in a job file (4x the move bound: room for comments and modal lines)
-MAX_MOVES = 50_000                # moves in one job: the batch planner's bound (~12 s of planning), checked
-                                  # by the readers as they go (the line that crosses it is named)
 
 
 @dataclass(frozen=True)
@@ -179,3 +177,38 @@ def load_job(path, machine, *, start=None, **options) -> Job:
         return read_cl_job(path, machine, **options)
     raise InputError(path, None, f"unknown job format {suffix!r}: use G-code ({' '.join(GCODE_SUFFIXES)}) "
                                  f"or CL data ({' '.join(CL_SUFFIXES)})")
+
+
+_UNSUPPORTED_WORDS = ("not supported", "unsupported", "refused", "unknown job format", "is not implemented")
+
+
+def problem_kind(reason: str) -> str:
+    """The kind of a reader's refusal (``syntax`` or ``unsupported``) from its message: what the reader
+    understood but does not do is ``unsupported``, anything malformed ``syntax``."""
+    low = reason.lower()
+    return "unsupported" if any(w in low for w in _UNSUPPORTED_WORDS) else "syntax"
+
+
+def parse_job(path, machine, *, start=None, **options) -> tuple:
+    """Read and parse a job file without checking it against the machine, and without raising:
+    (Job or None, [Problem, ...]). Every problem the reader reports is listed (a reader that stops at
+    its first refusal gives one). The machine and the planner are checked by pmctl.task.jobcheck.
+    ``start`` and ``options`` as for :func:`load_job`."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    try:
+        if suffix in GCODE_SUFFIXES:
+            from pmctl.task.gcode import parse_gcode
+            tip, axis = home_pose(machine) if start is None else start
+            # the RS-274 interpreter's (job, problems) reader takes the place of this line
+            return parse_gcode(read_job_text(path), path, tip, axis), []
+        if suffix in CL_SUFFIXES:
+            from pmctl.task.cldata import cl_job, parse_cl
+            vector = options.pop("vector", "axis")
+            return cl_job(parse_cl(read_job_text(path), path, vector=vector), None, **options), []
+        raise InputError(path, None, f"unknown job format {suffix!r}: use G-code ({' '.join(GCODE_SUFFIXES)}) "
+                                     f"or CL data ({' '.join(CL_SUFFIXES)})")
+    except JobProblems as e:
+        return None, list(e.problems)
+    except InputError as e:
+        return None, [Problem(e.path, e.line, e.column, problem_kind(e.reason), e.reason)]

@@ -53,9 +53,8 @@ How it works (all vectorised with numpy):
 
 Resource bounds: the planner holds the whole trajectory in memory (about 0.75 kB per sample at its
 peak), so it refuses, with the file, the line and the reason and before allocating anything large,
-a job of more than ``MAX_MOVES`` moves (pmctl.task.job), of more than ``MAX_SAMPLES`` ticks (20 min
-at 1 kHz) or a path of more than
-``MAX_GRID_POINTS`` limit-grid points (500 m at the default 0.25 mm grid). The duration is checked
+a job of more than ``MAX_SAMPLES`` ticks (20 min at 1 kHz) or a path of more than ``MAX_GRID_POINTS``
+limit-grid points (500 m at the default 0.25 mm grid). The duration is checked
 three times: a lower bound (length / feed + dwells) before the limit grid, the grid size before
 it is built, and the profile's true duration before it is sampled. A typo such as ``F0.42`` or a
 ``G4`` of days is refused this way in well under a second.
@@ -85,9 +84,8 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 
 from pmctl.core import kinematics as K
-from pmctl.core.errors import InputError, PmctlError
-from pmctl.task.job import (ARC, DWELL, EVENT, MAX_MOVES, RAPID, Job, controlled_point, home_pose,  # noqa: F401
-                            load_job)  # (re-exported)
+from pmctl.core.errors import InputError, PmctlError, Problem
+from pmctl.task.job import ARC, DWELL, EVENT, RAPID, Job, controlled_point, home_pose, load_job  # noqa: F401
 from pmctl.task.trajectory import Trajectory
 
 __all__ = ["PlannerLimits", "plan", "plan_stream", "validate", "home_pose", "load_job", "PlanningError"]
@@ -108,7 +106,20 @@ STREAM_KEEP = 60_000          # a window's samples up to this count are kept fro
 
 
 class PlanningError(PmctlError):
-    """The planner could not meet the limits (should not happen for a reachable job)."""
+    """The planner could not meet the limits (should not happen for a reachable job); ``path`` and
+    ``line`` say where, when known."""
+
+    def __init__(self, msg, path=None, line=None):
+        self.path, self.line = path, line
+        super().__init__(msg)
+
+
+class _NotConverged(Exception):
+    """The limits still fail on the samples after ``max_iterations``: the segments around them."""
+
+    def __init__(self, segs):
+        super().__init__()
+        self.segs = segs
 
 
 @dataclass(frozen=True)
@@ -121,6 +132,7 @@ class PlannerLimits:
     joint_fraction: float = 0.9       # share of the joint speed/accel limits the plan may use
     grid_mm: float = 0.25             # spacing of the limit grid along the path
     max_iterations: int = 10
+    naive_cam_mm: float = 0.0005      # least path tolerance of a run of feed lines without G64 P (a chain pulse)
 
     @property
     def tangential_accel(self):
@@ -132,6 +144,109 @@ class PlannerLimits:
 
 
 # ---------------------------------------------------------------- geometry
+
+MERGE_CHUNK = 4096            # points of a run of lines simplified at once (bounds the work of a run)
+MAX_QUANTUM_MM = 0.01         # the coarsest coordinate resolution taken as a run's default tolerance
+_QUANTA = sorted([10.0 ** -k for k in range(2, 7)] + [25.4 * 10.0 ** -k for k in range(3, 8)], reverse=True)
+
+
+def _quantum(pts):
+    """The resolution the points' coordinates are written at (mm): the coarsest of 10^-k mm and
+    10^-k inch (k such that it is at most MAX_QUANTUM_MM) that every coordinate is a multiple of; 0
+    when none is."""
+    for q in _QUANTA:
+        if q <= MAX_QUANTUM_MM * (1 + 1e-9):
+            x = pts / q
+            if np.all(np.abs(x - np.round(x)) < 1e-6):
+                return q
+    return 0.0
+
+
+def _merged_away(job: Job, start, limits: PlannerLimits):
+    """Which moves' end points the planner drops (a bool per move): LinuxCNC's naive-CAM detector. A
+    run of consecutive feed lines (LINE, no probing, no G93 duration) with the same feed, spindle
+    speed, tool offset, tolerance and tool axis (the axis of the point before the run too) is
+    simplified within its tolerance: G64 P (``Move.tolerance``), or where that is 0 the larger of
+    ``limits.naive_cam_mm`` and the resolution the run's coordinates are written at (``_quantum``: a
+    point written to 4 decimals in inches is only known to 2.54 um; dropping it within that loses
+    nothing the program says). Every dropped point lies within the tolerance of the line that replaces it (Douglas-Peucker
+    on the tip points, a run of more than ``MERGE_CHUNK`` points in chunks), so the path stays within
+    the tolerance of the programmed one; the lines kept run through kept points exactly."""
+    moves = job.moves
+    nm = len(moves)
+    drop = np.zeros(nm, bool)
+    if nm < 2:
+        return drop
+    line_kind = np.fromiter((m.kind == "line" and not m.probe and not m.duration > 0 for m in moves), bool, nm)
+    if line_kind.sum() < 2:
+        return drop
+    tips = np.array([m.tip for m in moves], float)
+    axes = np.array([m.axis for m in moves], float)
+    attrs = np.array([(m.feed, m.spindle_rpm, m.tool_offset, m.tolerance) for m in moves], float)
+    moving = np.fromiter((m.kind not in (DWELL, EVENT) for m in moves), bool, nm)
+    # the point before each move (its start) and the axis there
+    prev_tip = np.empty_like(tips)
+    prev_axis = np.empty_like(axes)
+    last_tip, last_axis = np.asarray(start[0], float), np.asarray(start[1], float)
+    for i in range(nm):
+        prev_tip[i], prev_axis[i] = last_tip, last_axis
+        if moving[i]:
+            last_tip, last_axis = tips[i], axes[i]
+    # move i continues the run of move i-1: both lines, nothing between them, the same attributes, the
+    # same axis all along
+    same = np.zeros(nm, bool)
+    same[1:] = (line_kind[1:] & line_kind[:-1] & np.all(attrs[1:] == attrs[:-1], axis=1)
+                & np.all(axes[1:] == axes[:-1], axis=1) & np.all(prev_axis[:-1] == axes[:-1], axis=1))
+    i = 1
+    while i < nm:
+        if not same[i]:
+            i += 1
+            continue
+        a = i - 1                         # the run: moves a .. b, points prev_tip[a], tips[a .. b]
+        b = i
+        while b + 1 < nm and same[b + 1]:
+            b += 1
+        tol = attrs[a, 3]
+        if not tol > 0:
+            tol = max(limits.naive_cam_mm, _quantum(np.vstack([prev_tip[a][None], tips[a:b + 1]])))
+        c0 = a
+        while c0 <= b:                             # moves c0 .. c1 from the kept point before c0
+            c1 = min(b, c0 + MERGE_CHUNK - 1)      # (c1's end is kept)
+            pts = np.vstack([prev_tip[c0][None], tips[c0:c1 + 1]])
+            drop[c0:c1 + 1] = ~_douglas_peucker(pts, tol)[1:]
+            c0 = c1 + 1
+        i = b + 1
+    return drop
+
+
+def _douglas_peucker(pts, tol):
+    """Points of a polyline to keep (the ends always) so that each dropped point is within ``tol`` of
+    the chord between the kept points around it, and the dropped points go along the chord without
+    turning back by more than ``tol``."""
+    keep = np.zeros(len(pts), bool)
+    keep[0] = keep[-1] = True
+    stack = [(0, len(pts) - 1)]
+    while stack:
+        a, b = stack.pop()
+        if b - a < 2:
+            continue
+        p, q = pts[a], pts[b]
+        d = q - p
+        dd = float(d @ d)
+        w = pts[a + 1:b] - p
+        t = np.clip(w @ d / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(w))
+        dist = np.linalg.norm(w - t[:, None] * d, axis=1)
+        if dd > 0:                 # a run that turns back along the chord is no straight line: keep its turns
+            along = w @ d / np.sqrt(dd)
+            dist = np.maximum(dist, np.maximum.accumulate(along) - along)
+        k = int(np.argmax(dist))
+        if dist[k] > tol:
+            m = a + 1 + k
+            keep[m] = True
+            stack.append((a, m))
+            stack.append((m, b))
+    return keep
+
 
 def _arc_frame(p_start, p_end, m):
     """The frame of an ARC move from ``p_start``: (centre point, unit normal, e1, e2, r0, r1, h0, h1);
@@ -168,7 +283,7 @@ class _Path:
     (pmctl.task.job.controlled_point): the point the machine's model, built for the reference tool,
     must put its tip on. Every IK of the planner and every sample it hands out is of that point."""
 
-    def __init__(self, job: Job, start, limits: PlannerLimits, feed_override: float):
+    def __init__(self, job: Job, start, limits: PlannerLimits, feed_override: float, dt: float):
         tip, axis = (np.asarray(start[0], float), np.asarray(start[1], float))
         axis = axis / np.linalg.norm(axis)
         # Filled move by move into arrays of the job's size (no per-move objects: a long job's index
@@ -187,7 +302,13 @@ class _Path:
         rpm_prev = None
         off = 0.0                     # the tool length offset at the start pose: none (the reference tool)
         self.start_line = job.moves[0].line if job.moves else 0
-        for m in job.moves:
+        drop = _merged_away(job, start, limits)
+        absorbed = []                 # (end point, line) of the moves merged into the next segment
+        mrg_seg, mrg_u, mrg_line = [], [], []
+        for i_m, m in enumerate(job.moves):
+            if drop[i_m]:
+                absorbed.append((m.tip, m.line))
+                continue
             if m.kind == DWELL:
                 b = n
                 stop.add(b)
@@ -236,6 +357,14 @@ class _Path:
                 raise InputError(job.source, m.line, f"move has no positive feed ({vm!r} mm/s)")
             p0[n], p1[n], a0[n], a1[n], phi[n] = tip, t1, axis, a_1, ph
             off0[n], off1[n] = off, o1
+            if absorbed:              # where along this (merged) segment each absorbed move ended
+                d = t1 - tip
+                q = np.array([a_[0] for a_ in absorbed], float) - tip
+                u_ = np.maximum.accumulate(np.clip(q @ d / max(float(d @ d), 1e-300), 0.0, 1.0))
+                mrg_seg.extend([n] * len(absorbed))
+                mrg_u.extend(u_.tolist())
+                mrg_line.extend(int(a_[1]) for a_ in absorbed)
+                absorbed = []
             if m.kind == ARC:
                 kind[n] = 1
                 cc[n], nrm[n], e1[n], e2[n], r0[n], r1[n], h0[n], h1[n] = arc
@@ -253,6 +382,8 @@ class _Path:
         for b, d in dwell.items():
             self.dwell[b] = d
             self.dwell_line[b] = dwell_line[b]
+        self.mrg_seg, self.mrg_u = np.array(mrg_seg, int), np.array(mrg_u, float)
+        self.mrg_line = np.array(mrg_line, int)
         self.ev_b, self.ev_before = np.array(ev_b, int), np.array(ev_before, float)
         self.ev_line, self.ev_data = np.array(ev_line, int), tuple(ev_data)
         self.end_tip, self.end_axis = tip, axis
@@ -264,6 +395,36 @@ class _Path:
             setattr(self, k, local[k][:n].copy())
         self.has_off = bool(np.any(self.off0) or np.any(self.off1))
         self._bounds(self.start_axis / np.linalg.norm(self.start_axis))
+        self._pins(dt, limits)
+
+    def _pins(self, dt, limits):
+        """Which boundaries get a tick of their own (the knots of the time warp: exact arrival,
+        ``pin``): the stops, and, walking along the path, every boundary at least two ticks of the top
+        speed since the last knot (every boundary of a path of ordinary moves). The points between
+        knots (inside runs of micro-segments) are passed through on the path, not sampled: a tick for
+        each would make every segment last at least a tick, and the samples' speed would follow the
+        segments' lengths and jump from tick to tick."""
+        n = self.n
+        vs = self.vmax.copy()                   # an upper bound of ds/dt on each segment
+        tipish = ~self.rot & (self.feed_length < self.length)       # parameterised by the rotation
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vs[tipish] = self.vmax[tipish] * self.length[tipish] / np.maximum(self.feed_length[tipish], 1e-300)
+            turn = tipish & (self.phi > 0)
+            vs[turn] = np.minimum(vs[turn], limits.axis_rate_rad_s * self.length[turn] / self.phi[turn])
+        need = 2.0 * dt * vs
+        self.pin = self.stop.copy()
+        if n and not np.all(self.length >= need):
+            pin, b_s, stop = self.pin, self.b_s, self.stop
+            last, top = 0.0, 0.0
+            for b in range(1, n + 1):                 # (a loop of ~1 us a boundary)
+                top = max(top, need[b - 1])
+                if stop[b] or b_s[b] - last >= top:
+                    pin[b] = True
+                    last, top = b_s[b], 0.0
+        else:
+            self.pin[:] = True
+        self.pin[0] = self.pin[n] = True
+        self.pin_idx = np.nonzero(self.pin)[0]
 
     def _bounds(self, start_axis):
         n = self.n
@@ -286,6 +447,9 @@ class _Path:
             setattr(p, k, getattr(self, k)[i0:i1])
         p.n = i1 - i0
         p.has_off = self.has_off
+        p.pin = self.pin[i0:i1 + 1].copy()
+        p.pin[0] = p.pin[-1] = True            # a window's ends are its knots (far from what it emits)
+        p.pin_idx = np.nonzero(p.pin)[0]
         p.stop, p.dwell, p.dwell_line = self.stop[i0:i1 + 1], self.dwell[i0:i1 + 1], self.dwell_line[i0:i1 + 1]
         p.start_tip, p.start_axis = self.b_tip[i0], self.b_axis[i0]
         p.end_tip, p.end_axis = self.b_tip[i1], self.b_axis[i1]
@@ -297,7 +461,20 @@ class _Path:
         e0, e1 = np.searchsorted(self.ev_b, i0, "left"), np.searchsorted(self.ev_b, i1, "right")
         p.ev_b, p.ev_before, p.ev_line = self.ev_b[e0:e1] - i0, self.ev_before[e0:e1], self.ev_line[e0:e1]
         p.ev_data = self.ev_data[e0:e1]
+        m0, m1 = np.searchsorted(self.mrg_seg, i0, "left"), np.searchsorted(self.mrg_seg, i1, "left")
+        p.mrg_seg, p.mrg_u, p.mrg_line = self.mrg_seg[m0:m1] - i0, self.mrg_u[m0:m1], self.mrg_line[m0:m1]
         return p
+
+    def lines(self, seg, u):
+        """The source line of points (seg, u): the segment's, or inside a merged segment the line of
+        the move being executed there (the first absorbed move ending at or after u)."""
+        line = self.line[seg]
+        if len(self.mrg_seg):
+            key = self.mrg_seg + self.mrg_u
+            i = np.minimum(np.searchsorted(key, seg + u, "left"), len(key) - 1)
+            inside = self.mrg_seg[i] == seg
+            line = np.where(inside & (seg + u <= key[i]), self.mrg_line[i], line)
+        return line
 
     def rest_marks(self, dt, n_samples):
         """Marks of a path that does not move (n == 0): every EVENT at boundary 0, after the dwells
@@ -486,10 +663,7 @@ def plan(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: Pl
          start=None) -> Trajectory:
     """Plan ``job`` into a Trajectory sampled every ``dt`` seconds (see the module docstring)."""
     limits, start = _start(job, machine, dt, feed_override, limits, start)
-    if len(job.moves) > MAX_MOVES:
-        raise InputError(job.source, int(job.moves[MAX_MOVES].line) or None,
-                         f"more than {MAX_MOVES} moves: longer than the batch planner takes (split the job)")
-    path = _Path(job, start, limits, feed_override)
+    path = _Path(job, start, limits, feed_override, dt)
     T = max(2.0 * limits.tangential_accel / limits.jerk_mm_s3, 2.0 * dt)
     _check_size(path, job, dt, limits)
     if path.n == 0:
@@ -500,14 +674,15 @@ def plan(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: Pl
         return Trajectory(dt, tip, axis, z, z.copy(), np.full(nt, path.start_line, int), np.zeros(nt),
                           job.source, np.asarray(job.points, float), marks=path.rest_marks(dt, nt))
     _check_reachable(path, job, machine)
-    grid = _limit_grid(path, machine, limits, dt, T)
-    scale = np.ones(len(grid["s"]))
-    for it in range(limits.max_iterations):
-        traj, worst = _sample(path, grid, scale, machine, limits, dt, T, job)
-        if worst is None:
-            return traj
-        scale = _lower_caps(grid, scale, worst, limits, T)
-    raise _not_met(job, limits)
+    while True:
+        grid = _limit_grid(path, machine, limits, dt, T)
+        scale = np.ones(len(grid["s"]))
+        for it in range(limits.max_iterations):
+            traj, worst = _sample(path, grid, scale, machine, limits, dt, T, job)
+            if worst is None:
+                return traj
+            scale = _lower_caps(grid, scale, worst, limits, T)
+        _fall_back(path, path.locate(worst[0])[0], dt, limits, job)
 
 
 def _lower_caps(grid, scale, worst, limits, T):
@@ -519,9 +694,26 @@ def _lower_caps(grid, scale, worst, limits, T):
     return np.minimum(scale, _range_min(len(scale), lo, hi, factor))
 
 
-def _not_met(job, limits):
-    return PlanningError(f"{job.source}: could not meet the joint/feed limits after {limits.max_iterations} "
-                         "re-planning iterations")
+MAX_FALLBACKS = 6        # rounds of the fallback (exact stops, half the speed) before a job is refused
+
+
+def _fall_back(path, segs, dt, limits, job):
+    """The guaranteed-feasible fallback where re-planning did not meet the limits: the segments
+    ``segs`` and their neighbours get exact stops at both ends and half their top speed (each round
+    halves it again; ``path.fallbacks`` counts the rounds); after ``MAX_FALLBACKS`` rounds
+    PlanningError names the line. The path is changed in place: plan again."""
+    n = path.n
+    segs = np.unique(np.clip(np.concatenate([segs - 1, segs, segs + 1]), 0, n - 1))
+    path.fallbacks = getattr(path, "fallbacks", 0) + 1
+    if path.fallbacks > MAX_FALLBACKS:
+        line = int(path.lines(segs[len(segs) // 2], 0.5))
+        raise PlanningError(f"{job.source}:{line}: the planner could not meet the joint and feed limits here, "
+                            f"not even with exact stops at 1/{2 ** MAX_FALLBACKS} of the feed (its fallback): "
+                            f"lower the feed of these moves, or report the job", path=job.source, line=line)
+    path.stop[segs] = True
+    path.stop[segs + 1] = True
+    path.vmax[segs] *= 0.5
+    path._pins(dt, limits)
 
 
 def _start(job, machine, dt, feed_override, limits, start):
@@ -538,24 +730,34 @@ def _start(job, machine, dt, feed_override, limits, start):
 # ---------------------------------------------------------------- the streaming planner
 
 def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: PlannerLimits | None = None,
-             start=None, batch: bool = False) -> "_Path":
+             start=None, batch: bool = False, full: bool = False, window: int = STREAM_WINDOW,
+             problems: list | None = None) -> "_Path":
     """Check a whole job for the streaming planner before anything moves, in bounded memory: every
     move has a positive feed, the duration's lower bound is within ``MAX_STREAM_SECONDS``, no single
     move needs more than ``MAX_SEGMENT_GRID`` grid points, every programmed pose is reachable and so
     is the path between them (checked every ``grid_mm`` along it). InputError names the file and line.
     Returns the job's segment index, which ``plan_stream(path=...)`` takes. ``batch``: the batch
     planner's bounds on the duration and the whole grid instead (for a caller that holds the whole
-    trajectory)."""
+    trajectory).
+
+    ``full``: the job is also planned, whole, window by window as ``plan_stream`` will (no samples
+    kept), and where re-planning does not meet the limits the fallback (``_fall_back``: exact stops
+    and a lower speed there) goes into the returned path and the job is planned again, until it
+    passes or PlanningError names the line. ``plan_stream(path=...)`` of that path (with the same
+    arguments) then cannot fail: what ``pmctl check``, ``pmctl run`` and the supervisor's queue do
+    before anything moves. The path's ``planned_samples`` is then the trajectory's length.
+
+    ``problems`` (a list): every unreachable pose and every stretch of path between poses that
+    leaves the workspace is appended to it as a Problem (kind ``machine``, one per line) instead of
+    raising the first, and the job is then not planned; the other refusals still raise."""
     limits, start = _start(job, machine, dt, feed_override, limits, start)
-    if batch and len(job.moves) > MAX_MOVES:
-        raise InputError(job.source, int(job.moves[MAX_MOVES].line) or None,
-                         f"more than {MAX_MOVES} moves: longer than the batch planner takes (split the job)")
-    path = _Path(job, start, limits, feed_override)
+    path = _Path(job, start, limits, feed_override, dt)
     if batch:
         _check_size(path, job, dt, limits)
     else:
         _check_size(path, job, dt, limits, max_samples=int(MAX_STREAM_SECONDS / dt), whole_grid=False)
     if path.n == 0:
+        path.planned_samples = int(np.ceil(path.dwell.sum() / dt)) + 1
         return path
     counts = np.maximum(2, np.ceil(path.length / limits.grid_mm).astype(np.int64))
     if np.any(counts > MAX_SEGMENT_GRID):
@@ -563,7 +765,8 @@ def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits
         raise InputError(job.source, int(path.line[i]),
                          f"this move is {path.length[i]:.6g} mm long: more than {MAX_SEGMENT_GRID} grid points "
                          f"of {limits.grid_mm:g} mm (check arc turns P and the coordinates, or split the move)")
-    _check_reachable(path, job, machine)
+    seen = set()
+    _check_reachable(path, job, machine, problems, seen)
     # the path between the programmed poses, segment by segment in chunks of about SAMPLE_CHUNK points
     i = 0
     while i < path.n:
@@ -572,9 +775,28 @@ def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits
         seg = np.repeat(np.arange(i, j), c)
         u = (np.arange(len(seg)) - np.repeat(np.cumsum(c) - c, c)) / np.repeat(c, c)
         tip, axis = path.point(seg, u)
-        _check_samples(tip, axis, path.line[seg], machine, job)
+        _check_samples(tip, axis, path.lines(seg, u), machine, job, problems, seen)
         i = j
+    if problems:                  # (only with a list) not planned: the path leaves the workspace
+        return path
+    if full:
+        _plan_whole(path, machine, limits, dt, job, window)
     return path
+
+
+def _plan_whole(path, machine, limits, dt, job, window):
+    """Plan the whole path window by window (nothing kept), with the fallback (see validate)."""
+    T = max(2.0 * limits.tangential_accel / limits.jerk_mm_s3, 2.0 * dt)
+    while True:
+        n_samples = 0
+        try:
+            for tm, (e0, e1), _ in _windows(path, machine, limits, dt, T, job, window, keep=False):
+                n_samples += e1 - e0
+        except _NotConverged as e:
+            _fall_back(path, e.segs, dt, limits, job)
+            continue
+        path.planned_samples = n_samples
+        return
 
 
 def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: PlannerLimits | None = None,
@@ -603,42 +825,63 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
                              z.copy(), np.full(m, path.start_line, int), np.zeros(m), job.source, points,
                              marks=tuple((i - k0, ln, ev) for i, ln, ev in marks if k0 <= i < k0 + m))
         return
+    try:
+        for tm, rng, kept in _windows(path, machine, limits, dt, T, job, window):
+            if kept is not None:
+                for k0, part in kept:
+                    yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k0 + len(part[0])))
+            else:
+                for k0 in range(rng[0], rng[1], SAMPLE_CHUNK):
+                    k1 = min(rng[1], k0 + SAMPLE_CHUNK)
+                    part, _ = tm.samples(k0, k1)
+                    yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k1))
+    except _NotConverged as e:
+        # only without the full check (validate(full=True)), which falls back before anything moves
+        line = int(path.lines(int(e.segs[len(e.segs) // 2]), 0.5))
+        raise PlanningError(f"{job.source}:{line}: could not meet the joint/feed limits here after "
+                            f"{limits.max_iterations} re-planning iterations (the job was not checked in full "
+                            "before it was streamed)", path=job.source, line=line) from None
+
+
+def _windows(path, machine, limits, dt, T, job, window=STREAM_WINDOW, keep=True):
+    """The windows of the streaming planner, in order: (timing, tick range to emit, kept sample
+    chunks or None) each; _NotConverged where re-planning does not meet the limits."""
     # reach of what a window's result depends on: the erosion of the caps, the jerk filter, the
     # re-planning radius around a violation (all ~ v T), and the look-ahead of the speeds (checked)
     vt = 1.1 * float(path.vmax.max()) * T + 4 * limits.grid_mm
-    for c0 in range(0, path.n, window):
-        c1 = min(path.n, c0 + window)
+    pins = path.pin_idx
+    c1 = 0
+    while c1 < path.n:                 # windows of about `window` segments, from knot to knot
+        c0 = c1
+        c1 = int(pins[min(len(pins) - 1, np.searchsorted(pins, c0 + window, "left"))])
         margin = max(STREAM_MARGIN_MM, 2 * vt)
         while True:
             try:
-                tm, rng, kept = _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job)
+                yield _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep)
                 break
             except _NotLocal:
                 margin *= 2
-        if kept is not None:
-            for k0, part in kept:
-                yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k0 + len(part[0])))
-        else:
-            for k0 in range(rng[0], rng[1], SAMPLE_CHUNK):
-                k1 = min(rng[1], k0 + SAMPLE_CHUNK)
-                part, _ = tm.samples(k0, k1)
-                yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k1))
 
 
-def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job):
+def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep_ok=True):
     """Plan segments c0 .. c1-1 with margins; returns (timing, tick range to emit, kept sample chunks
     or None) once the limits hold on the samples of the window and STREAM_CHECK_MM around it."""
     n, b_s = path.n, path.b_s
-    # the limits are checked on the samples between boundaries kb_lo and kb_hi (the window and at
-    # least STREAM_CHECK_MM around it); their times depend on the warp's knots one further out,
-    # which must not be a window end (those knots are not the whole job's); the profile must be the
-    # whole job's from there on, within vt
-    kb_lo = 0 if c0 == 0 else max(0, min(c0 - 1, int(np.searchsorted(b_s, b_s[c0] - STREAM_CHECK_MM, "right")) - 1))
-    kb_hi = n if c1 == n else min(n, max(c1 + 1, int(np.searchsorted(b_s, b_s[c1] + STREAM_CHECK_MM, "left"))))
-    lo_need = b_s[max(kb_lo - 1, 0)] - vt
-    hi_need = b_s[min(kb_hi + 1, n)] + vt
-    w0 = 0 if kb_lo <= 1 else max(0, min(kb_lo - 2, int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
-    w1 = n if kb_hi >= n - 1 else min(n, max(kb_hi + 2, int(np.searchsorted(b_s, hi_need + margin, "left"))))
+    # the limits are checked on the samples between knots kb_lo and kb_hi (the window and at least
+    # STREAM_CHECK_MM around it; knots are the boundaries with a tick of their own, _Path.pin); their
+    # times depend on the warp's knots one further out, which must not be a window end (those knots
+    # are not the whole job's); the profile must be the whole job's from there on, within vt
+    P = path.pin_idx
+    bp = b_s[P]
+    ic0, ic1 = int(np.searchsorted(P, c0)), int(np.searchsorted(P, c1))
+    i_lo = 0 if c0 == 0 else max(0, min(ic0 - 1, int(np.searchsorted(bp, b_s[c0] - STREAM_CHECK_MM, "right")) - 1))
+    i_hi = len(P) - 1 if c1 == n else min(len(P) - 1, max(ic1 + 1, int(np.searchsorted(bp, b_s[c1] + STREAM_CHECK_MM,
+                                                                                         "left"))))
+    kb_lo, kb_hi = int(P[i_lo]), int(P[i_hi])
+    lo_need = bp[max(i_lo - 1, 0)] - vt
+    hi_need = bp[min(i_hi + 1, len(P) - 1)] + vt
+    w0 = 0 if i_lo <= 1 else max(0, min(int(P[i_lo - 2]), int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
+    w1 = n if i_hi >= len(P) - 2 else min(n, max(int(P[i_hi + 2]), int(np.searchsorted(b_s, hi_need + margin, "left"))))
     sp = path.sub(w0, w1)
     zone = None
     if w0 > 0 or w1 < n:
@@ -652,7 +895,7 @@ def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job):
         e1 = int(tm.K_b[c1 - w0]) + (1 if c1 == n else 0)
         k_lo = int(tm.K_b[kb_lo - w0])
         k_hi = int(tm.K_b[kb_hi - w0]) + (1 if kb_hi == n else 0)
-        keep = [] if e1 - e0 <= STREAM_KEEP else None
+        keep = [] if keep_ok and e1 - e0 <= STREAM_KEEP else None
         bad = []
         prev = None
         for k0 in range(k_lo, k_hi, SAMPLE_CHUNK):
@@ -673,8 +916,9 @@ def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job):
             prev = cur
         if not bad:
             return tm, (e0, e1), keep
-        scale = _lower_caps(grid, scale, tuple(np.concatenate(x) for x in zip(*bad)), limits, T)
-    raise _not_met(job, limits)
+        worst = tuple(np.concatenate(x) for x in zip(*bad))
+        scale = _lower_caps(grid, scale, worst, limits, T)
+    raise _NotConverged(path.locate(worst[0])[0])
 
 
 def _too_long(job, line, what, dt, max_samples=None):
@@ -696,8 +940,10 @@ def _check_size(path: _Path, job, dt, limits: PlannerLimits, max_samples=None, w
     if not t_b[-1] < limit_t:
         b = int(np.argmax(~(t_b < limit_t)))
         if b > 0 and t_b[b] - path.dwell[b] >= limit_t:          # crossed while moving into boundary b
-            line = path.line[b - 1]
-            what = (f"this move alone takes at least {seg_t[b - 1]:.4g} s ({path.feed_length[b - 1]:.4g} mm at "
+            line = int(path.lines(b - 1, 0.0))
+            which = ("this move alone takes" if line == path.line[b - 1] else
+                     f"the moves from this line to line {path.line[b - 1]} (one straight line) take")
+            what = (f"{which} at least {seg_t[b - 1]:.4g} s ({path.feed_length[b - 1]:.4g} mm at "
                     f"{path.vmax[b - 1] * 60:.4g} mm/min)" if seg_t[b - 1] >= 0.5 * limit_t
                     else f"the job takes at least {t_b[-1]:.4g} s, over the bound by this line")
         else:                                                     # crossed during the dwell at b
@@ -711,19 +957,47 @@ def _check_size(path: _Path, job, dt, limits: PlannerLimits, max_samples=None, w
         max_grid = MAX_GRID_POINTS
         if cum[-1] > max_grid:
             i = int(np.argmax(cum > max_grid))
-            raise InputError(job.source, int(path.line[i]),
+            u = (max_grid - (cum[i] - counts[i])) / counts[i]
+            raise InputError(job.source, int(path.lines(i, u)),
                              f"the path is {path.total:.6g} mm long: more than the batch planner's "
                              f"{MAX_GRID_POINTS} grid points of {limits.grid_mm:g} mm by this line "
                              f"(check arc turns P and the coordinates, or split the job)")
 
 
-def _check_reachable(path, job, machine):
+def _reach_advice(reason: str) -> str:
+    """What to do about an unreachable pose, from the limit its reason names."""
+    if reason.startswith(("tilt", "spherical")):
+        return "reduce the tool tilt (A, B) there"
+    if reason.startswith("chain"):
+        return "the tool is too high or too low there: move the program (or the part) in Z"
+    if reason.startswith("table"):
+        return "move the program (or the part on the table) in X/Y so that the tool stays over the table's travel"
+    return "keep the tool inside the machine's workspace there"
+
+
+def _reach_problems(problems, seen, job, lines, reason, where):
+    """One Problem (kind machine) per line not reported yet, for the unreachable poses ``lines``."""
+    for ln, why in zip(lines, reason):
+        ln = int(ln)
+        if ln in seen:
+            continue
+        seen.add(ln)
+        problems.append(Problem(job.source, ln or None, None, "machine",
+                                f"{where}unreachable: {why}; {_reach_advice(str(why))}"))
+
+
+def _check_reachable(path, job, machine, problems=None, seen=None):
+    """IK of every boundary pose: InputError at the first unreachable one, or with ``problems`` (a list)
+    one Problem per line appended."""
     for b0 in range(1, path.n + 1, SAMPLE_CHUNK):        # the boundaries after the start, in chunks
         b1 = min(path.n + 1, b0 + SAMPLE_CHUNK)
         r = K.ik_batch(path.b_ctl[b0:b1], path.b_axis[b0:b1], machine)
         if not np.all(r.ok):
-            i = int(np.argmax(~r.ok))
-            raise InputError(job.source, int(path.line[b0 + i - 1]), f"pose unreachable: {r.reason[i]}")
+            if problems is None:
+                i = int(np.argmax(~r.ok))
+                raise InputError(job.source, int(path.line[b0 + i - 1]), f"pose unreachable: {r.reason[i]}")
+            bad = np.nonzero(~r.ok)[0]
+            _reach_problems(problems, seen, job, path.line[b0 + bad - 1], r.reason[bad], "the programmed pose is ")
 
 
 def _limit_grid(path: _Path, machine, limits: PlannerLimits, dt, T):
@@ -858,13 +1132,14 @@ class _Timing:
         b_idx = grid["b_idx"]
         n = path.n
         self.path, self.prof, self.dt, self.job = path, prof, dt, job
-        # Filtered arrival time at every boundary.
-        tau = np.empty(n + 1)
+        # Filtered arrival time at every knot (the boundaries with a tick of their own, _Path.pin).
+        P = path.pin_idx
+        tau = np.empty(len(P))
         tau[0] = -0.5 * T
-        tau[n] = prof.t_end + 0.5 * T
-        inner = np.arange(1, n)
+        tau[-1] = prof.t_end + 0.5 * T
+        inner = P[1:-1]
         st = path.stop[inner]
-        tau[inner[st]] = prof.t_arrive[b_idx[inner[st]]] + 0.5 * (T + path.dwell[inner[st]])
+        tau[1:-1][st] = prof.t_arrive[b_idx[inner[st]]] + 0.5 * (T + path.dwell[inner[st]])
         mv = inner[~st]
         if len(mv):
             target = path.b_s[mv]
@@ -876,27 +1151,29 @@ class _Timing:
                 below = sf < target
                 lo = np.where(below, mid, lo)
                 hi = np.where(below, hi, mid)
-            tau[mv] = 0.5 * (lo + hi)
+            tau[1:-1][~st] = 0.5 * (lo + hi)
         gaps = np.diff(tau)
         if max_samples is not None:
-            over = np.cumsum(gaps) / dt > max_samples - n - 1      # before anything of that size exists
+            over = np.cumsum(gaps) / dt > max_samples - len(P)      # before anything of that size exists
             if np.any(over):
-                b = int(np.argmax(over))
-                raise _too_long(job, path.line[b], f"the planned job takes {tau[-1] - tau[0]:.6g} s "
-                                                   "(the joint and acceleration limits slow it down)", dt)
+                b = int(P[int(np.argmax(over))])
+                raise _too_long(job, path.line[min(b, n - 1)], f"the planned job takes {tau[-1] - tau[0]:.6g} s "
+                                                               "(the joint and acceleration limits slow it down)", dt)
         ticks = np.maximum(1, np.ceil(gaps / dt - 1e-9).astype(int))
-        self.K_b = K_b = np.concatenate([[0], np.cumsum(ticks)])
-        self.n_samples = int(K_b[-1]) + 1
+        K_p = np.concatenate([[0], np.cumsum(ticks)])
+        self.K_b = K_b = np.full(n + 1, -1, int)          # the tick of each knot; -1 for other boundaries
+        K_b[P] = K_p
+        self.n_samples = int(K_p[-1]) + 1
         # The warped clock lags real time by D(t) >= 0; D is a monotone (PCHIP) interpolant of its knot
         # values, so the warp rate 1 - D' never exceeds 1: the warp only ever slows the profile down.
-        x_b = K_b * dt
+        x_b = K_p * dt
         self.tau0 = tau[0]
         self.lag = PchipInterpolator(x_b, x_b - (tau - tau[0]))
         self.dlag = self.lag.derivative()
         self.warp = None
         for k0 in range(0, self.n_samples, SAMPLE_CHUNK):
             if np.any(1.0 - self.dlag(np.arange(k0, min(k0 + SAMPLE_CHUNK, self.n_samples)) * dt) < 0):
-                self.warp = PchipInterpolator(x_b, tau)    # only for segments far shorter than a tick
+                self.warp = PchipInterpolator(x_b, tau)    # only for knots far closer than a tick
                 self.dwarp = self.warp.derivative()
                 break
         # Samples held at a stop (within 1e-9 mm of it) sit exactly there, at rest: the tick range of each.
@@ -990,7 +1267,7 @@ class _Timing:
             if k0 <= end < k1:
                 tip_vel[end - k0] = 0.0
                 axis_vel[end - k0] = 0.0
-        line = path.line[seg] if n else np.full(len(k), path.start_line, int)
+        line = path.lines(seg, u) if n else np.full(len(k), path.start_line, int)
         rpm = path.rpm[seg]
         for b, (a, e) in self.dwells.items():
             a, e = max(a, k0), min(e, k1)
@@ -1013,13 +1290,17 @@ def _sample(path: _Path, grid, scale, machine, limits, dt, T, job):
     return traj, worst
 
 
-def _check_samples(tip, axis, line, machine, job):
-    """Reachability of the samples (InputError with the job line); their joint positions."""
+def _check_samples(tip, axis, line, machine, job, problems=None, seen=None):
+    """Reachability of the samples (InputError with the job line, or with ``problems`` one Problem per
+    line appended); their joint positions."""
     ik = K.ik_batch(tip, axis, machine)
     if not np.all(ik.ok):
-        i = int(np.argmax(~ik.ok))
-        raise InputError(job.source, int(line[i]), f"the path leaves the workspace at tip "
-                                                   f"{np.round(tip[i], 4).tolist()}: {ik.reason[i]}")
+        if problems is None:
+            i = int(np.argmax(~ik.ok))
+            raise InputError(job.source, int(line[i]), f"the path leaves the workspace at tip "
+                                                       f"{np.round(tip[i], 4).tolist()}: {ik.reason[i]}")
+        bad = np.nonzero(~ik.ok)[0]
+        _reach_problems(problems, seen, job, line[bad], ik.reason[bad], "the path between the programmed poses is ")
     return ik.q
 
 
