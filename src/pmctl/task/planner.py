@@ -115,11 +115,14 @@ class PlanningError(PmctlError):
 
 
 class _NotConverged(Exception):
-    """The limits still fail on the samples after ``max_iterations``: the segments around them."""
+    """The limits still fail on the samples after ``max_iterations``: the segments of the offending
+    samples and the line of the first."""
 
-    def __init__(self, segs):
+    def __init__(self, path, s_bad):
         super().__init__()
-        self.segs = segs
+        seg, u = path.locate(np.sort(s_bad))
+        self.segs = seg
+        self.line = int(path.lines(seg[:1], u[:1])[0])
 
 
 @dataclass(frozen=True)
@@ -682,7 +685,7 @@ def plan(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: Pl
             if worst is None:
                 return traj
             scale = _lower_caps(grid, scale, worst, limits, T)
-        _fall_back(path, path.locate(worst[0])[0], dt, limits, job)
+        _fall_back(path, _NotConverged(path, worst[0]), dt, limits, job)
 
 
 def _lower_caps(grid, scale, worst, limits, T):
@@ -697,16 +700,16 @@ def _lower_caps(grid, scale, worst, limits, T):
 MAX_FALLBACKS = 6        # rounds of the fallback (exact stops, half the speed) before a job is refused
 
 
-def _fall_back(path, segs, dt, limits, job):
+def _fall_back(path, e, dt, limits, job):
     """The guaranteed-feasible fallback where re-planning did not meet the limits: the segments
     ``segs`` and their neighbours get exact stops at both ends and half their top speed (each round
     halves it again; ``path.fallbacks`` counts the rounds); after ``MAX_FALLBACKS`` rounds
-    PlanningError names the line. The path is changed in place: plan again."""
+    PlanningError names the line. ``e``: the _NotConverged. The path is changed in place: plan again."""
     n = path.n
-    segs = np.unique(np.clip(np.concatenate([segs - 1, segs, segs + 1]), 0, n - 1))
+    segs = np.unique(np.clip(np.concatenate([e.segs - 1, e.segs, e.segs + 1]), 0, n - 1))
     path.fallbacks = getattr(path, "fallbacks", 0) + 1
     if path.fallbacks > MAX_FALLBACKS:
-        line = int(path.lines(segs[len(segs) // 2], 0.5))
+        line = e.line
         raise PlanningError(f"{job.source}:{line}: the planner could not meet the joint and feed limits here, "
                             f"not even with exact stops at 1/{2 ** MAX_FALLBACKS} of the feed (its fallback): "
                             f"lower the feed of these moves, or report the job", path=job.source, line=line)
@@ -793,7 +796,7 @@ def _plan_whole(path, machine, limits, dt, job, window):
             for tm, (e0, e1), _ in _windows(path, machine, limits, dt, T, job, window, keep=False):
                 n_samples += e1 - e0
         except _NotConverged as e:
-            _fall_back(path, e.segs, dt, limits, job)
+            _fall_back(path, e, dt, limits, job)
             continue
         path.planned_samples = n_samples
         return
@@ -837,7 +840,7 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
                     yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k1))
     except _NotConverged as e:
         # only without the full check (validate(full=True)), which falls back before anything moves
-        line = int(path.lines(int(e.segs[len(e.segs) // 2]), 0.5))
+        line = e.line
         raise PlanningError(f"{job.source}:{line}: could not meet the joint/feed limits here after "
                             f"{limits.max_iterations} re-planning iterations (the job was not checked in full "
                             "before it was streamed)", path=job.source, line=line) from None
@@ -871,12 +874,20 @@ def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep_o
     # STREAM_CHECK_MM around it; knots are the boundaries with a tick of their own, _Path.pin); their
     # times depend on the warp's knots one further out, which must not be a window end (those knots
     # are not the whole job's); the profile must be the whole job's from there on, within vt
+    # (and at least vt beyond the knots next to the window: a violation there moves their ticks)
     P = path.pin_idx
     bp = b_s[P]
     ic0, ic1 = int(np.searchsorted(P, c0)), int(np.searchsorted(P, c1))
-    i_lo = 0 if c0 == 0 else max(0, min(ic0 - 1, int(np.searchsorted(bp, b_s[c0] - STREAM_CHECK_MM, "right")) - 1))
-    i_hi = len(P) - 1 if c1 == n else min(len(P) - 1, max(ic1 + 1, int(np.searchsorted(bp, b_s[c1] + STREAM_CHECK_MM,
-                                                                                         "left"))))
+    if c0 == 0:
+        i_lo = 0
+    else:
+        reach = min(b_s[c0] - STREAM_CHECK_MM, bp[max(ic0 - 1, 0)] - vt)
+        i_lo = max(0, min(ic0 - 1, int(np.searchsorted(bp, reach, "right")) - 1))
+    if c1 == n:
+        i_hi = len(P) - 1
+    else:
+        reach = max(b_s[c1] + STREAM_CHECK_MM, bp[min(ic1 + 1, len(P) - 1)] + vt)
+        i_hi = min(len(P) - 1, max(ic1 + 1, int(np.searchsorted(bp, reach, "left"))))
     kb_lo, kb_hi = int(P[i_lo]), int(P[i_hi])
     lo_need = bp[max(i_lo - 1, 0)] - vt
     hi_need = bp[min(i_hi + 1, len(P) - 1)] + vt
@@ -918,7 +929,7 @@ def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep_o
             return tm, (e0, e1), keep
         worst = tuple(np.concatenate(x) for x in zip(*bad))
         scale = _lower_caps(grid, scale, worst, limits, T)
-    raise _NotConverged(path.locate(worst[0])[0])
+    raise _NotConverged(path, worst[0])
 
 
 def _too_long(job, line, what, dt, max_samples=None):
