@@ -3,22 +3,33 @@
 Public API (stable)::
 
     plan(job, machine, dt, *, feed_override=1.0, limits=PlannerLimits(), start=None) -> Trajectory
-    validate(job, machine, dt, ...) -> path index  # the whole job checked, bounded memory
+    validate(job, machine, dt, ..., full=False, problems=None) -> path index  # checked, bounded memory
     plan_stream(job, machine, dt, ..., path=None)  # Trajectory pieces; joined = plan(...)
     home_pose(machine) -> (tip, axis)          # the default start pose (q at home)
     load_job(path, machine, **options)         # re-exported from pmctl.task.job, dispatches on suffix
 
 ``start`` is (tip, axis) in W where the tool is when the job begins (default: the home pose, tool
 vertical at Z_home with the table centred). The first sample is exactly ``start``, the last exactly the
-last programmed point; ``Trajectory.points`` holds the job's programmed points.
+last programmed point; ``Trajectory.points`` holds the job's programmed points. docs/planning.md says
+what a user needs to know (CAM output, tolerances, the checks); this says how it is done.
 
 How it works (all vectorised with numpy):
 
 1. **Geometry.** Each move becomes a segment with a path parameter s: the tip's arc length (for a
    pure reorientation, or a tilt whose tip travels under ``ROT_SWITCH`` of it, ``rotation_length_mm``
-   x the slerp angle). Tip: straight line, or arc/helix in
-   XY about the centre; tool axis: slerp between the end axes. The path is exactly the programmed one:
-   corners are never rounded.
+   x the slerp angle, plus the change of the tool length offset). Tip: straight line, or arc/helix in
+   any plane (``_arc_frame``: a centre point, the plane's normal; the radius and the height along the
+   normal linear in the angle); tool axis: slerp between the end axes. A G93 move's top speed is its
+   length / duration. A tool length offset (Move.tool_offset) moves every pose the planner plans to
+   the controlled point tip + offset * axis (pmctl.task.job.controlled_point: the reference tool's tip,
+   what the machine's model commands); IK, the joint limits and the samples are of that point, the
+   feed and the tip's limits of the programmed tip. Corners are never rounded. **CAM output**: a run
+   of feed lines with the same feed, spindle speed, offset, tolerance and tool axis is simplified
+   before anything else (``_merged_away``, LinuxCNC's naive-CAM detector, Douglas-Peucker): every
+   dropped point within the run's tolerance (G64 P, Move.tolerance; without one the larger of
+   ``naive_cam_mm`` and the resolution the coordinates are written at, at most ``MAX_QUANTUM_MM``) of
+   the line that replaces it, never across a turn back. Samples of a merged segment carry the line
+   of the absorbed move they are on (``_Path.lines``).
 2. **Limits along the path** on a grid in s (``grid_mm``): the feed (F x override, or the rapid speed)
    on the tip speed, the tool-axis angular rate, the tip's normal acceleration on curves, and the
    joint speed/acceleration limits of ``machine.limits``: q' = dq/ds and q'' from ``ik_batch`` by
@@ -35,10 +46,14 @@ How it works (all vectorised with numpy):
    the filtered profile has trapezoidal acceleration (an S-curve) with jerk <= 2 a_t / T. Limits are
    eroded beforehand (each cap extends c T around its point, every stop is held for T) so the filtered
    profile still respects them.
-6. **Exact arrival**: a time warp puts every segment end on a tick, and that sample is set to the
-   programmed pose itself (tip and axis, bit for bit). The warped clock lags real time by D(t), a
-   monotone (PCHIP) interpolant of the lags at the ends, so the warp rate 1 - D' is <= 1: it only ever
-   slows the profile (by at most about one tick per segment) and never breaks a limit. Samples held at
+6. **Exact arrival**: a time warp puts every knot on a tick, and that sample is set to the programmed
+   pose itself (tip and axis, bit for bit). The knots (``_Path.pin``) are the stops and, walking along
+   the path, every boundary at least two ticks of top speed past the last knot: every segment end of
+   ordinary moves; inside a run of micro-segments (shorter than that, left after merging) the points
+   between knots are passed through on the path, not sampled (a tick each would make the samples'
+   speed follow the segments' lengths). The warped clock lags real time by D(t), a
+   monotone (PCHIP) interpolant of the lags at the knots, so the warp rate 1 - D' is <= 1: it only ever
+   slows the profile (by at most about one tick per knot) and never breaks a limit. Samples held at
    a stop sit exactly on the point with zero velocity; those of a dwell carry the G4's line. Each
    EVENT move puts a mark (sample index in the piece, line, events) into ``Trajectory.marks`` on a
    sample held at its stop: the boundary's own tick, or, where a dwell is programmed at the same
@@ -49,31 +64,39 @@ How it works (all vectorised with numpy):
 7. **Check and iterate**: the samples go through ``ik_batch``; an unreachable sample raises InputError
    with the job line; joint speed/acceleration, tip speed and acceleration are measured on the samples
    by finite differences, and where one exceeds its limit by more than ``VIOLATION_TOL`` the caps around
-   it are lowered and the profile is re-planned (``max_iterations``, else PlanningError).
+   it are lowered and the profile is re-planned (``max_iterations``). Where that does not meet the
+   limits, the **fallback** (``_fall_back``): the segments around the offending samples get exact stops
+   at both ends and half their top speed, and the path is planned again; after ``MAX_FALLBACKS``
+   rounds PlanningError names the line.
 
-Resource bounds: the planner holds the whole trajectory in memory (about 0.75 kB per sample at its
-peak), so it refuses, with the file, the line and the reason and before allocating anything large,
+Resource bounds: the batch planner holds the whole trajectory in memory (about 0.75 kB per sample at
+its peak), so it refuses, with the file, the line and the reason and before allocating anything large,
 a job of more than ``MAX_SAMPLES`` ticks (20 min at 1 kHz) or a path of more than ``MAX_GRID_POINTS``
 limit-grid points (500 m at the default 0.25 mm grid). The duration is checked
 three times: a lower bound (length / feed + dwells) before the limit grid, the grid size before
 it is built, and the profile's true duration before it is sampled. A typo such as ``F0.42`` or a
-``G4`` of days is refused this way in well under a second.
+``G4`` of days is refused this way in well under a second. There is no bound on the number of moves.
 
 Streaming (``plan_stream``, what the daemon and ``pmctl run`` use): ``validate`` checks the whole job
 first in chunks (feeds, a duration bound of ``MAX_STREAM_SECONDS``, the size of each move, the
 reachability of every programmed pose and of the path between them every ``grid_mm``), so a bad line
-is refused, named, before anything moves. Then windows of ``STREAM_WINDOW`` segments are planned
+is refused, named, before anything moves; ``validate(full=True)`` also plans the whole job, window by
+window without keeping samples, and puts the fallback into the path where it is needed, so that
+``plan_stream(path=...)`` of that path cannot fail midway (pmctl check, pmctl run and the supervisor
+do this). Then windows of about ``STREAM_WINDOW`` segments, from knot to knot, are planned
 by steps 2-7 above, each with margins of path on both sides: everything a sample depends on (cap
 erosion, junction caps, the jerk filter, the warp's neighbouring knots, re-planning around a
 violation) reaches a bounded distance of about v T, and the look-ahead of the speeds is checked (the
 passes run again with the margins' ends at rest and must agree inside, else the margin doubles). A
 window is computed in the job's own path coordinate and time is summed in extended precision, so
 the pieces agree with ``plan`` to ~1e-11 mm on the bundled jobs (a few 1e-9 mm where a boundary is
-passed at nearly zero speed). Memory: the job's segment index (~0.3 kB per move) and one window,
+passed at nearly zero speed). Memory: the job's segment index (~0.4 kB per move) and one window,
 sampled ``SAMPLE_CHUNK`` ticks at a time.
 
 Feeds are capped at ``rapid_mm_s``, the tool tip's top speed. Cost: a 10-minute 5-axis CL job
-(18 000 moves, 614 000 samples at 1 kHz) plans in about 4 s of CPU (benchmarks/bench_planner.py).
+(18 000 moves, 614 000 samples at 1 kHz) plans in about 4 s of CPU (benchmarks/bench_planner.py); a
+1.28 MB V-carve program of 45 000 micro-inch steps is read, checked and planned in about 1.3 s of CPU
+(benchmarks/bench_microsegments.py).
 """
 
 from __future__ import annotations

@@ -3,8 +3,10 @@
     pmctl run --config config/prototype.toml --backend sim --job examples/jobs/<job> --record DIR
               [--force] [--rate HZ] [--no-realtime] [--service config/service.toml] [--state FILE]
 
-Checks every input first (job, record target, backend, state file, the whole job against the
-machine), then runs it through the daemon's machinery as a one-shot client: a
+Checks every input first (job, record target, backend, state file, and the whole job as ``pmctl
+check`` does: every problem of the job, its poses and the path between them against the machine, the
+whole job planned, so that it cannot stop midway for a planning reason; a tool change is refused
+unless ``--tool`` says that tool is already in the spindle), then runs it through the daemon's machinery as a one-shot client: a
 pmctl.task.supervisor.Supervisor starts the rt motion process (pmctl.motion.rtproc: the loop, the
 NC and the backend in their own process) at the saved pulse counters (else home), the job is
 submitted, planned window by window and streamed into the shared sample ring (memory bounded by a
