@@ -24,12 +24,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -59,17 +57,6 @@ print(json.dumps({"moves": len(job.moves), "segments": int(path.n), "samples": n
                   "read_s": t1 - t0, "check_s": t2 - t1, "stream_s": t3 - t2, "hwm_kb": hwm,
                   "fallbacks": int(getattr(path, "fallbacks", 0))}))
 """
-
-
-def _hwm_kb(pid):
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            for line in f:
-                if line.startswith("VmHWM"):
-                    return int(line.split()[1])
-    except OSError:
-        return None
-    return None
 
 
 def main():
@@ -110,24 +97,11 @@ def main():
     if not a.no_run:
         args = [sys.executable, "-m", "pmctl.interfaces.cli", "run", "--job", str(job), "--state", "", "--quiet",
                 "--backend", "sim", "--no-realtime"]
+        sys.path.insert(0, str(ROOT / "benchmarks"))
+        from bench_run_memory import run_watched
         t0 = time.monotonic()
-        p = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
-        rt = []
-
-        def read_err():
-            for line in p.stderr:
-                m = re.search(r"rt motion process \(pid (\d+)\)", line)
-                if m:
-                    rt.append(int(m.group(1)))
-        threading.Thread(target=read_err, daemon=True).start()
-        peak = {"client": 0, "rt": 0}
-        while p.poll() is None:
-            for name, pid in (("client", p.pid), ("rt", rt[0] if rt else None)):
-                v = _hwm_kb(pid) if pid else None
-                if v:
-                    peak[name] = max(peak[name], v)
-            time.sleep(0.2)
-        print(p.stdout.read(), end="")
+        p, out, peak = run_watched(args, period_s=0.2)
+        print(out, end="")
         print(f"pmctl run --no-realtime: exit {p.returncode}, {time.monotonic() - t0:.1f} s wall; peak RSS (VmHWM) "
               f"client {peak['client'] / 1024:.1f} MB, rt process {peak['rt'] / 1024:.1f} MB")
     print(f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")

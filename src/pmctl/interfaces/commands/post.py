@@ -11,7 +11,6 @@ reads back as the same float. See pmctl.task.post and docs/planning.md.
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 
@@ -40,6 +39,7 @@ def _fmt(x) -> str:
 def run(args) -> int:
     from pmctl.core.errors import JobProblems, PmctlError
     from pmctl.interfaces.commands.check import Context
+    from pmctl.motion.state_store import atomic_write
     from pmctl.task import post
     from pmctl.task.jobcheck import check_file
     ctx = Context(args)
@@ -54,29 +54,26 @@ def run(args) -> int:
     if not rep.ok:
         raise JobProblems(rep.problems)
     out = Path(args.out)
-    tmp = out.with_name(out.name + ".partial")
-    rows = 0
+    rows = [0]
+
+    def text():                     # the CSV, chunk by chunk (a long job is never whole in memory)
+        if args.dt is None:
+            yield "line," + ",".join(post.COLUMNS) + "\n"
+            lines, q = post.per_move(rep.job, ctx.plan_machine)
+            yield "".join(f"{int(ln)}," + ",".join(_fmt(x) for x in qq) + "\n" for ln, qq in zip(lines, q))
+            rows[0] = len(lines)
+            return
+        yield "t,line," + ",".join(post.COLUMNS) + "\n"
+        for t, ln, q in post.per_step(rep.job, ctx.plan_machine, ctx.dt, every, start=ctx.start,
+                                      feed_override=ctx.feed_override):
+            yield "".join(f"{_fmt(tt)},{int(ll)}," + ",".join(_fmt(x) for x in qq) + "\n"
+                          for tt, ll, qq in zip(t, ln, q))
+            rows[0] += len(t)
     try:
-        with open(tmp, "w", encoding="utf-8") as f:
-            if args.dt is None:
-                f.write("line," + ",".join(post.COLUMNS) + "\n")
-                lines, q = post.per_move(rep.job, ctx.plan_machine)
-                for ln, qq in zip(lines, q):
-                    f.write(f"{int(ln)}," + ",".join(_fmt(x) for x in qq) + "\n")
-                rows = len(lines)
-            else:
-                f.write("t,line," + ",".join(post.COLUMNS) + "\n")
-                for t, ln, q in post.per_step(rep.job, ctx.plan_machine, ctx.dt, every, start=ctx.start,
-                                              feed_override=ctx.feed_override):
-                    f.write("".join(f"{_fmt(tt)},{int(ll)}," + ",".join(_fmt(x) for x in qq) + "\n"
-                                    for tt, ll, qq in zip(t, ln, q)))
-                    rows += len(t)
-        os.replace(tmp, out)
+        atomic_write(out, text())
     except OSError as e:
         raise PmctlError(f"{out}: cannot write: {e.strerror or e}") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    rows = rows[0]
     print(f"{out}: {rows} rows ({'per move' if args.dt is None else f'every {every * ctx.dt:g} s'}), "
           f"columns {'line' if args.dt is None else 't,line'},{','.join(post.COLUMNS)} (mm)")
     return 0
