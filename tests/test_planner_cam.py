@@ -48,6 +48,25 @@ def micro_program(n=3000, step_mm=(0.0002, 0.001), decimals=4, feed=1500, seed=0
     return "\n".join(lines) + "\n", np.round(np.array([x, y, z]).T, decimals)
 
 
+def dist_to_polyline(points, poly):
+    """Distance of each point to the polyline through ``poly`` (to every segment of a short one; to
+    the two segments at the nearest vertex of a dense one)."""
+    if len(poly) < 50:
+        a, d = poly[:-1], np.diff(poly, axis=0)
+        w = points[:, None, :] - a[None]
+        t = np.clip(np.einsum("nmk,mk->nm", w, d) / np.maximum(np.einsum("mk,mk->m", d, d), 1e-300), 0, 1)
+        return np.linalg.norm(w - t[..., None] * d[None], axis=2).min(axis=1)
+    from scipy.spatial import cKDTree
+    _, k = cKDTree(poly).query(points)
+    best = np.full(len(points), np.inf)
+    for j0 in (k - 1, k):                            # the two segments at the nearest vertex
+        j0 = np.clip(j0, 0, len(poly) - 2)
+        a, d = poly[j0], poly[j0 + 1] - poly[j0]
+        t = np.clip(np.einsum("ij,ij->i", points - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0, 1)
+        best = np.minimum(best, np.linalg.norm(points - a - t[:, None] * d, axis=1))
+    return best
+
+
 def check_limits(traj, machine):
     jl = machine.limits
     q = K.ik_batch(traj.tip, traj.axis, machine).q
@@ -121,17 +140,20 @@ def test_micro_segments_plan_within_the_tolerance_and_the_limits(machine, decima
                   job.source, job.points)
     path = validate(job, machine, DT, full=True)
     assert path.n < 300 and len(path.mrg_seg) > 2700          # 3000 lines became a few hundred or fewer
-    # every dropped point within the tolerance of the segment that replaced it
-    seg = path.mrg_seg
-    by_line = {m.line: m.tip for m in job.moves}
-    q = np.array([by_line[ln] for ln in path.mrg_line])
-    d = path.p1[seg] - path.p0[seg]
-    w = q - path.p0[seg]
-    t = np.clip(np.einsum("ij,ij->i", w, d) / np.einsum("ij,ij->i", d, d), 0, 1)
-    assert np.linalg.norm(w - t[:, None] * d, axis=1).max() <= tol * (1 + 1e-9)
+    if not extra:       # every dropped point within the tolerance of the line that replaced it
+        seg = path.mrg_seg
+        by_line = {m.line: m.tip for m in job.moves}
+        q = np.array([by_line[ln] for ln in path.mrg_line])
+        d = path.p1[seg] - path.p0[seg]
+        w = q - path.p0[seg]
+        t = np.clip(np.einsum("ij,ij->i", w, d) / np.einsum("ij,ij->i", d, d), 0, 1)
+        assert np.linalg.norm(w - t[:, None] * d, axis=1).max() <= tol * (1 + 1e-9)
     traj = plan(job, machine, DT)
     check_limits(traj, machine)
     assert traj.duration < 20.0
+    # every programmed point within the tolerance of the path as planned (G64 P: merged within P, and
+    # the corners left rounded within P: 2 P at most, as LinuxCNC's P and Q)
+    assert dist_to_polyline(pts, traj.tip).max() <= (2 * tol if extra else tol) + 1e-6
     lines = traj.line[traj.line >= 4]
     assert np.all(np.diff(lines) >= 0) and len(np.unique(lines)) > 100      # the line goes through the program
     joined = Trajectory.join(plan_stream(job, machine, DT, path=path, window=16))
@@ -153,11 +175,7 @@ def test_micro_segments_without_merging_are_passed_through_not_sampled(machine, 
     # the samples of the run lie on the polyline: each within 1e-9 mm of one of its segments
     on = (traj.line > 3) & (traj.line < 3 + len(pts))
     poly = np.vstack([[0.0, 0.0, pts[0, 2]], pts])      # from the plunge's end
-    a, b = poly[:-1], poly[1:]
-    for x in traj.tip[on][::7]:
-        d = b - a
-        t = np.clip(np.einsum("ij,ij->i", x - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0, 1)
-        assert np.linalg.norm(x - a - t[:, None] * d, axis=1).min() < 1e-9
+    assert dist_to_polyline(traj.tip[on], poly).max() < 1e-9
 
 
 # ---------------------------------------------------------------- the fallback
@@ -224,3 +242,42 @@ def test_the_generated_v_carve_program_checks_and_runs_to_done(tmp_path, monkeyp
     assert code == 0 and "result: done" in report, report
     ticks = int(report.split("ticks ")[1].split()[0])     # the job, and the plant settling after it
     assert 0 <= ticks * DT - rep["summary"]["machining_time_s"] < 1.0
+
+
+# ---------------------------------------------------------------- corners rounded within G64 P
+
+def with_tolerance(job, tol):
+    """``job`` with G64 P``tol`` on its feed lines (until the RS-274 reader sets Move.tolerance)."""
+    return Job(tuple(Move(m.kind, m.tip, m.axis, m.line, m.feed, m.spindle_rpm, m.center, m.sweep, m.dwell,
+                          m.probe, tolerance=tol if m.kind == LINE else 0.0) for m in job.moves), job.source, job.points)
+
+
+def test_g64_p_rounds_corners_within_its_tolerance(machine):
+    text = "G0 X0 Y0 Z60\nF1500\nG1 X10\nG1 Y10\nG1 X0 Y10.5\nG1 X10 Y10.6\nG1 X20 Y20\n"
+    exact = parse_gcode(text, "s.ngc", *home_pose(machine))
+    job = with_tolerance(exact, 0.05)
+    a, b = plan(exact, machine, DT), plan(job, machine, DT)
+    check_limits(b, machine)
+    corners = np.array([[10, 0, 60], [10, 10, 60], [0, 10.5, 60], [10, 10.6, 60]], float)
+    poly = np.vstack([[0.0, 0.0, 60.0], corners, [20, 20, 60]])
+    on = b.line >= 3
+    assert dist_to_polyline(b.tip[on], poly).max() <= 0.05 + 1e-9      # within P of the program
+    near = [np.linalg.norm(b.tip - c, axis=1).min() for c in corners]
+    assert all(0.0499 < near[k] < 0.051 for k in (0, 1, 3)), near      # corners rounded, by P (+ sampling)
+    assert near[2] == 0.0                                     # nearly a reversal (> 170 deg): exact
+    assert b.duration < a.duration
+    joined = Trajectory.join(plan_stream(job, machine, DT, window=1))
+    assert len(joined) == len(b) and np.abs(joined.tip - b.tip).max() < 1e-9
+
+
+def test_g64_p_lets_a_polygon_run_at_its_feed(machine):
+    th = np.linspace(0, 2 * np.pi, 201)
+    text = "G0 X5 Y0 Z60\nF1500\n" + "\n".join(f"G1 X{5 * np.cos(t):.4f} Y{5 * np.sin(t):.4f}" for t in th[1:])
+    exact = parse_gcode(text, "c.ngc", *home_pose(machine))
+    a, b = plan(exact, machine, DT), plan(with_tolerance(exact, 0.001), machine, DT)
+    check_limits(b, machine)
+    va = np.median(np.linalg.norm(a.tip_vel[a.line > 3], axis=1))
+    vb = np.median(np.linalg.norm(b.tip_vel[b.line > 3], axis=1))
+    assert vb > 0.95 * 25.0 > 1.5 * va                      # the feed (25 mm/s), not the corners' crawl
+    pts = np.array([m.tip for m in exact.moves[1:]])
+    assert dist_to_polyline(b.tip[b.line > 3], np.vstack([[5.0, 0, 60], pts])).max() <= 0.001 + 1e-9

@@ -23,7 +23,10 @@ How it works (all vectorised with numpy):
    length / duration. A tool length offset (Move.tool_offset) moves every pose the planner plans to
    the controlled point tip + offset * axis (pmctl.task.job.controlled_point: the reference tool's tip,
    what the machine's model commands); IK, the joint limits and the samples are of that point, the
-   feed and the tip's limits of the programmed tip. Corners are never rounded. **CAM output**: a run
+   feed and the tip's limits of the programmed tip. Corners are never rounded, except under G64 P
+   (Move.tolerance > 0): a corner between two feed lines with the same feed, spindle speed, offset
+   and axis, turning by less than ``BLEND_MAX_TURN``, is replaced by a tangent arc whose middle is P
+   from the corner (``_blend``; at most half of each line). **CAM output**: a run
    of feed lines with the same feed, spindle speed, offset, tolerance and tool axis is simplified
    before anything else (``_merged_away``, LinuxCNC's naive-CAM detector, Douglas-Peucker): every
    dropped point within the run's tolerance (G64 P, Move.tolerance; without one the larger of
@@ -108,7 +111,7 @@ from scipy.interpolate import PchipInterpolator
 
 from pmctl.core import kinematics as K
 from pmctl.core.errors import InputError, PmctlError, Problem
-from pmctl.task.job import ARC, DWELL, EVENT, RAPID, Job, controlled_point, home_pose, load_job  # noqa: F401
+from pmctl.task.job import ARC, DWELL, EVENT, LINE, RAPID, Job, controlled_point, home_pose, load_job  # noqa: F401
 from pmctl.task.trajectory import Trajectory
 
 __all__ = ["PlannerLimits", "plan", "plan_stream", "validate", "home_pose", "load_job", "PlanningError"]
@@ -274,6 +277,49 @@ def _douglas_peucker(pts, tol):
     return keep
 
 
+SYNTH_KNOT_TICKS = 25         # ticks of top speed between knots that are no programmed point
+BLEND_MAX_TURN = np.radians(170.0)   # a corner turning more than this is not rounded (nearly a reversal)
+
+
+def _blend(tip, corner, m, m2, axis, a_1):
+    """The arc rounding the corner at the end of feed line ``m`` (from ``tip``; the corner before it,
+    the last programmed point, is ``corner``) into the next move ``m2``, within the tolerance G64 P:
+    (end of the shortened line, end of the arc, arc frame, turn angle), or None where the corner is not
+    rounded (m2 not a feed line with the same feed, spindle speed, offset and tool axis; no turn; a
+    turn of more than BLEND_MAX_TURN). The arc is tangent to both lines; its middle is within the
+    tolerance of the corner; it takes at most half of each line (corner to corner)."""
+    if (m2.kind != LINE or m2.probe or m2.duration > 0 or not m2.tolerance > 0 or m2.feed != m.feed
+            or m2.spindle_rpm != m.spindle_rpm or m2.tool_offset != m.tool_offset):
+        return None
+    a2 = np.asarray(m2.axis, float)
+    if not (np.allclose(a2 / np.linalg.norm(a2), a_1, rtol=0, atol=1e-12) and np.allclose(axis, a_1, rtol=0,
+                                                                                        atol=1e-12)):
+        return None
+    c = np.asarray(m.tip, float)
+    v_in, v_out = c - np.asarray(corner, float), np.asarray(m2.tip, float) - c
+    l_in, l_out = float(np.linalg.norm(v_in)), float(np.linalg.norm(v_out))
+    if l_in < 1e-9 or l_out < 1e-9 or float(np.linalg.norm(c - tip)) < 1e-9:
+        return None
+    d_in, d_out = v_in / l_in, v_out / l_out
+    turn = float(np.arccos(np.clip(d_in @ d_out, -1.0, 1.0)))
+    if not 1e-7 < turn < BLEND_MAX_TURN:
+        return None
+    tol = min(float(m.tolerance), float(m2.tolerance))
+    h = 0.5 * turn
+    r = tol * np.cos(h) / (1.0 - np.cos(h))       # the arc's middle is tol from the corner
+    d = r * np.tan(h)
+    dmax = 0.5 * min(l_in, l_out, 2.0 * float(np.linalg.norm(c - tip)))
+    if d > dmax:
+        d = dmax
+        r = d / np.tan(h)
+    q1, q2 = c - d * d_in, c + d * d_out
+    n = np.cross(d_in, d_out)
+    n = n / np.linalg.norm(n)
+    centre = q1 + r * np.cross(n, d_in)
+    e1 = (q1 - centre) / r
+    return q1, q2, (centre, n, e1, np.cross(n, e1), r, r, 0.0, 0.0), turn
+
+
 def _arc_frame(p_start, p_end, m):
     """The frame of an ARC move from ``p_start``: (centre point, unit normal, e1, e2, r0, r1, h0, h1);
     the tip is c + h n + r (cos(sweep u) e1 + sin(sweep u) e2) with r and h linear in u (e1 towards the
@@ -315,6 +361,7 @@ class _Path:
         # Filled move by move into arrays of the job's size (no per-move objects: a long job's index
         # stays at ~0.4 kB per move), trimmed to the segments at the end.
         nm = len(job.moves)
+        nm += sum(1 for m in job.moves if m.tolerance > 0)       # room for the arcs rounding corners
         kind = np.zeros(nm, int)
         p0, p1, a0, a1, cc, nrm, e1, e2 = (np.zeros((nm, 3)) for _ in range(8))
         phi, r0, r1, h0, h1, sweep, length, vmax_, rpm_, off0, off1 = (np.zeros(nm) for _ in range(11))
@@ -329,6 +376,15 @@ class _Path:
         off = 0.0                     # the tool length offset at the start pose: none (the reference tool)
         self.start_line = job.moves[0].line if job.moves else 0
         drop = _merged_away(job, start, limits)
+        # the next move kept after each (-1: none), and which may round its corner with it (G64 P)
+        nxt = np.full(len(job.moves), -1)
+        kept = np.nonzero(~drop)[0]
+        if len(kept) > 1:
+            nxt[kept[:-1]] = kept[1:]
+        blendable = np.fromiter((m.kind == LINE and m.tolerance > 0 and not m.probe and not m.duration > 0
+                                 for m in job.moves), bool, len(job.moves))
+        corner = tip                  # the last programmed point kept (a rounded corner is not reached)
+        synth = set()                 # boundaries that are no programmed point (the ends of rounding arcs)
         absorbed = []                 # (end point, line) of the moves merged into the next segment
         mrg_seg, mrg_u, mrg_line = [], [], []
         for i_m, m in enumerate(job.moves):
@@ -352,57 +408,70 @@ class _Path:
             a_1 = np.asarray(m.axis, float)
             a_1 = a_1 / np.linalg.norm(a_1)
             o1 = float(m.tool_offset)
-            ph = float(np.arccos(np.clip(np.dot(axis, a_1), -1.0, 1.0)))
-            if m.kind == ARC:
-                arc = _arc_frame(tip, t1, m)
-                ltip = float(np.hypot(0.5 * (arc[4] + arc[5]) * m.sweep, arc[7] - arc[6]))
+            # the pieces of this move: (end point, arc frame or None, sweep); a corner between two feed
+            # lines under G64 P is rounded by an arc within the tolerance (_blend)
+            j = nxt[i_m]
+            bl = _blend(tip, corner, m, job.moves[j], axis, a_1) if j >= 0 and blendable[i_m] else None
+            if bl is None:
+                pieces = [(t1, _arc_frame(tip, t1, m) if m.kind == ARC else None, float(m.sweep))]
             else:
-                ltip = float(np.linalg.norm(t1 - tip))
-            rot = ltip < 1e-6
-            # s is the tip's arc length, but for a tilt with a tiny tip motion (under ROT_SWITCH x
-            # the rotation length) it is the rotation length: with 1e-5 mm of tip for 2 degrees the
-            # joint derivatives dq/ds would be 1e6 and the acceleration caps crawl (2300 s for a
-            # 3 s move). The feed still caps the tip's speed (v <= F / |dtip/ds|). A change of the
-            # tool length offset alone moves the machine by that change along the tool axis.
-            rl = limits.rotation_length_mm * ph + abs(o1 - off)
-            ln = rl if rot or ltip < ROT_SWITCH * rl else ltip
-            if ln < 1e-9:
-                tip, axis, off = t1, a_1, o1     # nothing moves: the point is the current pose
-                continue
-            if rpm_prev is not None and m.spindle_rpm != rpm_prev:
-                stop.add(n)
-            rpm_prev = m.spindle_rpm
-            flen = ln if rot else ltip
-            if m.kind == RAPID:
-                vm = limits.rapid_mm_s
-            elif m.duration > 0:          # G93: the move takes `duration` s at 100 % feed
-                vm = min(flen / float(m.duration) * feed_override, limits.rapid_mm_s)
-            else:
-                vm = min(m.feed * feed_override, limits.rapid_mm_s)
-            if not vm > 0:
-                raise InputError(job.source, m.line, f"move has no positive feed ({vm!r} mm/s)")
-            p0[n], p1[n], a0[n], a1[n], phi[n] = tip, t1, axis, a_1, ph
-            off0[n], off1[n] = off, o1
-            if absorbed:              # where along this (merged) segment each absorbed move ended
-                d = t1 - tip
-                q = np.array([a_[0] for a_ in absorbed], float) - tip
-                u_ = np.maximum.accumulate(np.clip(q @ d / max(float(d @ d), 1e-300), 0.0, 1.0))
-                mrg_seg.extend([n] * len(absorbed))
-                mrg_u.extend(u_.tolist())
-                mrg_line.extend(int(a_[1]) for a_ in absorbed)
-                absorbed = []
-            if m.kind == ARC:
-                kind[n] = 1
-                cc[n], nrm[n], e1[n], e2[n], r0[n], r1[n], h0[n], h1[n] = arc
-                sweep[n] = float(m.sweep)
-            line_[n], rpm_[n], length[n], rot_[n], vmax_[n] = m.line, m.spindle_rpm, ln, rot, vm
-            tip_len[n] = flen
-            n += 1
-            tip, axis, off = t1, a_1, o1
+                pieces = [(bl[0], None, 0.0), (bl[1], bl[2], bl[3])]
+            corner = t1
+            for t1, arc, sw in pieces:
+                ph = float(np.arccos(np.clip(np.dot(axis, a_1), -1.0, 1.0)))
+                if arc is not None:
+                    ltip = float(np.hypot(0.5 * (arc[4] + arc[5]) * sw, arc[7] - arc[6]))
+                else:
+                    ltip = float(np.linalg.norm(t1 - tip))
+                rot = ltip < 1e-6
+                # s is the tip's arc length, but for a tilt with a tiny tip motion (under ROT_SWITCH x
+                # the rotation length) it is the rotation length: with 1e-5 mm of tip for 2 degrees the
+                # joint derivatives dq/ds would be 1e6 and the acceleration caps crawl (2300 s for a
+                # 3 s move). The feed still caps the tip's speed (v <= F / |dtip/ds|). A change of the
+                # tool length offset alone moves the machine by that change along the tool axis.
+                rl = limits.rotation_length_mm * ph + abs(o1 - off)
+                ln = rl if rot or ltip < ROT_SWITCH * rl else ltip
+                if ln < 1e-9:
+                    tip, axis, off = t1, a_1, o1     # nothing moves: the point is the current pose
+                    continue
+                if rpm_prev is not None and m.spindle_rpm != rpm_prev:
+                    stop.add(n)
+                rpm_prev = m.spindle_rpm
+                flen = ln if rot else ltip
+                if m.kind == RAPID:
+                    vm = limits.rapid_mm_s
+                elif m.duration > 0:          # G93: the move takes `duration` s at 100 % feed
+                    vm = min(flen / float(m.duration) * feed_override, limits.rapid_mm_s)
+                else:
+                    vm = min(m.feed * feed_override, limits.rapid_mm_s)
+                if not vm > 0:
+                    raise InputError(job.source, m.line, f"move has no positive feed ({vm!r} mm/s)")
+                p0[n], p1[n], a0[n], a1[n], phi[n] = tip, t1, axis, a_1, ph
+                off0[n], off1[n] = off, o1
+                if absorbed:              # where along this (merged) segment each absorbed move ended
+                    d = t1 - tip
+                    q = np.array([a_[0] for a_ in absorbed], float) - tip
+                    u_ = np.maximum.accumulate(np.clip(q @ d / max(float(d @ d), 1e-300), 0.0, 1.0))
+                    mrg_seg.extend([n] * len(absorbed))
+                    mrg_u.extend(u_.tolist())
+                    mrg_line.extend(int(a_[1]) for a_ in absorbed)
+                    absorbed = []
+                if arc is not None:
+                    kind[n] = 1
+                    cc[n], nrm[n], e1[n], e2[n], r0[n], r1[n], h0[n], h1[n] = arc
+                    sweep[n] = sw
+                line_[n], rpm_[n], length[n], rot_[n], vmax_[n] = m.line, m.spindle_rpm, ln, rot, vm
+                tip_len[n] = flen
+                n += 1
+                tip, axis, off = t1, a_1, o1
+                if bl is not None:
+                    synth.add(n)          # a point of a rounded corner, not a programmed one
         self.n = n
         stop.add(n)
         self.stop = np.zeros(n + 1, bool)
         self.stop[sorted(stop)] = True
+        self.synth = np.zeros(n + 1, bool)
+        self.synth[sorted(synth)] = True
         self.dwell = np.zeros(n + 1)
         self.dwell_line = np.zeros(n + 1, int)
         for b, d in dwell.items():
@@ -429,7 +498,9 @@ class _Path:
         speed since the last knot (every boundary of a path of ordinary moves). The points between
         knots (inside runs of micro-segments) are passed through on the path, not sampled: a tick for
         each would make every segment last at least a tick, and the samples' speed would follow the
-        segments' lengths and jump from tick to tick."""
+        segments' lengths and jump from tick to tick. The ends of the arcs rounding corners (no
+        programmed point) are knots only ``SYNTH_KNOT_TICKS`` ticks of top speed past the last: the warp
+        then changes the speed by a few percent at most from knot to knot."""
         n = self.n
         vs = self.vmax.copy()                   # an upper bound of ds/dt on each segment
         tipish = ~self.rot & (self.feed_length < self.length)       # parameterised by the rotation
@@ -439,12 +510,13 @@ class _Path:
             vs[turn] = np.minimum(vs[turn], limits.axis_rate_rad_s * self.length[turn] / self.phi[turn])
         need = 2.0 * dt * vs
         self.pin = self.stop.copy()
-        if n and not np.all(self.length >= need):
+        if n and (not np.all(self.length >= need) or self.synth.any()):
             pin, b_s, stop = self.pin, self.b_s, self.stop
+            more = np.where(self.synth, 0.5 * SYNTH_KNOT_TICKS, 1.0)
             last, top = 0.0, 0.0
             for b in range(1, n + 1):                 # (a loop of ~1 us a boundary)
                 top = max(top, need[b - 1])
-                if stop[b] or b_s[b] - last >= top:
+                if stop[b] or b_s[b] - last >= top * more[b]:
                     pin[b] = True
                     last, top = b_s[b], 0.0
         else:
@@ -473,6 +545,7 @@ class _Path:
             setattr(p, k, getattr(self, k)[i0:i1])
         p.n = i1 - i0
         p.has_off = self.has_off
+        p.synth = self.synth[i0:i1 + 1]
         p.pin = self.pin[i0:i1 + 1].copy()
         p.pin[0] = p.pin[-1] = True            # a window's ends are its knots (far from what it emits)
         p.pin_idx = np.nonzero(p.pin)[0]
@@ -703,7 +776,7 @@ def plan(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: Pl
     while True:
         grid = _limit_grid(path, machine, limits, dt, T)
         scale = np.ones(len(grid["s"]))
-        for it in range(limits.max_iterations):
+        for it in range(max(1, limits.max_iterations)):
             traj, worst = _sample(path, grid, scale, machine, limits, dt, T, job)
             if worst is None:
                 return traj
@@ -923,7 +996,7 @@ def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep_o
                 lo_need if c0 > 0 else -np.inf, hi_need if c1 < n else np.inf)
     grid = _limit_grid(sp, machine, limits, dt, T)
     scale = np.ones(len(grid["s"]))
-    for it in range(limits.max_iterations):
+    for it in range(max(1, limits.max_iterations)):
         tm = _Timing(sp, grid, scale, dt, T, job, zone=zone)
         e0 = int(tm.K_b[c0 - w0])
         e1 = int(tm.K_b[c1 - w0]) + (1 if c1 == n else 0)
