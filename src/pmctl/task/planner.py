@@ -908,7 +908,10 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
     the velocity profile, the jerk filter and the time warp of the window are those of the whole
     job wherever the margins hold everything they depend on. The profile is checked for that (the
     speeds with the margin's ends free and at rest must agree in the window), else the margin grows.
-    Memory: the job's segment index (~0.3 kB per move) and one window with its margins."""
+    Where re-planning does not meet the limits before the first piece is handed out, the fallback
+    goes into ``path`` and the job is planned again; after that, PlanningError (with the line) stops
+    the stream: pass the path of ``validate(full=True)`` (same arguments) and that cannot happen.
+    Memory: the job's segment index (~0.4 kB per move) and one window with its margins."""
     limits, start = _start(job, machine, dt, feed_override, limits, start)
     if path is None:
         path = validate(job, machine, dt, feed_override=feed_override, limits=limits, start=start)
@@ -924,22 +927,29 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
                              z.copy(), np.full(m, path.start_line, int), np.zeros(m), job.source, points,
                              marks=tuple((i - k0, ln, ev) for i, ln, ev in marks if k0 <= i < k0 + m))
         return
-    try:
-        for tm, rng, kept in _windows(path, machine, limits, dt, T, job, window):
-            if kept is not None:
-                for k0, part in kept:
-                    yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k0 + len(part[0])))
-            else:
-                for k0 in range(rng[0], rng[1], SAMPLE_CHUNK):
-                    k1 = min(rng[1], k0 + SAMPLE_CHUNK)
-                    part, _ = tm.samples(k0, k1)
-                    yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k1))
-    except _NotConverged as e:
-        # only without the full check (validate(full=True)), which falls back before anything moves
-        line = e.line
-        raise PlanningError(f"{job.source}:{line}: could not meet the joint/feed limits here after "
-                            f"{limits.max_iterations} re-planning iterations (the job was not checked in full "
-                            "before it was streamed)", path=job.source, line=line) from None
+    emitted = False
+    while True:
+        try:
+            for tm, rng, kept in _windows(path, machine, limits, dt, T, job, window):
+                if kept is not None:
+                    for k0, part in kept:
+                        emitted = True
+                        yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k0 + len(part[0])))
+                else:
+                    for k0 in range(rng[0], rng[1], SAMPLE_CHUNK):
+                        k1 = min(rng[1], k0 + SAMPLE_CHUNK)
+                        part, _ = tm.samples(k0, k1)
+                        emitted = True
+                        yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k1))
+            return
+        except _NotConverged as e:
+            if not emitted:           # nothing handed out yet: the fallback, and start again
+                _fall_back(path, e, dt, limits, job)
+                continue
+            # only without the full check (validate(full=True)), which falls back before anything moves
+            raise PlanningError(f"{job.source}:{e.line}: could not meet the joint/feed limits here after "
+                                f"{limits.max_iterations} re-planning iterations (the job was not checked in "
+                                "full before it was streamed)", path=job.source, line=e.line) from None
 
 
 def _windows(path, machine, limits, dt, T, job, window=STREAM_WINDOW, keep=True):
