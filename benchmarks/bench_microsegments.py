@@ -1,12 +1,11 @@
 """CAM micro-segments: planning time and peak memory of a >= 1 MB V-carve program of micro-inch steps,
 and the program machined to done with ``pmctl run --backend sim --no-realtime``.
 
-    .venv/bin/python benchmarks/bench_microsegments.py [--size-mb 1.2] [--seed 1] [--repeat 3] [--no-run]
-                                                       [--units inch|mm] [--decimals N]
+    .venv/bin/python benchmarks/bench_microsegments.py [--bytes 1100000] [--seed 1] [--repeat 3] [--no-run]
 
-The program is written by benchmarks/make_microsegments.py (1-25 micro-inch steps, 6 decimals: the kind
-of program that faulted "could not meet the joint/feed limits after 10 re-planning iterations" after
-151.8 s of machining). Then, each in a fresh process:
+The program is written by benchmarks/make_microsegments.py (V-carve strokes of steps of 1 um down to 1
+micro-inch, 6 decimals: the kind of program that faulted "could not meet the joint/feed limits after 10
+re-planning iterations" after 151.8 s of machining). Then, each in a fresh process:
 
 1. planning, ``--repeat`` times: the job read, checked and planned whole as ``pmctl check`` and ``pmctl
    run`` do (``validate(full=True)``: streamed, no samples kept), then streamed as the supervisor streams
@@ -61,17 +60,15 @@ print(json.dumps({"moves": len(job.moves), "segments": int(path.n), "samples": n
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--size-mb", type=float, default=1.2)
+    ap.add_argument("--bytes", type=int, default=1_100_000, help="size of the program (default 1100000)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--units", default="inch")
-    ap.add_argument("--decimals", type=int, default=None)
     ap.add_argument("--no-run", action="store_true", help="skip the pmctl run part")
     a = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="pmctl-bench-micro-"))
     job = tmp / "vcarve.ngc"
-    gen = [sys.executable, str(ROOT / "benchmarks" / "make_microsegments.py"), str(job), "--size-mb", str(a.size_mb),
-           "--seed", str(a.seed), "--units", a.units] + (["--decimals", str(a.decimals)] if a.decimals else [])
+    gen = [sys.executable, str(ROOT / "benchmarks" / "make_microsegments.py"), str(job), "--bytes", str(a.bytes),
+           "--seed", str(a.seed)]
     print(subprocess.run(gen, check=True, capture_output=True, text=True).stdout.strip())
     runs = []
     for _ in range(a.repeat):

@@ -1,128 +1,120 @@
-"""Write a G-code program of micro-segments, as V-carving CAM posts it: deterministic (a seed), of a
-chosen size.
+"""Write a V-carve-like G-code program of micro-segments for the planner: at least 1 MB of steps of
+1 um and smaller, deterministic from a seed.
 
-    .venv/bin/python benchmarks/make_microsegments.py OUT.ngc [--size-mb 1.2] [--seed 1]
-                                                      [--units inch|mm] [--step MIN,MAX]
+    .venv/bin/python benchmarks/make_microsegments.py OUT.ngc [--seed 1] [--bytes 1100000] [--check]
 
-The program carves ``glyphs``: closed smooth curves (roses and epicycloids of 3-8 mm) traced by G1
-moves of ``--step`` length each (default: 1-25 micro-inch in inch units, the steps of the V-carve
-program that faulted the old planner; 0.2-1 um in mm units), with the depth going up and down
-along the curve (a V bit's depth follows the width of the letter), and the coordinates printed
-with 6 decimals (1 micro-inch; mm: 0.1 um with 4 decimals), so the quantised steps change direction
-at random, as such programs do. Between glyphs: a retract, a rapid to the next one, a plunge. One
-run of micro-segments in ten is followed by a few long flat strokes. It starts with ``%`` and a
-comment header, G20/G21 G90 G64 and a spindle start, and ends with M5 M30 ``%``.
+Like the output of V-carving CAM on a real job (tests/corpus/vcarve/vcarve.ngc: half its steps are under
+51 micro-inch), the program is a series of strokes, each a long run of tiny G1 steps whose direction
+turns slowly (collinear and near-collinear neighbours) while Z follows the carving depth of a V bit.
+Step lengths are drawn per run from 1 um down to 1 micro-inch (0.0254 um), written with 6 decimals; each
+stroke has its own feed between F100 and F3000 mm/min and is written either with G1 on every line or
+modal (coordinates only), as CAM posts do. Between strokes the tool retracts with G0.
 
-The whole program is inside the prototype's workspace (XY within 25 mm of the centre, Z 55-65 mm).
-Prints the file's size, lines, moves and the micro-segments' length range.
+All of it lies inside this machine's workspace (docs/machine.md; examples/jobs/README.md): 3-axis, tool
+vertical (A0 B0), the tip within +-25 mm of the table centre in X and Y, carving 0-1.2 mm deep into
+the workpiece face at z = 60 mm, retracting to z = 62. ``--check`` reads the file back with today's job
+reader (``pmctl.task.job.load_job``, which checks every pose against the machine) and prints its moves.
+Prints the number of steps, their lengths (min, median, max), the feeds and the extents.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import random
+import statistics
 from pathlib import Path
 
-import numpy as np
-
-MM_PER_INCH = 25.4
-
-
-def glyph(rng):
-    """A closed smooth curve (x(t), y(t)) in mm around the origin, and its depth profile in [0, 1]."""
-    kind = rng.integers(0, 2)
-    size = rng.uniform(3.0, 8.0)
-    k = int(rng.integers(2, 6))
-    ph = rng.uniform(0, 2 * math.pi)
-
-    def xy(t):
-        if kind == 0:                                   # a rose r = cos(k t) + offset
-            r = size * (0.6 + 0.4 * np.cos(k * t + ph))
-            return r * np.cos(t), r * np.sin(t)
-        R, r = size, size / (k + 1)                    # an epicycloid
-        return ((R + r) * np.cos(t) - r * np.cos((R + r) / r * t + ph),
-                (R + r) * np.sin(t) - r * np.sin((R + r) / r * t + ph))
-
-    def depth(t):
-        return 0.5 + 0.5 * np.sin(3 * t + ph)
-    return xy, depth
+FACE_Z = 60.0          # workpiece face (z in the workpiece frame W, mm)
+SAFE_Z = 62.0
+MAX_DEPTH = 1.2
+HALF = 25.0            # |x|, |y| of the carving area (mm)
+INCH_UM = 25.4e-3      # one micro-inch in um
 
 
-def trace(xy, depth, steps_mm, t_span, z_top, z_amp):
-    """Points (x, y, z) along the curve, z = z_top - z_amp * depth, with the given 3-D step lengths
-    (walked on a fine table of t)."""
-    t = np.linspace(0.0, t_span, 200_001)
-    x, y = xy(t)
-    z = z_top - z_amp * depth(t)
-    d = np.concatenate([[0.0], np.cumsum(np.sqrt(np.diff(x) ** 2 + np.diff(y) ** 2 + np.diff(z) ** 2))])
-    s = np.concatenate([[0.0], np.cumsum(steps_mm)])
-    s = s[s <= d[-1]]
-    tt = np.interp(s, d, t)
-    px, py = xy(tt)
-    return px, py, z_top - z_amp * depth(tt)
+def strokes(rng: random.Random):
+    """Endless strokes: (feed, modal, [(x, y, z), ...]) with every step of at most 1 um."""
+    while True:
+        x, y = rng.uniform(-HALF * 0.8, HALF * 0.8), rng.uniform(-HALF * 0.8, HALF * 0.8)
+        heading = rng.uniform(0.0, 2.0 * math.pi)
+        turn = rng.uniform(-0.02, 0.02)                     # rad per mm: slow curvature
+        feed = rng.choice([100, 200, 300, 500, 800, 1000, 1500, 2000, 2500, 3000])
+        modal = rng.random() < 0.5
+        length_mm = rng.uniform(0.3, 2.0)                   # one stroke: 0.3-2 mm of carving
+        phase, wave = rng.uniform(0, 2 * math.pi), rng.uniform(0.5, 3.0)
+        pts, s = [], 0.0
+        while s < length_mm:
+            # a run of equal steps: 1 um, or smaller down to 1 micro-inch
+            step_um = 1.0 if rng.random() < 0.45 else math.exp(rng.uniform(math.log(INCH_UM), 0.0))
+            jitter = rng.choice([0.0, 0.0, 1e-4, 1e-3])     # collinear, or near-collinear neighbours
+            for _ in range(rng.randint(50, 400)):
+                step = step_um * 1e-3                            # the 3-D length of this step (mm)
+                heading += turn * step + rng.gauss(0.0, jitter)
+                slope = MAX_DEPTH * 0.45 * wave * math.cos(phase + wave * s)  # d depth / d s
+                h = step / math.hypot(1.0, slope)                # its XY part
+                x += h * math.cos(heading)
+                y += h * math.sin(heading)
+                s += h
+                depth = MAX_DEPTH * (0.5 + 0.45 * math.sin(phase + wave * s))   # V-bit depth follows the width
+                if abs(x) > HALF or abs(y) > HALF:
+                    break
+                pts.append((x, y, FACE_Z - depth))
+            if abs(x) > HALF or abs(y) > HALF:
+                break
+        if len(pts) > 1:
+            yield feed, modal, pts
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("out")
-    ap.add_argument("--size-mb", type=float, default=1.2, help="size of the program (default 1.2 MB)")
+def program(seed: int, nbytes: int) -> tuple[str, dict]:
+    rng = random.Random(seed)
+    lines = [f"(pmctl micro-segment V-carve test program, benchmarks/make_microsegments.py --seed {seed})",
+             "G21 G90 G17 G94", "G0 Z%.3f A0 B0" % SAFE_Z, "S12000 M3"]
+    size = sum(len(s) + 1 for s in lines)
+    steps, feeds = [], set()
+    lo, hi = [math.inf] * 3, [-math.inf] * 3
+    for feed, modal, pts in strokes(rng):
+        x0, y0, z0 = pts[0]
+        block = [f"G0 X{x0:.6f} Y{y0:.6f}", f"G1 Z{z0:.6f} F100"]
+        prev = pts[0]
+        for k, (x, y, z) in enumerate(pts[1:]):
+            xyz = f"X{x:.6f} Y{y:.6f} Z{z:.6f}"
+            block.append(f"G1 {xyz} F{feed}" if k == 0 else (xyz if modal else "G1 " + xyz))
+            steps.append(math.dist(prev, (round(x, 6), round(y, 6), round(z, 6))))
+            prev = (round(x, 6), round(y, 6), round(z, 6))
+        block.append(f"G0 Z{SAFE_Z:.3f}")
+        feeds.add(feed)
+        for x, y, z in pts:
+            for i, v in enumerate((x, y, z)):
+                lo[i], hi[i] = min(lo[i], v), max(hi[i], v)
+        lines += block
+        size += sum(len(s) + 1 for s in block)
+        if size >= nbytes:
+            break
+    lines += ["M5", "M30"]
+    text = "\n".join(lines) + "\n"
+    stats = {"bytes": len(text.encode()), "steps": len(steps), "step_um": [1e3 * min(steps), 1e3 * statistics.median(steps),
+             1e3 * max(steps)], "feeds": sorted(feeds), "lo": lo, "hi": hi}
+    return text, stats
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", type=Path)
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--units", choices=("inch", "mm"), default="inch")
-    ap.add_argument("--step", default=None, metavar="MIN,MAX",
-                    help="step length range in program units (default: 1e-6,25e-6 inch or 0.0002,0.001 mm)")
-    ap.add_argument("--feed", type=float, default=None, help="cutting feed, program units/min (default 60 ipm, 1500 mm/min)")
-    ap.add_argument("--decimals", type=int, default=None, help="decimals of the coordinates (default 6 inch, 4 mm)")
-    args = ap.parse_args()
-    inch = args.units == "inch"
-    unit = MM_PER_INCH if inch else 1.0
-    lo, hi = (float(v) for v in args.step.split(",")) if args.step else ((1e-6, 25e-6) if inch else (2e-4, 1e-3))
-    feed = args.feed or (60.0 if inch else 1500.0)
-    nd = args.decimals or (6 if inch else 4)
-    fmt = f"{{:.{nd}f}}".format
-    rng = np.random.default_rng(args.seed)
-    target = int(args.size_mb * 1e6)
-    z_top, z_safe = 62.0, 65.0                                 # mm in W
-    out = ["%", f"(V-carve micro-segment test program, seed {args.seed}, {args.units})",
-           f"(steps {lo:g} to {hi:g} {args.units}; written by benchmarks/make_microsegments.py)",
-           f"{'G20' if inch else 'G21'} G90 G64", "S18000 M3", f"G0 Z{fmt(z_safe / unit)}"]
-    size = sum(len(s) + 1 for s in out)
-    moves = 0
-    micro = []
-    g = 0
-    while size < target:
-        cx, cy = rng.uniform(-14.0, 14.0, 2)
-        xy, depth = glyph(rng)
-        steps = rng.uniform(lo, hi, int(rng.integers(2000, 8000))) * unit       # mm
-        px, py, pz = trace(xy, depth, steps, 2 * math.pi, z_top - rng.uniform(0, 2.0), rng.uniform(0.1, 1.0))
-        px, py = px + cx, py + cy
-        lines = [f"G0 X{fmt(px[0] / unit)} Y{fmt(py[0] / unit)}", f"G1 Z{fmt(pz[0] / unit)} F{feed / 4:g}",
-                 f"F{feed:g}"]
-        prev = None
-        for x, y, z in zip(px[1:] / unit, py[1:] / unit, pz[1:] / unit):
-            w = f"X{fmt(x)}Y{fmt(y)}Z{fmt(z)}"
-            if w == prev:
-                continue
-            lines.append("G1" + w if len(lines) == 3 else w)
-            prev = w
-        q = np.array([px, py, pz]).T
-        step = np.linalg.norm(np.diff(np.round(q / unit, nd) * unit, axis=0), axis=1)
-        micro.append(step[step > 0])
-        if g % 10 == 9:                                           # a few long flat strokes
-            x0, y0 = px[-1], py[-1]
-            for k in range(4):
-                x0 = min(24.0, max(-24.0, x0 + rng.uniform(-6, 6)))
-                y0 = min(24.0, max(-24.0, y0 + rng.uniform(-6, 6)))
-                lines.append(f"X{fmt(x0 / unit)}Y{fmt(y0 / unit)}")
-        lines.append(f"G0 Z{fmt(z_safe / unit)}")
-        out += lines
-        size += sum(len(s) + 1 for s in lines)
-        moves += len(lines) - 1
-        g += 1
-    out += ["M5", "M30", "%"]
-    Path(args.out).write_text("\n".join(out) + "\n")
-    st = np.concatenate(micro) / unit
-    print(f"{args.out}: {Path(args.out).stat().st_size / 1e6:.3f} MB, {len(out)} lines, {g} glyphs, about {moves} "
-          f"moves; micro-segments {st.min():.3g} to {st.max():.3g} {args.units} (median {np.median(st):.3g})")
+    ap.add_argument("--bytes", type=int, default=1_100_000, help="stop after this many bytes (default 1100000)")
+    ap.add_argument("--check", action="store_true", help="read it back with today's job reader")
+    a = ap.parse_args(argv)
+    text, st = program(a.seed, a.bytes)
+    a.out.write_text(text)
+    print(f"wrote {a.out}: {st['bytes']} bytes, {st['steps']} steps of {st['step_um'][0]:.4f} / "
+          f"{st['step_um'][1]:.4f} / {st['step_um'][2]:.4f} um (min / median / max), feeds {st['feeds']}")
+    print("extents x %.3f..%.3f  y %.3f..%.3f  z %.4f..%.4f mm" % (st["lo"][0], st["hi"][0], st["lo"][1],
+                                                                   st["hi"][1], st["lo"][2], st["hi"][2]))
+    if a.check:
+        from pmctl.core.config import load_machine
+        from pmctl.task.job import load_job
+        job = load_job(a.out, load_machine())
+        print(f"today's job reader: {len(job)} moves, every pose reachable")
 
 
 if __name__ == "__main__":

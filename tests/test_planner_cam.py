@@ -9,7 +9,6 @@ import io
 import json
 import math
 import runpy
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -222,13 +221,14 @@ def test_a_job_the_fallback_cannot_plan_is_refused_with_its_line(machine, monkey
 
 # ---------------------------------------------------------------- a V-carve program, generated
 
-def test_the_generated_v_carve_program_checks_and_runs_to_done(tmp_path, monkeypatch):
+def test_the_generated_v_carve_program_checks_and_runs_to_done(tmp_path):
+    """benchmarks/make_microsegments.py's V-carve program (steps of 1 um down to 1 micro-inch), a small
+    one: pmctl check plans it, pmctl run machines it to done on the simulation."""
+    mm = runpy.run_path(str(ROOT / "benchmarks" / "make_microsegments.py"))
+    text, st = mm["program"](3, 120_000)
+    assert st["steps"] > 2000 and st["step_um"][2] <= 1.0 + 2e-3
     out = tmp_path / "v.ngc"
-    monkeypatch.setattr(sys, "argv", ["make_microsegments.py", str(out), "--size-mb", "0.05", "--seed", "3"])
-    runpy.run_path(str(ROOT / "benchmarks" / "make_microsegments.py"), run_name="__main__")
-    text = out.read_text()
-    steps = [ln for ln in text.splitlines() if ln.startswith(("X", "G1X"))]
-    assert len(steps) > 2000
+    out.write_text(text)
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
         code = main(["check", str(out), "--json", "--state", ""])
