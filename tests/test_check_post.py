@@ -55,16 +55,33 @@ def test_check_lists_every_machine_problem_with_its_line(tmp_path):
     code, rep = check_json(p)
     assert code == 1 and rep["ok"] is False
     probs = rep["problems"]
-    assert [q["line"] for q in probs] == [3, 4, 5, 6, 7]       # 4 and 6 lead to and from the bad points
+    # one problem per stretch of moves out of the same limit: 3-4 (too high, and the way back down),
+    # 5-7 (beyond the table: the pose, the way back, and the arc between reachable ends)
+    assert [q["line"] for q in probs] == [3, 5]
     assert all(q["kind"] == "machine" and q["file"] == str(p) and q["column"] is None for q in probs)
     assert "chain" in probs[0]["message"] and "move the program (or the part) in Z" in probs[0]["message"]
-    assert "table X" in probs[2]["message"] and "X/Y" in probs[2]["message"]
-    assert "between the programmed poses" in probs[4]["message"]
+    assert "to line 4: 2 lines" in probs[0]["message"]
+    assert "table X" in probs[1]["message"] and "X/Y" in probs[1]["message"]
+    assert "to line 7: 3 lines" in probs[1]["message"]
     assert set(rep) == {"ok", "problems", "summary"} and rep["summary"]["moves"] == 7
     # the text form: one line per problem, then the verdict
     code, out, _ = cli("check", str(p), "--state", "")
     lines = out.strip().splitlines()
-    assert code == 1 and lines[0].startswith(f"{p}:3: machine: ") and lines[-1] == "5 problems: the job cannot run"
+    assert code == 1 and lines[0].startswith(f"{p}:3: machine: ") and lines[-1] == "2 problems: the job cannot run"
+    # an arc whose ends are reachable and whose middle is not: its own line, "between the poses"
+    p.write_text("G0 X60 Y-30 Z60\nF600\nG3 X60 Y30 I0 J30\nG1 X0 Y0\nG1 X0 Y0 Z400\n")
+    code, rep = check_json(p)
+    assert [(q["line"], "between the programmed poses" in q["message"]) for q in rep["problems"]] == \
+        [(3, True), (5, False)]
+
+
+def test_a_program_placed_outside_the_workspace_is_one_problem(tmp_path):
+    p = tmp_path / "far.ngc"
+    p.write_text("G0 X100 Y0 Z60\nF600\n" + "\n".join(f"G1 X{100 + i % 2} Y{i * 0.1:.1f}" for i in range(500)) + "\n")
+    code, rep = check_json(p)
+    assert code == 1 and len(rep["problems"]) == 1
+    q = rep["problems"][0]
+    assert q["line"] == 1 and "table X" in q["message"] and "to line 502: 501 lines" in q["message"]
 
 
 @pytest.mark.parametrize("text,line,column,kind", [
@@ -109,7 +126,7 @@ def test_run_refuses_a_job_with_problems_before_anything_moves(tmp_path):
     p.write_text("G0 X0 Y0 Z60\nF600\nG1 Z400\nG1 Z60\nG1 X200\n")
     code, out, err = cli("run", "--job", str(p), "--backend", "sim", "--no-realtime", "--state", "", "--quiet")
     assert code == 1 and out == ""
-    assert err.count("\n") == 1 and f"{p}:3: " in err and "(and 2 more problems: pmctl check lists them)" in err
+    assert err.count("\n") == 1 and f"{p}:3: " in err and "(and 1 more problem: pmctl check lists them)" in err
 
 
 def test_run_refuses_a_tool_change_it_cannot_perform():

@@ -25,6 +25,7 @@ capped by what the V-F converters can emit at the tick rate (the supervisor plan
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -91,12 +92,40 @@ def check_job(job: Job, machine, dt, *, start=None, feed_override=1.0, limits=No
         problems.append(Problem(e.path or job.source, e.line, None, "planning", _reason(str(e), e.path, e.line)))
     except InputError as e:
         problems.append(Problem(e.path, e.line, e.column, "planning", e.reason))
-    problems.extend(found)
+    problems.extend(_grouped(found, job))
     problems.sort(key=lambda p: (p.line is not None, p.line or 0))
     if not problems:
         rep.path = path
     rep.summary = _summary(job, path if not found else None, dt)
     return rep
+
+
+_LIMIT = re.compile(r"unreachable: (tilt theta2|chain L\d|table [XY]|spherical joint swing|platform below|"
+                    r"inverse kinematics)")
+
+
+def _grouped(found, job):
+    """The machine problems, one per stretch of consecutive moves out of the same limit: a program
+    placed outside the workspace is one problem (its first line, and to which line it goes on), not
+    one per line."""
+    moving = sorted({m.line for m in job.moves if m.kind not in (DWELL, EVENT) and m.line})
+    rank = {ln: i for i, ln in enumerate(moving)}
+    groups = []                   # [first problem, limit, last line, count]
+    for p in sorted(found, key=lambda p: p.line or 0):
+        m = _LIMIT.search(p.message)
+        g = groups[-1] if groups else None
+        if (m and g is not None and g[1] == m.group(1) and p.line in rank and g[2] in rank
+                and rank[p.line] == rank[g[2]] + 1):
+            g[2], g[3] = p.line, g[3] + 1
+        else:
+            groups.append([p, m.group(1) if m else None, p.line, 1])
+    out = []
+    for p, _, last, n in groups:
+        if n > 1:
+            p = Problem(p.file, p.line, p.column, p.kind, f"{p.message} (so is every move from here to line {last}: "
+                                                          f"{n} lines)")
+        out.append(p)
+    return out
 
 
 def _reason(msg, path, line):
