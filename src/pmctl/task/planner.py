@@ -98,8 +98,8 @@ sampled ``SAMPLE_CHUNK`` ticks at a time.
 
 Feeds are capped at ``rapid_mm_s``, the tool tip's top speed. Cost: a 10-minute 5-axis CL job
 (18 000 moves, 614 000 samples at 1 kHz) plans in about 4 s of CPU (benchmarks/bench_planner.py); a
-1.28 MB V-carve program of 45 000 micro-inch steps is read, checked and planned in about 1.3 s of CPU
-(benchmarks/bench_microsegments.py).
+1.10 MB V-carve program of 31 000 steps of 1 um and less is read, checked and planned in about 1.1 s of
+CPU (benchmarks/bench_microsegments.py).
 """
 
 from __future__ import annotations
