@@ -23,7 +23,7 @@ from pmctl import __version__
 from pmctl.core.errors import PmctlError
 
 # Subcommand modules, in the order --help lists them.
-COMMANDS = ["run", "serve", "ctl", "init_config", "kin", "analyze", "twin", "calibrate"]
+COMMANDS = ["run", "check", "post", "serve", "ctl", "init_config", "kin", "analyze", "twin", "calibrate"]
 
 
 def add_module_parsers(subparsers, modules, hook="add_parser"):

@@ -136,20 +136,26 @@ def save_counters(path, counts, *, machine: str, clean: bool, tick: int = 0, off
     atomic_write(path, json.dumps(data) + "\n")
 
 
-def atomic_write(path, text: str) -> None:
+def atomic_write(path, text) -> None:
     """Write ``text`` to ``path`` so that a crash or power cut leaves the old file or the new one,
     never a mix: a temporary sibling (named per process and thread, so two writers never share
-    one), fsync, rename, fsync of the folder."""
+    one), fsync, rename, fsync of the folder. ``text``: a str, or an iterable of str chunks written
+    as they come (a large file is never whole in memory); an error while writing leaves the old file
+    and no temporary."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     try:
-        os.write(fd, text.encode())
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    os.replace(tmp, path)
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            for chunk in ([text] if isinstance(text, str) else text):
+                f.write(chunk)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     try:
         dfd = os.open(path.parent, os.O_RDONLY)
         try:

@@ -129,14 +129,10 @@ class Supervisor:
         self.nc_setup = nc_setup(self.svc, self.machine, self.dt, self.backend)
         self.params = self.svc.nc.params(self.machine, self.dt, where=self.svc.source, modes=self.nc_setup.modes)
         self.svc.homing.check(self.params, self.svc.source)        # [homing] against this machine's joints
-        self.plan_machine = self.machine
-        if np.any(self.params.vmax < self.machine.limits.joint_speed - 1e-9):
-            # the V-F converters cap the joint speed below the machine's (seed mode: one pulse per
-            # tick): plan within what they can emit
-            from dataclasses import replace
-            lim = replace(self.machine.limits, chain_speed=float(self.params.vmax[:3].min()),
-                          table_speed=float(self.params.vmax[3:].min()))
-            self.plan_machine = replace(self.machine, limits=lim)
+        # the V-F converters may cap the joint speed below the machine's (seed mode: one pulse per
+        # tick): plan within what they can emit
+        from pmctl.task.jobcheck import machine_for_planning
+        self.plan_machine = machine_for_planning(self.machine, self.params)
         self._config_digest = config_digest(self.machine, self.svc)   # the files the rt process reads again
         self.state_file = state_file
         self.realtime = bool(realtime)
@@ -1027,7 +1023,9 @@ class Supervisor:
         rapid_lines = {m.line for m in job.moves if m.kind == RAPID}
         pm = self.plan_machine
         if self.nc_setup.shaper is None:
-            path = validate(job, pm, self.dt, feed_override=self.plan_feed_override, start=start)
+            # the whole job planned first (pmctl check's planning, with its fallback): nothing of it
+            # moves unless all of it can be planned, and the stream cannot fail midway
+            path = validate(job, pm, self.dt, feed_override=self.plan_feed_override, start=start, full=True)
             pieces = plan_stream(job, pm, self.dt, feed_override=self.plan_feed_override, start=start, path=path)
         else:
             # an input shaper reshapes the time law over whole segments: planned whole (memory

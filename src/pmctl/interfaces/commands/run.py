@@ -3,8 +3,10 @@
     pmctl run --config config/prototype.toml --backend sim --job examples/jobs/<job> --record DIR
               [--force] [--rate HZ] [--no-realtime] [--service config/service.toml] [--state FILE]
 
-Checks every input first (job, record target, backend, state file, the whole job against the
-machine), then runs it through the daemon's machinery as a one-shot client: a
+Checks every input first (job, record target, backend, state file, and the whole job as ``pmctl
+check`` does: every problem of the job, its poses and the path between them against the machine, the
+whole job planned, so that it cannot stop midway for a planning reason; a tool change is refused
+unless ``--tool`` says that tool is already in the spindle), then runs it through the daemon's machinery as a one-shot client: a
 pmctl.task.supervisor.Supervisor starts the rt motion process (pmctl.motion.rtproc: the loop, the
 NC and the backend in their own process) at the saved pulse counters (else home), the job is
 submitted, planned window by window and streamed into the shared sample ring (memory bounded by a
@@ -84,6 +86,9 @@ def add_parser(sub):
                    help="pulse-counter state file: where the machine is between runs (default: the service "
                         "config's state_file, per user); --state '' for none")
     p.add_argument("--feed-override", type=float, default=1.0, help="feed override factor (default 1)")
+    p.add_argument("--tool", type=int, default=None, metavar="N",
+                   help="the tool in the spindle at the start: a tool change (M6) to it goes on, a change to "
+                        "another tool is refused (pmctl run has no operator to change tools)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=run)
 
@@ -210,7 +215,6 @@ def run(args) -> int:
     from pmctl.motion.nc import counts_of, initial_state
     from pmctl.motion.service_config import load_service_config
     from pmctl.motion.state_store import StateLock, load_counters
-    from pmctl.task.planner import load_job
 
     out = _Out()
     log = out.log
@@ -269,7 +273,14 @@ def run(args) -> int:
         where = "position: home" + (f" (no saved counters in {state_file})" if state_file else " (--state '')")
     st = initial_state(machine, counts0)
 
-    job = load_job(args.job, machine, start=(st.tip, st.axis))
+    # the job read and parsed (every problem the reader finds), then checked whole against the
+    # machine and planned (_run_client) before anything moves: pmctl check's check
+    from pmctl.core.errors import JobProblems
+    from pmctl.task.job import parse_job
+    job, problems = parse_job(args.job, machine, start=(st.tip, st.axis))
+    if problems:
+        raise JobProblems(problems)
+    _refuse_tool_changes(job, args.tool)
     if not job.moves:                 # nothing to run (an empty file, only comments and M30): say so
         from pmctl.core.errors import InputError
         raise InputError(args.job, None, "no motion in the job (no move and no dwell): nothing to run")
@@ -278,10 +289,35 @@ def run(args) -> int:
     if any(m.probe for m in job.moves):
         from pmctl.motion.probe import check_probe_job
         check_probe_job(job, svc.probe, args.job, args.feed_override)
+    # the whole job checked against the machine and planned before anything moves (pmctl check; the
+    # supervisor's queue plans it again the same way, with the same V-F cap on the joint speeds); an
+    # input shaper plans the job whole: the batch planner's bounds
+    from pmctl.task.jobcheck import check_job, machine_for_planning
+    rep = check_job(job, machine_for_planning(machine, params), dt, feed_override=args.feed_override,
+                    start=(st.tip, st.axis), batch=setup.shaper is not None)
+    if not rep.ok:
+        raise JobProblems(rep.problems)
     nc_over = {"k_theta_per_s": list(svc.nc.k_theta_per_s), "k_theta_auto": False, "shaper": svc.nc.shaper,
                "pulse_mode": svc.nc.pulse_mode}
     return _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, counts0, st, job,
                        nc_over, strain_in_loop, where, setup.notes)
+
+
+def _refuse_tool_changes(job, tool):
+    """A tool change (EVENT tool_change, M6) that pmctl run cannot perform: any but to ``tool``, the
+    tool already in the spindle (--tool). InputError naming the line."""
+    from pmctl.core.errors import InputError
+    from pmctl.task.job import EVENT
+    for m in job.moves:
+        if m.kind != EVENT:
+            continue
+        for name, value in m.events:
+            if name == "tool_change" and (tool is None or int(value) != int(tool)):
+                have = "no tool is known to be loaded (--tool)" if tool is None else f"tool {tool} is loaded (--tool)"
+                raise InputError(m.file or job.source, m.line or None,
+                                 f"tool change to T{int(value)}: pmctl run cannot change tools and {have}; load "
+                                 f"tool {int(value)} and run with --tool {int(value)}, split the job at the change, "
+                                 "or queue it in pmctl serve where the operator changes tools")
 
 
 def _catch_stop_signals(handler) -> dict:
@@ -393,7 +429,6 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
     from pmctl.hal.modbus_vfd import job_speed
     from pmctl.motion import channel as C
     from pmctl.motion.recorder import R_S, R_TICK
-    from pmctl.task.planner import validate
     from pmctl.task.supervisor import Supervisor
     log = out.log
     dt = cfg.dt
@@ -403,10 +438,6 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
     if sup.plan_machine is not sup.machine:
         notes.append(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: "
                      f"planning with that")
-    # the whole job checked before anything moves (the supervisor's planner checks it again as it plans);
-    # an input shaper plans the job whole: the batch planner's bounds
-    validate(job, sup.plan_machine, dt, feed_override=args.feed_override, start=(st.tip, st.axis),
-             batch=sup.nc_setup.shaper is not None)
     rpm0 = job_speed([m.spindle_rpm for m in job.moves])
     if rpm0 and svc.spindle is None:
         notes.append(f"no [spindle] in {svc.source}: the job's S{abs(rpm0):g} M{3 if rpm0 > 0 else 4} "
