@@ -232,11 +232,16 @@ static void start_tick(struct sb_core *c, uint64_t t0)
             a->dir = sign;
         }
         a->t_first = t0 + d;
-        a->s = c->cfg.tick_ns - d;
-        a->q = a->s / n;
-        a->r = a->s % n;
-        a->a = a->s / (2u * (uint64_t)n);
-        a->e = a->s % (2u * (uint64_t)n);
+        {
+            /* the span fits 32 bits (tick_ns <= 1e8, checked by CONFIG): 32-bit divisions, which a
+             * Cortex-M0+ does in hardware (RP2040 SIO) or much faster than 64-bit ones */
+            uint32_t s = c->cfg.tick_ns - (uint32_t)d;
+            a->s = s;
+            a->q = s / n;
+            a->r = s % n;
+            a->a = s / (2u * n);
+            a->e = s % (2u * n);
+        }
     }
     c->started++;
     if (c->status_every && c->started % c->status_every == 0)
@@ -512,6 +517,22 @@ uint64_t sb_next_deadline(const struct sb_core *c)
     }
     if (c->state != SB_S_RUNNING && c->state != SB_S_DRAINING && c->next_idle_status < t)
         t = c->next_idle_status;
+    return t;
+}
+
+uint64_t sb_next_edge(const struct sb_core *c)
+{
+    uint64_t t = NEVER;
+    int i;
+    if (!c->cur_active)
+        return t;
+    for (i = 0; i < SB_NAXES; i++) {
+        const struct sb_axis *a = &c->ax[i];
+        if (a->fall && a->fall < t)
+            t = a->fall;
+        if (a->k < a->n && a->t_first + a->a < t)
+            t = a->t_first + a->a;
+    }
     return t;
 }
 

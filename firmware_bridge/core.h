@@ -100,6 +100,9 @@ void sb_rx(struct sb_core *c, const uint8_t *buf, uint32_t n, uint64_t now_ns);
 void sb_poll(struct sb_core *c, uint64_t now_ns);
 /* The latest time by which sb_poll must run again (tick boundary, watchdog, idle status). */
 uint64_t sb_next_deadline(const struct sb_core *c);
+/* The time of the next step edge of the current tick (UINT64_MAX if none): a board that writes its
+ * pins when sb_poll passes an edge's time wakes up by then (board_rp2040.c). */
+uint64_t sb_next_edge(const struct sb_core *c);
 /* Largest pulse count per tick the step width allows (with or without a direction change). */
 uint32_t sb_max_pulses(const struct sb_config *cfg, int dir_change);
 void sb_send_status(struct sb_core *c);
