@@ -102,7 +102,7 @@ void isr_uart0(void)
 {
     while (!(REG(UART_FR) & UART_FR_RXFE)) {
         uint8_t b = (uint8_t)REG(UART_DR);
-        uint32_t h = g_rx_head, nh = (h + 1u) % RX_SIZE;
+        uint32_t h = g_rx_head, nh = (h + 1u) & (RX_SIZE - 1u);
         if (nh == g_rx_tail) {
             g_rx_overrun++;                /* the main loop fell behind: the host retransmits */
             continue;
@@ -116,7 +116,7 @@ void board_tx(const uint8_t *buf, size_t n)
 {
     size_t i;
     for (i = 0; i < n; i++) {
-        uint32_t nh = (g_tx_head + 1u) % TX_SIZE;
+        uint32_t nh = (g_tx_head + 1u) & (TX_SIZE - 1u);
         if (nh == g_tx_tail) {            /* the host is not reading fast enough: the rest is lost */
             g_tx_dropped += (uint32_t)(n - i);
             return;
@@ -130,15 +130,21 @@ static void tx_drain(void)
 {
     while (g_tx_tail != g_tx_head && !(REG(UART_FR) & UART_FR_TXFF)) {
         REG(UART_DR) = g_tx[g_tx_tail];
-        g_tx_tail = (g_tx_tail + 1u) % TX_SIZE;
+        g_tx_tail = (g_tx_tail + 1u) & (TX_SIZE - 1u);
     }
 }
 
 /* ---------------------------------------------------------------- step, dir, inputs */
 
-static uint64_t g_last_step[SB_NAXES];    /* time of the last step edge written (after the write) */
-static uint64_t g_last_dir[SB_NAXES];     /* time of the last direction change written */
-static uint32_t g_late_max_ns;            /* worst lateness of an edge behind its computed time */
+/* Per axis, the SysTick value (24 bits, counting down at clk_sys) just after the last STEP and DIR
+ * writes: an upper bound of when the pin changed, for the widths below. */
+static uint32_t g_last_step[SB_NAXES], g_last_dir[SB_NAXES];
+static uint32_t g_old_step, g_old_dir;    /* bit per axis: the last write is long ago (no wait) */
+
+static inline uint32_t systick(void) { return REG(SYST_CVR); }
+/* cycles since a SysTick value taken earlier (correct up to 2^24 cycles = 134 ms) */
+static inline uint32_t since(uint32_t then) { return (then - systick()) & 0xffffffu; }
+static inline uint32_t ns_to_cycles(uint32_t ns) { return (ns + NS_PER_CYCLE - 1u) / NS_PER_CYCLE; }
 
 static void wait_until(uint64_t t)
 {
@@ -146,36 +152,58 @@ static void wait_until(uint64_t t)
         ;
 }
 
+/* The core calls this when its poll has passed t_ns (never before). The pin changes now, or later
+ * if the last edge of this axis was less than a step width ago (high time before a falling edge,
+ * low time before a rising one) or its direction changed less than the set-up time ago. */
 void board_step(uint8_t axis, uint8_t level, uint64_t t_ns, uint32_t tick)
 {
-    uint64_t t = t_ns, w = g_last_step[axis] + core.cfg.step_width_ns, now;
+    uint32_t bit = 1u << axis, w = ns_to_cycles(core.cfg.step_width_ns);
+    (void)t_ns;
     (void)tick;
-    if (w > t)
-        t = w;                             /* high time (falling edge) or low time (rising edge) */
-    if (level && g_last_dir[axis] + core.cfg.dir_setup_ns > t)
-        t = g_last_dir[axis] + core.cfg.dir_setup_ns;   /* direction set-up before a rising edge */
-    wait_until(t);
-    if (level)
+    if (!(g_old_step & bit))
+        while (since(g_last_step[axis]) < w)
+            ;
+    if (level) {
+        uint32_t d = ns_to_cycles(core.cfg.dir_setup_ns);
+        if (!(g_old_dir & bit))
+            while (since(g_last_dir[axis]) < d)
+                ;
         REG(SIO_GPIO_OUT_SET) = 1u << (PIN_STEP0 + axis);
-    else
+    } else {
         REG(SIO_GPIO_OUT_CLR) = 1u << (PIN_STEP0 + axis);
-    now = now_ns();
-    g_last_step[axis] = now;
-    if (now - t_ns > g_late_max_ns && now - t_ns < 0xffffffffu)
-        g_late_max_ns = (uint32_t)(now - t_ns);
+    }
+    g_last_step[axis] = systick();
+    g_old_step &= ~bit;
 }
 
 void board_dir(uint8_t axis, uint8_t dir, uint64_t t_ns, uint32_t tick)
 {
+    uint32_t bit = 1u << axis;
+    (void)t_ns;
     (void)tick;
-    /* the core changes DIR at a tick start, after the previous pulse's falling edge; hold DIR at
-     * least a step width after that edge too */
-    wait_until(t_ns > g_last_step[axis] + core.cfg.step_width_ns ? t_ns : g_last_step[axis] + core.cfg.step_width_ns);
+    /* the core changes DIR at a tick start, after the previous pulse's falling edge: hold it a
+     * step width after that edge too */
+    if (!(g_old_step & bit))
+        while (since(g_last_step[axis]) < ns_to_cycles(core.cfg.step_width_ns))
+            ;
     if (dir)
         REG(SIO_GPIO_OUT_SET) = 1u << (PIN_DIR0 + axis);
     else
         REG(SIO_GPIO_OUT_CLR) = 1u << (PIN_DIR0 + axis);
-    g_last_dir[axis] = now_ns();
+    g_last_dir[axis] = systick();
+    g_old_dir &= ~bit;
+}
+
+/* Marks the stamps older than 64 ms as long ago, before they could wrap into a false wait. */
+static void age_stamps(void)
+{
+    int a;
+    for (a = 0; a < SB_NAXES; a++) {
+        if (since(g_last_step[a]) > (1u << 23))
+            g_old_step |= 1u << a;
+        if (since(g_last_dir[a]) > (1u << 23))
+            g_old_dir |= 1u << a;
+    }
 }
 
 void board_tick_start(uint32_t tick, uint64_t t_ns)
@@ -242,9 +270,12 @@ void board_event(const char *what, const struct sb_core *c)
 
 void isr_timer0(void) { REG(TIMER_INTR) = 1u; }
 
+static volatile uint32_t g_input_irq;     /* an input pin changed: poll the core now */
+
 void isr_io_bank0(void)
 {
     int i;
+    g_input_irq = 1;
     for (i = 0; i < 4; i++)                /* clear the edge events; the main loop reads the pins */
         REG(IO_BANK0_BASE + 0xf0u + 4u * (uint32_t)i) = 0xffffffffu;
 }
@@ -257,13 +288,45 @@ static void sleep_until(uint64_t t)
     uint32_t m;
     if (t <= now + SPIN_NS)
         return;
-    us = (t - now > 100000000u) ? 100000u : (uint32_t)((t - now) / 1000u);
+    us = (t - now > 100000000u) ? 100000u : (uint32_t)(t - now) / 1000u;
     us -= 2u;                              /* wake early; the rest is spun */
-    REG(TIMER_ALARM0) = REG(TIMER_TIMERAWL) + us;
+    /* armed with interrupts masked: an alarm (or a byte) that comes before the WFI stays pending and
+     * ends the WFI at once, instead of being taken before it and leaving the loop asleep */
     m = irq_save();
-    if (g_rx_head == g_rx_tail)
+    REG(TIMER_ALARM0) = REG(TIMER_TIMERAWL) + us;
+    if (g_rx_head == g_rx_tail && !g_input_irq)
         wfi();                             /* a pending interrupt ends WFI even with PRIMASK set */
     irq_restore(m);
+}
+
+/* ---------------------------------------------------------------- the hardware divider */
+
+/* The compiler's 32-bit unsigned division helpers on the SIO divider (8 cycles instead of a
+ * software loop): the core divides at every tick start. Only the main loop divides; no interrupt
+ * handler does, so the divider's state is never shared. */
+static inline void hwdiv(uint32_t a, uint32_t b)
+{
+    REG(SIO_DIV_UDIVIDEND) = a;
+    REG(SIO_DIV_UDIVISOR) = b;
+    while (!(REG(SIO_DIV_CSR) & 1u))       /* READY after 8 cycles */
+        ;
+}
+
+uint32_t __aeabi_uidiv(uint32_t a, uint32_t b);
+uint64_t __aeabi_uidivmod(uint32_t a, uint32_t b);
+
+uint32_t __aeabi_uidiv(uint32_t a, uint32_t b)
+{
+    hwdiv(a, b);
+    return REG(SIO_DIV_QUOTIENT);
+}
+
+uint64_t __aeabi_uidivmod(uint32_t a, uint32_t b)     /* quotient in r0, remainder in r1 */
+{
+    uint32_t r;
+    hwdiv(a, b);
+    r = REG(SIO_DIV_REMAINDER);
+    return REG(SIO_DIV_QUOTIENT) | ((uint64_t)r << 32);
 }
 
 /* ---------------------------------------------------------------- set-up */
@@ -386,35 +449,42 @@ int main(void)
     sb_init(&core, now_ns());
     irq_enable();
     for (;;) {
-        uint64_t next, now;
+        uint64_t dl, edge, now;
         uint32_t n = 0;
         watchdog_feed();
-        next = sb_next_edge(&core);
-        now = sb_next_deadline(&core);
-        if (now < next)
-            next = now;
+        dl = sb_next_deadline(&core);      /* tick boundary, watchdog, idle status */
+        edge = sb_next_edge(&core);
         now = now_ns();
-        if (next <= now + SPIN_NS) {       /* an edge or a deadline is (almost) due */
-            wait_until(next);
-            sb_poll(&core, now_ns());
+        if (g_input_irq || now >= dl) {    /* an input changed, or a deadline passed */
+            g_input_irq = 0;
+            sb_poll(&core, now);
+            continue;
+        }
+        if (edge <= now + SPIN_NS) {       /* step edges: emit them as they come due */
+            do {
+                while ((now = now_ns()) < edge)
+                    ;
+                edge = sb_advance(&core, now);
+            } while (edge <= now + SPIN_NS && edge < dl && !g_input_irq);
             continue;
         }
         while (n < RX_CHUNK && g_rx_tail != g_rx_head) {
             buf[n++] = g_rx[g_rx_tail];
-            g_rx_tail = (g_rx_tail + 1u) % RX_SIZE;
+            g_rx_tail = (g_rx_tail + 1u) & (RX_SIZE - 1u);
         }
         if (n) {
             sb_rx(&core, buf, n, now);
-            tx_drain();
             continue;
         }
-        sb_poll(&core, now);               /* inputs, idle status */
         tx_drain();
         adc_service();
+        age_stamps();
         if (g_tx_tail != g_tx_head)
             continue;                      /* the FIFO is full: keep draining */
-        next = sb_next_edge(&core);
-        now = sb_next_deadline(&core);
-        sleep_until(now < next ? now : next);
+        if (dl <= now + SPIN_NS) {
+            wait_until(dl);
+            continue;
+        }
+        sleep_until(dl < edge ? dl : edge);
     }
 }

@@ -109,6 +109,7 @@ void sb_init(struct sb_core *c, uint64_t now_ns)
     c->cfg.step_width_ns = 2500u;
     c->cfg.dir_setup_ns = 5000u;
     c->cfg.watchdog_us = 50000u;
+    c->watchdog_ns = 50000000u;
     c->cfg.queue = SB_QUEUE_MAX;
     c->cfg.prime = 2;
     c->status_every = 1;
@@ -330,6 +331,7 @@ static uint8_t do_config(struct sb_core *c, const struct sb_frame *f)
         n.queue < 2 || n.queue > SB_QUEUE_MAX || n.prime < 1 || n.prime > n.queue)
         return SB_E_ARGS;
     c->cfg = n;
+    c->watchdog_ns = (uint64_t)n.watchdog_us * 1000u;
     return SB_E_OK;
 }
 
@@ -511,7 +513,7 @@ uint64_t sb_next_deadline(const struct sb_core *c)
     if (c->cur_active)
         t = c->cur_start + c->cfg.tick_ns;
     if (wd_armed(c)) {
-        uint64_t w = c->last_tick_rx + (uint64_t)c->cfg.watchdog_us * 1000u;
+        uint64_t w = c->last_tick_rx + c->watchdog_ns;
         if (w < t)
             t = w;
     }
@@ -536,6 +538,17 @@ uint64_t sb_next_edge(const struct sb_core *c)
     return t;
 }
 
+uint64_t sb_advance(struct sb_core *c, uint64_t now)
+{
+    if (now >= sb_next_deadline(c)) {
+        sb_poll(c, now);
+    } else if (now > c->now) {
+        advance(c, now);
+        c->now = now;
+    }
+    return sb_next_edge(c);
+}
+
 void sb_poll(struct sb_core *c, uint64_t now)
 {
     if (now < c->now)
@@ -543,7 +556,7 @@ void sb_poll(struct sb_core *c, uint64_t now)
     for (;;) {
         uint64_t bound = c->cur_active ? c->cur_start + c->cfg.tick_ns : NEVER;
         uint64_t wd = wd_armed(c)
-                          ? c->last_tick_rx + (uint64_t)c->cfg.watchdog_us * 1000u : NEVER;
+                          ? c->last_tick_rx + c->watchdog_ns : NEVER;
         if (bound <= now && bound <= wd) {
             c->now = bound;
             finish_tick(c, bound);

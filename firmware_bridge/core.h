@@ -93,6 +93,7 @@ struct sb_core {
     uint8_t home_edges[SB_NAXES];
     uint8_t home_level;
     uint64_t next_idle_status;
+    uint64_t watchdog_ns;         /* cfg.watchdog_us x 1000, kept with cfg */
 };
 
 void sb_init(struct sb_core *c, uint64_t now_ns);
@@ -103,6 +104,10 @@ uint64_t sb_next_deadline(const struct sb_core *c);
 /* The time of the next step edge of the current tick (UINT64_MAX if none): a board that writes its
  * pins when sb_poll passes an edge's time wakes up by then (board_rp2040.c). */
 uint64_t sb_next_edge(const struct sb_core *c);
+/* Emits the current tick's step edges up to `now` and returns the time of the next one (as
+ * sb_next_edge): the cheap call for a board that wakes up for every edge. When `now` has reached
+ * sb_next_deadline() it does what sb_poll(now) does (tick boundary, watchdog, inputs). */
+uint64_t sb_advance(struct sb_core *c, uint64_t now);
 /* Largest pulse count per tick the step width allows (with or without a direction change). */
 uint32_t sb_max_pulses(const struct sb_config *cfg, int dir_change);
 void sb_send_status(struct sb_core *c);

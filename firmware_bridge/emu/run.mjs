@@ -3,7 +3,7 @@
 // Started by pmctl.hal.rp2040_emu (which creates the pty); see firmware_bridge/README.md.
 //
 //   node run.mjs --elf bridge.elf --link-fd FD [--edge-log PATH] [--cpu-log PATH] [--control FIFO]
-//                [--home-at AXIS:PULSES]... [--baud N] [--speed X]
+//                [--home-at AXIS:PULSES]... [--baud N] [--speed X] [--clock-file PATH] [--profile PATH] [--trace PATH]
 //
 // - The ELF's loadable segments are copied to the emulated flash at their physical addresses, VTOR
 //   is pointed at the vector table (0x10000100) and the core is reset: rp2040js ships no boot ROM,
@@ -27,6 +27,10 @@
 // - --home-at AXIS:PULSES: a simulated home switch, closed while the motor (the counters of the
 //   first RESET plus the steps on the pins since) is at or past PULSES; set at the step edge.
 // - --cpu-log PATH: per tick start, u64 t_ns and u64 cycles the CPU executed so far (not asleep).
+// - --clock-file PATH: the simulated time (float64 ns, little-endian, at offset 0), rewritten after
+//   every 20 us slice: the host reads it to time its timeouts in the chip's time.
+// - --profile PATH: PC samples (JSON {pc: count}), for benchmarks; --trace PATH: every valid frame
+//   both ways, one line each: H|C, simulated us, wall ms, hex.
 // - On exit (SIGTERM, "quit", or 2 s after stdin closes: the parent died) it prints one JSON line of
 //   figures on stdout. It prints "READY" on stdout when the chip runs.
 import fs from 'node:fs';
@@ -44,6 +48,8 @@ for (let i = 0; i < args.length; i++) {
   else if (a === '--baud') opt.baud = parseInt(v, 10);
   else if (a === '--speed') opt.speed = parseFloat(v);
   else if (a === '--profile') opt.profile = v;
+  else if (a === '--clock-file') opt.clockFile = v;
+  else if (a === '--trace') opt.trace = v;
   else if (a === '--home-at') {
     const m = /^([0-4]):(-?\d+)$/.exec(v || '');
     if (!m) usage();
@@ -74,7 +80,9 @@ let resets = 0;
 mcu.watchdog = mcu.peripherals[0x40058];
 mcu.watchdog.onWatchdogTrigger = () => {          // the hardware watchdog: the chip restarts
   resets++;
-  process.stderr.write(`rp2040-emu: hardware watchdog reset at ${(clock.nanos / 1e6).toFixed(3)} ms\n`);
+  process.stderr.write(`rp2040-emu: hardware watchdog reset at ${(clock.nanos / 1e6).toFixed(3)} ms ` +
+    `(the main loop stopped at pc 0x${core.PC.toString(16)})\n`);
+  mcu.watchdog.writeUint32(0, 0);                // stopped until the firmware starts it again
   core.VTOR = FLASH + 0x100;
   core.reset();
 };
@@ -201,7 +209,12 @@ for (let a = 0; a < NAXES; a++) mcu.gpio[PIN_HOME0 + a].setInputValue(true);
 const T_RESET = 0x03, T_ACK = 0x81, T_STATUS = 0x82, ACK_NAK = 1, ACK_FULL = 2, ACK_REJECT = 4, ACK_DUP = 8;
 const E_FAULT = 3;
 const resetsSent = new Map();              // host SEQ of a RESET -> its counters
+const traceFd = opt.trace ? fs.openSync(opt.trace, 'w') : -1;   // --trace: every frame, both ways
+function traceFrame(dir, f) {
+  if (traceFd >= 0) fs.writeSync(traceFd, `${dir} ${(clock.nanos / 1e3).toFixed(1)} ${(performance.now() - wall0).toFixed(1)} ${Buffer.from(f).toString('hex')}\n`);
+}
 const fromHost = new Parser((f) => {
+  traceFrame('H', f);
   if (f[3] === T_RESET && f.length === 26) {
     const b = Buffer.from(f);
     resetsSent.set(f[2], Array.from({ length: NAXES }, (_, a) => b.readInt32LE(4 + 4 * a)));
@@ -209,6 +222,7 @@ const fromHost = new Parser((f) => {
 }, () => {});
 const toHost = [];                         // bytes for the host
 const fromChip = new Parser((f) => {
+  traceFrame('C', f);
   if (f[3] === T_ACK && f.length === 9 && f[6] === T_RESET) {
     const flags = f[4], code = f[5];
     const seq = (f[2] - 1) & 0xff;
@@ -309,6 +323,13 @@ const AHEAD_MS = 5;                        // simulated time may lead real time 
 const wall0 = performance.now();
 let anchorWall = wall0, anchorSim = 0;
 const sleeper = new Int32Array(new SharedArrayBuffer(4));
+const clockFd = opt.clockFile ? fs.openSync(opt.clockFile, 'r+') : -1;   // made by the harness, 8 bytes
+const clockBuf = Buffer.alloc(8);
+function publishClock() {
+  if (clockFd < 0) return;
+  clockBuf.writeDoubleLE(clock.nanos, 0);
+  fs.writeSync(clockFd, clockBuf, 0, 8, 0);
+}
 let orphanAt = Infinity, lastFlush = wall0;
 process.on('SIGTERM', () => { quit = true; });
 process.on('SIGINT', () => { quit = true; });
@@ -342,6 +363,7 @@ function loop() {
   while (!quit && performance.now() - t0 < 5) {
     pollHost();
     runSlice(clock.nanos + SLICE_NS);
+    publishClock();
     flushHost();
     pollControl();
     if (opt.speed > 0) {                   // no faster than real time (x speed)
