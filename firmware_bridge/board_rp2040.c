@@ -72,6 +72,7 @@ static struct sb_core core;
 /* ---------------------------------------------------------------- clock: 64-bit cycle counter */
 
 static volatile uint32_t g_systick_hi;     /* SysTick wraps every 2^24 cycles (134 ms) */
+static uint64_t g_cycle0;                  /* the TIMER's microseconds x 125 when SysTick started */
 
 void isr_systick(void) { g_systick_hi++; }
 
@@ -84,7 +85,7 @@ static uint64_t cycles_now(void)
         hi++;
     }
     irq_restore(m);
-    return ((uint64_t)hi << 24) | (0xffffffu - v);
+    return g_cycle0 + (((uint64_t)hi << 24) | (0xffffffu - v));
 }
 
 static uint64_t now_ns(void) { return cycles_now() * NS_PER_CYCLE; }
@@ -442,6 +443,10 @@ int main(void)
     REG(SYST_RVR) = 0xffffffu;
     REG(SYST_CVR) = 0;
     REG(SYST_CSR) = 7u;                    /* clk_sys, interrupt at the wrap, enabled */
+    REG(SCB_ICSR) = ICSR_PENDSTCLR;        /* (the emulator counts the write of CVR as a wrap) */
+    g_systick_hi = 0;
+    /* the clock starts at the TIMER's time (within 1 us): STATUS times are the TIMER's microseconds */
+    g_cycle0 = (uint64_t)REG(TIMER_TIMERAWL) * (CLK_SYS_HZ / 1000000u) - (0xffffffu - REG(SYST_CVR));
     REG(TIMER_INTE) = 1u;                  /* alarm 0 wakes the loop */
     REG(NVIC_ICPR) = 0xffffffffu;
     REG(NVIC_ISER) = (1u << IRQ_TIMER_0) | (1u << 13) | (1u << IRQ_UART0);

@@ -122,37 +122,62 @@ void sb_init(struct sb_core *c, uint64_t now_ns)
 
 /* ---------------------------------------------------------------- step generator */
 
-/* Emits every edge of the current tick up to and including time `until`. */
+static uint64_t axis_next(const struct sb_axis *a)
+{
+    uint64_t rise = a->k < a->n ? a->t_first + a->a : NEVER;
+    return a->fall && a->fall <= rise ? a->fall : rise;
+}
+
+/* Every axis's next edge and the earliest of them, after the axes changed. */
+static void refresh_next(struct sb_core *c)
+{
+    int i;
+    c->next_edge = NEVER;
+    for (i = 0; i < SB_NAXES; i++) {
+        c->ax[i].next = axis_next(&c->ax[i]);
+        if (c->ax[i].next < c->next_edge)
+            c->next_edge = c->ax[i].next;
+    }
+}
+
+/* Emits every edge of the current tick up to and including time `until`. Axes whose next edge is
+ * later are not visited: a board that wakes up for each edge pays for the axes that step. */
 static void advance(struct sb_core *c, uint64_t until)
 {
     int i;
-    if (!c->cur_active)
+    if (!c->cur_active || c->next_edge > until)
         return;
+    c->next_edge = NEVER;
     for (i = 0; i < SB_NAXES; i++) {
         struct sb_axis *a = &c->ax[i];
-        for (;;) {
-            uint64_t rise = a->k < a->n ? a->t_first + a->a : NEVER;
-            if (a->fall && a->fall <= rise) {
-                if (a->fall > until)
+        if (a->next <= until) {
+            for (;;) {
+                uint64_t rise = a->k < a->n ? a->t_first + a->a : NEVER;
+                if (a->fall && a->fall <= rise) {
+                    if (a->fall > until)
+                        break;
+                    board_step((uint8_t)i, 0, a->fall, c->cur_index);
+                    a->fall = 0;
+                    continue;
+                }
+                if (rise > until)
                     break;
-                board_step((uint8_t)i, 0, a->fall, c->cur_index);
-                a->fall = 0;
-                continue;
+                c->counters[i] += a->sign;      /* counted first: a latch taken in board_step includes it */
+                board_step((uint8_t)i, 1, rise, c->cur_index);
+                a->k++;
+                a->fall = rise + c->cfg.step_width_ns;
+                /* Bresenham: a_k = floor((2k+1) s / 2n) without a division per step */
+                a->a += a->q;
+                a->e += 2u * a->r;
+                if (a->e >= 2u * (uint64_t)a->n) {
+                    a->a++;
+                    a->e -= 2u * (uint64_t)a->n;
+                }
             }
-            if (rise > until)
-                break;
-            c->counters[i] += a->sign;      /* counted first: a latch taken in board_step includes it */
-            board_step((uint8_t)i, 1, rise, c->cur_index);
-            a->k++;
-            a->fall = rise + c->cfg.step_width_ns;
-            /* Bresenham: a_k = floor((2k+1) s / 2n) without a division per step */
-            a->a += a->q;
-            a->e += 2u * a->r;
-            if (a->e >= 2u * (uint64_t)a->n) {
-                a->a++;
-                a->e -= 2u * (uint64_t)a->n;
-            }
+            a->next = axis_next(a);
         }
+        if (a->next < c->next_edge)
+            c->next_edge = a->next;
     }
 }
 
@@ -244,6 +269,7 @@ static void start_tick(struct sb_core *c, uint64_t t0)
             a->e = s % (2u * n);
         }
     }
+    refresh_next(c);
     c->started++;
     if (c->status_every && c->started % c->status_every == 0)
         status_why(c, SB_WHY_TICK);   /* counters = everything before this tick, exactly */
@@ -524,18 +550,7 @@ uint64_t sb_next_deadline(const struct sb_core *c)
 
 uint64_t sb_next_edge(const struct sb_core *c)
 {
-    uint64_t t = NEVER;
-    int i;
-    if (!c->cur_active)
-        return t;
-    for (i = 0; i < SB_NAXES; i++) {
-        const struct sb_axis *a = &c->ax[i];
-        if (a->fall && a->fall < t)
-            t = a->fall;
-        if (a->k < a->n && a->t_first + a->a < t)
-            t = a->t_first + a->a;
-    }
-    return t;
+    return c->cur_active ? c->next_edge : NEVER;
 }
 
 uint64_t sb_advance(struct sb_core *c, uint64_t now)

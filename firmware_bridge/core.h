@@ -48,6 +48,7 @@ struct sb_axis {
     uint64_t a;          /* offset of the next rising edge from t_first, ns (Bresenham) */
     uint64_t e, q, r;    /* Bresenham remainder, quotient and remainder per step */
     uint64_t fall;       /* pending falling edge time, 0 = none */
+    uint64_t next;       /* time of this axis's next edge in the current tick, UINT64_MAX = none */
     int8_t dir;          /* +1 / -1 last direction output */
     int8_t sign;         /* this tick's direction */
 };
@@ -76,6 +77,7 @@ struct sb_core {
     uint32_t cur_index;
     uint64_t cur_start;
     struct sb_axis ax[SB_NAXES];
+    uint64_t next_edge;           /* the earliest ax[].next (valid while cur_active) */
     int32_t counters[SB_NAXES];
     int32_t not_executed[SB_NAXES];
     uint32_t dropped_ticks;

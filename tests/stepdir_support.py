@@ -1,5 +1,6 @@
 """Test support for the step/dir bridge: start the real host bridge (firmware_bridge/build/bridge-host)
-on a pty with an edge log and a control FIFO, and read what it did."""
+on a pty with an edge log and a control FIFO, or the RP2040 image in the emulated chip
+(pmctl.hal.rp2040_emu), and read what it did."""
 
 from __future__ import annotations
 
@@ -77,6 +78,60 @@ class Bridge:
                 self.proc.kill()
                 self.proc.wait()
         self.proc.stdout.close()
+
+
+class EmulatedBridge(Bridge):
+    """The RP2040 image (build/rp2040/bridge.elf) in the emulated chip, with the host build's test
+    interface: the same pty protocol, edge-log format and control lines. Its edge times are the
+    chip's simulated time; ``clock`` is that time, for the backend's timeouts."""
+
+    def __init__(self, tmp: Path, **kw):
+        from pmctl.hal.rp2040_emu import Emulator
+        self.edge_log = tmp / "edges.bin"
+        self.control = tmp / "control.fifo"
+        self.emu = Emulator(edge_log=self.edge_log, control=self.control, **kw)
+        self.port = self.emu.port
+        self.clock = self.emu.sim_time
+        self.figures = {}
+
+    def ctl(self, line: str):
+        self.emu.ctl(line)
+
+    def options(self, **kw):
+        """Timeouts in the chip's time (the backend gets ``clock``): the host build's test values."""
+        return {"port": self.port, "read_timeout_ms": 200.0, "link_timeout_ms": 500.0, "watchdog_ms": 1000.0,
+                **kw}
+
+    def flush(self):
+        # the runner writes its edge log when 2 ms of the chip's time pass without an edge
+        t_end = time.monotonic() + 20
+        while self.status().state in (bp.S_RUNNING, bp.S_DRAINING) and time.monotonic() < t_end:
+            time.sleep(0.01)
+        t = self.clock()
+        while self.clock() < t + 0.003 and time.monotonic() < t_end:
+            time.sleep(0.01)
+        time.sleep(0.1)
+
+    def status(self, timeout=20.0) -> bp.BridgeStatus:
+        """As the host build's, but only a STATUS the chip sent after the request (the pty may hold
+        old ones: the chip reports every 10 ms while no host reads)."""
+        with serial.Serial(self.port, timeout=0) as s:
+            s.reset_input_buffer()
+            p = bp.Parser()
+            t_req = self.clock()
+            t_end = time.monotonic() + timeout
+            s.write(bp.frame(0, bp.T_STATUS_REQ))
+            while time.monotonic() < t_end:
+                for f in p.feed(s.read(4096)):
+                    if f.type == bp.T_STATUS:
+                        st = bp.decode_status(f)
+                        if st.time_us / 1e6 >= t_req - 2e-6:
+                            return st
+                time.sleep(0.002)
+        raise AssertionError("no status from the emulated chip")
+
+    def stop(self):
+        self.figures = self.emu.stop()
 
 
 def per_tick_steps(log) -> dict:

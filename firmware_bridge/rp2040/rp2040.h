@@ -159,6 +159,7 @@
 #define SCB_VTOR 0xe000ed08u
 #define SCB_SHPR3 0xe000ed20u
 #define ICSR_PENDSTSET (1u << 26)
+#define ICSR_PENDSTCLR (1u << 25)
 
 /* IRQ numbers (2.3.2) */
 #define IRQ_TIMER_0 0u

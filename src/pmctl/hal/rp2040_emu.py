@@ -88,7 +88,8 @@ class Emulator:
 
     def __init__(self, *, edge_log: str | os.PathLike | None = None, control: str | os.PathLike | None = None,
                  home_at=(), cpu_log: str | os.PathLike | None = None, speed: float = 1.0,
-                 baud: int = 3_000_000, trace: str | os.PathLike | None = None, firmware_dir: Path = FIRMWARE_DIR):
+                 baud: int = 3_000_000, trace: str | os.PathLike | None = None,
+                 profile: str | os.PathLike | None = None, firmware_dir: Path = FIRMWARE_DIR):
         paths = ensure_built(firmware_dir)
         node = shutil.which("node")
         if node is None:
@@ -106,7 +107,7 @@ class Emulator:
         cmd = [node, str(paths["runner"]), "--elf", str(paths["elf"]), "--link-fd", str(master),
                "--clock-file", str(self.clock_file), "--speed", repr(float(speed)), "--baud", str(int(baud))]
         for opt, val in (("--edge-log", edge_log), ("--control", self.control), ("--cpu-log", cpu_log),
-                         ("--trace", trace)):
+                         ("--trace", trace), ("--profile", profile)):
             if val:
                 cmd += [opt, str(val)]
         for axis, pulses in home_at:

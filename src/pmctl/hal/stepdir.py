@@ -187,9 +187,11 @@ class StepDirBackend(Backend):
         except TypeError as e:
             raise ConfigError(where, "-", str(e)) from None
 
-    def __init__(self, machine, dt: float, options=None, *, tx_filter=None, rx_filter=None):
+    def __init__(self, machine, dt: float, options=None, *, tx_filter=None, rx_filter=None, clock=None):
         """``tx_filter``/``rx_filter`` (tests): callables applied to each outgoing frame / each
-        received chunk (bytes -> bytes), to inject line noise, drops, duplicates and corruption."""
+        received chunk (bytes -> bytes), to inject line noise, drops, duplicates and corruption.
+        ``clock``: the time source of every timeout, s (default time.monotonic; an emulated chip's
+        simulated clock, :meth:`pmctl.hal.rp2040_emu.Emulator.sim_time`, for a chip slower than real time)."""
         o = options if isinstance(options, StepDirOptions) else StepDirOptions.from_dict(options or {})
         self.opt = o
         self.dt = float(dt)
@@ -204,7 +206,8 @@ class StepDirBackend(Backend):
         self._offset = np.asarray(o.strain_offset_counts, float)
         self.proc = None
         self.emu = None                  # rp2040-emu: the emulated chip (pmctl.hal.rp2040_emu.Emulator)
-        self._now = time.monotonic       # the clock of every timeout: the chip's simulated one for rp2040-emu
+        self._clock = clock or time.monotonic
+        self._now = self._clock          # the clock of every timeout: the chip's simulated one for rp2040-emu
         self.emu_figures = {}            # rp2040-emu: what the emulator reported when it stopped
         self.fd = None
         self._ser = None
@@ -258,7 +261,7 @@ class StepDirBackend(Backend):
         if self.emu is not None:
             emu, self.emu = self.emu, None
             self.emu_figures = emu.stop()
-            self._now = time.monotonic
+            self._now = self._clock
         p = self.proc
         self.proc = None
         if p is None:
