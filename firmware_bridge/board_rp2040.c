@@ -60,7 +60,9 @@ const char board_name[] = "rp2040";
 #define UART_BAUD 3000000u
 #define WDOG_US 100000u            /* hardware watchdog: the main loop feeds it every iteration */
 #define SPIN_NS 4000u              /* closer than this to an event: spin instead of sleeping */
-#define RX_CHUNK 8u                /* bytes fed to the core per loop iteration (edges in between) */
+#define RX_CHUNK 32u               /* bytes fed to the core at once (edges come in between) */
+#define RX_BATCH 16u               /* bytes worth waking the core for ... */
+#define RX_WAIT_US 15u             /* ... or the age of the oldest (a frame's tail) */
 
 #define STEP_MASK (0x1fu << PIN_STEP0)
 #define DIR_MASK (0x1fu << PIN_DIR0)
@@ -96,6 +98,7 @@ static uint64_t now_ns(void) { return cycles_now() * NS_PER_CYCLE; }
 #define TX_SIZE 2048u
 static volatile uint8_t g_rx[RX_SIZE];
 static volatile uint32_t g_rx_head, g_rx_tail, g_rx_overrun;
+static volatile uint32_t g_rx_first_us;    /* TIMER time of the oldest byte not yet given to the core */
 static uint8_t g_tx[TX_SIZE];
 static uint32_t g_tx_head, g_tx_tail, g_tx_dropped;
 
@@ -108,6 +111,8 @@ void isr_uart0(void)
             g_rx_overrun++;                /* the main loop fell behind: the host retransmits */
             continue;
         }
+        if (h == g_rx_tail)
+            g_rx_first_us = REG(TIMER_TIMERAWL);
         g_rx[h] = b;
         g_rx_head = nh;
     }
@@ -115,23 +120,31 @@ void isr_uart0(void)
 
 void board_tx(const uint8_t *buf, size_t n)
 {
-    size_t i;
-    for (i = 0; i < n; i++) {
-        uint32_t nh = (g_tx_head + 1u) & (TX_SIZE - 1u);
-        if (nh == g_tx_tail) {            /* the host is not reading fast enough: the rest is lost */
-            g_tx_dropped += (uint32_t)(n - i);
-            return;
-        }
-        g_tx[g_tx_head] = buf[i];
-        g_tx_head = nh;
+    uint32_t room = (g_tx_tail - g_tx_head - 1u) & (TX_SIZE - 1u), first;
+    if (n > room) {                       /* the host is not reading fast enough: the rest is lost */
+        g_tx_dropped += (uint32_t)(n - room);
+        n = room;
     }
+    first = TX_SIZE - g_tx_head < n ? TX_SIZE - g_tx_head : (uint32_t)n;
+    memcpy(g_tx + g_tx_head, buf, first);
+    memcpy(g_tx, buf + first, n - first);
+    g_tx_head = (g_tx_head + (uint32_t)n) & (TX_SIZE - 1u);
 }
 
 static void tx_drain(void)
 {
-    while (g_tx_tail != g_tx_head && !(REG(UART_FR) & UART_FR_TXFF)) {
-        REG(UART_DR) = g_tx[g_tx_tail];
-        g_tx_tail = (g_tx_tail + 1u) & (TX_SIZE - 1u);
+    while (g_tx_tail != g_tx_head) {
+        uint32_t n = 1, t = g_tx_tail;
+        uint32_t fr = REG(UART_FR);
+        if (fr & UART_FR_TXFE)
+            n = 32;                        /* an empty FIFO takes 32 bytes without asking again */
+        else if (fr & UART_FR_TXFF)
+            return;
+        while (n-- && t != g_tx_head) {
+            REG(UART_DR) = g_tx[t];
+            t = (t + 1u) & (TX_SIZE - 1u);
+        }
+        g_tx_tail = t;
     }
 }
 
@@ -295,7 +308,7 @@ static void sleep_until(uint64_t t)
      * ends the WFI at once, instead of being taken before it and leaving the loop asleep */
     m = irq_save();
     REG(TIMER_ALARM0) = REG(TIMER_TIMERAWL) + us;
-    if (g_rx_head == g_rx_tail && !g_input_irq)
+    if (((g_rx_head - g_rx_tail) & (RX_SIZE - 1u)) < RX_BATCH && !g_input_irq)
         wfi();                             /* a pending interrupt ends WFI even with PRIMASK set */
     irq_restore(m);
 }
@@ -473,11 +486,16 @@ int main(void)
             } while (edge <= now + SPIN_NS && edge < dl && !g_input_irq);
             continue;
         }
-        while (n < RX_CHUNK && g_rx_tail != g_rx_head) {
-            buf[n++] = g_rx[g_rx_tail];
-            g_rx_tail = (g_rx_tail + 1u) & (RX_SIZE - 1u);
-        }
-        if (n) {
+        /* bytes in batches (a UART interrupt comes with each byte, in the emulator at least): when
+         * a frame's worth is there or the oldest has waited RX_WAIT_US */
+        if (g_rx_tail != g_rx_head && (((g_rx_head - g_rx_tail) & (RX_SIZE - 1u)) >= RX_BATCH ||
+                                       REG(TIMER_TIMERAWL) - g_rx_first_us >= RX_WAIT_US)) {
+            while (n < RX_CHUNK && g_rx_tail != g_rx_head) {
+                buf[n++] = g_rx[g_rx_tail];
+                g_rx_tail = (g_rx_tail + 1u) & (RX_SIZE - 1u);
+            }
+            if (g_rx_tail != g_rx_head)
+                g_rx_first_us = REG(TIMER_TIMERAWL);
             sb_rx(&core, buf, n, now);
             continue;
         }
@@ -490,6 +508,10 @@ int main(void)
             wait_until(dl);
             continue;
         }
-        sleep_until(dl < edge ? dl : edge);
+        if (edge < dl)
+            dl = edge;
+        if (g_rx_tail != g_rx_head && dl > now + 1000u * (RX_WAIT_US + 2u))
+            dl = now + 1000u * (RX_WAIT_US + 2u);  /* the oldest byte's wait */
+        sleep_until(dl);
     }
 }

@@ -39,6 +39,19 @@ void sb_send_status(struct sb_core *c)
     status_why(c, SB_WHY_OTHER);
 }
 
+/* floor(ns / 1000) mod 2^32 without a 64-bit division (a Cortex-M0+ does those in software, slowly):
+ * ns = h 2^32 + l and 2^32 = 4294967 x 1000 + 296, so ns / 1000 = h x 4294967 + (h x 296 + l) / 1000. */
+static uint32_t us32(uint64_t ns)
+{
+    uint32_t q = 0;
+    while (ns >> 32) {
+        uint32_t h = (uint32_t)(ns >> 32);
+        q += h * 4294967u;
+        ns = (uint64_t)h * 296u + (uint32_t)ns;
+    }
+    return q + (uint32_t)ns / 1000u;
+}
+
 static void status_why(struct sb_core *c, uint8_t why)
 {
     uint8_t p[SB_STATUS_LEN];
@@ -63,9 +76,9 @@ static void status_why(struct sb_core *c, uint8_t why)
     for (i = 0; i < SB_NADC; i++)
         sb_put_u16(p + 64 + 2 * i, (uint16_t)adc[i]);
     sb_put_u16(p + 70, c->underruns);
-    sb_put_u32(p + 72, (uint32_t)(c->now / 1000u));
-    sb_put_u32(p + 76, (uint32_t)(c->last_tick_rx / 1000u));
-    sb_put_u32(p + 80, (uint32_t)(c->fault_time / 1000u));
+    sb_put_u32(p + 72, us32(c->now));
+    sb_put_u32(p + 76, us32(c->last_tick_rx));
+    sb_put_u32(p + 80, us32(c->fault_time));
     p[84] = why;
     p[85] = (uint8_t)(c->cfg.queue - c->q_n);
     for (i = 0; i < SB_NAXES; i++) {

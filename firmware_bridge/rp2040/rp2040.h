@@ -108,6 +108,7 @@
 #define UART_IFLS (UART0_BASE + 0x34u)
 #define UART_IMSC (UART0_BASE + 0x38u)
 #define UART_ICR (UART0_BASE + 0x44u)
+#define UART_FR_TXFE (1u << 7)
 #define UART_FR_TXFF (1u << 5)
 #define UART_FR_RXFE (1u << 4)
 #define UART_LCR_H_WLEN8 (3u << 5)
