@@ -60,6 +60,7 @@ const char board_name[] = "rp2040";
 #define UART_BAUD 3000000u
 #define WDOG_US 100000u            /* hardware watchdog: the main loop feeds it every iteration */
 #define SPIN_NS 4000u              /* closer than this to an event: spin instead of sleeping */
+#define LATE_NS 200000u            /* an edge due longer ago than this: fallen behind, stop (SB_F_LATE) */
 #define RX_CHUNK 32u               /* bytes fed to the core at once (edges come in between) */
 #define RX_BATCH 16u               /* bytes worth waking the core for ... */
 #define RX_WAIT_US 15u             /* ... or the age of the oldest (a frame's tail) */
@@ -171,20 +172,23 @@ static void wait_until(uint64_t t)
  * low time before a rising one) or its direction changed less than the set-up time ago. */
 void board_step(uint8_t axis, uint8_t level, uint64_t t_ns, uint32_t tick)
 {
-    uint32_t bit = 1u << axis, w = ns_to_cycles(core.cfg.step_width_ns);
+    uint32_t bit = 1u << axis;
     (void)t_ns;
     (void)tick;
-    if (!(g_old_step & bit))
+    if (!(g_old_step & bit)) {
+        uint32_t w = ns_to_cycles(core.cfg.step_width_ns);
         while (since(g_last_step[axis]) < w)
             ;
+    }
     if (level) {
-        uint32_t d = ns_to_cycles(core.cfg.dir_setup_ns);
-        if (!(g_old_dir & bit))
+        if (!(g_old_dir & bit)) {
+            uint32_t d = ns_to_cycles(core.cfg.dir_setup_ns);
             while (since(g_last_dir[axis]) < d)
                 ;
-        REG(SIO_GPIO_OUT_SET) = 1u << (PIN_STEP0 + axis);
+        }
+        REG(SIO_GPIO_OUT_SET) = bit << PIN_STEP0;
     } else {
-        REG(SIO_GPIO_OUT_CLR) = 1u << (PIN_STEP0 + axis);
+        REG(SIO_GPIO_OUT_CLR) = bit << PIN_STEP0;
     }
     g_last_step[axis] = systick();
     g_old_step &= ~bit;
@@ -292,6 +296,18 @@ void isr_io_bank0(void)
     g_input_irq = 1;
     for (i = 0; i < 4; i++)                /* clear the edge events; the main loop reads the pins */
         REG(IO_BANK0_BASE + 0xf0u + 4u * (uint32_t)i) = 0xffffffffu;
+}
+
+/* Received bytes go to the core in batches (a UART interrupt comes with each byte, in the emulator
+ * at least): when a frame's worth is there or the oldest has waited RX_WAIT_US, and it has waited
+ * at least min_age_us. */
+static int rx_due(uint32_t min_age_us)
+{
+    uint32_t n = (g_rx_head - g_rx_tail) & (RX_SIZE - 1u), age;
+    if (!n)
+        return 0;
+    age = REG(TIMER_TIMERAWL) - g_rx_first_us;
+    return (n >= RX_BATCH || age >= RX_WAIT_US) && age >= min_age_us;
 }
 
 /* Sleeps until about t (ns), or until a byte or an input edge arrives. */
@@ -442,7 +458,17 @@ static void watchdog_init(void)
     REG(WATCHDOG_CTRL) = WATCHDOG_CTRL_ENABLE | WATCHDOG_CTRL_PAUSE_DBG;
 }
 
-static inline void watchdog_feed(void) { REG(WATCHDOG_LOAD) = 2u * WDOG_US; }
+static uint32_t g_fed_us;
+
+/* Fed once a millisecond at most: the loop passes here at every edge. */
+static inline void watchdog_feed(void)
+{
+    uint32_t t = REG(TIMER_TIMERAWL);
+    if (t - g_fed_us >= 1000u) {
+        REG(WATCHDOG_LOAD) = 2u * WDOG_US;
+        g_fed_us = t;
+    }
+}
 
 int main(void)
 {
@@ -479,17 +505,22 @@ int main(void)
             continue;
         }
         if (edge <= now + SPIN_NS) {       /* step edges: emit them as they come due */
-            do {
-                while ((now = now_ns()) < edge)
-                    ;
-                edge = sb_advance(&core, now);
-            } while (edge <= now + SPIN_NS && edge < dl && !g_input_irq);
-            continue;
+            if (now > edge + LATE_NS) {    /* more steps than this chip can time: a controlled stop */
+                sb_board_fault(&core, SB_F_LATE);
+                continue;
+            }
+            while ((now = now_ns()) < edge)
+                ;
+            edge = sb_advance(&core, now);
+            if (g_tx_tail != g_tx_head)
+                tx_drain();
+            /* received bytes are taken between edges; while the edges come closer than SPIN_NS,
+             * once the oldest has waited 2 x RX_WAIT_US: the link is never starved (the edges are
+             * then late, never shorter: board_step) */
+            if (!rx_due(edge <= now + SPIN_NS ? 2u * RX_WAIT_US : 0u))
+                continue;
         }
-        /* bytes in batches (a UART interrupt comes with each byte, in the emulator at least): when
-         * a frame's worth is there or the oldest has waited RX_WAIT_US */
-        if (g_rx_tail != g_rx_head && (((g_rx_head - g_rx_tail) & (RX_SIZE - 1u)) >= RX_BATCH ||
-                                       REG(TIMER_TIMERAWL) - g_rx_first_us >= RX_WAIT_US)) {
+        if (rx_due(0)) {
             while (n < RX_CHUNK && g_rx_tail != g_rx_head) {
                 buf[n++] = g_rx[g_rx_tail];
                 g_rx_tail = (g_rx_tail + 1u) & (RX_SIZE - 1u);

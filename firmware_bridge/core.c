@@ -182,9 +182,9 @@ static void advance(struct sb_core *c, uint64_t until)
                 /* Bresenham: a_k = floor((2k+1) s / 2n) without a division per step */
                 a->a += a->q;
                 a->e += 2u * a->r;
-                if (a->e >= 2u * (uint64_t)a->n) {
+                if (a->e >= 2u * a->n) {
                     a->a++;
-                    a->e -= 2u * (uint64_t)a->n;
+                    a->e -= 2u * a->n;
                 }
             }
             a->next = axis_next(a);
@@ -328,6 +328,11 @@ static void fault(struct sb_core *c, uint16_t bits, uint64_t t)
     c->state = SB_S_FAULT;
     board_event("fault", c);
     sb_send_status(c);
+}
+
+void sb_board_fault(struct sb_core *c, uint16_t bits)
+{
+    fault(c, bits, c->now);
 }
 
 static void finish_tick(struct sb_core *c, uint64_t t)

@@ -29,6 +29,7 @@
 #define SB_F_PROTOCOL 0x08
 #define SB_F_OVERSPEED 0x10
 #define SB_F_HOST_STOP 0x20
+#define SB_F_LATE 0x40        /* the board fell behind its step schedule (it cannot time that many steps) */
 
 /* why a STATUS was sent (its last-but-one byte) */
 #define SB_WHY_TICK 0     /* at a tick start: the counters hold exactly the ticks before it */
@@ -44,9 +45,9 @@ struct sb_axis {
     uint32_t n;          /* pulses this tick */
     uint32_t k;          /* rising edges emitted */
     uint64_t t_first;    /* tick start + dir set-up (if the direction changed) */
-    uint64_t s;          /* span the pulses are spread over, ns */
-    uint64_t a;          /* offset of the next rising edge from t_first, ns (Bresenham) */
-    uint64_t e, q, r;    /* Bresenham remainder, quotient and remainder per step */
+    uint32_t s;          /* span the pulses are spread over, ns (< tick_ns <= 1e8: 32 bits) */
+    uint32_t a;          /* offset of the next rising edge from t_first, ns (Bresenham) */
+    uint32_t e, q, r;    /* Bresenham remainder (< 2n), quotient and remainder per step */
     uint64_t fall;       /* pending falling edge time, 0 = none */
     uint64_t next;       /* time of this axis's next edge in the current tick, UINT64_MAX = none */
     int8_t dir;          /* +1 / -1 last direction output */
@@ -119,6 +120,8 @@ void sb_send_status(struct sb_core *c);
  * end of the tick the transition happened in (an earlier tick's edges are not recomputed). Safe to
  * call from board_step() (it only writes the latch). */
 void sb_home_edge(struct sb_core *c, uint8_t axis, uint8_t closed, uint64_t t_ns);
+/* A fault the board detected (e.g. SB_F_LATE): stops stepping now, as an E-stop does. */
+void sb_board_fault(struct sb_core *c, uint16_t bits);
 
 /* Board-independent event hook for logging (the host build prints; a board may leave it empty). */
 void board_event(const char *what, const struct sb_core *c);
