@@ -55,6 +55,7 @@ class Bridge:
     def status(self, timeout=1.0) -> bp.BridgeStatus:
         """Opens the pty as a second host would and asks for a status (not sequenced: changes nothing)."""
         with serial.Serial(self.port, timeout=0) as s:
+            s.reset_input_buffer()            # the pty may hold old reports: the bridge sends them while idle
             p = bp.Parser()
             t_end = time.monotonic() + timeout
             s.write(bp.frame(0, bp.T_STATUS_REQ))

@@ -232,6 +232,42 @@ def test_a_tick_out_of_sequence_is_refused_and_stops(bridge):
     assert s.counters[0] + s.not_executed[0] == 20 * be.next_tick
 
 
+def test_a_host_that_was_not_scheduled_is_named_as_late_not_as_a_corrupted_link(bridge):
+    """Frames go unacknowledged while the host itself is away longer than link_timeout_ms (here it
+    sleeps; under CPU load it is descheduled): the stop says the host was late."""
+    be = StepDirBackend(M, DT, bridge.options(link_timeout_ms=100.0, max_retransmits=1, watchdog_ms=5000.0))
+    be.open(np.zeros(5, int))
+    stream(be, [[10, 0, 0, 0, 0]] * 20)
+    be.tx_filter = lambda d: b""                    # these frames never arrive
+    stream(be, [[10, 0, 0, 0, 0]] * 2)
+    time.sleep(0.3)                                 # the host away for 300 ms
+    with pytest.raises(BridgeFault, match=r"host was late: \d+ ms passed between two of its ticks") as ei:
+        stream(be, [[10, 0, 0, 0, 0]] * 50)
+    be.close()
+    assert "corrupted" not in str(ei.value)
+    assert np.array_equal(ei.value.counts, bp.executed_steps(bridge.edges()))
+
+
+def test_a_bridge_process_that_is_not_scheduled_is_named_so(bridge):
+    """The bridge process stopped (SIGSTOP: what CPU starvation looks like to the host) while the host
+    streams: the stop says the bridge answered nothing (not a corrupted link), and once it runs again
+    its counters are exact."""
+    be = StepDirBackend(M, DT, bridge.options(link_timeout_ms=100.0, read_timeout_ms=300.0, max_retransmits=2,
+                                              watchdog_ms=5000.0))
+    be.open(np.zeros(5, int))
+    stream(be, [[10, 0, 0, 0, 0]] * 20)
+    bridge.proc.send_signal(signal.SIGSTOP)
+    try:
+        with pytest.raises(BridgeFault, match=r"nothing from the bridge for \d+ ms") as ei:
+            stream(be, [[10, 0, 0, 0, 0]] * 200)
+    finally:
+        bridge.proc.send_signal(signal.SIGCONT)
+    be.close()
+    assert "corrupted" not in str(ei.value)
+    s = bridge.status()
+    assert np.array_equal(s.counters, bp.executed_steps(bridge.edges()))
+
+
 # ---------------------------------------------------------------- inputs and the watchdog
 
 

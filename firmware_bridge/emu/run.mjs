@@ -3,7 +3,7 @@
 // Started by pmctl.hal.rp2040_emu (which creates the pty); see firmware_bridge/README.md.
 //
 //   node run.mjs --elf bridge.elf --link-fd FD [--edge-log PATH] [--cpu-log PATH] [--control FIFO]
-//                [--home-at AXIS:PULSES]... [--baud N] [--speed X] [--clock-file PATH] [--profile PATH] [--trace PATH]
+//                [--home-at AXIS:PULSES]... [--baud N] [--speed X] [--clock-file PATH] [--host-paced MS] [--profile PATH] [--trace PATH]
 //
 // - The ELF's loadable segments are copied to the emulated flash at their physical addresses, VTOR
 //   is pointed at the vector table (0x10000100) and the core is reset: rp2040js ships no boot ROM,
@@ -29,6 +29,12 @@
 // - --cpu-log PATH: per tick start, u64 t_ns and u64 cycles the CPU executed so far (not asleep).
 // - --clock-file PATH: the simulated time (float64 ns, little-endian, at offset 0), rewritten after
 //   every 20 us slice: the host reads it to time its timeouts in the chip's time.
+// - --host-paced MS: the chip's time waits for the host: while the chip is stepping (its last
+//   STATUS says armed or running) and MS of its time have passed since the host's last byte, the
+//   clock stops until the host sends again (or stays silent for 10 s of real time: then it runs
+//   on, and the watchdog trips). For offline runs (pmctl run --no-realtime): a host that is not
+//   scheduled for a while is not late for the chip. Without it the chip's time runs on, as a real
+//   chip's does.
 // - --profile PATH: PC samples (JSON {pc: count}), for benchmarks; --trace PATH: every valid frame
 //   both ways, one line each: H|C, simulated us, wall ms, hex.
 // - On exit (SIGTERM, "quit", or 2 s after stdin closes: the parent died) it prints one JSON line of
@@ -50,6 +56,7 @@ for (let i = 0; i < args.length; i++) {
   else if (a === '--profile') opt.profile = v;
   else if (a === '--clock-file') opt.clockFile = v;
   else if (a === '--trace') opt.trace = v;
+  else if (a === '--host-paced') opt.hostPaced = parseFloat(v);
   else if (a === '--home-at') {
     const m = /^([0-4]):(-?\d+)$/.exec(v || '');
     if (!m) usage();
@@ -239,6 +246,7 @@ const fromChip = new Parser((f) => {
     }
   } else if (f[3] === T_STATUS && f.length === 118) {
     const b = Buffer.from(f);
+    chipStepping = b[4] === 1 || b[4] === 2;          // armed or running: waiting for or executing ticks
     const started = b.readUInt32LE(4 + 8), why = b[4 + 84];
     const counts = why === 0 && started >= 1 && snaps.has(started - 1) ? snaps.get(started - 1) : pinCount;
     for (let a = 0; a < NAXES; a++) b.writeInt32LE((counts[a] + base[a]) | 0, 4 + 20 + 4 * a);
@@ -250,6 +258,7 @@ const fromChip = new Parser((f) => {
 }, (bytes) => { for (const x of bytes) toHost.push(x); });
 uart.onByte = (b) => fromChip.push(b);
 
+let chipStepping = false, hostSim = 0, hostWall = performance.now();
 const rxQ = [];                            // bytes from the host, not yet in the FIFO
 let rxHead = 0, rxNext = 0, rxOverruns = 0, txDropped = 0;
 const byteNs = 10 * 1e9 / opt.baud;
@@ -272,6 +281,8 @@ function pollHost() {
       throw e;
     }
     if (!n) return;
+    hostSim = clock.nanos;
+    hostWall = performance.now();
     if (!rxQ.length) rxNext = Math.max(rxNext, clock.nanos);
     for (let i = 0; i < n; i++) { rxQ.push(inBuf[i]); fromHost.push(inBuf[i]); }
   }
@@ -362,6 +373,13 @@ function loop() {
   const t0 = performance.now();
   while (!quit && performance.now() - t0 < 5) {
     pollHost();
+    if (opt.hostPaced > 0 && chipStepping && rxHead === rxQ.length && clock.nanos - hostSim > opt.hostPaced * 1e6 &&
+        performance.now() - hostWall < 10000) {
+      Atomics.wait(sleeper, 0, 0, 0.2);      // the chip's time waits for the host
+      anchorWall = performance.now(); anchorSim = clock.nanos;
+      pollControl();
+      continue;
+    }
     runSlice(clock.nanos + SLICE_NS);
     publishClock();
     flushHost();

@@ -209,6 +209,8 @@ class StepDirBackend(Backend):
         self._clock = clock or time.monotonic
         self._now = self._clock          # the clock of every timeout: the chip's simulated one for rp2040-emu
         self.emu_figures = {}            # rp2040-emu: what the emulator reported when it stopped
+        self._t_call = 0.0               # the host's previous read() (its own lateness: _link_diagnosis)
+        self._host_gap = self._host_gap_at = 0.0
         self.fd = None
         self._ser = None
         self.port = o.port
@@ -243,7 +245,7 @@ class StepDirBackend(Backend):
     def _start_emulated_chip(self):
         from pmctl.hal.rp2040_emu import Emulator
         o = self.opt
-        self.emu = Emulator(edge_log=o.edge_log or None, control=o.control or None,
+        self.emu = Emulator(edge_log=o.edge_log or None, control=o.control or None, host_paced_ms=5.0,
                             home_at=[(i, int(round(mm * self.ppm[i]))) for i, mm in enumerate(o.home_switch_mm)])
         self._now = self.emu.sim_time
         return self.emu.port
@@ -309,10 +311,10 @@ class StepDirBackend(Backend):
         for o in self.unacked:
             o.tries += 1
             if o.tries > self.opt.max_retransmits and now - o.t0 > self.opt.link_timeout_ms / 1e3:
-                raise self._host_fault(f"link lost: frame {o.seq} ({_TYPE_NAMES.get(o.type, o.type)}"
+                raise self._host_fault(f"frame {o.seq} ({_TYPE_NAMES.get(o.type, o.type)}"
                                        + (f", tick {o.tick}" if o.tick >= 0 else "")
                                        + f") not acknowledged after {o.tries - 1} retransmits over "
-                                       f"{(now - o.t0) * 1e3:.0f} ms ({why})")
+                                       f"{(now - o.t0) * 1e3:.0f} ms ({why}): {self._link_diagnosis(now)}")
             o.t = now
             self.stats["retransmits"] += 1
             self._write(o.data)
@@ -475,7 +477,8 @@ class StepDirBackend(Backend):
         except BaseException:
             self.close()
             raise
-        self.t_rx = self.t_send = self._now()
+        self.t_rx = self.t_send = self._t_call = self._now()
+        self._host_gap = self._host_gap_at = 0.0
         self._open = True
 
     def _handshake(self, counts):
@@ -541,6 +544,10 @@ class StepDirBackend(Backend):
             raise BridgeFault("step/dir bridge: already stopped after a fault")
         o = self.opt
         t0 = self._now()
+        if t0 - self._t_call > self._host_gap or t0 - self._host_gap_at > o.link_timeout_ms / 1e3:
+            self._host_gap = t0 - self._t_call  # the longest the host was away between two reads, recently
+            self._host_gap_at = t0
+        self._t_call = t0
         t_end = t0 + o.read_timeout_ms / 1e3
         self._pump()
         while True:
@@ -557,11 +564,13 @@ class StepDirBackend(Backend):
                     u = self.unacked[0]
                     why = (f"{len(self.unacked)} frames not acknowledged (the oldest, tick {u.tick}, sent "
                            f"{u.tries + 1} times; the bridge counted {s.rx_bad if s else '?'} bad frames): "
-                           f"link corrupted or lost")
+                           + self._link_diagnosis(now))
                 else:
                     why = (f"the bridge's tick queue stayed full for {o.read_timeout_ms:g} ms "
                            f"(state {bp.STATE_NAMES.get(s.state, s.state) if s else '?'}, "
                            f"{self.next_tick - started} ticks waiting)")
+                    if now - self.t_rx >= 0.5 * o.read_timeout_ms / 1e3:
+                        why += f": {self._link_diagnosis(now, since=self.t_rx)}"
                 raise self._timeout(why)
             if now >= t_end:
                 continue
@@ -570,6 +579,23 @@ class StepDirBackend(Backend):
             raise self._timeout(f"nothing from the bridge for {o.link_timeout_ms:g} ms (link lost)")
         self._fb.enc[:] = self.cum[self.next_tick % len(self.cum)] / self.ppm
         return self._fb
+
+    def _link_diagnosis(self, now, since=None) -> str:
+        """Why frames went unacknowledged, from what the host saw: the host itself away (not scheduled),
+        the bridge silent (a host-pty bridge is a process on this computer: not scheduled, or dead), or
+        the bridge answering while frames were lost (the line)."""
+        silent = now - self.t_rx
+        limit = self.opt.link_timeout_ms / 1e3
+        oldest = since if since is not None else self.unacked[0].t0 if self.unacked else now
+        if self._host_gap > limit and self._host_gap_at >= oldest:
+            return (f"the host was late: {self._host_gap * 1e3:.0f} ms passed between two of its ticks (it was not "
+                    f"scheduled: CPU load), longer than link_timeout_ms {self.opt.link_timeout_ms:g}")
+        if self.t_rx <= oldest + 0.002:              # nothing heard since (about) the oldest frame went out
+            who = ("the host-pty bridge is a process on this computer: not scheduled (CPU load) or dead"
+                   if self.opt.port == HOST_PTY else "the bridge stopped answering (power, cable, reset?)")
+            return f"nothing from the bridge for {silent * 1e3:.0f} ms ({who}); link lost"
+        return (f"the bridge answered {silent * 1e3:.0f} ms ago but did not take these frames: link corrupted "
+                f"(bad CRCs, lost bytes)")
 
     def _rto(self) -> float:
         """Retransmit timeout, s: 3 smoothed round trips + 0.5 ms, within 1 ms .. retransmit_ms."""
@@ -660,7 +686,7 @@ class StepDirBackend(Backend):
         self._dir[:] = 1                      # RESET sets every direction output to +
         self._fb.counts[:] = counts
         self._fb.enc[:] = counts / self.ppm
-        self.t_rx = self.t_send = self._now()
+        self.t_rx = self.t_send = self._t_call = self._now()
 
     def close(self):
         """Runs out the bridge's queue (END), checks that it executed exactly what was commanded,
