@@ -13,8 +13,10 @@ executed (WFI sleep not counted):
   place; the steps per second that makes, against Klipper's RP2040 figures (about 4 M steps/s with
   one stepper and 2.6 M with three, at 200 MHz: Klipper docs/Benchmarks.md), and our rate scaled to
   200 MHz for the comparison;
-- CPU per tick at each rate: emulated cycles the CPU executed per tick (median, p99), with no
-  pulses and with 20 pulses per tick on each axis, as a share of the tick;
+- CPU per tick at each rate: emulated cycles the CPU executed per tick (median, p99; awake, i.e.
+  not in WFI), and of those the work: less the cycles the firmware counted spinning on an edge's
+  time or a pulse width (g_spin_cycles); with no pulses and with 20 pulses per tick on each axis,
+  as a share of the tick;
 - with --stalls: how long a host stall the link rides out: the host stops sending for S ms of the
   chip's time after a steady stream, then resumes; the outcome (the chip ran its queue and kept
   stepping / paused at an empty queue and resumed / latched its watchdog) and what it executed.
@@ -37,7 +39,7 @@ import numpy as np
 
 from pmctl.core.config import load_machine
 from pmctl.hal import bridge_protocol as bp
-from pmctl.hal.rp2040_emu import Emulator
+from pmctl.hal.rp2040_emu import Emulator, read_cpu_log
 from pmctl.hal.stepdir import BridgeFault, StepDirBackend
 
 CLK_HZ = 125e6
@@ -59,7 +61,7 @@ def drive(tmp: Path, ticks: np.ndarray, rate: float, **opts) -> dict:
     finally:
         fig = emu.stop()
     log = bp.read_edge_log(edge_log)
-    cpu = np.fromfile(cpu_log, dtype=[("t", "<u8"), ("cycles", "<u8")])
+    cpu = read_cpu_log(cpu_log)
     return {"log": log, "cpu": cpu, "fig": fig, "stats": dict(be.stats)}
 
 
@@ -116,9 +118,11 @@ def cpu_per_tick(tmp: Path, rate: float, n_ticks: int, pulses: int) -> dict:
     r = drive(tmp, ticks, rate)
     cpu = r["cpu"]
     cyc = np.diff(cpu["cycles"].astype(np.int64))[2:n_ticks - 2]      # steady state, between tick starts
+    work = cyc - np.diff(cpu["spin"].astype(np.int64))[2:n_ticks - 2]
     period = CLK_HZ / rate
     return {"median": float(np.median(cyc)), "p99": float(np.percentile(cyc, 99)), "share_med": float(np.median(cyc) / period),
-            "share_p99": float(np.percentile(cyc, 99) / period)}
+            "share_p99": float(np.percentile(cyc, 99) / period), "work_med": float(np.median(work)),
+            "work_p99": float(np.percentile(work, 99))}
 
 
 def stalls(tmp: Path, durations_ms) -> list:
@@ -186,9 +190,11 @@ def main():
         for rate in (float(x) for x in a.rates.split(",")):
             for pulses in (0, 20):
                 c = cpu_per_tick(tmp, rate, max(a.ticks, 40), pulses)
-                print(f"\nCPU per tick at {rate:g} Hz, {pulses} pulses/tick on each axis: median {c['median']:.0f} "
-                      f"cycles ({100 * c['share_med']:.1f} % of the tick), p99 {c['p99']:.0f} ({100 * c['share_p99']:.1f} %)",
-                      flush=True)
+                period = CLK_HZ / rate
+                print(f"\nCPU per tick at {rate:g} Hz, {pulses} pulses/tick on each axis: awake median {c['median']:.0f} "
+                      f"cycles ({100 * c['share_med']:.1f} % of the tick), p99 {c['p99']:.0f} ({100 * c['share_p99']:.1f} %); "
+                      f"of which work (not spinning on a time) median {c['work_med']:.0f} ({100 * c['work_med'] / period:.1f} %), "
+                      f"p99 {c['work_p99']:.0f} ({100 * c['work_p99'] / period:.1f} %)", flush=True)
         if a.stalls:
             print("\nhost stalls (1 kHz, queue 4, prime 2, watchdog 100 ms: the shipped config):")
             stalls(tmp, [2.0, 3.0, 10.0, 50.0, 95.0, 105.0, 200.0])

@@ -161,10 +161,27 @@ static inline uint32_t systick(void) { return REG(SYST_CVR); }
 static inline uint32_t since(uint32_t then) { return (then - systick()) & 0xffffffu; }
 static inline uint32_t ns_to_cycles(uint32_t ns) { return (ns + NS_PER_CYCLE - 1u) / NS_PER_CYCLE; }
 
+/* Cycles spent spinning (waiting for an edge's time or a pulse width), not working: the emulator's
+ * harness reads this word (--cpu-log) to tell the CPU's work per tick from its waiting. */
+volatile uint32_t g_spin_cycles;
+
 static void wait_until(uint64_t t)
 {
+    uint32_t t0 = systick();
     while (now_ns() < t)
         ;
+    g_spin_cycles += since(t0);
+}
+
+/* Until `cycles` have passed since the SysTick value `then`; counted as spinning. */
+static inline void wait_since(uint32_t then, uint32_t cycles)
+{
+    uint32_t t0 = systick();
+    if (since(then) >= cycles)
+        return;
+    while (since(then) < cycles)
+        ;
+    g_spin_cycles += since(t0);
 }
 
 /* The core calls this when its poll has passed t_ns (never before). The pin changes now, or later
@@ -176,15 +193,11 @@ void board_step(uint8_t axis, uint8_t level, uint64_t t_ns, uint32_t tick)
     (void)t_ns;
     (void)tick;
     if (!(g_old_step & bit)) {
-        uint32_t w = ns_to_cycles(core.cfg.step_width_ns);
-        while (since(g_last_step[axis]) < w)
-            ;
+        wait_since(g_last_step[axis], ns_to_cycles(core.cfg.step_width_ns));
     }
     if (level) {
         if (!(g_old_dir & bit)) {
-            uint32_t d = ns_to_cycles(core.cfg.dir_setup_ns);
-            while (since(g_last_dir[axis]) < d)
-                ;
+            wait_since(g_last_dir[axis], ns_to_cycles(core.cfg.dir_setup_ns));
         }
         REG(SIO_GPIO_OUT_SET) = bit << PIN_STEP0;
     } else {
@@ -202,8 +215,7 @@ void board_dir(uint8_t axis, uint8_t dir, uint64_t t_ns, uint32_t tick)
     /* the core changes DIR at a tick start, after the previous pulse's falling edge: hold it a
      * step width after that edge too */
     if (!(g_old_step & bit))
-        while (since(g_last_step[axis]) < ns_to_cycles(core.cfg.step_width_ns))
-            ;
+        wait_since(g_last_step[axis], ns_to_cycles(core.cfg.step_width_ns));
     if (dir)
         REG(SIO_GPIO_OUT_SET) = 1u << (PIN_DIR0 + axis);
     else
@@ -509,8 +521,8 @@ int main(void)
                 sb_board_fault(&core, SB_F_LATE);
                 continue;
             }
-            while ((now = now_ns()) < edge)
-                ;
+            wait_until(edge);
+            now = now_ns();
             edge = sb_advance(&core, now);
             if (g_tx_tail != g_tx_head)
                 tx_drain();

@@ -52,17 +52,26 @@ class Bridge:
             time.sleep(0.01)
         time.sleep(0.03)
 
-    def status(self, timeout=1.0) -> bp.BridgeStatus:
+    status_timeout = 1.0
+
+    def _time_us(self):
+        """The bridge's clock now (us), to tell a STATUS sent after a request from older ones; None: any."""
+        return None
+
+    def status(self) -> bp.BridgeStatus:
         """Opens the pty as a second host would and asks for a status (not sequenced: changes nothing)."""
         with serial.Serial(self.port, timeout=0) as s:
             s.reset_input_buffer()            # the pty may hold old reports: the bridge sends them while idle
             p = bp.Parser()
-            t_end = time.monotonic() + timeout
+            t_req = self._time_us()
+            t_end = time.monotonic() + self.status_timeout
             s.write(bp.frame(0, bp.T_STATUS_REQ))
             while time.monotonic() < t_end:
                 for f in p.feed(s.read(4096)):
                     if f.type == bp.T_STATUS:
-                        return bp.decode_status(f)
+                        st = bp.decode_status(f)
+                        if t_req is None or st.time_us >= t_req - 2:
+                            return st
                 time.sleep(0.002)
         raise AssertionError("no status from the bridge")
 
@@ -113,23 +122,12 @@ class EmulatedBridge(Bridge):
             time.sleep(0.01)
         time.sleep(0.1)
 
-    def status(self, timeout=20.0) -> bp.BridgeStatus:
-        """As the host build's, but only a STATUS the chip sent after the request (the pty may hold
-        old ones: the chip reports every 10 ms while no host reads)."""
-        with serial.Serial(self.port, timeout=0) as s:
-            s.reset_input_buffer()
-            p = bp.Parser()
-            t_req = self.clock()
-            t_end = time.monotonic() + timeout
-            s.write(bp.frame(0, bp.T_STATUS_REQ))
-            while time.monotonic() < t_end:
-                for f in p.feed(s.read(4096)):
-                    if f.type == bp.T_STATUS:
-                        st = bp.decode_status(f)
-                        if st.time_us / 1e6 >= t_req - 2e-6:
-                            return st
-                time.sleep(0.002)
-        raise AssertionError("no status from the emulated chip")
+    status_timeout = 20.0
+
+    def _time_us(self):
+        """Only a STATUS the chip sent after the request (the pty may hold old ones: the chip reports
+        every 10 ms while no host reads); the chip's STATUS time is its TIMER's, the emulator's clock."""
+        return self.clock() * 1e6
 
     def stop(self):
         self.figures = self.emu.stop()

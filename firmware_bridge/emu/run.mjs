@@ -3,7 +3,7 @@
 // Started by pmctl.hal.rp2040_emu (which creates the pty); see firmware_bridge/README.md.
 //
 //   node run.mjs --elf bridge.elf --link-fd FD [--edge-log PATH] [--cpu-log PATH] [--control FIFO]
-//                [--home-at AXIS:PULSES]... [--baud N] [--speed X] [--clock-file PATH] [--host-paced MS] [--profile PATH] [--trace PATH]
+//                [--home-at AXIS:PULSES]... [--baud N] [--speed X] [--clock-file PATH] [--host-paced MS] [--spin-addr HEX] [--profile PATH] [--trace PATH]
 //
 // - The ELF's loadable segments are copied to the emulated flash at their physical addresses, VTOR
 //   is pointed at the vector table (0x10000100) and the core is reset: rp2040js ships no boot ROM,
@@ -26,7 +26,9 @@
 //   GP14 low = any drive in alarm, home GP15-19 low = closed, ADC0-2 counts).
 // - --home-at AXIS:PULSES: a simulated home switch, closed while the motor (the counters of the
 //   first RESET plus the steps on the pins since) is at or past PULSES; set at the step edge.
-// - --cpu-log PATH: per tick start, u64 t_ns and u64 cycles the CPU executed so far (not asleep).
+// - --cpu-log PATH: per tick start, u64 t_ns, u64 cycles the CPU executed so far (not asleep) and
+//   u64 the firmware's count of cycles it spent spinning (the 32-bit SRAM word at --spin-addr HEX,
+//   g_spin_cycles, extended), so work = cycles - spin.
 // - --clock-file PATH: the simulated time (float64 ns, little-endian, at offset 0), rewritten after
 //   every 20 us slice: the host reads it to time its timeouts in the chip's time.
 // - --host-paced MS: the chip's time waits for the host: while the chip is stepping (its last
@@ -57,6 +59,7 @@ for (let i = 0; i < args.length; i++) {
   else if (a === '--clock-file') opt.clockFile = v;
   else if (a === '--trace') opt.trace = v;
   else if (a === '--host-paced') opt.hostPaced = parseFloat(v);
+  else if (a === '--spin-addr') opt.spinAddr = parseInt(v, 16);
   else if (a === '--home-at') {
     const m = /^([0-4]):(-?\d+)$/.exec(v || '');
     if (!m) usage();
@@ -170,8 +173,15 @@ function flushEdges() {
 }
 
 const cpuFd = opt.cpuLog ? fs.openSync(opt.cpuLog, 'w') : -1;
-const CPU_REC = Buffer.alloc(16);
-let busyCycles = 0;
+const CPU_REC = Buffer.alloc(24);
+let busyCycles = 0, spin32 = 0, spin = 0;
+function spinCycles() {                    // the firmware's 32-bit counter, extended
+  if (!opt.spinAddr) return 0;
+  const v = mcu.sramView.getUint32(opt.spinAddr - 0x20000000, true);
+  spin += (v - spin32) >>> 0;
+  spin32 = v;
+  return spin;
+}
 
 for (let a = 0; a < NAXES; a++) {
   mcu.gpio[PIN_STEP0 + a].addListener((v, old) => {
@@ -198,6 +208,7 @@ mcu.gpio[PIN_TICK].addListener((v, old) => {
   if (cpuFd >= 0) {
     CPU_REC.writeBigUInt64LE(BigInt(Math.round(clock.nanos)), 0);
     CPU_REC.writeBigUInt64LE(BigInt(busyCycles), 8);
+    CPU_REC.writeBigUInt64LE(BigInt(spinCycles()), 16);
     fs.writeSync(cpuFd, CPU_REC);
   }
 });

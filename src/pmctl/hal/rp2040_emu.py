@@ -87,6 +87,34 @@ def ensure_built(firmware_dir: Path = FIRMWARE_DIR) -> dict:
     return paths
 
 
+CPU_LOG_DTYPE = [("t", "<u8"), ("cycles", "<u8"), ("spin", "<u8")]
+
+
+def read_cpu_log(path):
+    """The emulator's --cpu-log: per tick start, the simulated time (ns), the cycles the CPU executed
+    so far (not asleep), and the cycles of those the firmware spent spinning on a time."""
+    import numpy as np
+    return np.fromfile(path, dtype=np.dtype(CPU_LOG_DTYPE))
+
+
+def symbol_address(elf: Path, name: str) -> int:
+    """The address of a symbol in the ELF's symbol table (32-bit little-endian ELF)."""
+    b = Path(elf).read_bytes()
+    shoff, = struct.unpack_from("<I", b, 32)
+    shentsize, shnum = struct.unpack_from("<HH", b, 46)
+    sections = [struct.unpack_from("<IIIIIIIIII", b, shoff + i * shentsize) for i in range(shnum)]
+    for sh in sections:
+        if sh[1] != 2:                     # SHT_SYMTAB
+            continue
+        strtab = sections[sh[6]]           # sh_link: its string table
+        for off in range(sh[4], sh[4] + sh[5], 16):
+            st_name, st_value = struct.unpack_from("<II", b, off)
+            end = b.index(b"\0", strtab[4] + st_name)
+            if b[strtab[4] + st_name:end].decode() == name:
+                return st_value
+    raise HalError(f"rp2040 emulator: no symbol {name} in {elf}")
+
+
 class Emulator:
     """``bridge.elf`` in rp2040js, its UART0 on a pty (``port``). Stop it with :meth:`stop`, which
     returns the runner's figures (simulated and wall time, CPU cycles, pin counts, ...).
@@ -117,6 +145,8 @@ class Emulator:
         self.port = os.ttyname(self._slave)
         cmd = [node, str(paths["runner"]), "--elf", str(paths["elf"]), "--link-fd", str(master),
                "--clock-file", str(self.clock_file), "--speed", repr(float(speed)), "--baud", str(int(baud))]
+        if cpu_log:
+            cmd += ["--spin-addr", f"{symbol_address(paths['elf'], 'g_spin_cycles'):x}"]
         for opt, val in (("--edge-log", edge_log), ("--control", self.control), ("--cpu-log", cpu_log),
                          ("--trace", trace), ("--profile", profile)):
             if val:
