@@ -299,18 +299,23 @@ def test_pmctl_run_machines_a_job_through_the_emulated_chip(tmp_path):
     from pmctl.core.config import CONFIG_DIR
     from test_stepdir_cli import _toml
     job = tmp_path / "short.ngc"
-    job.write_text("G17 G21 G90 G94\nG0 X1 Y0 Z62 A0 B0\nG1 X-1 Y0.5 F900\nG1 X0 Y-0.5\n")
+    job.write_text("G17 G21 G91 G94\nG1 X1 Y0.5 F900\nG1 X-1 Y-0.5\n")     # short moves from where it is
     svc = tomllib.loads((CONFIG_DIR / "service.toml").read_text())
     edges = tmp_path / "edges.bin"
     svc["hal"]["stepdir"].update(edge_log=str(edges))
     (tmp_path / "service.toml").write_text(_toml(svc))
+    rec = tmp_path / "rec"
     r = subprocess.run([sys.executable, "-m", "pmctl.interfaces.cli", "run", "--backend", "stepdir", "--bridge",
-                        "rp2040-emu", "--service", str(tmp_path / "service.toml"), "--job", str(job),
-                        "--state", "", "--no-realtime", "--quiet"], capture_output=True, text=True, timeout=600)
+                        "rp2040-emu", "--service", str(tmp_path / "service.toml"), "--job", str(job), "--record",
+                        str(rec), "--state", "", "--no-realtime", "--quiet"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "result: done" in r.stdout and "pulses sent = pulse counters: yes" in r.stdout
-    executed = bp.executed_steps(bp.read_edge_log(edges))
-    assert np.abs(executed).sum() > 1000
+    from pmctl.core.recording import read_recording
+    data = read_recording(rec)
+    cmd = np.stack([np.asarray(data.columns[f"cmd_{a}"]) for a in bp.AXES], -1)
+    log = bp.read_edge_log(edges)
+    assert np.array_equal(bp.executed_steps(log), np.rint((cmd[-1] - cmd[0]) * 2000.0).astype(np.int64))
+    assert np.sum(log["kind"] == bp.EDGE_HIGH) > 1000                  # it moved (there and back)
 
 
 def test_rp2040_emu_needs_no_realtime(tmp_path):

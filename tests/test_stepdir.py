@@ -389,6 +389,19 @@ def test_a_watchdog_trip_with_ticks_queued_reports_what_was_not_executed(bridge)
     assert s.not_executed[0] >= 40 and s.dropped_ticks >= 1      # 4 ms of ticks cannot run in 2 ms
 
 
+def test_a_watchdog_trip_after_every_tick_ran_is_no_error_at_close(bridge):
+    """The host slow to end the run (a loaded computer shutting down): the bridge's watchdog trips after
+    it executed every tick. close() accepts it: nothing was lost and its counters are the commanded ones."""
+    be = StepDirBackend(M, DT, bridge.options(watchdog_ms=30.0))
+    be.open(np.zeros(5, int))
+    stream(be, [[20, -20, 0, 5, 0]] * 30)
+    time.sleep(0.3)                                          # > the queue's 4 ticks + the 30 ms watchdog
+    be.close()                                               # no BridgeFault
+    s = bridge.status()
+    assert s.state == bp.S_FAULT and s.faults == bp.F_WATCHDOG and not any(s.not_executed)
+    assert np.array_equal(s.counters, np.array([20, -20, 0, 5, 0]) * 30)
+
+
 def _per_axis_tick(log, axis, tick):
     sel = (log["axis"] == axis) & (log["tick"] == tick)
     return log[sel]
