@@ -380,6 +380,7 @@ def test_a_watchdog_trip_with_ticks_queued_reports_what_was_not_executed(bridge)
         time.sleep(0.2)                                      # hung host
         be.read()
     be.close()
+    assert "the host was late" in str(ei.value), str(ei.value)
     s = bridge.status()
     executed = bp.executed_steps(bridge.edges())
     assert np.array_equal(ei.value.counts, executed) and np.array_equal(s.counters, executed)

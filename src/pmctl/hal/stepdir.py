@@ -210,7 +210,7 @@ class StepDirBackend(Backend):
         self._now = self._clock          # the clock of every timeout: the chip's simulated one for rp2040-emu
         self.emu_figures = {}            # rp2040-emu: what the emulator reported when it stopped
         self._t_call = 0.0               # the host's previous read() (its own lateness: _link_diagnosis)
-        self._host_gap = self._host_gap_at = 0.0
+        self._host_gap = self._host_gap_at = self._send_gap = self._send_gap_at = 0.0
         self.fd = None
         self._ser = None
         self.port = o.port
@@ -438,8 +438,14 @@ class StepDirBackend(Backend):
         in_flight = self.next_tick - s.next_tick
         extra = ""
         if s.faults & bp.F_WATCHDOG:
+            quiet = self._now() - self.t_send
+            late = ""
+            if quiet * 1e3 > 0.5 * self.opt.watchdog_ms:
+                late = ": the host was late (not scheduled, or stopped)"
+            elif self._send_gap * 1e3 > 0.5 * self.opt.watchdog_ms:
+                late = f", {self._send_gap * 1e3:.0f} ms after the one before: the host was late (not scheduled)"
             extra = (f" [the bridge had no valid tick for {((s.fault_us - s.last_tick_rx_us) % 2**32) / 1e3:.1f} ms; the host "
-                     f"sent its last tick frame {(self._now() - self.t_send) * 1e3:.1f} ms ago]")
+                     f"sent its last tick frame {quiet * 1e3:.1f} ms ago{late}]")
         return BridgeFault(
             f"step/dir bridge stopped: {s.fault_text()}{extra} (tick {s.done} of {self.next_tick} sent); not executed: "
             f"{_axes(s.not_executed)} pulses over {s.dropped_ticks} ticks"
@@ -478,7 +484,7 @@ class StepDirBackend(Backend):
             self.close()
             raise
         self.t_rx = self.t_send = self._t_call = self._now()
-        self._host_gap = self._host_gap_at = 0.0
+        self._host_gap = self._host_gap_at = self._send_gap = self._send_gap_at = 0.0
         self._open = True
 
     def _handshake(self, counts):
@@ -639,7 +645,11 @@ class StepDirBackend(Backend):
         self.cum[(k + 1) % n] = self.cum[k % n] + p
         self._send(bp.T_TICK, bp.tick_payload(k, p), tick=k, pulses=p)
         self.next_tick = k + 1
-        self.t_send = self._now()
+        now = self._now()
+        if now - self.t_send > self._send_gap or now - self._send_gap_at > 1.0:
+            self._send_gap = now - self.t_send     # the longest gap between two tick frames, in the last second
+            self._send_gap_at = now
+        self.t_send = now
 
     def status(self):
         if self.fault is not None:
