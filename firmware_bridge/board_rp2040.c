@@ -511,8 +511,12 @@ int main(void)
         dl = sb_next_deadline(&core);      /* tick boundary, watchdog, idle status */
         edge = sb_next_edge(&core);
         now = now_ns();
-        if (g_input_irq || now >= dl) {    /* an input changed, or a deadline passed */
+        if (g_input_irq) {                 /* an input changed: no edge after this one (E-stop, alarm) */
             g_input_irq = 0;
+            sb_poll(&core, core.now);      /* at the time of the last edge emitted: none newer goes out */
+            continue;
+        }
+        if (now >= dl) {                   /* a deadline passed: tick boundary, watchdog, idle status */
             sb_poll(&core, now);
             continue;
         }

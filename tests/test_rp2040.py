@@ -153,7 +153,7 @@ def backend(chip, **kw):
 
 
 def test_the_chip_identifies_itself_and_a_job_through_the_loop_is_every_pulse_on_the_pins(chip):
-    tr = line_traj([-3, -2, 1], [3, 2, 3], rp(2, -1), rp(-1, 2), 20.0, DT)
+    tr = line_traj([-3, -2, 1], [3, 2, 3], rp(2, -1), rp(-1, 2), 5.0, DT)    # within the chip's step rate
     params = NCParams.from_machine(M, DT, kv=0.4 / DT)
     tg = prepare(M, params, tr, DT, None)
     c0 = counts_of(tg.q[0], params)
@@ -179,15 +179,16 @@ def test_step_high_and_low_times_and_dir_setup_on_the_pins(chip):
     """From the pins, in simulated time: every pulse is high for at least the step width and low for
     at least as long before the next, the direction changes only after the last falling edge plus a
     width, and settles at least the set-up time before the next rising edge; the steps of each tick
-    are exactly its pulses. Random counts with reversals, up to the step width's limit."""
+    are exactly its pulses. Random counts with reversals, and bursts of 80 pulses a tick (the chip
+    holds about 100 kstep/s in total: benchmarks/bench_rp2040.py)."""
     W, D = 2500, 5000
     be = backend(chip, options={"step_width_ns": W, "dir_setup_ns": D})
     be.open(np.zeros(5, int))
     rng = np.random.default_rng(7)
-    ticks = rng.integers(-60, 61, (150, 5))
+    ticks = rng.integers(-12, 13, (150, 5))
     ticks[::7] *= -1
-    ticks[40:45] = [[199, -199, 150, -150, 199]] * 5        # the most a 1 ms tick holds after a reversal
-    ticks[45] = [-199, 199, -150, 150, -199]
+    ticks[40:45] = [[80, -10, 5, 0, 0]] * 5                  # dense pulses on one axis ...
+    ticks[45] = [-80, 10, -5, 0, 0]                          # ... and a reversal right after
     ticks = np.concatenate([ticks, np.zeros((5, 5), int)])
     stream(be, ticks)
     be.close()
@@ -237,7 +238,7 @@ def test_the_estop_input_stops_stepping_at_once_and_a_reset_is_refused_while_it_
     be = backend(chip)
     c0 = np.array([0, 500, 0, -500, 0])
     be.open(c0)
-    ticks = np.tile([150, -150, 120, 90, -60], (1000, 1))
+    ticks = np.tile([20, -20, 15, 10, -8], (1000, 1))
     with pytest.raises(BridgeFault, match="E-stop input") as ei:
         for k, p in enumerate(ticks):
             if k == 60:
@@ -252,7 +253,10 @@ def test_the_estop_input_stops_stepping_at_once_and_a_reset_is_refused_while_it_
     assert s.state == bp.S_FAULT and s.faults & bp.F_ESTOP
     assert np.array_equal(np.array(s.counters) + s.not_executed, c0 + ticks[:be.next_tick].sum(0))
     rises = log[log["kind"] == bp.EDGE_HIGH]["t"].astype(np.int64)
-    assert rises.max() // 1000 <= s.fault_us + 2                         # nothing after the stop
+    t_estop = int(log[(log["axis"] == 13) & (log["kind"] == 6)]["t"][0])   # the E-stop pin opening
+    # the edges the loop was writing when the pin opened still go out (they were due before it), then
+    # nothing: the last step within 10 us of simulated time after the pin opened
+    assert rises.max() - t_estop <= 10_000
     be2 = backend(chip)
     with pytest.raises(HalError, match="refused RESET"):
         be2.open(s.counters)
@@ -274,7 +278,7 @@ def test_crc_and_sequence_errors_are_retransmitted_and_no_tick_runs_twice(chip, 
     c0 = np.array([7, -7, 70, -70, 700])
     be.open(c0)
     rng = np.random.default_rng(seed)
-    ticks = rng.integers(-40, 41, (400, 5))
+    ticks = rng.integers(-12, 13, (400, 5))
     ticks[-5:] = 0
     stream(be, ticks)
     be.close()

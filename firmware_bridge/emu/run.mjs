@@ -16,7 +16,8 @@
 //   as on silicon. Bytes the chip sends go to the host as soon as it writes them.
 // - Pins: every change of the STEP (GP2-6) and DIR (GP7-11) outputs and of the TICK strobe (GP25)
 //   is recorded with its simulated time (--edge-log: the host build's 16-byte records, u64 t_ns,
-//   u32 tick, u8 axis, u8 kind: 0 step low, 1 step high, 2 dir -, 3 dir +, 4 tick start; tick =
+//   u32 tick, u8 axis, u8 kind: 0 step low, 1 step high, 2 dir -, 3 dir +, 4 tick start, 5/6 an
+//   input pin set low/high by --control (axis = its GPIO number); tick =
 //   the tick-start strobes since the last RESET, minus one). The pulse counters are counted from
 //   these edges (a rising STEP edge in the direction DIR shows), and every STATUS frame the chip
 //   sends is rewritten with them before it reaches the host: the counters the backend sees are the
@@ -199,6 +200,11 @@ for (let a = 0; a < NAXES; a++) {
     if (old <= 1) edge(a, v === 1 ? 3 : 2);
   });
 }
+// input pins as the harness sets them: kind 5 (low) / 6 (high), axis = the GPIO number
+function setInput(pin, high) {
+  if (mcu.gpio[pin].rawInputValue !== high) edge(pin, high ? 6 : 5);
+  mcu.gpio[pin].setInputValue(high);
+}
 mcu.gpio[PIN_TICK].addListener((v, old) => {
   if (old > 1) return;
   snaps.set(strobes, Int32Array.from(pinCount));
@@ -329,11 +335,11 @@ function pollControl() {
     ctlText = ctlText.slice(nl + 1);
     const [cmd, x, y] = line, a = parseInt(x, 10), v = parseInt(y, 10);
     if (cmd === 'quit') quit = true;
-    else if (cmd === 'estop' && (a === 0 || a === 1)) mcu.gpio[PIN_ESTOP].setInputValue(a === 1);
+    else if (cmd === 'estop' && (a === 0 || a === 1)) setInput(PIN_ESTOP, a === 1);
     else if (cmd === 'alarm' && a >= 0 && a < NAXES && (v === 0 || v === 1)) {
       alarms = v ? alarms | (1 << a) : alarms & ~(1 << a);
-      mcu.gpio[PIN_ALARM].setInputValue(alarms === 0);     // the drives' alarm outputs in parallel
-    } else if (cmd === 'home' && a >= 0 && a < NAXES && (v === 0 || v === 1)) mcu.gpio[PIN_HOME0 + a].setInputValue(v === 0);
+      setInput(PIN_ALARM, alarms === 0);                   // the drives' alarm outputs in parallel
+    } else if (cmd === 'home' && a >= 0 && a < NAXES && (v === 0 || v === 1)) setInput(PIN_HOME0 + a, v === 0);
     else if (cmd === 'adc' && a >= 0 && a < 3 && Number.isFinite(v)) mcu.adc.channelValues[a] = Math.max(0, Math.min(4095, v));
     else if (line[0]) process.stderr.write(`rp2040-emu: control: ignored line '${line.join(' ')}'\n`);
   }
