@@ -17,8 +17,8 @@ executed (WFI sleep not counted):
   200 MHz for the comparison;
 - CPU per tick at each rate: emulated cycles the CPU executed per tick (mean, p99; awake, i.e.
   not in WFI), and of those the work: less the cycles the firmware counted spinning on an edge's
-  time or a pulse width (g_spin_cycles); with no pulses and with 20 pulses per tick on each axis,
-  as a share of the tick;
+  time or a pulse width (g_spin_cycles); with no pulses, and with 100 kstep/s in total (20 pulses
+  per 1 ms tick, 10 per 0.5 ms tick, on each axis), as a share of the tick;
 - with --stalls: how long a host stall the link rides out: the host stops sending for S ms of the
   chip's time after a steady stream, then resumes; the outcome (the chip ran its queue and kept
   stepping / paused at an empty queue and resumed / latched its watchdog) and what it executed.
@@ -210,7 +210,7 @@ def main():
         if "rate" in parts:
             print_rate(best)
         for rate in (float(x) for x in a.rates.split(",")) if "cpu" in parts else ():
-            for pulses in (0, 20):
+            for pulses in (0, int(round(20 * 1000 / rate))):        # none, and 100 kstep/s in total
                 c = cpu_per_tick(tmp, rate, max(a.ticks, 40), pulses)
                 period = CLK_HZ / rate
                 if "stopped" in c:
