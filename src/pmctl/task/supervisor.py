@@ -110,15 +110,17 @@ class Item:
 
 class Supervisor:
     def __init__(self, config="prototype", *, service=None, backend=None, state_file="", realtime=False,
-                 rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY, offline=False, nc=None):
+                 rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY, offline=False, nc=None, hal=None):
         from pmctl.core.config import load_machine
-        from pmctl.motion.rtproc import apply_nc_overrides
+        from pmctl.motion.rtproc import apply_hal_overrides, apply_nc_overrides
         from pmctl.motion.service_config import load_service_config
         self.config = config
         self.service = service
         self.machine = load_machine(config)
         self.nc_overrides = dict(nc or {})        # e.g. pmctl run --k-theta --shaper --pulse-mode
-        self.svc = apply_nc_overrides(load_service_config(service), self.nc_overrides)
+        self.hal_overrides = dict(hal or {})      # e.g. pmctl run --bridge rp2040-emu
+        self.svc = apply_hal_overrides(apply_nc_overrides(load_service_config(service), self.nc_overrides),
+                                       self.hal_overrides)
         self.offline = bool(offline)              # rt ticks back to back, waiting for samples
         self.backend = backend or self.svc.backend
         self.rate_hz = float(rate_hz or self.svc.loop.rate_hz)
@@ -230,7 +232,7 @@ class Supervisor:
         ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = np.asarray(counts, float)
         spec = {"shm": ch.name, "config": str(self.config), "service": self.service, "backend": self.backend,
                 "state_file": self.state_file, "rate_hz": self.rate_hz, "realtime": self.realtime,
-                "offline": self.offline, "nc": self._rt_nc(),
+                "offline": self.offline, "nc": self._rt_nc(), "hal": self.hal_overrides,
                 "counts": [int(c) for c in counts], "ppid": os.getpid()}
         import json
         import subprocess

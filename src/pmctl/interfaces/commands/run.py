@@ -2,6 +2,7 @@
 
     pmctl run --config config/prototype.toml --backend sim --job examples/jobs/<job> --record DIR
               [--force] [--rate HZ] [--no-realtime] [--service config/service.toml] [--state FILE]
+              [--backend stepdir --bridge host-pty|rp2040-emu]
 
 Checks every input first (job, record target, backend, state file, and the whole job as ``pmctl
 check`` does: every problem of the job, its poses and the path between them against the machine, the
@@ -65,6 +66,10 @@ def add_parser(sub):
     p.add_argument("--config", default="prototype", help="machine config (default: config/prototype.toml)")
     p.add_argument("--service", default=None, help="service config (default: config/service.toml)")
     p.add_argument("--backend", default=None, help="HAL backend, e.g. 'sim' (default: [hal] backend of the service config)")
+    p.add_argument("--bridge", choices=("host-pty", "rp2040-emu"), default=None,
+                   help="with --backend stepdir: the bridge's host build on a pty (host-pty), or its RP2040 image "
+                        "in an emulated chip (rp2040-emu: needs --no-realtime and make -C firmware_bridge rp2040; "
+                        "docs/stepdir.md) (default: [hal.stepdir] port)")
     p.add_argument("--job", required=True, help="job file: G-code (.ngc .nc .gcode .tap) or CL data (.cl ...)")
     p.add_argument("--record", metavar="DIR", default=None,
                    help="write the run as a recording folder (must not exist yet; see --force)")
@@ -229,6 +234,11 @@ def run(args) -> int:
         raise PmctlError(f"--feed-override must be within (0, 10], got {args.feed_override:g}")
     if args.backend is not None and args.backend not in hal.BACKENDS:
         raise PmctlError(f"--backend {args.backend!r}: unknown backend; known: {', '.join(sorted(hal.BACKENDS))}")
+    if args.bridge is not None and (args.backend or load_service_config(args.service).backend) != "stepdir":
+        raise PmctlError(f"--bridge {args.bridge} is the step/dir bridge's: it needs --backend stepdir")
+    if args.bridge == "rp2040-emu" and not args.no_realtime:
+        raise PmctlError("--bridge rp2040-emu: the emulated chip runs slower than real time; add --no-realtime "
+                         "(the host then waits for the chip)")
     if args.force and not args.record:
         raise PmctlError("--force replaces an existing --record folder; there is no --record")
     if args.record:               # find out now, not after the run, that the recording cannot be written
@@ -432,8 +442,10 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
     from pmctl.task.supervisor import Supervisor
     log = out.log
     dt = cfg.dt
+    hal_over = {"stepdir": {"port": args.bridge}} if getattr(args, "bridge", None) else None
     sup = Supervisor(args.config, service=args.service, backend=backend_name, state_file=state_file or "",
-                     realtime=cfg.realtime, rate_hz=cfg.rate_hz, log=log, offline=not cfg.realtime, nc=nc_over)
+                     realtime=cfg.realtime, rate_hz=cfg.rate_hz, log=log, offline=not cfg.realtime, nc=nc_over,
+                     hal=hal_over)
     notes = list(setup_notes)              # chain modes, K_theta auto, shaper: as this run resolved them
     if sup.plan_machine is not sup.machine:
         notes.append(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: "
