@@ -27,7 +27,7 @@ from pmctl.core.recording import read_recording
 from pmctl.motion.service_config import load_service_config
 from pmctl.task.cldata import MAX_COORD_MM, parse_cl
 from pmctl.task.gcode import MAX_DWELL_S, parse_gcode
-from pmctl.task.job import ARC, DWELL, LINE, MAX_MOVES, RAPID, read_job_text
+from pmctl.task.job import ARC, DWELL, LINE, RAPID, read_job_text
 
 ROOT = Path(__file__).resolve().parents[1]
 JOBS = ROOT / "examples" / "jobs"
@@ -122,7 +122,6 @@ GCODE_BYTES = st.sampled_from(["cone.ngc", "spiral.ngc"]).flatmap(lambda n: muta
 
 def check_job(job, source):
     assert job.source == str(source)
-    assert len(job.moves) <= MAX_MOVES
     for m in job.moves:
         assert m.kind in (RAPID, LINE, ARC, DWELL)
         _finite(m.tip, m.axis, [m.feed, m.spindle_rpm, m.sweep, m.dwell])

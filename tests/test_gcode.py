@@ -332,15 +332,6 @@ def test_non_utf8_job_file_names_line_and_column(tmp_path, machine):
     assert e.value.line == 2 and e.value.column == 11 and "0xff is not UTF-8" in e.value.reason
 
 
-def test_programs_beyond_the_move_bound_are_refused_at_the_crossing_line(monkeypatch):
-    import pmctl.task.gcode as G
-    monkeypatch.setattr(G, "MAX_MOVES", 10)
-    text = "G0 X0 Y0 Z90\nF600\n" + "\n".join(f"G1 X{i}" for i in range(1, 20))
-    e = error_of(text)
-    assert e.line == 12 and "more than 10 moves" in e.reason        # the 11th move is on line 12
-    assert len(parse("\n".join(text.split("\n")[:11])).moves) == 10
-
-
 def test_job_files_beyond_the_size_bounds_are_refused_before_parsing(tmp_path, monkeypatch, machine):
     import pmctl.task.job as J
     p = tmp_path / "long.ngc"

@@ -59,7 +59,7 @@ import numpy as np
 
 from pmctl.core import kinematics as K
 from pmctl.core.errors import InputError
-from pmctl.task.job import ARC, DWELL, LINE, MAX_MOVES, RAPID, Job, Move, check_reach, home_pose, read_job_text
+from pmctl.task.job import ARC, DWELL, LINE, RAPID, Job, Move, check_reach, home_pose, read_job_text
 
 MM_PER_INCH = 25.4
 ARC_RADIUS_TOL_MM = 0.005         # |r_end - r_start| allowed for I/J arcs (becomes a tiny spiral)
@@ -245,9 +245,6 @@ def parse_gcode(text: str, path="<string>", start_tip=(0.0, 0.0, 0.0), start_axi
         if _execute_line(words, st, path, lineno, moves, points, point_lines):
             ended = True
             break
-        if len(moves) > MAX_MOVES:
-            raise InputError(path, lineno, f"more than {MAX_MOVES} moves: longer than the batch planner takes "
-                                           "(split the program)")
     if percent_line is not None and not ended:
         raise InputError(path, percent_line, "the program starts with '%' but has no closing '%' (nor M2/M30)")
     pts = np.array(points, float).reshape(-1, 3)
