@@ -160,8 +160,8 @@ MUTANTS = [
            "    if (c->inputs & SB_IN_ESTOP)", "    if (0)",
            "the E-stop input ignored by the bridge", ("tests/test_stepdir.py::-k estop",)),
     Mutant("B5", PROTO,
-           "crc = (crc & 0x8000u) ? (uint16_t)((crc << 1) ^ 0x1021u) : (uint16_t)(crc << 1);",
-           "crc = (crc & 0x8000u) ? (uint16_t)((crc << 1) ^ 0x1021u) : (uint16_t)(crc << 2);",
+           "crc = (uint16_t)((crc << 8) ^ crc_table[((crc >> 8) ^ p[i]) & 0xffu]);",
+           "crc = (uint16_t)((crc << 8) ^ crc_table[((crc >> 8) ^ p[i]) & 0x7fu]);",
            "the bridge's CRC computed wrong (frames refused or corrupted ones accepted)",
            ("tests/test_bridge_protocol.py", "tests/test_stepdir.py::-k noise")),
     # ---- the console's realtime bytes and the rt process (only real processes exercise them)
