@@ -102,11 +102,11 @@ def parse(lines, ok=True, error="") -> Result:
     rot = 0.0
     plane = PLANES["CANON_PLANE_XY"]
     feed = 0.0
-    feed_mode = 0
+    feed_mode = 0                  # 1: per revolution (G95)
+    inverse = False                # G93 (rs274 says so in a comment; its feed is then the equivalent rate)
     tlo = 0.0
     speed, direction = 0.0, 0
     pos = [0.0] * 5
-    prog_pos = [0.0] * 6
 
     def to_w(p):
         x, y = (p[0] + g92[0]), (p[1] + g92[1])
@@ -114,6 +114,13 @@ def parse(lines, ok=True, error="") -> Result:
         c, s = math.cos(r), math.sin(r)
         return (c * x - s * y + g5x[0], s * x + c * y + g5x[1], p[2] + g92[2] + g5x[2], p[3] + g92[3] + g5x[3],
                 p[4] + g92[4] + g5x[4])
+
+    def to_prog(w):
+        x, y = w[0] - g5x[0], w[1] - g5x[1]
+        r = math.radians(rot)
+        c, s = math.cos(r), math.sin(r)
+        return [c * x + s * y - g92[0], -s * x + c * y - g92[1], w[2] - g5x[2] - g92[2], w[3] - g5x[3] - g92[3],
+                w[4] - g5x[4] - g92[4]]
 
     for line in lines:
         m = _CALL.match(line)
@@ -137,8 +144,12 @@ def parse(lines, ok=True, error="") -> Result:
             feed = _nums(args)[0] * unit
         elif call == "SET_FEED_MODE":
             feed_mode = int(_nums(args)[1])
+        elif call == "COMMENT" and "feed mode set to" in args:
+            inverse = "inverse time" in args
         elif call == "USE_TOOL_LENGTH_OFFSET":
-            tlo = _nums(args)[2] * unit
+            new = _nums(args)[2] * unit
+            pos[2] -= new - tlo              # the controlled point stays: the tip moves by the change
+            tlo = new
         elif call == "SET_SPINDLE_SPEED":
             speed = _nums(args)[1]
             if direction:
@@ -166,15 +177,17 @@ def parse(lines, ok=True, error="") -> Result:
             p = [v[0] * unit, v[1] * unit, v[2] * unit, v[3], v[4]]
             end = to_w(p)
             kind = {"STRAIGHT_TRAVERSE": "rapid", "STRAIGHT_FEED": "line", "STRAIGHT_PROBE": "probe"}[call]
-            res.motions.append(Motion(kind, end, 0.0 if kind == "rapid" else feed, tlo=tlo,
-                                      inverse_time=feed_mode == 1, spindle=speed * direction, unit=unit))
-            pos, prog_pos = list(end), p
+            f = feed * speed if feed_mode == 1 else feed
+            res.motions.append(Motion(kind, end, 0.0 if kind == "rapid" else f, tlo=tlo,
+                                      inverse_time=inverse, spindle=speed * direction, unit=unit))
+            pos = list(end)
         elif call == "ARC_FEED":
             v = _nums(args)
             (fi, si, ti), normal = plane
             e1, e2, c1, c2, turn, e3 = v[0] * unit, v[1] * unit, v[2] * unit, v[3] * unit, int(v[4]), v[5] * unit
             p = [0.0] * 5
             p[fi], p[si], p[ti], p[3], p[4] = e1, e2, e3, v[6], v[7]
+            prog_pos = to_prog(pos)          # the offsets may have changed since the last move
             cp = list(prog_pos[:5])
             cp[fi], cp[si] = c1, c2
             sweep = find_turn((prog_pos[fi], prog_pos[si]), (c1, c2), turn, (e1, e2))
@@ -185,9 +198,10 @@ def parse(lines, ok=True, error="") -> Result:
                 r = math.radians(rot)
                 n = (math.cos(r) * normal[0] - math.sin(r) * normal[1],
                      math.sin(r) * normal[0] + math.cos(r) * normal[1], normal[2])
-            res.motions.append(Motion("arc", end, feed, center=tuple(cw[:3]), normal=tuple(n), sweep=sweep, tlo=tlo,
-                                      inverse_time=feed_mode == 1, spindle=speed * direction, unit=unit))
-            pos, prog_pos = list(end), p
+            f = feed * speed if feed_mode == 1 else feed
+            res.motions.append(Motion("arc", end, f, center=tuple(cw[:3]), normal=tuple(n), sweep=sweep, tlo=tlo,
+                                      inverse_time=inverse, spindle=speed * direction, unit=unit))
+            pos = list(end)
         elif call == "DWELL":
             res.motions.append(Motion("dwell", tuple(pos), dwell=_nums(args)[0], tlo=tlo, unit=unit))
     return res
@@ -212,9 +226,10 @@ def pmctl_motions(job):
     out = []
     prev = None
     for m in job.moves:
-        if m.kind == "event":
-            continue
         end = (*map(float, m.tip), *_ab(m.axis))
+        if m.kind == "event":
+            prev = end                   # a tool offset change moves the tip (its event is at the new tip)
+            continue
         if m.kind == "dwell":
             out.append(Motion("dwell", end, dwell=m.dwell, tlo=m.tool_offset))
             continue
@@ -245,15 +260,19 @@ def compare(mine, theirs, *, tol=2e-4, skip_zero=True):
     Zero-length moves (rs274 prints a G0/G1 without axis words) and 0 s dwells are left out of both.
     Returns (problems, number of motions compared, max deviation mm)."""
     def keep(lst):
+        # zero-length moves are left out: a line with only G0/G1 (rs274 prints a move to where it is), and a
+        # move that only takes up a change of the tool length offset (the controlled point, tip + offset
+        # along Z, stays: rs274's G28 after G43 moves "to the current position" that the offset moved)
         out, prev = [], (0.0, 0.0, 0.0, 0.0, 0.0)
         for m in lst:
             if skip_zero and m.kind == "dwell" and m.dwell == 0.0:
                 continue
+            cp = (m.end[0], m.end[1], m.end[2] + m.tlo, m.end[3], m.end[4])
             if skip_zero and m.kind in ("rapid", "line") and prev is not None and \
-                    max(abs(a - b) for a, b in zip(m.end, prev)) < 1e-9:
+                    max(abs(a - b) for a, b in zip(cp, prev)) <= tol * m.unit:
                 continue
             out.append(m)
-            prev = m.end if m.kind != "dwell" else prev
+            prev = cp if m.kind != "dwell" else prev
         return out
     a, b = keep(mine), keep(theirs)
     probs = []

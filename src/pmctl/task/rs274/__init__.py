@@ -30,6 +30,7 @@ Public API:
 
 from __future__ import annotations
 
+import gc
 import math
 import os
 
@@ -94,6 +95,12 @@ def interpret(text: str, path="<string>", *, start=None, config=None, cfg: Confi
     if cfg is None:
         cfg = make_config(config, home=home, probe_ok=probe_ok)
     tip, axis = start if start is not None else ((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
-    it = Interpreter(cfg, start_position(tip, axis), offsets)
-    it.run_program(Source(text, path))
-    return it.job(path), list(it.problems)
+    was = gc.isenabled()
+    gc.disable()                 # long-lived moves, no garbage: see Interpreter.run_program
+    try:
+        it = Interpreter(cfg, start_position(tip, axis), offsets)
+        it.run_program(Source(text, path))
+        return it.job(path), list(it.problems)
+    finally:
+        if was:
+            gc.enable()

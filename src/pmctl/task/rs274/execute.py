@@ -43,6 +43,7 @@ WORD_MEANING = {"i": "an arc centre (G2/G3) or G87", "j": "an arc centre (G2/G3)
                 "l": "G10 or a canned cycle's repeats", "d": "cutter compensation (G41 G42)",
                 "h": "G43", "e": "M66-M68"}
 AXIS_INDEX = {"x": 0, "y": 1, "z": 2, "a": 3, "b": 4}
+_FAST_LETTERS = frozenset("xyzabfn")
 
 
 class Refusal(Exception):
@@ -251,6 +252,68 @@ class Executor:
                 col[letter] = c
         return blk
 
+    # ------------------------------------------------------------------ the common case, fast
+    def fast_line(self, ln) -> bool:
+        """A G0/G1 line of axis words, F and N only (most of what CAM writes), in G94 with no cutter
+        compensation and no XY rotation: executed here without the general machinery. False: the
+        caller runs the general path (which also reports any problem)."""
+        st = self.st
+        if st.comp or st.feed_mode != 940 or st.rotation != 0.0 or st.comp_base is not None or ln.comments \
+                or ln.assigns:
+            return False
+        motion = st.motion
+        vals = {}
+        for letter, v, _ in ln.words:
+            if letter in vals or v.__class__ is not float:
+                return False
+            if letter == "g":
+                if v == 0.0:
+                    motion = 0
+                elif v == 1.0:
+                    motion = 10
+                else:
+                    return False
+            elif letter not in _FAST_LETTERS:
+                return False
+            lim = WORD_LIMITS[letter]
+            if not -lim <= v <= lim:
+                return False
+            vals[letter] = v
+        if motion not in (0, 10):
+            return False
+        feed = st.feed
+        if "f" in vals:
+            if vals["f"] < 0:
+                return False
+            feed = vals["f"] * st.units
+        n = vals.get("n")
+        if n is not None and (n != int(n) or n < 0):
+            return False
+        has_axes = "x" in vals or "y" in vals or "z" in vals or "a" in vals or "b" in vals
+        if motion == 10 and not feed > 0 and (has_axes or "g" in vals):
+            return False
+        if not has_axes and "g" not in vals:
+            st.feed = feed
+            return True
+        o, u, pos = st.wco, st.units, st.pos
+        if st.absolute:
+            end = [vals["x"] * u + o[0] if "x" in vals else pos[0], vals["y"] * u + o[1] if "y" in vals else pos[1],
+                   vals["z"] * u + o[2] if "z" in vals else pos[2], vals["a"] + o[3] if "a" in vals else pos[3],
+                   vals["b"] + o[4] if "b" in vals else pos[4]]
+        else:
+            end = [pos[0] + vals.get("x", 0.0) * u, pos[1] + vals.get("y", 0.0) * u, pos[2] + vals.get("z", 0.0) * u,
+                   pos[3] + vals.get("a", 0.0), pos[4] + vals.get("b", 0.0)]
+        st.motion, st.feed, st.arc_not_allowed, st.cycle_il = motion, feed, False, None
+        if not has_axes:
+            return True
+        axis = self.axis(end[3], end[4])
+        self.moves.append(Move(RAPID if motion == 0 else LINE, np.array(end[:3]), axis, line=self.line,
+                               feed=0.0 if motion == 0 else feed / 60.0,
+                               spindle_rpm=st.speed * st.spindle if st.spindle else 0.0, tool_offset=st.tlo,
+                               tolerance=st.tolerance if st.path == 640 else 0.0, file=self.file))
+        st.pos = end
+        return True
+
     # ------------------------------------------------------------------ checks
     def check_codes(self, st, blk):
         groups = blk.groups
@@ -332,6 +395,8 @@ class Executor:
         fm = groups.get(5, (None,))[0]
         if fm is not None:
             st.feed_mode = fm
+            if fm != 930:
+                st.feed = 0.0                     # LinuxCNC: G94 and G95 clear the feed (F must follow)
         # 3. F
         if "f" in v:
             f = v["f"]
@@ -476,8 +541,7 @@ class Executor:
         if gm is not None and gm != 800:
             st.motion = gm
         if gm == 800:
-            st.motion = 800
-            st.cycle = None
+            st.motion = 800                       # the cycle words stay remembered (LinuxCNC's cycle_p ...)
             st.cycle_il = None
         do_motion = (gm is not None and gm != 800) or (axis_words and g0 not in AXIS_USERS and not tlo_axes)
         if do_motion:
@@ -834,17 +898,17 @@ class Executor:
         base = P.G28_BASE if g0 == 280 else P.G30_BASE
         num = self.params.numbered
         stored = [num[base + i] for i in range(5)]
+        # LinuxCNC: a rapid to the waypoint (the axis words; none: where it is), then the axes named (none:
+        # all) go to the stored machine position, each replaced in the program coordinates of the waypoint
+        mid = self.target(st, blk, False)
+        self.move(st, RAPID, mid)
+        home = self.to_prog(st, self.from_machine(st, stored))
         axes = [k for k in "xyzab" if k in v]
-        if axes:
-            mid = self.target(st, blk, False)
-            self.move(st, RAPID, mid)
-            m = self.machine_of(st, st.pos)
-            for k in axes:
-                i = AXIS_INDEX[k]
-                m[i] = stored[i]
-        else:
-            m = stored
-        self.move(st, RAPID, self.from_machine(st, m))
+        p = self.to_prog(st, mid)
+        for k in (axes or "xyzab"):
+            i = AXIS_INDEX[k]
+            p[i] = home[i]
+        self.move(st, RAPID, self.to_w(st, p))
         return None
 
     # ------------------------------------------------------------------ targets
@@ -862,7 +926,7 @@ class Executor:
         if st.comp and not st.comp_first and st.comp_prog is not None:
             p[0], p[1] = st.comp_prog[0], st.comp_prog[1]       # LinuxCNC: from the programmed point
         elif st.comp_base is not None:
-            p[0], p[1], p[2] = st.comp_base                     # the first move after G40
+            p[0], p[1] = st.comp_base[0], st.comp_base[1]       # the first move after G40
         u = st.units
         if st.absolute:
             if "x" in v:
@@ -1013,7 +1077,8 @@ class Executor:
                 raise Refusal("syntax", f"arc turns P{fmt(p)} must be an integer within 1 .. {MAX_ARC_TURNS}", col["p"])
             turns = int(p)
         if has_r:
-            inplane = [k for k in "xyz"[0:3] if k in v and "xyz".index(k) in (fi, si)]
+            inplane = [k for k in "xyz" if k in v and "xyz".index(k) in (fi, si)] + \
+                ([k for k in "@^" if k in v] if plane == 170 else [])
             if not inplane:
                 a, b = "XYZ"[fi], "XYZ"[si]
                 raise Refusal("syntax", f"{gname(motion)} R needs an end point in the {A.PLANE_NAMES[plane]} plane "

@@ -46,18 +46,26 @@ class Source:
         self.subs: dict = {}                     # label -> (sub index, endsub index)
         self.fanuc: dict = {}                    # number -> (O index, last M99 index)
         self.jump: dict = {}                     # index -> data for the flow (see _scan)
+        self.loops: list = []                    # (first, last) index of each sub/loop body: lines run again
         self._scan()
+        self.cached = bytearray(len(self.lines))
+        for a, b in self.loops:
+            self.cached[a:b + 1] = b"\x01" * (b + 1 - a)
 
     def lex(self, i):
+        """Line ``i`` lexed (LexError if malformed). Lines that can run more than once (in a subroutine
+        or a loop) are kept lexed; the others are lexed when they run."""
         ln = self.lexed.get(i)
         if ln is None:
             raw = self.lines[i]
             if raw.endswith("\r"):
                 raw = raw[:-1]
             ln = lex_line(raw)            # may raise LexError (not cached)
-            if len(self.lexed) < 200_000:
+            if self.cached is None or self.cached[i]:
                 self.lexed[i] = ln
         return ln
+
+    cached = None                         # during the scan: keep every O-word line
 
     def _err(self, msg, i, col=None):
         self.problems.append(FlowError(msg, i + 1, col))
@@ -65,6 +73,7 @@ class Source:
     def _scan(self):
         stack = []                               # (keyword, label, index, data)
         bare = []                                # indices of bare O-numbers
+        opened = {}                              # label -> line of the structure it names (LinuxCNC: one)
         for i, raw in enumerate(self.lines):
             if not _MAYBE_O.match(raw):
                 continue
@@ -80,6 +89,13 @@ class Source:
             if kw == "":
                 bare.append((i, ow.number))
                 continue
+            if kw in ("sub", "if", "while", "do", "repeat") and not (kw == "while" and stack and stack[-1][0] == "do"
+                                                                    and stack[-1][1] == label):
+                if label in opened:
+                    self._err(f"o{label} {kw}: the label already names the structure at line {opened[label] + 1} "
+                              "(LinuxCNC gives every structure a label of its own)", i, col)
+                    continue
+                opened[label] = i
             if kw == "sub":
                 if any(s[0] == "sub" for s in stack):
                     self._err(f"o{label} sub inside another subroutine: subroutines do not nest", i, col)
@@ -93,6 +109,7 @@ class Source:
                     else:
                         self.subs[label] = (top[2], i)
                     self.jump[top[2]] = i
+                    self.loops.append((top[2], i))
             elif kw == "if":
                 stack.append(("if", label, i, [i]))
             elif kw in ("elseif", "else"):
@@ -115,6 +132,7 @@ class Source:
                     stack.pop()
                     self.jump[top[2]] = i             # do -> its closing while
                     self.jump[i] = ("dowhile", top[2])
+                    self.loops.append((top[2], i))
                     self._close_loop(top, i)
                 else:
                     stack.append(("while", label, i, []))
@@ -123,6 +141,7 @@ class Source:
                 if top is not None:
                     self.jump[top[2]] = ("while", i)
                     self.jump[i] = ("endwhile", top[2])
+                    self.loops.append((top[2], i))
                     self._close_loop(top, i)
             elif kw == "do":
                 stack.append(("do", label, i, []))
@@ -133,6 +152,7 @@ class Source:
                 if top is not None:
                     self.jump[top[2]] = ("repeat", i)
                     self.jump[i] = ("endrepeat", top[2])
+                    self.loops.append((top[2], i))
                     self._close_loop(top, i)
             elif kw in ("break", "continue"):
                 loop = next((s for s in reversed(stack) if s[0] in ("while", "do", "repeat") and s[1] == label), None)
@@ -157,6 +177,7 @@ class Source:
             if last is not None:
                 self.fanuc[number] = (i, last)
                 self.jump[i] = ("fanuc", last)
+                self.loops.append((i, last))
 
     def lines_kw(self, j):
         ln = self.lexed.get(j)

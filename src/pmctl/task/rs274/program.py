@@ -13,6 +13,7 @@ rest).
 
 from __future__ import annotations
 
+import gc
 import re
 
 import numpy as np
@@ -190,7 +191,18 @@ class Interpreter:
 
     # ------------------------------------------------------------------ a whole program
     def run_program(self, src: Source):
-        """Run a program from its first line to M2/M30, its closing '%' or its end."""
+        """Run a program from its first line to M2/M30, its closing '%' or its end. The garbage
+        collector is paused meanwhile (the moves are long-lived objects, not garbage: scanning them again
+        and again would double the time)."""
+        was = gc.isenabled()
+        gc.disable()
+        try:
+            self._run_program(src)
+        finally:
+            if was:
+                gc.enable()
+
+    def _run_program(self, src: Source):
         for fe in src.problems:
             self.problem(src.path, fe.line, fe.column, "syntax", fe.message)
         frames = []
@@ -260,6 +272,11 @@ class Interpreter:
                     ended = True
                     break
                 pc_src, i = nxt
+                continue
+            ex = self.ex
+            ex.line, ex.file = i + 1, pc_src.label
+            if ex.fast_line(ln):
+                i += 1
                 continue
             result = self.block(pc_src, i, ln)
             if result is None:

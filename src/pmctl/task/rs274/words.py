@@ -24,9 +24,9 @@ import re
 
 from pmctl.task.rs274 import expressions as E
 
-_FAST = re.compile(r"(?:[a-z][-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+))+")
-_FAST_WORD = re.compile(r"([a-z])([-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+))")
-_BLANKS = re.compile(r"[ \t\r\f\v]+")
+_NUMBER_RE = r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)"
+_FAST = re.compile(r"[ \t]*(?:[A-Za-z][ \t]*" + _NUMBER_RE + r"[ \t]*)+")
+_FAST_WORD = re.compile(r"([ \t]*)([A-Za-z])([ \t]*)(" + _NUMBER_RE + ")")
 
 O_KEYWORDS = ("sub", "endsub", "call", "return", "if", "elseif", "else", "endif", "while", "endwhile",
               "do", "break", "continue", "repeat", "endrepeat")
@@ -61,8 +61,8 @@ class Line:
 
     def __init__(self):
         self.words = []
-        self.assigns = []
-        self.comments = []
+        self.assigns = ()                 # a list once there is one (most lines have none)
+        self.comments = ()
         self.oword = None
         self.delete = False
         self.percent = False
@@ -89,69 +89,67 @@ def lex_line(raw: str) -> Line:
     out = Line()
     # comments first: they may hold anything, and ';' or '(' in them ends nothing
     if "(" in raw or ";" in raw or ")" in raw:
-        code_parts = []
+        parts = []                       # the code with every comment blanked out (columns kept)
         i, n = 0, len(raw)
-        while i < n:
-            ch = raw[i]
-            if ch == ";":
-                out.comments.append((raw[i + 1:], i + 1))
+        while True:
+            js = [j for j in (raw.find("(", i), raw.find(";", i), raw.find(")", i)) if j >= 0]
+            if not js:
+                parts.append(raw[i:])
                 break
-            if ch == "(":
-                j = raw.find(")", i + 1)
-                if j < 0:
-                    raise LexError("comment '(' is never closed: close it with ')'", i + 1)
-                k = raw.find("(", i + 1, j)
-                if k >= 0:
-                    raise LexError("nested '(' inside a comment (comments do not nest)", k + 1)
-                out.comments.append((raw[i + 1:j], i + 1))
-                code_parts.append((i, " " * (j + 1 - i)))
-                i = j + 1
-                continue
+            j = min(js)
+            parts.append(raw[i:j])
+            ch = raw[j]
+            if ch == ";":
+                out.comments = list(out.comments) + [(raw[j + 1:], j + 1)]
+                break
             if ch == ")":
-                raise LexError("')' without '(' before it", i + 1)
-            code_parts.append((i, ch))
-            i += 1
-        code = "".join(c for _, c in code_parts)
+                raise LexError("')' without '(' before it", j + 1)
+            e = raw.find(")", j + 1)
+            if e < 0:
+                raise LexError("comment '(' is never closed: close it with ')'", j + 1)
+            k = raw.find("(", j + 1, e)
+            if k >= 0:
+                raise LexError("nested '(' inside a comment (comments do not nest)", k + 1)
+            out.comments = list(out.comments) + [(raw[j + 1:e], j + 1)]
+            parts.append(" " * (e + 1 - j))
+            i = e + 1
+        code = "".join(parts)
     else:
         code = raw
-    stripped = _BLANKS.sub("", code)
-    if not stripped:
+    body = code.strip()
+    if not body:
         return out
-    if stripped[0] == "/":
+    if body[0] == "/":
         out.delete = True
-        stripped = stripped[1:]
-        if not stripped:
+        k = code.index("/")
+        code = code[:k] + " " + code[k + 1:]
+        body = body[1:].strip()
+        if not body:
             return out
-    if stripped == "%":
+    if body == "%":
         out.percent = True
         return out
-    low = stripped.lower()
     out.blank = False
-    if _FAST.fullmatch(low):
-        # plain words: letters and numbers only (the lines CAM writes)
+    if "o" not in code and "O" not in code and _FAST.fullmatch(code):
+        # plain words, blanks only between them (the lines CAM writes): columns straight from the text
         words = out.words
-        plain = code is raw and not out.delete and len(low) == len(raw)
-        t = None if plain else _text(code, out.delete)
-        for m in _FAST_WORD.finditer(low):
-            v = float(m.group(2))
-            c = m.start() + 1 if plain else t.col(m.start())
+        pos = 0
+        for lead, letter, gap, num in _FAST_WORD.findall(code):
+            pos += len(lead)
+            v = float(num)
             if v - v != 0.0:
-                raise LexError(_too_big(m.group(1), m.group(2)), c)
-            words.append((m.group(1), v, c))
+                raise LexError(_too_big(letter, num), pos + 1)
+            words.append((letter.lower(), v, pos + 1))
+            pos += 1 + len(gap) + len(num)
         return out
-    t = _text(code, out.delete)
-    _Reader(t, out).read()
+    _Reader(_text(code), out).read()
     return out
 
 
-def _text(code, delete):
+def _text(code):
     s, cols = [], []
-    seen_slash = not delete
     for i, ch in enumerate(code):
         if ch in " \t\r\f\v":
-            continue
-        if not seen_slash and ch == "/":
-            seen_slash = True
             continue
         s.append(ch.lower() if ch.isascii() else ch)
         cols.append(i + 1)
@@ -268,7 +266,7 @@ class _Reader:
                            "(to use its value, put it after a word letter)", start)
         self.i += 1
         v = self.real_value("=")
-        self.out.assigns.append((target, v, self.t.col(start)))
+        self.out.assigns = list(self.out.assigns) + [(target, v, self.t.col(start))]
 
     def param_ref(self):
         """After '#': an int (numbered, constant), a str (named), or ('#', tree) (computed number)."""
