@@ -63,8 +63,11 @@ _CODES = [   # (pattern in the message, grbl 1.1 error code); first match wins
 ]
 
 
-def error_code(msg: str) -> int:
-    """grbl 1.1 error code of an interpreter message (20: an unsupported command)."""
+def error_code(msg: str, kind: str = "syntax") -> int:
+    """grbl 1.1 error code of an interpreter problem (20: an unsupported command, and what this machine
+    lacks; a syntax problem by its message)."""
+    if kind in ("unsupported", "machine"):
+        return 20
     for pat, code in _CODES:
         if re.search(pat, msg):
             return code
@@ -211,6 +214,11 @@ class LineInterpreter:
             ln = src.lex(0) if src.lines else None
         except LexError as e:
             raise LineError(error_code(e.message), e.message) from None
+        if ln is not None and ln.oword is not None and ln.oword.keyword != "call":
+            raise LineError(20, "O-word control flow runs in job files; at the console only a single-line "
+                                "o<name> call of a subroutine file")
+        if ln is not None and ln.grbl is not None:
+            raise LineError(3, "not a G-code line")
         if src.problems:
             raise LineError(error_code(src.problems[0].message), src.problems[0].message)
         if ln is None or ln.percent or (ln.blank and not ln.comments):
@@ -225,9 +233,6 @@ class LineInterpreter:
             if letter == "g" and v.__class__ is float and round(v * 10) in (410, 420, 411, 421):
                 raise LineError(20, "cutter compensation (G41/G42) runs in job files only: its corners need "
                                     "the next move")
-        if ln.oword is not None and ln.oword.keyword != "call":
-            raise LineError(20, "O-word control flow runs in job files; at the console only a single-line "
-                                "o<name> call of a subroutine file")
         before = self._offset_key()
         mark, pmark = len(it.moves), len(it.problems)
         it.ex.st.ended = False
@@ -243,7 +248,7 @@ class LineInterpreter:
         if len(it.problems) > pmark:
             p = it.problems[pmark]
             del it.problems[pmark:]
-            raise LineError(error_code(p.message), p.message)
+            raise LineError(error_code(p.message, p.kind), p.message)
         del it.problems[:]
         flags = {}
         if result == "end":

@@ -54,11 +54,20 @@ def center_ijk(plane, start, end, off, absolute, units, ccw):
                        "start or end point; check the centre words")
     err = abs(r1 - r2)
     if err > 100.0 * spiral or (err / max(r1, r2) > SPIRAL_REL and err > spiral):
-        raise ArcError(f"the radius to the end of the arc ({_fmt(r2, units)}) differs from the radius to its "
-                       f"start ({_fmt(r1, units)}) by {_fmt(err, units)}; tolerance {_fmt(spiral, units)} and 0.1 %: "
-                       f"check the end point and the centre words (start {a}{_fmt(start[0], units)} "
-                       f"{b}{_fmt(start[1], units)}, centre {a}{_fmt(c[0], units)} {b}{_fmt(c[1], units)}, end "
-                       f"{a}{_fmt(end[0], units)} {b}{_fmt(end[1], units)})")
+        hint = ""
+        if not absolute:
+            q1 = math.hypot(start[0] - off[0], start[1] - off[1])
+            q2 = math.hypot(end[0] - off[0], end[1] - off[1])
+            if q1 > 0 and abs(q1 - q2) <= spiral:
+                hint = ("; the centre words fit as absolute coordinates: if the program was written for a "
+                        "controller whose arc centres are absolute (Mach3's default), put G90.1 at its start")
+        msg = (f"the radius to the end of the arc ({_fmt(r2, units)}) differs from the radius to its start "
+               f"({_fmt(r1, units)}) by {_fmt(err, units)}; tolerance {_fmt(spiral, units)} and 0.1 %")
+        if hint:
+            raise ArcError(msg + hint)
+        raise ArcError(msg + f": check the end point and the centre words (start {a}{_fmt(start[0], units)} "
+                             f"{b}{_fmt(start[1], units)}, centre {a}{_fmt(c[0], units)} {b}{_fmt(c[1], units)}, "
+                             f"end {a}{_fmt(end[0], units)} {b}{_fmt(end[1], units)})")
     return c
 
 

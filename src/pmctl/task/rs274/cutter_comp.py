@@ -38,6 +38,16 @@ LEFT, RIGHT = 1, 2
 PI = math.pi
 
 
+class CompFit(Refusal):
+    """The configured tool does not fit the programmed path here (entry move too short, tool wider than
+    an arc, a concave corner it cannot reach without gouging): the program is understood, this machine
+    cannot cut it with this tool (a ``machine`` problem). The executor then carries on as if the move
+    were made, so that the lines after it are read as meant."""
+
+    def __init__(self, message, column=None):
+        super().__init__("machine", message, column)
+
+
 class _Rec:
     """A queued move (ends in program coordinates; an arc's centre and turn) or other output."""
 
@@ -135,18 +145,18 @@ class CutterComp:
                 r1 = math.hypot(r.x - r.cx, r.y - r.cy)
                 r2 = math.hypot(x - r.cx, y - r.cy)
                 if abs(r1 - r2) > 0.01 * st.units:
-                    raise Refusal("syntax", "cutter compensation: the corner cannot be reached on the compensated arc "
+                    raise CompFit("cutter compensation: the corner cannot be reached on the compensated arc "
                                             f"(radii {r1:.4f} and {r2:.4f} mm): check the path", None)
                 if ep is not None and r.l1 != 0.0:
                     l2 = A.sweep(ep, (r.cx, r.cy), (x, y), r.turn)
                     if abs(l2) > abs(r.l1) + (0.001 * 25.4 if inch else 0.0254):
-                        raise Refusal("syntax", "cutter compensation: the arc move in a concave corner cannot be "
+                        raise CompFit("cutter compensation: the arc move in a concave corner cannot be "
                                                 "reached by the tool without gouging (the tool is too big for the "
                                                 "corner: use a smaller tool or change the path)", None)
             else:
                 if ep is not None and r.dx * (x - ep[0]) + r.dy * (y - ep[1]) < 0:
                     what = "straight traverse" if r.kind == "rapid" else "straight feed"
-                    raise Refusal("syntax", f"cutter compensation: the {what} in a concave corner cannot be reached "
+                    raise CompFit(f"cutter compensation: the {what} in a concave corner cannot be reached "
                                             "by the tool without gouging (the move is shorter than the tool needs: "
                                             "use a smaller tool or change the path)", None)
             r.x, r.y = x, y
@@ -193,7 +203,7 @@ class CutterComp:
             cx, cy = p0[0], p0[1]
             dist = math.hypot(px - cx, py - cy)
             if dist <= radius:
-                raise Refusal("syntax", f"cutter compensation entry move ({dist / st.units:.4f}) is not longer than "
+                raise CompFit(f"cutter compensation entry move ({dist / st.units:.4f}) is not longer than "
                                         f"the tool radius ({radius / st.units:.4f}): start farther from the path",
                               None)
             alpha = math.atan2(py - cy, px - cx) + (PI / 2 if side == LEFT else -PI / 2)
@@ -255,7 +265,7 @@ class CutterComp:
             if front is None or front.kind != "arc":
                 half = (beta + PI) / 2.0
                 if half == 0.0:
-                    raise Refusal("syntax", "cutter compensation: a zero-degree inside corner is invalid", None)
+                    raise CompFit("cutter compensation: a zero-degree inside corner is invalid", None)
                 retreat = radius / math.tan(half)
                 mx = cx + retreat * math.cos(theta + gamma)
                 my = cy + retreat * math.sin(theta + gamma)
@@ -271,7 +281,7 @@ class CutterComp:
                 else:
                     ll = (d + radius) / oldrad
                 if not -1.0 <= ll <= 1.0:
-                    raise Refusal("syntax", "cutter compensation: the arc-to-line corner is one the compensated tool "
+                    raise CompFit("cutter compensation: the arc-to-line corner is one the compensated tool "
                                             "cannot fit in without gouging: use a smaller tool or change the path",
                                   None)
                 if _inside(side, front.turn):
@@ -291,6 +301,37 @@ class CutterComp:
         st.comp_cur = (end_x, end_y, pz)
         st.comp_prog = (px, py, pz)
         st.pos = ex.to_w(st, [end_x, end_y, pz, pa, pb])
+
+    def carry_on(self, st, blk, motion, end_w, c2=None, turn=0):
+        """After a CompFit: the queued moves end where they are, and the tool goes straight to the
+        programmed end offset by the radius (perpendicular to the move, or radially for an arc), so the
+        programmed point -- from which the next moves are computed -- is where the program says."""
+        ex = self.ex
+        pe = ex.to_prog(st, end_w)
+        px, py = pe[0], pe[1]
+        if st.cq:
+            self.dequeue(st)
+        prev = st.comp_prog if st.comp_prog is not None else ex.to_prog(st, st.pos)[:3]
+        if c2 is not None:
+            dx, dy = px - c2[0], py - c2[1]
+            k = 1.0 if (st.comp == RIGHT) == (turn > 0) else -1.0
+            n = math.hypot(dx, dy) or 1.0
+            ox, oy = k * dx / n, k * dy / n
+        else:
+            dx, dy = px - prev[0], py - prev[1]
+            n = math.hypot(dx, dy) or 1.0
+            ox, oy = (-dy / n, dx / n) if st.comp == LEFT else (dy / n, -dx / n)
+        cx, cy = px + st.comp_radius * ox, py + st.comp_radius * oy
+        w = ex.to_w(st, [cx, cy, pe[2], pe[3], pe[4]])
+        if motion == 0:
+            ex.move(st, RAPID, w)
+        else:
+            feed = st.feed / 60.0 if st.feed else 1.0
+            ex.move(st, LINE, w, feed=feed)
+        st.comp_first = False
+        st.comp_prog = (px, py, pe[2])
+        st.comp_cur = (cx, cy, pe[2])
+        st.cq, st.cq_start, st.cq_end = (), (cx, cy), None
 
     def _plain(self, st, blk, motion, end_w):
         ex = self.ex
@@ -320,12 +361,12 @@ class CutterComp:
             p0 = ex.to_prog(st, st.pos)
             cx, cy, cz = p0[0], p0[1], p0[2]
             if math.hypot(end_x - cx, end_y - cy) <= radius:
-                raise Refusal("syntax", "cutter compensation entry arc: its radius is not greater than the tool "
+                raise CompFit("cutter compensation entry arc: its radius is not greater than the tool "
                                         "radius", None)
             center_x, center_y = c2
             arc_r = math.hypot(center_x - cx, center_y - cy)
             if _inside(side, turn) and ("r" in v and abs(v["r"]) * st.units <= radius or arc_r <= radius):
-                raise Refusal("syntax", "cutter compensation: the tool radius is not less than the arc radius",
+                raise CompFit("cutter compensation: the tool radius is not less than the arc radius",
                               None)
             if _inside(side, turn):
                 gamma = math.atan2(center_y - end_y, center_x - end_x)
@@ -339,7 +380,7 @@ class CutterComp:
             ab = math.atan2(center_y - ey2, center_x - ex2)
             a_ang = math.atan2(cy - ey2, cx - ex2) - ab
             if abs(math.cos(a_ang)) < 1e-6:
-                raise Refusal("syntax", "cutter compensation: the tool radius is not less than the arc radius", None)
+                raise CompFit("cutter compensation: the tool radius is not less than the arc radius", None)
             c_len = b_len / math.cos(a_ang)
             ncx, ncy = ex2 + c_len * math.cos(ab), ey2 + c_len * math.sin(ab)
             self._set_endpoint(st, cx, cy)
@@ -367,7 +408,7 @@ class CutterComp:
         if (side == LEFT and motion == 30) or (side == RIGHT and motion == 20):
             gamma = math.atan2(centery - end_y, centerx - end_x)
             if arc_radius <= radius:
-                raise Refusal("syntax", "cutter compensation: the tool radius is not less than the arc radius "
+                raise CompFit("cutter compensation: the tool radius is not less than the arc radius "
                                         "(the tool does not fit inside the arc)", None)
         else:
             gamma = math.atan2(end_y - centery, end_x - centerx)
@@ -383,14 +424,14 @@ class CutterComp:
                     dist = arc_radius - radius
                     ll = (cyy + radius) / dist
                     if not -1.0 <= ll <= 1.0:
-                        raise Refusal("syntax", "cutter compensation: the arc move in a concave corner cannot be "
+                        raise CompFit("cutter compensation: the arc move in a concave corner cannot be "
                                                 "reached by the tool without gouging", None)
                     ang = theta + math.asin(ll) if turn > 0 else theta - math.asin(ll)
                 else:
                     dist = arc_radius + radius
                     ll = (cyy - radius) / dist
                     if not -1.0 <= ll <= 1.0:
-                        raise Refusal("syntax", "cutter compensation: the arc move in a concave corner cannot be "
+                        raise CompFit("cutter compensation: the arc move in a concave corner cannot be "
                                                 "reached by the tool without gouging", None)
                     ang = theta + PI - math.asin(ll) if turn > 0 else theta + PI + math.asin(ll)
                 mx, my = centerx + dist * math.cos(ang), centery + dist * math.sin(ang)
@@ -399,10 +440,10 @@ class CutterComp:
                 newrad = arc_radius - radius if _inside(side, turn) else arc_radius + radius
                 arc_cc = math.hypot(front.cy - centery, front.cx - centerx)
                 if oldrad == 0 or arc_cc == 0:
-                    raise Refusal("syntax", "cutter compensation: arc to arc motion with the same centre", None)
+                    raise CompFit("cutter compensation: arc to arc motion with the same centre", None)
                 a = (oldrad ** 2 + arc_cc ** 2 - newrad ** 2) / (2 * oldrad * arc_cc)
                 if not -1.0 <= a <= 1.0:
-                    raise Refusal("syntax", "cutter compensation: the arc-to-arc corner is one the compensated tool "
+                    raise CompFit("cutter compensation: the arc-to-arc corner is one the compensated tool "
                                             "cannot fit in without gouging", None)
                 pull = math.acos(a)
                 ccd = math.atan2(centery - front.cy, centerx - front.cx)
@@ -442,4 +483,4 @@ def comp_radius_of(tool_diameter):
     return tool_diameter / 2.0
 
 
-__all__ = ["CutterComp", "EVENT"]
+__all__ = ["CutterComp", "CompFit", "EVENT"]

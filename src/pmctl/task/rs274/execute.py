@@ -44,6 +44,7 @@ WORD_MEANING = {"i": "an arc centre (G2/G3) or G87", "j": "an arc centre (G2/G3)
                 "h": "G43", "e": "M66-M68"}
 AXIS_INDEX = {"x": 0, "y": 1, "z": 2, "a": 3, "b": 4}
 _FAST_LETTERS = frozenset("xyzabfn")
+MODE_SWITCHES = (434, 435, 531, 682)   # another machine's TCP / tilted-plane modes: noted, the line goes on
 
 
 class Refusal(Exception):
@@ -252,6 +253,28 @@ class Executor:
                 col[letter] = c
         return blk
 
+    def keep_modes(self, blk):
+        """After a refused block: the plain modal settings it made (units, distance modes, plane, feed mode
+        and F, S, retract and path modes, motion mode) still hold for the lines after it, so that one bad
+        word does not make every later line look wrong. Nothing moves, nothing switches on."""
+        st, v, groups = self.st, blk.v, blk.groups
+        for grp, attr, conv in ((6, "units", lambda c: MM_PER_INCH if c == 200 else 1.0),
+                                (3, "absolute", lambda c: c == 900), (4, "ijk_absolute", lambda c: c == 901),
+                                (2, "plane", lambda c: c), (10, "retract", lambda c: c), (13, "path", lambda c: c)):
+            if grp in groups and not (grp == 2 and st.comp):
+                setattr(st, attr, conv(groups[grp][0]))
+        if 5 in groups:
+            st.feed_mode = groups[5][0]
+            st.feed = 0.0
+        f = v.get("f")
+        if f is not None and f.__class__ is float and f > 0 and st.feed_mode != 930:
+            st.feed = f * st.units
+        s = v.get("s")
+        if s is not None and s.__class__ is float and s >= 0 and not st.spindle:
+            st.speed = s
+        if 1 in groups and groups[1][0] != 800:
+            st.motion = groups[1][0]
+
     # ------------------------------------------------------------------ the common case, fast
     def fast_line(self, ln) -> bool:
         """A G0/G1 line of axis words, F and N only (most of what CAM writes), in G94 with no cutter
@@ -320,12 +343,18 @@ class Executor:
         for code, c in blk.g:
             ref = G_REFUSED.get(code)
             if ref is not None:
+                if ref[0] == "machine" and code in MODE_SWITCHES:
+                    self.note("machine", f"{gname(code)}: {ref[1]}", c)   # noted; the rest of the line runs
+                    continue
                 raise Refusal(ref[0], f"{gname(code)}: {ref[1]}", c)
             grp = G_GROUP.get(code)
             if grp is None:
                 raise Refusal("unsupported", f"{gname(code)} is not a G-code pmctl knows (docs/gcode.md lists "
                                              "the ones it runs)", c)
-            if grp in groups:
+            if grp == 1 and (code == 800 or groups.get(1, (None,))[0] == 800):
+                if code == 800 and grp in groups:
+                    continue                       # LinuxCNC: G80 beside another motion code is ignored
+            elif grp in groups and not (grp == 17):
                 raise Refusal("syntax", f"two G-codes of the same modal group on one line ({gname(groups[grp][0])} "
                                         f"and {gname(code)}): keep one", c)
             if code in (382, 383) and not self.cfg.probe_ok:
@@ -336,6 +365,9 @@ class Executor:
         for code, c in blk.m:
             ref = M_REFUSED.get(code)
             if ref is not None:
+                if ref[0] == "machine":
+                    self.note("machine", f"M{code}: {ref[1]}", c)          # noted; the rest of the line runs
+                    continue
                 raise Refusal(ref[0], f"M{code}: {ref[1]}", c)
             if code in M_USER:
                 if code not in self.cfg.user_m_codes:
@@ -377,7 +409,7 @@ class Executor:
         motion = gm if gm is not None else st.motion
         if axis_words and not tlo_axes:
             if g0 in AXIS_USERS:
-                if gm is not None and gm != 800:
+                if gm is not None and gm != 800 and not (g0 in (280, 300) and gm == 0):
                     raise Refusal("syntax", f"{gname(g0)} and {gname(gm)} both use the axis words: put them on "
                                             "separate lines", groups[1][1])
             elif gm == 800:
@@ -470,10 +502,14 @@ class Executor:
             if "p" not in v:
                 raise Refusal("syntax", "G4 dwell needs P<seconds>", groups[0][1])
             p = v["p"]
-            if not 0 <= p <= MAX_DWELL_S:
+            if p < 0:
                 raise Refusal("syntax", f"dwell P{fmt(p)} must be within 0 .. {MAX_DWELL_S:g} s", col["p"])
-            self.flush_events(st)
-            self.dwell(st, p)
+            if p > MAX_DWELL_S:
+                self.note("machine", f"dwell P{fmt(p)} must be within 0 .. {MAX_DWELL_S:g} s: P is seconds here (as in "
+                                     "LinuxCNC and grbl; some controllers read milliseconds)", col["p"])
+            else:
+                self.flush_events(st)
+                self.dwell(st, p)
         # 12. plane
         pl = groups.get(2)
         if pl is not None:
@@ -543,7 +579,11 @@ class Executor:
         if gm == 800:
             st.motion = 800                       # the cycle words stay remembered (LinuxCNC's cycle_p ...)
             st.cycle_il = None
-        do_motion = (gm is not None and gm != 800) or (axis_words and g0 not in AXIS_USERS and not tlo_axes)
+        do_motion = (gm is not None and gm != 800 and not (g0 in AXIS_USERS and axis_words)) or \
+            (axis_words and g0 not in AXIS_USERS and not tlo_axes) or \
+            (not axis_words and gm is None and motion in (20, 30) and any(k in v for k in "ijk"))
+        if do_motion and motion in CYCLES and not axis_words:
+            raise Refusal("syntax", f"{gname(motion)} needs axis words (the hole)", blk.groups.get(1, (0, None))[1])
         if do_motion:
             if motion not in CYCLES:
                 st.cycle_il = None
@@ -582,7 +622,7 @@ class Executor:
     def check_words(self, st, blk, g0, motion, axis_words):
         v, col, groups, mg = blk.v, blk.col, blk.groups, blk.mgroups
         gm = groups.get(1, (None,))[0]
-        arc = motion in (20, 30) and (gm is not None or axis_words)
+        arc = motion in (20, 30) and (gm is not None or axis_words or (gm is None and g0 not in AXIS_USERS))
         cycle = motion in CYCLES and (gm is not None or axis_words)
         users = {k: False for k in "ijkrpqlhde"}
         if arc:
@@ -978,10 +1018,11 @@ class Executor:
     # ------------------------------------------------------------------ motion
     def feed_for(self, st, blk, what):
         """(feed mm/s, duration s) of a feed move of length ``length`` (set later for G93)."""
+        where = blk.groups.get(1, (None, None))[1] or next((blk.col[k] for k in "xyzab@^" if k in blk.col), None)
         if st.feed_mode == 930:
             if "f" not in blk.v:
                 raise Refusal("syntax", f"{what} in inverse time (G93) needs F on the line (F = 1 / minutes for "
-                                        "the move)", None)
+                                        "the move)", where)
             f = blk.v["f"]
             if not f > 0:
                 raise Refusal("syntax", f"{what} in inverse time (G93): F{fmt(f)} must be > 0", blk.col["f"])
@@ -989,15 +1030,15 @@ class Executor:
         if st.feed_mode == 950:
             if not st.feed > 0:
                 raise Refusal("syntax", f"{what} with no F: set a feed per revolution (G95 F, > 0) on this line or "
-                                        "before", blk.col.get("f"))
+                                        "before", blk.col.get("f", where))
             if not st.spindle or not st.speed > 0:
                 raise Refusal("syntax", f"{what} in feed per revolution (G95) with the spindle stopped: start it "
-                                        "(M3/M4 S) first", blk.col.get("f"))
+                                        "(M3/M4 S) first", blk.col.get("f", where))
             return st.feed * st.speed / 60.0, 0.0
         if not st.feed > 0:
             if "f" in blk.v:
                 raise Refusal("syntax", f"{what} with F0: the feed rate must be > 0", blk.col["f"])
-            raise Refusal("syntax", f"{what} with no F: set a feed rate (F, > 0) on this line or before", None)
+            raise Refusal("syntax", f"{what} with no F: set a feed rate (F, > 0) on this line or before", where)
         return st.feed / 60.0, 0.0
 
     def motion(self, st, blk, motion, g53, explicit, axis_words):
@@ -1018,7 +1059,7 @@ class Executor:
             if not axis_words:
                 return
             if st.comp and self.comp is not None:
-                return self.comp.straight(st, blk, motion, end)
+                return self.compensated(st, blk, motion, end, lambda: self.comp.straight(st, blk, motion, end))
             if motion == 0:
                 self.move(st, RAPID, end)
             else:
@@ -1052,6 +1093,21 @@ class Executor:
             from pmctl.task.rs274.cycles import run_cycle
             return run_cycle(self, st, blk, motion, explicit, axis_words)
         raise Refusal("unsupported", f"{gname(motion)} is not supported", mc)   # pragma: no cover
+
+    def compensated(self, st, blk, motion, end, run, c2=None, turn=0):
+        """A move with cutter compensation; when the tool does not fit (CompFit), a machine problem is
+        noted and the path carries on (pmctl.task.rs274.cutter_comp.CutterComp.carry_on)."""
+        from pmctl.task.rs274.cutter_comp import CompFit
+        saved = (st.cq, st.cq_start, st.cq_end, st.comp_prog, st.comp_cur, st.comp_first, list(st.pos),
+                 len(self.moves))
+        try:
+            return run()
+        except CompFit as e:
+            st.cq, st.cq_start, st.cq_end, st.comp_prog, st.comp_cur, st.comp_first, st.pos, n = saved
+            del self.moves[n:]
+            self.note("machine", f"{e.message} (tool radius {st.comp_radius / st.units:.4f} from the tool table "
+                                 f"{self.cfg.tools.source} or G41.1/G42.1)", e.column)
+            self.comp.carry_on(st, blk, motion, end, c2, turn)
 
     def _length(self, p0, p1, center, sweep):
         return math.dist(p0[:3], p1[:3])
@@ -1104,7 +1160,9 @@ class Executor:
         except A.ArcError as e:
             raise Refusal("syntax", e.message, col.get(e.word) if e.word else mc) from None
         if st.comp and self.comp is not None and plane == 170:
-            return self.comp.arc(st, blk, motion, end, c2, turns if ccw else -turns, feed, duration)
+            t = turns if ccw else -turns
+            return self.compensated(st, blk, motion, end,
+                                    lambda: self.comp.arc(st, blk, motion, end, c2, t, feed, duration), c2, t)
         sw = A.sweep(s2, c2, e2, turns if ccw else -turns)
         self.emit_arc(st, ps, pe, c2, sw, end, feed, duration)
 

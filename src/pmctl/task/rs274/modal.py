@@ -31,6 +31,7 @@ for _grp, _codes in {
     13: (610, 611, 640),
     14: (970,),
     16: (1870, 1030, 51, 80),          # other controllers' look-ahead controls (accepted, no effect)
+    17: (150, 500, 501, 690),          # other controllers' cancels of modes pmctl never has (accepted, no effect)
 }.items():
     for _c in _codes:
         G_GROUP[_c] = _grp
@@ -53,7 +54,6 @@ G_REFUSED = {
                          "with G2/G3"),
     130: ("unsupported", "G13 (circular pocket of another controller) is not supported: program the circle "
                          "with G2/G3"),
-    150: ("unsupported", "G15 (polar coordinates of another controller) is not supported: program X and Y"),
     160: ("unsupported", "G16 (polar coordinates of another controller) is not supported: program X and Y"),
     171: ("machine", "G17.1 (the UV plane): this machine has no U V W axes"),
     181: ("machine", "G18.1 (the WU plane): this machine has no U V W axes"),
@@ -72,8 +72,6 @@ G_REFUSED = {
                      "kinematics must be posted for this one"),
     435: ("machine", "G43.5 (tool centre point control of another machine): pmctl's X Y Z are always the "
                      "tool tip and A B its tilt, for this machine's head; post the program for this machine"),
-    500: ("unsupported", "G50 (cancel scaling of another controller) is not supported"),
-    501: ("unsupported", "G50.1 (cancel mirroring of another controller) is not supported"),
     510: ("unsupported", "G51 (scaling of another controller) is not supported: scale the program in the CAM"),
     511: ("unsupported", "G51.1 (mirroring of another controller) is not supported: mirror in the CAM"),
     531: ("machine", "G53.1 (tool axis to a tilted working plane) belongs to another machine's kinematics: "
@@ -84,7 +82,6 @@ G_REFUSED = {
                          "P<n> R<degrees> for a rotated coordinate system"),
     682: ("machine", "G68.2 (tilted working plane) belongs to another machine's kinematics: post the program "
                      "for this machine, whose A and B tilt the tool directly"),
-    690: ("unsupported", "G69 (cancel coordinate rotation of another controller) is not supported"),
     760: ("machine", "G76 (threading cycle) needs a spindle encoder, which this machine lacks"),
     960: ("unsupported", "G96 (constant surface speed) is not supported on this mill: program S in rpm (G97)"),
 }
@@ -103,6 +100,10 @@ for _grp, _codes in {
 M_USER = range(100, 200)
 
 M_REFUSED = {
+    10: ("machine", "M10 (a rotary axis brake or clamp of another machine): this machine's A and B tilts have no "
+                    "brake to set"),
+    11: ("machine", "M11 (a rotary axis brake or clamp release of another machine): this machine's A and B tilts "
+                    "have no brake"),
     19: ("machine", "M19 (spindle orientation) needs a spindle with an encoder, which this machine lacks"),
     29: ("machine", "M29 (rigid tapping of another controller) needs a spindle encoder, which this machine "
                     "lacks: use G84 with a floating tap holder"),

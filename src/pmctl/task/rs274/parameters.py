@@ -30,6 +30,12 @@ from __future__ import annotations
 
 from pmctl.task.rs274.expressions import MAX_PARAMETER, EvalError, value
 
+class Unsupported(EvalError):
+    """A parameter pmctl cannot have (a LinuxCNC configuration's HAL pin or INI value)."""
+
+    kind = "unsupported"
+
+
 SUB_PARAMS = 30                     # #1..#30: a subroutine's arguments, local to each call
 READ_ONLY = set(range(5400, 5414)) | set(range(5420, 5429))
 G28_BASE, G30_BASE = 5161, 5181
@@ -76,6 +82,10 @@ class Parameters:
             v = self.globals.get(name)
         else:
             v = self.frames[-1].get(name)
+        if v is None and (name.startswith("_hal[") or name.startswith("_ini[")):
+            raise Unsupported(f"#<{name}> reads a {'HAL pin' if name.startswith('_hal[') else 'INI setting'} of a "
+                              "LinuxCNC configuration, which pmctl has not: give the value in the program",
+                              self.column)
         if v is None:
             raise EvalError(f"named parameter #<{name}> is not defined (set it first, or test with "
                             f"EXISTS[#<{name}>])", self.column)

@@ -31,6 +31,7 @@ from pmctl.task.rs274.words import LexError
 MAX_BLOCKS = 1_000_000
 MAX_CALL_DEPTH = 100
 MAX_PROBLEMS = 500
+GRBL_QUERIES = {"$", "$$", "$#", "$G", "$I", "$N", "?"}
 _SUBST = re.compile(r"#<([^>]*)>|#([0-9]+)")
 
 
@@ -152,10 +153,10 @@ class Interpreter:
             ex.events = []
             for k, msg, c in ex.notes:
                 self.problem(src.path, ex.line, c, k, msg)
-            kind = e.kind if isinstance(e, Refusal) else "syntax"
+            kind = getattr(e, "kind", "syntax")
             self.problem(src.path, ex.line, e.column, kind, e.message)
-            if blk is not None and 1 in blk.groups and blk.groups[1][0] != 800:
-                ex.st.motion = blk.groups[1][0]     # the lines after it continue in the mode it meant
+            if blk is not None:
+                ex.keep_modes(blk)                  # the lines after it continue in the modes it meant
             return None
         for k, msg, c in ex.notes:
             self.problem(src.path, ex.line, c, k, msg)
@@ -232,6 +233,16 @@ class Interpreter:
                 continue
             except EvalError as e:
                 self.problem(pc_src.path, i + 1, e.column, "syntax", e.message)
+                i += 1
+                continue
+            if ln.grbl is not None:
+                # grbl's queries ($ $$ $# $G $I $N ?) ask the console something and change nothing: skipped;
+                # its other system commands (homing, settings, jogs...) are the console's, not a job's
+                cmd = "".join(ln.grbl.split()).upper()
+                if cmd not in GRBL_QUERIES:
+                    self.problem(pc_src.path, i + 1, None, "unsupported",
+                                 f"{ln.grbl.split()[0]}: grbl's system commands go to the console, not in a job "
+                                 "file (only its queries $ $$ $# $G $I $N ? are skipped here)")
                 i += 1
                 continue
             if ln.blank and not ln.percent and not ln.comments:

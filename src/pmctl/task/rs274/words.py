@@ -57,7 +57,7 @@ class Line:
     case); ``comments``: (text, column) with the text as written; ``oword``: an :class:`OWord` or
     None; ``delete``: a ``/`` line; ``percent``: a ``%`` line; ``blank``: nothing to execute."""
 
-    __slots__ = ("words", "assigns", "comments", "oword", "delete", "percent", "blank")
+    __slots__ = ("words", "assigns", "comments", "oword", "delete", "percent", "blank", "grbl")
 
     def __init__(self):
         self.words = []
@@ -67,6 +67,7 @@ class Line:
         self.delete = False
         self.percent = False
         self.blank = True
+        self.grbl = None                  # a grbl system command ($..., ?): its text
 
 
 class _Text:
@@ -128,6 +129,9 @@ def lex_line(raw: str) -> Line:
             return out
     if body == "%":
         out.percent = True
+        return out
+    if body[0] in "$?":
+        out.grbl = body
         return out
     out.blank = False
     if "o" not in code and "O" not in code and _FAST.fullmatch(code):
