@@ -227,6 +227,9 @@ def test_the_interpreter_section_resolves_paths_and_refuses_bad_values(tmp_path)
     cfg = load_service_config(p).interpreter
     assert cfg.tool_table == str(tmp_path / "t.tbl") and cfg.subroutine_path == (str(tmp_path / "subs"), "/abs")
     assert cfg.user_m_codes == (101, 150) and cfg.optional_stop is False and cfg.block_delete is False
+    p.write_text("[loop]\nrate_hz = 1000\n")            # no [interpreter]: the bundled tool table, wherever the file is
+    assert Path(load_service_config(p).interpreter.tool_table) == Path(InterpreterConfig().tool_table)
+    assert load_tool_table(load_service_config(p).interpreter.tool_table).get(1) is not None
     for body, words in (("user_m_codes = [99]", "99 is not a user M-code"), ("user_m_codes = 101", "list of"),
                         ("subroutine_path = \"x\"", "list of folder"), ("optional_stop = 1", "true or false"),
                         ("digital_outputs = 100", "digital_outputs"), ("toolz = 1", "unknown key")):

@@ -275,7 +275,8 @@ def homing_from_dict(data, path) -> HomingConfig:
 class InterpreterConfig:
     """[interpreter]: what the RS-274 interpreter (pmctl.task.rs274, docs/gcode.md) takes from the service
     config. Paths are absolute here (relative ones in the file are relative to the file's folder)."""
-    tool_table: str = str(CONFIG_DIR / "tools.tbl")   # LinuxCNC .tbl: T P Z (length offset) D (diameter)
+    tool_table: str = str(CONFIG_DIR / "tools.tbl")   # LinuxCNC .tbl: T P Z (length offset) D (diameter);
+                                                      # absent from the file: the bundled config/tools.tbl
     subroutine_path: tuple = ()            # folders searched for o<name> call files (name.ngc)
     user_m_codes: tuple = ()               # M100-M199 a program may use (EVENT user_m; else refused)
     optional_stop: bool = True             # M1 pauses like M0 (false: M1 is skipped)
@@ -293,7 +294,7 @@ def interpreter_from_dict(data, path) -> InterpreterConfig:
         q = Path(os.path.expanduser(p))
         return str(q if q.is_absolute() else here / q)
 
-    table = s.string("tool_table", default="tools.tbl")
+    table = s.string("tool_table", default=d.tool_table)      # absent: the bundled table
     if not table:
         raise ConfigError(path, "interpreter.tool_table", "must name a tool table file (LinuxCNC .tbl)")
     present, folders = s._get("subroutine_path", [], False)

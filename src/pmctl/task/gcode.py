@@ -32,8 +32,8 @@ from pmctl.task.rs274.modal import MM_PER_INCH
 
 ARC_RADIUS_TOL_MM = SPIRAL_MM     # |r_end - r_start| an I/J/K arc may have (LinuxCNC's 0.0283 mm and 0.1 %)
 
-__all__ = ["interpret", "parse_gcode", "read_gcode", "ARC_RADIUS_TOL_MM", "MAX_DWELL_S", "MAX_ARC_TURNS",
-           "MM_PER_INCH", "check_job_reach"]
+__all__ = ["interpret", "interpret_file", "parse_gcode", "read_gcode", "reader_options", "ARC_RADIUS_TOL_MM",
+           "MAX_DWELL_S", "MAX_ARC_TURNS", "MM_PER_INCH", "check_job_reach"]
 
 
 def parse_gcode(text: str, path="<string>", start_tip=(0.0, 0.0, 0.0), start_axis=(0.0, 0.0, 1.0), *, config=None,
@@ -55,6 +55,25 @@ def read_gcode(path, machine, *, start=None, config=None, offsets=None) -> Job:
     job = parse_gcode(text, path, tip, axis, config=config, offsets=offsets, home=home)
     check_job_reach(job, machine, path)
     return job
+
+
+def interpret_file(path, machine, *, start=None, config=None, offsets=None):
+    """(Job, problems) of a G-code file, without raising for a problem of the program (``pmctl check``
+    lists them with the machine's and the planner's); reading the file may still raise InputError
+    (missing, too large, not UTF-8). ``start``: default the home pose, also the G28/G30 default."""
+    path = Path(path)
+    home = home_pose(machine)
+    return interpret(read_job_text(path), path, start=home if start is None else start, config=config,
+                     offsets=offsets, home=home)
+
+
+def reader_options(path, config=None, offsets=None) -> dict:
+    """The options ``load_job`` passes to the G-code reader for ``path`` (the service config's
+    [interpreter] section and the work offsets in force); none for CL data."""
+    from pmctl.task.job import GCODE_SUFFIXES
+    if Path(path).suffix.lower() not in GCODE_SUFFIXES:
+        return {}
+    return {"config": config, "offsets": offsets}
 
 
 def check_job_reach(job: Job, machine, path):

@@ -59,7 +59,8 @@ class GrblConsole:
         self.homing = homing                  # callable() -> (ok, msg) for $H, or None
         self.jogger = jogger
         tip, axis = sup.pose()
-        self.interp = LineInterpreter(sup.machine, tip, axis, journal.data.get("offsets"))
+        self.interp = LineInterpreter(sup.machine, tip, axis, journal.data.get("offsets"),
+                                      config=getattr(getattr(sup, "svc", None), "interpreter", None))
         self.last_prb = None                  # the last probe's ProbeResult ($# reports it)
         self.settings = {10: int(journal.data.get("settings", {}).get("10", 1))}
         self.lines: queue.Queue = queue.Queue()
@@ -427,10 +428,11 @@ class GrblConsole:
             for n in WCS_NAMES:
                 self.write(f"[{n}:" + mm3(self.interp.wcs[n]) + "]")
             z = ",".join(["0.000"] * 5)
-            self.write(f"[G28:{z}]")
-            self.write(f"[G30:{z}]")
+            offsets = self.interp.offsets()
+            self.write("[G28:" + mm3(offsets["g28"]) + "]")
+            self.write("[G30:" + mm3(offsets["g30"]) + "]")
             self.write("[G92:" + mm3(self.interp.g92) + "]")
-            self.write("[TLO:0.000]")
+            self.write(f"[TLO:{mm3([self.interp.tlo()])}]")
             self.write(self.last_prb.prb() if self.last_prb is not None else f"[PRB:{z}:0]")
         elif cmd == "$G":
             self.write(f"[GC:{self.interp.parser_state()}]")

@@ -341,6 +341,9 @@ class Executor:
     def check_codes(self, st, blk):
         groups = blk.groups
         for code, c in blk.g:
+            if code == 51 and "q" in blk.v and not any(k in blk.v for k in "xyzijpr"):
+                groups[16] = (code, c)             # Fanuc's G5.1 Q (AI contour control), not a spline: no effect
+                continue
             ref = G_REFUSED.get(code)
             if ref is not None:
                 if ref[0] == "machine" and code in MODE_SWITCHES:
@@ -637,7 +640,7 @@ class Executor:
         if 13 in groups and groups[13][0] == 640:
             users.update(p=True, q=True)
         if 16 in groups:
-            users.update(p=True, e=True)
+            users.update(p=True, e=True, q=True)
         if 7 in groups and groups[7][0] in (410, 420, 411, 421):
             users["d"] = True
         if 8 in groups and groups[8][0] == 430:

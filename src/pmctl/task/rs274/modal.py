@@ -30,7 +30,7 @@ for _grp, _codes in {
     12: (540, 550, 560, 570, 580, 590, 591, 592, 593),
     13: (610, 611, 640),
     14: (970,),
-    16: (1870, 1030, 51, 80),          # other controllers' look-ahead controls (accepted, no effect)
+    16: (1870, 1030, 80),              # Haas G187, G103; G8 (Fanuc look-ahead, LinuxCNC's lathe radius mode): no effect
     17: (150, 500, 501, 690),          # other controllers' cancels of modes pmctl never has (accepted, no effect)
 }.items():
     for _c in _codes:
