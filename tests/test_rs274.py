@@ -140,6 +140,39 @@ def test_an_off_plane_centre_word_names_a_point_on_the_arc_axis_and_changes_noth
         assert np.array_equal(a.center, b.center) and a.sweep == b.sweep and np.array_equal(a.tip, b.tip)
 
 
+def test_splines_are_flattened_within_a_micrometre_and_a_g5_series_stays_smooth():
+    from pmctl.task.rs274.splines import CHORD_TOL_MM, _point
+    job = ok("G21 G90 F600 G0 X0 Y0 Z90\nG5 I0 J30 P40 Q-30 X10 Y10\nG5 P0 Q-30 X20 Y0\nG5.1 X30 Y0 I5 J-10")
+    lines = [m for m in job.moves if m.kind == LINE]
+    a = [m for m in lines if m.line == 2]
+    assert np.allclose(a[-1].tip, [10, 10, 90]) and all(m.feed == 10.0 for m in lines)
+    # every vertex lies on the curve and every chord within the tolerance of it
+    ctrl = [(0, 0), (0, 30), (50, -20), (10, 10)]
+    t = np.linspace(0, 1, 200001)[:, None]
+    c = np.array(ctrl, float)
+    curve = (1 - t) ** 3 * c[0] + 3 * (1 - t) ** 2 * t * c[1] + 3 * (1 - t) * t * t * c[2] + t ** 3 * c[3]
+    assert np.allclose(curve[77], _point(ctrl, float(t[77, 0])))
+    pts = np.array([[0, 0]] + [m.tip[:2] for m in a])
+    k = [0]                                      # each vertex's sample on the curve, in order along it
+    for p in pts[1:]:
+        j = k[-1] + int(np.argmin(np.linalg.norm(curve[k[-1]:k[-1] + 20000] - p, axis=1)))
+        assert np.linalg.norm(curve[j] - p) < 5e-4
+        k.append(j)
+    for (p0, p1), (i0, i1) in zip(zip(pts[:-1], pts[1:]), zip(k[:-1], k[1:])):
+        d = p1 - p0
+        seg = curve[i0:i1 + 1]
+        dev = np.abs((seg[:, 0] - p0[0]) * d[1] - (seg[:, 1] - p0[1]) * d[0]) / np.linalg.norm(d)
+        assert dev.max() <= CHORD_TOL_MM * 1.05
+    # the second G5 starts along the first one's end tangent (its first control point is the reflection)
+    b = [m for m in lines if m.line == 3]
+    t_in = a[-1].tip[:2] - a[-2].tip[:2]
+    t_out = b[0].tip[:2] - a[-1].tip[:2]
+    assert float(t_in @ t_out) / (np.linalg.norm(t_in) * np.linalg.norm(t_out)) > 0.999
+    job, problems = run("G21 F100\nG5 P1 Q1 X5 Y5\nG18 G5.1 X1 I1 J1")
+    assert ["I and J (the first control point) at the start" in problems[0].message,
+            "XY plane (G17) only" in problems[1].message] == [True, True]
+
+
 # ---------------------------------------------------------------- problems and limits
 
 def test_every_problem_has_file_line_column_kind_and_says_what_to_do():

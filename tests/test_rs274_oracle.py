@@ -62,7 +62,6 @@ SAMPLES_AGREE = ["3D_Chips.ngc", "3dtest.ngc", "arcspiral.ngc", "b-index.ngc", "
                  "g882.ngc", "m6remap.ngc"]
 # Files refused here on purpose, with the kind and the words of the reason
 SAMPLES_REFUSED = {
-    "systems.ngc": ("unsupported", "G5.1 quadratic splines"),
     "threading.ngc": ("machine", "G33 (spindle-synchronised motion) needs a spindle encoder"),
     "g76.ngc": ("unsupported", "cutter compensation runs in the XY plane (G17) only"),
     "lathecomp.ngc": ("unsupported", "cutter compensation runs in the XY plane (G17) only"),
@@ -85,6 +84,20 @@ def test_linuxcnc_sample_programs_give_the_same_motion(name):
     assert res.ok and not problems, (res.error, [str(p) for p in problems])
     diffs, n, worst = O.compare(O.pmctl_motions(job), res.motions)
     assert not diffs, diffs
+
+
+def test_the_spline_sample_runs_and_ends_where_rs274_ends():
+    # systems.ngc draws with G5.1: rs274 prints NURBS_FEED without its points, so what can be compared is
+    # every other motion, in order, and that pmctl's flattened curves end where rs274's next motion starts
+    text = (NCFILES / "systems.ngc").read_text()
+    res, job, problems = both(text)
+    assert res.ok and not problems
+    mine = [m for m in O.pmctl_motions(job)]
+    spline_lines = {i + 1 for i, ln in enumerate(text.splitlines()) if "g5.1" in ln.lower().replace(" ", "")}
+    straight = [m for m, mv in zip(mine, [m for m in job.moves if m.kind != "event"]) if mv.line not in spline_lines]
+    assert len(spline_lines) > 50 and len(straight) < len(mine)
+    diffs, n, _ = O.compare(straight, res.motions)
+    assert not diffs and n > 200, diffs
 
 
 @pytest.mark.parametrize("name", sorted(SAMPLES_REFUSED))

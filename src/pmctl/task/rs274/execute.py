@@ -641,6 +641,8 @@ class Executor:
             users.update(p=True, q=True)
         if 16 in groups:
             users.update(p=True, e=True, q=True)
+        if motion in (50, 51) and (gm is not None or axis_words):
+            users.update(i=True, j=True, p=motion == 50, q=motion == 50)
         if 7 in groups and groups[7][0] in (410, 420, 411, 421):
             users["d"] = True
         if 8 in groups and groups[8][0] == 430:
@@ -1095,6 +1097,8 @@ class Executor:
         if motion in CYCLES:
             from pmctl.task.rs274.cycles import run_cycle
             return run_cycle(self, st, blk, motion, explicit, axis_words)
+        if motion in (50, 51):
+            return self.spline(st, blk, motion)
         raise Refusal("unsupported", f"{gname(motion)} is not supported", mc)   # pragma: no cover
 
     def compensated(self, st, blk, motion, end, run, c2=None, turn=0):
@@ -1111,6 +1115,54 @@ class Executor:
             self.note("machine", f"{e.message} (tool radius {st.comp_radius / st.units:.4f} from the tool table "
                                  f"{self.cfg.tools.source} or G41.1/G42.1)", e.column)
             self.comp.carry_on(st, blk, motion, end, c2, turn)
+
+    def spline(self, st, blk, motion):
+        """G5 / G5.1 (pmctl.task.rs274.splines): straight feeds along the curve."""
+        from pmctl.task.rs274.splines import flatten
+        v, col = blk.v, blk.col
+        mc = blk.groups.get(1, (None, None))[1]
+        name = gname(motion)
+        if st.plane != 170:
+            raise Refusal("syntax", f"{name} runs in the XY plane (G17) only", mc)
+        if st.comp:
+            raise Refusal("syntax", f"{name} with cutter compensation on: turn it off (G40) first", mc)
+        for k in "zab@^":
+            if k in v:
+                raise Refusal("syntax", f"{name} takes X and Y only (the curve lies in the XY plane)", col[k])
+        feed, duration = self.feed_for(st, blk, name)
+        u = st.units
+        p0 = self.to_prog(st, st.pos)
+        end = self.to_prog(st, self.target(st, blk, False))
+        start, fin = (p0[0], p0[1]), (end[0], end[1])
+        if motion == 51:
+            if "i" not in v or "j" not in v:
+                raise Refusal("syntax", "G5.1 needs I and J (the control point, from the start)", mc)
+            ctrl = [start, (start[0] + v["i"] * u, start[1] + v["j"] * u), fin]
+            st.spline_prev = None
+        else:
+            if "p" not in v or "q" not in v:
+                raise Refusal("syntax", "G5 needs P and Q (the second control point, from the end)", mc)
+            if "i" in v or "j" in v:
+                if not ("i" in v and "j" in v):
+                    raise Refusal("syntax", "G5 needs both I and J (or neither, to go on from the G5 before)", mc)
+                c1 = (start[0] + v["i"] * u, start[1] + v["j"] * u)
+            elif self.prev_motion == 50 and st.spline_prev is not None:
+                (ex, ey), (qx, qy) = st.spline_prev
+                c1 = (2 * ex - qx, 2 * ey - qy)
+            else:
+                raise Refusal("syntax", "G5 needs I and J (the first control point) at the start of a series", mc)
+            c2 = (fin[0] + v["p"] * u, fin[1] + v["q"] * u)
+            ctrl = [start, c1, c2, fin]
+            st.spline_prev = (fin, c2)
+        pts = flatten(ctrl)
+        if duration:
+            length = sum(math.dist(a, b) for a, b in zip([start] + pts[:-1], pts))
+            per = duration / max(len(pts), 1)
+            feed = length / duration
+        for x, y in pts:
+            q = list(end)
+            q[0], q[1] = x, y
+            self.move(st, LINE, self.to_w(st, q), feed=feed, duration=per if duration else 0.0)
 
     def _length(self, p0, p1, center, sweep):
         return math.dist(p0[:3], p1[:3])

@@ -18,7 +18,7 @@ MM_PER_INCH = 25.4
 G_GROUP = {}
 for _grp, _codes in {
     0: (40, 100, 280, 281, 300, 301, 520, 530, 920, 921, 922, 923),
-    1: (0, 10, 20, 30, 382, 383, 730, 740, 800, 810, 820, 830, 840, 850, 860, 870, 880, 890),
+    1: (0, 10, 20, 30, 50, 51, 382, 383, 730, 740, 800, 810, 820, 830, 840, 850, 860, 870, 880, 890),
     2: (170, 180, 190),
     3: (900, 910),
     4: (901, 911),
@@ -36,7 +36,7 @@ for _grp, _codes in {
     for _c in _codes:
         G_GROUP[_c] = _grp
 
-MOTION_CODES = (0, 10, 20, 30, 382, 383, 730, 740, 810, 820, 830, 840, 850, 860, 870, 880, 890)
+MOTION_CODES = (0, 10, 20, 30, 50, 51, 382, 383, 730, 740, 810, 820, 830, 840, 850, 860, 870, 880, 890)
 CYCLES = (730, 740, 810, 820, 830, 840, 850, 860, 870, 880, 890)
 AXIS_USERS = (100, 280, 300, 520, 920)        # group-0 codes that use axis words
 WCS_CODES = (540, 550, 560, 570, 580, 590, 591, 592, 593)
@@ -45,8 +45,6 @@ WCS_NAMES = ("G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3"
 # Codes that exist elsewhere and are refused here: (kind, reason). Kind "machine": this machine lacks
 # what the code needs; "unsupported": pmctl does not implement it.
 G_REFUSED = {
-    50: ("unsupported", "G5 cubic splines are not supported: have the CAM output lines and arcs (G1/G2/G3)"),
-    51: ("unsupported", "G5.1 quadratic splines are not supported: have the CAM output lines and arcs"),
     52: ("unsupported", "G5.2 NURBS blocks are not supported: have the CAM output lines and arcs"),
     53: ("unsupported", "G5.3 NURBS blocks are not supported: have the CAM output lines and arcs"),
     70: ("machine", "G7 (lathe diameter mode): this machine is a mill"),
@@ -176,6 +174,7 @@ class State:
         self.comp_prog = None              # the last programmed point (program X Y Z)
         self.comp_cur = None               # the tool centre there (program X Y Z)
         self.comp_base = None              # after G40: the programmed point the next move starts from
+        self.spline_prev = None            # the last G5's end and second control point (a G5 series)
 
     def copy(self) -> "State":
         s = State.__new__(State)
