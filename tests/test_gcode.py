@@ -135,7 +135,7 @@ def test_arc_centres_and_sweeps():
     ("G0 X1\nG1 X5", 2, "no F", "syntax"),
     ("G0 X1\nG0 X1 W2", 2, "W2: axis W is not on this machine", "machine"),
     ("G1 F100 X", 1, "missing value after 'X'", "syntax"),
-    ("G0 X1\n\nG5.1 X1 I1 J1", 3, "G5.1 quadratic splines are not supported", "unsupported"),
+    ("G0 X1\n\nG5.2 X1 Y1 P1 L3", 3, "G5.2 NURBS blocks are not supported", "unsupported"),
     ("G0 X1 (abc", 1, "never closed", "syntax"),
     ("G0 X1 (a (b) c)", 1, "nested", "syntax"),
     ("X5", 1, "no motion mode", "syntax"),
@@ -183,7 +183,7 @@ def test_nothing_from_a_program_with_a_bad_last_line(tmp_path, machine):
 
 
 def test_every_problem_is_listed_with_its_kind_and_the_program_goes_on():
-    text = ("G21 G90\nG0 X1 Y1 Z90\nG1 X2 C4 F600\nG1 X3 Q1\nG2 X9 Y9 I0 J0\nG5 X1 Y1 I1 J1 P1 Q1\nG43 H77\n"
+    text = ("G21 G90\nG0 X1 Y1 Z90\nG1 X2 C4 F600\nG1 X3 Q1\nG2 X9 Y9 I0 J0\nG5.2 X1 Y1 P1 L3\nG43 H77\n"
             "G1 X4\nM30\n")
     job, problems = interpret(text, "t.ngc", start=(START, (0.0, 0.0, 1.0)))
     got = [(p.line, p.kind) for p in problems]

@@ -305,7 +305,7 @@ def test_console_lines_without_motion_give_their_events(console):
 
 @pytest.mark.parametrize("line,code", [
     ("G1 X", 2), ("G0 G1 X1", 21), ("G1 X1 X2", 25), ("G4", 28), ("G41 D1", 20), ("Q7", 36),
-    ("o100 while [1]", 20), ("G5.1 X1 I1 J1", 20), ("G43.4 H1", 20), ("G1 F0 X1", 22), ("N1.5 G0 X1", 27),
+    ("o100 while [1]", 20), ("G5.2 X1 P1 L3", 20), ("G43.4 H1", 20), ("G1 F0 X1", 22), ("N1.5 G0 X1", 27),
     ("G0 X900", 33),
 ])
 def test_console_errors_carry_grbl_codes_and_change_nothing(console, line, code):
