@@ -216,14 +216,14 @@ def test_grbl_queries_in_a_job_file_are_skipped_and_its_other_commands_refused()
 
 def test_memory_per_move_stays_small_and_there_is_no_move_cap():
     text = "G21 G90 F600\n" + "\n".join(f"G1 X{k % 100 * 0.01:.2f} Y{k % 37 * 0.01:.2f} Z{k % 13 * 0.01:.2f}"
-                                        for k in range(60000))
+                                        for k in range(15000))
     tracemalloc.start()
     try:
         job = ok(text)
         size, _ = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
-    assert len(job.moves) == 60000
+    assert len(job.moves) == 15000
     assert size / len(job.moves) < 700          # bytes a move (a Move, its tip array, a shared axis)
 
 

@@ -278,7 +278,7 @@ class Interpreter:
                 except (FlowError, EvalError, Refusal) as e:
                     kind = getattr(e, "kind", "syntax")
                     self.problem(pc_src.path, i + 1, e.column, kind, e.message)
-                    nxt = (pc_src, i + 1)
+                    nxt = (pc_src, self.past_structure(pc_src, i, ln))
                 if nxt is None:
                     ended = True
                     break
@@ -334,6 +334,21 @@ class Interpreter:
             self.problem(src.path, percent, None, "syntax", "the program starts with '%' but has no closing '%' "
                                                             "(nor M2/M30)")
         self.finish()
+
+    def past_structure(self, s: Source, i, ln):
+        """Where to go on after an O-word whose expression could not be evaluated: past the structure it
+        opens or tests (an if, a loop), so a condition that cannot be known does not run its body."""
+        j = s.jump.get(i)
+        kw = ln.oword.keyword
+        if j is None:
+            return i + 1
+        if kw in ("if", "elseif"):
+            return j[1] + 1
+        if kw == "while" and j[0] == "dowhile":
+            return i + 1                              # the closing while of a do: leave the loop
+        if kw in ("while", "repeat"):
+            return j[1] + 1
+        return i + 1
 
     def finish(self):
         ex = self.ex
