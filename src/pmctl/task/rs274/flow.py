@@ -47,6 +47,7 @@ class Source:
         self.fanuc: dict = {}                    # number -> (O index, last M99 index)
         self.jump: dict = {}                     # index -> data for the flow (see _scan)
         self.loops: list = []                    # (first, last) index of each sub/loop body: lines run again
+        self.scope: dict = {}                    # O-word line index -> the label of the subroutine it is in
         self._scan()
         self.cached = bytearray(len(self.lines))
         for a, b in self.loops:
@@ -73,7 +74,6 @@ class Source:
     def _scan(self):
         stack = []                               # (keyword, label, index, data)
         bare = []                                # indices of bare O-numbers
-        opened = {}                              # label -> line of the structure it names (LinuxCNC: one)
         for i, raw in enumerate(self.lines):
             if not _MAYBE_O.match(raw):
                 continue
@@ -89,13 +89,8 @@ class Source:
             if kw == "":
                 bare.append((i, ow.number))
                 continue
-            if kw in ("sub", "if", "while", "do", "repeat") and not (kw == "while" and stack and stack[-1][0] == "do"
-                                                                    and stack[-1][1] == label):
-                if label in opened:
-                    self._err(f"o{label} {kw}: the label already names the structure at line {opened[label] + 1} "
-                              "(LinuxCNC gives every structure a label of its own)", i, col)
-                    continue
-                opened[label] = i
+            # the subroutine a line is in (its labels are its own, as LinuxCNC names them within it)
+            self.scope[i] = next((x[1] for x in stack if x[0] == "sub"), None) if kw != "sub" else None
             if kw == "sub":
                 if any(s[0] == "sub" for s in stack):
                     self._err(f"o{label} sub inside another subroutine: subroutines do not nest", i, col)

@@ -63,6 +63,7 @@ class Interpreter:
         self.subfiles = SubroutineFiles(cfg.subroutine_path)
         self.blocks = 0
         self.main_counters = {}          # repeat counters of the main program
+        self.labels = {}                 # (file, subroutine, label) -> the line of the structure it names
 
     # ------------------------------------------------------------------ offsets (the journal's format)
     def load_offsets(self, o):
@@ -411,6 +412,13 @@ class Interpreter:
         j = s.jump.get(i)
         if j is None:
             return s, i + 1                            # a broken structure (reported by the scan)
+        if kw in ("if", "repeat", "do") or (kw == "while" and j[0] == "while"):
+            # LinuxCNC: a label names one structure; two that run at different lines are an error
+            key = (id(s), s.scope.get(i), label)
+            first = self.labels.setdefault(key, i)
+            if first != i:
+                raise FlowError(f"o{label} {kw}: duplicate O-word label, already used at line {first + 1} (give "
+                                "every structure a label of its own)", i + 1, ow.column)
         counters = frames[-1].counters if frames else self.main_counters
         if kw == "if":
             chain, endif = j
