@@ -297,7 +297,7 @@ def compare(mine, theirs, *, tol=2e-4, skip_zero=True):
             probs.append(f"motion {k}: {x.kind} in pmctl, {y.kind} in rs274")
             break
         d = max(abs(p - q) for p, q in zip(x.end[:3], y.end[:3]))
-        d_ang = max(abs(p - q) for p, q in zip(x.end[3:], y.end[3:]))
+        d_ang = max(abs((p - q + 180.0) % 360.0 - 180.0) for p, q in zip(x.end[3:], y.end[3:]))   # A -181 = A 179
         worst = max(worst, d)
         if d > t or d_ang > 1e-3:
             probs.append(f"motion {k} ({x.kind}): end {fmt(x.end)} in pmctl, {fmt(y.end)} in rs274")
@@ -320,6 +320,37 @@ def compare(mine, theirs, *, tol=2e-4, skip_zero=True):
         if len(probs) > 8:
             break
     return probs, min(len(a), len(b)), worst
+
+
+def compare_merged(mine, theirs, tol_mm):
+    """For programs of micro-segments (below the 4 decimals rs274 prints, consecutive points print the
+    same) or whose points rs274 merged: every rs274 motion end must be a pmctl motion end, in order, and
+    the pmctl points between two of them must lie within ``tol_mm`` of rs274's segment. Returns
+    (problems, rs274 motions matched, pmctl points between matched ones)."""
+    import numpy as np
+    a = [m for m in mine if m.kind != "dwell"]
+    b = [m for m in theirs if m.kind != "dwell"]
+    j, prev, merged = 0, None, 0
+    for k, y in enumerate(b):
+        start = j
+        t = 2e-4 * y.unit
+        while j < len(a) and max(abs(p - q) for p, q in zip(a[j].end[:3], y.end[:3])) > t:
+            j += 1
+        if j == len(a):
+            return [f"rs274 motion {k} {fmt(y.end)} is not a pmctl motion end"], k, merged
+        if prev is not None and y.kind == "line":
+            p0, p1 = np.array(prev[:3]), np.array(y.end[:3])
+            d = p1 - p0
+            n = float(np.linalg.norm(d)) or 1.0
+            for m in a[start:j]:
+                q = np.array(m.end[:3]) - p0
+                dev = float(np.linalg.norm(q - d * (q @ d) / (n * n)))
+                if dev > tol_mm + t:
+                    return [f"pmctl point {fmt(m.end)} is {dev:.4f} mm off rs274's merged segment"], k, merged
+        merged += j - start
+        prev = y.end
+        j += 1
+    return [], len(b), merged
 
 
 def fmt(v):

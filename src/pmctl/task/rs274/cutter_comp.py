@@ -196,6 +196,9 @@ class CutterComp:
         pe = ex.to_prog(st, end_w)
         px, py, pz, pa, pb = pe
         feed, duration = (0.0, 0.0) if motion == 0 else ex.feed_for(st, blk, "G1")
+        if duration:                  # G93: the programmed move's speed, for a corner arc added to it too
+            p0 = st.comp_prog if st.comp_prog is not None else ex.to_prog(st, st.pos)[:3]
+            feed = math.dist(p0[:3], (px, py, pz)) / duration
         kind = "rapid" if motion == 0 else "line"
         side, radius = st.comp, st.comp_radius
         if st.comp_first:
@@ -396,6 +399,9 @@ class CutterComp:
         cx, cy, cz = st.comp_cur
         centerx, centery = c2
         arc_radius = math.hypot(centerx - end_x, centery - end_y)
+        if duration:                  # G93: the programmed arc's speed, for a corner arc added to it too
+            feed = A.helix_length(arc_radius, arc_radius, A.sweep((opx, opy), c2, (end_x, end_y), turn),
+                                  end_z - opz) / duration
         theta = math.atan2(cy - opy, cx - opx)
         theta = theta - PI / 2 if side == LEFT else theta + PI / 2
         delta = math.atan2(centery - opy, centerx - opx)

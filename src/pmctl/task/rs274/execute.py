@@ -1031,7 +1031,7 @@ class Executor:
             f = blk.v["f"]
             if not f > 0:
                 raise Refusal("syntax", f"{what} in inverse time (G93): F{fmt(f)} must be > 0", blk.col["f"])
-            return None, 60.0 / f
+            return 0.0, 60.0 / f                  # the feed: the move's length over this duration
         if st.feed_mode == 950:
             if not st.feed > 0:
                 raise Refusal("syntax", f"{what} with no F: set a feed per revolution (G95 F, > 0) on this line or "
