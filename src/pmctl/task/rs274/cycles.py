@@ -177,6 +177,11 @@ def run_cycle(ex, st, blk, motion, explicit, axis_words):
     def cut(a, b, c):
         ex.move(st, LINE, point(a, b, c), feed=feed)
 
+    def down(a, b):                              # feed to the bottom and wait there
+        cut(a, b, cc)
+        if dwell > 0:
+            ex.dwell(st, dwell)
+
     if old_cc < r:
         rapid(p[fi], p[si], r)
         old_cc = r
@@ -203,9 +208,7 @@ def run_cycle(ex, st, blk, motion, explicit, axis_words):
             cut(aa, bb, cc)
             rapid(aa, bb, clear)
         elif motion == 820:
-            cut(aa, bb, cc)
-            if dwell > 0:
-                ex.dwell(st, dwell)
+            down(aa, bb)
             rapid(aa, bb, clear)
         elif motion in (730, 830):
             depth = r - delta
@@ -219,52 +222,40 @@ def run_cycle(ex, st, blk, motion, explicit, axis_words):
             rapid(aa, bb, clear)
         elif motion in (740, 840):
             cut(aa, bb, cc)
-            ex.event("spindle", -rpm)
-            ex.flush_events(st)
+            ex.spindle_now(st, -rpm)
             if dwell > 0:
                 ex.dwell(st, dwell)
             cut(aa, bb, clear)
-            ex.event("spindle", rpm)
-            ex.flush_events(st)
+            ex.spindle_now(st, rpm)
         elif motion == 850:
             cut(aa, bb, cc)
             cut(aa, bb, r)
             rapid(aa, bb, clear)
         elif motion == 860:
-            cut(aa, bb, cc)
-            if dwell > 0:
-                ex.dwell(st, dwell)
+            down(aa, bb)
             saved = st.spindle
-            ex.event("spindle", 0.0)
-            ex.flush_events(st)
+            ex.spindle_now(st, 0.0)
             st.spindle = 0
             rapid(aa, bb, clear)
             st.spindle = saved
-            ex.event("spindle", rpm)
-            ex.flush_events(st)
+            ex.spindle_now(st, rpm)
         elif motion == 890:
-            cut(aa, bb, cc)
-            if dwell > 0:
-                ex.dwell(st, dwell)
+            down(aa, bb)
             cut(aa, bb, clear)
         elif motion == 870:
             ox, oy = aa + bi, bb + bj
             rapid(ox, oy, r)
-            ex.event("spindle", 0.0)
-            ex.flush_events(st)
+            ex.spindle_now(st, 0.0)
             rapid(ox, oy, cc)
             rapid(aa, bb, cc)
-            ex.event("spindle", rpm)
-            ex.flush_events(st)
+            ex.spindle_now(st, rpm)
             cut(aa, bb, bk)
             cut(aa, bb, cc)
-            ex.event("spindle", 0.0)
-            ex.flush_events(st)
+            ex.spindle_now(st, 0.0)
             rapid(ox, oy, cc)
             rapid(ox, oy, clear)
             rapid(aa, bb, clear)
-            ex.event("spindle", rpm)
-            ex.flush_events(st)
+            ex.spindle_now(st, rpm)
     mem.update(r=r_word, z=z_word)
     if motion in NEEDS_P or motion in (740, 840):
         mem["p"] = dwell

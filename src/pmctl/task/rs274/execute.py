@@ -64,6 +64,14 @@ def fmt(v: float) -> str:
     return f"{v:.6f}".rstrip("0").rstrip(".") if math.isfinite(v) else str(v)
 
 
+def whole(value, word, column, what):
+    """A word that must be a non-negative integer (a tool number, a line number): its int, or a Refusal
+    saying what the word is."""
+    if value != int(value) or value < 0:
+        raise Refusal("syntax", f"{word}{fmt(value)}: {what} (a non-negative integer)", column)
+    return int(value)
+
+
 class Block:
     """The evaluated words of a line: ``v`` letter -> value (program units), ``col`` letter ->
     column, ``g``/``m``: [(code, column)], ``comments``: [(text, column)]."""
@@ -192,6 +200,11 @@ class Executor:
             self.events[-1] = (name, value)         # S then M4 on one line: one change, to the end state
         else:
             self.events.append((name, value))
+
+    def spindle_now(self, st, rpm):
+        """A spindle change where the path is now (canned cycles): its own EVENT move."""
+        self.event("spindle", rpm)
+        self.flush_events(st)
 
     def flush_events(self, st):
         if self.events:
@@ -402,9 +415,7 @@ class Executor:
         if "$" in v:                                          # pragma: no cover - the lexer has no '$'
             raise Refusal("unsupported", "spindle selection ($) is not supported", col["$"])
         if "n" in v:
-            n = v["n"]
-            if n != int(n) or n < 0:
-                raise Refusal("syntax", f"line number N{fmt(n)} must be a non-negative integer", col["n"])
+            whole(v["n"], "N", col["n"], "the line number must be a whole number")
         g0 = groups.get(0, (None, None))[0]
         gm = groups.get(1, (None, None))[0]
         axis_words = [k for k in "xyzab@^" if k in v]
@@ -450,10 +461,7 @@ class Executor:
                     self.event("spindle", self.rpm(st))
         # 5. T
         if "t" in v:
-            t = v["t"]
-            if t != int(t) or t < 0:
-                raise Refusal("syntax", f"tool number T{fmt(t)} must be a non-negative integer", col["t"])
-            st.selected = int(t)
+            st.selected = whole(v["t"], "T", col["t"], "T is a tool number")
         # 6. outputs M62-M68
         io = mcode(5)
         if io is not None:
@@ -473,10 +481,7 @@ class Executor:
         elif tc == 61:
             if "q" not in v:
                 raise Refusal("syntax", "M61 needs Q<tool number> (the tool now in the spindle)", mg[6][1])
-            q = v["q"]
-            if q != int(q) or q < 0:
-                raise Refusal("syntax", f"M61 Q{fmt(q)}: the tool number must be a non-negative integer", col["q"])
-            st.tool = int(q)
+            st.tool = whole(v["q"], "M61 Q", col["q"], "Q is the tool number")
         # 8. spindle
         sp = mcode(7)
         if sp is not None:
@@ -672,21 +677,17 @@ class Executor:
         if code in (62, 63, 64, 65):
             if "p" not in v:
                 raise Refusal("syntax", f"M{code} needs P<output number>", c)
-            p, n = v["p"], self.cfg.digital_outputs
-            if p != int(p) or not 0 <= p < n:
-                self.note("machine", f"M{code} P{fmt(p)}: this machine has digital outputs 0 .. {n - 1} "
-                                     "([interpreter] digital_outputs)", col["p"])
-                return
-            self.event("output", ("digital", int(p), 1.0 if code in (62, 64) else 0.0))
+            word, kind, count, value = "p", "digital", self.cfg.digital_outputs, 1.0 if code in (62, 64) else 0.0
         else:
             if "e" not in v or "q" not in v:
                 raise Refusal("syntax", f"M{code} needs E<output number> and Q<value>", c)
-            e, n = v["e"], self.cfg.analog_outputs
-            if e != int(e) or not 0 <= e < n:
-                self.note("machine", f"M{code} E{fmt(e)}: this machine has analog outputs 0 .. {n - 1} "
-                                     "([interpreter] analog_outputs)", col["e"])
-                return
-            self.event("output", ("analog", int(e), float(v["q"])))
+            word, kind, count, value = "e", "analog", self.cfg.analog_outputs, float(v["q"])
+        k = v[word]
+        if k != int(k) or not 0 <= k < count:
+            self.note("machine", f"M{code} {word.upper()}{fmt(k)}: this machine has {kind} outputs 0 .. {count - 1} "
+                                 f"([interpreter] {kind}_outputs)", col[word])
+            return
+        self.event("output", (kind, int(k), value))
 
     # ------------------------------------------------------------------ G4
     def dwell(self, st, seconds):
@@ -713,25 +714,12 @@ class Executor:
                 raise Refusal("syntax", f"{gname(code)} needs D (the tool diameter)", c)
             radius, n = v["d"] * st.units / 2.0, None
         elif "d" in v:
-            d = v["d"]
-            if d != int(d) or d < 0:
-                raise Refusal("syntax", f"{gname(code)} D{fmt(d)}: D is a tool number (a non-negative integer)",
-                              col["d"])
-            n = int(d)
+            n = whole(v["d"], f"{gname(code)} D", col["d"], "D is a tool number")
         else:
             n = st.tool
-        if n is None:
-            pass
-        elif n == 0:
-            radius = 0.0
-        else:
-            tool = self.cfg.tools.get(n)
-            if tool is None:
-                self.note("machine", f"{gname(code)} D{n}: tool {n} is not in the tool table "
-                                     f"{self.cfg.tools.source}; add it with its diameter", col.get("d", c))
-                radius = 0.0
-            else:
-                radius = tool.diameter / 2.0
+        if n is not None:
+            tool = self.table_tool(n, f"{gname(code)} D", col.get("d", c), "add it with its diameter")
+            radius = tool.diameter / 2.0 if tool is not None else 0.0
         side = 1 if code in (410, 411) else 2
         if radius < 0:                       # a negative diameter switches the side (LinuxCNC)
             radius, side = -radius, 3 - side
@@ -739,6 +727,17 @@ class Executor:
         st.comp_radius = radius
         st.comp_first = True
         st.cq, st.cq_end = (), None
+
+    def table_tool(self, n, word, column, advice):
+        """Tool ``n`` of the tool table (None for tool 0, no tool); not in the table: a machine problem
+        noted (the line goes on without its data)."""
+        if n == 0:
+            return None
+        tool = self.cfg.tools.get(n)
+        if tool is None:
+            self.note("machine", f"{word}{n}: tool {n} is not in the tool table {self.cfg.tools.source}; {advice}",
+                      column)
+        return tool
 
     # ------------------------------------------------------------------ G43 G43.1 G49
     def tool_length(self, st, blk, tl):
@@ -754,22 +753,11 @@ class Executor:
             new = v.get("z", 0.0) * st.units
         else:
             if "h" in v:
-                h = v["h"]
-                if h != int(h) or h < 0:
-                    raise Refusal("syntax", f"G43 H{fmt(h)}: H is a tool number (a non-negative integer)", col["h"])
-                n = int(h)
+                n = whole(v["h"], "G43 H", col["h"], "H is a tool number")
             else:
                 n = st.tool
-            if n == 0:
-                new = 0.0
-            else:
-                tool = self.cfg.tools.get(n)
-                if tool is None:
-                    self.note("machine", f"G43 H{n}: tool {n} is not in the tool table {self.cfg.tools.source}; "
-                                         "add it, or use G43.1", col.get("h", c))
-                    new = 0.0
-                else:
-                    new = tool.length
+            tool = self.table_tool(n, "G43 H", col.get("h", c), "add it, or use G43.1")
+            new = tool.length if tool is not None else 0.0
         st.tlo_code = code
         self.set_tlo(st, new)
 
@@ -891,8 +879,7 @@ class Executor:
                 self.select_cs(st, n)
             return None
         # tool table
-        if p != int(p) or p < 0:
-            raise Refusal("syntax", f"G10 L{int(L)} P{fmt(p)}: P is a tool number (a non-negative integer)", col["p"])
+        p = whole(p, f"G10 L{int(L)} P", col["p"], "P is a tool number")
         from pmctl.task.rs274.tools import Tool
         tools = self.cfg.tools
         old = tools.get(int(p)) or Tool(int(p))

@@ -125,19 +125,13 @@ class Source:
                 top = stack[-1] if stack else None
                 if top is not None and top[0] == "do" and top[1] == label:
                     stack.pop()
-                    self.jump[top[2]] = i             # do -> its closing while
-                    self.jump[i] = ("dowhile", top[2])
-                    self.loops.append((top[2], i))
-                    self._close_loop(top, i)
+                    self._close_loop(top, i, top[2], ("dowhile", top[2]))   # do -> its closing while
                 else:
                     stack.append(("while", label, i, []))
             elif kw == "endwhile":
                 top = self._pop(stack, "while", label, i, col, "endwhile")
                 if top is not None:
-                    self.jump[top[2]] = ("while", i)
-                    self.jump[i] = ("endwhile", top[2])
-                    self.loops.append((top[2], i))
-                    self._close_loop(top, i)
+                    self._close_loop(top, i, ("while", i), ("endwhile", top[2]))
             elif kw == "do":
                 stack.append(("do", label, i, []))
             elif kw == "repeat":
@@ -145,10 +139,7 @@ class Source:
             elif kw == "endrepeat":
                 top = self._pop(stack, "repeat", label, i, col, "endrepeat")
                 if top is not None:
-                    self.jump[top[2]] = ("repeat", i)
-                    self.jump[i] = ("endrepeat", top[2])
-                    self.loops.append((top[2], i))
-                    self._close_loop(top, i)
+                    self._close_loop(top, i, ("repeat", i), ("endrepeat", top[2]))
             elif kw in ("break", "continue"):
                 loop = next((s for s in reversed(stack) if s[0] in ("while", "do", "repeat") and s[1] == label), None)
                 if loop is None:
@@ -189,8 +180,13 @@ class Source:
                 self._err(f"o{s[1]} {s[0]} is not closed before o{label} {kw}", s[2])
         return stack.pop()
 
-    def _close_loop(self, top, end):
-        for j in top[3]:                          # break / continue of this loop
+    def _close_loop(self, top, end, at_start, at_end):
+        """A loop from ``top`` (its opening line) to ``end``: the jumps of both ends, and of its break
+        and continue lines."""
+        self.jump[top[2]] = at_start
+        self.jump[end] = at_end
+        self.loops.append((top[2], end))
+        for j in top[3]:
             self.jump[j] = (top[0], top[2], end)
 
 
