@@ -175,6 +175,17 @@ def test_splines_are_flattened_within_a_micrometre_and_a_g5_series_stays_smooth(
 
 # ---------------------------------------------------------------- problems and limits
 
+def test_m73_restores_the_callers_modes_and_events_on_m99_and_m72_needs_a_saved_state():
+    job = ok("G21 G90 F600 S1000 M3\nM98 P1000\nG1 X2\nM2\nO1000\nM73\nG20 G91\nF5 S200\nG1 X1\nM9 M5\nM99")
+    lines = [m for m in job.moves if m.kind == LINE]
+    assert lines[0].tip[0] == pytest.approx(25.4) and lines[0].feed == pytest.approx(127.0 / 60)
+    # back in the caller: mm, absolute, F600 and the spindle at 1000 rpm again (an event says so)
+    assert lines[1].tip[0] == pytest.approx(2.0) and lines[1].feed == pytest.approx(10.0)
+    assert lines[1].spindle_rpm == 1000.0 and ("spindle", 1000.0) in events(job)
+    _, problems = run("G21\no1 sub\nM72\no1 endsub\no1 call\nM2")
+    assert [(p.kind, p.line) for p in problems] == [("syntax", 3)] and "M70" in problems[0].message
+
+
 def test_every_problem_has_file_line_column_kind_and_says_what_to_do():
     job, problems = run("G0 X1\nG1 X2\nG43 H99\nT1 M6 G43\nG41 D44 G1 X5\nM66 P0 L0\nG0 X1 C3\nM3 S-5\n")
     got = [(p.line, p.kind) for p in problems]

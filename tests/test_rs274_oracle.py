@@ -67,7 +67,6 @@ SAMPLES_REFUSED = {
     "lathecomp.ngc": ("unsupported", "cutter compensation runs in the XY plane (G17) only"),
     "comp.ngc": ("unsupported", "cutter compensation runs in the XY plane (G17) only"),
     "lathe_g7x_quadrants.ngc": ("unsupported", "G70 is not a G-code pmctl knows"),
-    "m70m72-demo.ngc": ("unsupported", "M70 (save modal state) is not supported"),
     "smartprobe.ngc": ("unsupported", "(logopen,...): writing files from a program is not supported"),
     "gridprobe.ngc": ("unsupported", "(probeclose,...): writing files from a program is not supported"),
     "skeleton.ngc": ("machine", "G53 Z0: machine Z 0 mm is at or below the table top"),
@@ -98,6 +97,16 @@ def test_the_spline_sample_runs_and_ends_where_rs274_ends():
     assert len(spline_lines) > 50 and len(straight) < len(mine)
     diffs, n, _ = O.compare(straight, res.motions)
     assert not diffs and n > 200, diffs
+
+
+@pytest.mark.parametrize("name", ["m70m72-demo.ngc", "m73-demo.ngc", "toplevel.ngc", "retval.ngc"])
+def test_modal_state_and_return_values_print_what_rs274_prints(name):
+    # these samples say what they do in (DEBUG,) messages with parameter values: M70-M73 save and restore
+    # the modes around subroutine calls, o-word returns set #<_value>
+    text = (NCFILES / name).read_text()
+    res, job, problems = both(text)
+    assert res.ok and not problems and res.messages
+    assert [t for _, t in job.messages] == [m.strip() for m in res.messages]
 
 
 @pytest.mark.parametrize("name", sorted(SAMPLES_REFUSED))

@@ -32,14 +32,16 @@ Fields added for the full RS-274 reader (each defaults to the old meaning):
 - ``tolerance``: G64 P, the path tolerance (mm) the planner may use to blend or merge (0: exact path);
 - ``events``: for ``EVENT``, a tuple of (name, value) in program order: ``("spindle", rpm)`` (signed, 0
   = stop), ``("coolant", "mist" | "flood" | "off")``, ``("tool_change", n)`` (M6: wait for the operator),
-  ``("pause", "M0" | "M1" | "M60")``, ``("output", (name, index, value))`` (M62-M68; the sim records them),
-  ``("message", text)``, ``("user_m", (code, p, q))`` (a configured M100-M199);
+  ``("tool_offset", mm)`` (G43/G43.1/G49 changed the tool length offset at rest: the EVENT's tip is the
+  new tip, the reference tool's point has not moved), ``("pause", "M0" | "M1" | "M60")``,
+  ``("output", (name, index, value))`` (M62-M68, name "digital" or "analog"; the sim records them),
+  ``("message", text)``, ``("user_m", (code, p, q))`` (a configured M100-M199); docs/gcode.md, "Events";
 - ``file``: the source file when it is not the job's own (an external O-word subroutine); "" otherwise.
 
 ``load_job(path, machine)`` reads a file of either format by its suffix; ``read_job_text(path)`` is how
 both readers get the text (UTF-8, at most ``MAX_JOB_BYTES`` and ``MAX_JOB_LINES``; a bad byte is reported with its line and
-column). A job holds at most ``MAX_MOVES`` moves (the batch planner's bound; the readers refuse the
-line that crosses it). ``Job.messages`` holds the program's operator messages (G-code ``(MSG, ...)`` comments) as
+column). The CL reader refuses a job of more than ``MAX_MOVES`` moves (the batch planner's bound); the
+G-code reader (pmctl.task.rs274) has no move cap. ``Job.messages`` holds the program's operator messages (G-code ``(MSG, ...)`` comments) as
 (line, text) pairs, for the operator to see before the job runs.
 """
 

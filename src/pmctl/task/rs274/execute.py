@@ -28,7 +28,7 @@ from pmctl.task.rs274 import arcs as A
 from pmctl.task.rs274 import parameters as P
 from pmctl.task.rs274.expressions import EvalError
 from pmctl.task.rs274.modal import (AXIS_USERS, CYCLES, G_GROUP, G_REFUSED, M_GROUP, M_REFUSED, M_USER,
-                                    MM_PER_INCH, WCS_CODES, WCS_NAMES)
+                                    MM_PER_INCH, SAVED_MODES, WCS_CODES, WCS_NAMES)
 
 MAX_DWELL_S = 3600.0
 MAX_ARC_TURNS = 1000
@@ -118,6 +118,7 @@ class Executor:
         self.probed = False           # a G38 ran: the probe result parameters are unknown ahead of the run
         self.comp = None              # cutter compensation engine (pmctl.task.rs274.cutter_comp), set by the caller
         self.notes = []               # problems of the block that do not stop it: (kind, message, column)
+        self.saved = {}               # call level -> (modes saved by M70/M73, restore on return)
         self._install_dynamic()
         self.select_cs(self.st, self.st.cs)
 
@@ -501,6 +502,10 @@ class Executor:
             elif cc == 9 and (st.mist or st.flood):
                 st.mist = st.flood = False
                 self.event("coolant", "off")
+        # 9b. modal state: M70 save, M71 forget, M72 restore, M73 save and restore on return
+        ms = mcode(12)
+        if ms is not None:
+            self.modal_state(st, ms, mg[12][1])
         # 10. user M-codes
         um = mcode(10)
         if um is not None:
@@ -688,6 +693,45 @@ class Executor:
                                  f"([interpreter] {kind}_outputs)", col[word])
             return
         self.event("output", (kind, int(k), value))
+
+    # ------------------------------------------------------------------ M70-M73
+    def modal_state(self, st, code, c):
+        """LinuxCNC's M70/M71/M72/M73 at this call level: the units, distance modes, plane, feed mode,
+        coordinate system, retract and path modes, F, S, spindle and coolant (SAVED_MODES; not the motion
+        mode, the tool offset or cutter compensation)."""
+        level = len(self.params.frames) - 1
+        if code in (70, 73):
+            self.saved[level] = ({k: getattr(st, k) for k in SAVED_MODES}, code == 73)
+        elif code == 71:
+            self.saved.pop(level, None)
+        else:
+            if level not in self.saved:
+                raise Refusal("syntax", "M72 with no saved state here: save it first with M70", c)
+            self.restore_modes(st, self.saved[level][0])
+
+    def restore_modes(self, st, saved):
+        rpm, mist, flood = self.rpm(st), st.mist, st.flood
+        for k, v in saved.items():
+            if k != "cs":
+                setattr(st, k, v)
+        if saved["cs"] != st.cs:
+            self.select_cs(st, saved["cs"])
+        if self.rpm(st) != rpm:
+            self.event("spindle", self.rpm(st))
+        if not st.mist and not st.flood and (mist or flood):
+            self.event("coolant", "off")
+        else:
+            if st.mist and not mist:
+                self.event("coolant", "mist")
+            if st.flood and not flood:
+                self.event("coolant", "flood")
+
+    def leave_level(self, level):
+        """Returning from the subroutine at ``level``: an M73 there restores the caller's modes."""
+        saved = self.saved.pop(level, None)
+        if saved is not None and saved[1]:
+            self.restore_modes(self.st, saved[0])
+            self.flush_events(self.st)
 
     # ------------------------------------------------------------------ G4
     def dwell(self, st, seconds):

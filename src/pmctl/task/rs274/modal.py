@@ -92,6 +92,7 @@ for _grp, _codes in {
     8: (7, 8, 9),
     5: (62, 63, 64, 65, 66, 67, 68),
     11: (98, 99),
+    12: (70, 71, 72, 73),
 }.items():
     for _c in _codes:
         M_GROUP[_c] = _grp
@@ -111,10 +112,6 @@ M_REFUSED = {
     51: ("unsupported", "M51 (spindle override control) is not supported"),
     52: ("unsupported", "M52 (adaptive feed) is not supported"),
     53: ("unsupported", "M53 (feed stop control) is not supported"),
-    70: ("unsupported", "M70 (save modal state) is not supported"),
-    71: ("unsupported", "M71 (invalidate saved modal state) is not supported"),
-    72: ("unsupported", "M72 (restore modal state) is not supported"),
-    73: ("unsupported", "M73 (save and auto-restore modal state) is not supported"),
     88: ("machine", "M88 (through-spindle coolant of another controller): this machine has none; use M7 or M8"),
     89: ("machine", "M89 (through-spindle coolant off of another controller): this machine has none"),
     97: ("unsupported", "M97 (local subprogram call of another controller) is not supported: use M98 P<n> "
@@ -128,6 +125,10 @@ M_REFUSED = {
 
 AXES = "xyzab"                         # this machine's axis words
 OTHER_AXES = "cuvw"                    # axis words of other machines
+
+
+SAVED_MODES = ("units", "absolute", "ijk_absolute", "plane", "feed_mode", "cs", "retract", "path", "tolerance",
+               "naive_tolerance", "feed", "speed", "spindle", "mist", "flood")    # what M70/M73 keep
 
 
 class State:

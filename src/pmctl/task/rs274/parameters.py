@@ -150,7 +150,8 @@ class Parameters:
             self.frames.pop()
 
     def set_return(self, v):
-        if v is None:
+        if v is None:  # LinuxCNC (interp_read.cc): a bare return or endsub sets both to 0
+            self.globals["_value"] = 0.0
             self.globals["_value_returned"] = 0.0
         else:
             self.globals["_value"] = float(v)

@@ -307,6 +307,7 @@ class Interpreter:
                     i = f.counters["start"] + 1
                     continue
                 frames.pop()
+                self.ex.leave_level(len(self.params.frames) - 1)
                 self.params.pop_call(f.saved)
                 pc_src, i = f.src, f.ret
                 continue
@@ -382,6 +383,7 @@ class Interpreter:
                 p.set_return(value(ow.expr, p))
             else:
                 p.set_return(None)
+            self.ex.leave_level(len(p.frames) - 1)
             p.pop_call(f.saved)
             return f.src, f.ret
         if kw == "call":
