@@ -19,6 +19,7 @@ from pmctl.core.errors import ConfigError
 from pmctl.motion.service_config import InterpreterConfig, service_from_dict
 from pmctl.task.interp import LineError, LineInterpreter
 from pmctl.task.job import ARC, DWELL, EVENT, LINE, RAPID
+from pmctl.task.journal import Journal
 from pmctl.task.rs274 import interpret, make_config, start_position
 from pmctl.task.rs274 import program as PR
 from pmctl.task.rs274.tools import Tool, ToolTable, load_tool_table, parse_tool_table
@@ -328,7 +329,7 @@ def test_console_errors_carry_grbl_codes_and_change_nothing(console, line, code)
     assert (console.parser_state(), console.offsets(), console.position_w()) == before
 
 
-def test_console_offsets_persist_in_the_journal_format_and_old_journals_load():
+def test_console_offsets_persist_in_the_journal_format_and_old_journals_load(tmp_path):
     m = load_machine()
     old = {"wcs": {"G54": [1, 2, 3, 0, 0], "G55": [0, 0, 0, 0, 0], "G56": [0, 0, 0, 0, 0], "G57": [0, 0, 0, 0, 0],
                    "G58": [0, 0, 0, 0, 0], "G59": [4, 5, 6, 0, 0]}, "g92": [0.5, 0, 0, 0, 0], "active": "G59"}
@@ -340,6 +341,14 @@ def test_console_offsets_persist_in_the_journal_format_and_old_journals_load():
     assert saved["wcs"]["G54"][0] == pytest.approx(0.0 - 0.5) and saved["active"] == "G59"
     again = LineInterpreter(m, (0, 0, 150), (0, 0, 1), saved)
     assert again.offsets() == saved
+    # the new systems, rotations and G28/G30 positions go through the daemon's journal file and back
+    again.execute("G10 L2 P9 X3 R15", 2)
+    again.execute("G59.3 G28.1", 3)
+    j = Journal(tmp_path / "state.json.journal", m.name)
+    j.save(offsets=again.offsets())
+    loaded = Journal(tmp_path / "state.json.journal", m.name).load().data["offsets"]
+    assert loaded["active"] == "G59.3" and loaded["rotation"] == {"G59.3": 15.0} and loaded["g28"][2] == 150.0
+    assert LineInterpreter(m, (0, 0, 150), (0, 0, 1), loaded).offsets() == again.offsets()
 
 
 def test_console_state_snapshot_restores_everything(console):
