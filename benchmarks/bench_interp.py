@@ -4,7 +4,7 @@
 
 Three generated programs (deterministic, seed 0) of about --mb megabytes each, the kinds CAM writes:
 ``3d``    G1 X Y Z lines of a 3D raster (short segments, every line a move, G21);
-``arcs``  G2/G3 with I J and F, modal words, comments every 20 lines (a 2D profile);
+``arcs``  G2/G3 with I J and F between G1 lines, comments every 20 lines (a 2D profile of a Fanuc-style post);
 ``macro`` a subroutine called in a while loop with parameters and expressions (few lines, many blocks).
 ``--file`` adds programs of your own (a corpus file, say). For each: the median and p99 of the wall time
 of ``pmctl.task.rs274.interpret`` over --runs runs, lines (and executed blocks) per second at the median,
@@ -13,6 +13,7 @@ with the figures (the machine may be shared). Not a test: nothing here asserts a
 """
 
 import argparse
+import math
 import os
 import random
 import statistics
@@ -39,12 +40,20 @@ def program_3d(mb, rng):
 def program_arcs(mb, rng):
     out = ["%", "O1001 (profile)", "G21 G90 G17 G94 G40 G49 G80", "T1 M6", "G43 H1", "S8000 M3 M8", "G0 X10 Y0 Z5",
            "G1 Z-1 F300"]
-    size, k = 0, 0
+    size, k, x, y = 0, 0, 10.0, 0.0
     while size < mb * 1e6:
         k += 1
-        r = rng.uniform(2, 20)
-        line = f"G{2 + k % 2} X{r:.3f} Y0 I{-r / 2:.3f} J0 F{rng.choice([600, 800, 1000])}" if k % 3 else \
-            f"G1 X{r:.3f} Y{rng.uniform(-1, 1):.3f}"
+        if k % 3:                                  # an arc from where the tool is, its centre towards the origin
+            r = rng.uniform(2, 20)
+            t = math.atan2(-y, -x) + rng.uniform(-1, 1)
+            cx, cy = x + r * math.cos(t), y + r * math.sin(t)
+            a = math.atan2(y - cy, x - cx) + rng.uniform(0.2, 3.0) * (1 if k % 2 else -1)
+            i, j = cx - x, cy - y
+            x, y = round(cx + r * math.cos(a), 4), round(cy + r * math.sin(a), 4)
+            line = f"G{3 if k % 2 else 2} X{x:.4f} Y{y:.4f} I{i:.4f} J{j:.4f} F{rng.choice([600, 800, 1000])}"
+        else:
+            x, y = round(rng.uniform(-20, 20), 4), round(rng.uniform(-20, 20), 4)
+            line = f"G1 X{x:.4f} Y{y:.4f}"
         if k % 20 == 0:
             line += " (pass %d)" % k
         out.append(line)
