@@ -211,6 +211,17 @@ G1 X20 Y20 Z-2
 G1 X0 Y20
 G1 X0 Y0
 G40 G1 X-10 Y-10
+G41 D1 G1 X0 Y-10
+G1 X20
+G0 Z5
+G40
+T2 M6 G0 Z10
+G41 D1 G1 X0 Y-10
+G1 X20
+G0 Z15
+G40
+T1 M6
+G0 Z20
 M2""",
     "parameters and expressions": """G21 G90 F100
 #1 = 3

@@ -602,6 +602,8 @@ class Executor:
                 st.cycle_il = None
             self.motion(st, blk, motion, g53, bool(gm is not None), axis_words)
             st.comp_base = None
+        elif tc in (6, 61):
+            st.comp_base = None   # LinuxCNC re-reads the position after a tool change: where the tool is after G40
         # 22. stops
         stop = mcode(4)
         flow = mcode(11)
