@@ -66,7 +66,7 @@ SAMPLES_REFUSED = {
     "g76.ngc": ("unsupported", "cutter compensation runs in the XY plane (G17) only"),
     "lathecomp.ngc": ("unsupported", "cutter compensation runs in the XY plane (G17) only"),
     "comp.ngc": ("unsupported", "cutter compensation runs in the XY plane (G17) only"),
-    "lathe_g7x_quadrants.ngc": ("unsupported", "G70 is not a G-code pmctl knows"),
+    "lathe_g7x_quadrants.ngc": ("machine", "G70 (a lathe finishing cycle): this machine is a mill"),
     "smartprobe.ngc": ("unsupported", "(logopen,...): writing files from a program is not supported"),
     "gridprobe.ngc": ("unsupported", "(probeclose,...): writing files from a program is not supported"),
     "skeleton.ngc": ("machine", "G53 Z0: machine Z 0 mm is at or below the table top"),

@@ -80,6 +80,13 @@ G_REFUSED = {
                          "P<n> R<degrees> for a rotated coordinate system"),
     682: ("machine", "G68.2 (tilted working plane) belongs to another machine's kinematics: post the program "
                      "for this machine, whose A and B tilt the tool directly"),
+    700: ("machine", "G70 (a lathe finishing cycle): this machine is a mill; have the CAM output the moves"),
+    710: ("machine", "G71 (a lathe roughing cycle): this machine is a mill; have the CAM output the moves"),
+    711: ("machine", "G71.1 (a lathe roughing cycle): this machine is a mill; have the CAM output the moves"),
+    712: ("machine", "G71.2 (a lathe roughing cycle): this machine is a mill; have the CAM output the moves"),
+    720: ("machine", "G72 (a lathe facing cycle): this machine is a mill; have the CAM output the moves"),
+    721: ("machine", "G72.1 (a lathe facing cycle): this machine is a mill; have the CAM output the moves"),
+    722: ("machine", "G72.2 (a lathe facing cycle): this machine is a mill; have the CAM output the moves"),
     760: ("machine", "G76 (threading cycle) needs a spindle encoder, which this machine lacks"),
     960: ("unsupported", "G96 (constant surface speed) is not supported on this mill: program S in rpm (G97)"),
 }
