@@ -187,6 +187,17 @@ def test_m73_restores_the_callers_modes_and_events_on_m99_and_m72_needs_a_saved_
     assert [(p.kind, p.line) for p in problems] == [("syntax", 3)] and "M70" in problems[0].message
 
 
+def test_a_fault_inside_the_interpreter_is_a_problem_of_its_line_and_the_rest_runs(monkeypatch):
+    from pmctl.task.rs274 import execute as EX
+
+    def broken(self, *a, **k):          # stands for a numeric case the interpreter's own checks missed
+        raise ZeroDivisionError("float division by zero")
+    monkeypatch.setattr(EX.Executor, "arc", broken)
+    job, problems = run("G21 G90 F300\nG1 X10\nG2 X20 Y0 I5 J0\nG1 X30\nM2")
+    assert [(p.line, p.kind) for p in problems] == [(3, "unsupported")] and "fault in pmctl" in problems[0].message
+    assert [m.tip[0] for m in job.moves if m.kind == LINE] == [10.0, 30.0]
+
+
 def test_every_problem_has_file_line_column_kind_and_says_what_to_do():
     job, problems = run("G0 X1\nG1 X2\nG43 H99\nT1 M6 G43\nG41 D44 G1 X5\nM66 P0 L0\nG0 X1 C3\nM3 S-5\n")
     got = [(p.line, p.kind) for p in problems]

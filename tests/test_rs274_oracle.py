@@ -18,7 +18,7 @@ import math
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 import rs274_oracle as O
@@ -540,6 +540,9 @@ def compensated_profiles(draw):
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(compensated_profiles())
+@example("G21 G90 G17 G94 F300\nG0 X-30 Y-30 Z5\nG1 Z-1\nG42.1 D8.0\nG1 X1.3670 Y10.4843\nG1 X2.5676 Y1.5515\n"
+         "G1 X7.5038 Y-2.7736\nG2 X0.9413 Y-2.8485 R4.0000\nG2 X-4.3738 Y-6.6985 R4.0000\nG1 X-7.0534 Y-0.4226\n"
+         "G2 X-5.4000 Y6.2120 R-4.0000\nG2 X1.3670 Y10.4843 R4.0000\nG40\nG0 X-30 Y-30\nM2")  # an arc of no radius
 def test_cutter_compensation_agrees_with_rs274_moves_and_refusals(text):
     res, job, problems = both(text)
     assert res.ok == (not problems), (res.error, [str(p) for p in problems], text)

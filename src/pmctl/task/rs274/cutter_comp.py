@@ -274,6 +274,8 @@ class CutterComp:
                 my = cy + retreat * math.sin(theta + gamma)
             else:
                 oldrad = math.hypot(front.cy - front.y, front.cx - front.x)
+                if oldrad < 1e-9:     # a compensated arc of no radius (left after an earlier problem)
+                    raise CompFit("cutter compensation: the tool radius is not less than the arc radius", None)
                 base = math.atan2(py - opy, px - opx)
                 th = base + PI / 2 if front.turn > 0 else base - PI / 2
                 phi = math.atan2(front.cy - opy, front.cx - opx)

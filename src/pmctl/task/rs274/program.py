@@ -147,7 +147,11 @@ class Interpreter:
                 for ref, v in vals:
                     self.params.set(ref, v, undo)
             result = ex.run(st, blk, ln)
-        except (Refusal, EvalError) as e:
+        except (Refusal, EvalError, ArithmeticError, ValueError) as e:
+            if not isinstance(e, (Refusal, EvalError)):   # a case the interpreter's own checks missed: a bug
+                e = Refusal("unsupported", f"pmctl cannot interpret this block ({type(e).__name__}: {e}); this "
+                                           "is a fault in pmctl's interpreter: please report it with the program",
+                            None)
             self.params.restore(undo)
             del self.moves[mark:]
             del self.messages[nmsg:]
