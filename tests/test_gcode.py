@@ -364,8 +364,7 @@ def test_non_utf8_job_file_names_line_and_column(tmp_path, machine):
 
 
 def test_no_move_count_cap_and_the_tool_axis_is_shared():
-    from pmctl.task.job import MAX_MOVES
-    n = MAX_MOVES + 10                       # the old reader refused the line that crossed MAX_MOVES
+    n = 50_010                               # the old reader refused the line that crossed 50 000 moves
     text = "G0 X0 Y0 Z90\nF600\n" + "\n".join(f"G1 X{(i % 200) * 0.1:.1f}" for i in range(n))
     job = parse(text)
     assert len(job.moves) == n + 1 and job.moves[-1].line == n + 2

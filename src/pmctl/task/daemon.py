@@ -124,7 +124,7 @@ class Daemon:
             from pmctl.task.jog import make_jogger
             self.port = ConsolePort(self.console_spec)
             self.console = GrblConsole(sup, self.port.fd, self.journal, log=self.log, jogger=make_jogger(sup),
-                                       homing=self.home)
+                                       homing=self.home, present=self.port.client_present)
             self.console.start()
             self.log(f"console on {self.port.device}" + (f" (link {self.port.link})" if self.port.link else ""))
         from pmctl.task.notify import sd_notify
@@ -330,5 +330,7 @@ class Daemon:
         self.journal.save(running=False)
         if self.port is not None:
             self.port.close()
+        if self.lock is not None:
+            self.lock.release(remove=True)
         self.log(f"stopped; counters {None if counts is None else counts.tolist()}")
         return 0

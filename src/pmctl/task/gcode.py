@@ -18,7 +18,6 @@ shared while the tilt stays the same).
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -80,12 +79,7 @@ def check_job_reach(job: Job, machine, path):
     """IK of every programmed end pose, each with its tool length (the machine config's reference tool
     + the move's tool_offset); InputError at the first unreachable one (pmctl.task.job.check_reach)."""
     ends = [m for m in job.moves if m.kind != DWELL and m.kind != EVENT]
-    if not ends:
-        return
-    offsets = np.array([m.tool_offset for m in ends])
-    for off in np.unique(offsets):
-        sel = [m for m, o in zip(ends, offsets) if o == off]
-        mach = machine if off == 0.0 else dataclasses.replace(
-            machine, geometry=dataclasses.replace(machine.geometry, tool_length=machine.geometry.tool_length + off))
-        check_reach(np.array([m.tip for m in sel]), np.array([m.axis for m in sel]),
-                    np.array([m.line for m in sel]), mach, path)
+    if ends:
+        check_reach(np.array([m.tip for m in ends]), np.array([m.axis for m in ends]),
+                    np.array([m.line for m in ends]), machine, path,
+                    tool_offset=np.array([m.tool_offset for m in ends]))
