@@ -75,6 +75,19 @@ def tool_table_text(tools) -> str:
     return "\n".join(lines) + "\n"
 
 
+def invoke(args, *, cwd, timeout, **kw) -> subprocess.CompletedProcess:
+    """Run an rs274 command line (stdin closed, output captured, ``kw`` to subprocess.run) on its turn
+    of this machine's lock, again if it died of SIGBUS; raises subprocess.TimeoutExpired. Every
+    rs274 the tests start goes through here (this oracle, tests/corpus_support.py)."""
+    with open(LOCK, "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        for _ in range(SIGBUS_RETRIES):
+            p = subprocess.run(args, cwd=cwd, stdin=subprocess.DEVNULL, capture_output=True, timeout=timeout, **kw)
+            if p.returncode not in (-7, 135):        # SIGBUS: another rs274 shared its memory
+                break
+    return p
+
+
 def run(text: str, tools=(), *, timeout=60, block_delete=False) -> Result:
     """Run rs274 on a program; parse its output (see the module doc)."""
     if RS274 is None:
@@ -88,13 +101,7 @@ def run(text: str, tools=(), *, timeout=60, block_delete=False) -> Result:
         with open(tbl, "w") as f:
             f.write(tool_table_text(tools))
         args = [RS274, "-t", tbl] + (["-b"] if block_delete else []) + ["-g", prog, out]
-        with open(LOCK, "w") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
-            for _ in range(SIGBUS_RETRIES):
-                p = subprocess.run(args, cwd=d, stdin=subprocess.DEVNULL, capture_output=True, text=True,
-                                   timeout=timeout, errors="replace")
-                if p.returncode not in (-7, 135):        # SIGBUS: another rs274 shared its memory
-                    break
+        p = invoke(args, cwd=d, timeout=timeout, text=True, errors="replace")
         with open(out, errors="replace") as f:
             lines = f.read().splitlines()
     err = "\n".join(x for x in (p.stdout + "\n" + p.stderr).splitlines() if x.strip() and x.strip() != "executing")
