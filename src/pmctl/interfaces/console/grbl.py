@@ -92,6 +92,7 @@ class GrblConsole:
         self._rx_pending = 0                  # bytes of lines received and not yet answered (Bf:'s second field)
         self._line_bytes = 0
         self._pgm_end = []                    # items ending with M2/M30: [MSG:Pgm End] when they have run
+        self._last_item = None                # the last item the console queued
         self.batch_t = 0.0
         self.seq = 0
         self.spindle_ov = 100
@@ -482,6 +483,8 @@ class GrblConsole:
         if flags.get("end") or sync:
             it = self._flush(gen)     # waits (the answer with it) while the motion queue is full
             if flags.get("end") and not self.sup.check_mode:
+                if it is None and self.sup.busy():
+                    it = self._last_item      # an end line without motion: the end is where the queued motion ends
                 if it is not None:
                     self._pgm_end.append(it)
                 elif not self.sup.busy():
@@ -540,6 +543,7 @@ class GrblConsole:
         it = None
         try:                          # the batch stays visible (state Run) until the item is queued
             it = self.sup.submit(moves_job(batch, "console"), kind="gcode", name="console", lines=lines)
+            self._last_item = it
             return it
         except MotionRefused:
             return None
