@@ -281,16 +281,17 @@ def compare(mine, theirs, *, tol=2e-4, skip_zero=True):
         # zero-length moves are left out: a line with only G0/G1 (rs274 prints a move to where it is), and a
         # move that only takes up a change of the tool length offset (the controlled point, tip + offset
         # along Z, stays: rs274's G28 after G43 moves "to the current position" that the offset moved)
-        out, prev = [], (0.0, 0.0, 0.0, 0.0, 0.0)
+        out, prev, prev_unit = [], (0.0, 0.0, 0.0, 0.0, 0.0), 1.0
         for m in lst:
             if skip_zero and m.kind == "dwell" and m.dwell == 0.0:
                 continue
             cp = (m.end[0], m.end[1], m.end[2] + m.tlo, m.end[3], m.end[4])
             if skip_zero and m.kind in ("rapid", "line") and prev is not None and \
-                    max(abs(a - b) for a, b in zip(cp, prev)) <= 6e-5 * m.unit:   # within rs274's rounding
-                continue
+                    max(abs(a - b) for a, b in zip(cp, prev)) <= 6e-5 * max(m.unit, prev_unit):   # rs274's rounding
+                continue                                  # (of this point or of the last, printed in inches)
             out.append(m)
-            prev = cp if m.kind != "dwell" else prev
+            if m.kind != "dwell":
+                prev, prev_unit = cp, m.unit
         return out
     a, b = keep(mine), keep(theirs)
     probs = []
