@@ -505,11 +505,19 @@ def programs(draw):
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(programs())
 def test_generated_programs_give_rs274s_motion(text):
+    same_motion_or_both_refuse(text)
+
+
+def same_motion_or_both_refuse(text, *, want_motions=0):
+    """rs274 and pmctl both accept the program with the same motion (at least ``want_motions``), or
+    both refuse it. Returns (rs274's result, pmctl's problems)."""
     res, job, problems = both(text)
     assert res.ok == (not problems), (res.error, [str(p) for p in problems], text)
     if res.ok:
         diffs, n, worst = O.compare(O.pmctl_motions(job), res.motions)
         assert not diffs, "\n".join(diffs) + "\n" + text
+        assert n >= want_motions
+    return res, problems
 
 
 @st.composite
@@ -544,12 +552,7 @@ def compensated_profiles(draw):
          "G1 X7.5038 Y-2.7736\nG2 X0.9413 Y-2.8485 R4.0000\nG2 X-4.3738 Y-6.6985 R4.0000\nG1 X-7.0534 Y-0.4226\n"
          "G2 X-5.4000 Y6.2120 R-4.0000\nG2 X1.3670 Y10.4843 R4.0000\nG40\nG0 X-30 Y-30\nM2")  # an arc of no radius
 def test_cutter_compensation_agrees_with_rs274_moves_and_refusals(text):
-    res, job, problems = both(text)
-    assert res.ok == (not problems), (res.error, [str(p) for p in problems], text)
-    if res.ok:
-        diffs, n, worst = O.compare(O.pmctl_motions(job), res.motions)
-        assert not diffs, "\n".join(diffs) + "\n" + text
-        assert n >= 5
-    else:                                  # refused at the same line (rs274 prints the line it stopped at)
+    res, problems = same_motion_or_both_refuse(text, want_motions=5)
+    if not res.ok:                         # refused at the same line (rs274 prints the line it stopped at)
         bad_line = text.split("\n")[problems[0].line - 1]
         assert res.error.splitlines()[-1].strip() == bad_line.strip(), (res.error, str(problems[0]))
