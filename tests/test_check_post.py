@@ -86,7 +86,7 @@ def test_a_program_placed_outside_the_workspace_is_one_problem(tmp_path):
 
 @pytest.mark.parametrize("text,line,column,kind", [
     ("G0 X1 Y1 Z60\nG1 X2 Y\n", 2, 7, "syntax"),
-    ("G0 X1 Y1 Z60\nG5 X2 Y2\n", 2, 1, "unsupported"),
+    ("G0 X1 Y1 Z60\nG5.2 X2 Y2\n", 2, 1, "unsupported"),      # NURBS (G5, the cubic spline, is supported)
 ])
 def test_check_reports_the_readers_refusal_with_its_kind(tmp_path, text, line, column, kind):
     p = tmp_path / "r.ngc"
@@ -114,7 +114,7 @@ def test_check_of_a_good_job_says_what_the_run_will_do(machine):
     traj = plan(job, machine, DT)
     assert s["moves"] == len(job.moves) and s["tools"] == []
     assert s["machining_time_s"] == pytest.approx(len(traj) * DT, abs=1e-9)   # what the planner plans
-    tips = np.array([m.tip for m in job.moves])
+    tips = np.array([m.tip for m in job.moves if m.kind != EVENT])       # programmed points (S M3: an event)
     assert s["extents"]["z_mm"] == [tips[:, 2].min(), tips[:, 2].max()]
     seg_len = np.linalg.norm(np.diff(np.vstack([home_pose(machine)[0], tips]), axis=0), axis=1)
     assert s["length_mm"] >= seg_len.sum() - 1e-9           # (arcs are longer than their chords)
@@ -158,8 +158,9 @@ def test_post_per_move_gives_the_programmed_poses_back_through_fk(tmp_path, mach
     head, rows = read_csv(out)
     assert head == ["line", "L1", "L2", "L3", "X", "Y"]
     job = load_job(JOBS / "cone.ngc", machine)
-    tips = np.array([m.tip for m in job.moves])
-    assert np.array_equal(rows[:, 0], [m.line for m in job.moves])
+    moves = [m for m in job.moves if m.kind != EVENT]            # a row per programmed pose (S M3: an event)
+    tips = np.array([m.tip for m in moves])
+    assert np.array_equal(rows[:, 0], [m.line for m in moves])
     fk, ok = K.fk_batch(rows[:, 1:], machine)
     assert ok.all() and np.abs(fk.tip - tips).max() < 1e-9
 

@@ -76,7 +76,8 @@ class GrblConsole:
         self.homing = homing                  # callable() -> (ok, msg) for $H, or None
         self.jogger = jogger
         tip, axis = sup.pose()
-        self.interp = LineInterpreter(sup.machine, tip, axis, journal.data.get("offsets"))
+        self.interp = LineInterpreter(sup.machine, tip, axis, journal.data.get("offsets"),
+                                      config=getattr(getattr(sup, "svc", None), "interpreter", None))
         self.last_prb = None                  # the last probe's ProbeResult ($# reports it)
         self.settings = {10: int(journal.data.get("settings", {}).get("10", 1))}
         self.lines: queue.Queue = queue.Queue()
@@ -91,6 +92,7 @@ class GrblConsole:
         self._rx_pending = 0                  # bytes of lines received and not yet answered (Bf:'s second field)
         self._line_bytes = 0
         self._pgm_end = []                    # items ending with M2/M30: [MSG:Pgm End] when they have run
+        self._last_item = None                # the last item the console queued
         self.batch_t = 0.0
         self.seq = 0
         self.spindle_ov = 100
@@ -481,6 +483,8 @@ class GrblConsole:
         if flags.get("end") or sync:
             it = self._flush(gen)     # waits (the answer with it) while the motion queue is full
             if flags.get("end") and not self.sup.check_mode:
+                if it is None and self.sup.busy():
+                    it = self._last_item      # an end line without motion: the end is where the queued motion ends
                 if it is not None:
                     self._pgm_end.append(it)
                 elif not self.sup.busy():
@@ -539,6 +543,7 @@ class GrblConsole:
         it = None
         try:                          # the batch stays visible (state Run) until the item is queued
             it = self.sup.submit(moves_job(batch, "console"), kind="gcode", name="console", lines=lines)
+            self._last_item = it
             return it
         except MotionRefused:
             return None
@@ -599,10 +604,11 @@ class GrblConsole:
             for n in WCS_NAMES:
                 self.write(f"[{n}:" + mm3(self.interp.wcs[n]) + "]")
             z = ",".join(["0.000"] * 5)
-            self.write(f"[G28:{z}]")
-            self.write(f"[G30:{z}]")
+            offsets = self.interp.offsets()
+            self.write("[G28:" + mm3(offsets["g28"]) + "]")
+            self.write("[G30:" + mm3(offsets["g30"]) + "]")
             self.write("[G92:" + mm3(self.interp.g92) + "]")
-            self.write("[TLO:0.000]")
+            self.write(f"[TLO:{mm3([self.interp.tlo()])}]")
             self.write(self.last_prb.prb() if self.last_prb is not None else f"[PRB:{z}:0]")
         elif cmd == "$G":
             self.write(f"[GC:{self.interp.parser_state()}]")
