@@ -129,16 +129,32 @@ def test_run_refuses_a_job_with_problems_before_anything_moves(tmp_path):
     assert err.count("\n") == 1 and f"{p}:3: " in err and "(and 1 more problem: pmctl check lists them)" in err
 
 
-def test_run_refuses_a_tool_change_it_cannot_perform():
-    from pmctl.interfaces.commands.run import _refuse_tool_changes
+def test_run_on_a_real_machine_refuses_a_tool_change_or_a_pause_it_cannot_perform():
+    from pmctl.interfaces.commands.run import _refuse_operator_waits
     job = Job((Move(RAPID, np.array([0.0, 0.0, 60.0]), UP, line=1),
                Move(EVENT, np.zeros(3), UP, line=2, events=(("spindle", 0.0), ("tool_change", 3))),
-               Move(LINE, np.array([5.0, 0.0, 60.0]), UP, line=3, feed=10.0)), "t.ngc")
-    _refuse_tool_changes(job, 3)                            # tool 3 is loaded: nothing to do
+               Move(LINE, np.array([5.0, 0.0, 60.0]), UP, line=3, feed=10.0),
+               Move(EVENT, np.zeros(3), UP, line=4, events=(("pause", "M1"),))), "t.ngc")
+    _refuse_operator_waits(job, 3)                          # tool 3 is loaded, M1 not taken: nothing to do
     for tool in (None, 2):
         with pytest.raises(InputError) as e:
-            _refuse_tool_changes(job, tool)
+            _refuse_operator_waits(job, tool)
         assert e.value.line == 2 and "T3" in e.value.reason and "--tool 3" in e.value.reason
+    m0 = Job(job.moves[:1] + (Move(EVENT, np.zeros(3), UP, line=5, events=(("pause", "M0"),)),), "t.ngc")
+    with pytest.raises(InputError) as e:
+        _refuse_operator_waits(m0, None)
+    assert e.value.line == 5 and "M0" in e.value.reason and "pmctl serve" in e.value.reason
+
+
+def test_run_on_the_sim_changes_tools_and_goes_on_after_m0_to_done(tmp_path):
+    """The simulation's stand-in operator: a CAM-style program with T2 M6, G43 H2 and M0 (which a real
+    machine's pmctl run refuses) runs to done on the sim, each wait answered and said."""
+    p = tmp_path / "tc.ngc"
+    p.write_text("G21 G90 G17\nT2 M6\nG43 H2\nG0 X5 Y0 Z60\nM0\nG1 X10 F600\nG49\nM30\n")
+    code, out, err = cli("run", "--job", str(p), "--backend", "sim", "--no-realtime", "--state", "", "--quiet")
+    assert code == 0, err
+    assert "tool change: load tool 2: done by the simulation's operator" in out + err
+    assert "program paused (M0): done by the simulation's operator" in out + err
 
 
 # ---------------------------------------------------------------- pmctl post
