@@ -46,7 +46,7 @@ from pmctl.hal.base import Feedback
 from pmctl.motion.loop import ControlLoop, prepare, tracking_stats
 from pmctl.motion.nc import counts_of, initial_state, make_nc
 from pmctl.motion.service_config import load_service_config
-from pmctl.task.trajectory import Trajectory
+from pmctl.motion.trajectory import Trajectory
 
 
 def circle(dt, seconds, radius=20.0, feed=10.0, tilt_deg=8.0, z=10.0, ramp=2.0):

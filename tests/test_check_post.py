@@ -19,7 +19,7 @@ from pmctl.interfaces.cli import main
 from pmctl.task import post
 from pmctl.task.job import EVENT, LINE, RAPID, Job, Move, load_job
 from pmctl.task.planner import home_pose, plan, plan_stream
-from pmctl.task.trajectory import Trajectory
+from pmctl.motion.trajectory import Trajectory
 
 JOBS = Path(__file__).resolve().parents[1] / "examples" / "jobs"
 DT = 1e-3

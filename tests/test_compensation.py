@@ -23,7 +23,7 @@ from pmctl.hal.sim import SimBackend, SimOptions
 from pmctl.motion.loop import ControlLoop, prepare, tracking_stats
 from pmctl.motion.nc import NCParams, counts_of, initial_state
 from pmctl.motion.service_config import LoopConfig
-from pmctl.task.trajectory import Trajectory
+from pmctl.motion.trajectory import Trajectory
 from pmctl.tools.twin import effects as fx
 from pmctl.tools.twin.effects import play_error
 from pmctl.tools.twin.fix import compensation_from_findings, write_compensation

@@ -22,7 +22,7 @@ from pmctl.motion.loop import ControlLoop, prepare, tracking_stats
 from pmctl.motion.service_config import LoopConfig, NCConfig, load_service_config, service_from_dict
 from pmctl.motion.nc import NCParams, counts_of, initial_state
 from pmctl.motion.state_store import load_counters, save_counters
-from pmctl.task.trajectory import Trajectory
+from pmctl.motion.trajectory import Trajectory
 
 M = load_machine()
 

@@ -22,7 +22,7 @@ from pmctl.interfaces.cli import main
 from pmctl.task.gcode import parse_gcode
 from pmctl.task.job import LINE, Job, Move
 from pmctl.task.planner import PlannerLimits, PlanningError, home_pose, plan, plan_stream, validate
-from pmctl.task.trajectory import Trajectory
+from pmctl.motion.trajectory import Trajectory
 
 ROOT = Path(__file__).resolve().parents[1]
 DT = 1e-3

@@ -11,7 +11,7 @@ from pmctl.core.config import load_machine
 from pmctl.task.gcode import parse_gcode
 from pmctl.task.job import DWELL, EVENT, Job, Move
 from pmctl.task.planner import home_pose, plan, plan_stream
-from pmctl.task.trajectory import Trajectory
+from pmctl.motion.trajectory import Trajectory
 
 DT = 1e-3
 UP = np.array([0.0, 0.0, 1.0])

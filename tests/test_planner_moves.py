@@ -14,7 +14,7 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.task.job import ARC, LINE, RAPID, Job, Move, controlled_point
 from pmctl.task.planner import PlannerLimits, plan, plan_stream
-from pmctl.task.trajectory import Trajectory
+from pmctl.motion.trajectory import Trajectory
 
 DT = 1e-3
 UP = np.array([0.0, 0.0, 1.0])

@@ -128,7 +128,7 @@ def test_a_job_longer_than_the_batch_planner_holds_is_streamed(tmp_path, monkeyp
     import pmctl.task.planner as P
     from pmctl.interfaces.cli import main
     from pmctl.motion import channel as C
-    from pmctl.task.trajectory import Trajectory
+    from pmctl.motion.trajectory import Trajectory
 
     def refuse(*a, **k):
         raise AssertionError("the job was planned whole")

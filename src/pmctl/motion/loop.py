@@ -43,7 +43,7 @@ from pmctl.motion.nc import HALTED, RUN, NCParams, NCState, make_nc
 from pmctl.motion.timescale import HOLDING
 from pmctl.motion.service_config import LoopConfig
 from pmctl.motion.state_store import CounterWriter
-from pmctl.task.trajectory import Trajectory
+from pmctl.motion.trajectory import Trajectory
 
 # ---------------------------------------------------------------- real-time setup
 

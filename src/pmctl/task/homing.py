@@ -63,7 +63,7 @@ def joint_trajectory(q0, axis: int, dist: float, speed: float, accel: float, mac
     """The Trajectory (poses = FK of q0 + e_axis s(t)) of a single-joint move; PmctlError if any pose
     of it has no forward kinematics."""
     from pmctl.core import kinematics as K
-    from pmctl.task.trajectory import Trajectory
+    from pmctl.motion.trajectory import Trajectory
     s = joint_profile(dist, speed, accel, dt)
     q = np.repeat(np.asarray(q0, float)[None], len(s), 0)
     q[:, axis] += s

@@ -1,4 +1,4 @@
-"""Path planner: a job (pmctl.task.job) -> a Trajectory (pmctl.task.trajectory) sampled at the tick period.
+"""Path planner: a job (pmctl.task.job) -> a Trajectory (pmctl.motion.trajectory) sampled at the tick period.
 
 Public API (stable)::
 
@@ -112,7 +112,7 @@ from scipy.interpolate import PchipInterpolator
 from pmctl.core import kinematics as K
 from pmctl.core.errors import InputError, PmctlError, Problem
 from pmctl.task.job import ARC, DWELL, EVENT, LINE, RAPID, Job, controlled_point, home_pose, load_job  # noqa: F401
-from pmctl.task.trajectory import Trajectory
+from pmctl.motion.trajectory import Trajectory
 
 __all__ = ["PlannerLimits", "plan", "plan_stream", "validate", "home_pose", "load_job", "PlanningError"]
 
