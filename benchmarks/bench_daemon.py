@@ -35,7 +35,7 @@ from pmctl.motion.nc import counts_of, initial_state  # noqa: E402
 from pmctl.motion.recorder import R_LATE_NS, R_PREV_COMPUTE_NS  # noqa: E402
 from pmctl.motion.service_config import load_service_config  # noqa: E402
 from pmctl.task.gcode import parse_gcode  # noqa: E402
-from pmctl.task.job import home_pose  # noqa: E402
+from pmctl.core.job import home_pose  # noqa: E402
 from pmctl.task.planner import plan  # noqa: E402
 
 

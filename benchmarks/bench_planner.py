@@ -104,7 +104,7 @@ def stream_bench(hours, dt, rows):
     if rows:
         from pmctl.motion.service_config import load_service_config
         from pmctl.motion.timescale import iter_stream_rows
-        from pmctl.task.job import RAPID
+        from pmctl.core.job import RAPID
         params = load_service_config(None).nc.params(machine, dt)
 
         def counted():

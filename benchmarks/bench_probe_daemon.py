@@ -25,7 +25,7 @@ from pmctl.core import kinematics as K  # noqa: E402
 from pmctl.motion.nc import counts_of  # noqa: E402
 from pmctl.motion.probe import ProbeConfig  # noqa: E402
 from pmctl.task.gcode import parse_gcode  # noqa: E402
-from pmctl.task.job import home_pose  # noqa: E402
+from pmctl.core.job import home_pose  # noqa: E402
 from pmctl.task.supervisor import Supervisor  # noqa: E402
 
 

@@ -27,7 +27,7 @@ from pmctl.core.recording import read_recording
 from pmctl.motion.service_config import load_service_config
 from pmctl.task.cldata import MAX_COORD_MM, parse_cl
 from pmctl.task.gcode import MAX_DWELL_S, parse_gcode
-from pmctl.task.job import ARC, DWELL, EVENT, LINE, RAPID, read_job_text
+from pmctl.core.job import ARC, DWELL, EVENT, LINE, RAPID, read_job_text
 
 ROOT = Path(__file__).resolve().parents[1]
 JOBS = ROOT / "examples" / "jobs"

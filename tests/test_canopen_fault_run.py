@@ -28,7 +28,7 @@ from pmctl.core.config import load_machine
 from pmctl.hal import cia402 as C
 from pmctl.hal.devsim import DeviceSimulator
 from pmctl.motion.state_store import load_counters
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 
 ROOT = Path(__file__).resolve().parents[1]
 JOB = ROOT / "examples" / "jobs" / "cone.ngc"

@@ -17,7 +17,8 @@ from pmctl.core.config import load_machine
 from pmctl.core.errors import InputError
 from pmctl.interfaces.cli import main
 from pmctl.task import post
-from pmctl.task.job import EVENT, LINE, RAPID, Job, Move, load_job
+from pmctl.task.job import load_job
+from pmctl.core.job import EVENT, Job, LINE, Move, RAPID
 from pmctl.task.planner import home_pose, plan, plan_stream
 from pmctl.motion.trajectory import Trajectory
 

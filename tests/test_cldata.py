@@ -12,7 +12,8 @@ from pmctl.core import kinematics as K
 from pmctl.task.cldata import AXIS_TOL, cl_actuators, cl_job, parse_cl, read_cl, read_cl_job
 from pmctl.core.config import load_machine
 from pmctl.core.errors import InputError
-from pmctl.task.job import LINE, RAPID, load_job
+from pmctl.task.job import load_job
+from pmctl.core.job import LINE, RAPID
 
 JOBS = Path(__file__).resolve().parents[1] / "examples" / "jobs"
 GOOD = """Px,Py,Pz,Vx,Vy,Vz,flag

@@ -17,7 +17,7 @@ import pytest
 from grbl_sender import serve_session
 from pmctl.core import kinematics as K
 from pmctl.motion.nc import counts_of
-from pmctl.task.job import EVENT, LINE, Job, Move, home_pose
+from pmctl.core.job import EVENT, Job, LINE, Move, home_pose
 from pmctl.task.supervisor import Supervisor
 
 

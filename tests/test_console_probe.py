@@ -14,7 +14,7 @@ from pmctl.core import strain_sensing as SS
 from pmctl.core.config import load_machine
 from pmctl.core.recording import read_recording
 from pmctl.motion.probe import ProbeConfig
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 from pmctl.task.planner import PlannerLimits
 
 M = load_machine("prototype")

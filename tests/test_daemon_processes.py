@@ -20,7 +20,7 @@ from pmctl.motion import channel as C
 from pmctl.motion.nc import counts_of
 from pmctl.motion.state_store import load_counters
 from pmctl.task.gcode import parse_gcode
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 from pmctl.task.supervisor import ALARM_MOTOR_FAULT, MotionRefused, Supervisor
 
 M = load_machine()

@@ -19,7 +19,7 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.core.recording import read_recording
 from pmctl.motion.state_store import load_counters
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 from pmctl.task.planner import load_job, plan
 
 M = load_machine()

@@ -19,7 +19,7 @@ from pmctl.motion.nc import NCParams
 from pmctl.motion.ring import ArraySource, Ring
 from pmctl.motion.timescale import (FLAG_END, FLAG_RAPID, S_CAP, S_FLAGS, WIDTH, CompiledFollower,
                                     PathFollower, backward_pass, make_follower, make_rows, scaling_limits)
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 
 M = load_machine()
 DT = 1e-3

@@ -14,7 +14,8 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.core.errors import InputError, JobProblems
 from pmctl.task.gcode import ARC_RADIUS_TOL_MM, interpret, parse_gcode, read_gcode
-from pmctl.task.job import ARC, DWELL, EVENT, LINE, RAPID, load_job
+from pmctl.task.job import load_job
+from pmctl.core.job import ARC, DWELL, EVENT, LINE, RAPID
 
 JOBS = Path(__file__).resolve().parents[1] / "examples" / "jobs"
 START = (0.0, 0.0, 100.0)
@@ -372,7 +373,7 @@ def test_no_move_count_cap_and_the_tool_axis_is_shared():
 
 
 def test_job_files_beyond_the_size_bounds_are_refused_before_parsing(tmp_path, monkeypatch, machine):
-    import pmctl.task.job as J
+    import pmctl.core.job as J
     p = tmp_path / "long.ngc"
     p.write_text("N1\n" * 30)
     monkeypatch.setattr(J, "MAX_JOB_LINES", 20)

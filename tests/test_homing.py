@@ -32,7 +32,8 @@ from pmctl.interfaces.commands.ctl import request
 from pmctl.motion.service_config import HomingConfig
 from pmctl.motion.state_store import save_counters
 from pmctl.task.homing import ALARM_HOMING_APPROACH, HomingFailed, Sequence, joint_profile
-from pmctl.task.job import home_pose, load_job
+from pmctl.task.job import load_job
+from pmctl.core.job import home_pose
 
 M = load_machine()
 PPM = M.resolution.pulses_per_mm

@@ -27,7 +27,7 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.interfaces.commands.ctl import request
 from pmctl.motion.state_store import load_counters, save_counters
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 
 M = load_machine()
 PPM = np.asarray(M.resolution.pulses_per_mm, float)

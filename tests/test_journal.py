@@ -185,7 +185,7 @@ def test_serve_refuses_counts_saved_at_another_resolution_and_starts_on_an_older
     from pathlib import Path
     root = Path(__file__).resolve().parents[1]
     state = tmp_path / "state.json"
-    from pmctl.task.job import home_pose
+    from pmctl.core.job import home_pose
     tip0, axis0 = home_pose(M)
     c0 = [int(x) for x in np.rint(K.ik(np.asarray(tip0) + [1.0, -2.0, 0.5], axis0, M).q * PPM)]
     other = (PPM * 2).tolist()

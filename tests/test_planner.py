@@ -14,7 +14,7 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.core.errors import InputError
 from pmctl.task.gcode import parse_gcode
-from pmctl.task.job import DWELL, LINE, RAPID, Job, Move
+from pmctl.core.job import DWELL, Job, LINE, Move, RAPID
 from pmctl.task.planner import (SAMPLE_CHUNK, STREAM_WINDOW, VIOLATION_TOL, PlannerLimits, home_pose, load_job, plan,
                                  plan_stream, validate)
 

@@ -20,7 +20,7 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.interfaces.cli import main
 from pmctl.task.gcode import parse_gcode
-from pmctl.task.job import LINE, Job, Move
+from pmctl.core.job import Job, LINE, Move
 from pmctl.task.planner import PlannerLimits, PlanningError, home_pose, plan, plan_stream, validate
 from pmctl.motion.trajectory import Trajectory
 

@@ -9,7 +9,7 @@ from hypothesis import given, settings, strategies as st
 
 from pmctl.core.config import load_machine
 from pmctl.task.gcode import parse_gcode
-from pmctl.task.job import DWELL, EVENT, Job, Move
+from pmctl.core.job import DWELL, EVENT, Job, Move
 from pmctl.task.planner import home_pose, plan, plan_stream
 from pmctl.motion.trajectory import Trajectory
 

@@ -12,7 +12,7 @@ from hypothesis import given, settings, strategies as st
 
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
-from pmctl.task.job import ARC, LINE, RAPID, Job, Move, controlled_point
+from pmctl.core.job import ARC, Job, LINE, Move, RAPID, controlled_point
 from pmctl.task.planner import PlannerLimits, plan, plan_stream
 from pmctl.motion.trajectory import Trajectory
 

@@ -21,7 +21,7 @@ from pmctl.motion.nc import counts_of, initial_state
 from pmctl.motion.probe import ProbeConfig, ProbeMonitor, check_probe_job, probe_segments
 from pmctl.motion.service_config import LoopConfig, NCConfig, service_from_dict
 from pmctl.task.gcode import parse_gcode
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 from pmctl.task.planner import plan
 
 M = load_machine("prototype")

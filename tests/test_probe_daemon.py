@@ -14,7 +14,7 @@ from pmctl.motion import channel as C
 from pmctl.motion.nc import counts_of
 from pmctl.motion.probe import GRID, RESULT_WIDTH, SEGMENT_WIDTH, ProbeResult, ProbeSegment, split_at_probes
 from pmctl.task.gcode import parse_gcode
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 from pmctl.task.supervisor import Supervisor
 
 M = load_machine("prototype")

@@ -19,7 +19,7 @@ from pmctl.motion.nc import NCParams, counts_of, initial_state, make_nc
 from pmctl.motion.service_config import LoopConfig
 from pmctl.motion.timescale import HELD
 from pmctl.task.gcode import parse_gcode
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 from pmctl.task.planner import plan
 
 M = load_machine()

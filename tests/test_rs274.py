@@ -18,7 +18,7 @@ from pmctl.core.config import load_machine
 from pmctl.core.errors import ConfigError
 from pmctl.motion.service_config import InterpreterConfig, service_from_dict
 from pmctl.task.interp import LineError, LineInterpreter
-from pmctl.task.job import ARC, DWELL, EVENT, LINE, RAPID
+from pmctl.core.job import ARC, DWELL, EVENT, LINE, RAPID
 from pmctl.task.journal import Journal
 from pmctl.task.rs274 import interpret, make_config, start_position
 from pmctl.task.rs274 import program as PR
@@ -304,7 +304,7 @@ def _kv(body):
 @pytest.fixture
 def console():
     m = load_machine()
-    from pmctl.task.job import home_pose
+    from pmctl.core.job import home_pose
     tip, axis = home_pose(m)
     return LineInterpreter(m, tip, axis)
 

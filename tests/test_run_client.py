@@ -188,7 +188,7 @@ def test_a_stale_daq_mid_job_stops_the_supervisor_on_the_path(tmp_path):
     from pmctl.motion import channel as C
     from pmctl.motion.nc import counts_of
     from pmctl.core import kinematics as K
-    from pmctl.task.job import home_pose
+    from pmctl.core.job import home_pose
     from pmctl.task.planner import load_job
     from pmctl.task.supervisor import ALARM_ABORT, Supervisor
     svc = _service(tmp_path, extra='[daq]\nsimulate = true\nport = 0\ntimeout_ms = 200\npoll_ms = 10\n'

@@ -30,7 +30,7 @@ from pmctl.motion.service_config import LoopConfig
 from pmctl.motion.timescale import (FLAG_RAPID, HELD, IDLE, S_FLAGS, STARVED, WIDTH, iter_job_rows,
                                     make_follower, scaling_limits)
 from pmctl.task.gcode import parse_gcode
-from pmctl.task.job import RAPID, home_pose
+from pmctl.core.job import RAPID, home_pose
 from pmctl.task.planner import PlannerLimits, plan
 from test_first_hour import _start_and_wait_for_loop
 from test_run_client import PMCTL, _service

@@ -19,7 +19,7 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.core.errors import InputError, UnreachablePose
 from pmctl.task.gcode import parse_gcode
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -14,7 +14,7 @@ from grbl_sender import Sender, hold_still_resume, start_serve, stop_serve
 from pmctl.core.config import load_machine
 from pmctl.core.recording import read_recording
 from pmctl.motion.state_store import load_counters
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 from pmctl.task.planner import load_job, plan
 from test_daemon_serve import dist_to_polyline
 

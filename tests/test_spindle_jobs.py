@@ -15,7 +15,7 @@ from pmctl.core import kinematics as K
 from pmctl.hal import modbus_vfd
 from pmctl.motion import channel as C
 from pmctl.motion.nc import counts_of
-from pmctl.task.job import EVENT, home_pose
+from pmctl.core.job import EVENT, home_pose
 from pmctl.task.planner import load_job as load_with_events
 from pmctl.task.supervisor import Supervisor
 

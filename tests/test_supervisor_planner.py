@@ -13,7 +13,7 @@ import pytest
 from pmctl.core import kinematics as K
 from pmctl.motion.nc import counts_of
 from pmctl.task.gcode import parse_gcode
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 from pmctl.task.supervisor import ALARM_ABORT, Supervisor
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -20,7 +20,7 @@ from pmctl.motion.service_config import LoopConfig
 from pmctl.motion.timescale import (FLAG_END, HELD, S_FLAGS, WIDTH, TimeScaler, backward_pass, iter_job_rows,
                                     make_follower)
 from pmctl.task.gcode import parse_gcode
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 from pmctl.task.planner import plan
 
 M = load_machine()

@@ -8,7 +8,7 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.motion.nc import NCParams
 from pmctl.motion.timescale import FLAG_END, S_CAP, S_FLAGS, S_QT, S_QTT, WIDTH, derivatives, make_rows
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 
 M = load_machine()
 DT = 1e-3

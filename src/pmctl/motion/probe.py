@@ -1,6 +1,6 @@
 """Stop on contact: the per-tick monitor of probing moves (G38.2 / G38.3) on the rt side.
 
-A probing move is a feed line (pmctl.task.job, ``Move.probe``) planned like any other. While the
+A probing move is a feed line (pmctl.core.job, ``Move.probe``) planned like any other. While the
 path follower is on its samples, :meth:`ProbeMonitor.tick` (called once per tick by the control
 loop, pmctl.motion.loop) compares the three plate-link strains the backend reports with the model:
 
@@ -231,7 +231,7 @@ def split_at_probes(job) -> list:
     and ends at rest; the piece after a probe is planned only once the probe has ended, from where
     it stopped (grbl: motion after a probe starts at the probed position). A dwell goes with the
     moves around it (after a probe: with the piece after it)."""
-    from pmctl.task.job import DWELL, Job
+    from pmctl.core.job import DWELL, Job
     out, cur = [], []
 
     def piece(moves):

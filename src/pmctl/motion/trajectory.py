@@ -5,7 +5,7 @@ one row per tick. All in the workpiece frame W: tip in mm, tool axis unit (tip -
 
 ``tip`` is the tip of the machine config's reference tool (``geometry.tool_length``), the point the
 machine's model and the rt side control: with a tool length offset d in force (Move.tool_offset, G43)
-the cutting tip is ``tip - d * axis`` (pmctl.task.job.controlled_point). ``points`` are the programmed
+the cutting tip is ``tip - d * axis`` (pmctl.core.job.controlled_point). ``points`` are the programmed
 (cutting) tip points.
 """
 
@@ -28,7 +28,7 @@ class Trajectory:
     source: str = ""             # the job file
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # the job's programmed tip points in W
     # EVENT moves reached by this piece: ((sample index in this piece, line, events), ...) in order; the
-    # sample is the exact stop where the events take effect (pmctl.task.job EVENT)
+    # sample is the exact stop where the events take effect (pmctl.core.job EVENT)
     marks: tuple = ()
 
     def __len__(self):

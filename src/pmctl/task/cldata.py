@@ -36,7 +36,7 @@ import numpy as np
 
 from pmctl.core.errors import InputError
 from pmctl.core.tolerances import AXIS_TOL    # allowed | |V| - 1 |, the same as for pmctl kin --axis
-from pmctl.task.job import LINE, RAPID, Job, Move, check_reach, read_job_text
+from pmctl.core.job import Job, LINE, Move, RAPID, check_reach, read_job_text
 
 DEFAULT_FEED_MM_MIN = 600.0     # 10 mm/s
 DEFAULT_CLEARANCE_MM = 5.0      # approach/retract distance along the tool axis

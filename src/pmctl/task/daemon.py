@@ -56,7 +56,7 @@ class Daemon:
         from pmctl.motion.nc import counts_of
         from pmctl.motion.state_store import StateLock, load_counters
         from pmctl.task.journal import Journal, journal_path
-        from pmctl.task.job import home_pose
+        from pmctl.core.job import home_pose
         from pmctl.task.supervisor import ALARM_HOMING_REQUIRED, Supervisor
 
         sup = Supervisor(self.config, service=self.service, backend=self.backend, state_file=self.state_file,

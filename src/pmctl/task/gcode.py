@@ -1,4 +1,4 @@
-"""The G-code job reader: a file (or text) -> a Job (pmctl.task.job) for the planner, by pmctl's RS-274
+"""The G-code job reader: a file (or text) -> a Job (pmctl.core.job) for the planner, by pmctl's RS-274
 interpreter (pmctl.task.rs274: LinuxCNC's language for what has a meaning on this machine; the words
 it runs and the ones it refuses are in docs/gcode.md).
 
@@ -7,7 +7,7 @@ it runs and the ones it refuses are in docs/gcode.md).
 - ``parse_gcode(text, path, start_tip, start_axis)`` -> Job: the same, raising ``JobProblems`` (an
   InputError naming the first problem and counting the others) when there is any.
 - ``read_gcode(path, machine, start=None, config=None, offsets=None)`` -> Job: reads the file (UTF-8,
-  the size bounds of pmctl.task.job), interprets it from ``start`` (default: the home pose; G91 moves,
+  the size bounds of pmctl.core.job), interprets it from ``start`` (default: the home pose; G91 moves,
   arcs and the first A/B are relative to it) with the [interpreter] settings ``config`` (tool table,
   subroutine path, ...) and the work ``offsets`` in force (the console journal's format), and checks
   that every programmed end pose is reachable (kinematics.ik_batch, with each move's tool length).
@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core.errors import JobProblems
-from pmctl.task.job import DWELL, EVENT, Job, check_reach, home_pose, read_job_text
+from pmctl.core.job import DWELL, EVENT, Job, check_reach, home_pose, read_job_text
 from pmctl.task.rs274 import interpret
 from pmctl.task.rs274.arcs import SPIRAL_MM
 from pmctl.task.rs274.execute import MAX_ARC_TURNS, MAX_DWELL_S
@@ -69,7 +69,7 @@ def interpret_file(path, machine, *, start=None, config=None, offsets=None):
 def reader_options(path, config=None, offsets=None) -> dict:
     """The options ``load_job`` passes to the G-code reader for ``path`` (the service config's
     [interpreter] section and the work offsets in force); none for CL data."""
-    from pmctl.task.job import GCODE_SUFFIXES
+    from pmctl.core.job import GCODE_SUFFIXES
     if Path(path).suffix.lower() not in GCODE_SUFFIXES:
         return {}
     return {"config": config, "offsets": offsets}
@@ -77,7 +77,7 @@ def reader_options(path, config=None, offsets=None) -> dict:
 
 def check_job_reach(job: Job, machine, path):
     """IK of every programmed end pose, each with its tool length (the machine config's reference tool
-    + the move's tool_offset); InputError at the first unreachable one (pmctl.task.job.check_reach)."""
+    + the move's tool_offset); InputError at the first unreachable one (pmctl.core.job.check_reach)."""
     ends = [m for m in job.moves if m.kind != DWELL and m.kind != EVENT]
     if ends:
         check_reach(np.array([m.tip for m in ends]), np.array([m.axis for m in ends]),

@@ -28,7 +28,7 @@ import re
 import numpy as np
 
 from pmctl.core.errors import InputError
-from pmctl.task.job import DWELL, EVENT, Job
+from pmctl.core.job import DWELL, EVENT, Job
 from pmctl.task.rs274 import make_config, start_position
 from pmctl.task.rs274.flow import Source
 from pmctl.task.rs274.program import Interpreter
@@ -108,7 +108,7 @@ class _Snapshot:
 class LineInterpreter:
     def __init__(self, machine, tip, axis, offsets=None, *, config=None):
         self.machine = machine
-        from pmctl.task.job import home_pose
+        from pmctl.core.job import home_pose
         cfg = make_config(config, home=home_pose(machine), ahead=False)
         self.it = Interpreter(cfg, start_position(tip, axis), offsets or None)
         self.line_no = 0

@@ -31,7 +31,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from pmctl.core.errors import InputError, Problem
-from pmctl.task.job import ARC, DWELL, EVENT, LINE, Job, parse_job
+from pmctl.task.job import parse_job
+from pmctl.core.job import ARC, DWELL, EVENT, Job, LINE
 
 
 @dataclass

@@ -14,7 +14,7 @@ import numpy as np
 
 from pmctl.core import kinematics as K
 from pmctl.task.interp import AXES, LineError
-from pmctl.task.job import LINE, Job, Move
+from pmctl.core.job import Job, LINE, Move
 from pmctl.task.rs274.modal import MM_PER_INCH
 from pmctl.task.rs274.words import LexError, lex_line
 

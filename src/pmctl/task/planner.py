@@ -1,4 +1,4 @@
-"""Path planner: a job (pmctl.task.job) -> a Trajectory (pmctl.motion.trajectory) sampled at the tick period.
+"""Path planner: a job (pmctl.core.job) -> a Trajectory (pmctl.motion.trajectory) sampled at the tick period.
 
 Public API (stable)::
 
@@ -21,7 +21,7 @@ How it works (all vectorised with numpy):
    any plane (``_arc_frame``: a centre point, the plane's normal; the radius and the height along the
    normal linear in the angle); tool axis: slerp between the end axes. A G93 move's top speed is its
    length / duration. A tool length offset (Move.tool_offset) moves every pose the planner plans to
-   the controlled point tip + offset * axis (pmctl.task.job.controlled_point: the reference tool's tip,
+   the controlled point tip + offset * axis (pmctl.core.job.controlled_point: the reference tool's tip,
    what the machine's model commands); IK, the joint limits and the samples are of that point, the
    feed and the tip's limits of the programmed tip. Corners are never rounded, except under G64 P
    (Move.tolerance > 0): a corner between two feed lines with the same feed, spindle speed, offset
@@ -40,7 +40,7 @@ How it works (all vectorised with numpy):
 3. **Junctions** (grbl/Klipper-style look-ahead, adapted to a sampled trajectory that passes through
    the corner point): the velocity direction changes within one tick, so the corner speed is limited
    to v_j <= a_max dt / |d_out - d_in| for the tip and each joint. Exact stops at the start and end,
-   dwells (G4), EVENT moves (spindle, coolant, tool change, pause...: pmctl.task.job), spindle changes
+   dwells (G4), EVENT moves (spindle, coolant, tool change, pause...: pmctl.core.job), spindle changes
    and reversals.
 4. **Velocity profile**: backward and forward passes of v^2 <= v_prev^2 + 2 a ds in closed form
    (prefix sums and running minima), giving a time-optimal, acceleration-limited profile s(t).
@@ -111,7 +111,8 @@ from scipy.interpolate import PchipInterpolator
 
 from pmctl.core import kinematics as K
 from pmctl.core.errors import InputError, PmctlError, Problem
-from pmctl.task.job import ARC, DWELL, EVENT, LINE, RAPID, Job, controlled_point, home_pose, load_job  # noqa: F401
+from pmctl.task.job import load_job
+from pmctl.core.job import ARC, DWELL, EVENT, Job, LINE, RAPID, controlled_point, home_pose  # noqa: F401
 from pmctl.motion.trajectory import Trajectory
 
 __all__ = ["PlannerLimits", "plan", "plan_stream", "validate", "home_pose", "load_job", "PlanningError"]
@@ -352,7 +353,7 @@ class _Path:
     """Segments of a job as arrays; pose(seg, u) evaluates any number of points at once.
 
     The tip is the programmed (cutting) tip; ``controlled`` adds the tool length offset
-    (pmctl.task.job.controlled_point): the point the machine's model, built for the reference tool,
+    (pmctl.core.job.controlled_point): the point the machine's model, built for the reference tool,
     must put its tip on. Every IK of the planner and every sample it hands out is of that point."""
 
     def __init__(self, job: Job, start, limits: PlannerLimits, feed_override: float, dt: float):
@@ -1350,7 +1351,7 @@ class _Timing:
 
     def samples(self, k0, k1):
         """Ticks k0 .. k1-1: (tip, axis, tip_vel, axis_vel, line, rpm) of the controlled point (the tip
-        of the reference tool: pmctl.task.job.controlled_point) and, for the limit check, (s, v, seg,
+        of the reference tool: pmctl.core.job.controlled_point) and, for the limit check, (s, v, seg,
         programmed tip)."""
         path, K_b, n = self.path, self.K_b, self.path.n
         k = np.arange(k0, k1)

@@ -7,7 +7,7 @@ coordinates, q = (L1, L2, L3, X, Y): the chain lengths and the table position, m
   checked and planned first, then streamed: bounded memory), every ``every``-th tick and the last:
   (t, line, q) rows, chunk by chunk.
 
-Poses are of the controlled point (pmctl.task.job.controlled_point: with a tool length offset the IK is
+Poses are of the controlled point (pmctl.core.job.controlled_point: with a tool length offset the IK is
 that of the longer tool), so the joints are what the machine's model (the reference tool) commands.
 """
 
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pmctl.task.job import DWELL, EVENT, Job, check_reach, controlled_point
+from pmctl.core.job import DWELL, EVENT, Job, check_reach, controlled_point
 
 COLUMNS = ("L1", "L2", "L3", "X", "Y")
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from pmctl.core.errors import PmctlError
-from pmctl.task.job import LINE, RAPID, Job, Move
+from pmctl.core.job import Job, LINE, Move, RAPID
 
 CLEARANCE_MM = 5.0
 PLUNGE_MM_S = 5.0

@@ -16,7 +16,7 @@ probe stopped. The results land in ``Item.probe_results``; a G38.2 without conta
 and drops the queue (grbl's probe fail).
 
 - acts on what happens where the path gets to it, in program order, as grbl's planner sync does:
-  the EVENT moves of a job (pmctl.task.job: spindle, coolant, tool change, pause, outputs, messages),
+  the EVENT moves of a job (pmctl.core.job: spindle, coolant, tool change, pause, outputs, messages),
   which the planner turns into exact stops marked in ``Trajectory.marks``, and the spindle speed
   changes of a job that carries its speed only per move (``Move.spindle_rpm``: CL data, the reader
   before EVENT moves). Each becomes a hold point: C_HOLD_AT at its sample, sent before that sample
@@ -90,7 +90,7 @@ class Item:
     """One planned piece of motion: a job file, a batch of console lines, a jog, a homing move. Items
     compare by identity (``it in sup.items``: the queue holds this very item)."""
     kind: str                       # "job" | "gcode" | "jog" | "home"
-    job: object                     # pmctl.task.job.Job
+    job: object                     # pmctl.core.job.Job
     start: tuple                    # (tip, axis) it starts from
     end: tuple                      # (tip, axis) it ends at
     name: str = ""
@@ -409,7 +409,7 @@ class Supervisor:
         speed changes inside it (at the last sample of the old speed, as
         pmctl.hal.modbus_vfd.speed_changes finds them in a whole plan)."""
         from pmctl.hal.modbus_vfd import REST_STEP_MM, job_speed
-        from pmctl.task.job import EVENT
+        from pmctl.core.job import EVENT
         moves = it.job.moves
         events = any(m.kind == EVENT and any(n == "spindle" for n, _ in m.events) for m in moves)
         on_lines = [] if events else [m.line for m in moves if getattr(m, "spindle_rpm", 0.0)]
@@ -1032,7 +1032,7 @@ class Supervisor:
         With the item ``it``: its spindle start speed is set (or a hold queued) before its first
         sample, and its speed changes inside the job become C_HOLD_AT points."""
         from pmctl.motion.timescale import iter_stream_rows, shape_trajectory
-        from pmctl.task.job import RAPID
+        from pmctl.core.job import RAPID
         from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
         rapid_mm_s = PlannerLimits().rapid_mm_s
         rapid_lines = {m.line for m in job.moves if m.kind == RAPID}
@@ -1076,7 +1076,7 @@ class Supervisor:
         piece's segment goes into the channel's probe table, its samples flagged; then the planner
         waits for the rt side's result and plans the next piece from where the probe stopped."""
         from pmctl.motion.probe import ProbeResult, mark_probe_rows, probe_segments, split_at_probes
-        from pmctl.task.job import DWELL
+        from pmctl.core.job import DWELL
         start = (np.asarray(it.start[0], float), np.asarray(it.start[1], float))
         pieces = split_at_probes(it.job)
         for k, (piece, probe) in enumerate(pieces):

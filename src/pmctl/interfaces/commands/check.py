@@ -87,7 +87,7 @@ class Context:
             st = initial_state(machine, saved.counts)
             self.start = (st.tip, st.axis)
         else:
-            from pmctl.task.job import home_pose
+            from pmctl.core.job import home_pose
             self.start = home_pose(machine)
 
 

@@ -323,7 +323,7 @@ def _refuse_operator_waits(job, tool):
     and a program pause (M0, M60) that waits for a cycle start no one can give here. (M1 is not
     taken: the optional-stop switch is off in pmctl run.)"""
     from pmctl.core.errors import InputError
-    from pmctl.task.job import EVENT
+    from pmctl.core.job import EVENT
     for m in job.moves:
         if m.kind != EVENT:
             continue
@@ -407,7 +407,7 @@ def _nominal_shares(job):
     """(lines, share of the job's nominal time up to and including each line), lines increasing."""
     import numpy as np
 
-    from pmctl.task.job import ARC, DWELL, RAPID
+    from pmctl.core.job import ARC, DWELL, RAPID
     from pmctl.task.planner import PlannerLimits
     rapid = PlannerLimits().rapid_mm_s
     t, lines, prev = [], [], None

@@ -26,7 +26,7 @@ Two threads:
   jog or a ``$`` command that needs Idle may follow at once.
 - M-codes take effect in program order where the stream gets to them: a line's spindle (M3 M4 M5 S),
   coolant (M7 M8 M9), tool change (M6), pause (M0 M1), output and message words come from the
-  interpreter as EVENT moves (pmctl.task.job) queued with the motion; the supervisor holds the path
+  interpreter as EVENT moves (pmctl.core.job) queued with the motion; the supervisor holds the path
   where each takes effect (a lone one at once when idle).
 
 A bad line changes nothing: not the queued motion, not the parser state, not the next line.
@@ -48,7 +48,7 @@ import numpy as np
 from pmctl import __version__
 from pmctl.motion import channel as C
 from pmctl.task.interp import AXES, WCS_NAMES, LineError, LineInterpreter, moves_job
-from pmctl.task.job import DWELL
+from pmctl.core.job import DWELL
 from pmctl.task.supervisor import MotionRefused, roll_pitch_deg
 
 RX_BUFFER = 128

@@ -1,7 +1,7 @@
 """pmctl's RS-274/NGC interpreter: one interpreter for job files, the console and the queue.
 
 It reads G-code as LinuxCNC 2.9's interpreter does (the oracle of its tests is LinuxCNC's ``rs274``)
-for everything that has a meaning on this machine, and produces the moves of pmctl.task.job
+for everything that has a meaning on this machine, and produces the moves of pmctl.core.job
 (``Move``, ``Job``) -- tool tip X Y Z in the workpiece frame W and the tool tilt A B -- with the
 events of the program (spindle, coolant, tool changes, tool offsets, outputs, messages, pauses) in
 order. What a program may use, what is refused and why: docs/gcode.md.

@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from pmctl.task.job import ARC, EVENT, LINE, RAPID, Move
+from pmctl.core.job import ARC, EVENT, LINE, Move, RAPID
 from pmctl.task.rs274 import arcs as A
 from pmctl.task.rs274.execute import Refusal
 

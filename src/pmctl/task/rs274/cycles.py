@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 
-from pmctl.task.job import LINE, RAPID
+from pmctl.core.job import LINE, RAPID
 from pmctl.task.rs274.arcs import PLANE_AXES
 from pmctl.task.rs274.execute import Refusal, fmt, gname
 

@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from pmctl.core import kinematics as K
-from pmctl.task.job import ARC, DWELL, EVENT, LINE, RAPID, Move
+from pmctl.core.job import ARC, DWELL, EVENT, LINE, Move, RAPID
 from pmctl.task.rs274 import arcs as A
 from pmctl.task.rs274 import parameters as P
 from pmctl.task.rs274.expressions import EvalError

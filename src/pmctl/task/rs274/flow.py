@@ -205,7 +205,7 @@ class SubroutineFiles:
         for d in self.path:
             f = d / f"{name}.ngc"
             if f.is_file():
-                from pmctl.task.job import read_job_text
+                from pmctl.core.job import read_job_text
                 src = Source(read_job_text(f), f, label=str(f))
                 break
         self.cache[name] = src

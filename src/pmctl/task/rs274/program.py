@@ -19,7 +19,7 @@ import re
 import numpy as np
 
 from pmctl.core.errors import Problem
-from pmctl.task.job import DWELL, EVENT, Job
+from pmctl.core.job import DWELL, EVENT, Job
 from pmctl.task.rs274 import parameters as P
 from pmctl.task.rs274.cutter_comp import CutterComp
 from pmctl.task.rs274.execute import Config, Executor, Refusal

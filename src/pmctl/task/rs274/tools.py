@@ -5,7 +5,7 @@ order, blank lines and ``;`` comments allowed. Units are the machine's: mm. On t
 
 - ``Z`` is the tool's **length offset**: how much longer the tool is than the machine config's
   reference tool (``geometry.tool_length_mm``), along the tool axis; ``G43 H<n>`` applies it
-  (pmctl.task.job: ``Move.tool_offset``). A tool with ``Z0`` is as long as the reference tool.
+  (pmctl.core.job: ``Move.tool_offset``). A tool with ``Z0`` is as long as the reference tool.
 - ``D`` is the diameter; cutter radius compensation (``G41``/``G42`` with ``D<n>``) uses half of it.
 - ``P`` (pocket) is kept for LinuxCNC compatibility; the tool changer is the operator.
 - ``X Y A B C U V W`` offsets and the lathe words ``I J Q`` have no meaning on a mill whose tool

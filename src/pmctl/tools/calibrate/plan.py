@@ -138,7 +138,7 @@ def plan_poses(machine, n, *, candidates=1500, has_axis=True, seed=1):
 
 def run(machine, args) -> str:
     from pmctl.task.gcode import read_gcode
-    from pmctl.task.job import home_pose
+    from pmctl.core.job import home_pose
     from pmctl.task.planner import plan as plan_job
 
     n = int(args.poses)
