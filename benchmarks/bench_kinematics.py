@@ -20,7 +20,7 @@ import numpy as np
 
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
-from pmctl.motion.nc import ModelFK
+from pmctl.core.model_fk import ModelFK
 from pmctl.motion.ncore import CompiledFK
 
 
@@ -69,7 +69,7 @@ def main():
         pred = (path[i, :3] - path[i - 1, :3], model.last_T) if i else None
         pose[0], pose[1], _, _, _ = model.solve_l(path[i], pose[0], pose[1], pred)
 
-    print("  fk warm + tool Jacobian, nc.ModelFK  %7.1f %7.1f   (the loop's path, predictor warm start)"
+    print("  fk warm + tool Jacobian, model_fk.ModelFK %7.1f %7.1f   (the loop's path, predictor warm start)"
           % stats(loop_fk, n))
     cfk = CompiledFK(m, *K.forward_platform(path[0, :3], g), path[0])
     its = []

@@ -44,7 +44,8 @@ from pmctl import hal
 from pmctl.core.config import load_machine
 from pmctl.hal.base import Feedback
 from pmctl.motion.loop import ControlLoop, prepare, tracking_stats
-from pmctl.motion.nc import counts_of, initial_state, make_nc
+from pmctl.motion.nc import counts_of, initial_state
+from pmctl.motion.ncore import make_nc
 from pmctl.motion.service_config import load_service_config
 from pmctl.motion.trajectory import Trajectory
 

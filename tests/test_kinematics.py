@@ -259,13 +259,13 @@ def test_general_geometry_batch_equals_single_and_nonconvergence_is_reported():
     assert r1.ok[r.ok[:4]].all()
 
 
-# ---------------------------------------------------------------- the loop's single-pose FK (pmctl.motion.nc.ModelFK)
+# ---------------------------------------------------------------- the loop's single-pose FK (pmctl.core.model_fk.ModelFK)
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**31))
 def test_loop_fk_follows_a_path_like_the_batch_solver(seed):
     """Tick after tick, with the predictor warm start, the loop's FK lands on the batch solution."""
-    from pmctl.motion.nc import ModelFK
+    from pmctl.core.model_fk import ModelFK
     rng = np.random.default_rng(seed)
     n = 60
     z = 393 + np.cumsum(rng.normal(0, 0.5, n))

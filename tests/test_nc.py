@@ -11,8 +11,8 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.core.errors import KinematicsError
 from pmctl.hal.base import Feedback
-from pmctl.motion.nc import (HALTED, RUN, STOPPING, ModelFK, NCParams, counts_of, initial_state, limit_rates,
-                      nc_step)
+from pmctl.motion.nc import HALTED, NCParams, RUN, STOPPING, counts_of, initial_state, limit_rates, nc_step
+from pmctl.core.model_fk import ModelFK
 
 M = load_machine()
 MODEL = ModelFK(M)

@@ -21,8 +21,9 @@ from pmctl.core.config import load_machine
 from pmctl.core.errors import ConfigError, KinematicsError
 from pmctl.hal.base import Feedback
 from pmctl.motion import ncore
-from pmctl.motion.nc import (DONE, HALTED, RUN, ModelFK, NCParams, PythonNC, counts_of,
-                             initial_state, make_nc)
+from pmctl.motion.nc import DONE, HALTED, NCParams, PythonNC, RUN, counts_of, initial_state
+from pmctl.motion.ncore import make_nc
+from pmctl.core.model_fk import ModelFK
 from pmctl.motion.service_config import NCConfig, service_from_dict
 
 M = load_machine()

@@ -15,7 +15,8 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.core.kinematics import FK_TOL_MM
 from pmctl.motion.loop import ControlLoop, prepare
-from pmctl.motion.nc import NCParams, counts_of, initial_state, make_nc
+from pmctl.motion.nc import NCParams, counts_of, initial_state
+from pmctl.motion.ncore import make_nc
 from pmctl.motion.service_config import LoopConfig
 from pmctl.motion.timescale import HELD
 from pmctl.task.gcode import parse_gcode

@@ -20,7 +20,8 @@ import pytest
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.hal.base import Feedback
-from pmctl.motion.nc import HALTED, RUN, STOPPING, NCParams, PythonNC, counts_of, initial_state, make_nc
+from pmctl.motion.nc import HALTED, NCParams, PythonNC, RUN, STOPPING, counts_of, initial_state
+from pmctl.motion.ncore import make_nc
 from test_ncore import closed_loop
 
 M = load_machine()

@@ -144,7 +144,7 @@ def test_rigid_sim_strain_is_the_nominal_twin_gravity_strain():
 
 
 def test_model_static_strain_matches_statics():
-    from pmctl.motion.nc import ModelFK
+    from pmctl.core.model_fk import ModelFK
     mf = ModelFK(M)
     for q in ([393.0, 380.0, 400.0, 5.0, -3.0], [300.0, 310.0, 290.0, 0.0, 0.0]):
         q = np.array(q)

@@ -555,5 +555,5 @@ def jacobian_tool(P, R, geom: Geometry):
     J[..., 3:, :3] = d_axis
     return J
 
-# The control loop's single-pose FK (plain floats, predictor warm start) is pmctl.motion.nc.ModelFK: it
+# The control loop's single-pose FK (plain floats, predictor warm start) is pmctl.core.model_fk.ModelFK: it
 # solves these same loop equations and is tested against solve_platform and jacobian_tool.

@@ -43,8 +43,10 @@ from pmctl.core import plant_effects as PE
 from pmctl.core import statics
 from pmctl.core.config import Machine
 from pmctl.core.kinematics import forward_platform, tool_of_platform
+from pmctl.core.model_fk import fk_only_constants
 from pmctl.core.plant_effects import SCREW_FIXED_END_MM
 from pmctl.core.errors import ConfigError
+from pmctl.hal import _simplant
 from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Inputs, Status
 
 
@@ -204,9 +206,7 @@ class SimBackend(Backend):
         # The per-tick step runs in C (simplant.c, built at install with the NC core): drive, flexible
         # modes, gravity strain (the core's FK, exact every gravity_update_ticks ticks, extrapolated
         # between) and the feedback sample, on the buffers below.
-        from pmctl.hal import _simplant
-        from pmctl.motion.ncore import constants
-        self._fk_consts = constants(machine, None)
+        self._fk_consts = fk_only_constants(machine)
         k = np.zeros(_simplant.K_LEN)
         k[0:5] = self.ppm
         k[5] = self.dt

@@ -39,7 +39,8 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import Machine
 from pmctl.core.errors import KinematicsError, PmctlError, UnreachablePose
 from pmctl.hal import Backend, HalError, HalTimeout
-from pmctl.motion.nc import HALTED, RUN, NCParams, NCState, make_nc
+from pmctl.motion.nc import HALTED, RUN, NCParams, NCState
+from pmctl.motion.ncore import make_nc
 from pmctl.motion.timescale import HOLDING
 from pmctl.motion.service_config import LoopConfig
 from pmctl.motion.state_store import CounterWriter

@@ -17,9 +17,12 @@ import numpy as np
 
 from pmctl.core.compensation import STILL_MM_S
 from pmctl.core.config import Machine
+from pmctl.core.errors import KinematicsError
+from pmctl.core.model_fk import (FK_SINGULAR_TEXT, NC_CONST_LEN, ModelFK, fk_branch_text, fk_constants,
+                                 fk_noconv_text)
 from pmctl.core.vf import TIE as VF_TIE
 from pmctl.motion import nc as _nc
-from pmctl.motion.nc import MODEL_LOST, ModelFK, NCParams, NCState
+from pmctl.motion.nc import IMPLEMENTATIONS, MODEL_LOST, NCParams, NCState, PythonNC
 
 try:
     from pmctl.motion.ncore import _ncore
@@ -44,15 +47,9 @@ _N_COUNTS, _N_PULSES, _N_MODE, _N_EVENT, _N_HAS_QM, _N_ITER = (
 def constants(machine: Machine, params: NCParams | None, model: ModelFK | None = None) -> np.ndarray:
     """The flat constant block of the core (ncore.h, nc_setup's order) from the same numbers the
     Python NC uses (ModelFK's and NCParams' plain-float copies)."""
-    m = model or ModelFK(machine)
-    c = []
-    c += [x for row in m._A for x in row]
-    c += [x for row in m._Cp for x in row]
-    c += [x for row in m._N for x in row]
-    c += m._off + m._tip_p + m._axis_p
-    c += [m.z_table, m.tol, float(m.max_iter), m.cos_max_tilt, m._fz] + m._com + [m._keps]
+    c = fk_constants(model or ModelFK(machine))
     if params is None:           # FK only (the sim's gravity strain): no NC limits
-        c += [0.0] * 66
+        c += [0.0] * NC_CONST_LEN
     else:
         L = params._l
         c += [params.dt] + L.ppm + L.vmax + L.amax + L.adt + L.lower + L.upper
@@ -84,11 +81,11 @@ def _reason(event: int, ev, params: NCParams) -> str:
     if event == E.NC_EV_FERROR:
         return _nc.ferror_text(int(ev[0]), float(ev[1]), float(ev[2]), float(ev[3]))
     if event == E.NC_EV_FK_NOCONV:
-        return MODEL_LOST + _nc.fk_noconv_text([float(x) for x in ev[:3]], float(ev[3]), int(ev[4]))
+        return MODEL_LOST + fk_noconv_text([float(x) for x in ev[:3]], float(ev[3]), int(ev[4]))
     if event == E.NC_EV_FK_BRANCH:
-        return MODEL_LOST + _nc.fk_branch_text([float(x) for x in ev[:3]])
+        return MODEL_LOST + fk_branch_text([float(x) for x in ev[:3]])
     if event == E.NC_EV_FK_SINGULAR:
-        return MODEL_LOST + _nc.FK_SINGULAR_TEXT
+        return MODEL_LOST + FK_SINGULAR_TEXT
     if event == E.NC_EV_SVD:
         return MODEL_LOST + _nc.SVD_TEXT
     if event == E.NC_EV_PATH_ERROR:
@@ -249,7 +246,6 @@ class CompiledFK:
         else:
             r = self.core.fk(q, self.P, self.R, None, None, self._tip, self._axis, self._J, self._T1, self._ev)
         if r < 0:
-            from pmctl.core.errors import KinematicsError
             raise KinematicsError(_reason(-r, self._ev, None)[len(MODEL_LOST):])
         self.T[:] = self._T1
         self.has_T = True
@@ -259,3 +255,14 @@ class CompiledFK:
     def static_strain(self) -> np.ndarray:
         self.core.static_strain(self.R, self.T, self.strain)
         return self.strain
+
+
+def make_nc(machine: Machine, params: NCParams, implementation: str | None = None):
+    """The NC the loop runs: ``implementation`` (default ``params.implementation``) "compiled" ->
+    :class:`CompiledNC`, "python" -> pmctl.motion.nc.PythonNC (the reference)."""
+    impl = implementation or params.implementation
+    if impl == "python":
+        return PythonNC(machine, params)
+    if impl == "compiled":
+        return CompiledNC(machine, params)
+    raise ValueError(f"NC implementation must be one of {', '.join(IMPLEMENTATIONS)}, got {impl!r}")

@@ -135,7 +135,7 @@ static void comp_tick(const nc_const *c, const double x[5], const double prev[5]
 
 /* ------------------------------------------------------------------ small linear algebra */
 
-/* Rotation matrix of the rotation vector w (kinematics.expm_so3, nc._rodrigues_l). */
+/* Rotation matrix of the rotation vector w (kinematics.expm_so3, model_fk._rodrigues_l). */
 static void rodrigues(double wx, double wy, double wz, double E[9])
 {
     double th2 = wx * wx + wy * wy + wz * wz, a, b;

@@ -2,7 +2,7 @@
  * warm start, tool Jacobian, damped pseudo-inverse, the rest deadband, rate/acceleration limits,
  * soft-limit and following-error supervision, the K_theta strain term, V-F converters), portable C99.
  *
- * The readable reference is pmctl/motion/nc.py (nc_step, ModelFK); this file does the same
+ * The readable reference is pmctl/motion/nc.py (nc_step) with pmctl/core/model_fk.py (ModelFK); this file does the same
  * arithmetic in the same order. No allocation: the caller owns every buffer (constants, state,
  * scratch), so the state can live anywhere, e.g. in shared memory.
  *
