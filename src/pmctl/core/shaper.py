@@ -319,3 +319,40 @@ def smoothing_mm(shaper: Shaper, v_mm_s: float = 50.0, accel_mm_s2: float = 2000
     tip, axis = corner_trajectory(v_mm_s, accel_mm_s2, leg, dt, stop=False)
     p, _ = shape_cartesian(tip, axis, dt, shaper)
     return float(path_error(p, np.array([[-leg, 0, 0], [0, 0, 0], [0, leg, 0]])).max())
+
+
+# ---------------------------------------------------------------------------------------------
+# Advice: which shaper for a mode
+# ---------------------------------------------------------------------------------------------
+
+DRIFT = 0.10            # frequency tolerance the recommendation must cover
+MAX_REMAINING = 0.05    # residual vibration allowed within the tolerance
+
+
+@dataclass
+class ShaperAdvice:
+    name: str
+    freq_hz: float
+    damping: float
+    remaining_at_mode: float        # residual vibration fraction at the mode
+    remaining_worst: float          # worst within +-DRIFT
+    duration_ms: float              # extra time per stop (time-law shaping)
+    smoothing_mm: float             # corner cut if applied to the Cartesian targets at 50 mm/s
+
+
+def shaper_advice(freq_hz: float, damping: float, speed_mm_s: float = 50.0):
+    """Every shaper designed at the mode, and the recommended one: the shortest whose worst residual
+    vibration within +-DRIFT of the mode is at most MAX_REMAINING (pmctl analyze resonance, and
+    ``nc.shaper = auto``)."""
+    z = float(damping) if math.isfinite(damping) else 0.05
+    z = min(max(z, 0.0), 0.5)
+    band = np.linspace(1 - DRIFT, 1 + DRIFT, 81) * freq_hz
+    out = []
+    for name in SHAPERS:
+        sh = make_shaper(name, freq_hz, z)
+        out.append(ShaperAdvice(name, freq_hz, z, float(residual_vibration(sh, freq_hz, z)),
+                                float(np.max(residual_vibration(sh, band, z))), 1e3 * sh.duration,
+                                smoothing_mm(sh, speed_mm_s)))
+    ok = [a for a in out if a.remaining_worst <= MAX_REMAINING]
+    best = min(ok, key=lambda a: a.duration_ms) if ok else min(out, key=lambda a: a.remaining_worst)
+    return out, best
