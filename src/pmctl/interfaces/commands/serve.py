@@ -37,7 +37,7 @@ def add_parser(sub):
 def run(args) -> int:
     from pmctl.core.errors import PmctlError
     from pmctl.motion.service_config import load_service_config
-    from pmctl.task.daemon import Daemon
+    from pmctl.interfaces.daemon import Daemon
 
     if args.rate is not None and not 10 <= args.rate <= 20000:
         raise PmctlError(f"--rate must be within 10 .. 20000 Hz, got {args.rate:g}")
