@@ -12,6 +12,7 @@ from pmctl.core import kinematics as K
 from pmctl.tools.analysis import mechanism as M
 from pmctl.core.config import Stiffness, load_machine
 from pmctl.core.errors import PmctlError
+from pmctl.interfaces.commands.analyze import add_mechanism_parsers
 
 MACHINE = load_machine("prototype")
 GEOM = MACHINE.geometry
@@ -198,7 +199,7 @@ def test_compliance_at_level_pose_is_three_axial_springs_in_parallel():
 def _run(argv):
     p = argparse.ArgumentParser()
     sub = p.add_subparsers(dest="a", required=True)
-    M.add_parsers(sub)
+    add_mechanism_parsers(sub)
     args = p.parse_args(argv)
     return args.func(args)
 

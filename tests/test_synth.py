@@ -16,6 +16,7 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.core.errors import InputError
 from pmctl.core.recording import read_recording
+from pmctl.interfaces.commands.twin import add_synth_parser
 from pmctl.tools.twin import nominal as N
 from pmctl.tools.twin import synth as S
 
@@ -208,7 +209,7 @@ def test_same_seed_same_case_and_cli_rejects_unknown_effects(tmp_path):
     with pytest.raises(InputError, match="unknown effect"):
         S.parse_effects("backlash,flux_capacitor")
     ap = argparse.ArgumentParser()
-    S.add_parser(ap.add_subparsers())
+    add_synth_parser(ap.add_subparsers())
     args = ap.parse_args(["synth", str(tmp_path / "o"), "--clean", "--duration", "3", "--rate", "100"])
     assert args.func(args) == 0
     ans = json.loads((tmp_path / "o" / "case-000" / "answer.json").read_text())

@@ -452,13 +452,6 @@ def seed_path_error(machine: Machine, theta2_points_deg, *, Z=393.0, theta1_deg=
 
 # ============================================================== CLI (thin: compute, print, plot)
 
-def add_parsers(sub):
-    """Register ``io-ratio``, ``drive``, ``path-error`` and ``compliance`` under ``pmctl analyze``
-    (the registration lives in :mod:`pmctl.tools.analysis.cli`, which imports no numpy)."""
-    from pmctl.tools.analysis.cli import add_mechanism_parsers
-    add_mechanism_parsers(sub)
-
-
 def _setup(args):
     machine = load_machine(args.config)
     out = Path(args.out)

@@ -728,9 +728,3 @@ def cmd_vf(args):
     plt.close(fig)
     print(f"\nwrote {p1}\nwrote {p2}")
     return 0
-
-
-def add_parsers(sub):
-    """Register ``vibration`` and ``vf`` under ``pmctl analyze`` (see :mod:`pmctl.tools.analysis.cli`)."""
-    from pmctl.tools.analysis.cli import add_vibration_parsers
-    add_vibration_parsers(sub)

@@ -1105,12 +1105,6 @@ def format_text(report, extras) -> str:
 
 # ---------------------------------------------------------------- CLI
 
-def add_parser(sub):
-    """Register ``diagnose`` (the registration lives in :mod:`pmctl.tools.twin.cli`, without numpy)."""
-    from pmctl.tools.twin.cli import add_diagnose_parser
-    return add_diagnose_parser(sub)
-
-
 def _display_name(folder: Path) -> str:
     """How the report names a recording: its folder's name, with the parent's when the folder has a
     generic name (``case-003/recording``, not ``recording``)."""

@@ -1157,12 +1157,6 @@ def generate(out_dir, count=1, *, effects="random", seed=0, clean=False, max_eff
 
 # ---------------------------------------------------------------- CLI
 
-def add_parser(sub):
-    """Register ``synth`` (the registration lives in :mod:`pmctl.tools.twin.cli`, without numpy)."""
-    from pmctl.tools.twin.cli import add_synth_parser
-    return add_synth_parser(sub)
-
-
 def _cmd(args) -> int:
     if args.count < 1:
         raise InputError("--count", None, "must be >= 1")
