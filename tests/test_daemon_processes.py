@@ -21,7 +21,9 @@ from pmctl.motion.nc import counts_of
 from pmctl.motion.state_store import load_counters
 from pmctl.task.gcode import parse_gcode
 from pmctl.core.job import home_pose
-from pmctl.task.supervisor import ALARM_MOTOR_FAULT, MotionRefused, Supervisor
+from pmctl.task.supervisor import Supervisor
+from pmctl.core.errors import MotionRefused
+from pmctl.core.alarms import ALARM_MOTOR_FAULT
 
 M = load_machine()
 
@@ -127,7 +129,7 @@ def test_supervisor_killed_the_rt_process_holds_on_the_path_saves_counters_and_e
 
 def test_estop_input_latches_alarm_10_until_it_clears_and_unlock(tmp_path):
     from pathlib import Path
-    from pmctl.task.supervisor import ALARM_ESTOP
+    from pmctl.core.alarms import ALARM_ESTOP
     svc = tmp_path / "service.toml"
     base = (Path(__file__).resolve().parents[1] / "config" / "service.toml").read_text()
     assert "[hal.sim]\n" in base

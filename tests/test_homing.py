@@ -31,7 +31,8 @@ from pmctl.core.recording import read_recording
 from pmctl.interfaces.commands.ctl import request
 from pmctl.motion.service_config import HomingConfig
 from pmctl.motion.state_store import save_counters
-from pmctl.task.homing import ALARM_HOMING_APPROACH, HomingFailed, Sequence, joint_profile
+from pmctl.task.homing import HomingFailed, Sequence, joint_profile
+from pmctl.core.alarms import ALARM_HOMING_APPROACH
 from pmctl.task.job import load_job
 from pmctl.core.job import home_pose
 

@@ -190,7 +190,8 @@ def test_a_stale_daq_mid_job_stops_the_supervisor_on_the_path(tmp_path):
     from pmctl.core import kinematics as K
     from pmctl.core.job import home_pose
     from pmctl.task.planner import load_job
-    from pmctl.task.supervisor import ALARM_ABORT, Supervisor
+    from pmctl.task.supervisor import Supervisor
+    from pmctl.core.alarms import ALARM_ABORT
     svc = _service(tmp_path, extra='[daq]\nsimulate = true\nport = 0\ntimeout_ms = 200\npoll_ms = 10\n'
                                    'max_age_ms = 60\nsim_sample_hz = 200\n')
     sup = Supervisor(service=str(svc), log=lambda m: None)

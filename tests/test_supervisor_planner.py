@@ -14,7 +14,8 @@ from pmctl.core import kinematics as K
 from pmctl.motion.nc import counts_of
 from pmctl.task.gcode import parse_gcode
 from pmctl.core.job import home_pose
-from pmctl.task.supervisor import ALARM_ABORT, Supervisor
+from pmctl.task.supervisor import Supervisor
+from pmctl.core.alarms import ALARM_ABORT
 
 ROOT = Path(__file__).resolve().parents[1]
 

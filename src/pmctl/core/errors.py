@@ -12,6 +12,14 @@ class ConfigError(PmctlError):
         super().__init__(f"{where}: {reason}")
 
 
+class MotionRefused(PmctlError):
+    """Motion is not allowed now (alarm, rt process down); ``code`` is the grbl error code."""
+
+    def __init__(self, msg, code=9):
+        super().__init__(msg)
+        self.code = code
+
+
 class UnreachablePose(PmctlError):
     """A pose outside the workspace or joint limits; the message says which limit."""
 

@@ -57,7 +57,8 @@ class Daemon:
         from pmctl.motion.state_store import StateLock, load_counters
         from pmctl.task.journal import Journal, journal_path
         from pmctl.core.job import home_pose
-        from pmctl.task.supervisor import ALARM_HOMING_REQUIRED, Supervisor
+        from pmctl.task.supervisor import Supervisor
+        from pmctl.core.alarms import ALARM_HOMING_REQUIRED
 
         sup = Supervisor(self.config, service=self.service, backend=self.backend, state_file=self.state_file,
                          realtime=self.realtime, rate_hz=self.rate_hz, log=self.log)
@@ -147,7 +148,7 @@ class Daemon:
         from pmctl.core.errors import PmctlError
         from pmctl.task.job import load_job
         from pmctl.task.resume import CLEARANCE_MM, resume_job
-        from pmctl.task.supervisor import MotionRefused
+        from pmctl.core.errors import MotionRefused
         sup = self.sup
         if self.interrupted is None:
             raise PmctlError("no interrupted job to resume (the journal records none)")

@@ -29,7 +29,7 @@ import numpy as np
 
 from pmctl.core.errors import PmctlError
 from pmctl.hal.base import AXES
-from pmctl.task.supervisor import ALARM_HOMING_APPROACH, ALARM_HOMING_PULLOFF, ALARM_HOMING_RESET
+from pmctl.core.alarms import ALARM_HOMING_APPROACH, ALARM_HOMING_PULLOFF, ALARM_HOMING_RESET
 
 
 class HomingFailed(PmctlError):
@@ -135,7 +135,7 @@ class RtMover:
 
     def _check(self, latch_seq=None):
         from pmctl.motion import channel as C
-        from pmctl.task.supervisor import MotionRefused
+        from pmctl.core.errors import MotionRefused
         sup = self.sup
         if latch_seq is not None and self._s()[C.ST_LATCH_SEQ] != latch_seq:
             raise _Latched()

@@ -51,15 +51,11 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core import kinematics as K
-from pmctl.core.errors import PmctlError
+from pmctl.core.alarms import ALARM_ABORT, ALARM_ESTOP, ALARM_MOTOR_FAULT, ALARM_PROBE_FAIL_CONTACT, ALARM_SOFT_LIMIT
+from pmctl.core.errors import MotionRefused, PmctlError
 from pmctl.motion import channel as C
 from pmctl.motion.nc import RUN
 from pmctl.motion.timescale import HELD, HOLDING, MOVING, STARVED
-
-# grbl alarm codes (grbl 1.1; 10, 11, 17 as grblHAL numbers them)
-ALARM_HARD_LIMIT, ALARM_SOFT_LIMIT, ALARM_ABORT, ALARM_HOMING_RESET = 1, 2, 3, 6
-ALARM_HOMING_PULLOFF, ALARM_HOMING_APPROACH, ALARM_ESTOP, ALARM_HOMING_REQUIRED, ALARM_MOTOR_FAULT = 8, 9, 10, 11, 17
-ALARM_PROBE_FAIL_CONTACT = 5      # G38.2 ended without contact
 
 
 def config_digest(machine, svc) -> dict:
@@ -75,14 +71,6 @@ def config_digest(machine, svc) -> dict:
             except OSError:
                 out[str(f)] = None
     return out
-
-
-class MotionRefused(PmctlError):
-    """Motion is not allowed now (alarm, rt process down); ``code`` is the grbl error code."""
-
-    def __init__(self, msg, code=9):
-        super().__init__(msg)
-        self.code = code
 
 
 @dataclass(eq=False)

@@ -49,7 +49,8 @@ from pmctl import __version__
 from pmctl.motion import channel as C
 from pmctl.task.interp import AXES, WCS_NAMES, LineError, LineInterpreter, moves_job
 from pmctl.core.job import DWELL
-from pmctl.task.supervisor import MotionRefused, roll_pitch_deg
+from pmctl.task.supervisor import roll_pitch_deg
+from pmctl.core.errors import MotionRefused
 
 RX_BUFFER = 128
 LINE_MAX = 256
