@@ -197,11 +197,6 @@ def _strip_json_comments(text: str) -> str:
     return "".join(out)
 
 
-def _key_line(text: str, key: str) -> int | None:
-    m = re.search(r'"%s"\s*:' % re.escape(key), text)
-    return text.count("\n", 0, m.start()) + 1 if m else None
-
-
 def _json_object(text: str, mp: Path) -> dict:
     """Parse recording.json (comments tolerated); InputError for anything that is not a JSON object,
     including nesting too deep for the parser and numbers too long to convert."""
@@ -277,7 +272,7 @@ def read_meta(folder: str | Path) -> tuple[dict, Path | None, Path]:
     meta = _json_object(text, mp)
 
     def bad(key, reason):
-        return InputError(mp, _key_line(text, key), f"{key}: {reason}")
+        return InputError(mp, key_line(text, key), f"{key}: {reason}")
 
     fmt = meta.get("format")
     if fmt is None:

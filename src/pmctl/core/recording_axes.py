@@ -132,9 +132,14 @@ class AxesMachine:
         return self.units.get(f"effort_{axis}", "N")
 
 
+def key_line(text: str, key: str) -> int | None:
+    """The line (1-based) of the JSON key ``key`` in the text of recording.json (None: not there)."""
+    m = re.search(r'"%s"\s*:' % re.escape(key), text)
+    return text.count("\n", 0, m.start()) + 1 if m else None
+
+
 def _bad(meta_path, text, key, reason):
-    from pmctl.core.recording import _key_line
-    return InputError(meta_path, _key_line(text, key) if text else None, f"channels.{key}.unit: {reason}")
+    return InputError(meta_path, key_line(text, key) if text else None, f"channels.{key}.unit: {reason}")
 
 
 def axes_machine(names, meta: dict, meta_path: Path | None = None, text: str = "") -> tuple[AxesMachine, dict]:

@@ -31,7 +31,7 @@ import numpy as np
 
 from pmctl.core.job import ARC, EVENT, LINE, Move, RAPID
 from pmctl.task.rs274 import arcs as A
-from pmctl.task.rs274.execute import Refusal
+from pmctl.task.rs274.refusal import Refusal
 
 SMALL = 0.05                  # LinuxCNC's TOLERANCE_CONCAVE_CORNER, radians
 LEFT, RIGHT = 1, 2

@@ -33,7 +33,7 @@ import math
 
 from pmctl.core.job import LINE, RAPID
 from pmctl.task.rs274.arcs import PLANE_AXES
-from pmctl.task.rs274.execute import Refusal, fmt, gname
+from pmctl.task.rs274.refusal import Refusal, fmt, gname
 
 PECK_CLEARANCE_IN = 0.010            # LinuxCNC's G73/G83 back-off (inch)
 NEEDS_P = (820, 860, 890)

@@ -26,6 +26,7 @@ from pmctl.core import kinematics as K
 from pmctl.core.job import ARC, DWELL, EVENT, LINE, Move, RAPID
 from pmctl.task.rs274 import arcs as A
 from pmctl.task.rs274 import parameters as P
+from pmctl.task.rs274.refusal import Refusal, fmt, gname, whole
 from pmctl.task.rs274.expressions import EvalError
 from pmctl.task.rs274.modal import (AXIS_USERS, CYCLES, G_GROUP, G_REFUSED, M_GROUP, M_REFUSED, M_USER,
                                     MM_PER_INCH, SAVED_MODES, WCS_CODES, WCS_NAMES)
@@ -45,31 +46,6 @@ WORD_MEANING = {"i": "an arc centre (G2/G3) or G87", "j": "an arc centre (G2/G3)
 AXIS_INDEX = {"x": 0, "y": 1, "z": 2, "a": 3, "b": 4}
 _FAST_LETTERS = frozenset("xyzabfn")
 MODE_SWITCHES = (434, 435, 531, 682)   # another machine's TCP / tilted-plane modes: noted, the line goes on
-
-
-class Refusal(Exception):
-    """A problem with a block: ``kind`` (syntax / unsupported / machine), message, column."""
-
-    def __init__(self, kind, message, column=None):
-        super().__init__(message)
-        self.kind, self.message, self.column = kind, message, column
-
-
-def gname(code: int) -> str:
-    """G-code text of a code x 10: 382 -> 'G38.2'."""
-    return f"G{code // 10}" + (f".{code % 10}" if code % 10 else "")
-
-
-def fmt(v: float) -> str:
-    return f"{v:.6f}".rstrip("0").rstrip(".") if math.isfinite(v) else str(v)
-
-
-def whole(value, word, column, what):
-    """A word that must be a non-negative integer (a tool number, a line number): its int, or a Refusal
-    saying what the word is."""
-    if value != int(value) or value < 0:
-        raise Refusal("syntax", f"{word}{fmt(value)}: {what} (a non-negative integer)", column)
-    return int(value)
 
 
 class Block:

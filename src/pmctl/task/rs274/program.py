@@ -22,7 +22,8 @@ from pmctl.core.errors import Problem
 from pmctl.core.job import DWELL, EVENT, Job
 from pmctl.task.rs274 import parameters as P
 from pmctl.task.rs274.cutter_comp import CutterComp
-from pmctl.task.rs274.execute import Config, Executor, Refusal
+from pmctl.task.rs274.execute import Config, Executor
+from pmctl.task.rs274.refusal import Refusal
 from pmctl.task.rs274.expressions import EvalError, value
 from pmctl.task.rs274.flow import FlowError, Source, SubroutineFiles
 from pmctl.task.rs274.modal import State
