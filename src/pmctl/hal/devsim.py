@@ -28,6 +28,8 @@ import sys
 import threading
 import time
 
+from pmctl.hal.base import HalError
+
 READY_TIMEOUT_S = 60.0      # imports and server start on a loaded 2-core machine
 
 
@@ -299,7 +301,7 @@ class _Sim:
         if "vfd" in spec:
             v = spec["vfd"]
             from pmctl.hal.modbus_sim import ModbusSimServer, SimVFD
-            from pmctl.hal.modbus_vfd import VfdRegisters
+            from pmctl.hal.vfd_registers import VfdRegisters
             self.vfd = SimVFD(VfdRegisters(**v["registers"]), max_hz=v["max_hz"], rpm_per_hz=v["max_rpm"] / v["max_hz"],
                               ramp_hz_per_s=v["ramp_rpm_per_s"] * v["max_hz"] / v["max_rpm"])
             serial = None
@@ -547,3 +549,23 @@ class Remote:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def start_simulated(kind: str, spec: dict, what: str):
+    """A session's simulated device (``kind`` "vfd" or "daq", ``spec`` its devsim spec) in a device
+    simulator process (pmctl.hal.devsim), not in the loop's process. Returns (simulator, device
+    proxy, server proxy); a simulator that does not start is a HalError saying why."""
+    try:
+        sim = DeviceSimulator({kind: spec}, what).start()
+    except DeviceSimulatorError as e:
+        raise HalError(str(e)) from None
+    return sim, sim.proxy(kind), sim.proxy(f"{kind}_server")
+
+
+def stop_simulated(sim, server) -> None:
+    """Shut a session's simulated device down: its device simulator process when it has one, else
+    its server in this process (either may be None). The session then drops both."""
+    if sim is not None:
+        sim.stop()
+    elif server is not None:
+        server.stop()

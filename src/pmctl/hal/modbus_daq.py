@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 from pmctl.core.errors import ConfigError
 from pmctl.hal.base import HalError, HalTimeout
+from pmctl.hal.devsim import start_simulated, stop_simulated
 
 K_THETA_SOURCES = ("backend", "daq")
 COMP_MAX_MM_LIMIT = 5.0          # comp_max_mm above this is no slow correction of a chain's elongation
@@ -286,7 +287,6 @@ class DaqSession:
             if self.opt.simulate:
                 # the simulated DAQ in a device-simulator process; the strain it serves is pushed
                 # to it before each poll
-                from pmctl.hal.modbus_sim import start_simulated
                 o = self.opt
                 spec = {"base": o.base, "ue_per_count": o.ue_per_count, "sample_hz": o.sim_sample_hz,
                         "host": o.host, "port": o.port, "device_id": o.device_id}
@@ -324,6 +324,5 @@ class DaqSession:
     def close(self):
         if self.daq is not None:
             self.daq.close()
-        from pmctl.hal.modbus_sim import stop_simulated
         stop_simulated(self.sim, self.server)
         self.sim = self.server = None

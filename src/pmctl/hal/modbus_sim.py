@@ -23,28 +23,6 @@ from pymodbus.datastore.store import BaseModbusDataBlock
 from pymodbus.server import ModbusTcpServer
 
 
-def start_simulated(kind: str, spec: dict, what: str):
-    """A session's simulated device (``kind`` "vfd" or "daq", ``spec`` its devsim spec) in a device
-    simulator process (pmctl.hal.devsim), not in the loop's process. Returns (simulator, device
-    proxy, server proxy); a simulator that does not start is a HalError saying why."""
-    from pmctl.hal.base import HalError
-    from pmctl.hal.devsim import DeviceSimulator, DeviceSimulatorError
-    try:
-        sim = DeviceSimulator({kind: spec}, what).start()
-    except DeviceSimulatorError as e:
-        raise HalError(str(e)) from None
-    return sim, sim.proxy(kind), sim.proxy(f"{kind}_server")
-
-
-def stop_simulated(sim, server) -> None:
-    """Shut a session's simulated device down: its device simulator process when it has one, else
-    its server in this process (either may be None). The session then drops both."""
-    if sim is not None:
-        sim.stop()
-    elif server is not None:
-        server.stop()
-
-
 class RegisterBlock(BaseModbusDataBlock):
     """Holding or input registers answered by ``read(addr)`` / ``write(addr, value)`` of a device
     model (protocol addresses; an unknown address is ILLEGAL_ADDRESS)."""

@@ -21,27 +21,8 @@ from dataclasses import dataclass, field, fields
 
 from pmctl.core.errors import ConfigError
 from pmctl.hal.base import HalError, HalTimeout
-
-
-@dataclass
-class VfdRegisters:
-    command: int = 0x1000
-    setpoint: int = 0x2000
-    output_freq: int = 0x3000
-    speed_rpm: int = 0x3005
-    fault: int = 0x5000
-    run_forward: int = 1
-    run_reverse: int = 2
-    stop: int = 5
-
-    NAMES = {"command": "command", "setpoint": "frequency set-point", "output_freq": "output frequency",
-             "speed_rpm": "speed, rpm", "fault": "fault"}
-
-    def name(self, addr):
-        for k, text in self.NAMES.items():
-            if getattr(self, k) == addr:
-                return f"register 0x{addr:04X} ({text})"
-        return f"register 0x{addr:04X}"
+from pmctl.hal.devsim import start_simulated, stop_simulated
+from pmctl.hal.vfd_registers import VfdRegisters
 
 
 BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
@@ -436,7 +417,6 @@ class SpindleSession:
     def connect(self):
         try:
             if self.opt.simulate:
-                from pmctl.hal.modbus_sim import start_simulated
                 self.sim, self.device, self.server = start_simulated("vfd", sim_spec(self.opt), "simulated spindle VFD")
                 self.opt.port = self.sim.info["vfd_port"]
                 if self.opt.transport == "rtu":
@@ -493,6 +473,5 @@ class SpindleSession:
             except HalError as e:
                 self.log(f"warning: {e} (M5 not acknowledged)")
             self.vfd.close()
-        from pmctl.hal.modbus_sim import stop_simulated
         stop_simulated(self.sim, self.server)
         self.sim = self.server = None
