@@ -18,7 +18,7 @@ the machine config's 20 000 N/mm. Column "as today" repeats K_theta = 200/s with
 config's stiffness, as ``pmctl run --k-theta`` does.
 
 Predictions (kv = seed K_G K_v K_R, K_theta = seed K_theta K_v K_R, both 1/s), from
-pmctl.core.chain_mode (predict_continuous, predict_sampled):
+pmctl.tools.analysis.resonance (predict_continuous, predict_sampled):
 - eq. 3.1 (continuous, with the plant damping added): s^3 + (kv + K_theta + 2 zeta w) s^2 +
   (w^2 + 2 zeta w kv) s + kv w^2 = 0 (pmctl.tools.analysis.vibration.eq31_roots when zeta = 0);
 - eq. 3.1 sampled: the same loop with the tick's ramp and the one-tick delay of the feedback (the
@@ -44,7 +44,7 @@ from pmctl.motion import loop as L
 from pmctl.motion import nc as NC
 from pmctl.motion.service_config import LoopConfig
 from pmctl.task.planner import home_pose
-from pmctl.core import chain_mode as R
+from pmctl.tools.analysis import resonance as R
 
 MASS, ZETA, KV, DT = 31.66, 0.02, 400.0, 1e-3
 

@@ -16,7 +16,7 @@ from pmctl.motion import loop as L
 from pmctl.motion import nc as NC
 from pmctl.motion.service_config import LoopConfig, chain_modes, nc_setup, service_from_dict
 from pmctl.task.planner import home_pose
-from pmctl.core.chain_mode import predict_sampled
+from pmctl.tools.analysis.resonance import predict_sampled
 
 M = load_machine()
 MASS, ZETA, KV, DT = 31.66, 0.02, 400.0, 1e-3

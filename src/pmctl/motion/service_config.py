@@ -13,10 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pmctl.core.chain_mode import k_theta_for_mode, predict_sampled
 from pmctl.core.config import CONFIG_DIR, Machine
 from pmctl.core.errors import ConfigError
-from pmctl.core.shaper import shaper_advice
 from pmctl.core.strict_toml import Table, check_tables, read_toml
 from pmctl.hal.base import AXES as HOMING_AXES
 
@@ -126,8 +124,9 @@ class ChainModes:
 
 def auto_k_theta(modes: ChainModes, kv: float, dt: float) -> list[float]:
     """K_theta per chain for ``k_theta = auto``: the sampled eq. 3.1 model's smallest gain that damps
-    the chain's mode to 0.3 (pmctl.core.chain_mode.k_theta_for_mode), with the feedback the
+    the chain's mode to 0.3 (pmctl.tools.analysis.resonance.k_theta_for_mode), with the feedback the
     NC will run (decoupled for a soft chain)."""
+    from pmctl.tools.analysis.resonance import k_theta_for_mode
     soft = modes.soft(kv)
     out = []
     for i in range(3):
@@ -140,11 +139,12 @@ def auto_k_theta(modes: ChainModes, kv: float, dt: float) -> list[float]:
 def shaper_design(f_hz: float, zeta: float, k_theta: float, kv: float, dt: float, soft: bool):
     """(frequency Hz, damping ratio) a shaper should be designed for, for a chain mode (f_hz, zeta):
     the mode itself without feedback; with K_theta on, the closed-loop mode that the feedback leaves
-    (the sampled eq. 3.1 model, pmctl.core.chain_mode.predict_sampled, with the feedback the
+    (the sampled eq. 3.1 model, pmctl.tools.analysis.resonance.predict_sampled, with the feedback the
     NC runs). A shaper tuned to the open-loop mode misses the damped, shifted closed-loop one and
     only adds its own impulses' excitation (docs/vibration.md §5)."""
     if k_theta <= 0:
         return f_hz, zeta
+    from pmctl.tools.analysis.resonance import predict_sampled
     fc, zc = predict_sampled(f_hz, k_theta, kv, dt, zeta, leak=0.1 * 2 * np.pi * f_hz if soft else None)
     if not (np.isfinite(fc) and 0.0 <= zc < 0.95):
         return f_hz, zeta
@@ -180,6 +180,7 @@ def choose_shaper(nc: NCConfig, modes: "ChainModes | None", k_theta, dt: float, 
         if not any(abs(fz[0] - p[0]) <= 0.03 * p[0] for p in points):
             points.append(fz)
     if name == "auto":
+        from pmctl.tools.analysis.resonance import shaper_advice
         name = shaper_advice(points[0][0], points[0][1])[1].name
     sh = S.convolve([S.make_shaper(name, f, min(z, 0.9)) for f, z in points]) if len(points) > 1 \
         else S.make_shaper(name, *points[0])

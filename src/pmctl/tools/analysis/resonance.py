@@ -20,7 +20,7 @@ removed by a zero-phase 2.5 Hz high-pass):
   within +-10 % (drift, mistuning), the time each stop costs (the shaper's duration) and the corner
   it would cut if applied to the Cartesian targets at 50 mm/s (time-law shaping cuts none);
   the recommendation is the shortest shaper whose worst residual within +-10 % is <= 5 %;
-- K_theta for the mode from the sampled eq. 3.1 model (pmctl.core.chain_mode.predict_sampled), for the plain
+- K_theta for the mode from the sampled eq. 3.1 model (:func:`predict_sampled`), for the plain
   feedback and for the decoupled one the NC runs on soft chains (docs/vibration.md);
 - ``--write SERVICE.toml``: the modes into that service config's ``[nc]`` (mode_hz,
   mode_damping_ratio, modal_stiffness_N_per_mm from the fit's static gain), where ``pmctl run
@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pmctl.core.chain_mode import k_theta_for_mode
 from pmctl.core.errors import InputError, PmctlError
-from pmctl.core.shaper import DRIFT, MAX_REMAINING, shaper_advice
 
+DRIFT = 0.10            # frequency tolerance the recommendation must cover
+MAX_REMAINING = 0.05    # residual vibration allowed within the tolerance
 
 
 # ---------------------------------------------------------------------------------------------
@@ -226,6 +226,93 @@ def modes_of_chain(strain_i, u_i, cmd, fs: float, fmin: float, fmax: float, chai
 # ---------------------------------------------------------------------------------------------
 # What to do: shapers and K_theta
 # ---------------------------------------------------------------------------------------------
+
+@dataclass
+class ShaperAdvice:
+    name: str
+    freq_hz: float
+    damping: float
+    remaining_at_mode: float        # residual vibration fraction at the mode
+    remaining_worst: float          # worst within +-DRIFT
+    duration_ms: float              # extra time per stop (time-law shaping)
+    smoothing_mm: float             # corner cut if applied to the Cartesian targets at 50 mm/s
+
+
+def shaper_advice(freq_hz: float, damping: float, speed_mm_s: float = 50.0):
+    """Every shaper designed at the mode, and the recommended one (see the module docstring)."""
+    from pmctl.core import shaper as S
+    z = float(damping) if math.isfinite(damping) else 0.05
+    z = min(max(z, 0.0), 0.5)
+    band = np.linspace(1 - DRIFT, 1 + DRIFT, 81) * freq_hz
+    out = []
+    for name in S.SHAPERS:
+        sh = S.make_shaper(name, freq_hz, z)
+        out.append(ShaperAdvice(name, freq_hz, z, float(S.residual_vibration(sh, freq_hz, z)),
+                                float(np.max(S.residual_vibration(sh, band, z))), 1e3 * sh.duration,
+                                S.smoothing_mm(sh, speed_mm_s)))
+    ok = [a for a in out if a.remaining_worst <= MAX_REMAINING]
+    best = min(ok, key=lambda a: a.duration_ms) if ok else min(out, key=lambda a: a.remaining_worst)
+    return out, best
+
+
+def predict_continuous(f, kth, kv, zeta=0.0, leak=None):
+    """Mode (Hz, damping ratio) of seed eq. 3.1 in pmctl's gains (kv = K_G K_v K_R, K_theta =
+    K_theta K_v K_R, 1/s) with the plant damping zeta added. ``leak`` None: nc.py's loop (the pose loop
+    pulls the feedback's motion back): s^3 + (kv + K_theta + 2 zeta w) s^2 + (w^2 + 2 zeta w kv) s
+    + kv w^2; a number: the decoupled feedback (offset d' = K_theta y - leak d, rate + kv d):
+    (s + leak)(s + kv)(s^2 + 2 zeta w s + w^2) + K_theta s^2 (s + leak + kv)."""
+    w = 2 * math.pi * f
+    plant = np.array([1.0, 2 * zeta * w, w * w])
+    if leak is None:
+        poly = np.polyadd(np.polymul([1.0, kv], plant), [kth, 0.0, 0.0])
+    else:
+        poly = np.polyadd(np.polymul(np.polymul([1.0, leak], [1.0, kv]), plant),
+                          kth * np.array([1.0, leak + kv, 0.0, 0.0]))
+    r = np.roots(poly)
+    osc = r[r.imag > 1e-9]
+    if len(osc) == 0:
+        return float("nan"), 1.0
+    c = osc[np.argmin(-osc.real / np.abs(osc))]
+    return abs(c) / (2 * math.pi), -c.real / abs(c)
+
+
+def predict_sampled(f, kth, kv, dt, zeta=0.0, leak=None):
+    """The same loop sampled at dt as the NC runs it: state (x_m, y, y', v_prev, d); each tick
+    v = -kv x_m + kv d + K_theta y (deflection read at the tick start; d = 0 without ``leak``), the
+    motor ramps by v dt (y' jumps by -(v - v_prev), then (y, y') propagate exactly), and
+    d += dt (K_theta y - leak d). Returns the least damped oscillating pole as (Hz, damping ratio)."""
+    from scipy.linalg import expm
+    w = 2 * math.pi * f
+    Phi = expm(np.array([[0.0, 1.0], [-w * w, -2 * zeta * w]]) * dt)
+    on = leak is not None
+    V = np.array([-kv, kth, 0.0, 0.0, kv if on else 0.0])
+    A = np.zeros((5, 5))
+    A[0] = np.eye(5)[0] + dt * V
+    J = np.eye(5)
+    J[2] -= V
+    J[2, 3] += 1.0
+    A[1:3] = Phi @ J[1:3]
+    A[3] = V
+    A[4] = np.eye(5)[4] + (dt * np.array([0.0, kth, 0.0, 0.0, -(leak or 0.0)]) if on else 0.0)
+    z = np.linalg.eigvals(A)
+    osc = z[z.imag > 1e-12]
+    if len(osc) == 0:
+        return float("nan"), 1.0
+    lz = np.log(osc)
+    zs = -lz.real / np.abs(lz)
+    i = int(np.argmin(zs))
+    return abs(lz[i].imag) / (2 * math.pi * dt), float(zs[i])
+
+
+def k_theta_for_mode(f, kv, dt, zeta=0.02, leak=None, target=0.3, max_kdt=0.4):
+    """Smallest K_theta (1/s, K_theta dt <= max_kdt) giving the mode ``target`` damping in the
+    sampled model, else the one giving the most. Returns (K_theta, damping ratio reached)."""
+    g = np.linspace(0.0, max_kdt / dt, 161)
+    zs = np.array([predict_sampled(f, k, kv, dt, zeta, leak)[1] for k in g])
+    hit = np.nonzero(zs >= target)[0]
+    i = int(hit[0]) if len(hit) else int(np.nanargmax(zs))
+    return float(g[i]), float(zs[i])
+
 
 # ---------------------------------------------------------------------------------------------
 # The whole analysis of a recording
