@@ -150,7 +150,7 @@ def test_a_tool_axis_component_is_whitened_with_the_noise_its_tilt_gives_it():
     noise level for the whole channel, tool_k looked 2.3 x noisy early and 0.6 x late, and the
     early stretch was reported as an unexplained 'intermittent' mismatch. Whitened per sample,
     both stretches are noise and the run is consistent with the twin."""
-    from pmctl.tools.twin.diagnose import TOOL_SCALE_FLOOR, noise_scale
+    from pmctl.tools.twin.observations import TOOL_SCALE_FLOOR, noise_scale
     tilt = np.radians(np.array([0.0, 1.0, 2.0, 4.0, 8.0]))
     s = noise_scale("tool_k", np.cos(tilt))
     assert s[2] == pytest.approx(1.0)                                    # relative to the median

@@ -8,7 +8,8 @@ from hypothesis import given, settings, strategies as st
 from pmctl.core.config import load_machine
 from pmctl.tools.twin import effects as fx
 from pmctl.tools.twin import synth
-from pmctl.tools.twin.diagnose import build_context, diagnose, regular_times, select_effects
+from pmctl.tools.twin.diagnose import build_context, diagnose, select_effects
+from pmctl.tools.twin.observations import regular_times
 from pmctl.tools.twin.scoring import score
 
 M = load_machine()
@@ -96,7 +97,7 @@ def test_the_noise_a_prediction_carries_is_told_from_its_smooth_signal(seed, sig
     rng = np.random.default_rng(seed)
     t = np.linspace(0.0, 10.0, 3000)
     sig = amp * sigma * sum(rng.normal() * np.sin(2 * np.pi * f * t + rng.uniform(0, 6)) for f in (0.1, 0.37, 1.3))
-    from pmctl.tools.twin.locate import noise_level     # what SensorGain.applicable measures a prediction with
+    from pmctl.tools.twin.signals import noise_level  # what SensorGain.applicable measures a prediction with
     est = noise_level(sig + sigma * rng.normal(size=t.size))
     assert abs(est / sigma - 1) < 0.12
 

@@ -9,7 +9,7 @@ from hypothesis import given, settings, strategies as st
 from pmctl.core import kinematics as kin
 from pmctl.core.config import load_machine
 from pmctl.tools.twin import effects as fx
-from pmctl.tools.twin.locate import noise_level, spectrum_position
+from pmctl.tools.twin.signals import noise_level, spectrum_position
 
 M = load_machine()
 

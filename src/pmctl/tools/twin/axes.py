@@ -22,6 +22,7 @@ from pmctl.core.recording_axes import AxesMachine, axis_of, channel_kind
 from pmctl.tools.twin import effects as fx
 from pmctl.tools.twin.catalogue import DEFAULT_CAP
 from pmctl.tools.twin.effects import Context
+from pmctl.tools.twin.observations import observations, record_runs, regular_times, settled_rows, uniform_step
 
 MEASURED = ("enc", "load", "effort", "acc")
 
@@ -74,7 +75,6 @@ def build_context(columns: dict, machine: AxesMachine, *, cap=DEFAULT_CAP, bound
                   direction_before=None) -> Context:
     """The residuals of the nominal twin at the analysis rows, whitened and stacked (the same
     observations, runs and sample bookkeeping as the prototype's, pmctl.tools.twin.diagnose)."""
-    from pmctl.tools.twin.diagnose import observations, record_runs, regular_times, settled_rows, uniform_step
     t = np.asarray(columns["t"], float)
     n = len(t)
     bounds = np.asarray([0, n] if bounds is None else bounds, int)

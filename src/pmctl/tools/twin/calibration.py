@@ -32,6 +32,7 @@ import math
 from pathlib import Path
 
 KEYS = ("snr", "spread", "rel", "share", "left")
+MIN_DSSE = 30.0         # the acceptance threshold (pmctl.tools.twin.diagnose.accept), whitened: ~ 5 sigma of the held-out SSE difference of a null effect
 
 # BEGIN FITTED (written by benchmarks/eval_diagnosis.py --calibrate --write; do not edit by hand)
 COEF = {'const': 0.462, 'snr': 1.0006, 'spread': -0.1804, 'rel': 0.2058, 'share': 0.1826, 'left': -0.0257, 'partial_cap': 0.152}
@@ -43,7 +44,6 @@ DESCRIPTION = "logistic in held-out gain over threshold, fold spread of the para
 def features(ev) -> dict:
     """The five numbers of the logistic, plus ``weight_share`` for a finding named among look-alikes
     (its share of their weights: a cap, not a feature of the fit)."""
-    from pmctl.tools.twin.diagnose import MIN_DSSE
     thr = max(MIN_DSSE, ev["pen"])
     out = {"snr": math.log10(max(ev["d_cv"] / thr, 1e-3)),
            "spread": float(min(ev.get("spread", 0.0), 5.0)),

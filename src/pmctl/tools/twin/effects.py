@@ -29,6 +29,7 @@ from scipy import optimize, signal
 from pmctl.core import kinematics as kin
 from pmctl.core.plant_effects import direction, first_order_lag, play_error
 from pmctl.core.plant_effects import mode_response as resonance_response
+from pmctl.tools.twin.signals import noise_level, spectrum_position
 
 AXES = ("L1", "L2", "L3", "X", "Y")
 MAX_ALPHA = 1e-4   # /K, no solid screw expands more
@@ -487,6 +488,20 @@ class Backlash(AxisSignal):
                                for k, (s, e) in enumerate(zip(cut[:-1], cut[1:])) if e > s])
 
 
+def axis_projection(ctx: Context, a, y=None, site="load"):
+    """Per analysis row: the error on actuator a that best explains the residual by itself (mm)."""
+    o = ctx.obs
+    yy = o.y if y is None else y
+    g = axis_gain(ctx, a, site)
+    m = g != 0
+    if not np.any(m):
+        return np.array([]), np.array([]), np.array([], int)
+    num = np.bincount(o.row[m], g[m] * yy[m], minlength=len(ctx.t))
+    den = np.bincount(o.row[m], g[m] ** 2, minlength=len(ctx.t))
+    rows = np.nonzero(den > 0)[0]
+    return ctx.t[rows], num[rows] / den[rows], rows
+
+
 def screw_lead(ctx: Context, a: int) -> float | None:
     """The lead of axis a's screw (mm); a generic machine's only when its recording gives it."""
     if "axes" in ctx.extra:
@@ -540,7 +555,6 @@ def position_lines(x, e, v, moving_share, min_cycles, strongest_if_none=True) ->
     moving faster than ``moving_share`` of the top speed ``v``), at least ``min_cycles`` over the
     travel and at least 0.2 mm, strongest first (at most 3); without a peak, the spectrum's
     maximum when ``strongest_if_none``."""
-    from pmctl.tools.twin.locate import spectrum_position
     span = float(np.ptp(x)) if len(x) else 0.0
     sp = spectrum_position(x, e, np.abs(v) > moving_share * max(np.abs(v).max(initial=0.0), 1e-12))
     if sp is None:
@@ -595,7 +609,6 @@ class PitchError(AxisSignal):
         spectrum). A periodic error: the strongest lines of the axis-equivalent residual against
         screw position (binned, FFT), refined in :meth:`fit` before the lead-harmonic test (a line
         10 % off the lead falls into the lead's bin on a short travel)."""
-        from pmctl.tools.twin.locate import axis_projection, spectrum_position
         _, e, rows = axis_projection(ctx, self.a, y)
         span = float(np.ptp(ctx.q_cmd[rows, self.a])) if len(rows) else 0.0
         if self.effect == "pitch_error":
@@ -806,7 +819,6 @@ class ThermalGrowth(AxisSignal):
         r2 = ys - Bs[:, 2:] @ c2
         dsse_static = float(ys @ ys - r2 @ r2)
         # physical sanity: the temperature must really change (20 x its noise)
-        from pmctl.tools.twin.locate import noise_level
         key = ("temp_ok", self.channel)
         if key not in ctx.extra:
             Tfull = ctx.temps[self.channel]
@@ -1752,7 +1764,6 @@ class SensorGain(Candidate):
         o = ctx.obs
         if self.target not in o.channels:
             return False
-        from pmctl.tools.twin.locate import noise_level     # (locate imports this module)
         m = o.mask_of(self.target)
         p = o.pred[m][np.argsort(o.row[m], kind="stable")]     # in time order: its own noise from 2nd differences
         return np.ptp(p) > 0 and float(np.sqrt(np.mean(p * p))) > GAIN_SIGNAL_MIN * noise_level(p)

@@ -19,22 +19,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import signal
 
-from pmctl.tools.twin.effects import Context, axis_gain, axis_names, axis_velocity, welch_runs
-
-MAD_K = 1.4826
-
-
-def noise_level(x, floor=0.0):
-    """Robust white-noise level of a sequence (NaN ignored): MAD of second differences / √6."""
-    x = np.asarray(x, float)
-    x = x[np.isfinite(x)]
-    if len(x) < 5:
-        return max(float(np.std(x)) if len(x) else 0.0, floor)
-    d2 = x[2:] - 2 * x[1:-1] + x[:-2]
-    s = MAD_K * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6)
-    return max(s, floor)
+from pmctl.tools.twin.effects import Context, axis_names, axis_projection, axis_velocity, welch_runs
+from pmctl.tools.twin.signals import spectrum_position
 
 
 def moving_rms(x, n):
@@ -68,49 +55,12 @@ def channel_series(ctx: Context, name, y=None):
     return ctx.t[o.row[m][order]], yy[order]
 
 
-def axis_projection(ctx: Context, a, y=None, site="load"):
-    """Per analysis row: the error on actuator a that best explains the residual by itself (mm)."""
-    o = ctx.obs
-    yy = o.y if y is None else y
-    g = axis_gain(ctx, a, site)
-    m = g != 0
-    if not np.any(m):
-        return np.array([]), np.array([]), np.array([], int)
-    num = np.bincount(o.row[m], g[m] * yy[m], minlength=len(ctx.t))
-    den = np.bincount(o.row[m], g[m] ** 2, minlength=len(ctx.t))
-    rows = np.nonzero(den > 0)[0]
-    return ctx.t[rows], num[rows] / den[rows], rows
-
-
 def spectrum_time(t, x, cuts=None):
     """Welch spectrum of an (irregularly sampled) series after interpolation to its median step
     (``cuts``: run starts of a recording kept as runs, see effects.welch_runs)."""
     if len(x) < 64:
         return None
     return welch_runs(t, x, cuts)
-
-
-def spectrum_position(pos, x, moving):
-    """Spectrum of x against screw position: bin means on a uniform position grid (moving samples),
-    then a periodogram. Returns (cycles/mm, amplitude mm) or None."""
-    pos, x = pos[moving], x[moving]
-    if len(pos) < 64 or np.ptp(pos) <= 0:
-        return None
-    steps = np.abs(np.diff(np.sort(np.unique(pos))))
-    d = max(float(np.median(steps)) if len(steps) else 0.0, np.ptp(pos) / 20000)
-    nb = int(np.ptp(pos) / d) + 1
-    b = np.minimum(((pos - pos.min()) / d).astype(int), nb - 1)
-    cnt = np.bincount(b, minlength=nb)
-    s = np.bincount(b, x, minlength=nb)
-    ok = cnt > 0
-    if ok.sum() < 32:
-        return None
-    grid = np.arange(nb) * d
-    xu = np.interp(grid, grid[ok], s[ok] / cnt[ok])
-    xu = signal.detrend(xu)
-    spec = np.abs(np.fft.rfft(xu * np.hanning(len(xu)))) * 2 / (0.5 * len(xu))
-    f = np.fft.rfftfreq(len(xu), d)
-    return f, spec
 
 
 def _peak(f, p, fmin):

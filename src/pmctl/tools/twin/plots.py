@@ -6,8 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pmctl.tools.twin.effects import axis_names, welch_runs
-from pmctl.tools.twin.locate import axis_projection, channel_series, spectrum_position
+from pmctl.tools.twin.effects import axis_names, axis_projection, welch_runs
+from pmctl.tools.twin.locate import channel_series
+from pmctl.tools.twin.signals import spectrum_position
 
 
 def _plt():
