@@ -62,6 +62,7 @@ import numpy as np
 
 from pmctl.core.config import CONFIG_DIR, Machine, load_machine
 from pmctl.core.errors import InputError
+from pmctl.core.recording_axes import key_line
 
 FORMAT = "pmctl-recording/1"
 MAX_META_BYTES = 16 * 2**20
