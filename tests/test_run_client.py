@@ -126,6 +126,7 @@ def test_a_job_longer_than_the_batch_planner_holds_is_streamed(tmp_path, monkeyp
     at 3000 ticks, a 30 s job runs to its end, planned window by window (neither the batch planner
     nor a join of the pieces is called) and streamed through the bounded sample ring."""
     import pmctl.task.planner as P
+    import pmctl.task.supervisor as S
     from pmctl.interfaces.cli import main
     from pmctl.motion import channel as C
     from pmctl.motion.trajectory import Trajectory
@@ -134,6 +135,7 @@ def test_a_job_longer_than_the_batch_planner_holds_is_streamed(tmp_path, monkeyp
         raise AssertionError("the job was planned whole")
     monkeypatch.setattr(P, "MAX_SAMPLES", 3000)
     monkeypatch.setattr(P, "plan", refuse)
+    monkeypatch.setattr(S, "plan", refuse)              # the supervisor's own name for it
     monkeypatch.setattr(Trajectory, "join", classmethod(refuse))
     job = tmp_path / "long.ngc"
     lines = ["G17 G21 G90 G94", "G0 X5 Y0 Z60", "F120"] + ["G1 X-5" if i % 2 == 0 else "G1 X5" for i in range(6)]

@@ -111,7 +111,7 @@ def test_streamed_recording_equals_the_whole_run_arrays(tmp_path):
 
     from pmctl.core import kinematics as K
     from pmctl.core.recording import RecordingWriter
-    from pmctl.interfaces.commands.run import RunSink
+    from pmctl.task.run_sink import RunSink
     from pmctl.motion.loop import ControlLoop, tracking_stats
     from pmctl.motion.recorder import REC_WIDTH, Recorder
     from pmctl.motion.ring import Ring
@@ -178,7 +178,7 @@ def test_record_memory_does_not_grow_with_the_job(tmp_path):
     """A 2-minute job back to back: the recorder keeps no rows, the ring stays its fixed size, and
     the only per-tick memory is the tracking accumulator's 8 bytes a tick."""
     from pmctl.core.recording import RecordingWriter
-    from pmctl.interfaces.commands.run import RunSink
+    from pmctl.task.run_sink import RunSink
     from pmctl.motion.loop import ControlLoop
     from pmctl.motion.recorder import REC_CAPACITY, REC_WIDTH, Recorder
     from pmctl.motion.ring import Ring

@@ -5,7 +5,7 @@ is all empty or one value throughout (it reported "sensor_gain on strain_1 confi
 import numpy as np
 
 from pmctl.core.config import load_machine
-from pmctl.interfaces.commands.run import RunSink
+from pmctl.task.run_sink import RunSink
 from pmctl.motion.recorder import R_COUNTS, R_STRAIN, R_TICK, REC_WIDTH
 from pmctl.tools.twin import synth
 from pmctl.tools.twin.diagnose import build_context

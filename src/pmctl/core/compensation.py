@@ -28,6 +28,7 @@ layout of :meth:`Compensation.flat`. Pure math; no I/O except :func:`read_compen
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 from bisect import bisect_right
@@ -37,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core.errors import ConfigError
+from pmctl.core.strict_toml import Table, _kind, check_tables, read_toml
 
 # A commanded rate below this (mm/s; a pulse in about six days) leaves the direction as it was: the
 # pseudo-inverse leaves rounding residue (~1e-17 mm/s) on a joint that does not move while others
@@ -234,7 +236,6 @@ def parse_compensation(path, data: dict, *, allow_file=True) -> Compensation:
     """The ``[compensation]`` table (already parsed TOML) of the file ``path``: either
     ``file = "other.toml"`` (relative to ``path``; that file holds its own ``[compensation]``) or
     one sub-table per axis. Strict: ConfigError naming file, line and key."""
-    from pmctl.core.strict_toml import Table, _kind
     if not isinstance(data, dict):
         raise ConfigError(path, "compensation", f"must be a table, got {_kind(data)}")
     if "file" in data:
@@ -250,7 +251,6 @@ def parse_compensation(path, data: dict, *, allow_file=True) -> Compensation:
     axes = []
     for k, v in data.items():
         if k not in AXES:
-            import difflib
             near = difflib.get_close_matches(str(k), AXES + ("file",), n=1, cutoff=0.5)
             raise _error(path, "compensation", k, "unknown axis" + (f" (did you mean '{near[0]}'?)" if near else "")
                          + f"; axes: {', '.join(AXES)}, or file = \"...\"")
@@ -260,7 +260,6 @@ def parse_compensation(path, data: dict, *, allow_file=True) -> Compensation:
 
 
 def _axis(path, name, d) -> AxisComp:
-    from pmctl.core.strict_toml import Table
     tname = f"compensation.{name}"
     t = Table(path, d, tname)
     try:
@@ -296,7 +295,6 @@ def _axis(path, name, d) -> AxisComp:
 def read_compensation_file(path) -> Compensation:
     """A compensation file: a TOML file holding one ``[compensation]`` table (as written by
     ``pmctl twin diagnose --write-compensation``)."""
-    from pmctl.core.strict_toml import check_tables, read_toml
     data = read_toml(path)
     check_tables(path, data, ("compensation",))
     return parse_compensation(path, data["compensation"], allow_file=False)

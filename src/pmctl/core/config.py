@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pmctl.core.compensation import parse_compensation
 from pmctl.core.errors import ConfigError
 from pmctl.core.strict_toml import Table, check_tables, read_toml
 
@@ -222,7 +223,6 @@ def machine_from_dict(data: dict, path="<dict>") -> Machine:
 
     comp = None
     if "compensation" in data:
-        from pmctl.core.compensation import parse_compensation
         comp = parse_compensation(path, data["compensation"])
 
     return Machine(name, desc, str(path), geom, limits, res, mass, gain, stiff, {}, comp)

@@ -55,6 +55,7 @@ import json
 import math
 import os
 import re
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -62,7 +63,8 @@ import numpy as np
 
 from pmctl.core.config import CONFIG_DIR, Machine, load_machine
 from pmctl.core.errors import InputError
-from pmctl.core.recording_axes import key_line
+from pmctl.core.recording_axes import (axes_machine, axes_of, channel_kind as generic_kind, check_required, convert,
+                                       key_line)
 
 FORMAT = "pmctl-recording/1"
 MAX_META_BYTES = 16 * 2**20
@@ -95,7 +97,6 @@ def channel_kind(name: str, generic: bool = False) -> str | None:
     ``generic``: the channels of a recording of independent axes ('time', 'cmd', 'enc', 'load',
     'effort', 'acc', 'temp'; pmctl.core.recording_axes)."""
     if generic:
-        from pmctl.core.recording_axes import channel_kind as generic_kind
         return generic_kind(name)
     k = _KIND.get(name)
     if k is None and _TEMP_RE.match(name):
@@ -321,7 +322,6 @@ def _header(raw: bytes, path: Path, generic: bool = False) -> tuple[list[str], i
             raise InputError(path, 1, f"channel {nm!r} appears twice (columns {seen[nm]} and {j})", column=j)
         seen[nm] = j
     if generic:
-        from pmctl.core.recording_axes import check_required
         check_required(names, path)
         return names, (len(raw) if nl < 0 else nl + 1)
     for req in REQUIRED:
@@ -491,7 +491,6 @@ def read_recording(folder: str | Path) -> Recording:
     names, data, lines = read_data(folder / DATA_FILE, drop_torn_tail=torn_tail(meta), generic=generic)
     columns = {nm: np.ascontiguousarray(data[:, j]) for j, nm in enumerate(names)}
     if generic:
-        from pmctl.core.recording_axes import axes_machine, convert
         machine, conv = axes_machine(names, meta, mp, mp.read_text(encoding="utf-8-sig", errors="replace"))
         convert(columns, conv)
     else:
@@ -524,7 +523,6 @@ def _order(names, generic=False):
 def _missing(names, generic=False) -> list[str]:
     """The required channels a writer was not given (a generic recording: t and one cmd_<A>)."""
     if generic:
-        from pmctl.core.recording_axes import axes_of
         return [r for r in ("t",) if r not in names] + ([] if axes_of(names) else ["cmd_<A>"])
     return [r for r in REQUIRED if r not in names]
 
@@ -774,7 +772,6 @@ def check_target(folder, *, overwrite=False, force_flag="--force") -> None:
 
 
 def _remove_recording_dir(p: Path, missing_ok=False):
-    import shutil
     if not p.exists():
         if missing_ok:
             return

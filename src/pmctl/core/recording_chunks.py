@@ -39,6 +39,7 @@ from pmctl.core.errors import InputError
 from pmctl.core.plant_effects import direction
 from pmctl.core.recording import (CMD, DATA_FILE, META_FILE, REQUIRED, _fast_parse, _header, _slow_parse,
                                   channel_kind, is_generic, read_meta, torn_tail)
+from pmctl.core.recording_axes import axes_machine, convert
 
 BLOCK_BYTES = 16 << 20
 
@@ -198,7 +199,6 @@ def read_columns(folder, channels=None, *, measured_dtype=np.float32, block_byte
             parts = {n: [] for n, _, _ in keep}
             motion = {n: (None, 0.0) for n in names if n in cmds}
             if generic:
-                from pmctl.core.recording_axes import axes_machine
                 machine, conv = axes_machine(names, meta, mp, mp.read_text(encoding="utf-8-sig", errors="replace"))
         if rows is not None:
             _motion_before(names, row0, arr, rows, motion, before)
@@ -217,6 +217,5 @@ def read_columns(folder, channels=None, *, measured_dtype=np.float32, block_byte
         p = parts.pop(n)
         columns[n] = np.concatenate(p) if p else np.zeros(0, dt)
     if generic:
-        from pmctl.core.recording_axes import convert
         convert(columns, conv)
     return meta, machine, columns

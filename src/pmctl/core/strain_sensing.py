@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pmctl.core import statics
+from pmctl.core import kinematics as K, statics
 from pmctl.core.config import Machine
 from pmctl.core.kinematics import _mv, constraint_jacobian
 
@@ -223,7 +223,6 @@ def simulate_probe(P, R, machine: Machine, *, start, direction, surface_mm: floa
 def tip_load_of_joints(strain, q, machine: Machine):
     """:func:`tip_load` in batch at the poses of joint positions ``q`` (..., 5) (the model's: the
     commanded joints), gravity taken off; NaN where the forward kinematics fails. (..., 3) N."""
-    from pmctl.core import kinematics as K
     q = np.asarray(q, float)
     strain = np.asarray(strain, float)
     out = np.full(q.shape[:-1] + (3,), np.nan)

@@ -11,6 +11,8 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
+import numpy as np
+
 SYNC = 0x7E
 FRAME_MIN = 6
 FRAME_MAX = 125        # < SYNC: a SYNC byte is never a valid LEN
@@ -255,14 +257,12 @@ EDGE_LOW, EDGE_HIGH, EDGE_DIR_NEG, EDGE_DIR_POS, EDGE_TICK = 0, 1, 2, 3, 4
 
 def read_edge_log(path):
     """The host bridge's --edge-log: a numpy record array (t ns, tick, axis, kind)."""
-    import numpy as np
     return np.fromfile(path, dtype=np.dtype(EDGE_DTYPE))
 
 
 def executed_steps(log):
     """Signed steps per axis in an edge log (each rising edge counts in the direction last set;
     the bridge starts with every direction positive)."""
-    import numpy as np
     out = np.zeros(NAXES, np.int64)
     for a in range(NAXES):
         ev = log[(log["axis"] == a) & (log["kind"] != EDGE_LOW)]

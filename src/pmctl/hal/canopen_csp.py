@@ -44,16 +44,22 @@ pty, which the backend starts, waits for and stops. A simulator that dies is a l
 from __future__ import annotations
 
 import math
+import queue
 import struct
 import threading
 import time
 from dataclasses import dataclass, fields
 
+import can
+import canopen
 import numpy as np
 
 from pmctl.core.errors import ConfigError
 from pmctl.hal import cia402 as C
 from pmctl.hal.base import AXES, Backend, Feedback, HalError, HalTimeout, Inputs, Status, switch_positions
+from pmctl.hal.cia402_sim import EDS_PATH, SimDriveSet
+from pmctl.hal.devsim import DeviceSimulator, DeviceSimulatorError
+from pmctl.hal.slcan_link import SlcanLinkBus, encode_batch
 
 RPDO_BYTES = 6          # target position (INTEGER32) + controlword (UNSIGNED16)
 TPDO_BYTES = 7          # position actual (INTEGER32) + statusword (UNSIGNED16) + digital inputs 0x60FD bits 0-7
@@ -231,7 +237,6 @@ class _CycleWriter:
     at the next read)."""
 
     def __init__(self, write, encode, lock, failed, priority: int):
-        import queue
         self.encode = encode
         self._q = queue.SimpleQueue()
         self._write, self._lock, self._failed = write, lock, failed
@@ -317,11 +322,9 @@ class CanopenCSP(Backend):
 
     # ---------------------------------------------------------------- helpers
     def _eds(self):
-        from pmctl.hal.cia402_sim import EDS_PATH
         return self.opt.eds or EDS_PATH
 
     def _sdo_write(self, d: _Drive, index, sub, value, what):
-        import canopen
         try:
             obj = d.node.sdo[index] if sub is None else d.node.sdo[index][sub]
             obj.raw = value
@@ -330,7 +333,6 @@ class CanopenCSP(Backend):
             raise HalError(f"canopen {d.name}: SDO write {where} ({what}) = {value!r} failed: {e}") from None
 
     def _sdo_read(self, d: _Drive, index, sub, what):
-        import canopen
         try:
             obj = d.node.sdo[index] if sub is None else d.node.sdo[index][sub]
             return obj.raw
@@ -394,8 +396,6 @@ class CanopenCSP(Backend):
 
     # ---------------------------------------------------------------- open
     def open(self, counts) -> None:
-        import can
-        import canopen
         o = self.opt
         counts = np.asarray(counts, np.int64)
         ppm = self.machine.resolution.pulses_per_mm
@@ -406,8 +406,6 @@ class CanopenCSP(Backend):
         bus = None
         try:
             if o.simulate and o.interface == "slcan":
-                from pmctl.hal.devsim import DeviceSimulator, DeviceSimulatorError
-                from pmctl.hal.slcan_link import SlcanLinkBus
                 spec = {"can": {"node_ids": list(o.node_ids), "positions": self._targets.tolist(),
                                 "lag_s": o.sim_lag_ms / 1e3, "eds": self._eds(), "tcp": True, "home_at": home_at,
                                 "ptys": (1 if o.sim_link == "pty" else 0) + o.sim_listen_links},
@@ -420,7 +418,6 @@ class CanopenCSP(Backend):
                 except (DeviceSimulatorError, can.CanError) as e:
                     raise HalError(f"canopen: simulated drives: {e}") from None
             elif o.simulate:
-                from pmctl.hal.cia402_sim import SimDriveSet
                 self.sim = SimDriveSet(o.node_ids, self._targets.tolist(), interface=o.interface,
                                        channel=o.channel, bitrate=o.bitrate, lag_s=o.sim_lag_ms / 1e3,
                                        eds=self._eds(), home_at=home_at)
@@ -467,7 +464,6 @@ class CanopenCSP(Backend):
                                f"supported; nothing was configured")
 
     def _configure(self):
-        import canopen
         o = self.opt
         net = self.network
         net.nmt.send_command(0x80)            # all pre-operational (PDOs off while mapping)
@@ -626,7 +622,6 @@ class CanopenCSP(Backend):
     def _cycle_frames(self) -> list:
         """The frames of a cycle, built once: RPDO1 of each drive (6 bytes), SYNC (no data), the
         host heartbeat (operational); and the bus's batch send, if it has one."""
-        import can
         self._batch = getattr(self.network.bus, "send_batch", None)
         fr = [can.Message(arbitration_id=C.cob_rpdo1(d.id), is_extended_id=False, data=bytearray(RPDO_BYTES))
               for d in self.drives]
@@ -639,7 +634,6 @@ class CanopenCSP(Backend):
         """The cycle writer, when the bus takes encoded lines (an slcan link)."""
         bus = self.network.bus
         if self._writer is None and hasattr(bus, "send_lines"):
-            from pmctl.hal.slcan_link import encode_batch
             o = self.opt
 
             def failed(e):

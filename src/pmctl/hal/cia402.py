@@ -8,6 +8,8 @@ Pure: no bus, no threads.
 
 from __future__ import annotations
 
+import os
+import threading
 from dataclasses import dataclass
 
 DEVICE_TYPE_402 = 0x00020192       # 0x1000: CiA 402 drive, servo (0x0002 in the high word), profile 402
@@ -250,8 +252,6 @@ def boost_bus_threads(network, priority: int) -> bool:
 
 def boost_thread(t, priority: int) -> bool:
     """SCHED_FIFO ``priority`` for one running thread, when permitted."""
-    import os
-    import threading
     if priority <= 0 or not isinstance(t, threading.Thread) or not t.native_id:
         return False
     try:

@@ -23,12 +23,14 @@ import json
 import os
 import queue
 import select
+import socket
 import subprocess
 import sys
 import threading
 import time
 
 from pmctl.hal.base import HalError
+from pmctl.hal.vfd_registers import VfdRegisters
 
 READY_TIMEOUT_S = 60.0      # imports and server start on a loaded 2-core machine
 
@@ -55,9 +57,8 @@ class Hub:
     own time slice."""
 
     def __init__(self, n_pty: int = 0, tcp: bool = True):
-        import socket
 
-        from pmctl.hal.slcan_link import LineReader, raw
+        from pmctl.hal.slcan_link import LineReader, raw  # lazy: python-can loads only when CAN drives are simulated
         self.ptys = []                      # (master fd, slave fd, slave path)
         self.fds = {}                       # link fd -> its LineReader
         for _ in range(n_pty):
@@ -139,9 +140,8 @@ class Hub:
                     self._pending.pop(fd, None)
 
     def _accept(self):
-        import socket
 
-        from pmctl.hal.slcan_link import LineReader
+        from pmctl.hal.slcan_link import LineReader  # lazy: python-can loads only when CAN drives are simulated
         conn, _ = self.listener.accept()
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         conn.setblocking(False)
@@ -159,7 +159,7 @@ class Hub:
             sock.close()
 
     def _run(self):
-        from pmctl.hal.slcan_link import CR, decode
+        from pmctl.hal.slcan_link import CR, decode  # lazy: python-can loads only when CAN drives are simulated
         while not self._stop.is_set():
             watch = list(self.fds) + ([self.listener.fileno()] if self.listener is not None else [])
             with self._wlock:
@@ -213,7 +213,7 @@ class NullModem:
     the other side's user reads (e.g. an RTU server on one, the client on the other)."""
 
     def __init__(self):
-        from pmctl.hal.slcan_link import raw
+        from pmctl.hal.slcan_link import raw  # lazy: python-can loads only when CAN drives are simulated
         self.ends = []
         for _ in range(2):
             m, s = os.openpty()
@@ -247,9 +247,9 @@ class NullModem:
 
 def hub_bus(hub: Hub):
     """The python-can bus of the simulated nodes on the hub's wire."""
-    import can
+    import can  # lazy: python-can loads only when CAN drives are simulated
 
-    from pmctl.hal.slcan_link import encode
+    from pmctl.hal.slcan_link import encode  # lazy: python-can loads only when CAN drives are simulated
 
     class HubBus(can.BusABC):
         def __init__(self):
@@ -293,6 +293,7 @@ class _Sim:
         self.strain = [0.0, 0.0, 0.0]
         if "can" in spec:
             c = spec["can"]
+            # lazy: canopen loads only when CAN drives are simulated
             from pmctl.hal.cia402_sim import EDS_PATH, SimDriveSet
             self.hub = Hub(int(c.get("ptys", 0)), tcp=bool(c.get("tcp", True))).start()
             self.drives = SimDriveSet(c["node_ids"], c["positions"], bus=hub_bus(self.hub),
@@ -300,8 +301,8 @@ class _Sim:
                                       home_at=c.get("home_at"))
         if "vfd" in spec:
             v = spec["vfd"]
+            # lazy: pymodbus loads only when a Modbus device is simulated
             from pmctl.hal.modbus_sim import ModbusSimServer, SimVFD
-            from pmctl.hal.vfd_registers import VfdRegisters
             self.vfd = SimVFD(VfdRegisters(**v["registers"]), max_hz=v["max_hz"], rpm_per_hz=v["max_rpm"] / v["max_hz"],
                               ramp_hz_per_s=v["ramp_rpm_per_s"] * v["max_hz"] / v["max_rpm"])
             serial = None
@@ -311,6 +312,7 @@ class _Sim:
             self.vfd_server = ModbusSimServer(self.vfd, v["host"], v["port"], v["device_id"], serial=serial).start()
         if "daq" in spec:
             d = spec["daq"]
+            # lazy: pymodbus loads only when a Modbus device is simulated
             from pmctl.hal.modbus_sim import ModbusSimServer, SimDAQ
             self.daq = SimDAQ(lambda: self.strain, d["base"], d["ue_per_count"], d["sample_hz"])
             self.daq_server = ModbusSimServer(self.daq, d["host"], d["port"], d["device_id"],

@@ -19,9 +19,12 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+
+import numpy as np
 
 from pmctl.core.errors import ConfigError
+from pmctl.core.strict_toml import Table
 from pmctl.hal.base import HalError, HalTimeout
 from pmctl.hal.devsim import start_simulated, stop_simulated
 
@@ -54,7 +57,6 @@ class DaqOptions:
     def from_dict(cls, d: dict, where="daq") -> "DaqOptions":
         """The ``[daq]`` table read strictly (pmctl.core.strict_toml.Table: every key known, every
         value of its exact type and range); ConfigError(where, key, reason)."""
-        from pmctl.core.strict_toml import Table
         t = Table(where, d, "")
         b = cls()
         pos = dict(positive=True, hi=1e15)
@@ -117,7 +119,6 @@ def chain_deflection_mm(strain_ue, machine):
     """Static axial elongation of each chain (mm, tension positive) from its plate-link strain
     (microstrain, tension positive): tension = strain / strain_gain (N), elongation = tension /
     the chain's axial stiffness (N/mm)."""
-    import numpy as np
     return np.asarray(strain_ue, float) / machine.strain_gain / machine.stiffness.chain_axial
 
 
@@ -134,7 +135,6 @@ class SlowDeflection:
         self._t = None
 
     def update(self, t: float, strain_ue) -> list[float]:
-        import math
         d = chain_deflection_mm(strain_ue, self.machine)
         if self.value is None:
             self.value = d.copy()
@@ -171,7 +171,7 @@ class StrainDAQ:
         return f"input register 0x{a:04X} ({'sample counter' if i == 3 else f'strain gauge {i + 1}'})"
 
     def connect(self):
-        from pymodbus.client import ModbusTcpClient
+        from pymodbus.client import ModbusTcpClient  # lazy: pymodbus loads only when a Modbus device is used
         self.client = ModbusTcpClient(self.opt.host, port=self.opt.port, timeout=self.opt.timeout_ms / 1e3,
                                       retries=0, reconnect_delay=0)
         if not self.client.connect():
@@ -181,7 +181,7 @@ class StrainDAQ:
 
     def poll(self):
         """One read of the four registers; checks the age. Returns (t, counter, strain)."""
-        from pymodbus.exceptions import ModbusException
+        from pymodbus.exceptions import ModbusException  # lazy: pymodbus loads only when a Modbus device is used
         if self.before_poll is not None:
             self.before_poll()
         t_req = time.monotonic()
@@ -243,7 +243,6 @@ class StrainDAQ:
 
     def per_tick(self, n):
         """Strain (n, 3) per tick, each sample held until the next (NaN before the first)."""
-        import numpy as np
         out = np.full((n, 3), np.nan)
         for tk, _t, s in self.samples:
             out[max(0, tk):] = s
@@ -269,7 +268,6 @@ class DaqSession:
     last offset is held while the run stops."""
 
     def __init__(self, opt: DaqOptions, source=None, log=print, machine=None, on_offset=None):
-        from dataclasses import replace
         self.opt = replace(opt)
         self.machine = machine             # given: the slow chain-deflection estimate is kept too
         self.source = source or (lambda: (0.0, 0.0, 0.0))

@@ -85,7 +85,7 @@ class ModbusSimServer:
         async def main():
             try:
                 if self.serial is not None:
-                    from pymodbus import FramerType
+                    from pymodbus import FramerType  # lazy: pymodbus loads only when a Modbus device is used
                     from pymodbus.server import ModbusSerialServer
                     self._server = ModbusSerialServer(self.context, framer=FramerType.RTU, bytesize=8,
                                                       **self.serial)

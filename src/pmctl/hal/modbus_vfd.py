@@ -17,9 +17,12 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
+
+import numpy as np
 
 from pmctl.core.errors import ConfigError
+from pmctl.core.strict_toml import Table
 from pmctl.hal.base import HalError, HalTimeout
 from pmctl.hal.devsim import start_simulated, stop_simulated
 from pmctl.hal.vfd_registers import VfdRegisters
@@ -55,7 +58,6 @@ class VfdOptions:
         """The ``[spindle]`` table (and ``[spindle.registers]``) read strictly
         (pmctl.core.strict_toml.Table: every key known, every value of its exact type and range);
         ConfigError(where, key, reason)."""
-        from pmctl.core.strict_toml import Table
         t = Table(where, d, "")
         b = cls()
         pos = dict(positive=True, hi=1e15)
@@ -138,13 +140,13 @@ class SpindleVFD:
     def connect(self):
         o = self.opt
         if o.transport == "rtu":
-            from pymodbus import FramerType
+            from pymodbus import FramerType  # lazy: pymodbus loads only when a Modbus device is used
             from pymodbus.client import ModbusSerialClient
             self.client = ModbusSerialClient(o.serial_port, framer=FramerType.RTU, baudrate=o.baud, bytesize=8,
                                              parity=o.parity, stopbits=o.stop_bits, timeout=o.timeout_ms / 1e3,
                                              retries=0, reconnect_delay=0)
         else:
-            from pymodbus.client import ModbusTcpClient
+            from pymodbus.client import ModbusTcpClient  # lazy: pymodbus loads only when a Modbus device is used
             self.client = ModbusTcpClient(o.host, port=o.port, timeout=o.timeout_ms / 1e3,
                                           retries=0, reconnect_delay=0)
         if not self.client.connect():
@@ -158,7 +160,7 @@ class SpindleVFD:
             self.client = None
 
     def _read(self, addr):
-        from pymodbus.exceptions import ModbusException
+        from pymodbus.exceptions import ModbusException  # lazy: pymodbus loads only when a Modbus device is used
         with self._lock:
             try:
                 rr = self.client.read_holding_registers(addr, count=1, device_id=self.opt.device_id)
@@ -169,7 +171,7 @@ class SpindleVFD:
         return rr.registers[0]
 
     def _write(self, addr, value):
-        from pymodbus.exceptions import ModbusException
+        from pymodbus.exceptions import ModbusException  # lazy: pymodbus loads only when a Modbus device is used
         with self._lock:
             try:
                 rr = self.client.write_register(addr, int(value), device_id=self.opt.device_id)
@@ -279,7 +281,6 @@ class SpindleMonitor:
 
     def per_tick(self, n_ticks: int):
         """rpm per tick 0 .. n-1, holding each sample until the next (NaN before the first)."""
-        import numpy as np
         out = np.full(n_ticks, np.nan)
         for k, (tk, rpm) in enumerate(self.samples):
             out[max(0, tk):] = rpm
@@ -288,7 +289,6 @@ class SpindleMonitor:
 
 def sim_spec(opt: VfdOptions) -> dict:
     """What the device simulator (pmctl.hal.devsim) needs to serve a VFD for ``opt``."""
-    from dataclasses import asdict
     spec = {"registers": asdict(opt.registers), "max_hz": opt.max_hz, "max_rpm": opt.max_rpm,
             "ramp_rpm_per_s": opt.sim_ramp_rpm_per_s, "host": opt.host, "port": opt.port,
             "device_id": opt.device_id}
@@ -300,6 +300,7 @@ def sim_spec(opt: VfdOptions) -> dict:
 def simulated(opt: VfdOptions):
     """Start a simulated VFD for ``opt`` in this process (tests); returns (server, device). The
     chosen port is written back to ``opt.port`` when it was 0."""
+    # lazy: pymodbus loads only when a Modbus device is simulated
     from pmctl.hal.modbus_sim import ModbusSimServer, SimVFD
     dev = SimVFD(opt.registers, max_hz=opt.max_hz, rpm_per_hz=opt.max_rpm / opt.max_hz,
                  ramp_hz_per_s=opt.sim_ramp_rpm_per_s * opt.max_hz / opt.max_rpm)
@@ -311,7 +312,6 @@ def simulated(opt: VfdOptions):
 def job_speed(spindle_rpm) -> float:
     """The spindle speed a job starts with (signed: negative = M4): its first non-zero one, 0 when
     the spindle stays off. Later changes are ``speed_changes``."""
-    import numpy as np
     v = np.asarray(spindle_rpm, float)
     on = v[v != 0]
     return float(on[0]) if len(on) else 0.0
@@ -328,7 +328,6 @@ def speed_changes(spindle_rpm, q, job_start: int = 0) -> list[tuple[int, float, 
     targets' joints, ``job_start``: the first job sample among them); it is at rest when the
     joints move less than ``REST_STEP_MM`` per sample around it. Trailing zeros (the M5 at the end)
     are no change."""
-    import numpy as np
     v = np.asarray(spindle_rpm, float)
     q = np.asarray(q, float)
     on = np.flatnonzero(v)
@@ -403,7 +402,6 @@ class SpindleSession:
     """The spindle for one run: (simulated VFD,) connect, start and wait at speed, watch, stop."""
 
     def __init__(self, opt: VfdOptions, log=print):
-        from dataclasses import replace
         self.opt = replace(opt)            # the simulated port is written back into this copy
         self.log = log
         self.server = self.device = None
@@ -458,7 +456,6 @@ class SpindleSession:
         self.monitor.start()
 
     def per_tick(self, n):
-        import numpy as np
         if self.monitor is None:
             return np.full(n, np.nan)
         return self.monitor.per_tick(n)

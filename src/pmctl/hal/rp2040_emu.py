@@ -43,6 +43,8 @@ import time
 import tty
 from pathlib import Path
 
+import numpy as np
+
 from pmctl.hal.base import HalError, HalTimeout
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[3] / "firmware_bridge"
@@ -93,7 +95,6 @@ CPU_LOG_DTYPE = [("t", "<u8"), ("cycles", "<u8"), ("spin", "<u8")]
 def read_cpu_log(path):
     """The emulator's --cpu-log: per tick start, the simulated time (ns), the cycles the CPU executed
     so far (not asleep), and the cycles of those the firmware spent spinning on a time."""
-    import numpy as np
     return np.fromfile(path, dtype=np.dtype(CPU_LOG_DTYPE))
 
 

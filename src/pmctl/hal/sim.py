@@ -33,6 +33,7 @@ a stall (``read`` blocks, then times out) and lost steps (the motor slips by a g
 
 from __future__ import annotations
 
+import difflib
 import math
 import time
 from dataclasses import dataclass, fields
@@ -45,7 +46,8 @@ from pmctl.core.config import Machine
 from pmctl.core.kinematics import forward_platform, tool_of_platform
 from pmctl.core.model_fk import fk_only_constants
 from pmctl.core.plant_effects import SCREW_FIXED_END_MM
-from pmctl.core.errors import ConfigError
+from pmctl.core.errors import ConfigError, KinematicsError
+from pmctl.core.strict_toml import Table
 from pmctl.hal import _simplant
 from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Inputs, Status
 
@@ -101,9 +103,7 @@ class SimOptions:
         """Strictly validated options (the ``[hal.sim]`` table): every key known, every value of its
         exact type (no string or bool for a number, no string for a bool) and within range; a vector
         option takes one number for all axes or one per axis. ConfigError(where, key, reason)."""
-        import difflib
 
-        from pmctl.core.strict_toml import Table
         if isinstance(d, SimOptions):
             d = {f.name: getattr(d, f.name) for f in fields(cls)}
         base = cls()
@@ -238,7 +238,6 @@ class SimBackend(Backend):
 
     # ---------------------------------------------------------------- Backend API
     def open(self, counts):
-        from pmctl.core.errors import KinematicsError
         L = self._lib
         self.counts = np.array(counts, dtype=np.int64)
         if self.opt.motor_offset_mm is not None:

@@ -34,10 +34,12 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
+import serial
 
 from pmctl.core.errors import ConfigError
 from pmctl.hal import bridge_protocol as bp
 from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Inputs, Status, switch_positions
+from pmctl.hal.rp2040_emu import Emulator
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[3] / "firmware_bridge"
 HOST_PTY = "host-pty"
@@ -243,7 +245,6 @@ class StepDirBackend(Backend):
         return line[4:]
 
     def _start_emulated_chip(self):
-        from pmctl.hal.rp2040_emu import Emulator
         o = self.opt
         self.emu = Emulator(edge_log=o.edge_log or None, control=o.control or None, host_paced_ms=5.0,
                             home_at=[(i, int(round(mm * self.ppm[i]))) for i, mm in enumerate(o.home_switch_mm)])
@@ -251,7 +252,6 @@ class StepDirBackend(Backend):
         return self.emu.port
 
     def _open_port(self, path: str):
-        import serial
         try:
             self._ser = serial.Serial(path, baudrate=self.opt.baud, timeout=0, write_timeout=0)
         except (serial.SerialException, OSError) as e:

@@ -22,8 +22,29 @@ from pathlib import Path
 
 import numpy as np
 
+from pmctl import hal
 from pmctl.core import kinematics as K
+from pmctl.core.alarms import ALARM_HOMING_REQUIRED
+from pmctl.core.config import CONFIG_DIR
+from pmctl.core.errors import MotionRefused, PmctlError
+from pmctl.core.job import home_pose
+from pmctl.core.recording import RecordingWriter
+from pmctl.hal.base import Backend
+from pmctl.interfaces.console.control import ControlServer
+from pmctl.interfaces.console.grbl import GrblConsole
+from pmctl.interfaces.console.port import ConsolePort
 from pmctl.motion import channel as C
+from pmctl.motion.nc import counts_of
+from pmctl.motion.service_config import strain_in_loop
+from pmctl.motion.state_store import StateLock, load_counters
+from pmctl.task.gcode import reader_options
+from pmctl.task.job import load_job
+from pmctl.task.jog import make_jogger
+from pmctl.task.journal import Journal, journal_path
+from pmctl.task.notify import sd_notify, watchdog_period_s
+from pmctl.task.resume import CLEARANCE_MM, resume_job
+from pmctl.task.run_sink import RunSink
+from pmctl.task.supervisor import Supervisor
 
 
 RT_FRESH_S = 0.5      # the rt status older than this (or than the ping period, if shorter) stops the pings
@@ -53,12 +74,6 @@ class Daemon:
 
     # ------------------------------------------------------------ start
     def start(self):
-        from pmctl.motion.nc import counts_of
-        from pmctl.motion.state_store import StateLock, load_counters
-        from pmctl.task.journal import Journal, journal_path
-        from pmctl.core.job import home_pose
-        from pmctl.task.supervisor import Supervisor
-        from pmctl.core.alarms import ALARM_HOMING_REQUIRED
 
         sup = Supervisor(self.config, service=self.service, backend=self.backend, state_file=self.state_file,
                          realtime=self.realtime, rate_hz=self.rate_hz, log=self.log)
@@ -116,19 +131,14 @@ class Daemon:
         sup.homed = bool(self.journal.data.get("homed"))
         self.journal.save(running=False)
         if self.socket_path:
-            from pmctl.interfaces.console.control import ControlServer
             self.ctl = ControlServer(self, self.socket_path)
             self.ctl.start()
         if self.console_spec:
-            from pmctl.interfaces.console.grbl import GrblConsole
-            from pmctl.interfaces.console.port import ConsolePort
-            from pmctl.task.jog import make_jogger
             self.port = ConsolePort(self.console_spec)
             self.console = GrblConsole(sup, self.port.fd, self.journal, log=self.log, jogger=make_jogger(sup),
                                        homing=self.home, present=self.port.client_present)
             self.console.start()
             self.log(f"console on {self.port.device}" + (f" (link {self.port.link})" if self.port.link else ""))
-        from pmctl.task.notify import sd_notify
         sd_notify(f"READY=1\nSTATUS={sup.state_name()}: {self.position_note}\nMAINPID={os.getpid()}")
 
     # ------------------------------------------------------------ homing, resume
@@ -145,10 +155,6 @@ class Daemon:
         """Queue the rest of the interrupted job from its line (or ``line``), with the safe approach of
         pmctl.task.resume from where the machine is. Refused in alarm (confirm with $X or home with
         $H first), while motion is queued, or when the approach is unreachable."""
-        from pmctl.core.errors import PmctlError
-        from pmctl.task.job import load_job
-        from pmctl.task.resume import CLEARANCE_MM, resume_job
-        from pmctl.core.errors import MotionRefused
         sup = self.sup
         if self.interrupted is None:
             raise PmctlError("no interrupted job to resume (the journal records none)")
@@ -160,7 +166,6 @@ class Daemon:
         line = jline if line is None else int(line)
         if start is not None:
             start = (np.asarray(start[:3], float), np.asarray(start[3:], float))
-        from pmctl.task.gcode import reader_options
         offsets = self.console.interp.offsets() if getattr(self, "console", None) is not None else \
             self.journal.data.get("offsets")
         job = load_job(path, sup.machine, start=start, **reader_options(path, sup.svc.interpreter, offsets))
@@ -177,7 +182,6 @@ class Daemon:
     # ------------------------------------------------------------ recording
     def record_start(self, folder):
         """Start recording the session into ``folder`` (control socket ``record start``)."""
-        from pmctl.core.errors import PmctlError
         with self._rec_lock:
             if self.rec is not None:
                 raise PmctlError(f"already recording into {self.record_dir}")
@@ -191,7 +195,6 @@ class Daemon:
 
     def record_stop(self):
         """Finalise the recording (control socket ``record stop``); returns its folder."""
-        from pmctl.core.errors import PmctlError
         with self._rec_lock:
             if self.rec is None:
                 raise PmctlError("not recording")
@@ -203,12 +206,7 @@ class Daemon:
     def _open_recording(self):
         """The session recording: the channels of ``pmctl run``'s (pmctl.task.run_sink.RunSink, one
         piece for both) plus ``line`` and ``sigma``, the time running on across an rt restart."""
-        from pmctl import hal
-        from pmctl.core.recording import RecordingWriter
-        from pmctl.hal.base import Backend
-        from pmctl.task.run_sink import RunSink
         sup = self.sup
-        from pmctl.motion.service_config import strain_in_loop
         cls = hal.backend_class(sup.backend)
         load = strain_in_loop(sup.backend)                  # gauges in the cyclic data
         rs = RunSink(sup.machine, sup.machine.resolution.pulses_per_mm, sup.rate_hz, cls.truth is not Backend.truth,
@@ -218,7 +216,6 @@ class Daemon:
         folder = Path(self.record_dir)       # written into folder.partial, renamed on finishing
         machine_ref = str(self.config)
         if machine_ref.endswith(".toml"):
-            from pmctl.core.config import CONFIG_DIR
             p = Path(machine_ref).resolve()
             machine_ref = p.stem if p.parent == CONFIG_DIR.resolve() else os.path.relpath(p, folder.resolve())
         rec = RecordingWriter(folder, chans, machine=machine_ref, sample_rate_hz=sup.rate_hz,
@@ -243,7 +240,6 @@ class Daemon:
             signal.signal(sig, self._on_signal)
 
     def serve_forever(self):
-        from pmctl.task.notify import watchdog_period_s
         self.catch_stop_signals()
         wd = watchdog_period_s()
         try:
@@ -254,7 +250,6 @@ class Daemon:
         return self.shutdown()
 
     def _watch(self, wd):
-        from pmctl.task.notify import sd_notify
         last_ping = 0.0
         last_line = None
         last_status = ""
@@ -315,7 +310,6 @@ class Daemon:
         self._stop.set()
 
     def shutdown(self) -> int:
-        from pmctl.task.notify import sd_notify
         sd_notify("STOPPING=1")
         self.log(f"stopping ({self.stop_reason or 'shutdown'}): feed hold on the path, saving the position")
         if self.console is not None:

@@ -24,7 +24,10 @@ The supervisor creates the segment and unlinks it at exit; the rt side attaches 
 
 from __future__ import annotations
 
+import gc
+import json
 import math
+from multiprocessing import shared_memory
 
 import numpy as np
 
@@ -92,7 +95,6 @@ class Channel:
 
     def __init__(self, name: str | None = None, *, create: bool = False, sample_capacity=SAMPLE_CAPACITY,
                  record_capacity=RECORD_CAPACITY):
-        from multiprocessing import shared_memory
         size = segment_size(sample_capacity, record_capacity)
         if create:
             self.shm = shared_memory.SharedMemory(create=True, size=size)
@@ -140,7 +142,6 @@ class Channel:
 
     def set_result(self, result: dict):
         """The rt side's end result (JSON; written once, as it exits): the body first, then its length."""
-        import json
         b = json.dumps(result).encode()[:RESULT_BYTES - 8]
         self._result[8:8 + len(b)] = np.frombuffer(b, np.uint8)
         self._result[:8] = np.frombuffer(np.int64(len(b)).tobytes(), np.uint8)
@@ -148,7 +149,6 @@ class Channel:
     # ---- supervisor side
     def result(self) -> dict | None:
         """The rt side's end result, or None when it has not written one (killed, or still running)."""
-        import json
         n = int(np.frombuffer(bytes(self._result[:8]), np.int64)[0])
         if n <= 0:
             return None
@@ -183,7 +183,6 @@ class Channel:
         for a in ("st", "_reason", "commands", "samples", "records", "probe", "_result"):
             if hasattr(self, a):
                 delattr(self, a)
-        import gc
         gc.collect()
         try:
             self.shm.close()

@@ -41,7 +41,10 @@ from pmctl.core.errors import KinematicsError, PmctlError, UnreachablePose
 from pmctl.hal import Backend, HalError, HalTimeout
 from pmctl.motion.nc import HALTED, RUN, NCParams, NCState
 from pmctl.motion.ncore import make_nc
-from pmctl.motion.timescale import HOLDING
+from pmctl.motion.recorder import (REC_CAPACITY, REC_WIDTH, R_COUNTS, R_ENC, R_LINE, R_S, R_SIGMA, R_STRAIN,
+                                   R_TARGET, R_TRUTH, Recorder)
+from pmctl.motion.ring import ArraySource, Ring
+from pmctl.motion.timescale import HOLDING, S_CAP, backward_pass, make_follower, make_rows, scaling_limits
 from pmctl.motion.service_config import LoopConfig
 from pmctl.motion.state_store import CounterWriter
 from pmctl.motion.trajectory import Trajectory
@@ -304,9 +307,6 @@ class ControlLoop:
                  cfg: LoopConfig, state: NCState, *, log=None, writer: CounterWriter | None = None,
                  follower=None, records=None, recorder=None, hook=None, exit_when_done: bool = True,
                  setup_rt: bool | None = None, probe=None):
-        from pmctl.motion.recorder import REC_CAPACITY, REC_WIDTH, Recorder
-        from pmctl.motion.ring import ArraySource, Ring
-        from pmctl.motion.timescale import make_follower
         self.machine, self.backend, self.params = machine, backend, params
         self.targets, self.cfg, self.state0 = targets, cfg, state
         self.log = log or (lambda msg: print(f"pmctl: {msg}", file=sys.stderr))
@@ -584,7 +584,6 @@ class ControlLoop:
                      f"not a stall without real time")
         timing = TimingStats(comp[order].copy(), late[order].copy(), ncns[order].copy(), overruns, max_in_row,
                              cfg.realtime, msgs, slow)
-        from pmctl.motion.recorder import R_COUNTS, R_ENC, R_LINE, R_S, R_SIGMA, R_STRAIN, R_TARGET, R_TRUTH
         a = recorder.arrays() if recorder.keep else np.zeros((0, self.records.width))
         return LoopResult(status, reason, n, st.snapshot(), timing, 1.0 / cfg.rate_hz,
                           a[:, R_COUNTS:R_COUNTS + 5].astype(np.int64), a[:, R_ENC:R_ENC + 5],
@@ -632,7 +631,6 @@ def _was_stop(st: NCState) -> bool:
 def target_samples(tg: Targets, dt: float, params: NCParams, *, rapid=None, rapid_mm_s: float = 50.0):
     """Sample rows (pmctl.motion.timescale) of preflighted targets: their joint rates come from the
     IK the preflight already did; caps looked ahead by the backward pass; the last row ends the job."""
-    from pmctl.motion.timescale import backward_pass, make_rows, scaling_limits, S_CAP
     rows = make_rows(tg.rows[:, :3], tg.rows[:, 3:6], tg.q, tg.line, dt, params, rapid=rapid,
                      rapid_mm_s=rapid_mm_s, end=True)
     rows[:, S_CAP] = backward_pass(rows[:, S_CAP], dt, 0.5 * scaling_limits(params)[0])

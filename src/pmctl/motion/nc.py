@@ -68,6 +68,7 @@ from scipy.linalg import lapack
 from pmctl.core.compensation import comp_tick
 from pmctl.core.config import Machine
 from pmctl.core.errors import KinematicsError
+from pmctl.core.kinematics import forward_platform
 from pmctl.core.model_fk import ModelFK
 from pmctl.core.vf import TIE, vf_tick
 
@@ -295,7 +296,6 @@ def initial_state(machine: Machine, counts, model: ModelFK | None = None, offset
     """State at given pulse counters: model pose by a cold-start FK (raises KinematicsError).
     ``offset``: the chain-length offset already applied (a restart keeps it: the model pose is
     that of the counters minus it, and the NC goes on from it instead of slewing it in again)."""
-    from pmctl.core.kinematics import forward_platform
     counts = np.asarray(counts, dtype=np.int64).copy()
     q = counts / machine.resolution.pulses_per_mm
     off = None

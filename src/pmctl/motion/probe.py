@@ -43,8 +43,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pmctl.core import statics
-from pmctl.core.errors import ConfigError
+from pmctl.core import kinematics as K, statics
+from pmctl.core.errors import ConfigError, InputError
+from pmctl.core.job import DWELL, Job
+from pmctl.core.strain_sensing import contact_onset
+from pmctl.core.strict_toml import Table
+from pmctl.motion.timescale import FLAG_PROBE, JOINT_SHARE, S_CAP, S_FLAGS
 
 # monitor states
 IDLE, TARE, ARMED, STOPPING = 0, 1, 2, 3
@@ -67,7 +71,6 @@ class ProbeConfig:
 
     @classmethod
     def from_dict(cls, d: dict, path="<dict>") -> "ProbeConfig":
-        from pmctl.core.strict_toml import Table
         if not isinstance(d, dict):
             raise ConfigError(path, "probe", "must be a table")
         t = Table(path, d, "probe")
@@ -175,8 +178,6 @@ def probe_fail_text(line: int) -> str:
 
 def probe_segments(job, machine, start_tip) -> list[ProbeSegment]:
     """The probing moves of a job, each with its model strain along the line."""
-    from pmctl.core import kinematics as K
-    from pmctl.core.errors import InputError
     out = []
     prev = np.asarray(start_tip, float)
     for m in job.moves:
@@ -200,7 +201,6 @@ def probe_segments(job, machine, start_tip) -> list[ProbeSegment]:
 def check_probe_feeds(job, cfg: ProbeConfig, path, feed_factor: float = 1.0):
     """Each probing move at most ``max_feed_mm_min`` (times the planner's feed override
     ``feed_factor``, which the plan applies). InputError naming the line."""
-    from pmctl.core.errors import InputError
     for m in job.moves:
         if m.probe and m.feed * feed_factor * 60.0 > cfg.max_feed_mm_min * (1 + 1e-9):
             why = f" with the feed override x{feed_factor:g}" if feed_factor != 1.0 else ""
@@ -213,7 +213,6 @@ def check_probe_job(job, cfg: ProbeConfig, path, feed_factor: float = 1.0):
     (:func:`check_probe_feeds`), and the probe the last motion of the job (the in-process run ends
     at the contact: motion after it would start from a position nobody planned). InputError naming
     the line."""
-    from pmctl.core.errors import InputError
     check_probe_feeds(job, cfg, path, feed_factor)
     moves = job.moves
     for i, m in enumerate(moves):
@@ -231,7 +230,6 @@ def split_at_probes(job) -> list:
     and ends at rest; the piece after a probe is planned only once the probe has ended, from where
     it stopped (grbl: motion after a probe starts at the probed position). A dwell goes with the
     moves around it (after a probe: with the piece after it)."""
-    from pmctl.core.job import DWELL, Job
     out, cur = [], []
 
     def piece(moves):
@@ -254,7 +252,6 @@ def mark_probe_rows(rows, seg_feed_mm_s: float, cfg: ProbeConfig):
     """Sample rows of a probing piece (pmctl.motion.timescale): flagged ``FLAG_PROBE`` (the rt side
     runs the monitor on them), and their sigma cap lowered so that no feed override takes the probe
     past ``max_feed_mm_min`` (grbl ignores feed overrides while probing; here they may slow it)."""
-    from pmctl.motion.timescale import FLAG_PROBE, S_CAP, S_FLAGS
     rows[:, S_FLAGS] += FLAG_PROBE
     cap = min(1.0, cfg.max_feed_mm_min / 60.0 / max(seg_feed_mm_s, 1e-9))
     np.minimum(rows[:, S_CAP], cap, out=rows[:, S_CAP])
@@ -286,8 +283,6 @@ class ProbeMonitor:
         a = self.cfg.decel_mm_s2
         if params is None:
             return a
-        from pmctl.core import kinematics as K
-        from pmctl.motion.timescale import JOINT_SHARE
         h = min(0.01, 0.5 * seg.length)
         tips = np.stack([seg.start, seg.start + h * seg.direction])
         r = K.ik_batch(tips, np.broadcast_to(seg.axis, tips.shape), self.machine)
@@ -336,7 +331,6 @@ class ProbeMonitor:
         self.s_prev = 0.0
 
     def _finish(self, contact: bool, tip, **kw):
-        from pmctl.core import kinematics as K
         seg = self.seg
         a, b = K.roll_pitch_from_axis(seg.axis)
         res = ProbeResult(seg.line, seg.mode, contact, kw.pop("point", np.full(3, np.nan)),
@@ -489,7 +483,6 @@ class ProbeMonitor:
     def _onset(self) -> float:
         """Travel (mm from the move's start) where the contact force began: fitted once at rest
         (strain_sensing.contact_onset, ~0.1 ms) on the departures up to the detection."""
-        from pmctl.core.strain_sensing import contact_onset
         hs = np.array(self.hist_s)
         dep = -(np.array(self.hist_dep) - np.array(self.tare)) / self.gain       # N, the averaged departures
         c = contact_onset(dep, self.cfg.filter_ticks)

@@ -41,8 +41,19 @@ import time
 
 import numpy as np
 
+from pmctl import hal
+from pmctl.core.config import load_machine
+from pmctl.core.errors import PmctlError
 from pmctl.hal.base import as_inputs
+from pmctl.hal.modbus_vfd import LOOKAHEAD_SAMPLES
 from pmctl.motion import channel as C
+from pmctl.motion.loop import ControlLoop
+from pmctl.motion.nc import HALTED, RUN, STOPPING, initial_state
+from pmctl.motion.probe import ProbeMonitor, ProbeSegment
+from pmctl.motion.recorder import Recorder
+from pmctl.motion.service_config import load_service_config, nc_setup
+from pmctl.motion.state_store import CounterWriter, load_counters, save_counters
+from pmctl.motion.timescale import FLAG_END, FLAG_PROBE, SIGMA_MAX, S_FLAGS, make_follower
 
 
 FINISHED = "finished: the job ran to its end"     # the quit of a run that is done (C_QUIT 1)
@@ -108,16 +119,13 @@ class RtHook:
         tab = self.ch.probe
         if tab[0] == self.probe_seen or fol.line != int(tab[1]):
             return None
-        from pmctl.motion.timescale import FLAG_PROBE, S_FLAGS
         src = fol.src
         if src.count() == 0 or not int(src.row(0)[S_FLAGS]) & FLAG_PROBE:
             return None
-        from pmctl.motion.probe import ProbeSegment
         self.probe_seen = float(tab[0])
         return ProbeSegment.from_row(tab[1:])
 
     def __call__(self, lp, k, st):
-        from pmctl.motion.nc import HALTED, RUN, STOPPING
         ch, fol = self.ch, lp.follower
         sc = fol.scaler
         cmds = ch.commands
@@ -285,7 +293,6 @@ class RtHook:
     def _check_hold_at(self, fol, sc):
         """Hold on the path at the first queued C_HOLD_AT row: once the next ticks would reach it
         (at most LOOKAHEAD_SAMPLES short of it, as pmctl.hal.modbus_vfd.SpeedChanger does in one process)."""
-        from pmctl.hal.modbus_vfd import LOOKAHEAD_SAMPLES
         row, rest = self.hold_at[0]
         at = fol.src.consumed + fol.frac
         if fol.at_end:
@@ -307,7 +314,6 @@ class RtHook:
         record ring has room; pace the tick when there is nothing to follow. Commands, a quit and
         a dead supervisor end the wait at once; a device's watchdog bounds it (``max_wait_s``):
         then the tick runs, and the path may slow down for want of samples as in real time."""
-        from pmctl.motion.timescale import FLAG_END, S_FLAGS, SIGMA_MAX
         src, ch = fol.src, self.ch
         t_end = time.monotonic() + max_wait_s
         if self.need is None:
@@ -356,8 +362,6 @@ def _restore_offset(be, state_file, machine_name, log, pulses_per_mm=None):
     are not restored)."""
     if not state_file or be.reference_offset() is None:
         return
-    from pmctl.core.errors import PmctlError
-    from pmctl.motion.state_store import load_counters
     try:
         saved = load_counters(state_file, machine=machine_name, pulses_per_mm=pulses_per_mm)
     except PmctlError as e:
@@ -368,12 +372,10 @@ def _restore_offset(be, state_file, machine_name, log, pulses_per_mm=None):
 
 
 def _wall():
-    import time
     return time.time()
 
 
 def _mono():
-    import time
     return time.monotonic()
 
 
@@ -387,7 +389,6 @@ def _was_stop(st) -> bool:
 
 
 def _restart(st, machine, lp, counts=None):
-    from pmctl.motion.nc import initial_state
     off = getattr(st, "offset", None)          # the applied chain-length offset stays through a restart
     return lp.nc.load(initial_state(machine, st.counts if counts is None else counts,
                                     offset=None if off is None else np.array(off, float)))
@@ -395,14 +396,6 @@ def _restart(st, machine, lp, counts=None):
 
 def rt_main(spec: dict) -> int:
     """Entry point of the rt process (multiprocessing, spawn)."""
-    from pmctl import hal
-    from pmctl.core.config import load_machine
-    from pmctl.motion.loop import ControlLoop
-    from pmctl.motion.nc import HALTED, initial_state
-    from pmctl.motion.recorder import Recorder
-    from pmctl.motion.service_config import load_service_config
-    from pmctl.motion.state_store import CounterWriter, save_counters
-    from pmctl.motion.timescale import make_follower
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)          # the supervisor handles Ctrl-C
     log = lambda m: print(f"pmctl rt: {m}", file=sys.stderr, flush=True)  # noqa: E731
@@ -423,7 +416,6 @@ def rt_main(spec: dict) -> int:
         cfg.stall_timeout_s = max(cfg.stall_timeout_s, 5.0)
         cfg.max_overruns_in_row = 1 << 30
     dt = cfg.dt
-    from pmctl.motion.service_config import nc_setup
     params = svc.nc.params(machine, dt, where=svc.source, modes=nc_setup(svc, machine, dt, spec["backend"]).modes)
     counts = np.array(spec["counts"], np.int64)
     be = hal.create(spec["backend"], machine, dt, svc.backend_tables.get(spec["backend"], {}))
@@ -453,7 +445,6 @@ def rt_main(spec: dict) -> int:
         hook.stall_hold, hook.stall_ok = True, 0
         lp.follower.scaler.hold = True
         log(f"warning: {why}: feed hold on the path, resumed once the ticks are on time again")
-    from pmctl.motion.probe import ProbeMonitor
     hook.probe = ProbeMonitor(machine, [], svc.probe, dt, params, fetch=hook.probe_fetch)
 
     def _term(signum, frame):

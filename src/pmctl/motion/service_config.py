@@ -13,12 +13,19 @@ from pathlib import Path
 
 import numpy as np
 
+from pmctl import hal
+from pmctl.core import shaper as S
 from pmctl.core.config import CONFIG_DIR, Machine
-from pmctl.core.errors import ConfigError
+from pmctl.core.errors import ConfigError, PmctlError
+from pmctl.core.shaper import SHAPERS
 from pmctl.core.strict_toml import Table, check_tables, read_toml
+from pmctl.hal import BACKENDS, validate_options
 from pmctl.hal.base import AXES as HOMING_AXES
 
+from pmctl.hal.modbus_daq import DaqOptions, check_k_theta_source
+from pmctl.hal.modbus_vfd import VfdOptions
 from pmctl.motion.nc import IMPLEMENTATIONS, NCParams
+from pmctl.motion.probe import ProbeConfig
 
 
 @dataclass
@@ -160,7 +167,6 @@ def choose_shaper(nc: NCConfig, modes: "ChainModes | None", k_theta, dt: float, 
     name = nc.shaper
     if name == "none":
         return None, "shaper: none"
-    from pmctl.core import shaper as S
     if nc.shaper_hz is not None:
         hz = np.broadcast_to(np.asarray(nc.shaper_hz, float), (3,))
         zs = np.broadcast_to(np.asarray(modes.damping_ratio if modes is not None else 0.02, float), (3,))
@@ -206,6 +212,7 @@ def chain_modes(svc: "ServiceConfig", machine: Machine, backend: str | None = No
         z = nc.mode_damping_ratio if nc.mode_damping_ratio is not None else (0.02,) * 3
         return ChainModes(np.array(nc.mode_hz, float), np.array(z, float), np.array(k, float), src)
     if backend == "sim":
+        # lazy: a backend's module loads when it is the backend (pmctl.hal.BACKENDS)
         from pmctl.hal.sim import SimOptions
         o = SimOptions.from_dict(svc.backend_tables.get("sim", {}), machine, where=f"{svc.source}: hal.sim")
         if o.flex:
@@ -386,7 +393,6 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
     mode_z = opt_vec("mode_damping_ratio", nonneg=True, hi=1.0)
     modal_k = opt_vec("modal_stiffness_N_per_mm", positive=True, hi=1e10)
     shaper_hz = opt_vec("shaper_hz", positive=True, hi=1e4)
-    from pmctl.core.shaper import SHAPERS
     shaper = s.string("shaper", default="none", choices=("none", "auto") + tuple(SHAPERS))
     shaper_z = s.number("shaper_damping_ratio", nonneg=True, hi=0.9) if "shaper_damping_ratio" in data.get("nc", {}) \
         else None
@@ -421,7 +427,6 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
     s = Table(path, {k: v for k, v in h.items() if not isinstance(v, dict)}, "hal")
     backend = s.string("backend", default="sim")
     s.finish()
-    from pmctl.hal import BACKENDS, validate_options
     for k, v in h.items():
         if isinstance(v, dict) and k not in BACKENDS:
             raise ConfigError(path, f"hal.{k}", f"options for an unknown backend; known: {', '.join(BACKENDS)}")
@@ -433,14 +438,11 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
     tables = {k: dict(v) for k, v in h.items() if isinstance(v, dict)}
     spindle = None
     if "spindle" in data:
-        from pmctl.hal.modbus_vfd import VfdOptions
         spindle = VfdOptions.from_dict(data["spindle"], f"{path}: spindle")
     daq = None
     if "daq" in data:
-        from pmctl.hal.modbus_daq import DaqOptions
         daq = DaqOptions.from_dict(data["daq"], f"{path}: daq")
         nc.chain_offset_max_mm, nc.chain_offset_rate_mm_s = daq.comp_max_mm, daq.comp_rate_mm_s
-    from pmctl.motion.probe import ProbeConfig
     probe = ProbeConfig.from_dict(data.get("probe", {}), path)
     homing = homing_from_dict(data.get("homing", {}), path)
     interp = interpreter_from_dict(data.get("interpreter", {}), path)
@@ -464,7 +466,6 @@ class NCSetup:
 def strain_in_loop(backend: str) -> bool:
     """Whether ``backend`` carries the strain gauges in its cyclic data (the per-tick strain K_theta
     damps with and the recording's strain_* and load_* channels); the canopen drives carry none."""
-    from pmctl import hal
     return bool(getattr(hal.backend_class(backend), "strain_in_loop", True))
 
 
@@ -491,7 +492,6 @@ def nc_setup(svc: ServiceConfig, machine: Machine, dt: float, backend: str | Non
     # [daq] k_theta_source = "daq": refused when the DAQ samples slower than twice the chain mode. It
     # sees the K_theta the config asks for (auto resolved), before a backend without strain switches it
     # off below, so every backend refuses the same configs (pmctl run, pmctl serve, the rt process).
-    from pmctl.hal.modbus_daq import check_k_theta_source
     check_k_theta_source(svc.daq, nc.k_theta_per_s, machine, f"{svc.source}: daq")
     if backend is not None and any(nc.k_theta_per_s) and not strain_in_loop(backend):
         nc.k_theta_per_s = (0.0,) * 3
@@ -509,7 +509,6 @@ def nc_setup(svc: ServiceConfig, machine: Machine, dt: float, backend: str | Non
 
 def parse_k_theta_flag(v):
     """``--k-theta``: None, "auto", or a gain >= 0 (1/s). PmctlError naming the flag otherwise."""
-    from pmctl.core.errors import PmctlError
     if v is None or v == "auto":
         return v
     try:
@@ -525,8 +524,6 @@ def parse_shaper_flag(v):
     """``--shaper``: None, none, auto or a shaper type (case-insensitive) -> the canonical name."""
     if v is None:
         return None
-    from pmctl.core.errors import PmctlError
-    from pmctl.core.shaper import SHAPERS
     key = str(v).strip()
     if key.lower() in ("none", "auto"):
         return key.lower()

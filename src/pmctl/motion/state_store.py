@@ -18,6 +18,7 @@ before it existed) is loaded as counts at the current resolution, and ``SavedCou
 
 from __future__ import annotations
 
+import fcntl
 import json
 import math
 import os
@@ -43,7 +44,6 @@ class StateLock:
     the same state file is refused before anything moves."""
 
     def __init__(self, state_path):
-        import fcntl
         self._fd = None
         self.path = Path(str(state_path) + ".lock")
         self.path.parent.mkdir(parents=True, exist_ok=True)

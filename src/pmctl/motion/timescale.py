@@ -34,8 +34,11 @@ from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import replace
 
 import numpy as np
+
+from pmctl.core import kinematics as K, shaper as S
 
 S_TIP, S_AXIS, S_TIPT, S_AXT, S_QT, S_QTT, S_CAP, S_LINE, S_FLAGS = 0, 3, 6, 9, 12, 17, 22, 23, 24
 WIDTH = 25
@@ -156,7 +159,6 @@ def _rows(pieces, dtp, machine, params, rapid_mm_s, chunk, decel):
     the next) for the derivatives; the backward pass of a chunk runs once the next chunk's first
     allowed value is known, so caps are looked ahead across chunk boundaries (chunks must be longer
     than a stop from SIGMA_MAX, which 2000 samples at 1 kHz are)."""
-    from pmctl.core import kinematics as K
     decel = decel if decel is not None else 0.5 * scaling_limits(params)[0]
     buf = []                     # pieces not yet made into rows: [tip, axis, line, rapid]
     nbuf = 0
@@ -216,9 +218,7 @@ def shape_trajectory(traj, shaper):
     NC's feed-forward). ``shaper`` None returns ``traj`` unchanged."""
     if shaper is None or len(traj) < 3:
         return traj
-    from dataclasses import replace
 
-    from pmctl.core import shaper as S
     tip, axis = np.asarray(traj.tip, float), np.asarray(traj.axis, float)
     sig = S.shaped_index(tip, axis, traj.dt, shaper)
     p, a = S.path_at_index(tip, axis, sig)

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core.errors import JobProblems
-from pmctl.core.job import DWELL, EVENT, Job, check_reach, home_pose, read_job_text
+from pmctl.core.job import DWELL, EVENT, GCODE_SUFFIXES, Job, check_reach, home_pose, read_job_text
 from pmctl.task.rs274 import interpret
 from pmctl.task.rs274.arcs import SPIRAL_MM
 from pmctl.task.rs274.execute import MAX_ARC_TURNS, MAX_DWELL_S
@@ -69,7 +69,6 @@ def interpret_file(path, machine, *, start=None, config=None, offsets=None):
 def reader_options(path, config=None, offsets=None) -> dict:
     """The options ``load_job`` passes to the G-code reader for ``path`` (the service config's
     [interpreter] section and the work offsets in force); none for CL data."""
-    from pmctl.core.job import GCODE_SUFFIXES
     if Path(path).suffix.lower() not in GCODE_SUFFIXES:
         return {}
     return {"config": config, "offsets": offsets}

@@ -27,9 +27,13 @@ import time
 
 import numpy as np
 
-from pmctl.core.errors import PmctlError
+from pmctl.core import kinematics as K
+from pmctl.core.errors import MotionRefused, PmctlError
 from pmctl.hal.base import AXES
 from pmctl.core.alarms import ALARM_HOMING_APPROACH, ALARM_HOMING_PULLOFF, ALARM_HOMING_RESET
+from pmctl.motion import channel as C
+from pmctl.motion.timescale import iter_job_rows, scaling_limits
+from pmctl.motion.trajectory import Trajectory
 
 
 class HomingFailed(PmctlError):
@@ -62,8 +66,6 @@ def joint_profile(dist: float, speed: float, accel: float, dt: float) -> np.ndar
 def joint_trajectory(q0, axis: int, dist: float, speed: float, accel: float, machine, dt: float):
     """The Trajectory (poses = FK of q0 + e_axis s(t)) of a single-joint move; PmctlError if any pose
     of it has no forward kinematics."""
-    from pmctl.core import kinematics as K
-    from pmctl.motion.trajectory import Trajectory
     s = joint_profile(dist, speed, accel, dt)
     q = np.repeat(np.asarray(q0, float)[None], len(s), 0)
     q[:, axis] += s
@@ -123,7 +125,6 @@ class RtMover:
     the switch latch and the re-reference as commands to the rt side."""
 
     def __init__(self, sup, abort):
-        from pmctl.motion.timescale import scaling_limits
         self.sup = sup
         self.abort = abort                 # threading.Event: a reset aborts the cycle (ALARM 6)
         self.ppm = np.asarray(sup.machine.resolution.pulses_per_mm, float)
@@ -134,8 +135,6 @@ class RtMover:
         return self.sup.raw()
 
     def _check(self, latch_seq=None):
-        from pmctl.motion import channel as C
-        from pmctl.core.errors import MotionRefused
         sup = self.sup
         if latch_seq is not None and self._s()[C.ST_LATCH_SEQ] != latch_seq:
             raise _Latched()
@@ -145,19 +144,15 @@ class RtMover:
             raise MotionRefused(sup.alarm_msg or "the rt motion process is down", 9)
 
     def count(self, i):
-        from pmctl.motion import channel as C
         return int(self._s()[C.ST_COUNTS + i])
 
     def switch(self, i):
-        from pmctl.motion import channel as C
         bits = int(self._s()[C.ST_HOME_IN])
         if bits < 0:
             raise HomingFailed(ALARM_HOMING_APPROACH, "this backend reports no home switches")
         return bool(bits >> i & 1)
 
     def move(self, i, dist, speed, want=None):
-        from pmctl.motion import channel as C
-        from pmctl.motion.timescale import iter_job_rows
         sup = self.sup
         s = self._s()
         q0 = s[C.ST_COUNTS:C.ST_COUNTS + 5] / self.ppm
@@ -194,7 +189,6 @@ class RtMover:
         the shift (ST_COUNTS0): unchanged after the ack, it was not taken and goes again. Afterwards the
         NC, restarted from the new counters, may close a pulse or two of sub-pulse residue (or, on
         drives, what the position feedback moved while the reference was taken), counted like any motion."""
-        from pmctl.motion import channel as C
         sup = self.sup
         c0 = float(self._s()[C.ST_COUNTS0 + i])
         t0 = time.monotonic()

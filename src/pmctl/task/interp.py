@@ -28,7 +28,8 @@ import re
 import numpy as np
 
 from pmctl.core.errors import InputError
-from pmctl.core.job import DWELL, EVENT, Job
+from pmctl.core.job import DWELL, EVENT, Job, home_pose
+from pmctl.task.gcode import check_job_reach
 from pmctl.task.rs274 import make_config, start_position
 from pmctl.task.rs274.flow import Source
 from pmctl.task.rs274.program import Interpreter
@@ -108,7 +109,6 @@ class _Snapshot:
 class LineInterpreter:
     def __init__(self, machine, tip, axis, offsets=None, *, config=None):
         self.machine = machine
-        from pmctl.core.job import home_pose
         cfg = make_config(config, home=home_pose(machine), ahead=False)
         self.it = Interpreter(cfg, start_position(tip, axis), offsets or None)
         self.line_no = 0
@@ -260,7 +260,6 @@ class LineInterpreter:
             flags["sync"] = True
         ends = [m for m in moves if m.kind != DWELL and m.kind != EVENT]
         if ends:
-            from pmctl.task.gcode import check_job_reach
             try:
                 check_job_reach(moves_job(moves), self.machine, "console")
             except InputError as e:

@@ -33,6 +33,7 @@ import numpy as np
 from pmctl.core.errors import InputError, Problem
 from pmctl.task.job import parse_job
 from pmctl.core.job import ARC, DWELL, EVENT, Job, LINE
+from pmctl.task.planner import PlanningError, validate
 
 
 @dataclass
@@ -74,7 +75,6 @@ def check_job(job: Job, machine, dt, *, start=None, feed_override=1.0, limits=No
               problems=None) -> CheckReport:
     """Check a parsed job against ``machine`` and plan it (see the module docstring). ``batch``: the
     batch planner's bounds (a run with an input shaper plans the job whole)."""
-    from pmctl.task.planner import PlanningError, validate
     problems = list(problems or [])
     rep = CheckReport(job.source, problems, job=job)
     for m in job.moves:

@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from pmctl.core import kinematics as K
 from pmctl.core.job import DWELL, EVENT, Job, check_reach, controlled_point
+from pmctl.task.planner import plan_stream, validate
 
 COLUMNS = ("L1", "L2", "L3", "X", "Y")
 
@@ -38,8 +40,6 @@ def per_move(job: Job, machine):
 def per_step(job: Job, machine, dt, every=1, *, start=None, feed_override=1.0, limits=None):
     """Chunks (t (n,), line (n,), q (n, 5)) of the planned job every ``every`` ticks of ``dt`` (and its
     last sample), planned as pmctl run plans it (validate(full=True), then plan_stream)."""
-    from pmctl.core import kinematics as K
-    from pmctl.task.planner import plan_stream, validate
     path = validate(job, machine, dt, feed_override=feed_override, limits=limits, start=start, full=True)
     total = path.planned_samples
     k0 = 0

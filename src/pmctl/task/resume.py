@@ -22,6 +22,8 @@ import numpy as np
 
 from pmctl.core.errors import PmctlError
 from pmctl.core.job import Job, LINE, Move, RAPID
+from pmctl.task.interp import LineError
+from pmctl.task.jog import check_jog
 
 CLEARANCE_MM = 5.0
 PLUNGE_MM_S = 5.0
@@ -33,8 +35,6 @@ class ResumeRefused(PmctlError):
 
 def resume_job(job: Job, line: int, tip, axis, machine, params, clearance_mm: float = CLEARANCE_MM) -> Job:
     """The approach from the pose (tip, axis) plus the moves of ``job`` from line ``line`` on."""
-    from pmctl.task.interp import LineError
-    from pmctl.task.jog import check_jog
     moving = [m for m in job.moves]
     k = next((n for n, m in enumerate(moving) if m.line >= line and m.kind != "dwell"), None)
     if k is None:

@@ -5,6 +5,12 @@ every tick kept compactly for the tracking figures at the end."""
 
 from __future__ import annotations
 
+import numpy as np
+
+from pmctl.core import kinematics as K
+from pmctl.core.strain_sensing import LOAD_CHANNELS, LOAD_NOTE, load_columns
+from pmctl.motion.recorder import R_CHAIN_OFFSET, R_COUNTS, R_ENC, R_LINE, R_SIGMA, R_STRAIN, R_TARGET, R_TICK, R_TRUTH
+
 AXES = ("L1", "L2", "L3", "X", "Y")
 _TRUTH_NOTE = ("simulation: FK of the load-side joints (after drive lag and flexible mode); the tip of the "
                "machine config's reference tool (with a tool length offset d the cutting tip is tip - d * tool)")
@@ -14,7 +20,6 @@ _STRAIN_NOTE = "simulation: gravity strain of the true pose + flexible-mode spri
 def _held(samples, ticks, value):
     """Per-tick values of a device polled by its own thread: each sample ``(tick, ...)`` held from
     its tick until the next (NaN before the first), for the given (increasing) ticks."""
-    import numpy as np
     snap = list(samples)                  # appended by the polling thread: a snapshot
     if not snap:
         return None
@@ -34,7 +39,6 @@ class TrackingAccumulator:
     a failed FK is NaN; a non-finite load side is +inf (no figures, as tracking_stats)."""
 
     def __init__(self, job_start: int, expect: int = 0):
-        import numpy as np
         self.j0 = int(job_start)
         self.n = 0
         self.tip = np.full(max(int(expect), 1024), -1.0, np.float32)
@@ -45,7 +49,6 @@ class TrackingAccumulator:
         return self.tip.nbytes + self.ang.nbytes
 
     def add(self, ticks, e_tip, e_ang):
-        import numpy as np
         keep = ticks >= self.j0
         if not keep.any():
             return
@@ -63,7 +66,6 @@ class TrackingAccumulator:
 
     def stats(self, i0: int, i1: int) -> dict:
         """tracking_stats over ticks [i0, i1): the same keys and formulas."""
-        import numpy as np
         a, b = max(i0 - self.j0, 0), max(min(i1 - self.j0, self.n), 0)
         e = self.tip[a:b].astype(np.float64)
         ang = self.ang[a:b].astype(np.float64)
@@ -95,7 +97,6 @@ class RunSink:
     def __init__(self, machine, ppm, rate_hz: float, has_truth: bool, job_start: int, expect: int = 0,
                  spindle=None, daq=None, writer=None, load: bool = False, strain: bool = True,
                  session: bool = False, spindle_of=None, spindle_opt=None):
-        import numpy as np
         self.session = bool(session)
         self._t_off, self._t_last = 0.0, -np.inf
         self.spindle_of = spindle_of if spindle_of is not None else (lambda: self.spindle)
@@ -123,7 +124,6 @@ class RunSink:
                 notes[f"strain_{i + 1}"] = {"source": _STRAIN_NOTE}
         names += [f"strain_{i + 1}" for i in range(3)]
         if self.load:
-            from pmctl.core.strain_sensing import LOAD_CHANNELS, LOAD_NOTE
             names += list(LOAD_CHANNELS)
             for c in LOAD_CHANNELS:
                 notes[c] = {"source": LOAD_NOTE}
@@ -149,10 +149,7 @@ class RunSink:
         return names, notes
 
     def __call__(self, rows):
-        import numpy as np
 
-        from pmctl.core import kinematics as K
-        from pmctl.motion.recorder import R_COUNTS, R_ENC, R_STRAIN, R_TARGET, R_TICK, R_TRUTH
         ticks = rows[:, R_TICK].astype(np.int64)
         n = len(ticks)
         t = ticks / self.rate_hz
@@ -189,10 +186,8 @@ class RunSink:
         for i in range(3):            # a backend without gauges in its cyclic data: not sampled (NaN), not 0
             cols[f"strain_{i + 1}"] = rows[:, R_STRAIN + i] if self.strain else np.full(n, np.nan)
         if self.load:
-            from pmctl.core.strain_sensing import load_columns
             cols.update(load_columns(rows[:, R_STRAIN:R_STRAIN + 3], q_cmd, self.machine))
         if self.session:
-            from pmctl.motion.recorder import R_LINE, R_SIGMA
             cols["line"] = rows[:, R_LINE]
             cols["sigma"] = rows[:, R_SIGMA]
         if self.spindle_opt is not None:
@@ -206,7 +201,6 @@ class RunSink:
                 v = _held(d.samples, ticks, lambda s, i=i: s[2][i]) if d is not None else None
                 cols[f"daq_strain_{i + 1}"] = np.full(n, np.nan) if v is None else v
         if self._comp:
-            from pmctl.motion.recorder import R_CHAIN_OFFSET
             for i in range(3):
                 cols[f"comp_L{i + 1}"] = rows[:, R_CHAIN_OFFSET + i]
         if self.writer is not None:

@@ -40,11 +40,16 @@ reset, E-stop, unlock) go to the rt side as commands on the channel's command ri
 from __future__ import annotations
 
 import collections
+import hashlib
+import json
 import math
 import os
 import queue
+import subprocess
+import sys
 import threading
 import time
+import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -52,16 +57,28 @@ import numpy as np
 
 from pmctl.core import kinematics as K
 from pmctl.core.alarms import ALARM_ABORT, ALARM_ESTOP, ALARM_MOTOR_FAULT, ALARM_PROBE_FAIL_CONTACT, ALARM_SOFT_LIMIT
+from pmctl.core.config import load_machine
 from pmctl.core.errors import MotionRefused, PmctlError
+from pmctl.core.job import DWELL, EVENT, RAPID
+from pmctl.core.statics import static_strain
+from pmctl.hal import HalTimeout
+from pmctl.hal.modbus_daq import DaqSession
+from pmctl.hal.modbus_vfd import REST_STEP_MM, SpindleSession, job_speed
 from pmctl.motion import channel as C
 from pmctl.motion.nc import RUN
-from pmctl.motion.timescale import HELD, HOLDING, MOVING, STARVED
+from pmctl.motion.probe import ProbeResult, check_probe_feeds, mark_probe_rows, probe_segments, split_at_probes
+from pmctl.motion.recorder import R_STRAIN, R_TICK
+from pmctl.motion.rtproc import apply_hal_overrides, apply_nc_overrides
+from pmctl.motion.service_config import load_service_config, nc_setup
+from pmctl.motion.timescale import HELD, HOLDING, MOVING, STARVED, S_LINE, iter_stream_rows, shape_trajectory
+from pmctl.task.homing import AXES, HomingFailed, RtMover, Sequence
+from pmctl.task.jobcheck import machine_for_planning
+from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
 
 
 def config_digest(machine, svc) -> dict:
     """{file: sha256 of its bytes} of the configs the rt process loads at each (re)start: the machine
     config, its compensation file, the service config (a missing file digests as None)."""
-    import hashlib
     files = [machine.source, getattr(getattr(machine, "compensation", None), "source", ""), svc.source]
     out = {}
     for f in files:
@@ -99,9 +116,6 @@ class Item:
 class Supervisor:
     def __init__(self, config="prototype", *, service=None, backend=None, state_file="", realtime=False,
                  rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY, offline=False, nc=None, hal=None):
-        from pmctl.core.config import load_machine
-        from pmctl.motion.rtproc import apply_hal_overrides, apply_nc_overrides
-        from pmctl.motion.service_config import load_service_config
         self.config = config
         self.service = service
         self.machine = load_machine(config)
@@ -113,7 +127,6 @@ class Supervisor:
         self.backend = backend or self.svc.backend
         self.rate_hz = float(rate_hz or self.svc.loop.rate_hz)
         self.dt = 1.0 / self.rate_hz
-        from pmctl.motion.service_config import nc_setup
         # chain modes, K_theta auto (off on a backend without strain), the shaper; [daq] k_theta_source
         # checked (pmctl serve and pmctl run alike, before the devices, the rt process or the state file)
         self.nc_setup = nc_setup(self.svc, self.machine, self.dt, self.backend)
@@ -121,7 +134,6 @@ class Supervisor:
         self.svc.homing.check(self.params, self.svc.source)        # [homing] against this machine's joints
         # the V-F converters may cap the joint speed below the machine's (seed mode: one pulse per
         # tick): plan within what they can emit
-        from pmctl.task.jobcheck import machine_for_planning
         self.plan_machine = machine_for_planning(self.machine, self.params)
         self._config_digest = config_digest(self.machine, self.svc)   # the files the rt process reads again
         self.state_file = state_file
@@ -227,9 +239,6 @@ class Supervisor:
                 "state_file": self.state_file, "rate_hz": self.rate_hz, "realtime": self.realtime,
                 "offline": self.offline, "nc": self._rt_nc(), "hal": self.hal_overrides,
                 "counts": [int(c) for c in counts], "ppid": os.getpid()}
-        import json
-        import subprocess
-        import sys
         self.proc = _RtProc(subprocess.Popen([sys.executable, "-m", "pmctl.motion.rtproc", json.dumps(spec)],
                                              stdin=subprocess.DEVNULL))
         t0 = time.monotonic()
@@ -299,7 +308,6 @@ class Supervisor:
         last drained record. A fault or lost link is a controlled stop (``_device_fault``)."""
         if self.svc.daq is None:
             return
-        from pmctl.hal.modbus_daq import DaqSession
         # slow compensation ([daq] compensate): each estimate becomes the NC's chain-length offsets
         self.daq = DaqSession(self.svc.daq, lambda: self._strain or self._rest_strain, self.log, self.machine,
                               self._set_chain_offsets).connect()
@@ -307,8 +315,6 @@ class Supervisor:
 
     def _strain_at_rest(self, counts):
         """The static strain (microstrain per chain) of the platform's weight at pulse counters ``counts``."""
-        from pmctl.core import kinematics as K
-        from pmctl.core.statics import static_strain
         try:
             pose = K.fk(np.asarray(counts, float) / self.params.pulses_per_mm, self.machine)
             return [float(x) for x in static_strain(pose.P, pose.R, self.machine)]
@@ -316,7 +322,6 @@ class Supervisor:
             return [0.0, 0.0, 0.0]
 
     def _spindle_session(self):
-        from pmctl.hal.modbus_vfd import SpindleSession
         self.spindle = SpindleSession(self.svc.spindle, self.log).connect()
         return self.spindle
 
@@ -396,8 +401,6 @@ class Supervisor:
         carries the spindle speed only per move, its first speed (at the item's first sample) and the
         speed changes inside it (at the last sample of the old speed, as
         pmctl.hal.modbus_vfd.speed_changes finds them in a whole plan)."""
-        from pmctl.hal.modbus_vfd import REST_STEP_MM, job_speed
-        from pmctl.core.job import EVENT
         moves = it.job.moves
         events = any(m.kind == EVENT and any(n == "spindle" for n, _ in m.events) for m in moves)
         on_lines = [] if events else [m.line for m in moves if getattr(m, "spindle_rpm", 0.0)]
@@ -695,7 +698,6 @@ class Supervisor:
             it = Item(kind, job, start, end, name, self.n_submitted, lines=dict(lines or {}), gen=self._gen,
                       source=str(source))
             if any(m.probe for m in job.moves):
-                from pmctl.motion.probe import check_probe_feeds, split_at_probes
                 check_probe_feeds(job, self.svc.probe, source or name or job.source, self.plan_feed_override)
                 it.parts = len(split_at_probes(job))
             self.n_submitted += 1
@@ -901,7 +903,6 @@ class Supervisor:
         """``$H``: the homing cycle (pmctl.task.homing) with the [homing] settings; blocks until it
         ends. Returns (True, message) when homed (the alarm is cleared), (False, reason) when it
         failed (an alarm says why); MotionRefused when it cannot start (busy, no switches)."""
-        from pmctl.task.homing import HomingFailed, RtMover, Sequence
         if self.homing:
             raise MotionRefused("homing is already under way", 8)
         if not (self.alarm or self.rt_dead) and self.busy():
@@ -932,7 +933,6 @@ class Supervisor:
         finally:
             self.homing = False
         self.homed = True
-        from pmctl.task.homing import AXES
         msg = "homed; counter corrections " + ", ".join(
             f"{AXES[i]} {d / self.machine.resolution.pulses_per_mm[i]:+.4f} mm" for i, d in shifts.items())
         self._emit("homed", {"shifts": {AXES[i]: int(d) for i, d in shifts.items()}, "msg": msg})
@@ -1005,7 +1005,6 @@ class Supervisor:
     def _planner_crashed(self, it, e):
         """An unexpected exception while planning: log it with its traceback, stop on the path, drop
         the queue and raise an alarm saying why; the planner thread goes on (``$X`` unlocks)."""
-        import traceback
         self.log(f"planner error on {it.name or it.kind}: {''.join(traceback.format_exception(e)).rstrip()}")
         with self._lock:
             self.items.clear()
@@ -1019,9 +1018,6 @@ class Supervisor:
         """Sample rows of ``job`` planned from ``start`` (validated first), an iterator of chunks.
         With the item ``it``: its spindle start speed is set (or a hold queued) before its first
         sample, and its speed changes inside the job become C_HOLD_AT points."""
-        from pmctl.motion.timescale import iter_stream_rows, shape_trajectory
-        from pmctl.core.job import RAPID
-        from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
         rapid_mm_s = PlannerLimits().rapid_mm_s
         rapid_lines = {m.line for m in job.moves if m.kind == RAPID}
         pm = self.plan_machine
@@ -1042,7 +1038,6 @@ class Supervisor:
 
     def _push_rows(self, rows_iter, it) -> int:
         """Push the rows as room frees up; returns how many were pushed."""
-        from pmctl.motion.timescale import S_LINE
         total = 0
         for rows in rows_iter:
             total += len(rows)
@@ -1063,8 +1058,6 @@ class Supervisor:
         """An item with probing moves, piece by piece (pmctl.motion.probe.split_at_probes): a probing
         piece's segment goes into the channel's probe table, its samples flagged; then the planner
         waits for the rt side's result and plans the next piece from where the probe stopped."""
-        from pmctl.motion.probe import ProbeResult, mark_probe_rows, probe_segments, split_at_probes
-        from pmctl.core.job import DWELL
         start = (np.asarray(it.start[0], float), np.asarray(it.start[1], float))
         pieces = split_at_probes(it.job)
         for k, (piece, probe) in enumerate(pieces):
@@ -1135,7 +1128,6 @@ class Supervisor:
             return
         rows = self.ch.records.pop()
         if len(rows):
-            from pmctl.motion.recorder import R_STRAIN, R_TICK
             self._strain = rows[-1, R_STRAIN:R_STRAIN + 3].tolist()
         if len(rows) and self.record_sink is not None:
             try:
@@ -1287,7 +1279,6 @@ def _patient(vfd, request):
     """A VFD request (idempotent: a start, a wait at speed) tried again after an unanswered Modbus
     request, up to the ``max_missed_polls`` the spindle monitor allows in a row (a busy computer or
     link can miss one); then the link counts as lost."""
-    from pmctl.hal import HalTimeout
     missed = 0
     while True:
         try:
@@ -1313,7 +1304,6 @@ class _RtProc:
         return self.popen.poll()
 
     def join(self, timeout=None):
-        import subprocess
         try:
             self.popen.wait(timeout)
         except subprocess.TimeoutExpired:

@@ -4,6 +4,10 @@ Light at import: the numerical modules are imported when a subcommand runs."""
 
 from __future__ import annotations
 
+import json
+
+from pmctl.core.errors import InputError, PmctlError
+
 
 def add_parser(sub):
     p = sub.add_parser("calibrate", help="kinematic calibration: plan poses, identify the geometry",
@@ -78,13 +82,11 @@ def add_parser(sub):
 
 
 def run_identify(args):
-    import json
 
     import numpy as np
 
     from pmctl.core import kinematics as K
     from pmctl.core.config import load_machine
-    from pmctl.core.errors import PmctlError
     from pmctl.core.recording import read_recording
     from pmctl.tools.calibrate import configio, data, identify as I, model as Mo
 
@@ -151,10 +153,8 @@ def run_rsm(args):
 
 
 def run_from_twin(args):
-    import json
 
     from pmctl.core.config import load_machine
-    from pmctl.core.errors import InputError
     from pmctl.tools.calibrate import twin_link
 
     try:
@@ -176,7 +176,6 @@ def run_from_twin(args):
 
 def run_su_export(args):
     from pmctl.core.config import load_machine
-    from pmctl.core.errors import PmctlError
     from pmctl.tools.calibrate import su
 
     m = load_machine(args.config)

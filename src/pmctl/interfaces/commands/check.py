@@ -18,6 +18,8 @@ from __future__ import annotations
 import json
 import math
 
+from pmctl.core.errors import PmctlError
+
 
 def add_parser(sub):
     p = sub.add_parser("check", help="check a job before anything moves: every problem, and a summary",
@@ -56,7 +58,6 @@ class Context:
     def __init__(self, args):
         from pmctl import hal
         from pmctl.core.config import load_machine
-        from pmctl.core.errors import PmctlError
         from pmctl.motion.nc import initial_state
         from pmctl.motion.service_config import load_service_config, nc_setup
         from pmctl.motion.state_store import load_counters

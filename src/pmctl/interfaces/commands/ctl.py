@@ -14,6 +14,12 @@ Exit status: 0 the request was done, 1 refused or failed (the reason on stderr),
 
 from __future__ import annotations
 
+import json
+import os
+import socket
+
+from pmctl.core.errors import PmctlError
+
 
 def add_parser(sub):
     p = sub.add_parser("ctl", help="control a running `pmctl serve` through its control socket",
@@ -41,8 +47,6 @@ def add_parser(sub):
 
 
 def request(path, req: dict, *, stream=False, timeout=30.0):
-    import json
-    import socket
     s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     s.settimeout(timeout)
     s.connect(str(path))
@@ -57,10 +61,7 @@ def request(path, req: dict, *, stream=False, timeout=30.0):
 
 
 def run(args) -> int:
-    import json
-    import os
 
-    from pmctl.core.errors import PmctlError
     req = {"cmd": args.what.replace("-", "_")}
     if args.what == "resume-job":
         if args.line is not None:

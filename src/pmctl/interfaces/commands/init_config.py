@@ -13,6 +13,13 @@ back and validated before anything is written; existing files are refused unless
 
 from __future__ import annotations
 
+import datetime
+import os
+import re
+from pathlib import Path
+
+from pmctl.core.errors import PmctlError
+
 BACKENDS = ("stepdir", "canopen")
 CONSOLE_DEVICE = "/dev/pmctl-console"     # docs/service.md: the udev rule's stable names
 BRIDGE_DEVICE = "/dev/pmctl-bridge"
@@ -34,7 +41,6 @@ def add_parser(sub):
 def _replace(text: str, section: str, key: str, value: str, note: str = "") -> str:
     """``key = value`` in ``[section]`` of the bundled file, the rest of the line's comment replaced
     by ``note`` when given (the line must exist: a changed bundled file fails loudly here)."""
-    import re
     head = re.search(rf"^\[{re.escape(section)}\][^\n]*\n", text, re.M)
     if head is None:
         raise ValueError(f"[{section}] not in the bundled service config")
@@ -52,7 +58,6 @@ def _replace(text: str, section: str, key: str, value: str, note: str = "") -> s
 
 
 def service_text(backend: str, bundled: str) -> str:
-    import datetime
     t = bundled
     t = _replace(t, "loop", "state_file", '"/var/lib/pmctl/counters.json"',
                  "the unit passes --state with the same file (StateDirectory=pmctl)")
@@ -86,11 +91,8 @@ def service_text(backend: str, bundled: str) -> str:
 
 
 def run(args) -> int:
-    import os
-    from pathlib import Path
 
     from pmctl.core.config import CONFIG_DIR, load_machine
-    from pmctl.core.errors import PmctlError
     from pmctl.motion.service_config import load_service_config
     out = Path(args.dir)
     if not out.is_dir():

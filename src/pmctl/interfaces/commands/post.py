@@ -13,9 +13,11 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from pmctl.core.errors import JobProblems, PmctlError
+from pmctl.interfaces.commands.check import Context, add_context_args
+
 
 def add_parser(sub):
-    from pmctl.interfaces.commands.check import add_context_args
     p = sub.add_parser("post", help="the job in actuator coordinates (chain lengths, table) as CSV",
                        description="Post-processor: convert a CL-data or G-code job into the machine's actuator "
                                    "coordinates, chain lengths L1 L2 L3 and table X Y in mm, one row per move "
@@ -37,8 +39,6 @@ def _fmt(x) -> str:
 
 
 def run(args) -> int:
-    from pmctl.core.errors import JobProblems, PmctlError
-    from pmctl.interfaces.commands.check import Context
     from pmctl.motion.state_store import atomic_write
     from pmctl.task import post
     from pmctl.task.jobcheck import check_file

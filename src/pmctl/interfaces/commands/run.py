@@ -45,6 +45,9 @@ import sys
 import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
+
+from pmctl.core.errors import InputError, JobProblems, PmctlError
 
 EXIT_DONE, EXIT_STOPPED, EXIT_FAULT = 0, 3, 4
 STOP_SIGNALS = {"SIGINT": "interrupted by the operator (Ctrl-C)",
@@ -180,8 +183,6 @@ class _Progress:
                 self.out.write("\r" + self._line() + "\n", err=True)
 
 
-from pmctl.task.run_sink import RunSink, TrackingAccumulator  # noqa: E402,F401  (kept importable here)
-
 
 def _plant_meta(backend) -> dict:
     """What a simulated plant put into the run that the nominal twin leaves out (its chain modes),
@@ -216,7 +217,6 @@ def run(args) -> int:
     from pmctl import hal
     from pmctl.core import kinematics as K
     from pmctl.core.config import load_machine
-    from pmctl.core.errors import PmctlError
     from pmctl.core.recording import check_target
     from pmctl.motion.nc import counts_of, initial_state
     from pmctl.motion.service_config import load_service_config
@@ -286,7 +286,6 @@ def run(args) -> int:
 
     # the job read and parsed (every problem the reader finds), then checked whole against the
     # machine and planned (_run_client) before anything moves: pmctl check's check
-    from pmctl.core.errors import JobProblems
     from pmctl.task.job import parse_job
     from pmctl.task.gcode import reader_options
     job, problems = parse_job(args.job, machine, start=(st.tip, st.axis),
@@ -296,7 +295,6 @@ def run(args) -> int:
     if backend_name != "sim":      # the simulation's stand-in operator changes tools and answers pauses
         _refuse_operator_waits(job, args.tool)
     if not job.moves:                 # nothing to run (an empty file, only comments and M30): say so
-        from pmctl.core.errors import InputError
         raise InputError(args.job, None, "no motion in the job (no move and no dwell): nothing to run")
     for line, text in job.messages:                  # G-code (MSG, ...): for the operator, before it runs
         log(f"message from {Path(args.job).name} line {line}: {text}")
@@ -322,7 +320,6 @@ def _refuse_operator_waits(job, tool):
     the line): a tool change (M6) to any tool but ``tool``, the one already in the spindle (--tool),
     and a program pause (M0, M60) that waits for a cycle start no one can give here. (M1 is not
     taken: the optional-stop switch is off in pmctl run.)"""
-    from pmctl.core.errors import InputError
     from pmctl.core.job import EVENT
     for m in job.moves:
         if m.kind != EVENT:
@@ -450,6 +447,7 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
     from pmctl.hal.modbus_vfd import job_speed
     from pmctl.motion import channel as C
     from pmctl.motion.recorder import R_S, R_TICK
+    from pmctl.task.run_sink import RunSink
     from pmctl.task.supervisor import Supervisor
     log = out.log
     dt = cfg.dt
@@ -534,9 +532,7 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
 
 def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick, s0, rec_err, sink, rec, machine,
                             cfg, dt, counts0, backend_name, state_file) -> int:
-    from types import SimpleNamespace
 
-    from pmctl.core.errors import PmctlError
     from pmctl.motion import channel as C
     log = out.log
     settle = int(round(cfg.settle_s * cfg.rate_hz))

@@ -10,6 +10,9 @@ or Ctrl-C: feed hold on the path, position saved, recording finalised, exit 0.
 
 from __future__ import annotations
 
+from pmctl.core.errors import PmctlError
+from pmctl.interfaces.console.port import check_console_spec
+
 
 def add_parser(sub):
     p = sub.add_parser("serve", help="run the controller as a service: grbl console, control socket, state journal",
@@ -35,7 +38,6 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from pmctl.core.errors import PmctlError
     from pmctl.motion.service_config import load_service_config
     from pmctl.interfaces.daemon import Daemon
 
@@ -49,7 +51,6 @@ def run(args) -> int:
         from pmctl.core.recording import check_target
         check_target(args.record, force_flag=None)          # serve never replaces a recording (nor a .partial)
     if args.console:
-        from pmctl.interfaces.console.port import check_console_spec
         check_console_spec(args.console)
     if args.socket:
         from pmctl.interfaces.console.control import check_socket_path

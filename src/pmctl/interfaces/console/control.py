@@ -27,16 +27,22 @@ from __future__ import annotations
 import json
 import os
 import socket
+import stat
 import threading
 import time
+
+from pmctl.core.errors import PmctlError
+from pmctl.interfaces.console.grbl import spindle_rpm
+from pmctl.motion import channel as C
+from pmctl.task.gcode import reader_options
+from pmctl.task.planner import load_job
+from pmctl.task.supervisor import roll_pitch_deg
 
 
 def check_socket_path(path: str) -> None:
     """Refuse a --socket whose folder does not exist (it is not created here: in production
     systemd's RuntimeDirectory= creates /run/pmctl) or that names something other than a socket."""
-    import stat
 
-    from pmctl.core.errors import PmctlError
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(parent):
         raise PmctlError(f"--socket {path}: the folder {parent} does not exist (create it first; the systemd "
@@ -131,9 +137,6 @@ class ControlServer:
         f.flush()
 
     def status(self) -> dict:
-        from pmctl.interfaces.console.grbl import spindle_rpm
-        from pmctl.motion import channel as C
-        from pmctl.task.supervisor import roll_pitch_deg
         sup = self.sup
         s = sup.raw()
         tip, axis = sup.pose()
@@ -150,14 +153,12 @@ class ControlServer:
                 "tick": int(s[C.ST_TICK]), "dropped_records": int(s[C.ST_DROPPED])}
 
     def handle(self, req) -> dict:
-        from pmctl.task.planner import load_job
         sup = self.sup
         cmd = req.get("cmd")
         if cmd == "status":
             return self.status()
         if cmd == "queue":
             if "add" in req:
-                from pmctl.task.gcode import reader_options
                 path = str(req["add"])
                 console = getattr(self.daemon, "console", None)   # the work offsets in force, as at the console
                 offsets = console.interp.offsets() if console is not None else \

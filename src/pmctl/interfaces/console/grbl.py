@@ -47,10 +47,11 @@ import numpy as np
 
 from pmctl import __version__
 from pmctl.motion import channel as C
+from pmctl.motion.probe import check_probe_feeds
 from pmctl.task.interp import AXES, WCS_NAMES, LineError, LineInterpreter, moves_job
 from pmctl.core.job import DWELL
 from pmctl.task.supervisor import roll_pitch_deg
-from pmctl.core.errors import MotionRefused
+from pmctl.core.errors import InputError, MotionRefused
 
 RX_BUFFER = 128
 LINE_MAX = 256
@@ -525,8 +526,6 @@ class GrblConsole:
         """A G38.2/G38.3 line, as grbl runs it: the motion queued before it goes first, the probe is
         planned alone, and the line is answered when the probe has ended ([PRB:...] then ok); the
         parser continues from where the probe stopped."""
-        from pmctl.core.errors import InputError
-        from pmctl.motion.probe import check_probe_feeds
         try:
             check_probe_feeds(moves_job(moves), self.sup.svc.probe, "console", self.sup.plan_feed_override)
         except InputError as e:

@@ -11,6 +11,7 @@ on the slave stays with the pty between senders."""
 from __future__ import annotations
 
 import os
+import select
 import termios
 import tty
 
@@ -95,7 +96,6 @@ class ConsolePort:
 
 def client_present(fd: int) -> bool:
     """A pty master ``fd``: whether some program has its slave side open (no POLLHUP)."""
-    import select
     p = select.poll()
     p.register(fd, select.POLLIN | select.POLLHUP)
     try:

@@ -35,6 +35,7 @@ import math
 import os
 
 from pmctl.core import kinematics as K
+from pmctl.motion.service_config import InterpreterConfig
 from pmctl.task.rs274.execute import Config
 from pmctl.task.rs274.flow import Source
 from pmctl.task.rs274.program import Interpreter
@@ -73,7 +74,6 @@ def make_config(config=None, *, tools=None, home=None, probe_ok=True, ahead=True
     default G28/G30 position (None: the origin of W, vertical tool). ``ahead``: the program is
     interpreted before it runs (a job file), so the probe result parameters are not known."""
     if config is None:
-        from pmctl.motion.service_config import InterpreterConfig
         config = InterpreterConfig()
     table = tools if tools is not None else tool_table(config.tool_table)
     h = start_position(*home) if home is not None else [0.0, 0.0, 0.0, 0.0, 0.0]

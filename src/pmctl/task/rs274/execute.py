@@ -26,10 +26,14 @@ from pmctl.core import kinematics as K
 from pmctl.core.job import ARC, DWELL, EVENT, LINE, Move, RAPID
 from pmctl.task.rs274 import arcs as A
 from pmctl.task.rs274 import parameters as P
+from pmctl.task.rs274.cutter_comp import CompFit
+from pmctl.task.rs274.cycles import run_cycle
 from pmctl.task.rs274.refusal import Refusal, fmt, gname, whole
 from pmctl.task.rs274.expressions import EvalError
 from pmctl.task.rs274.modal import (AXIS_USERS, CYCLES, G_GROUP, G_REFUSED, M_GROUP, M_REFUSED, M_USER,
                                     MM_PER_INCH, SAVED_MODES, WCS_CODES, WCS_NAMES)
+from pmctl.task.rs274.splines import flatten
+from pmctl.task.rs274.tools import Tool
 
 MAX_DWELL_S = 3600.0
 MAX_ARC_TURNS = 1000
@@ -906,7 +910,6 @@ class Executor:
             return None
         # tool table
         p = whole(p, f"G10 L{int(L)} P", col["p"], "P is a tool number")
-        from pmctl.task.rs274.tools import Tool
         tools = self.cfg.tools
         old = tools.get(int(p)) or Tool(int(p))
         for k in "xyab":
@@ -1108,7 +1111,6 @@ class Executor:
             self.probed = True
             return
         if motion in CYCLES:
-            from pmctl.task.rs274.cycles import run_cycle
             return run_cycle(self, st, blk, motion, explicit, axis_words)
         if motion in (50, 51):
             return self.spline(st, blk, motion)
@@ -1117,7 +1119,6 @@ class Executor:
     def compensated(self, st, blk, motion, end, run, c2=None, turn=0):
         """A move with cutter compensation; when the tool does not fit (CompFit), a machine problem is
         noted and the path carries on (pmctl.task.rs274.cutter_comp.CutterComp.carry_on)."""
-        from pmctl.task.rs274.cutter_comp import CompFit
         saved = (st.cq, st.cq_start, st.cq_end, st.comp_prog, st.comp_cur, st.comp_first, list(st.pos),
                  len(self.moves))
         try:
@@ -1131,7 +1132,6 @@ class Executor:
 
     def spline(self, st, blk, motion):
         """G5 / G5.1 (pmctl.task.rs274.splines): straight feeds along the curve."""
-        from pmctl.task.rs274.splines import flatten
         v, col = blk.v, blk.col
         mc = blk.groups.get(1, (None, None))[1]
         name = gname(motion)

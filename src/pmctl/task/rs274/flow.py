@@ -19,6 +19,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from pmctl.core.job import read_job_text
 from pmctl.task.rs274.words import LexError, lex_line
 
 _MAYBE_O = re.compile(r"^\s*(?:/\s*)?(?:[nN]\s*[-+]?[0-9.]+\s*)?[oO]")
@@ -205,7 +206,6 @@ class SubroutineFiles:
         for d in self.path:
             f = d / f"{name}.ngc"
             if f.is_file():
-                from pmctl.core.job import read_job_text
                 src = Source(read_job_text(f), f, label=str(f))
                 break
         self.cache[name] = src

@@ -26,7 +26,7 @@ from pmctl.task.rs274.execute import Config, Executor
 from pmctl.task.rs274.refusal import Refusal
 from pmctl.task.rs274.expressions import EvalError, value
 from pmctl.task.rs274.flow import FlowError, Source, SubroutineFiles
-from pmctl.task.rs274.modal import State
+from pmctl.task.rs274.modal import WCS_NAMES, State
 from pmctl.task.rs274.words import LexError
 
 MAX_BLOCKS = 1_000_000
@@ -71,7 +71,6 @@ class Interpreter:
         """Coordinate systems, G92, G28/G30 from the console journal's ``offsets`` (mm, deg):
         ``{"wcs": {"G54": [x, y, z, a, b], ...}, "g92": [...], "active": "G54", "g28": [...], "g30": [...],
         "rotation": {"G54": deg, ...}}`` (keys beyond ``wcs``/``g92``/``active`` optional)."""
-        from pmctl.task.rs274.modal import WCS_NAMES
         num = self.params.numbered
         wcs = o.get("wcs", {}) or {}
         for k, name in enumerate(WCS_NAMES, 1):
@@ -99,7 +98,6 @@ class Interpreter:
         self.ex.select_cs(st, WCS_NAMES.index(active) + 1 if active in WCS_NAMES else 1)
 
     def offsets(self) -> dict:
-        from pmctl.task.rs274.modal import WCS_NAMES
         num = self.params.numbered
         wcs, rot = {}, {}
         for k, name in enumerate(WCS_NAMES, 1):

@@ -459,9 +459,9 @@ def _setup(args):
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise PmctlError(f"{out}: cannot create output directory: {e.strerror or e}") from None
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (heavy) loads only when a figure is drawn
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: matplotlib (heavy) loads only when a figure is drawn
     return machine, out, plt
 
 

@@ -31,12 +31,19 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.linalg import expm
+from scipy.signal import butter, find_peaks, sosfilt, sosfiltfilt
 
+from pmctl.core import shaper as S
 from pmctl.core.errors import InputError, PmctlError
+from pmctl.core.recording import read_recording
+from pmctl.motion.service_config import load_service_config
 
 DRIFT = 0.10            # frequency tolerance the recommendation must cover
 MAX_REMAINING = 0.05    # residual vibration allowed within the tolerance
@@ -73,7 +80,6 @@ def make_impulse_job(axis: str = "z", strokes: int = 4, stroke_mm: float = 1.0, 
 def dynamic_part(x, fs: float, cutoff_hz: float = 2.5):
     """x through a zero-phase 2nd-order high-pass at ``cutoff_hz`` (removes the gravity strain, which
     follows the pose slowly; flat above a few times the cut-off, so the peaks are not moved)."""
-    from scipy.signal import butter, sosfiltfilt
     x = np.asarray(x, float)
     sos = butter(2, cutoff_hz, "highpass", fs=fs, output="sos")
     return sosfiltfilt(sos, x - x[0])
@@ -102,7 +108,6 @@ def strain_psd(strain, fs: float, segments=None, nfft: int = 4096):
 
 def find_peaks_hz(freqs, psd, fmin: float, fmax: float, max_modes: int = 3, rel_prominence: float = 0.05):
     """Frequencies of the most prominent peaks of one PSD within [fmin, fmax], strongest first."""
-    from scipy.signal import find_peaks
     sel = (freqs >= fmin) & (freqs <= fmax)
     if sel.sum() < 3:
         return []
@@ -162,7 +167,6 @@ def arx_gain(u, y, fs: float, n_modes: int = 1) -> float:
 
 def _arx_fit(u, y, fs, n_modes):
     """(AR coefficients, residual RMS, |static gain| per mm/s^2) of the ARX fit of arx_modes."""
-    from scipy.signal import butter, sosfilt
     u = np.asarray(u, float)
     y = np.asarray(y, float)
     w2 = np.r_[0.0, 0.0, u[2:] - 2.0 * u[1:-1] + u[:-2]]
@@ -240,7 +244,6 @@ class ShaperAdvice:
 
 def shaper_advice(freq_hz: float, damping: float, speed_mm_s: float = 50.0):
     """Every shaper designed at the mode, and the recommended one (see the module docstring)."""
-    from pmctl.core import shaper as S
     z = float(damping) if math.isfinite(damping) else 0.05
     z = min(max(z, 0.0), 0.5)
     band = np.linspace(1 - DRIFT, 1 + DRIFT, 81) * freq_hz
@@ -281,7 +284,6 @@ def predict_sampled(f, kth, kv, dt, zeta=0.0, leak=None):
     v = -kv x_m + kv d + K_theta y (deflection read at the tick start; d = 0 without ``leak``), the
     motor ramps by v dt (y' jumps by -(v - v_prev), then (y, y') propagate exactly), and
     d += dt (K_theta y - leak d). Returns the least damped oscillating pole as (Hz, damping ratio)."""
-    from scipy.linalg import expm
     w = 2 * math.pi * f
     Phi = expm(np.array([[0.0, 1.0], [-w * w, -2 * zeta * w]]) * dt)
     on = leak is not None
@@ -363,10 +365,9 @@ def analyse(rec, fmin: float = 5.0, fmax: float | None = None, kv: float = 400.0
 
 
 def _plot(result, spectra, path: Path, title: str):
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (heavy) loads only when a figure is drawn
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from pmctl.core import shaper as S
+    import matplotlib.pyplot as plt  # lazy: matplotlib (heavy) loads only when a figure is drawn
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 8))
     for (f, p), ch in zip(spectra, result["chains"]):
         a1.semilogy(f[1:], p[1:], label=f"chain {ch['chain']}")
@@ -422,10 +423,7 @@ def write_modes(path, entry: dict) -> None:
     those keys replaced where they are, else added under the table's header; the rest of the file
     (comments included) is kept. The new file is validated whole (load_service_config) before it
     replaces the old one, so a refused value leaves the file as it was."""
-    import os
-    import tempfile
 
-    from pmctl.motion.service_config import load_service_config
     p = Path(path)
     try:
         lines = p.read_text(encoding="utf-8").splitlines()
@@ -471,7 +469,6 @@ def cmd_resonance(args):
         return 0
     if not args.recording:
         raise PmctlError("pmctl analyze resonance: give a RECORDING folder, or --make-job OUT.ngc for the test move")
-    from pmctl.core.recording import read_recording
     if Path(args.recording).is_file():          # a Klipper accelerometer CSV (raw or PSD)
         return cmd_accel(args, args.recording)
     rec = read_recording(args.recording)
@@ -659,7 +656,6 @@ class ShaperFit:
 def remaining_vibrations(sh, freq, psd) -> float:
     """Share of the PSD above max/VIBRATION_REDUCTION that the shaper leaves, the worst over
     TEST_DAMPING (the structure's damping is unknown)."""
-    from pmctl.core import shaper as S
     thr = psd.max() / VIBRATION_REDUCTION
     total = np.maximum(psd - thr, 0.0).sum()
     worst = 0.0
@@ -675,7 +671,6 @@ def fit_shapers(freq, psd, scv=5.0, max_freq=ACC_MAX_HZ):
     with the best score; and the recommended one: a shaper replaces the one before it (ZV, MZV, EI,
     2HUMP_EI, 3HUMP_EI) when its score is 20 % better, or 5 % better with 10 % less smoothing.
     Returns (fits, recommended)."""
-    from pmctl.core import shaper as S
     freq, psd = np.asarray(freq, float), np.asarray(psd, float)
     keep = freq <= max_freq
     freq, psd = freq[keep], psd[keep]
@@ -759,9 +754,9 @@ def cmd_accel(args, target) -> int:
                               "shapers": [asdict(s) for s in fits],
                               "recommended": {"shaper": rec.name.lower(), "freq_hz": rec.freq_hz}}, indent=1),
                   encoding="utf-8")
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (heavy) loads only when a figure is drawn
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: matplotlib (heavy) loads only when a figure is drawn
     fig, ax = plt.subplots(figsize=(9, 5))
     m = f <= ACC_MAX_HZ
     for k, v in psd.items():

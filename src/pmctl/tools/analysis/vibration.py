@@ -31,9 +31,12 @@ simulation uses the seed's stated F, SD, K_R, K_G, K_θ literally and the analys
 from __future__ import annotations
 
 import math
+import pathlib
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import signal
+from scipy.linalg import expm
 
 from pmctl.core import vf
 from pmctl.core.errors import PmctlError
@@ -142,7 +145,6 @@ class LoopSim:
 
 def load_transition(f_load_hz, dt, zeta_load=0.0):
     """Exact one-sample transition of the load state (x = θ_L − θ_m, ẋ) with θ_m held constant."""
-    from scipy.linalg import expm
     w = 2.0 * math.pi * f_load_hz
     A = np.array([[0.0, 1.0], [-w * w, -2.0 * zeta_load * w]])
     return expm(A * dt)
@@ -250,7 +252,6 @@ def residual_amplitude_bound(F, f_load, K_theta, threshold=1.0):
 
 def linear_step_response(t, k_over_J, K_G, K_theta, KvKR, amplitude):
     """θ_L(t) of the linear model eq. 3.1 for a step of ``amplitude`` (for overlay plots)."""
-    from scipy import signal
     num = [k_over_J * K_G * KvKR]
     sys = signal.lti(num, eq31_char_poly(k_over_J, K_G, K_theta, KvKR))
     _, y = signal.step(sys, T=t)
@@ -512,9 +513,9 @@ def run_ramp_cases(duration=7.0, window_delay=1.0):
 
 
 def _plt():
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (heavy) loads only when a figure is drawn
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: matplotlib (heavy) loads only when a figure is drawn
     return plt
 
 
@@ -529,7 +530,6 @@ def _settles(ts):
 
 
 def _outdir(path):
-    import pathlib
     d = pathlib.Path(path)
     try:
         d.mkdir(parents=True, exist_ok=True)
@@ -707,14 +707,14 @@ def cmd_vf(args):
     fig.savefig(p1, dpi=110)
     plt.close(fig)
 
-    from matplotlib.colors import ListedColormap
+    from matplotlib.colors import ListedColormap  # lazy: matplotlib (heavy) loads only when a figure is drawn
     fig, ax = plt.subplots(figsize=(7.5, 5.5))
     cmap = ListedColormap(["#8fd18f", "#f2d16b", "#d9d9d9", "#e88d8d"])
     ax.pcolormesh(ratios, levels, codes, cmap=cmap, vmin=-0.5, vmax=3.5, shading="nearest")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.plot(Rf, vf.vf_min_amplitude(SD, Rf), "k-", lw=1, label="eq. 2.2 SD·sin(π f/F)")
-    import matplotlib.patches as mpatches
+    import matplotlib.patches as mpatches  # lazy: matplotlib (heavy) loads only when a figure is drawn
     handles = [mpatches.Patch(color=cmap(i), label=REGION_NAMES[i]) for i in range(4)]
     handles.append(ax.get_lines()[0])
     ax.legend(handles=handles, fontsize=8, loc="lower right")

@@ -23,6 +23,9 @@ import numpy as np
 
 from pmctl.core import kinematics as K
 from pmctl.core.errors import PmctlError
+from pmctl.core.job import home_pose
+from pmctl.task.gcode import read_gcode
+from pmctl.task.planner import plan as plan_job
 from pmctl.tools.calibrate import identify as I, model as Mo
 
 
@@ -137,9 +140,6 @@ def plan_poses(machine, n, *, candidates=1500, has_axis=True, seed=1):
 
 
 def run(machine, args) -> str:
-    from pmctl.task.gcode import read_gcode
-    from pmctl.core.job import home_pose
-    from pmctl.task.planner import plan as plan_job
 
     n = int(args.poses)
     if n < 6 or args.candidates < 2 * n:

@@ -32,9 +32,11 @@ import itertools
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy import stats
 
 from pmctl.core import kinematics as K
 from pmctl.core.config import Geometry, Machine
+from pmctl.tools.calibrate import identify as I, model as Mo
 
 SEED_PARAMS = tuple([f"{p}{i}" for i in (1, 2, 3) for p in ("S_r", "S_z", "SL", "BL", "CL", "RL")]
                     + ["OP_x", "OP_y", "SP_a", "SP_b"])            # 22
@@ -201,7 +203,6 @@ def fit_quadratic(x, y, mask):
 
 def t_prune(f: Fit, n, alpha=0.05):
     """Keep the intercept and the terms whose |t| exceeds t_{alpha/2, n-k-1} (eq. 5.15)."""
-    from scipy import stats
     k = int(f.mask.sum()) - 1
     tc = stats.t.ppf(1 - alpha / 2, max(n - k - 1, 1))
     keep = f.mask.copy()
@@ -381,8 +382,6 @@ SMALL_REGION = ((190.0, 210.0), (25.0, 35.0), (4.0, 6.0))
 
 def table_6_2(sm: SeedMachine, rng, *, n_points=20, region=REGIONS[2], tip_sigma_mm=0.0, axis_sigma_rad=0.0):
     """Calibrate the Table 6.2 pose with RSM and with identification from the same poses."""
-    from pmctl.tools.calibrate import identify as I
-    from pmctl.tools.calibrate import model as Mo
 
     m = sm.nominal
     tip, axis, q = design_poses(m, region, n_points, rng)

@@ -21,6 +21,7 @@ import numpy as np
 from pmctl.core.recording_axes import AxesMachine, axis_of, channel_kind
 from pmctl.tools.twin import effects as fx
 from pmctl.tools.twin.catalogue import DEFAULT_CAP
+from pmctl.tools.twin.drive import edge_rows
 from pmctl.tools.twin.effects import Context
 from pmctl.tools.twin.observations import observations, record_runs, regular_times, settled_rows, uniform_step
 
@@ -101,7 +102,6 @@ def build_context(columns: dict, machine: AxesMachine, *, cap=DEFAULT_CAP, bound
     settled = settled_rows(t, bounds, runs)
     # the force model differentiates the filtered motor position: its first and last few filter
     # lengths of each run are edge transients, not motion; effort is analysed inside them
-    from pmctl.tools.twin.drive import edge_rows
     inner = settled & ~edge_rows(t, bounds)
     settled_by = {k: (inner if channel_kind(k) == "effort" else settled) for k in obs_names}
     floors = {k: _floor(k, columns) for k in obs_names}

@@ -31,6 +31,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
+
 KEYS = ("snr", "spread", "rel", "share", "left")
 MIN_DSSE = 30.0         # the acceptance threshold (pmctl.tools.twin.diagnose.accept), whitened: ~ 5 sigma of the held-out SSE difference of a null effect
 
@@ -96,7 +98,6 @@ def fit(rows, l2=1.0) -> dict:
 
 def fit_logistic(rows, iters=200, l2=1.0) -> dict:
     """Logistic regression (Newton, small ridge) of labels on features; rows = [(feat, bool)]."""
-    import numpy as np
     keys = KEYS
     X = np.array([[1.0] + [f.get(k, 0.0) for k in keys] for f, _ in rows])
     y = np.array([1.0 if ok else 0.0 for _, ok in rows])

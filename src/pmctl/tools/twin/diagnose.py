@@ -41,15 +41,21 @@ import numpy as np
 
 from pmctl.core import kinematics as kin
 from pmctl.core.compensation import compensated_columns
-from pmctl.tools.twin import calibration
+from pmctl.core.config import load_machine
+from pmctl.core.errors import InputError
+from pmctl.core.recording import META_FILE, partial_path
+from pmctl.core.recording_chunks import count_rows, plan_segments, read_columns
+from pmctl.tools.twin import axes as gx, calibration, drive
 from pmctl.tools.twin import effects as fx
 from pmctl.tools.twin import lookalikes as lk
 from pmctl.tools.twin import nominal
 from pmctl.tools.twin.calibration import MIN_DSSE
 from pmctl.tools.twin.catalogue import DEFAULT_CAP
 from pmctl.tools.twin.effects import AXES, Context
+from pmctl.tools.twin.fix import compensation_from_findings, write_compensation
 from pmctl.tools.twin.locate import locate, windows
 from pmctl.tools.twin.observations import observations, record_runs, regular_times, settled_rows, uniform_step
+from pmctl.tools.twin.plots import write_plots
 from pmctl.tools.twin.unexplained import flexible_gain, left_structure, unexplained
 
 N_BLOCKS = 24
@@ -759,8 +765,6 @@ def diagnose(columns: dict, machine, *, name="recording", progress=False,
     kw = dict(cap=cap, bounds=span["bounds"] if span else None,
               direction_before=span.get("direction_before") if span else None)
     if generic:           # a machine of independent axes (pmctl.tools.twin.axes, .drive)
-        from pmctl.tools.twin import axes as gx
-        from pmctl.tools.twin import drive
         ctx = gx.build_context(columns, machine, **kw)
         cands = drive.catalogue(ctx)
         limit = min(MAX_FINDINGS + 4 * len(machine.axes), 20)
@@ -826,7 +830,6 @@ def read_for_diagnosis(folder, *, progress=False, max_rows=MAX_ROWS, n_segments=
     {"rows_total", "rows": [(start, stop), ...] file rows kept, "bounds": run boundaries as
     indices into the kept rows, "direction_before": per run, the direction of each axis' last
     commanded motion before it (AXES order; 0: none)}, for :func:`diagnose`."""
-    from pmctl.core.recording_chunks import count_rows, plan_segments, read_columns
     bar = _Progress(1000, progress, "reading   ")
 
     def cb(done, total):            # one redraw per 16 MB block
@@ -971,8 +974,6 @@ def _display_name(folder: Path) -> str:
 def find_recording(folder) -> Path:
     """The recording folder a user meant: ``folder`` itself, or the one recording one or two levels
     below it (``OUT/case-000`` holds ``recording/``). Raises InputError saying what is there."""
-    from pmctl.core.errors import InputError
-    from pmctl.core.recording import META_FILE, partial_path
     folder = Path(folder)
     if folder.is_file() and folder.name in (META_FILE, "data.csv"):
         return folder.parent
@@ -1021,7 +1022,6 @@ def plant_notes(report, meta) -> list[str]:
 
 
 def _run(args) -> int:
-    from pmctl.core.config import load_machine
     folder = find_recording(args.folder)
     if Path(folder) != Path(args.folder) and not Path(args.folder).is_file():
         print(f"pmctl: {args.folder} holds one recording, in {folder}: diagnosing that", file=sys.stderr)
@@ -1037,7 +1037,6 @@ def _run(args) -> int:
         print(f"pmctl: warning: {folder} is an incomplete recording ({why}); diagnosing the "
               f"{n} samples it holds", file=sys.stderr)
     if args.config and is_axes_machine(rec_machine):
-        from pmctl.core.errors import InputError
         raise InputError(args.config, None, f"{folder} is a recording of independent axes (\"machine\": \"axes\"): "
                                             "it is compared with no machine config; leave --config out")
     machine = load_machine(args.config) if args.config else rec_machine
@@ -1059,7 +1058,6 @@ def _run(args) -> int:
     if getattr(args, "write_compensation", None):
         _write_compensation(args, report, extras, machine, folder)
     if args.plots:
-        from pmctl.tools.twin.plots import write_plots
         for pth in write_plots(report, extras, args.plots):
             print(f"plot: {pth}", file=out)
     return 0
@@ -1067,7 +1065,6 @@ def _run(args) -> int:
 
 def _write_compensation(args, report, extras, machine, folder):
     """--write-compensation FILE (pmctl.tools.twin.fix)."""
-    from pmctl.tools.twin.fix import compensation_from_findings, write_compensation
     if is_axes_machine(machine):
         print(f"\n  A recording of independent axes has no machine config to compensate: "
               f"{args.write_compensation} not written.", file=sys.stderr)

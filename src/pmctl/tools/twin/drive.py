@@ -28,11 +28,13 @@ without its constant) the same names in A (``coulomb_A``, ``mass_A_s2_per_m``, .
 from __future__ import annotations
 
 import math
+from itertools import combinations
 
 import numpy as np
 from scipy import signal
 
 from pmctl.core.plant_effects import moving_sign
+from pmctl.tools.twin import effects as fx
 from pmctl.tools.twin.effects import (AxisSignal, Candidate, Fit, PeriodicError, _lstsq, axis_names,
                                       axis_velocity, per_run, position_lines)
 
@@ -301,7 +303,6 @@ def _nonneg_first(X, y, nonneg):
     if all(c[j] >= 0 for j in nonneg):
         return c
     best = None
-    from itertools import combinations
     for r in range(1, len(nonneg) + 1):
         for drop in combinations(nonneg, r):
             keep = [j for j in range(X.shape[1]) if j not in drop]
@@ -417,7 +418,6 @@ class Cogging(PeriodicError):
 
 def catalogue(ctx) -> list:
     """Every applicable candidate for a recording of independent axes."""
-    from pmctl.tools.twin import effects as fx
     cands = []
     o = ctx.obs
     for i, A in enumerate(axis_names(ctx)):

@@ -21,6 +21,7 @@ the old one plus the new findings.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -97,7 +98,6 @@ def compensation_from_findings(machine, accepted, existing: Compensation | None 
 
 def write_compensation(path, comp: Compensation, *, recording: str, machine_source: str, notes) -> str:
     """Write the ``[compensation]`` file; returns its text."""
-    from pathlib import Path
     head = (f"Backlash and screw compensation from `pmctl twin diagnose {recording}`\n"
             f"(machine config {machine_source}). Use it with the machine config's\n"
             f"  [compensation]\n  file = \"{Path(path).name}\"\n"

@@ -33,10 +33,12 @@ import re
 from pathlib import Path
 
 import numpy as np
+from scipy import io as sio
 
 from pmctl.core.errors import InputError, PmctlError
 from pmctl.core.recording import write_recording
-from pmctl.core.recording_axes import axes_machine, axis_of, channel_kind
+from pmctl.core.recording_axes import TIME, _norm, axes_machine, axis_of, channel_kind
+from pmctl.tools.analysis.resonance import read_accel_csv
 
 FORMATS = ("csv", "halsampler", "halscope", "mat", "klipper")
 _EXPR = re.compile(r"^\s*([^*/]+?)\s*(?:([*/])\s*([^*/]+?)\s*)?$")
@@ -190,7 +192,6 @@ def read_halscope(src: Path):
 
 def read_mat(src: Path):
     """A .mat file's vectors (and scalars, for scale factors) -> ({name: array}, names)."""
-    from scipy import io as sio
     try:
         d = sio.loadmat(str(src), squeeze_me=True)
     except NotImplementedError:
@@ -246,7 +247,6 @@ def import_source(src, out, *, fmt=None, mapping=None, units=None, time=None, ti
     units = dict(units or {})
     period = None
     if fmt == "klipper":
-        from pmctl.tools.analysis.resonance import read_accel_csv
         kind, d = read_accel_csv(src)
         if kind != "raw":
             raise InputError(src, 1, "a Klipper resonance PSD is a spectrum, not a time series: "
@@ -316,7 +316,6 @@ def import_source(src, out, *, fmt=None, mapping=None, units=None, time=None, ti
     cols_out = {"t": t, **data}
     sr = float(1.0 / np.median(d)) if len(d) else 1.0
     if "t" in notes and "unit" in notes["t"]:
-        from pmctl.core.recording_axes import TIME, _norm
         sr = sr / TIME.get(_norm(notes["t"]["unit"]), 1.0)
     folder = write_recording(out, cols_out, machine="axes", sample_rate_hz=sr,
                              description=f"imported from {src.name} ({fmt}) by pmctl twin import",

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pmctl.core.config import Machine
-from pmctl.core.kinematics import expm_so3, solve_platform, tool_of_platform
+from pmctl.core.kinematics import expm_so3, initial_guess, solve_platform, tool_of_platform
 from pmctl.core.recording import AXES, ENC, LOAD, STRAIN, TIP, TOOL
 from pmctl.core.statics import chain_forces, strain_of_axial
 
@@ -161,7 +161,6 @@ def pose_of_joints(q, machine: Machine, guess=None) -> PoseBatch:
             Rg = expm_so3(frac * w) @ RA[seg]
             bad = ~(okA[seg] & okA[seg + 1]) | ~np.all(np.isfinite(Pg), -1)
             if bad.any():                        # never start from a failed anchor
-                from pmctl.core.kinematics import initial_guess
                 P0, R0 = initial_guess(L[bad], geom)
                 Pg[bad], Rg[bad] = P0, R0
         Ps, Rs, oks = _solve_chunked(L, geom, None if Pg is None else (Pg, Rg))

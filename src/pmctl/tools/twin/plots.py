@@ -6,15 +6,17 @@ from pathlib import Path
 
 import numpy as np
 
+from pmctl.tools.twin import nominal
+from pmctl.tools.twin.axes import predict_columns
 from pmctl.tools.twin.effects import axis_names, axis_projection, welch_runs
 from pmctl.tools.twin.locate import channel_series
 from pmctl.tools.twin.signals import spectrum_position
 
 
 def _plt():
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (heavy) loads only when a figure is drawn
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: matplotlib (heavy) loads only when a figure is drawn
     return plt
 
 
@@ -132,11 +134,9 @@ def full_rate_residual(report, extras, c):
     if len(rows) < 64:
         return None
     if "axes" in ctx.extra:
-        from pmctl.tools.twin.axes import predict_columns
         b = ctx.extra.get("bounds")
         pred = predict_columns(dict(cols, t=ctx.t), machine, [c], rows, b)[c]
     else:
-        from pmctl.tools.twin import nominal
         sub = {k: np.asarray(v, float)[rows] for k, v in cols.items()}
         pred = nominal.predict_columns(sub, machine, [c])[c]
     r = x[rows] - pred

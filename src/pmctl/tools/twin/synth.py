@@ -112,15 +112,21 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 
+from pmctl import hal
 from pmctl.core.config import Machine, load_machine
 from pmctl.core.errors import InputError
 from pmctl.core.kinematics import axis_from_roll_pitch, ik_batch, roll_pitch_from_axis
-from pmctl.core.plant_effects import (SCREW_FIXED_END_MM, first_order_lag, friction_offset, mode_response,
-                                      periodic_error, play, play_load, step_offset, thermal_growth)
-from pmctl.core.recording import AXES, CMD, ENC, LOAD, STRAIN, TIP, TOOL, write_recording
+from pmctl.core.plant_effects import (SCREW_FIXED_END_MM, direction, first_direction, first_order_lag,
+                                      friction_offset, mode_response, periodic_error, play, play_load, step_offset,
+                                      thermal_growth)
+from pmctl.core.recording import AXES, CMD, ENC, LOAD, STRAIN, TIP, TOOL, check_target, write_recording
 from pmctl.core.statics import chain_forces, strain_of_axial
+from pmctl.motion.loop import ControlLoop, build_targets
+from pmctl.motion.nc import counts_of, initial_state
+from pmctl.motion.service_config import load_service_config
 from pmctl.tools.twin.catalogue import EFFECTS, ODDITIES, RUNS  # names shared with the command line
 from pmctl.tools.twin.nominal import pose_of_joints
+from pmctl.tools.twin.synth_axes import AXIS_EFFECTS, DRIVE, synth_axes_case, write_axes_case
 
 # Which runs make an effect observable (thermal needs minutes; compliance needs force changes).
 RUNS_FOR = {"thermal_growth": ("warmup",), "compliance": ("calibration",),
@@ -535,7 +541,6 @@ def _true_machine(machine: Machine, effects) -> Machine:
 
 def _reversals(q) -> np.ndarray:
     """Indices where a commanded axis position changes its direction of motion (after the first move)."""
-    from pmctl.core.plant_effects import direction
     d = direction(q, dead=1e-9)
     return np.flatnonzero((d[1:] != d[:-1]) & (d[:-1] != 0)) + 1
 
@@ -606,7 +611,6 @@ def axis_oddities(oddities, t, q_cmd, q_mot, q_load):
             q_mot[:, j] += s
             q_load[:, j] += s
         else:
-            from pmctl.core.plant_effects import direction
             d = direction(q_cmd[:, j], dead=1e-9)
             rev = _reversals(q_cmd[:, j])
             for i0, i1 in zip(rev, list(rev[1:]) + [len(t)]):
@@ -776,7 +780,6 @@ def loop_supports(effects) -> str:
 def sim_options(effects, q_cmd) -> dict:
     """[hal.sim] options of the axis effects (rigid chains, no sim noise: the measurement stage adds
     the noise); the play starts on the side that the first motion pushes, as in :func:`play`."""
-    from pmctl.core.plant_effects import first_direction
     z = [0.0] * 5
     o = {"flex": False, "backlash_mm": list(z), "backlash_start": [-first_direction(q_cmd[:, j]) for j in range(5)],
          "pitch_error_amp_mm": list(z), "pitch_error_period_mm": [5.0] * 5, "pitch_error_phase_rad": list(z),
@@ -812,10 +815,6 @@ def loop_plant(run: Run, effects, machine: Machine, *, service=None):
     with the tool pose and the tip force at the path position the loop had reached. The
     following-error limits are widened (friction and servo lag are part of the case, not a fault
     to stop on)."""
-    from pmctl import hal
-    from pmctl.motion.loop import ControlLoop, build_targets
-    from pmctl.motion.nc import counts_of, initial_state
-    from pmctl.motion.service_config import load_service_config
 
     why = loop_supports(effects)
     if why:
@@ -1130,7 +1129,6 @@ def generate(out_dir, count=1, *, effects="random", seed=0, clean=False, max_eff
     """Write ``count`` cases to OUT_DIR/case-NNN; returns their folders. Existing cases are refused
     (before anything is written) unless ``overwrite``. ``plant="loop"``: each case machined by the
     control loop on the sim (random effects then come from those the sim carries)."""
-    from pmctl.core.recording import check_target
     for k in range(count):
         check_target(Path(out_dir) / f"case-{k:03d}" / "recording", overwrite=overwrite)
     machine = load_machine()
@@ -1199,7 +1197,6 @@ def _cmd(args) -> int:
 
 def _cmd_axes(args) -> int:
     """``--machine axes``: bench runs of one ball-screw axis (pmctl.tools.twin.synth_axes)."""
-    from pmctl.tools.twin.synth_axes import AXIS_EFFECTS, DRIVE, synth_axes_case, write_axes_case
     if args.effects == "random":
         names = None
     else:
