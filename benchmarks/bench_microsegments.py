@@ -36,7 +36,8 @@ CHILD = r"""
 import sys, time, json
 import pmctl  # noqa: F401  (before numpy)
 from pmctl.core.config import load_machine
-from pmctl.task.job import home_pose, parse_job
+from pmctl.core.job import home_pose
+from pmctl.task.job import parse_job
 from pmctl.task.planner import plan_stream, validate
 m = load_machine()
 t0 = time.process_time()

@@ -89,7 +89,7 @@ SUPERVISOR_SCRIPT = textwrap.dedent("""
     from pmctl.core import kinematics as K
     from pmctl.motion.nc import counts_of
     from pmctl.task.gcode import parse_gcode
-    from pmctl.task.job import home_pose
+    from pmctl.core.job import home_pose
     from pmctl.task.supervisor import Supervisor
     s = Supervisor("prototype", realtime=False, state_file={state!r})
     tip, ax = home_pose(s.machine)

@@ -84,7 +84,7 @@ def locate(ctx: Context, y=None) -> dict:
         t, r = channel_series(ctx, name, yy)
         sig = o.sigma[name]
         # excess and windows against each sample's own noise (the whitened residual: a tool_*
-        # component's noise changes with the tilt, diagnose.noise_scale)
+        # component's noise changes with the tilt, observations.noise_scale)
         m = o.ch == o.channels.index(name)
         rw = yy[m][np.argsort(o.row[m], kind="stable")]
         rms = float(np.sqrt(np.mean(r * r))) if len(r) else 0.0
