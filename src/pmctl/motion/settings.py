@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import copy
 import pickle
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+
+import numpy as np
 
 from pmctl.core.config import Machine, load_machine
 from pmctl.motion.service_config import NCSetup, ServiceConfig, load_service_config, nc_setup
@@ -65,6 +67,26 @@ def apply_hal_overrides(svc: ServiceConfig, hal: dict | None) -> ServiceConfig:
     return svc
 
 
+def _cap_to_backend(params, svc: ServiceConfig, backend: str, notes: list):
+    """The joint speeds capped to the step rate a step/dir bridge holds ([hal.stepdir] max_step_rate_hz;
+    the emulated RP2040's own rate): the planner and the NC then stay within what it can emit, and
+    the job takes longer instead of the bridge falling behind its step schedule mid-job."""
+    if backend != "stepdir":
+        return params
+    from pmctl.hal.stepdir import StepDirOptions
+    o = StepDirOptions.from_dict(dict(svc.backend_tables.get("stepdir", {})), f"{svc.source}: [hal.stepdir]")
+    rate = o.step_rate_cap()
+    if not rate:
+        return params
+    cap = rate / np.asarray(params.pulses_per_mm, float)
+    if not np.any(params.vmax > cap + 1e-12):
+        return params
+    vmax = np.minimum(params.vmax, cap)
+    notes.append(f"step/dir bridge {o.port}: {rate / 1e3:g} kstep/s per axis: joint speeds capped at "
+                 f"{vmax[:3].min():.3g} mm/s (chains) and {vmax[3:].min():.3g} mm/s (table)")
+    return replace(params, vmax=vmax)
+
+
 def resolve(config="prototype", service=None, *, backend=None, rate_hz=None, realtime=None, offline=None,
             nc=None, hal=None, machine=None, svc=None) -> Settings:
     """Read the machine config ``config`` and the service config ``service`` (None: the shipped one),
@@ -85,6 +107,7 @@ def resolve(config="prototype", service=None, *, backend=None, rate_hz=None, rea
     # chain modes, K_theta auto (off on a backend without strain), the shaper; [daq] k_theta_source
     setup = nc_setup(svc, machine, dt, backend)
     params = svc.nc.params(machine, dt, where=svc.source, modes=setup.modes)
+    params = _cap_to_backend(params, svc, backend, setup.notes)
     svc.homing.check(params, svc.source)             # [homing] against this machine's joints
     return Settings(machine=machine, svc=svc, backend=backend, rate_hz=rate_hz, setup=setup, params=params,
                     realtime=bool(realtime), offline=bool(offline), nc_overrides=dict(nc or {}),
