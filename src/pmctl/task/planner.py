@@ -1022,17 +1022,22 @@ def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits
 
 
 def _plan_whole(path, machine, limits, dt, job, window):
-    """Plan the whole path window by window (nothing kept), with the fallback (see validate)."""
+    """Plan the whole path window by window (nothing kept), with the fallback (see validate). The
+    settled windows (their extents and the caps re-planning lowered) are kept on the path
+    (``path.settled``): plan_stream of this path samples them without planning them again."""
     T = max(2.0 * limits.tangential_accel / limits.jerk_mm_s3, 2.0 * dt)
     while True:
         n_samples = 0
+        settled = []
         try:
-            for tm, (e0, e1), _ in _windows(path, machine, limits, dt, T, job, window, keep=False):
-                n_samples += e1 - e0
+            for w in _windows(path, machine, limits, dt, T, job, window, keep=False):
+                n_samples += w.e1 - w.e0
+                settled.append(w.record)
         except _NotConverged as e:
             _fall_back(path, e, dt, limits, job)
             continue
         path.planned_samples = n_samples
+        path.settled, path.settled_for = settled, (dt, limits, machine)
         return
 
 
@@ -1049,6 +1054,8 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
     Where re-planning does not meet the limits before the first piece is handed out, the fallback
     goes into ``path`` and the job is planned again; after that, PlanningError (with the line) stops
     the stream: pass the path of ``validate(full=True)`` (same arguments) and that cannot happen.
+    That path also holds its settled windows: they are sampled as they were planned there (the same
+    samples), not planned again (``window`` is then the check's).
     Memory: the job's segment index (~0.4 kB per move) and one window with its margins."""
     limits, start = _start(job, machine, dt, feed_override, limits, start)
     if path is None:
@@ -1056,29 +1063,22 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
     T = max(2.0 * limits.tangential_accel / limits.jerk_mm_s3, 2.0 * dt)
     points = np.asarray(job.points, float).reshape(-1, 3)
     if path.n == 0:
-        nt = int(np.ceil(path.dwell.sum() / dt)) + 1
-        marks = path.rest_marks(dt, nt)
-        for k0 in range(0, nt, SAMPLE_CHUNK):
-            m = min(nt, k0 + SAMPLE_CHUNK) - k0
-            z = np.zeros((m, 3))
-            yield Trajectory(dt, np.repeat(path.start_tip[None], m, 0), np.repeat(path.b_axis[:1], m, 0), z,
-                             z.copy(), np.full(m, path.start_line, int), np.zeros(m), job.source, points,
-                             marks=tuple((i - k0, ln, ev) for i, ln, ev in marks if k0 <= i < k0 + m))
+        yield from _rest_pieces(path, dt, job.source, points)
         return
+    settled = getattr(path, "settled", None)
+    if settled is not None:
+        pdt, plim, pm = path.settled_for
+        if pdt == dt and plim == limits and _same(pm, machine):
+            for rec in settled:
+                yield from _replay_window(path, rec, machine, limits, dt, T, job).pieces(job.source, points)
+            return
     emitted = False
     while True:
         try:
-            for tm, rng, kept in _windows(path, machine, limits, dt, T, job, window):
-                if kept is not None:
-                    for k0, part in kept:
-                        emitted = True
-                        yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k0 + len(part[0])))
-                else:
-                    for k0 in range(rng[0], rng[1], SAMPLE_CHUNK):
-                        k1 = min(rng[1], k0 + SAMPLE_CHUNK)
-                        part, _ = tm.samples(k0, k1)
-                        emitted = True
-                        yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k1))
+            for w in _windows(path, machine, limits, dt, T, job, window):
+                for piece in w.pieces(job.source, points):
+                    emitted = True
+                    yield piece
             return
         except _NotConverged as e:
             if not emitted:           # nothing handed out yet: the fallback, and start again
@@ -1090,66 +1090,147 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
                                 "full before it was streamed)", path=job.source, line=e.line) from None
 
 
+def _same(a, b) -> bool:
+    """Whether two configs (dataclasses of numbers, arrays, tuples) hold the same values."""
+    if a is b:
+        return True
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, np.ndarray):
+        return a.shape == b.shape and bool(np.array_equal(a, b))
+    if hasattr(a, "__dataclass_fields__"):
+        return all(_same(getattr(a, f), getattr(b, f)) for f in a.__dataclass_fields__)
+    if isinstance(a, (tuple, list)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    return bool(a == b)
+
+
+def _rest_pieces(path, dt, source, points):
+    """The pieces of a path that does not move (only dwells and EVENTs): its dwells' samples at the
+    start pose (one sample without a dwell), carrying the marks."""
+    nt = int(np.ceil(path.dwell.sum() / dt)) + 1
+    marks = path.rest_marks(dt, nt)
+    for k0 in range(0, nt, SAMPLE_CHUNK):
+        m = min(nt, k0 + SAMPLE_CHUNK) - k0
+        z = np.zeros((m, 3))
+        yield Trajectory(dt, np.repeat(path.start_tip[None], m, 0), np.repeat(path.b_axis[:1], m, 0), z,
+                         z.copy(), np.full(m, path.start_line, int), np.zeros(m), source, points,
+                         marks=tuple((i - k0, ln, ev) for i, ln, ev in marks if k0 <= i < k0 + m))
+
+
+def _reach(path, T, limits):
+    """How far along the path what a window's samples depend on reaches (the erosion of the caps,
+    the jerk filter, the re-planning radius around a violation: all ~ v T, at the path's top speed)."""
+    return 1.1 * float(path.vmax.max()) * T + 4 * limits.grid_mm
+
+
 def _windows(path, machine, limits, dt, T, job, window=STREAM_WINDOW, keep=True):
-    """The windows of the streaming planner, in order: (timing, tick range to emit, kept sample
-    chunks or None) each; _NotConverged where re-planning does not meet the limits."""
+    """The windows of the streaming planner, in order (_Window each); _NotConverged where
+    re-planning does not meet the limits."""
     # reach of what a window's result depends on: the erosion of the caps, the jerk filter, the
     # re-planning radius around a violation (all ~ v T), and the look-ahead of the speeds (checked)
-    vt = 1.1 * float(path.vmax.max()) * T + 4 * limits.grid_mm
+    vt = _reach(path, T, limits)
     pins = path.pin_idx
     c1 = 0
     while c1 < path.n:                 # windows of about `window` segments, from knot to knot
         c0 = c1
         c1 = int(pins[min(len(pins) - 1, np.searchsorted(pins, c0 + window, "left"))])
-        margin = max(STREAM_MARGIN_MM, 2 * vt)
-        while True:
-            try:
-                yield _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep)
-                break
-            except _NotLocal:
-                margin *= 2
+        yield _settle_growing(path, c0, c1, max(STREAM_MARGIN_MM, 2 * vt), vt, machine, limits, dt, T, job, keep)
 
 
-def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep_ok=True):
-    """Plan segments c0 .. c1-1 with margins; returns (timing, tick range to emit, kept sample chunks
-    or None) once the limits hold on the samples of the window and STREAM_CHECK_MM around it."""
+def _settle_growing(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep=True, check_mm=STREAM_CHECK_MM):
+    """_settle_window, the margin doubled until the window's speeds do not depend on what lies beyond
+    it (``_NotLocal``)."""
+    while True:
+        try:
+            return _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep, check_mm)
+        except _NotLocal:
+            margin *= 2
+
+
+class _Window:
+    """A settled window: its timing, the tick range it emits (e0 .. e1-1 of its own ticks), the sample
+    chunks kept from its check (or None: sampled again), and ``record`` = (w0, w1, c0, c1, indices and
+    values of the lowered caps) from which ``_replay_window`` samples it again without planning."""
+
+    def __init__(self, tm, e0, e1, keep, record):
+        self.tm, self.e0, self.e1, self.keep, self.record = tm, e0, e1, keep, record
+
+    def pieces(self, source, points):
+        """Its samples as Trajectory pieces of at most SAMPLE_CHUNK samples, with their marks."""
+        tm, dt = self.tm, self.tm.dt
+        if self.keep is not None:
+            for k0, part in self.keep:
+                yield Trajectory(dt, *part, source, points, marks=tm.marks(k0, k0 + len(part[0])))
+            return
+        for k0 in range(self.e0, self.e1, SAMPLE_CHUNK):
+            k1 = min(self.e1, k0 + SAMPLE_CHUNK)
+            part, _ = tm.samples(k0, k1)
+            yield Trajectory(dt, *part, source, points, marks=tm.marks(k0, k1))
+
+
+def _window_extent(path, c0, c1, margin, vt, check_mm=STREAM_CHECK_MM):
+    """Where the window c0 .. c1 looks: (w0, w1, kb_lo, kb_hi, zone) -- the segments planned with it
+    (its margins), the knots between which the limits are checked, and the zone of _profile -- or None
+    on a path whose end is not the job's (``path.job_end`` False) when it would look beyond that end."""
     n, b_s = path.n, path.b_s
     # the limits are checked on the samples between knots kb_lo and kb_hi (the window and at least
-    # STREAM_CHECK_MM around it; knots are the boundaries with a tick of their own, _Path.pin); their
+    # check_mm around it; knots are the boundaries with a tick of their own, _Path.pin); their
     # times depend on the warp's knots one further out, which must not be a window end (those knots
     # are not the whole job's); the profile must be the whole job's from there on, within vt
     # (and at least vt beyond the knots next to the window: a violation there moves their ticks)
+    start, end = c0 == 0 and path.job_start, c1 == n and path.job_end
     P = path.pin_idx
     bp = b_s[P]
     ic0, ic1 = int(np.searchsorted(P, c0)), int(np.searchsorted(P, c1))
-    if c0 == 0:
+    if start:
         i_lo = 0
     else:
-        reach = min(b_s[c0] - STREAM_CHECK_MM, bp[max(ic0 - 1, 0)] - vt)
+        reach = min(b_s[c0] - check_mm, bp[max(ic0 - 1, 0)] - vt)
         i_lo = max(0, min(ic0 - 1, int(np.searchsorted(bp, reach, "right")) - 1))
-    if c1 == n:
+    if end:
         i_hi = len(P) - 1
     else:
-        reach = max(b_s[c1] + STREAM_CHECK_MM, bp[min(ic1 + 1, len(P) - 1)] + vt)
+        reach = max(b_s[c1] + check_mm, bp[min(ic1 + 1, len(P) - 1)] + vt)
         i_hi = min(len(P) - 1, max(ic1 + 1, int(np.searchsorted(bp, reach, "left"))))
     kb_lo, kb_hi = int(P[i_lo]), int(P[i_hi])
     lo_need = bp[max(i_lo - 1, 0)] - vt
     hi_need = bp[min(i_hi + 1, len(P) - 1)] + vt
-    w0 = 0 if i_lo <= 1 else max(0, min(int(P[i_lo - 2]), int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
-    w1 = n if i_hi >= len(P) - 2 else min(n, max(int(P[i_hi + 2]), int(np.searchsorted(b_s, hi_need + margin, "left"))))
-    sp = path.sub(w0, w1)
+    if path.job_start:
+        w0 = 0 if i_lo <= 1 else max(0, min(int(P[i_lo - 2]), int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
+    else:                              # the segments before were let go: as far back as they are held
+        w0 = max(0, min(int(P[max(i_lo - 2, 0)]), int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
+    if path.job_end:
+        w1 = n if i_hi >= len(P) - 2 else min(n, max(int(P[i_hi + 2]), int(np.searchsorted(b_s, hi_need + margin, "left"))))
+    else:                              # the job goes on beyond n: the window must not look that far
+        if i_hi >= len(P) - 2 or hi_need + margin > b_s[n]:
+            return None
+        w1 = min(n, max(int(P[i_hi + 2]), int(np.searchsorted(b_s, hi_need + margin, "left"))))
     zone = None
-    if w0 > 0 or w1 < n:
-        zone = (b_s[w0] + vt if w0 > 0 else -np.inf, b_s[w1] - vt if w1 < n else np.inf,
-                lo_need if c0 > 0 else -np.inf, hi_need if c1 < n else np.inf)
+    if w0 > 0 or w1 < n or not (path.job_start and path.job_end):
+        zone = (b_s[w0] + vt if (w0 > 0 or not path.job_start) else -np.inf,
+                b_s[w1] - vt if (w1 < n or not path.job_end) else np.inf,
+                lo_need if not start else -np.inf, hi_need if not end else np.inf)
+    return w0, w1, kb_lo, kb_hi, zone
+
+
+def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep_ok=True, check_mm=STREAM_CHECK_MM):
+    """Plan segments c0 .. c1-1 with margins; returns the _Window once the limits hold on the samples
+    of the window and ``check_mm`` around it."""
+    n = path.n
+    w0, w1, kb_lo, kb_hi, zone = _window_extent(path, c0, c1, margin, vt, check_mm)
+    end = path.job_end
+    sp = path.sub(w0, w1)
     grid = _limit_grid(sp, machine, limits, dt, T)
     scale = np.ones(len(grid["s"]))
     for it in range(max(1, limits.max_iterations)):
         tm = _Timing(sp, grid, scale, dt, T, job, zone=zone)
         e0 = int(tm.K_b[c0 - w0])
-        e1 = int(tm.K_b[c1 - w0]) + (1 if c1 == n else 0)
+        e1 = int(tm.K_b[c1 - w0]) + (1 if c1 == n and end else 0)
         k_lo = int(tm.K_b[kb_lo - w0])
-        k_hi = int(tm.K_b[kb_hi - w0]) + (1 if kb_hi == n else 0)
+        k_hi = int(tm.K_b[kb_hi - w0]) + (1 if kb_hi == n and end else 0)
         keep = [] if keep_ok and e1 - e0 <= STREAM_KEEP else None
         bad = []
         prev = None
@@ -1170,10 +1251,24 @@ def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep_o
                 bad.append(w)
             prev = cur
         if not bad:
-            return tm, (e0, e1), keep
+            low = np.nonzero(scale < 1.0)[0]
+            return _Window(tm, e0, e1, keep, (w0, w1, c0, c1, low, scale[low]))
         worst = tuple(np.concatenate(x) for x in zip(*bad))
         scale = _lower_caps(grid, scale, worst, limits, T)
     raise _NotConverged(path, worst[0])
+
+
+def _replay_window(path, record, machine, limits, dt, T, job):
+    """A window settled before (``_Window.record``), sampled again as it was planned: its limit grid,
+    the caps re-planning lowered, its timing; no check, no iteration (the same samples)."""
+    w0, w1, c0, c1, low, val = record
+    sp = path.sub(w0, w1)
+    grid = _limit_grid(sp, machine, limits, dt, T)
+    scale = np.ones(len(grid["s"]))
+    scale[low] = val
+    tm = _Timing(sp, grid, scale, dt, T, job)
+    e1 = int(tm.K_b[c1 - w0]) + (1 if c1 == path.n and path.job_end else 0)
+    return _Window(tm, int(tm.K_b[c0 - w0]), e1, None, record)
 
 
 def _too_long(job, line, what, dt, max_samples=None):

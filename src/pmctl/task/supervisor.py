@@ -106,6 +106,7 @@ class Item:
     pushed: int = 0                              # samples queued for the rt side so far
     pushed_line: int = 0                         # the job line of the last of them
     all_pushed: bool = False                     # every sample of it is queued (its length is known)
+    path: object = None                          # the planner's checked path of its job (validate(full=True))
 
 
 class Supervisor:
@@ -684,15 +685,18 @@ class Supervisor:
                 return self.items[-1].end
         return self.pose()
 
-    def submit(self, job, kind="job", name="", lines=None, source="") -> Item:
-        """Queue a Job (planned from where the previous item ends). Raises MotionRefused in alarm."""
+    def submit(self, job, kind="job", name="", lines=None, source="", path=None) -> Item:
+        """Queue a Job (planned from where the previous item ends). Raises MotionRefused in alarm.
+        ``path``: the job already checked in full from that start (pmctl.task.jobcheck: the path of
+        ``validate(full=True)`` with its settled windows), which the planner then samples instead of
+        planning the job again."""
         self._check_motion_allowed()
         moves = [m for m in job.moves if m.kind not in ("dwell", "event")]     # those do not move
         with self._lock:
             start = self.end_pose()
             end = (np.asarray(moves[-1].tip, float), np.asarray(moves[-1].axis, float)) if moves else start
             it = Item(kind, job, start, end, name, self.n_submitted, lines=dict(lines or {}), gen=self._gen,
-                      source=str(source))
+                      source=str(source), path=path)
             if any(m.probe for m in job.moves):
                 from pmctl.motion.probe import check_probe_feeds, split_at_probes
                 check_probe_feeds(job, self.svc.probe, source or name or job.source, self.plan_feed_override)
@@ -1004,6 +1008,7 @@ class Supervisor:
         the queue and raise an alarm saying why; the planner thread goes on (``$X`` unlocks)."""
         import traceback
         self.log(f"planner error on {it.name or it.kind}: {''.join(traceback.format_exception(e)).rstrip()}")
+        it.error = f"internal error: {type(e).__name__}: {e}"      # (pmctl run waits on it)
         with self._lock:
             self.items.clear()
             self._gen += 1
@@ -1024,8 +1029,12 @@ class Supervisor:
         pm = self.plan_machine
         if self.nc_setup.shaper is None:
             # the whole job planned first (pmctl check's planning, with its fallback): nothing of it
-            # moves unless all of it can be planned, and the stream cannot fail midway
-            path = validate(job, pm, self.dt, feed_override=self.plan_feed_override, start=start, full=True)
+            # moves unless all of it can be planned, and the stream cannot fail midway. A job checked
+            # so before it was queued (pmctl run) brings that path: its settled windows are sampled,
+            # not planned again
+            path = it.path if it is not None and job is it.job and _path_starts_at(it.path, start) else None
+            if path is None:
+                path = validate(job, pm, self.dt, feed_override=self.plan_feed_override, start=start, full=True)
             pieces = plan_stream(job, pm, self.dt, feed_override=self.plan_feed_override, start=start, path=path)
         else:
             # an input shaper reshapes the time law over whole segments: planned whole (memory
@@ -1278,6 +1287,16 @@ class Supervisor:
 
 class _Aborted(Exception):
     pass
+
+
+def _path_starts_at(path, start, tol_mm=1e-9) -> bool:
+    """Whether a checked path (validate(full=True)) starts at ``start`` (tip, axis): the pose the
+    check took for the machine's (the two computations of the pose from the counters agree to
+    ~1e-12 mm), so that it plans the job the queue would plan."""
+    if path is None or getattr(path, "settled", None) is None:
+        return False
+    return (float(np.abs(np.asarray(path.start_tip, float) - np.asarray(start[0], float)).max()) <= tol_mm
+            and float(np.abs(np.asarray(path.start_axis, float) - np.asarray(start[1], float)).max()) <= tol_mm * 1e-2)
 
 
 def _patient(vfd, request):
