@@ -174,37 +174,49 @@ class PlannerLimits:
 
 # ---------------------------------------------------------------- geometry
 
-MERGE_CHUNK = 4096            # points of a run of lines simplified at once (bounds the work of a run)
+MERGE_CHUNK = 4096            # points one merged line may pass through (bounds the work of a run)
+SIMPLIFY_BATCH = 32           # the next ends of a merged line tried at once (_simplify)
 MAX_QUANTUM_MM = 0.01         # the coarsest coordinate resolution taken as a run's default tolerance
 _QUANTA = sorted([10.0 ** -k for k in range(2, 7)] + [25.4 * 10.0 ** -k for k in range(3, 8)], reverse=True)
 
 
-def _quantum(pts):
-    """The resolution the points' coordinates are written at (mm): the coarsest of 10^-k mm and
-    10^-k inch (k such that it is at most MAX_QUANTUM_MM) that every coordinate is a multiple of; 0
-    when none is."""
-    for q in _QUANTA:
-        if q <= MAX_QUANTUM_MM * (1 + 1e-9):
-            x = pts / q
-            if np.all(np.abs(x - np.round(x)) < 1e-6):
-                return q
-    return 0.0
+def _quanta(pts):
+    """The resolutions the points' coordinates may be written at (the coarsest first: 10^-k mm and
+    10^-k inch, at most MAX_QUANTUM_MM) and, per point, a bit mask of those every coordinate of the
+    point is a multiple of (bit k: the k-th resolution)."""
+    qs = [q for q in _QUANTA if q <= MAX_QUANTUM_MM * (1 + 1e-9)]
+    mask = np.zeros(len(pts), np.int64)
+    for k, q in enumerate(qs):
+        x = np.asarray(pts, float) / q
+        mask |= np.all(np.abs(x - np.round(x)) < 1e-6, axis=1).astype(np.int64) << k
+    return qs, mask
+
+
+def _quantum_of(qs, mask) -> float:
+    """The resolution a set of points is written at, from the AND of their masks (_quanta): the
+    coarsest that every coordinate is a multiple of; 0 when none is."""
+    mask = int(mask)
+    return qs[(mask & -mask).bit_length() - 1] if mask else 0.0
 
 
 def _merged_away(moves, start, limits: PlannerLimits, open_end: bool = False):
-    """Which of ``moves``' end points the planner drops (a bool per move): LinuxCNC's naive-CAM detector. A
-    run of consecutive feed lines (LINE, no probing, no G93 duration) with the same feed, spindle
-    speed, tool offset, tolerance and tool axis (the axis of the point before the run too) is
+    """Which of ``moves``' end points the planner drops (a bool per move): LinuxCNC's naive-CAM
+    detector. A run of consecutive feed lines (LINE, no probing, no G93 duration) with the same feed,
+    spindle speed, tool offset, tolerance and tool axis (the axis of the point before the run too) is
     simplified within its tolerance: G64 P (``Move.tolerance``), or where that is 0 the larger of
-    ``limits.naive_cam_mm`` and the resolution the run's coordinates are written at (``_quantum``: a
-    point written to 4 decimals in inches is only known to 2.54 um; dropping it within that loses
-    nothing the program says). Every dropped point lies within the tolerance of the line that replaces it (Douglas-Peucker
-    on the tip points, a run of more than ``MERGE_CHUNK`` points in chunks), so the path stays within
-    the tolerance of the programmed one; the lines kept run through kept points exactly.
+    ``limits.naive_cam_mm`` and the resolution the points are written at (``_quanta``: a point
+    written to 4 decimals in inches is only known to 2.54 um; dropping it within that loses nothing
+    the program says). Along the run, from the last point kept, the line goes on to the next point
+    as long as every point it passes is within the tolerance of it and none turns back along it by
+    more than the tolerance (at most ``MERGE_CHUNK`` points a line); where the next point breaks
+    that, the point before it is kept (``_simplify``). So the path stays within the tolerance of the
+    programmed one, the lines kept run through kept points exactly, and each decision depends only
+    on the points from the last kept one to the one after it: a job planned as its blocks arrive
+    (pmctl.task.stream_planner) merges them as the whole job does.
 
-    ``open_end`` (a job still growing: pmctl.task.stream_planner): more moves may follow the last one.
-    Returns (drop, n_final): the decisions for ``moves[:n_final]`` are final, those of the trailing
-    run of lines (which the next move may continue) wait for the moves after it. ``start`` is the
+    ``open_end`` (a job still growing): more moves may follow the last one. Returns (drop, n_final):
+    the decisions for ``moves[:n_final]`` are final, those after the last point kept of a trailing
+    run of lines (which the next move may continue) wait for the moves after them. ``start`` is the
     programmed pose before the first move."""
     nm = len(moves)
     drop = np.zeros(nm, bool)
@@ -240,49 +252,62 @@ def _merged_away(moves, start, limits: PlannerLimits, open_end: bool = False):
         b = i
         while b + 1 < nm and same[b + 1]:
             b += 1
-        if open_end and b == nm - 1:
-            n_final = a                   # the next move may continue this run: its points wait
-            break
-        tol = attrs[a, 3]
-        if not tol > 0:
-            tol = max(limits.naive_cam_mm, _quantum(np.vstack([prev_tip[a][None], tips[a:b + 1]])))
-        c0 = a
-        while c0 <= b:                             # moves c0 .. c1 from the kept point before c0
-            c1 = min(b, c0 + MERGE_CHUNK - 1)      # (c1's end is kept)
-            pts = np.vstack([prev_tip[c0][None], tips[c0:c1 + 1]])
-            drop[c0:c1 + 1] = ~_douglas_peucker(pts, tol)[1:]
-            c0 = c1 + 1
+        trailing = open_end and b == nm - 1
+        keep, anchor = _simplify(np.vstack([prev_tip[a][None], tips[a:b + 1]]), attrs[a, 3], limits.naive_cam_mm,
+                                 open_end=trailing)
+        drop[a:b + 1] = ~keep[1:]
+        if trailing:
+            n_final = a + anchor          # the points after the last one kept wait for the next moves
         i = b + 1
     return (drop, n_final) if open_end else drop
 
 
-def _douglas_peucker(pts, tol):
-    """Points of a polyline to keep (the ends always) so that each dropped point is within ``tol`` of
-    the chord between the kept points around it, and the dropped points go along the chord without
-    turning back by more than ``tol``."""
-    keep = np.zeros(len(pts), bool)
-    keep[0] = keep[-1] = True
-    stack = [(0, len(pts) - 1)]
-    while stack:
-        a, b = stack.pop()
-        if b - a < 2:
+def _simplify(pts, tol_fixed, naive_mm, open_end=False):
+    """The points of a run to keep (``_merged_away``): from the last point kept (the first point
+    always), the line goes on to the next point while every point between is within the tolerance of
+    it and does not turn back along it by more than the tolerance (at most MERGE_CHUNK points a
+    line); where the next point breaks that, the point before it is kept. The tolerance: ``tol_fixed``
+    (G64 P) when > 0, else the larger of ``naive_mm`` and the resolution the points of the line are
+    written at. Returns (keep, the index of the last point kept); ``open_end``: the last point is
+    not decided (kept only where the end is the run's). The next ends are tried ``SIMPLIFY_BATCH``
+    at a time, each on its own (the same numbers whatever the batch)."""
+    m = len(pts)
+    keep = np.zeros(m, bool)
+    keep[0] = True
+    qs, masks = _quanta(pts) if not tol_fixed > 0 else ([], np.zeros(m, np.int64))
+    i0, j = 0, 1
+    while j + 1 < m:
+        ks = np.arange(j + 1, min(m, j + 1 + SIMPLIFY_BATCH))          # the next ends to try
+        p = pts[i0]
+        w = pts[i0 + 1:ks[-1]] - p                                       # the points a line to k passes
+        d = pts[ks] - p
+        dd = (d * d).sum(-1)
+        along = (w[:, None, :] * d[None]).sum(-1)                        # (point, end)
+        pos = dd > 0
+        ddp = np.where(pos, dd, 1.0)
+        t = np.where(pos, np.clip(along / ddp, 0.0, 1.0), 0.0)
+        off = w[:, None, :] - t[..., None] * d[None]
+        dist = np.sqrt((off * off).sum(-1))
+        al = along / np.sqrt(ddp)
+        dist = np.where(pos, np.maximum(dist, np.maximum.accumulate(al, axis=0) - al), dist)
+        passed = np.arange(len(w))[:, None] < (ks - i0 - 1)[None]        # point r lies before end k
+        worst = np.where(passed, dist, 0.0).max(axis=0) if len(w) else np.zeros(len(ks))
+        if tol_fixed > 0:
+            tol = np.full(len(ks), float(tol_fixed))
+        else:
+            cm = np.bitwise_and.accumulate(masks[i0:ks[-1] + 1])[ks - i0]
+            tol = np.array([max(naive_mm, _quantum_of(qs, c)) for c in cm])
+        ok = (worst <= tol) & (ks - i0 <= MERGE_CHUNK)
+        bad = np.nonzero(~ok)[0]
+        if not len(bad):
+            j = int(ks[-1])
             continue
-        p, q = pts[a], pts[b]
-        d = q - p
-        dd = float(d @ d)
-        w = pts[a + 1:b] - p
-        t = np.clip(w @ d / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(w))
-        dist = np.linalg.norm(w - t[:, None] * d, axis=1)
-        if dd > 0:                 # a run that turns back along the chord is no straight line: keep its turns
-            along = w @ d / np.sqrt(dd)
-            dist = np.maximum(dist, np.maximum.accumulate(along) - along)
-        k = int(np.argmax(dist))
-        if dist[k] > tol:
-            m = a + 1 + k
-            keep[m] = True
-            stack.append((a, m))
-            stack.append((m, b))
-    return keep
+        j = int(ks[bad[0]]) - 1          # the line to the first end that fails: the point before is kept
+        keep[j] = True
+        i0, j = j, j + 1
+    if not open_end:
+        keep[m - 1] = True
+    return keep, i0
 
 
 SYNTH_KNOT_TICKS = 25         # ticks of top speed between knots that are no programmed point
@@ -520,6 +545,9 @@ class _PathBuilder:
         k = b - self.base
         if k <= 0:
             return
+        j = k - 1                     # the pose and path coordinate at boundary b, kept
+        self.base_pose = (self.a["p1"][j].copy(), self.a["a1"][j].copy(), float(self.a["off1"][j]),
+                          float(self.s_end[j]))
         for key in self.a:
             self.a[key][:self.n - b] = self.a[key][k:self.n - self.base]
         self.s_end[:self.n - b] = self.s_end[k:self.n - self.base]
@@ -547,7 +575,8 @@ class _PathBuilder:
         p.job_start, p.job_end = i0 == 0, bool(end)
         bs = np.arange(i0, self.n + 1)
         p.stop = np.fromiter((b in self.stop for b in bs), bool, n + 1)
-        p.stop[-1] = True
+        if end:
+            p.stop[-1] = True
         p.synth = np.fromiter((b in self.synth for b in bs), bool, n + 1)
         p.dwell = np.array([self.dwell.get(b, 0.0) for b in bs], float)
         p.dwell_line = np.array([self.dwell_line.get(b, 0) for b in bs], int)
@@ -565,9 +594,12 @@ class _PathBuilder:
             start_axis = self.start_axis / np.linalg.norm(self.start_axis)
             s0, off0 = 0.0, 0.0
         else:
-            p.start_tip, p.start_axis = self.a["p1"][lo - 1].copy(), self.a["a1"][lo - 1].copy()
+            if lo > 0:
+                p.start_tip, p.start_axis = self.a["p1"][lo - 1].copy(), self.a["a1"][lo - 1].copy()
+                s0, off0 = float(self.s_end[lo - 1]), float(self.a["off1"][lo - 1])
+            else:                     # the first boundary held (forget)
+                p.start_tip, p.start_axis, off0, s0 = self.base_pose
             start_axis = p.start_axis
-            s0, off0 = float(self.s_end[lo - 1]), float(self.a["off1"][lo - 1])
             p.start_line = int(p.line[0]) if n else p.start_line
         p._bounds(start_axis, self.s_end[lo:hi].copy(), s0, off0)
         self.walk_pins()
@@ -996,6 +1028,18 @@ def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits
     if path.n == 0:
         path.planned_samples = int(np.ceil(path.dwell.sum() / dt)) + 1
         return path
+    check_segments(path, job, machine, limits, problems)
+    if problems:                  # (only with a list) not planned: the path leaves the workspace
+        return path
+    if full:
+        _plan_whole(path, machine, limits, dt, job, window)
+    return path
+
+
+def check_segments(path, job, machine, limits, problems=None):
+    """The checks of each segment of ``path``: no move needs more than ``MAX_SEGMENT_GRID`` grid
+    points, every programmed pose is reachable and so is the path between them (every ``grid_mm``,
+    in chunks of about SAMPLE_CHUNK points). InputError with the line (``problems``: appended)."""
     counts = np.maximum(2, np.ceil(path.length / limits.grid_mm).astype(np.int64))
     if np.any(counts > MAX_SEGMENT_GRID):
         i = int(np.argmax(counts > MAX_SEGMENT_GRID))
@@ -1004,7 +1048,6 @@ def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits
                          f"of {limits.grid_mm:g} mm (check arc turns P and the coordinates, or split the move)")
     seen = set()
     _check_reachable(path, job, machine, problems, seen)
-    # the path between the programmed poses, segment by segment in chunks of about SAMPLE_CHUNK points
     i = 0
     while i < path.n:
         j = i + 1 + int(np.searchsorted(np.cumsum(counts[i + 1:]), SAMPLE_CHUNK))
@@ -1014,11 +1057,6 @@ def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits
         tip, axis = path.point(seg, u)
         _check_samples(tip, axis, path.lines(seg, u), machine, job, problems, seen)
         i = j
-    if problems:                  # (only with a list) not planned: the path leaves the workspace
-        return path
-    if full:
-        _plan_whole(path, machine, limits, dt, job, window)
-    return path
 
 
 def _plan_whole(path, machine, limits, dt, job, window):
@@ -1171,11 +1209,16 @@ class _Window:
             yield Trajectory(dt, *part, source, points, marks=tm.marks(k0, k1))
 
 
-def _window_extent(path, c0, c1, margin, vt, check_mm=STREAM_CHECK_MM):
+def _window_extent(path, c0, c1, margin, vt, check_mm=STREAM_CHECK_MM, ahead=None):
     """Where the window c0 .. c1 looks: (w0, w1, kb_lo, kb_hi, zone) -- the segments planned with it
     (its margins), the knots between which the limits are checked, and the zone of _profile -- or None
-    on a path whose end is not the job's (``path.job_end`` False) when it would look beyond that end."""
+    on a path whose end is not the job's (``path.job_end`` False) when it would look beyond that end.
+    ``margin``, ``vt`` (the reach of what a sample depends on) and ``check_mm`` hold on both sides,
+    unless ``ahead`` = (margin, vt, check_mm, reach of the path beyond the margin) gives the side
+    after the window its own (pmctl.task.stream_planner: a rapid before the window does not make it
+    look further ahead)."""
     n, b_s = path.n, path.b_s
+    margin_hi, vt_hi, check_hi, vt_out = ahead if ahead is not None else (margin, vt, check_mm, vt)
     # the limits are checked on the samples between knots kb_lo and kb_hi (the window and at least
     # check_mm around it; knots are the boundaries with a tick of their own, _Path.pin); their
     # times depend on the warp's knots one further out, which must not be a window end (those knots
@@ -1193,34 +1236,35 @@ def _window_extent(path, c0, c1, margin, vt, check_mm=STREAM_CHECK_MM):
     if end:
         i_hi = len(P) - 1
     else:
-        reach = max(b_s[c1] + check_mm, bp[min(ic1 + 1, len(P) - 1)] + vt)
+        reach = max(b_s[c1] + check_hi, bp[min(ic1 + 1, len(P) - 1)] + vt_hi)
         i_hi = min(len(P) - 1, max(ic1 + 1, int(np.searchsorted(bp, reach, "left"))))
     kb_lo, kb_hi = int(P[i_lo]), int(P[i_hi])
     lo_need = bp[max(i_lo - 1, 0)] - vt
-    hi_need = bp[min(i_hi + 1, len(P) - 1)] + vt
+    hi_need = bp[min(i_hi + 1, len(P) - 1)] + vt_hi
     if path.job_start:
         w0 = 0 if i_lo <= 1 else max(0, min(int(P[i_lo - 2]), int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
     else:                              # the segments before were let go: as far back as they are held
         w0 = max(0, min(int(P[max(i_lo - 2, 0)]), int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
     if path.job_end:
-        w1 = n if i_hi >= len(P) - 2 else min(n, max(int(P[i_hi + 2]), int(np.searchsorted(b_s, hi_need + margin, "left"))))
+        w1 = n if i_hi >= len(P) - 2 else min(n, max(int(P[i_hi + 2]), int(np.searchsorted(b_s, hi_need + margin_hi, "left"))))
     else:                              # the job goes on beyond n: the window must not look that far
-        if i_hi >= len(P) - 2 or hi_need + margin > b_s[n]:
+        if i_hi >= len(P) - 2 or hi_need + margin_hi > b_s[n]:
             return None
-        w1 = min(n, max(int(P[i_hi + 2]), int(np.searchsorted(b_s, hi_need + margin, "left"))))
+        w1 = min(n, max(int(P[i_hi + 2]), int(np.searchsorted(b_s, hi_need + margin_hi, "left"))))
     zone = None
     if w0 > 0 or w1 < n or not (path.job_start and path.job_end):
         zone = (b_s[w0] + vt if (w0 > 0 or not path.job_start) else -np.inf,
-                b_s[w1] - vt if (w1 < n or not path.job_end) else np.inf,
+                b_s[w1] - vt_out if (w1 < n or not path.job_end) else np.inf,
                 lo_need if not start else -np.inf, hi_need if not end else np.inf)
     return w0, w1, kb_lo, kb_hi, zone
 
 
-def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep_ok=True, check_mm=STREAM_CHECK_MM):
+def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep_ok=True, check_mm=STREAM_CHECK_MM,
+                   ahead=None):
     """Plan segments c0 .. c1-1 with margins; returns the _Window once the limits hold on the samples
-    of the window and ``check_mm`` around it."""
+    of the window and ``check_mm`` around it (``ahead``: see _window_extent)."""
     n = path.n
-    w0, w1, kb_lo, kb_hi, zone = _window_extent(path, c0, c1, margin, vt, check_mm)
+    w0, w1, kb_lo, kb_hi, zone = _window_extent(path, c0, c1, margin, vt, check_mm, ahead)
     end = path.job_end
     sp = path.sub(w0, w1)
     grid = _limit_grid(sp, machine, limits, dt, T)
