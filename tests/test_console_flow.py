@@ -28,7 +28,7 @@ def depth_of(s):
 def test_oks_are_paced_by_the_motion_and_bf_counts_the_queue(daemon):
     s, *_ = daemon
     depth, rx = depth_of(s)
-    assert (depth, rx) == (15, 128)
+    assert (depth, rx) == (32, 128)
     assert s.send("$10=3") == "ok"                        # MPos and Bf:
     st = s.status()
     assert st["Bf"] == f"{depth},{rx}", st                # idle: all free

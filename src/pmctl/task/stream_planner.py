@@ -161,19 +161,25 @@ class StreamPlanner:
         if c0 >= n:
             return None
         # what a sample depends on reaches ~ v T along the path (vt): behind the window at the top
-        # speed from a rapid's reach before it on (a rapid just before it erodes the caps that far),
-        # ahead of it at the top speed from the window on; beyond the blocks known a rapid may come
-        # (the zone's reach there). The limits are checked 2 vt and a stop at that speed around it
+        # speed from a rapid's reach before it on (a rapid just before it erodes the caps that far);
+        # ahead of it at the top speed after it (the speed at its end is capped there too: a rapid at
+        # the window's end does not make it look further ahead); beyond the blocks known a rapid may
+        # come (the zone's reach there). The limits are checked 2 vt and a stop at that speed around it
         # (re-planning around a violation there reaches into the window no further), with a margin of
         # 2 vt beyond, and at least what a stop takes after a rapid's reach (the zone check)
         lim, T = self.limits, self.T
-        vt_rapid = 1.1 * lim.rapid_mm_s * T + 4 * lim.grid_mm
+        reach = lambda v: 1.1 * v * T + 4 * lim.grid_mm            # noqa: E731
+        brake = lambda v: v * v / (2.0 * lim.tangential_accel)      # noqa: E731
+        vt_rapid = reach(lim.rapid_mm_s)
         i = int(np.searchsorted(path.s_end, path.b_s[c0] - vt_rapid, "left"))
-        v_lo, v_hi = float(path.vmax[i:].max()), float(path.vmax[min(c0, n - 1):].max())
-        vt, vt_hi = 1.1 * v_lo * T + 4 * lim.grid_mm, 1.1 * v_hi * T + 4 * lim.grid_mm
-        brake = lambda v: v * v / (2.0 * lim.tangential_accel)          # noqa: E731
+        v_lo = float(path.vmax[i:].max())
+        vt = reach(v_lo)
         check, margin = 2.0 * vt + brake(v_lo), 2.0 * vt
-        ahead = [max(2.0 * vt_hi, vt_rapid + brake(v_hi)), vt_hi, 2.0 * vt_hi + brake(v_hi), vt_rapid]
+        v_after = np.maximum.accumulate(path.vmax[::-1])[::-1]       # the top speed from each segment on
+
+        def ahead(c):
+            v = float(v_after[min(c, n - 1)])
+            return [max(2.0 * reach(v), vt_rapid + brake(v)), reach(v), 2.0 * reach(v) + brake(v), vt_rapid]
         P = path.pin_idx
         j = int(np.searchsorted(P, c0, "right"))
         hi = int(np.searchsorted(P, c0 + self.window, "left"))
@@ -185,11 +191,12 @@ class StreamPlanner:
             for c in cands[::-1]:        # the furthest knot the known blocks settle
                 if whole and c - c0 < self.window:
                     break
-                if _window_extent(path, c0, int(c), margin, vt, check, ahead) is not None:
+                if _window_extent(path, c0, int(c), margin, vt, check, ahead(int(c))) is not None:
                     c1 = int(c)
                     break
             if c1 is None:
                 return None
+        ahead = ahead(c1)
         while True:
             if not end and _window_extent(path, c0, c1, margin, vt, check, ahead) is None:
                 return None               # its margin must grow beyond the blocks known: wait for more

@@ -1144,6 +1144,7 @@ class Supervisor:
         rs = RowStream(self.dt, self.machine, self.params, rapid_mm_s=limits.rapid_mm_s)
         rapid = set()
         low = self._low_water_s()
+        dbg = [0.0]
 
         def pieces():
             while True:
@@ -1157,6 +1158,11 @@ class Supervisor:
                     rapid.update(m.line for m in new if m.kind == RAPID)
                     sp.extend(new)
                 got = False
+                if os.environ.get("PMCTL_STREAM_DEBUG") and time.monotonic() - dbg[0] > 0.5:
+                    dbg[0] = time.monotonic()
+                    self.log(f"DEBUG {dbg[0]:.2f}: queued {self._queued_s():.3f} s, emitted {sp.emitted} of {sp.b.n} "
+                             f"+{len(sp.pending)} pending, rows held {len(rs.rows)}, waiting {it.waiting}, "
+                             f"idle {time.monotonic() - it.last_in:.3f}, moves {sp.n_moves}")
                 for piece in sp.settled(eager=self._queued_s() < STREAM_REFILL_S):
                     got = True
                     yield piece
