@@ -59,6 +59,15 @@ def apply_nc_overrides(svc, nc: dict | None):
     return svc
 
 
+def apply_hal_overrides(svc, hal: dict | None):
+    """A run's backend options that differ from the service config file (``pmctl run --bridge``:
+    ``{"stepdir": {"port": "rp2040-emu"}}``), applied to ``svc.backend_tables`` the same way in the
+    supervisor and in the rt process."""
+    for name, table in (hal or {}).items():
+        svc.backend_tables[name] = {**svc.backend_tables.get(name, {}), **table}
+    return svc
+
+
 class RtHook:
     def __init__(self, ch: C.Channel, machine, params, ppid: int, log, offline: bool = False):
         self.ch, self.machine, self.params = ch, machine, params
@@ -391,7 +400,8 @@ def rt_main(spec: dict) -> int:
     ch.st[C.ST_COUNTS0:C.ST_COUNTS0 + 5] = [float(c) for c in spec["counts"]]
     ch.st[C.ST_DEV_COUNTS:C.ST_DEV_COUNTS + 5] = float("nan")
     machine = load_machine(spec["config"])
-    svc = apply_nc_overrides(load_service_config(spec.get("service")), spec.get("nc"))
+    svc = apply_hal_overrides(apply_nc_overrides(load_service_config(spec.get("service")), spec.get("nc")),
+                              spec.get("hal"))
     cfg = svc.loop
     cfg.rate_hz = float(spec.get("rate_hz") or cfg.rate_hz)
     realtime = bool(spec.get("realtime", cfg.realtime))

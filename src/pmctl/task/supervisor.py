@@ -122,15 +122,17 @@ class Item:
 
 class Supervisor:
     def __init__(self, config="prototype", *, service=None, backend=None, state_file="", realtime=False,
-                 rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY, offline=False, nc=None):
+                 rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY, offline=False, nc=None, hal=None):
         from pmctl.core.config import load_machine
-        from pmctl.motion.rtproc import apply_nc_overrides
+        from pmctl.motion.rtproc import apply_hal_overrides, apply_nc_overrides
         from pmctl.motion.service_config import load_service_config
         self.config = config
         self.service = service
         self.machine = load_machine(config)
         self.nc_overrides = dict(nc or {})        # e.g. pmctl run --k-theta --shaper --pulse-mode
-        self.svc = apply_nc_overrides(load_service_config(service), self.nc_overrides)
+        self.hal_overrides = dict(hal or {})      # e.g. pmctl run --bridge rp2040-emu
+        self.svc = apply_hal_overrides(apply_nc_overrides(load_service_config(service), self.nc_overrides),
+                                       self.hal_overrides)
         self.offline = bool(offline)              # rt ticks back to back, waiting for samples
         self.backend = backend or self.svc.backend
         self.rate_hz = float(rate_hz or self.svc.loop.rate_hz)
@@ -190,6 +192,11 @@ class Supervisor:
         self._plan_rpm = None             # the spindle speed at the end of what is planned (None: as commanded)
         self.paused = ""                  # a pause (M0, M1, M6) waiting for cycle start: what to do
         self.optional_stop = False        # M1 pauses only with this switch on (pmctl ctl optional-stop on)
+        # who answers a tool change or a pause when no operator is at a console: None (they wait for
+        # cycle start), or a callable(what) that performs it and logs (pmctl run on the simulation)
+        self.stand_in_operator = None
+        self.tool = None                  # the tool in the spindle, once a tool change was confirmed (None: not known)
+        self._pause_tool = None           # the tool a waiting tool-change pause asks for
         self.coolant = set()              # "mist" (M7), "flood" (M8); M9 clears
         self.outputs = {}                 # M62-M68: "name index" -> value, as last set
         self._strain = None               # the plant's strain of the last drained record (a simulated DAQ serves it)
@@ -243,7 +250,7 @@ class Supervisor:
         ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = np.asarray(counts, float)
         spec = {"shm": ch.name, "config": str(self.config), "service": self.service, "backend": self.backend,
                 "state_file": self.state_file, "rate_hz": self.rate_hz, "realtime": self.realtime,
-                "offline": self.offline, "nc": self._rt_nc(),
+                "offline": self.offline, "nc": self._rt_nc(), "hal": self.hal_overrides,
                 "counts": [int(c) for c in counts], "ppid": os.getpid()}
         import json
         import subprocess
@@ -533,6 +540,12 @@ class Supervisor:
                 return
             what = (f"tool change: load tool {value}" if name == "tool_change" else
                     f"program paused ({value})")
+            if self.stand_in_operator is not None:
+                self.stand_in_operator(what)
+                if name == "tool_change":
+                    self.tool = int(value)
+                return
+            self._pause_tool = int(value) if name == "tool_change" else None
             self.paused = f"{what}; then cycle start (~ on the console, or pmctl ctl resume)"
             self.log(self.paused)
             self._emit("pause", {"msg": self.paused})
@@ -819,6 +832,8 @@ class Supervisor:
         if self.paused:                  # cycle start after M0, M1 or a tool change: the program goes on
             self.log(f"resumed after: {self.paused}")
             self.paused = ""
+            if self._pause_tool is not None:      # the operator confirmed the tool change
+                self.tool, self._pause_tool = self._pause_tool, None
             self._auto_item = None
             self._emit("resumed", {})
         elif self._auto_hold:            # the path waits for an event: the events thread releases it
