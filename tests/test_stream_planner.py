@@ -16,7 +16,7 @@ from pmctl.core.errors import InputError
 from pmctl.task.gcode import parse_gcode
 from pmctl.task.job import load_job
 from pmctl.task.planner import home_pose, plan
-from pmctl.task.stream_planner import KEEP_BEHIND_MM, StreamPlanner
+from pmctl.task.stream_planner import KEEP_BEHIND_MM, RUN_CUT_MM, StreamPlanner
 from pmctl.task.trajectory import Trajectory
 
 DT = 1e-3
@@ -37,11 +37,11 @@ def polygon(r=30.0, n=120, feed=600):
     return "\n".join(lines) + "\n"
 
 
-def streamed(job, machine, sizes, start=None, window=None):
+def streamed(job, machine, sizes, start=None, window=None, run_cut_mm=math.inf):
     """The job's moves fed to a StreamPlanner in chunks of ``sizes`` (cycled), the settled pieces taken
     after each, then closed: (joined Trajectory, blocks known beyond the last sample handed out after
-    each chunk, the planner)."""
-    sp = StreamPlanner(machine, DT, start=start or home_pose(machine), source=job.source,
+    each chunk, the planner). A straight run of lines is not cut (``run_cut_mm``) unless asked."""
+    sp = StreamPlanner(machine, DT, start=start or home_pose(machine), source=job.source, run_cut_mm=run_cut_mm,
                        **({"window": window} if window else {}))
     moves, pieces, ahead, i, k = list(job.moves), [], [], 0, 0
     while i < len(moves):
@@ -108,6 +108,40 @@ def test_closed_early_it_stops_at_the_last_block_and_what_it_handed_out_is_the_w
     sp2.extend(moves[70:])
     rest = Trajectory.join(list(sp2.settled()) + list(sp2.close()))
     assert np.array_equal(rest.tip[0], end) and np.array_equal(rest.tip[-1], np.asarray(moves[-1].tip, float))
+
+
+def square(feed, side, r=30.0):
+    """A square of 2 r around the origin in lines of ``side`` mm at ``feed``, after a rapid to a corner."""
+    n = int(round(2 * r / side))
+    lines = ["G21 G90 G17", f"G0 X{-r:g} Y{-r:g} Z60", f"G1 F{feed:g}"]
+    corners = [(-r, -r), (r, -r), (r, r), (-r, r), (-r, -r)]
+    for (x0, y0), (x1, y1) in zip(corners, corners[1:]):
+        lines += [f"G1 X{x0 + (x1 - x0) * k / n:.4f} Y{y0 + (y1 - y0) * k / n:.4f}" for k in range(1, n + 1)]
+    return "\n".join(lines) + "\n"
+
+
+def test_a_straight_run_of_short_lines_waits_at_most_run_cut_mm_and_keeps_its_speed(machine):
+    """A straight run of 1 mm lines is merged into one line that the next line may continue: fed line
+    by line it would wait for the side's end (60 blocks, more than the console's queue holds at the
+    top feed beside the samples queued). Cut every RUN_CUT_MM, the blocks waiting stay few; the path
+    is the square's (a knot at a programmed point), and the speed along a side is plan()'s: the
+    feed, no dip at the knots; the duration within 0.2 % of plan()'s."""
+    job = parse_gcode(square(3000, 1.0), "sq.ngc", *home_pose(machine))
+    whole = plan(job, machine, DT)
+    got, ahead, _ = streamed(job, machine, [1], run_cut_mm=RUN_CUT_MM)
+    uncut, ahead_uncut, _ = streamed(job, machine, [1])
+    assert max(ahead_uncut) >= 60 and max(ahead) <= 20, (max(ahead_uncut), max(ahead))
+    assert_same(uncut, whole, 1e-9)
+    assert abs(len(got) - len(whole)) <= 0.002 * len(whole), (len(got), len(whole))
+    tip = got.tip
+    on_side = np.minimum(np.abs(np.abs(tip[:, 0]) - 30.0), np.abs(np.abs(tip[:, 1]) - 30.0))
+    moving = np.nonzero(got.line >= 4)[0]
+    assert on_side[moving].max() <= 1e-9                       # on the square's sides
+    v = np.linalg.norm(np.diff(tip, axis=0), axis=1) / DT
+    mid = (np.abs(tip[1:, 0]) < 20.0) | (np.abs(tip[1:, 1]) < 20.0)    # 10 mm and more from a corner
+    mid &= got.line[1:] >= 4
+    assert v[mid].min() >= 0.99 * 50.0, v[mid].min()           # F3000: 50 mm/s, the knots at full speed
+    assert np.array_equal(tip[-1], np.array([-30.0, -30.0, 60.0]))
 
 
 def test_memory_does_not_grow_with_the_stream(machine):

@@ -40,6 +40,7 @@ from pmctl.task.planner import (STREAM_WINDOW, PlannerLimits, PlanningError, _bl
                                 _window_extent, check_segments)
 
 KEEP_BEHIND_MM = 200.0        # path kept behind the last sample handed out (the next windows look back on it)
+RUN_CUT_MM = 8.0              # a trailing run of lines waits for the move after it at most this long (``extend``)
 
 
 class StreamPlanner:
@@ -48,10 +49,12 @@ class StreamPlanner:
     as for ``plan``."""
 
     def __init__(self, machine, dt: float, *, start, feed_override: float = 1.0,
-                 limits: PlannerLimits | None = None, source: str = "console", window: int = STREAM_WINDOW):
+                 limits: PlannerLimits | None = None, source: str = "console", window: int = STREAM_WINDOW,
+                 run_cut_mm: float = RUN_CUT_MM):
         self.job = Job((), source)       # (what the planner's errors name)
         self.limits, start = _start(self.job, machine, dt, feed_override, limits, start)
         self.machine, self.dt, self.window = machine, dt, int(window)
+        self.run_cut_mm = float(run_cut_mm)
         self.T = max(2.0 * self.limits.tangential_accel / self.limits.jerk_mm_s3, 2.0 * dt)
         self.b = _PathBuilder(start, self.limits, feed_override, dt, source)
         self.pending = []             # moves not yet given to the path (their segment may still change)
@@ -70,6 +73,13 @@ class StreamPlanner:
         self.pending.extend(moves)
         self.n_moves += len(moves)
         self._build(final=False)
+        if len(self.pending) > 1 and self._pending_mm() >= self.run_cut_mm:
+            self.cut_run()
+
+    def _pending_mm(self) -> float:
+        """Length of the path of the moves waiting (the trailing run of lines), programmed points."""
+        pts = [self.prev[0]] + [np.asarray(m.tip, float) for m in self.pending if m.kind not in (DWELL, EVENT)]
+        return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum()) if len(pts) > 1 else 0.0
 
     def _build(self, final: bool):
         """Give the path every pending move whose segment can no longer change (all of them when
@@ -102,6 +112,16 @@ class StreamPlanner:
         self.pending = pend[k:]
         if self.b.n > n0:
             check_segments(self.b.path(end=False, i0=n0), self.job, self.machine, self.limits)
+
+    def cut_run(self):
+        """End the trailing run of lines that waits for the next move (``_merged_away``: a straight
+        run of short lines is merged into one line that the next move may still continue) at its
+        last block, as if the next move turned: its moves go to the path now. ``extend`` does this
+        once the run waiting is ``run_cut_mm`` long, the supervisor when the console's queue is full
+        of such blocks and nothing settles without them. The path then has a knot at that block (a
+        programmed point, within the merge tolerance of ``plan``'s line), where the samples differ
+        from ``plan``'s by a little more than rounding (tests/test_stream_planner.py states how much)."""
+        self._build(final=True)
 
     # ------------------------------------------------------------ samples out
     def settled(self, eager: bool = True):

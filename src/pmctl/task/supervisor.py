@@ -1159,7 +1159,6 @@ class Supervisor:
         rs = RowStream(self.dt, self.machine, self.params, rapid_mm_s=limits.rapid_mm_s)
         rapid = set()
         low = self._low_water_s()
-        dbg = [0.0]
 
         def pieces():
             while True:
@@ -1173,11 +1172,6 @@ class Supervisor:
                     rapid.update(m.line for m in new if m.kind == RAPID)
                     sp.extend(new)
                 got = False
-                if os.environ.get("PMCTL_STREAM_DEBUG") and time.monotonic() - dbg[0] > 0.5:
-                    dbg[0] = time.monotonic()
-                    self.log(f"DEBUG {dbg[0]:.2f}: queued {self._queued_s():.3f} s, emitted {sp.emitted} of {sp.b.n} "
-                             f"+{len(sp.pending)} pending, rows held {len(rs.rows)}, waiting {it.waiting}, "
-                             f"idle {time.monotonic() - it.last_in:.3f}, moves {sp.n_moves}")
                 for piece in sp.settled(eager=self._queued_s() < STREAM_REFILL_S):
                     got = True
                     yield piece
@@ -1186,14 +1180,13 @@ class Supervisor:
                     return
                 if got or new:
                     continue
+                if it.waiting and sp.pending and self._queued_s() < STREAM_REFILL_S:
+                    # the queue is full of blocks a merged run of lines waits on (a straight run of short
+                    # lines): the run ends at its last block, the stream goes on
+                    sp.cut_run()
+                    continue
                 if self._queued_s() < low and (it.waiting or time.monotonic() - it.last_in > STREAM_IDLE_S):
                     with self._lock:      # starved: planned to rest at the last block (unless one came)
-                        if os.environ.get("PMCTL_STREAM_DEBUG"):
-                            b = sp.b
-                            self.log(f"DEBUG starve: queued {self._queued_s():.3f} s, emitted {sp.emitted} of {b.n} "
-                                     f"segments, s {b.s_end[sp.emitted-1-b.base] if sp.emitted > b.base else 0:.2f} of "
-                                     f"{b.s_last:.2f} mm, pending {len(sp.pending)}, rows held {len(rs.rows)}, "
-                                     f"waiting {it.waiting}, idle {time.monotonic() - it.last_in:.3f}")
                         if not it.inbox:
                             it.open = False
                             if self._stream_item is it:

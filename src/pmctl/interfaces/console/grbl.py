@@ -55,7 +55,7 @@ from pmctl.task.supervisor import MotionRefused, roll_pitch_deg
 
 RX_BUFFER = 128
 LINE_MAX = 256
-PLANNER_BLOCKS = 32               # the planner queue's depth in blocks (moves): [OPT:VN,32,128], Bf:
+PLANNER_BLOCKS = 128              # the planner queue's depth in blocks (moves): [OPT:VN,128,128], Bf:
 MAX_QUEUED_ITEMS = 3              # items queued before a probe is queued (it waits for room)
 BANNER = "Grbl 1.1h ['$' for help]"
 HELP = "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $C $X $H ~ ! ? ctrl-x]"
