@@ -18,6 +18,7 @@ from pmctl.task.job import load_job
 from pmctl.task.planner import home_pose, plan
 from pmctl.task.stream_planner import KEEP_BEHIND_MM, RUN_CUT_MM, StreamPlanner
 from pmctl.task.trajectory import Trajectory
+from test_planner import long_programs
 
 DT = 1e-3
 
@@ -173,42 +174,8 @@ def test_a_block_whose_path_leaves_the_workspace_is_named(machine):
     assert e.value.line == 3
 
 
-@st.composite
-def programs(draw):
-    """G0 to a start, then 6-30 moves: lines (some in straight runs), arcs, tilts, dwells, spindle changes."""
-    f = "{:.4f}".format
-    x, y, z = draw(st.floats(-20, 20)), draw(st.floats(-20, 20)), draw(st.floats(50, 90))
-    lines = [f"G0 X{f(x)} Y{f(y)} Z{f(z)}", f"F{draw(st.floats(300, 2400)):.1f}"]
-    for _ in range(draw(st.integers(6, 30))):
-        kind = draw(st.sampled_from(["G1", "G1", "run", "G0", "arc", "G4", "S"]))
-        if kind == "G4":
-            lines.append(f"G4 P{draw(st.floats(0.001, 0.2)):.3f}")
-            continue
-        if kind == "S":
-            lines.append(draw(st.sampled_from(["S6000 M3", "M5"])))
-            continue
-        nx, ny = draw(st.floats(-25, 25)), draw(st.floats(-25, 25))
-        nz = min(100.0, max(45.0, z + draw(st.floats(-8, 8))))
-        if kind == "run":                 # a straight run of short lines (merged within the tolerance)
-            k = draw(st.integers(2, 12))
-            for j in range(1, k + 1):
-                lines.append(f"G1 X{f(x + (nx - x) * j / k)} Y{f(y + (ny - y) * j / k)} Z{f(z + (nz - z) * j / k)}")
-        elif kind == "arc":
-            r = draw(st.floats(1.0, 10.0))
-            ph = draw(st.floats(0, 2 * math.pi))
-            sw = draw(st.floats(0.3, 5.5)) * draw(st.sampled_from([1, -1]))
-            cx, cy = x - r * math.cos(ph), y - r * math.sin(ph)
-            nx, ny = cx + r * math.cos(ph + sw), cy + r * math.sin(ph + sw)
-            lines.append(f"{'G3' if sw > 0 else 'G2'} X{f(nx)} Y{f(ny)} Z{f(nz)} I{f(cx - x)} J{f(cy - y)}")
-        else:
-            a, b = draw(st.floats(-6, 6)), draw(st.floats(-6, 6))
-            lines.append(f"{kind} X{f(nx)} Y{f(ny)} Z{f(nz)} A{f(a)} B{f(b)}")
-        x, y, z = nx, ny, nz
-    return "\n".join(lines)
-
-
 @settings(max_examples=12, deadline=None)
-@given(programs(), st.lists(st.integers(1, 6), min_size=1, max_size=4))
+@given(long_programs(runs=True), st.lists(st.integers(1, 6), min_size=1, max_size=4))
 def test_random_programs_fed_in_random_chunks_are_the_whole_plan(machine, text, sizes):
     job = parse_gcode(text, "r.ngc", *home_pose(machine))
     try:

@@ -8,7 +8,9 @@ with the same windows over the job known so far:
 - ``extend(moves)`` appends the moves of accepted blocks. The segment index grows move by move
   (pmctl.task.planner._PathBuilder); a move waits only where its segment may still change: the
   trailing run of feed lines that the next move may continue (merged within its tolerance:
-  ``_merged_away``), and a line that may round its corner into the next (G64 P).
+  ``_merged_away``), and a line that may round its corner into the next (G64 P). A straight run
+  of short lines waits at most ``RUN_CUT_MM`` (``cut_run``): it would otherwise wait for its end,
+  more blocks than the console's queue holds.
 - ``settled()`` yields the samples of every window whose look-ahead (its check region, its margins
   and the reach of what it depends on, ``_window_extent``) the blocks known beyond it already
   cover. Those samples are the whole program's: they are what ``plan`` of the finished program

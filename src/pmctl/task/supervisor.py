@@ -1148,7 +1148,9 @@ class Supervisor:
         at its last block when it is closed (M2/M30, G4, a probe, a job after it), or when less than
         the low water (``_low_water_s``) is queued, nothing more settles and no block is coming
         (the sender paused for ``STREAM_IDLE_S``, or it waits for room in the queue): then the machine
-        stops on the path at the last block it has, and the blocks after start a new stream there."""
+        stops on the path at the last block it has, and the blocks after start a new stream there.
+        Before that, when the console waits for room while a merged run of lines waits for its end,
+        the run is cut at its last block (StreamPlanner.cut_run) and the stream goes on."""
         from pmctl.motion.timescale import RowStream
         from pmctl.task.job import RAPID
         from pmctl.task.planner import PlannerLimits
