@@ -65,7 +65,7 @@ def test_the_queue_fills_to_its_depth_while_held(daemon):
     s.realtime(b"!")                                      # a hold while idle: motion sent now waits
     assert s.wait_state(("Hold:0",), 30)["state"] == "Hold:0"
     n0 = len(s.answers)
-    lines = ["G21 G91 F600"] + [f"G1 X{(-1) ** k * 0.5:g}" for k in range(depth + 5)]
+    lines = ["G21 G91 F3000"] + ["G1 X0.1"] * (depth + 5)            # 13.3 mm in a straight line
     for ln in lines:
         s.send(ln, wait=False)
     s.wait_for(lambda: len(s.answers) - n0 >= depth + 1, 30)
