@@ -181,3 +181,36 @@ def test_a_soft_reset_mid_stream_stops_on_the_path_and_the_next_line_runs_from_t
     assert distance_to_path(p, pts) <= 1.5e-3, (p, distance_to_path(p, pts))     # stopped on the polygon
     assert np.linalg.norm(p - pts[-1]) > 1.0                                       # the rest was dropped
     assert np.allclose(session["after_reset"]["pos"][:3], [0.0, 0.0, 66.0], atol=1.5e-3)
+
+
+def test_with_an_input_shaper_the_stream_is_planned_whole_and_ends_on_its_last_point(tmp_path):
+    """With [nc] shaper set the shaper plans whole jobs: the console's stream (Supervisor.stream) is
+    collected until it closes and planned from rest to rest; the machine ends on its last point and
+    the rt side counts every pulse."""
+    from pathlib import Path
+
+    from pmctl.motion import channel as C
+    from pmctl.motion.nc import counts_of
+    from pmctl.task.interp import LineInterpreter
+    from pmctl.task.job import home_pose
+    from pmctl.task.supervisor import Supervisor
+    svc = tmp_path / "service.toml"
+    base = (Path(__file__).resolve().parents[1] / "config" / "service.toml").read_text()
+    svc.write_text(base.replace('shaper = "none"', 'shaper = "ZVD"\nshaper_hz = 40.0', 1))
+    sup = Supervisor("prototype", service=str(svc), realtime=False)
+    assert sup.nc_setup.shaper is not None
+    tip, ax = home_pose(sup.machine)
+    sup.start(counts_of(K.ik(tip, ax, sup.machine).q, sup.params))
+    try:
+        li = LineInterpreter(sup.machine, tip, ax)
+        lines = polygon(n=12, z=60.0)
+        for k, ln in enumerate(lines, 1):
+            moves, _, _ = li.execute(ln, k)
+            if moves:
+                sup.stream(moves, {k: 0})
+        assert sup.wait_idle(120) and not sup.alarm          # the stream starved and closed: it ran
+        r = sup.raw()
+        assert np.array_equal(r[C.ST_COUNTS:C.ST_COUNTS + 5], r[C.ST_COUNTS0:C.ST_COUNTS0 + 5] + r[C.ST_SENT:C.ST_SENT + 5])
+        assert np.linalg.norm(sup.pose()[0] - corners(lines)[-1]) < 2e-3
+    finally:
+        sup.shutdown()

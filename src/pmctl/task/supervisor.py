@@ -1151,6 +1151,51 @@ class Supervisor:
         stops on the path at the last block it has, and the blocks after start a new stream there.
         Before that, when the console waits for room while a merged run of lines waits for its end,
         the run is cut at its last block (StreamPlanner.cut_run) and the stream goes on."""
+        if self.nc_setup.shaper is not None:
+            return self._stream_batch_rows(it)
+        return self._stream_planned_rows(it)
+
+    def _stream_inbox(self, it):
+        """(the moves appended to the stream item since the last call, whether it is closed); raises
+        _Aborted when the queue was dropped."""
+        if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
+            raise _Aborted()
+        self._stream_wake.clear()
+        with self._lock:
+            new, it.inbox = it.inbox, []
+            return new, not it.open
+
+    def _stream_starved(self, it, low) -> bool:
+        """Close the stream when it starves: less than ``low`` s queued ahead of the tool and no block
+        coming (the sender paused for ``STREAM_IDLE_S``, or the console waits for room). True: it did
+        (unless a block came meanwhile)."""
+        if self._queued_s() < low and (it.waiting or time.monotonic() - it.last_in > STREAM_IDLE_S):
+            with self._lock:
+                if not it.inbox:
+                    it.open = False
+                    if self._stream_item is it:
+                        self._stream_item = None
+            return True
+        return False
+
+    def _stream_batch_rows(self, it):
+        """A stream with an input shaper configured: the shaper plans whole jobs (``_rows_of``), so the
+        blocks are collected until the stream closes (as ``_stream_planned_rows`` closes it) and then
+        planned from rest to rest: a streamed program stops where a batch ends."""
+        from pmctl.task.interp import moves_job
+        low = self._low_water_s()
+        moves = []
+        while True:
+            new, closing = self._stream_inbox(it)
+            moves += new
+            if closing:
+                break
+            if not self._stream_starved(it, low):
+                self._stream_wake.wait(0.005)
+        it.job = moves_job(moves, it.name or "console")
+        return self._rows_of(it.job, it.start, it)
+
+    def _stream_planned_rows(self, it):
         from pmctl.motion.timescale import RowStream
         from pmctl.task.job import RAPID
         from pmctl.task.planner import PlannerLimits
@@ -1164,12 +1209,7 @@ class Supervisor:
 
         def pieces():
             while True:
-                if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
-                    raise _Aborted()
-                self._stream_wake.clear()
-                with self._lock:
-                    new, it.inbox = it.inbox, []
-                    closing = not it.open
+                new, closing = self._stream_inbox(it)
                 if new:
                     rapid.update(m.line for m in new if m.kind == RAPID)
                     sp.extend(new)
@@ -1187,14 +1227,8 @@ class Supervisor:
                     # lines): the run ends at its last block, the stream goes on
                     sp.cut_run()
                     continue
-                if self._queued_s() < low and (it.waiting or time.monotonic() - it.last_in > STREAM_IDLE_S):
-                    with self._lock:      # starved: planned to rest at the last block (unless one came)
-                        if not it.inbox:
-                            it.open = False
-                            if self._stream_item is it:
-                                self._stream_item = None
-                    continue
-                self._stream_wake.wait(0.005)
+                if not self._stream_starved(it, low):     # (starved: planned to rest at the last block)
+                    self._stream_wake.wait(0.005)
 
         for piece in self._events_of(it, pieces(), self.ch.samples.written, per_move=False):
             rs.add(piece.tip, piece.axis, piece.line, np.isin(piece.line, list(rapid)) if rapid else None)
