@@ -121,6 +121,12 @@ def test_cncjs_streams_the_spiral_with_override_hold_resume_then_jogs_and_stops(
     c.wait(lambda: c.sender.get("received", 0) >= 8, 120, "8 lines acknowledged")
     c.emit("command", str(link), "gcode:pause")
     c.wait(lambda: c.active() == "Hold", 60, "Hold")
+
+    def still():                                          # ("Hold" is grbl's Hold:1 too: still stopping)
+        p = c.pos()
+        time.sleep(0.5)
+        return np.allclose(c.pos(), p, atol=1e-4)
+    c.wait(still, 60, "the hold to come to rest")
     p_hold = c.pos()
     time.sleep(1.0)
     assert np.allclose(c.pos(), p_hold, atol=1e-3)        # held: nothing moves
