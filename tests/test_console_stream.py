@@ -29,7 +29,7 @@ from pmctl.task.planner import plan
 FEED = 600.0                      # mm/min: 1 mm blocks take 0.1 s
 
 
-def polygon(n=80, r=None, z=60.0, head=True):
+def polygon(n=60, r=None, z=60.0, head=True):
     """A polygon of ``n`` sides of 1 mm (0.1 s each at FEED) after a rapid to its first corner."""
     r = n / (2 * math.pi) if r is None else r
     lines = ["G21 G90 G17", f"G0 X{r:g} Y0 Z{z:g}", f"G1 F{FEED:g}"] if head else []
@@ -74,8 +74,8 @@ def session(tmp_path_factory):
         a = polygon()
         assert s.stream(a) == ["ok"] * len(a)
         out["a_end"] = s.wait_state(("Idle",), 300)
-        b = polygon(n=40, z=62.0)
-        half = 23                                         # the header and 20 blocks
+        b = polygon(n=30, z=62.0)
+        half = 18                                         # the header and 15 blocks
         assert s.stream(b[:half]) == ["ok"] * half
         out["paused"] = s.wait_state(("Idle",), 300)      # the sender starved the queue: the machine stops
         assert s.stream(b[half:]) == ["ok"] * (len(b) - half)
@@ -83,12 +83,12 @@ def session(tmp_path_factory):
         out.update(a=a, b=b, half=half)
         # a feed hold while the tool is on the polygon's second quarter (the stream open, its blocks
         # queued), then cycle start
-        c = polygon(n=40, z=64.0)
+        c = polygon(n=30, z=64.0)
         assert s.stream(c) == ["ok"] * len(c)
         assert on_second_quarter(s)
         out.update(c=c, held=hold_still_resume(s), c_end=s.wait_state(("Idle",), 300))
         # a soft reset there; then a line from where it stopped
-        d = polygon(n=40, z=66.0)
+        d = polygon(n=30, z=66.0)
         assert s.stream(d) == ["ok"] * len(d)
         assert on_second_quarter(s)
         pushed = s.reset()
@@ -117,7 +117,7 @@ def test_a_streamed_program_does_not_stop_between_its_lines_and_is_the_plan_of_t
     tip, axis = commanded(rec, m)
     line = rec.get("line")
     ticks = np.nonzero((line >= 1) & (line <= len(a)))[0]
-    # the polygon's blocks (console lines 4 .. 83): the speed over 5 ticks, from the counters
+    # the polygon's blocks (console lines 4 .. 63): the speed over 5 ticks, from the counters
     g1 = np.nonzero((line >= 4) & (line <= len(a)))[0]
     there = np.nonzero(np.linalg.norm(tip[g1] - corners(a)[-1], axis=1) <= 1e-3)[0]    # (= its first point)
     g1 = g1[:there[there > len(g1) // 2][0] + 1]          # (until the tool is back there at the end: then it rests)
@@ -205,7 +205,7 @@ def test_with_an_input_shaper_the_stream_is_planned_whole_and_ends_on_its_last_p
     sup.start(counts_of(K.ik(tip, ax, sup.machine).q, sup.params))
     try:
         li = LineInterpreter(sup.machine, tip, ax)
-        lines = polygon(n=12, z=60.0)
+        lines = polygon(n=8, z=60.0)
         for k, ln in enumerate(lines, 1):
             moves, _, _ = li.execute(ln, k)
             if moves:
