@@ -289,13 +289,12 @@ class RtHook:
         record ring has room; pace the tick when there is nothing to follow. Commands, a quit and
         a dead supervisor end the wait at once; a device's watchdog bounds it (``max_wait_s``):
         then the tick runs, and the path may slow down for want of samples as in real time."""
-        from pmctl.motion.timescale import FLAG_END, S_FLAGS, SIGMA_MAX
+        from pmctl.motion.timescale import FLAG_END, S_FLAGS, full_speed_queue
         src, ch = fol.src, self.ch
         t_end = time.monotonic() + max_wait_s
         if self.need is None:
             # the queue the starvation limit of the path follower lets run at SIGMA_MAX, in samples
-            tau = SIGMA_MAX ** 2 / (0.81 * sc.accel)
-            self.need = min(int(math.ceil(tau * fol.k / self.params.dt)) + 2, src.capacity // 2)
+            self.need = full_speed_queue(self.params, self.params.dt / fol.k, src.capacity)
         while True:
             if self.quitting or self.resetting or self.term or ch.commands.count() or os.getppid() != self.ppid \
                     or time.monotonic() > t_end:

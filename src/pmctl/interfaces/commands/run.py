@@ -299,15 +299,16 @@ def run(args) -> int:
     if any(m.probe for m in job.moves):
         from pmctl.motion.probe import check_probe_job
         check_probe_job(job, svc.probe, args.job, args.feed_override)
-    # the whole job checked against the machine and planned before anything moves (pmctl check; the
-    # supervisor's queue plans it again the same way, with the same V-F cap on the joint speeds); an
-    # input shaper plans the job whole: the batch planner's bounds
+    # the whole job checked against the machine and planned before anything moves (pmctl check, with
+    # the V-F cap on the joint speeds the supervisor plans with); the supervisor's queue samples the
+    # windows this check settled instead of planning them again. An input shaper plans the job whole:
+    # the batch planner's bounds
     from pmctl.task.jobcheck import check_job, machine_for_planning
     rep = check_job(job, machine_for_planning(machine, params), dt, feed_override=args.feed_override,
                     start=(st.tip, st.axis), batch=setup.shaper is not None)
     if not rep.ok:
         raise JobProblems(rep.problems)
-    return _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loop, where)
+    return _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loop, where, path=rep.path)
 
 
 def _refuse_operator_waits(job, tool):
@@ -429,9 +430,10 @@ def _nominal_shares(job):
     return ls[keep], share[keep]
 
 
-def _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loop, where) -> int:
+def _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loop, where, path=None) -> int:
     """The job through the machinery of the daemon: a Supervisor starts the rt motion process (its
-    own process: loop, NC, backend), the job is submitted, planned window by window and streamed into
+    own process: loop, NC, backend), the job is submitted with its checked ``path`` (the check's
+    settled windows are sampled, not planned again), planned window by window and streamed into
     the sample ring (memory bounded by a window, whatever the job's length), the records stream back
     into the recording; then the supervisor shuts the rt side down and the run is reported with the
     timing figures the rt side hands over as it exits (Channel.result)."""
@@ -518,14 +520,14 @@ def _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loo
         view = _RunView(sup, max((m.line for m in job.moves), default=1), job)
         prog = _Progress(view, Path(args.job).name, dt, args.quiet, out)
         return _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick, s0, rec_err, sink, rec,
-                                       machine, cfg, dt, counts0, backend_name, state_file)
+                                       machine, cfg, dt, counts0, backend_name, state_file, path)
     finally:
         for sig, h in old.items():
             signal.signal(sig, h)
 
 
 def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick, s0, rec_err, sink, rec, machine,
-                            cfg, dt, counts0, backend_name, state_file) -> int:
+                            cfg, dt, counts0, backend_name, state_file, path=None) -> int:
     from types import SimpleNamespace
 
     from pmctl.core.errors import PmctlError
@@ -543,7 +545,7 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
         if not stop_req:
             s0.append(float(s[C.ST_S]))
             ended0 = int(s[C.ST_ENDED])
-            it = sup.submit(job, kind="job", name=Path(args.job).name, source=str(args.job))
+            it = sup.submit(job, kind="job", name=Path(args.job).name, source=str(args.job), path=path)
             view.item, view.s0 = it, s0[0]
         prog.start()
         done_tick = None
