@@ -67,6 +67,21 @@ def apply_hal_overrides(svc: ServiceConfig, hal: dict | None) -> ServiceConfig:
     return svc
 
 
+OFFLINE_SIM_TIMEOUT_MS = 3000.0    # a simulated VFD's or DAQ's answer in an offline run (--no-realtime)
+
+
+def _relax_simulated_devices(svc: ServiceConfig):
+    """An offline run (--no-realtime) is a simulation in which nothing is late: the simulated spindle
+    VFD and strain DAQ (``simulate = true``, served on the loopback by this process) get at least
+    OFFLINE_SIM_TIMEOUT_MS to answer and for their data to count as fresh, so a loaded host (other
+    processes taking the CPU) is not a lost link. Real devices keep their timeouts."""
+    for dev in (svc.spindle, svc.daq):
+        if dev is not None and getattr(dev, "simulate", False):
+            dev.timeout_ms = max(float(dev.timeout_ms), OFFLINE_SIM_TIMEOUT_MS)
+            if hasattr(dev, "max_age_ms"):
+                dev.max_age_ms = max(float(dev.max_age_ms), OFFLINE_SIM_TIMEOUT_MS)
+
+
 def _cap_to_backend(params, svc: ServiceConfig, backend: str, notes: list):
     """The joint speeds capped to the step rate a step/dir bridge holds ([hal.stepdir] max_step_rate_hz;
     the emulated RP2040's own rate): the planner and the NC then stay within what it can emit, and
@@ -103,6 +118,8 @@ def resolve(config="prototype", service=None, *, backend=None, rate_hz=None, rea
     realtime = bool(svc.loop.realtime if realtime is None else realtime)
     offline = (not realtime) if offline is None else bool(offline)
     svc.loop.realtime = realtime
+    if offline:
+        _relax_simulated_devices(svc)
     dt = 1.0 / rate_hz
     # chain modes, K_theta auto (off on a backend without strain), the shaper; [daq] k_theta_source
     setup = nc_setup(svc, machine, dt, backend)
