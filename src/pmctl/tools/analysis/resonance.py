@@ -277,31 +277,13 @@ def predict_continuous(f, kth, kv, zeta=0.0, leak=None):
 
 
 def predict_sampled(f, kth, kv, dt, zeta=0.0, leak=None):
-    """The same loop sampled at dt as the NC runs it: state (x_m, y, y', v_prev, d); each tick
-    v = -kv x_m + kv d + K_theta y (deflection read at the tick start; d = 0 without ``leak``), the
-    motor ramps by v dt (y' jumps by -(v - v_prev), then (y, y') propagate exactly), and
-    d += dt (K_theta y - leak d). Returns the least damped oscillating pole as (Hz, damping ratio)."""
-    from scipy.linalg import expm
-    w = 2 * math.pi * f
-    Phi = expm(np.array([[0.0, 1.0], [-w * w, -2 * zeta * w]]) * dt)
-    on = leak is not None
-    V = np.array([-kv, kth, 0.0, 0.0, kv if on else 0.0])
-    A = np.zeros((5, 5))
-    A[0] = np.eye(5)[0] + dt * V
-    J = np.eye(5)
-    J[2] -= V
-    J[2, 3] += 1.0
-    A[1:3] = Phi @ J[1:3]
-    A[3] = V
-    A[4] = np.eye(5)[4] + (dt * np.array([0.0, kth, 0.0, 0.0, -(leak or 0.0)]) if on else 0.0)
-    z = np.linalg.eigvals(A)
-    osc = z[z.imag > 1e-12]
-    if len(osc) == 0:
-        return float("nan"), 1.0
-    lz = np.log(osc)
-    zs = -lz.real / np.abs(lz)
-    i = int(np.argmin(zs))
-    return abs(lz[i].imag) / (2 * math.pi * dt), float(zs[i])
+    """The same loop sampled at dt as the NC runs it (pmctl.core.strain_loop: state (x_m, y, y',
+    v_prev, d); each tick v = -kv x_m + kv d + K_theta y (deflection read at the tick start; d = 0
+    without ``leak``), the motor ramps by v dt (y' jumps by -(v - v_prev), then (y, y') propagate
+    exactly), and d += dt (K_theta y - leak d)). Returns the least damped oscillating pole as
+    (damped frequency Hz, damping ratio)."""
+    from pmctl.core.strain_loop import closed_loop_poles, least_damped_oscillation
+    return least_damped_oscillation(closed_loop_poles(f, zeta, kth, kv, dt, leak), dt)
 
 
 def k_theta_for_mode(f, kv, dt, zeta=0.02, leak=None, target=0.3, max_kdt=0.4):
