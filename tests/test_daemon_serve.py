@@ -193,7 +193,7 @@ def test_no_rt_restart_on_a_service_config_edited_since_the_start(tmp_path):
         n = len(s.pushed)
         os.kill(rt, signal.SIGKILL)
         assert s.wait_for(lambda: "ALARM:17" in s.pushed[n:], 30)
-        svc.write_text(text.replace("k_theta_per_s = 200.0", "k_theta_per_s = 150.0"))     # edited meanwhile
+        svc.write_text(text.replace('k_theta_per_s = "auto"', "k_theta_per_s = 150.0"))     # edited meanwhile
         n = len(s.pushed)
         assert s.send("$X") == "error:9"
         msg = [ln for ln in s.pushed[n:] if ln.startswith("[MSG:") and "changed since" in ln]
