@@ -511,6 +511,65 @@ def run_ramp_cases(duration=7.0, window_delay=1.0):
     return out
 
 
+# ---------------------------------------------------------------------------------------------
+# Chain vibration of a run, band-passed around the chain mode (docs/vibration.md §5)
+# ---------------------------------------------------------------------------------------------
+
+BAND = (0.5, 2.0)    # the band around the chain mode: 20-80 Hz at 40 Hz
+
+
+def band_pass(x, dt: float, mode_hz: float, band=BAND):
+    """``x`` (along axis 0) through a zero-phase 2nd-order Butterworth band-pass over band x mode_hz:
+    the quasi-static stretch m a / k of a planned acceleration lies below it, the pulses' steps
+    above it."""
+    from scipy.signal import butter, sosfiltfilt
+    sos = butter(2, [band[0] * mode_hz, band[1] * mode_hz], "bandpass", fs=1.0 / dt, output="sos")
+    return sosfiltfilt(sos, np.asarray(x, float), axis=0)
+
+
+def chain_vibration_um(load, motor, dt: float, mode_hz: float, band=BAND) -> float:
+    """RMS over the ticks and chains (µm) of the chain deflection, load side against motor side
+    ((N, C) chain positions, mm), band-passed around the mode."""
+    y = band_pass(np.asarray(load, float) - np.asarray(motor, float), dt, mode_hz, band)
+    return 1e3 * float(np.sqrt(np.mean(y ** 2)))
+
+
+def path_error_vectors(points, path, along=None, window: int = 64):
+    """From the closest point of the polyline through ``path`` (N, 3) to each of ``points`` (M, 3),
+    which follow the path in order (a tool tip near a target moving along it): the vectors (M, 3), mm.
+    Each point is searched over the ``window`` segments either side of where the running arc length
+    of ``along`` (M, 3: the targets on the path the points follow; default the points) falls on the
+    path's."""
+    P = np.asarray(points, float)
+    Q = np.asarray(path, float)
+    if len(Q) < 2:
+        return P - Q[:1]
+    G = P if along is None else np.asarray(along, float)
+    s_path = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(Q, axis=0), axis=1))]
+    s_pts = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(G, axis=0), axis=1))]
+    k0 = np.clip(np.searchsorted(s_path, s_pts) - 1, 0, len(Q) - 2)
+    out = np.empty_like(P)
+    best = np.full(len(P), np.inf)
+    for off in range(-window, window + 1):
+        k = np.clip(k0 + off, 0, len(Q) - 2)
+        a, d = Q[k], Q[k + 1] - Q[k]
+        L2 = np.einsum("ij,ij->i", d, d)
+        u = np.clip(np.einsum("ij,ij->i", P - a, d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+        v = P - (a + u[:, None] * d)
+        r = np.einsum("ij,ij->i", v, v)
+        upd = r < best
+        best[upd] = r[upd]
+        out[upd] = v[upd]
+    return out
+
+
+def tip_band_error_um(tip, path, dt: float, mode_hz: float, along=None, band=BAND, window: int = 64) -> float:
+    """RMS (µm) of the tool tip's error from the path (:func:`path_error_vectors`), band-passed
+    around the mode: the vibration the part sees, without the stretch's slow lag."""
+    e = band_pass(path_error_vectors(tip, path, along, window), dt, mode_hz, band)
+    return 1e3 * float(np.sqrt(np.mean(np.sum(e ** 2, -1))))
+
+
 def _plt():
     import matplotlib
     matplotlib.use("Agg")
