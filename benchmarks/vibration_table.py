@@ -46,8 +46,7 @@ import tempfile
 import time
 from pathlib import Path
 
-import pmctl  # noqa: F401,I001  (before numpy: its one-BLAS-thread default, pmctl/__init__.py)
-import numpy as np
+import pmctl  # noqa: F401  (first: its one-BLAS-thread default, pmctl/__init__.py)
 
 ROOT = Path(__file__).resolve().parents[1]
 SOFT = {"flex": True, "mode_stiffness_N_per_mm": 2000.0, "mode_mass_kg": 31.66, "mode_damping_ratio": 0.02}
@@ -92,65 +91,14 @@ def job_file(name: str, folder: Path) -> str:
 
 
 def run_case(service: Path, job: str, k_theta, shaper: str, mode_hz=None, python=False):
-    """One run as pmctl run does it (the same calls: service config, nc_setup, params, plan,
-    shape_trajectory, prepare, ControlLoop, sim); returns the figures of the docstring.
-    ``k_theta`` None: the service file's; ``mode_hz``: [nc] mode_hz (with the plant's modal stiffness)."""
-    from pmctl import hal
-    from pmctl.core import kinematics as K
-    from pmctl.core.config import load_machine
-    from pmctl.core.shaper import corner_samples, path_error
-    from pmctl.motion.loop import ControlLoop, prepare
-    from pmctl.motion.nc import counts_of, initial_state
-    from pmctl.motion.service_config import (load_service_config, nc_setup, parse_k_theta_flag,
-                                             parse_shaper_flag)
-    from pmctl.motion.timescale import shape_trajectory
-    from pmctl.task.planner import home_pose, load_job, plan
-    from pmctl.tools.analysis.vibration import chain_vibration_um, tip_band_error_um
-    m = load_machine("prototype")
-    svc = load_service_config(service)
-    cfg = svc.loop
-    cfg.realtime, cfg.settle_s, cfg.state_file = False, 0.0, ""
-    if k_theta is not None:
-        k = parse_k_theta_flag(k_theta)
-        svc.nc.k_theta_auto = k == "auto"
-        svc.nc.k_theta_per_s = (0.0,) * 3 if k == "auto" else (k,) * 3
-    svc.nc.shaper = parse_shaper_flag(shaper)
-    if mode_hz is not None:
-        svc.nc.mode_hz = (float(mode_hz),) * 3
-        svc.nc.modal_stiffness_N_per_mm = (SOFT["mode_stiffness_N_per_mm"],) * 3
-    if python:
-        svc.nc.implementation = "python"
-    dt = cfg.dt
-    setup = nc_setup(svc, m, dt, svc.backend)
-    params = svc.nc.params(m, dt, where=svc.source, modes=setup.modes)
-    h_tip, h_axis = home_pose(m)
-    c0 = counts_of(K.ik(h_tip, h_axis, m).q, params)
-    st = initial_state(m, c0)
-    j = load_job(job, m, start=(st.tip, st.axis))
-    planned = plan(j, m, dt, start=(st.tip, st.axis))
-    traj = shape_trajectory(planned, setup.shaper)
-    tg = prepare(m, params, traj, dt, c0)
-    be = hal.create(svc.backend, m, dt, svc.backend_tables.get(svc.backend, {}))
-    be.open(c0)
-    lp = ControlLoop(m, be, params, tg, cfg, st, log=lambda s: None)
+    """One row (pmctl.tools.analysis.vibration.run_on_sim: what pmctl run does, in this process);
+    ``k_theta`` None: the service file's; ``mode_hz``: [nc] mode_hz with the plant's modal stiffness."""
+    from pmctl.tools.analysis.vibration import run_on_sim
     t0 = time.perf_counter()
-    try:
-        res = lp.run()
-    finally:
-        be.close()
-    wall = time.perf_counter() - t0
-    i0 = res.job_start
-    f0 = float(np.mean(be.omega)) / (2 * math.pi)          # the plant's mode (the band's centre)
-    pl, _ = K.fk_batch(res.truth[i0:], m)
-    keep = sorted(set([0] + corner_samples(planned.tip, planned.axis, corner_deg=1e-3) + [len(planned) - 1]))
-    path = planned.tip[keep]                                # the same polyline, straight runs merged
-    e = path_error(pl.tip, path)
-    shtxt = [t for t in setup.notes if t.startswith("shaper")]
-    return dict(status=res.status, reason=res.reason,
-                chain_um=chain_vibration_um(res.truth[i0:, :3], res.enc[i0:, :3], dt, f0),
-                tip_um=tip_band_error_um(pl.tip, planned.tip, dt, f0, along=res.target[i0:, :3]),
-                p99_um=1e3 * float(np.percentile(e, 99)), job_s=(res.ticks - i0) * dt, wall_s=wall,
-                kth=params.k_theta.tolist(), shaper=shtxt[0].split(" at ")[0] if shtxt else "shaper: none")
+    r = run_on_sim(service, job, k_theta=k_theta, shaper=shaper, mode_hz=mode_hz,
+                   modal_stiffness=SOFT["mode_stiffness_N_per_mm"], implementation="python" if python else None)
+    r["wall_s"] = time.perf_counter() - t0
+    return r
 
 
 HEAD = f"{'job':6s} {'case':34s} {'K_theta':>8s} {'chain':>15s} {'tip':>15s} {'p99':>9s} {'job':>13s}  shaper"

@@ -8,51 +8,16 @@ import numpy as np
 import pytest
 from scipy.optimize import curve_fit
 
-from pmctl import hal
-from pmctl.core import kinematics as K
-from pmctl.core.config import load_machine
+from kth_support import DT, KV, ZETA, M, ringdown
 from pmctl.core.errors import ConfigError
-from pmctl.motion import loop as L
-from pmctl.motion import nc as NC
-from pmctl.motion.service_config import LoopConfig, chain_modes, nc_setup, service_from_dict
-from pmctl.task.planner import home_pose
+from pmctl.motion.service_config import chain_modes, nc_setup, service_from_dict
 from pmctl.tools.analysis.resonance import predict_sampled
-
-M = load_machine()
-MASS, ZETA, KV, DT = 31.66, 0.02, 400.0, 1e-3
 
 
 def decay(f, kth, leak, y0=0.05):
     """Closed loop (NC, sim with its flexible mode and gauges) holding a pose while the chains start
     from a y0 deflection: fitted (frequency, damping ratio) of the load-side deflection."""
-    k = MASS * (2 * math.pi * f) ** 2 / 1e3
-    dec = dict(mode_hz=f, k_theta_leak=leak) if leak is not None else {}
-    p = NC.NCParams.from_machine(M, DT, k_theta=kth, kv=KV, modal_stiffness_N_per_mm=k, **dec)
-    from dataclasses import replace
-    p = replace(p, amax=p.amax * 100)       # the linear model: no acceleration clipping (see --limits)
-    tip, axis = home_pose(M)
-    tip = np.asarray(tip, float) + [0, 0, -100.0]
-    c0 = NC.counts_of(K.ik(tip, axis, M).q, p)
-    st = NC.initial_state(M, c0)
-    n = int(max(0.3, 10.0 / f) / DT)
-    tg = L.build_targets(np.repeat(st.tip[None], n, 0), np.repeat(st.axis[None], n, 0), np.zeros(n, int), DT, M, p)
-    be = hal.create("sim", M, DT, dict(flex=True, mode_stiffness_N_per_mm=k, mode_mass_kg=MASS,
-                                       mode_damping_ratio=ZETA, strain_noise_ue=0.0))
-    be.open(c0)
-    Ly = be._lib.D_Y                                   # the plant's deflection state (simplant.c)
-    be._d[Ly:Ly + 3] = y0
-    be._check(be._plant.sample(be._draw(), 0))
-    ys = []
-    wp = be.write_pulses
-
-    def write(pl):
-        wp(pl)
-        ys.append(be._d[Ly])
-    be.write_pulses = write
-    res = L.ControlLoop(M, be, p, tg, LoopConfig(realtime=False, state_file="", settle_s=0.0, stall_timeout_s=60.0),
-                        st, log=lambda s: None).run()
-    assert res.status == "done", res.reason
-    y = np.array(ys)
+    y = ringdown(f, kth, y0, **(dict(mode_hz=f, k_theta_leak=leak) if leak is not None else {}))
     t = np.arange(len(y)) * DT
     fp, zp = predict_sampled(f, kth, KV, DT, ZETA, leak)
     w0 = 2 * math.pi * fp

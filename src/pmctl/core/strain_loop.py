@@ -109,7 +109,7 @@ def least_damped_oscillation(z, dt):
 class LoopMargins:
     gain_margin: float          # factor on K_theta (the strain scale) that makes the loop unstable (inf: none)
     phase_margin_deg: float     # extra phase lag at the gain crossover(s) before instability (inf: no crossover)
-    delay_margin_ticks: float   # the same as a delay, in ticks (phase margin / crossover angle)
+    delay_margin_ticks: float   # the least extra strain delay, in ticks, that brings a crossover to G = 1
     min_damping: float          # least damping ratio of the closed loop's poles
     mode_hz: float              # the least damped oscillating pole: damped frequency, Hz
     mode_damping: float         # ... and damping ratio
@@ -134,8 +134,7 @@ def loop_margins(f, zeta, kth, kv, dt, leak=None, n: int = 2048) -> LoopMargins:
         u = (1.0 - mag[k]) / (mag[k + 1] - mag[k])
         t = th[k] + u * (th[k + 1] - th[k])
         p = abs(math.degrees(np.angle(G(t))))
-        if p < pm:
-            pm, dm = p, math.radians(p) / t
+        pm, dm = min(pm, p), min(dm, math.radians(p) / t)
 
     def stable(g):
         return np.max(np.abs(closed_loop_poles(f, zeta, g * kth, kv, dt, leak))) < 1.0

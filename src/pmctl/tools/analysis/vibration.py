@@ -570,6 +570,74 @@ def tip_band_error_um(tip, path, dt: float, mode_hz: float, along=None, band=BAN
     return 1e3 * float(np.sqrt(np.mean(np.sum(e ** 2, -1))))
 
 
+def run_on_sim(service, job: str, *, k_theta=None, shaper=None, mode_hz=None, modal_stiffness=None,
+               start_tip=None, tip_metric: bool = True, implementation: str | None = None) -> dict:
+    """One job as ``pmctl run --service SERVICE --job JOB [--k-theta K] [--shaper S] --no-realtime
+    --state ''`` runs it against the sim backend (the same calls: the service config, nc_setup, the
+    NC parameters, the planner, the shaping stage, the loop), in this process, so the sim's load-side
+    truth is at hand; returns the figures of docs/vibration.md §5: ``chain_um``
+    (:func:`chain_vibration_um` around the plant's mode), ``tip_um`` (:func:`tip_band_error_um`),
+    ``p99_um`` (the load-side tip's distance from the programmed path), ``job_s``, the K_theta per
+    chain and the shaper's note. ``k_theta`` / ``shaper``: the flags (None: the service file's);
+    ``mode_hz`` (+ ``modal_stiffness``): [nc] mode_hz as if measured; ``start_tip``: the tool stands
+    there, vertical, when the job starts (default: the home pose)."""
+    from pmctl import hal
+    from pmctl.core import kinematics as K
+    from pmctl.core.config import load_machine
+    from pmctl.core.shaper import corner_samples, path_error
+    from pmctl.motion.loop import ControlLoop, prepare
+    from pmctl.motion.nc import counts_of, initial_state
+    from pmctl.motion.service_config import load_service_config, nc_setup, parse_k_theta_flag, parse_shaper_flag
+    from pmctl.motion.timescale import shape_trajectory
+    from pmctl.task.planner import home_pose, load_job, plan
+    m = load_machine("prototype")
+    svc = load_service_config(service)
+    cfg = svc.loop
+    cfg.realtime, cfg.settle_s, cfg.state_file = False, 0.0, ""
+    if k_theta is not None:
+        k = parse_k_theta_flag(k_theta)
+        svc.nc.k_theta_auto = k == "auto"
+        svc.nc.k_theta_per_s = (0.0,) * 3 if k == "auto" else (float(k),) * 3
+    if shaper is not None:
+        svc.nc.shaper = parse_shaper_flag(shaper)
+    if mode_hz is not None:
+        svc.nc.mode_hz = (float(mode_hz),) * 3
+        if modal_stiffness is not None:
+            svc.nc.modal_stiffness_N_per_mm = (float(modal_stiffness),) * 3
+    if implementation:
+        svc.nc.implementation = implementation
+    dt = cfg.dt
+    setup = nc_setup(svc, m, dt, "sim")
+    params = svc.nc.params(m, dt, where=svc.source, modes=setup.modes)
+    h_tip, h_axis = home_pose(m)
+    if start_tip is not None:
+        h_tip = np.asarray(start_tip, float)
+    c0 = counts_of(K.ik(h_tip, h_axis, m).q, params)
+    st = initial_state(m, c0)
+    planned = plan(load_job(job, m, start=(st.tip, st.axis)), m, dt, start=(st.tip, st.axis))
+    traj = shape_trajectory(planned, setup.shaper)
+    tg = prepare(m, params, traj, dt, c0)
+    be = hal.create("sim", m, dt, svc.backend_tables.get("sim", {}))
+    be.open(c0)
+    try:
+        res = ControlLoop(m, be, params, tg, cfg, st, log=lambda s: None).run()
+    finally:
+        be.close()
+    i0 = res.job_start
+    f0 = float(np.mean(be.omega)) / (2 * math.pi)          # the plant's mode: the band's centre
+    pl, _ = K.fk_batch(res.truth[i0:], m)
+    keep = sorted(set([0] + corner_samples(planned.tip, planned.axis, corner_deg=1e-3) + [len(planned) - 1]))
+    e = path_error(pl.tip, planned.tip[keep])               # the same polyline, straight runs merged
+    shtxt = [t for t in setup.notes if t.startswith("shaper")]
+    return dict(status=res.status, reason=res.reason,
+                chain_um=chain_vibration_um(res.truth[i0:, :3], res.enc[i0:, :3], dt, f0),
+                tip_um=(tip_band_error_um(pl.tip, planned.tip, dt, f0, along=res.target[i0:, :3])
+                        if tip_metric else float("nan")),
+                p99_um=1e3 * float(np.percentile(e, 99)), job_s=(res.ticks - i0) * dt,
+                kth=params.k_theta.tolist(), shaper=shtxt[0].split(" at ")[0] if shtxt else "shaper: none",
+                notes=list(setup.notes))
+
+
 def _plt():
     import matplotlib
     matplotlib.use("Agg")
