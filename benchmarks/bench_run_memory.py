@@ -36,20 +36,9 @@ def _hwm_kb(pid: int):
     return None
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--minutes", type=float, default=21.0)
-    ap.add_argument("--realtime", action="store_true")
-    ap.add_argument("extra", nargs="*")
-    a = ap.parse_args()
-    tmp = Path(tempfile.mkdtemp(prefix="pmctl-bench-mem-"))
-    job = tmp / "long.ngc"
-    lines = ["(back and forth)", "G17 G21 G90 G94", "G0 X5 Y0 Z65 A-4.5088 B8.9351", "G0 Z60", "F60"]
-    lines += ["G1 X-5" if i % 2 == 0 else "G1 X5" for i in range(int(round(a.minutes * 6)))]
-    job.write_text("\n".join(lines) + "\n")
-    args = [sys.executable, "-m", "pmctl.interfaces.cli", "run", "--job", str(job), "--state", "", "--quiet",
-            "--backend", "sim", *([] if a.realtime else ["--no-realtime"]), *a.extra]
-    t0 = time.monotonic()
+def run_watched(args, period_s=1.0):
+    """Run ``args`` (a pmctl run command line) and sample the VmHWM of the client and of the rt motion
+    process (its pid read from the client's log) every ``period_s``: (Popen, stdout, peak kB by name)."""
     p = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
     rt = []
 
@@ -65,8 +54,25 @@ def main():
             v = _hwm_kb(pid) if pid else None
             if v:
                 peak[name] = max(peak[name], v)
-        time.sleep(1.0)
-    out = p.stdout.read()
+        time.sleep(period_s)
+    return p, p.stdout.read(), peak
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--minutes", type=float, default=21.0)
+    ap.add_argument("--realtime", action="store_true")
+    ap.add_argument("extra", nargs="*")
+    a = ap.parse_args()
+    tmp = Path(tempfile.mkdtemp(prefix="pmctl-bench-mem-"))
+    job = tmp / "long.ngc"
+    lines = ["(back and forth)", "G17 G21 G90 G94", "G0 X5 Y0 Z65 A-4.5088 B8.9351", "G0 Z60", "F60"]
+    lines += ["G1 X-5" if i % 2 == 0 else "G1 X5" for i in range(int(round(a.minutes * 6)))]
+    job.write_text("\n".join(lines) + "\n")
+    args = [sys.executable, "-m", "pmctl.interfaces.cli", "run", "--job", str(job), "--state", "", "--quiet",
+            "--backend", "sim", *([] if a.realtime else ["--no-realtime"]), *a.extra]
+    t0 = time.monotonic()
+    p, out, peak = run_watched(args)
     print(out, end="")
     print(f"job: {a.minutes:g} min of machine time, {'real time' if a.realtime else 'offline (--no-realtime)'}")
     print(f"peak RSS (VmHWM): client {peak['client'] / 1024:.1f} MB, rt process {peak['rt'] / 1024:.1f} MB")

@@ -39,6 +39,19 @@ void sb_send_status(struct sb_core *c)
     status_why(c, SB_WHY_OTHER);
 }
 
+/* floor(ns / 1000) mod 2^32 without a 64-bit division (a Cortex-M0+ does those in software, slowly):
+ * ns = h 2^32 + l and 2^32 = 4294967 x 1000 + 296, so ns / 1000 = h x 4294967 + (h x 296 + l) / 1000. */
+static uint32_t us32(uint64_t ns)
+{
+    uint32_t q = 0;
+    while (ns >> 32) {
+        uint32_t h = (uint32_t)(ns >> 32);
+        q += h * 4294967u;
+        ns = (uint64_t)h * 296u + (uint32_t)ns;
+    }
+    return q + (uint32_t)ns / 1000u;
+}
+
 static void status_why(struct sb_core *c, uint8_t why)
 {
     uint8_t p[SB_STATUS_LEN];
@@ -63,9 +76,9 @@ static void status_why(struct sb_core *c, uint8_t why)
     for (i = 0; i < SB_NADC; i++)
         sb_put_u16(p + 64 + 2 * i, (uint16_t)adc[i]);
     sb_put_u16(p + 70, c->underruns);
-    sb_put_u32(p + 72, (uint32_t)(c->now / 1000u));
-    sb_put_u32(p + 76, (uint32_t)(c->last_tick_rx / 1000u));
-    sb_put_u32(p + 80, (uint32_t)(c->fault_time / 1000u));
+    sb_put_u32(p + 72, us32(c->now));
+    sb_put_u32(p + 76, us32(c->last_tick_rx));
+    sb_put_u32(p + 80, us32(c->fault_time));
     p[84] = why;
     p[85] = (uint8_t)(c->cfg.queue - c->q_n);
     for (i = 0; i < SB_NAXES; i++) {
@@ -109,6 +122,7 @@ void sb_init(struct sb_core *c, uint64_t now_ns)
     c->cfg.step_width_ns = 2500u;
     c->cfg.dir_setup_ns = 5000u;
     c->cfg.watchdog_us = 50000u;
+    c->watchdog_ns = 50000000u;
     c->cfg.queue = SB_QUEUE_MAX;
     c->cfg.prime = 2;
     c->status_every = 1;
@@ -121,37 +135,62 @@ void sb_init(struct sb_core *c, uint64_t now_ns)
 
 /* ---------------------------------------------------------------- step generator */
 
-/* Emits every edge of the current tick up to and including time `until`. */
+static uint64_t axis_next(const struct sb_axis *a)
+{
+    uint64_t rise = a->k < a->n ? a->t_first + a->a : NEVER;
+    return a->fall && a->fall <= rise ? a->fall : rise;
+}
+
+/* Every axis's next edge and the earliest of them, after the axes changed. */
+static void refresh_next(struct sb_core *c)
+{
+    int i;
+    c->next_edge = NEVER;
+    for (i = 0; i < SB_NAXES; i++) {
+        c->ax[i].next = axis_next(&c->ax[i]);
+        if (c->ax[i].next < c->next_edge)
+            c->next_edge = c->ax[i].next;
+    }
+}
+
+/* Emits every edge of the current tick up to and including time `until`. Axes whose next edge is
+ * later are not visited: a board that wakes up for each edge pays for the axes that step. */
 static void advance(struct sb_core *c, uint64_t until)
 {
     int i;
-    if (!c->cur_active)
+    if (!c->cur_active || c->next_edge > until)
         return;
+    c->next_edge = NEVER;
     for (i = 0; i < SB_NAXES; i++) {
         struct sb_axis *a = &c->ax[i];
-        for (;;) {
-            uint64_t rise = a->k < a->n ? a->t_first + a->a : NEVER;
-            if (a->fall && a->fall <= rise) {
-                if (a->fall > until)
+        if (a->next <= until) {
+            for (;;) {
+                uint64_t rise = a->k < a->n ? a->t_first + a->a : NEVER;
+                if (a->fall && a->fall <= rise) {
+                    if (a->fall > until)
+                        break;
+                    board_step((uint8_t)i, 0, a->fall, c->cur_index);
+                    a->fall = 0;
+                    continue;
+                }
+                if (rise > until)
                     break;
-                board_step((uint8_t)i, 0, a->fall, c->cur_index);
-                a->fall = 0;
-                continue;
+                c->counters[i] += a->sign;      /* counted first: a latch taken in board_step includes it */
+                board_step((uint8_t)i, 1, rise, c->cur_index);
+                a->k++;
+                a->fall = rise + c->cfg.step_width_ns;
+                /* Bresenham: a_k = floor((2k+1) s / 2n) without a division per step */
+                a->a += a->q;
+                a->e += 2u * a->r;
+                if (a->e >= 2u * a->n) {
+                    a->a++;
+                    a->e -= 2u * a->n;
+                }
             }
-            if (rise > until)
-                break;
-            c->counters[i] += a->sign;      /* counted first: a latch taken in board_step includes it */
-            board_step((uint8_t)i, 1, rise, c->cur_index);
-            a->k++;
-            a->fall = rise + c->cfg.step_width_ns;
-            /* Bresenham: a_k = floor((2k+1) s / 2n) without a division per step */
-            a->a += a->q;
-            a->e += 2u * a->r;
-            if (a->e >= 2u * (uint64_t)a->n) {
-                a->a++;
-                a->e -= 2u * (uint64_t)a->n;
-            }
+            a->next = axis_next(a);
         }
+        if (a->next < c->next_edge)
+            c->next_edge = a->next;
     }
 }
 
@@ -232,12 +271,18 @@ static void start_tick(struct sb_core *c, uint64_t t0)
             a->dir = sign;
         }
         a->t_first = t0 + d;
-        a->s = c->cfg.tick_ns - d;
-        a->q = a->s / n;
-        a->r = a->s % n;
-        a->a = a->s / (2u * (uint64_t)n);
-        a->e = a->s % (2u * (uint64_t)n);
+        {
+            /* the span fits 32 bits (tick_ns <= 1e8, checked by CONFIG): 32-bit divisions, which a
+             * Cortex-M0+ does in hardware (RP2040 SIO) or much faster than 64-bit ones */
+            uint32_t s = c->cfg.tick_ns - (uint32_t)d;
+            a->s = s;
+            a->q = s / n;
+            a->r = s % n;
+            a->a = s / (2u * n);
+            a->e = s % (2u * n);
+        }
     }
+    refresh_next(c);
     c->started++;
     if (c->status_every && c->started % c->status_every == 0)
         status_why(c, SB_WHY_TICK);   /* counters = everything before this tick, exactly */
@@ -285,6 +330,11 @@ static void fault(struct sb_core *c, uint16_t bits, uint64_t t)
     sb_send_status(c);
 }
 
+void sb_board_fault(struct sb_core *c, uint16_t bits)
+{
+    fault(c, bits, c->now);
+}
+
 static void finish_tick(struct sb_core *c, uint64_t t)
 {
     advance(c, t);
@@ -325,6 +375,7 @@ static uint8_t do_config(struct sb_core *c, const struct sb_frame *f)
         n.queue < 2 || n.queue > SB_QUEUE_MAX || n.prime < 1 || n.prime > n.queue)
         return SB_E_ARGS;
     c->cfg = n;
+    c->watchdog_ns = (uint64_t)n.watchdog_us * 1000u;
     return SB_E_OK;
 }
 
@@ -506,13 +557,29 @@ uint64_t sb_next_deadline(const struct sb_core *c)
     if (c->cur_active)
         t = c->cur_start + c->cfg.tick_ns;
     if (wd_armed(c)) {
-        uint64_t w = c->last_tick_rx + (uint64_t)c->cfg.watchdog_us * 1000u;
+        uint64_t w = c->last_tick_rx + c->watchdog_ns;
         if (w < t)
             t = w;
     }
     if (c->state != SB_S_RUNNING && c->state != SB_S_DRAINING && c->next_idle_status < t)
         t = c->next_idle_status;
     return t;
+}
+
+uint64_t sb_next_edge(const struct sb_core *c)
+{
+    return c->cur_active ? c->next_edge : NEVER;
+}
+
+uint64_t sb_advance(struct sb_core *c, uint64_t now)
+{
+    if (now >= sb_next_deadline(c)) {
+        sb_poll(c, now);
+    } else if (now > c->now) {
+        advance(c, now);
+        c->now = now;
+    }
+    return sb_next_edge(c);
 }
 
 void sb_poll(struct sb_core *c, uint64_t now)
@@ -522,7 +589,7 @@ void sb_poll(struct sb_core *c, uint64_t now)
     for (;;) {
         uint64_t bound = c->cur_active ? c->cur_start + c->cfg.tick_ns : NEVER;
         uint64_t wd = wd_armed(c)
-                          ? c->last_tick_rx + (uint64_t)c->cfg.watchdog_us * 1000u : NEVER;
+                          ? c->last_tick_rx + c->watchdog_ns : NEVER;
         if (bound <= now && bound <= wd) {
             c->now = bound;
             finish_tick(c, bound);

@@ -29,6 +29,7 @@
 #define SB_F_PROTOCOL 0x08
 #define SB_F_OVERSPEED 0x10
 #define SB_F_HOST_STOP 0x20
+#define SB_F_LATE 0x40        /* the board fell behind its step schedule (it cannot time that many steps) */
 
 /* why a STATUS was sent (its last-but-one byte) */
 #define SB_WHY_TICK 0     /* at a tick start: the counters hold exactly the ticks before it */
@@ -44,10 +45,11 @@ struct sb_axis {
     uint32_t n;          /* pulses this tick */
     uint32_t k;          /* rising edges emitted */
     uint64_t t_first;    /* tick start + dir set-up (if the direction changed) */
-    uint64_t s;          /* span the pulses are spread over, ns */
-    uint64_t a;          /* offset of the next rising edge from t_first, ns (Bresenham) */
-    uint64_t e, q, r;    /* Bresenham remainder, quotient and remainder per step */
+    uint32_t s;          /* span the pulses are spread over, ns (< tick_ns <= 1e8: 32 bits) */
+    uint32_t a;          /* offset of the next rising edge from t_first, ns (Bresenham) */
+    uint32_t e, q, r;    /* Bresenham remainder (< 2n), quotient and remainder per step */
     uint64_t fall;       /* pending falling edge time, 0 = none */
+    uint64_t next;       /* time of this axis's next edge in the current tick, UINT64_MAX = none */
     int8_t dir;          /* +1 / -1 last direction output */
     int8_t sign;         /* this tick's direction */
 };
@@ -76,6 +78,7 @@ struct sb_core {
     uint32_t cur_index;
     uint64_t cur_start;
     struct sb_axis ax[SB_NAXES];
+    uint64_t next_edge;           /* the earliest ax[].next (valid while cur_active) */
     int32_t counters[SB_NAXES];
     int32_t not_executed[SB_NAXES];
     uint32_t dropped_ticks;
@@ -93,6 +96,7 @@ struct sb_core {
     uint8_t home_edges[SB_NAXES];
     uint8_t home_level;
     uint64_t next_idle_status;
+    uint64_t watchdog_ns;         /* cfg.watchdog_us x 1000, kept with cfg */
 };
 
 void sb_init(struct sb_core *c, uint64_t now_ns);
@@ -100,6 +104,13 @@ void sb_rx(struct sb_core *c, const uint8_t *buf, uint32_t n, uint64_t now_ns);
 void sb_poll(struct sb_core *c, uint64_t now_ns);
 /* The latest time by which sb_poll must run again (tick boundary, watchdog, idle status). */
 uint64_t sb_next_deadline(const struct sb_core *c);
+/* The time of the next step edge of the current tick (UINT64_MAX if none): a board that writes its
+ * pins when sb_poll passes an edge's time wakes up by then (board_rp2040.c). */
+uint64_t sb_next_edge(const struct sb_core *c);
+/* Emits the current tick's step edges up to `now` and returns the time of the next one (as
+ * sb_next_edge): the cheap call for a board that wakes up for every edge. When `now` has reached
+ * sb_next_deadline() it does what sb_poll(now) does (tick boundary, watchdog, inputs). */
+uint64_t sb_advance(struct sb_core *c, uint64_t now);
 /* Largest pulse count per tick the step width allows (with or without a direction change). */
 uint32_t sb_max_pulses(const struct sb_config *cfg, int dir_change);
 void sb_send_status(struct sb_core *c);
@@ -109,6 +120,8 @@ void sb_send_status(struct sb_core *c);
  * end of the tick the transition happened in (an earlier tick's edges are not recomputed). Safe to
  * call from board_step() (it only writes the latch). */
 void sb_home_edge(struct sb_core *c, uint8_t axis, uint8_t closed, uint64_t t_ns);
+/* A fault the board detected (e.g. SB_F_LATE): stops stepping now, as an E-stop does. */
+void sb_board_fault(struct sb_core *c, uint16_t bits);
 
 /* Board-independent event hook for logging (the host build prints; a board may leave it empty). */
 void board_event(const char *what, const struct sb_core *c);

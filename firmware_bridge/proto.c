@@ -3,15 +3,20 @@
 
 #include <string.h>
 
+/* CRC-16/CCITT-FALSE, a byte at a time from a 256-entry table (computed at compile time below): a
+ * STATUS frame's CRC is about a tenth of the bit-at-a-time loop's cycles on a Cortex-M0+. */
+#define T1(c) ((uint16_t)(((c) & 0x8000u) ? (((c) << 1) ^ 0x1021u) : ((c) << 1)))
+#define T8(c) T1(T1(T1(T1(T1(T1(T1(T1((uint32_t)(c) << 8))))))))
+#define R4(i) T8(i), T8((i) + 1), T8((i) + 2), T8((i) + 3)
+#define R16(i) R4(i), R4((i) + 4), R4((i) + 8), R4((i) + 12)
+#define R64(i) R16(i), R16((i) + 16), R16((i) + 32), R16((i) + 48)
+static const uint16_t crc_table[256] = {R64(0), R64(64), R64(128), R64(192)};
+
 uint16_t sb_crc16(const uint8_t *p, size_t n, uint16_t crc)
 {
     size_t i;
-    int b;
-    for (i = 0; i < n; i++) {
-        crc ^= (uint16_t)(p[i] << 8);
-        for (b = 0; b < 8; b++)
-            crc = (crc & 0x8000u) ? (uint16_t)((crc << 1) ^ 0x1021u) : (uint16_t)(crc << 1);
-    }
+    for (i = 0; i < n; i++)
+        crc = (uint16_t)((crc << 8) ^ crc_table[((crc >> 8) ^ p[i]) & 0xffu]);
     return crc;
 }
 

@@ -66,7 +66,9 @@ def serve_session(tmp_path_factory, name: str):
 
 
 class Sender:
-    def __init__(self, link):
+    def __init__(self, link, greeting_s=30.0):
+        """Open the console's pty; the console greets a sender that opens it (the banner): wait for
+        it (up to ``greeting_s``) so that it is not taken for the answer to a later reset."""
         self.fd = os.open(str(link), os.O_RDWR | os.O_NOCTTY)
         tty.setraw(self.fd)
         self.buf = b""
@@ -74,6 +76,8 @@ class Sender:
         self.answers = []             # ok / error:N in order
         self.pushed = []              # everything else
         self.reports = []
+        if greeting_s:
+            self.wait_for(lambda: any(x.startswith("Grbl ") for x in self.pushed), greeting_s)
 
     def close(self):
         os.close(self.fd)
@@ -157,6 +161,19 @@ class Sender:
         self.realtime(b"\x18")
         self.wait_for(lambda: any(s.startswith("Grbl ") for s in self.pushed[n0:]), timeout)
         return [s for s in self.pushed[n0:]]
+
+
+def hold_still_resume(s, settle=0.3, atol=1e-3, timeout=60):
+    """Feed hold (``!``): the machine comes to Hold:0 and stays where it held for ``settle`` s; then
+    cycle start (``~``). Returns the held status."""
+    import numpy as np
+    s.realtime(b"!")
+    held = s.wait_state(("Hold:0",), timeout)
+    assert held["state"] == "Hold:0", held
+    time.sleep(settle)
+    assert np.allclose(s.status()["pos"], held["pos"], atol=atol)
+    s.realtime(b"~")
+    return held
 
 
 def parse_status(s):

@@ -99,6 +99,43 @@ def test_identification_with_noise_meets_5um_on_held_out_poses(seed):
     assert 0.3 < res.predicted_tip_um / (1e3 * np.sqrt(np.mean(e_tip**2)) / math.sqrt(3)) < 3.0
 
 
+@pytest.mark.parametrize("k,has_axis", [(1.0, "all"), (2.0, "all"), (2.0, "some")])
+def test_reported_uncertainties_match_the_spread_of_repeated_identifications(k, has_axis):
+    """The same machine measured 60 times at the same 40 poses, with k x the stated noise (2 um tip,
+    10 urad axis) while the identification is told the stated noise: the chi-square per degree of
+    freedom is k^2 on average (an axis residual counts 2 degrees of freedom, not 3: counted as 3 it
+    was 0.82 at the stated noise), and the reported 1-sigma of every identified parameter matches
+    the spread of its estimates over the 60 runs -- at twice the noise because the covariance is
+    scaled by chi^2 (scaled by sqrt(chi^2) the reported sigmas are 0.71 of the spread). The pooled
+    (spread / sigma)^2 is 1 within 20 %, each parameter's ratio within 0.7..1.4."""
+    rng = np.random.default_rng(5)
+    gt = Mo.random_geometry(G, rng)
+    tip, ax = Mo.random_tool_poses(M, 40, rng)
+    q = K.ik_batch(tip, ax, M).q
+    dps, sig, chi2, ranks = [], [], [], set()
+    for _ in range(60):
+        mt, ma = Mo.simulate_measurement(q, gt, rng, tip_sigma_mm=k * I.TIP_SIGMA_MM,
+                                         axis_sigma_rad=k * I.AXIS_SIGMA_RAD)
+        if has_axis == "some":
+            ma = ma.copy()
+            ma[::4] = np.nan              # a 6-DOF probe that dropped out at a quarter of the poses
+        res = I.identify(q, mt, ma, G)
+        dps.append(res.dp)
+        sig.append(res.sigma)
+        chi2.append(res.chi2_red)
+        ranks.add(res.rank)
+    dps, sig = np.array(dps), np.array(sig)
+    assert len(ranks) == 1                       # the same combinations identified every time
+    assert abs(np.mean(chi2) / k ** 2 - 1.0) < 0.08, np.mean(chi2)
+    m = sig.min(0) > 0                           # identified (a part of) the parameter
+    assert m.sum() >= 20
+    spread = dps[:, m].std(0, ddof=1)
+    ratio = spread / sig[:, m].mean(0)
+    z2 = np.mean(((dps[:, m] - dps[:, m].mean(0)) / sig[:, m]) ** 2) * len(dps) / (len(dps) - 1)
+    assert 0.8 < z2 < 1.2, (z2, np.round(ratio, 2))
+    assert np.all((ratio > 0.7) & (ratio < 1.4)), np.round(ratio, 2)
+
+
 def test_unidentifiable_directions_are_reported_and_not_fitted_to_noise():
     """The platform frame is a free choice (its joints and the tool move together): these exact
     symmetries are reported and the estimate has no component along them, for any noise."""

@@ -29,7 +29,7 @@ def test_a_dwell_of_zero_is_ok_and_motion_after_it_runs(daemon):
         assert np.allclose(np.array(st["pos"]) - p0, [1, 0, 0, 0, 0], atol=2e-3), (dwell, st)
 
 
-def test_g4_and_m30_answer_once_the_queued_motion_has_run(daemon):
+def test_g4_answers_once_the_queued_motion_has_run_m30_once_the_end_is_queued(daemon):
     s, *_ = daemon
     p0 = np.array(s.status()["pos"])
     assert s.send("G21 G91 G1 X-6 F600") == "ok"
@@ -38,8 +38,10 @@ def test_g4_and_m30_answer_once_the_queued_motion_has_run(daemon):
     assert st["state"] == "Idle" and np.allclose(np.array(st["pos"]) - p0, [-6, 0, 0, 0, 0], atol=2e-3)
     assert s.send("G1 X6 F600") == "ok"
     n = len(s.pushed)
-    assert s.send("M30") == "ok"
-    assert "[MSG:Pgm End]" in s.pushed[n:]
+    assert s.send("M30") == "ok"                         # the program's end is queued: answered then
+    st = s.status()
+    assert st["state"] == "Run" and st["pos"][0] < p0[0] - 1.0, st     # 6 mm at 10 mm/s: still on the way
+    assert s.wait_for(lambda: "[MSG:Pgm End]" in s.pushed[n:], 60)    # said when the machine gets there
     st = s.status()
     assert st["state"] == "Idle" and np.allclose(st["pos"], p0, atol=2e-3)
     assert s.send("$G") == "ok" and "G90" in s.pushed[-1]          # M30 reset the modes (G91 -> G90)

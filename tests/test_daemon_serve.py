@@ -65,7 +65,8 @@ def test_stream_a_bundled_job_hold_resume_override_then_sigterm_and_restart(tmp_
         assert again["state"] == "Hold:0" and np.allclose(again["pos"], held["pos"], atol=2e-3)
         s.realtime(b"~")
         n = len(s.pushed)
-        assert s.send(end, timeout=600) == "ok" and "[MSG:Pgm End]" in s.pushed[n:]
+        assert s.send(end, timeout=600) == "ok"                      # answered once the end is queued
+        assert s.wait_for(lambda: "[MSG:Pgm End]" in s.pushed[n:], 600)   # said when the machine gets there
         done = s.wait_state(("Idle",), 600)
         assert done["state"] == "Idle"
         job = load_job(JOB, M, start=home_pose(M))

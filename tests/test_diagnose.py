@@ -70,7 +70,9 @@ def test_cli_writes_the_recording_md_report_and_plots(tmp_path, capsys):
     assert "diagnosing [" in cap.err and "[" + "#" * 30 + "]" in cap.err   # the bar: on stderr, to its end
     assert "\r" not in out and "diagnosing [" not in js.read_text()
     rep = json.loads(js.read_text())
-    assert set(rep) == {"recording", "verdict", "samples", "findings", "unexplained", "confidence_calibration"}
+    assert set(rep) == {"recording", "verdict", "samples", "findings", "unexplained", "confidence_calibration",
+                        "units"}
+    assert rep["units"]["tip_x"] == "mm" and all(rep["units"][k] == "mm" for k in rep["findings"][0]["rms_before"])
     assert rep["samples"]["total"] == rep["samples"]["analysed"] == len(case.columns["t"])
     f = rep["findings"][0]
     assert set(f) == {"effect", "axis", "parameters", "uncertainty", "where", "evidence", "rms_before",

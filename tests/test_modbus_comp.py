@@ -53,9 +53,10 @@ def params(**kw):
     return NCParams.from_machine(M, DT, kv=400.0, **kw)
 
 
-def run_compensated(daq_opts, seconds, *, inject_at=None, inject=None, p=None):
+def run_compensated(daq_opts, seconds, *, inject_at=None, inject=None, p=None, when=None):
     """One paced run of a dwell on the compliant plant with the DAQ's slow compensation wired to
-    the loop as ``pmctl run`` does. Returns (result, rows, c0, session, log lines)."""
+    the loop as ``pmctl run`` does. Returns (result, rows, c0, session, log lines). ``when(lp, ses, logs)``:
+    ``inject`` waits for that evidence instead of a tick (the tick it came at is ``session.injected_at``)."""
     p = p or params(chain_offset_max_mm=daq_opts.comp_max_mm, chain_offset_rate_mm_s=daq_opts.comp_rate_mm_s)
     tg = dwell(seconds)
     c0 = counts_of(tg.q[0], p)
@@ -77,6 +78,15 @@ def run_compensated(daq_opts, seconds, *, inject_at=None, inject=None, p=None):
                      lambda off: holder["lp"].set_chain_offsets(off)).connect()
     lp = ControlLoop(M, be, p, tg, cfg, initial_state(M, c0), log=logs.append, hook=copy_gauges)
     holder["lp"] = lp
+    if when is not None:                  # inject on evidence, not at a tick (a loaded machine polls late)
+        first = inject
+
+        def inject(dev):
+            while not when(lp, ses, logs) and lp.mode == 0:
+                time.sleep(0.002)
+            ses.injected_at = lp.tick
+            first(dev)
+        inject_at = 0
     res = run_with_daq(lp, ses, inject_at, inject)
     return res, lp.recorder.arrays(), c0, ses, logs, p
 
@@ -91,31 +101,41 @@ def test_compensation_shifts_the_chains_by_the_deflection_and_the_tip_error_fall
     opt = DaqOptions.from_dict({"simulate": True, "port": 0, "timeout_ms": 100.0, "poll_ms": 10.0,
                                 "max_age_ms": 60.0, "comp_tau_s": 0.05, "compensate": True,
                                 "comp_max_mm": 0.05, "comp_rate_mm_s": 0.1})
-    res, rows, c0, ses, logs, p = run_compensated(opt, 1.6, inject_at=1200, inject=lambda dev: dev.freeze())
+    seen = []                             # (tick, estimate) as the DAQ session applied it
+
+    def converged(lp, ses, logs):               # the estimate steady for 300 ticks, the slew long done
+        if ses.offsets is not None and (not seen or seen[-1][0] != lp.tick):
+            seen.append((lp.tick, np.array(ses.offsets, float)))
+        big = [k for k, o in seen if np.all(np.abs(o) > 0.008)]
+        recent = [o for k, o in seen if k >= lp.tick - 300]
+        return bool(big) and lp.tick - big[0] > 600 and len(recent) > 20 and np.ptp(recent, axis=0).max() < 3e-4
+    res, rows, c0, ses, logs, p = run_compensated(opt, 30.0, inject=lambda dev: dev.freeze(), when=converged)
     # the stale DAQ stops the run as without compensation; every pulse is counted
     assert res.status == "stopped" and "stale data" in res.reason and "strain DAQ" in res.reason
     assert np.array_equal(c0 + res.pulses_sent, res.state.counts)
     assert np.array_equal(rows[:, R_TICK], np.arange(len(rows)))
     # the deflection the plant's chains have (tension / stiffness) and the offset that cancels it
-    strain = res.strain[1100]
+    inj = ses.injected_at
+    k = inj - 20                               # just before the DAQ froze: the estimate had settled
+    strain = res.strain[k]
     want = -chain_deflection_mm(strain, M)
     assert np.all(np.abs(want) > 0.008)                     # 10-15 um: well above a pulse (0.5 um)
     off = rows[:, R_CHAIN_OFFSET:R_CHAIN_OFFSET + 3]
     # slew-limited: no jump of the applied offset, ever; at 0.1 mm/s the 15 um take 150 ms
     assert np.max(np.abs(np.diff(off, axis=0))) <= 0.1 * DT + 1e-12
     assert np.all(np.abs(off[0]) <= 0.1 * DT + 1e-12)
-    np.testing.assert_allclose(off[1100], want, atol=0.5e-3)   # the estimate (0.01 ue counts, tau 50 ms)
+    np.testing.assert_allclose(off[k], want, atol=0.5e-3)      # the estimate (0.01 ue counts, tau 50 ms)
     # the commanded chain lengths moved by the offset (within the servo's pulse or two of dither)
     cmd = rows[:, R_COUNTS:R_COUNTS + 5] / p.pulses_per_mm
-    shift = cmd[1100, :3] - c0[:3] / p.pulses_per_mm[:3]
-    np.testing.assert_allclose(shift, off[1100], atol=2.0 / p.pulses_per_mm[0])
+    shift = cmd[k, :3] - c0[:3] / p.pulses_per_mm[:3]
+    np.testing.assert_allclose(shift, off[k], atol=2.0 / p.pulses_per_mm[0])
     # the physical fact: the true tool tip (FK of the stretched chains) comes back onto the target
     tg = dwell(0.01).rows[0, :3]
     e = tip_error_um(rows, p, tg)
-    before, after = float(np.max(e[:5])), float(np.max(e[900:1150]))
+    before, after = float(np.max(e[:5])), float(np.max(e[inj - 300:inj - 50]))
     assert before > 8.0 and after < 0.25 * before, (before, after)
     # stale data: the last offset is held through the stop (no more estimates, no decay)
-    assert len(rows) > 1250 and np.max(np.ptp(off[1150:], axis=0)) < 1e-5
+    assert len(rows) > inj + 50 and np.max(np.ptp(off[inj - 50:], axis=0)) < 1e-5
     assert ses.offsets is not None and np.allclose(ses.offsets, off[-1], atol=1e-6)
 
 
@@ -123,8 +143,19 @@ def test_an_offset_over_the_bound_is_refused_with_the_reason_and_nothing_moves()
     opt = DaqOptions.from_dict({"simulate": True, "port": 0, "timeout_ms": 100.0, "poll_ms": 10.0,
                                 "max_age_ms": 60.0, "comp_tau_s": 0.05, "compensate": True,
                                 "comp_max_mm": 0.005, "comp_rate_mm_s": 0.1})
-    res, rows, c0, ses, logs, p = run_compensated(opt, 0.4)
-    assert res.status == "done", res.reason
+    got = []
+
+    def evidence(lp, ses, logs):                # the three refusals, then 30 more DAQ samples without another
+        got[:] = [lp]
+        refused = [m for m in logs if m.startswith("chain offset refused")]
+        if len(refused) >= 3 and not hasattr(ses, "mark"):
+            ses.mark = len(ses.daq.samples)
+        return hasattr(ses, "mark") and len(ses.daq.samples) >= ses.mark + 30
+
+    def stop(dev):
+        got[0].stop_request = "the test has its evidence"
+    res, rows, c0, ses, logs, p = run_compensated(opt, 60.0, inject=stop, when=evidence)
+    assert res.status == "stopped" and res.reason == "the test has its evidence", res.reason
     refused = [m for m in logs if m.startswith("chain offset refused")]
     assert len(refused) == 3                                 # once per chain, not at every estimate
     assert "beyond the bound +-0.005 mm" in refused[0] and "L1 -0.01" in refused[0]

@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, example, given, settings, strategies as st
 
 from pmctl import hal
 from pmctl.core import kinematics as K
@@ -144,6 +144,11 @@ def closed_loop(machine, params, rows, q0, sim_opt, *, every=1, inject=None, off
        freq=st.floats(0.2, 2.0), phase=st.lists(st.floats(0, 6.3), min_size=5, max_size=5),
        q_off=st.lists(st.floats(-20.0, 20.0), min_size=5, max_size=5),
        flex=st.booleans(), noise=st.booleans())
+# the half-pulse tie (X 0.34375 mm = 687.5 pulses from the counters): the two pseudo-inverses round
+# the correction's rate a unit in the last place apart and the V-F sum lands on a whole pulse at tick
+# 11; both must send it (pmctl.core.vf.TIE)
+@example(rate=500.0, multi=False, k_theta=0.0, geom_seed=0, geom_size=0.0, amp=[0.0, 0.0, 0.0, 0.0, 1.0],
+         freq=1.0, phase=[0.0] * 5, q_off=[0.0, 0.0, 0.0, 0.34375, 0.0], flex=False, noise=False)
 def test_compiled_and_python_send_the_same_pulses_tick_for_tick(rate, multi, k_theta, geom_seed, geom_size,
                                                                 amp, freq, phase, q_off, flex, noise):
     machine = perturbed(geom_seed, geom_size)
@@ -155,6 +160,28 @@ def test_compiled_and_python_send_the_same_pulses_tick_for_tick(rate, multi, k_t
            "seed": geom_seed}
     ticks, sp, sc, moved = closed_loop(machine, params, rows, q[0], sim, every=7)
     assert sp.mode == RUN and ticks == len(rows) + int(0.05 / dt), sp.reason    # a feasible path: no stop
+
+
+@pytest.mark.parametrize("rate", [500.0, 1000.0, 2000.0])
+@pytest.mark.parametrize("moving", [False, True])
+def test_a_target_exactly_half_a_pulse_away_gives_the_same_pulses(rate, moving):
+    """Every axis in turn with its target exactly half a pulse from the counters (687.5 pulses, and
+    0.125 pulse from one: 0.5 + 1/8 is still exact), at rest (the rest deadband's edge) and with Y
+    moving (the V-F accumulator summing to a whole pulse): both cores send the same pulses and hold
+    the same state, tick for tick. Before the tie margin the Python NC sent X's pulse at tick 11 of
+    the moving case at 500 Hz and the compiled one did not; at rest Y's half pulse at 0.00025 mm
+    was held by one core and corrected by the other."""
+    dt = 1.0 / rate
+    params = NCParams.from_machine(M, dt, kv=min(400.0, 0.4 / dt), max_pulses_per_tick=1)
+    for ax in range(5):
+        for off in (0.34375, -0.34375, 0.00025, 0.0003125):
+            q_off = np.zeros(5)
+            q_off[ax] = off
+            amp = np.array([0.0, 0.0, 0.0, 0.0, 1.0 if ax != 4 else 0.0]) if moving else np.zeros(5)
+            if moving and ax == 4:
+                amp[3] = 1.0
+            rows, q = joint_path(M, params, dt, 0.12, amp, 1.0, np.zeros(5), q_off)
+            closed_loop(M, params, rows, q[0], {}, every=1)
 
 
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])

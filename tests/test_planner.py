@@ -312,7 +312,10 @@ def test_random_arcs(machine, prog):
 
 @pytest.mark.parametrize("text,line,words", [
     ("G0 X0 Y0 Z70\nG1 F0.0000001 X10", 2, "this move alone takes at least 6e+09 s"),
-    ("G0 X0 Y0 Z70\nG1 F0.42 X10\nG1 X20", 2, "this move alone takes at least 1429 s"),   # a tilt typed as F
+    ("G0 X0 Y0 Z70\nG1 F0.42 X10\nG1 X20 Y5", 2, "this move alone takes at least 1429 s"),   # a tilt typed as F
+    # two lines at that feed in a row are one straight line to the planner (its naive-CAM merge)
+    ("G0 X0 Y0 Z70\nG1 F0.42 X10\nG1 X20 Y0.0001", 2, "the moves from this line to line 3 (one straight line) "
+                                                       "take at least 2857 s"),
     ("G0 X10 Y0 Z70\nF600 G2 X10 Y0 I-10 P1000", 2, "6.283e+04 mm at 600 mm/min"),
     ("G0 X0 Y0 Z70\nG4 P3600\nG4 P3600", 3, "of dwells"),       # dwells at one point add up
     ("G4 P1500", 1, "of dwells"),                                  # a dwell-only job too

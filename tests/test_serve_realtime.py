@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from grbl_sender import Sender, start_serve, stop_serve
+from grbl_sender import Sender, hold_still_resume, start_serve, stop_serve
 from pmctl.core.config import load_machine
 from pmctl.core.recording import read_recording
 from pmctl.motion.state_store import load_counters
@@ -49,12 +49,7 @@ def test_real_time_serve_streams_a_job_with_a_hold_on_the_path(tmp_path):
         t0 = time.time()                               # hold once the arcs have begun (below z 61)
         while s.status()["pos"][2] > 61 and time.time() - t0 < 120:
             time.sleep(0.05)
-        s.realtime(b"!")
-        held = s.wait_state(("Hold:0",), 60)
-        assert held["state"] == "Hold:0"
-        time.sleep(0.5)
-        assert np.allclose(s.status()["pos"], held["pos"], atol=2e-3)
-        s.realtime(b"~")
+        hold_still_resume(s, settle=0.5, atol=2e-3)
         assert s.send("M2", timeout=600) == "ok"
         done = s.wait_state(("Idle",), 600)
         job = load_job(job_file, M, start=home_pose(M))

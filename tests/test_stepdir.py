@@ -232,6 +232,43 @@ def test_a_tick_out_of_sequence_is_refused_and_stops(bridge):
     assert s.counters[0] + s.not_executed[0] == 20 * be.next_tick
 
 
+def test_a_host_that_was_not_scheduled_is_named_as_late_not_as_a_corrupted_link(bridge):
+    """Frames go unacknowledged while the host itself is away longer than link_timeout_ms (here it
+    sleeps; under CPU load it is descheduled): the stop says the host was late."""
+    be = StepDirBackend(M, DT, bridge.options(link_timeout_ms=100.0, max_retransmits=1, watchdog_ms=5000.0))
+    be.open(np.zeros(5, int))
+    stream(be, [[10, 0, 0, 0, 0]] * 20)
+    be.tx_filter = lambda d: b""                    # these frames never arrive
+    stream(be, [[10, 0, 0, 0, 0]] * 2)
+    time.sleep(0.3)                                 # the host away for 300 ms
+    with pytest.raises(BridgeFault, match=r"host was late: \d+ ms passed between two of its ticks") as ei:
+        stream(be, [[10, 0, 0, 0, 0]] * 50)
+    be.close()
+    assert "corrupted" not in str(ei.value)
+    assert np.array_equal(ei.value.counts, bp.executed_steps(bridge.edges()))
+
+
+def test_a_bridge_process_that_is_not_scheduled_is_named_so(bridge):
+    """The bridge process stopped (SIGSTOP: what CPU starvation looks like to the host) while the host
+    streams: the stop says the bridge answered nothing (not a corrupted link), and once it runs again
+    its counters are exact."""
+    be = StepDirBackend(M, DT, bridge.options(link_timeout_ms=100.0, read_timeout_ms=300.0, max_retransmits=2,
+                                              watchdog_ms=5000.0))
+    be.open(np.zeros(5, int))
+    stream(be, [[10, 0, 0, 0, 0]] * 20)
+    bridge.proc.send_signal(signal.SIGSTOP)
+    try:
+        with pytest.raises(BridgeFault, match=r"nothing from the bridge for \d+ ms") as ei:
+            stream(be, [[10, 0, 0, 0, 0]] * 200)
+    finally:
+        bridge.proc.send_signal(signal.SIGCONT)
+    be.close()
+    assert "corrupted" not in str(ei.value)
+    time.sleep(0.3)                                  # running again, it catches up and takes the STOP sent meanwhile
+    s = bridge.status()
+    assert np.array_equal(s.counters, bp.executed_steps(bridge.edges()))
+
+
 # ---------------------------------------------------------------- inputs and the watchdog
 
 
@@ -343,6 +380,7 @@ def test_a_watchdog_trip_with_ticks_queued_reports_what_was_not_executed(bridge)
         time.sleep(0.2)                                      # hung host
         be.read()
     be.close()
+    assert "the host was late" in str(ei.value), str(ei.value)
     s = bridge.status()
     executed = bp.executed_steps(bridge.edges())
     assert np.array_equal(ei.value.counts, executed) and np.array_equal(s.counters, executed)
@@ -350,6 +388,27 @@ def test_a_watchdog_trip_with_ticks_queued_reports_what_was_not_executed(bridge)
     sent = be.next_tick
     assert np.array_equal(np.array(s.counters) + s.not_executed, np.array([40, 0, 0, 0, -40]) * sent)
     assert s.not_executed[0] >= 40 and s.dropped_ticks >= 1      # 4 ms of ticks cannot run in 2 ms
+
+
+def test_a_watchdog_trip_after_every_tick_ran_is_no_error_at_close(bridge):
+    """The host slow to end the run (a loaded computer shutting down): the bridge's watchdog trips after
+    it executed every tick. close() accepts it: nothing was lost and its counters are the commanded ones."""
+    be = StepDirBackend(M, DT, bridge.options(watchdog_ms=250.0))
+    be.open(np.zeros(5, int))
+    stream(be, [[20, -20, 0, 5, 0]] * 30)
+    time.sleep(0.8)                                          # > the queue's 4 ticks + the 250 ms watchdog
+    try:
+        be.close()
+        raised = None
+    except BridgeFault as e:
+        raised = e
+    s = bridge.status()
+    assert s.state == bp.S_FAULT and s.faults == bp.F_WATCHDOG
+    if not any(s.not_executed):           # every tick ran before the trip: no error, the counters are right
+        assert raised is None, str(raised)
+        assert np.array_equal(s.counters, np.array([20, -20, 0, 5, 0]) * 30)
+    else:                                 # (a test process descheduled for 250 ms mid-stream tripped it earlier)
+        assert raised is not None and np.array_equal(raised.counts, s.counters)
 
 
 def _per_axis_tick(log, axis, tick):

@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings, strategies as st
 
 from pmctl.core import vf
@@ -106,3 +107,24 @@ def test_per_tick_form_equals_the_batch_form(u, n_max, dt, threshold, seed):
     p1, a1 = vf.vf_step(acc, np.array(u), dt, threshold, n_max)
     p2, a2 = vf.vf_tick(acc.tolist(), u, dt, threshold, n_max)
     assert p1.tolist() == p2 and a1.tolist() == a2
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_a_whole_pulse_missed_by_rounding_is_reached_and_a_real_shortfall_is_not(sign):
+    """The tie margin (vf.TIE = 1e-9 of the threshold): an accumulator a few units in the last place
+    short of a whole pulse (how two ways of computing the same rate sum end) sends it, with the
+    shortfall kept as a residue; one 2e-9 short does not. Both forms agree."""
+    for a0, want in ((1.0 - 1e-15, 1), (1.0 - 5e-10, 1), (1.0 - 2e-9, 0), (2.0 - 3e-16, 2), (0.5, 0)):
+        p1, r1 = vf.vf_step(np.array([sign * a0]), np.zeros(1), 1e-3, 1.0, 3)
+        p2, r2 = vf.vf_tick([sign * a0], [0.0], 1e-3, 1.0, 3)
+        assert int(p1[0]) == p2[0] == sign * want, a0
+        assert r1[0] == r2[0] == sign * a0 - p2[0]             # pulses + residue = the integral
+
+
+def test_the_defaults_are_the_seeds_converter():
+    """Called without a threshold and a pulse cap, both forms are the seed's converter: threshold 1,
+    at most one pulse per sample (the excess beyond one threshold dropped)."""
+    p, a = vf.vf_step(np.zeros(2), np.array([1.5, 2.5]), 1.0)
+    assert p.tolist() == [1, 1] and a.tolist() == [0.5, 1.0]
+    p2, a2 = vf.vf_tick([0.0, 0.0], [1.5, 2.5], 1.0)
+    assert p2 == [1, 1] and a2 == [0.5, 1.0]

@@ -23,7 +23,9 @@ Positions in mm, times in s. ``s`` is the screw (motor-side) position of an axis
 - a flexible mode on an axis (:func:`mode_response`, :class:`Mode`): y'' + 2ζωy' + ω²y = −x'',
   the base-excited relative displacement, exact for x linear between samples (each sample a
   velocity jump, then free motion through the transition matrix :func:`mode_transition`);
-- lost steps (:func:`step_offset`): a position offset from t_s on.
+- lost steps (:func:`step_offset`): a position offset from t_s on;
+- the force a drive needs to move its axis (:func:`drive_force`): moving mass, viscous and
+  Coulomb friction (the viscous part may differ by direction), Stribeck, a constant load.
 """
 
 from __future__ import annotations
@@ -315,3 +317,30 @@ class Mode:
         self.y, self.yd = p[..., 0, 0] * self.y + p[..., 0, 1] * yd, p[..., 1, 0] * self.y + p[..., 1, 1] * yd
         self.x, self.v = x, v
         return self.y
+
+
+# ---------------------------------------------------------------- the drive's force
+
+def moving_sign(v, v_dead=0.0):
+    """The direction friction opposes: sign(v) beyond ±v_dead, v/v_dead within it (0 standing still:
+    friction then holds whatever it must; a ramp, not a step, through the pre-sliding band, so that
+    a speed known to a fraction of v_dead gives the force to that fraction of the Coulomb level)."""
+    v = np.asarray(v, float)
+    if not v_dead > 0:
+        return np.sign(v)
+    return np.clip(v / v_dead, -1.0, 1.0)
+
+
+def drive_force(v, a, *, mass, viscous, coulomb, offset=0.0, stribeck=0.0, stribeck_speed=1.0,
+                viscous_neg=None, v_dead=0.0):
+    """The force (or torque) a drive applies to move its axis at speed ``v`` and acceleration ``a``:
+    mass·a + viscous·v + sign(v)·(coulomb + stribeck·exp(−(v/stribeck_speed)²)) + offset, where the
+    viscous coefficient is ``viscous_neg`` while moving in −, when given. Coefficients per unit of
+    ``v`` and ``a`` as given (a mass of m kg against a in mm/s² is m/1000 N per mm/s²); the sign
+    is 0 at standstill (|v| <= v_dead). The offset is a constant load: gravity on a vertical axis,
+    a counterweight, a cable chain's pull, a current sensor's zero."""
+    v = np.asarray(v, float)
+    d = moving_sign(v, v_dead)
+    vs = stribeck_speed if stribeck_speed > 0 else 1.0
+    visc = viscous if viscous_neg is None else np.where(v < 0, viscous_neg, viscous)
+    return mass * np.asarray(a, float) + visc * v + d * (coulomb + stribeck * np.exp(-(v / vs) ** 2)) + offset

@@ -79,6 +79,7 @@ LOAD = ("load_fx", "load_fy", "load_fz")
 REQUIRED = ("t",) + CMD
 KNOWN_FIXED = REQUIRED + ENC + TIP + TOOL + STRAIN + LOAD
 
+GENERIC = "axes"         # "machine" of a recording of independent axes (pmctl.core.recording_axes)
 MAX_ABS_VALUE = 1e9      # largest |value| of any cell (mm, s, microstrain, N...): beyond it, not a measurement
 _KIND = {"t": "time", **{c: "cmd" for c in CMD}, **{c: "enc" for c in ENC}, **{c: "tip" for c in TIP},
          **{c: "tool" for c in TOOL}, **{c: "strain" for c in STRAIN}, **{c: "load" for c in LOAD}}
@@ -88,8 +89,13 @@ _NAN_RE = re.compile(r"^[+-]?nan$", re.IGNORECASE)
 _BAD_NAME_CHARS = re.compile(r"[\s,\"']")
 
 
-def channel_kind(name: str) -> str | None:
-    """'time', 'cmd', 'enc', 'tip', 'tool', 'strain', 'load', 'temp' or None (unknown channel)."""
+def channel_kind(name: str, generic: bool = False) -> str | None:
+    """'time', 'cmd', 'enc', 'tip', 'tool', 'strain', 'load', 'temp' or None (unknown channel).
+    ``generic``: the channels of a recording of independent axes ('time', 'cmd', 'enc', 'load',
+    'effort', 'acc', 'temp'; pmctl.core.recording_axes)."""
+    if generic:
+        from pmctl.core.recording_axes import channel_kind as generic_kind
+        return generic_kind(name)
     k = _KIND.get(name)
     if k is None and _TEMP_RE.match(name):
         return "temp"
@@ -248,8 +254,9 @@ def resolve_machine(ref: str, folder: Path) -> Path | None:
     return None
 
 
-def read_meta(folder: str | Path) -> tuple[dict, Path, Path]:
-    """Validate recording.json; returns (meta, machine_path, meta_path)."""
+def read_meta(folder: str | Path) -> tuple[dict, Path | None, Path]:
+    """Validate recording.json; returns (meta, machine_path, meta_path). ``machine_path`` is None
+    for a recording of independent axes (``"machine": "axes"``, pmctl.core.recording_axes)."""
     folder = Path(folder)
     mp = folder / META_FILE
     if not folder.is_dir():
@@ -280,8 +287,8 @@ def read_meta(folder: str | Path) -> tuple[dict, Path, Path]:
     ref = meta.get("machine", "prototype")
     if not isinstance(ref, str) or not ref.strip() or "\0" in ref or len(ref) > 1024:
         raise bad("machine", "must be a config name or a path relative to the recording folder")
-    machine_path = resolve_machine(ref, folder)
-    if machine_path is None:
+    machine_path = None if ref == GENERIC else resolve_machine(ref, folder)
+    if machine_path is None and ref != GENERIC:
         raise bad("machine", f"unknown machine {ref!r}: neither config/{ref}.toml nor a file "
                              f"relative to {folder}")
     sr = meta.get("sample_rate_hz")
@@ -298,8 +305,9 @@ def read_meta(folder: str | Path) -> tuple[dict, Path, Path]:
 
 # ---------------------------------------------------------------- data.csv
 
-def _header(raw: bytes, path: Path) -> tuple[list[str], int]:
-    """Channel names and the byte offset where the data starts."""
+def _header(raw: bytes, path: Path, generic: bool = False) -> tuple[list[str], int]:
+    """Channel names and the byte offset where the data starts. ``generic``: a recording of
+    independent axes (``t`` and at least one ``cmd_<A>`` required, pmctl.core.recording_axes)."""
     nl = raw.find(b"\n")
     head = raw if nl < 0 else raw[:nl]
     try:
@@ -316,6 +324,10 @@ def _header(raw: bytes, path: Path) -> tuple[list[str], int]:
         if nm in seen:
             raise InputError(path, 1, f"channel {nm!r} appears twice (columns {seen[nm]} and {j})", column=j)
         seen[nm] = j
+    if generic:
+        from pmctl.core.recording_axes import check_required
+        check_required(names, path)
+        return names, (len(raw) if nl < 0 else nl + 1)
     for req in REQUIRED:
         if req not in seen:
             raise InputError(path, 1, f"missing required channel {req!r} "
@@ -415,9 +427,11 @@ def torn_tail(meta: dict) -> bool:
     return meta.get("complete", True) is False
 
 
-def read_data(path: str | Path, drop_torn_tail: bool = False) -> tuple[list[str], np.ndarray, np.ndarray | None]:
+def read_data(path: str | Path, drop_torn_tail: bool = False,
+              generic: bool = False) -> tuple[list[str], np.ndarray, np.ndarray | None]:
     """Parse and validate data.csv -> (names, data (n, ncol) float64, row lines or None).
-    ``drop_torn_tail``: a last line without its newline is left out (see :func:`torn_tail`)."""
+    ``drop_torn_tail``: a last line without its newline is left out (see :func:`torn_tail`);
+    ``generic``: the header of a recording of independent axes (see :func:`_header`)."""
     path = Path(path)
     try:
         with open(path, "rb") as f:
@@ -429,7 +443,7 @@ def read_data(path: str | Path, drop_torn_tail: bool = False) -> tuple[list[str]
                                      "channels): split the recording")
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]
-    names, start = _header(raw, path)
+    names, start = _header(raw, path, generic)
     body = raw[start:]
     if drop_torn_tail and body and not body.endswith(b"\n"):
         body = body[:body.rfind(b"\n") + 1]
@@ -476,13 +490,24 @@ def read_recording(folder: str | Path) -> Recording:
     folder = Path(folder)
     if folder.name in (META_FILE, DATA_FILE) and folder.is_file():
         folder = folder.parent
-    meta, machine_path, _ = read_meta(folder)
-    names, data, lines = read_data(folder / DATA_FILE, drop_torn_tail=torn_tail(meta))
-    machine = load_machine(machine_path)
+    meta, machine_path, mp = read_meta(folder)
+    generic = is_generic(meta)
+    names, data, lines = read_data(folder / DATA_FILE, drop_torn_tail=torn_tail(meta), generic=generic)
     columns = {nm: np.ascontiguousarray(data[:, j]) for j, nm in enumerate(names)}
-    unknown = [nm for nm in names if channel_kind(nm) is None]
+    if generic:
+        from pmctl.core.recording_axes import axes_machine, convert
+        machine, conv = axes_machine(names, meta, mp, mp.read_text(encoding="utf-8-sig", errors="replace"))
+        convert(columns, conv)
+    else:
+        machine = load_machine(machine_path)
+    unknown = [nm for nm in names if channel_kind(nm, generic) is None]
     return Recording(folder, meta, columns, unknown, meta.get("machine", "prototype"), machine_path,
                      machine, lines)
+
+
+def is_generic(meta: dict) -> bool:
+    """Whether recording.json describes a machine of independent axes (``"machine": "axes"``)."""
+    return meta.get("machine") == GENERIC
 
 
 # ---------------------------------------------------------------- writing
@@ -492,9 +517,20 @@ def _check_name(name, folder):
         raise InputError(folder, None, f"bad channel name {name!r}: non-empty, no spaces, commas or quotes")
 
 
-def _order(names):
-    rest = [n for n in names if n not in REQUIRED]
-    return list(REQUIRED) + rest
+def _order(names, generic=False):
+    if generic:          # t, the commands in their order, then the rest
+        first = ["t"] + [n for n in names if n.startswith("cmd_")]
+    else:
+        first = list(REQUIRED)
+    return first + [n for n in names if n not in first]
+
+
+def _missing(names, generic=False) -> list[str]:
+    """The required channels a writer was not given (a generic recording: t and one cmd_<A>)."""
+    if generic:
+        from pmctl.core.recording_axes import axes_of
+        return [r for r in ("t",) if r not in names] + ([] if axes_of(names) else ["cmd_<A>"])
+    return [r for r in REQUIRED if r not in names]
 
 
 def _check_rows(arr, channels, last_t, row0, folder):
@@ -556,20 +592,21 @@ class RecordingWriter:
             _check_name(nm, self.folder)
         if len(set(channels)) != len(channels):
             raise InputError(self.folder, None, "a channel name appears twice")
-        missing = [r for r in REQUIRED if r not in channels]
+        generic = machine == GENERIC
+        missing = _missing(list(channels), generic)
         if missing:
             raise InputError(self.folder, None, f"missing required channel(s) {', '.join(missing)}")
         if isinstance(sample_rate_hz, bool) or not isinstance(sample_rate_hz, (int, float)) \
                 or not math.isfinite(sample_rate_hz) or sample_rate_hz <= 0:
             raise InputError(self.folder, None, f"sample_rate_hz must be a positive number, got {sample_rate_hz!r}")
         if not isinstance(machine, str) or (
-                resolve_machine(machine, self.folder) is None
+                not generic and resolve_machine(machine, self.folder) is None
                 and not Path(os.path.normpath(self.folder / machine)).is_file()):
             # (a path relative to a folder that does not exist yet is resolved lexically)
             raise InputError(self.folder, None, f"unknown machine {machine!r}")
         self.overwrite = bool(overwrite)
         check_target(self.folder, overwrite=self.overwrite, force_flag=force_flag)
-        self.channels = _order(list(channels))
+        self.channels = _order(list(channels), generic)
         self._perm = [list(channels).index(c) for c in self.channels]
         self.meta = {"format": FORMAT, "machine": machine, "sample_rate_hz": sample_rate_hz,
                      "description": description}
@@ -788,8 +825,8 @@ def write_recording(folder, columns, *, machine="prototype", sample_rate_hz, des
     if len(n) > 1:
         raise InputError(folder, None, f"channels have different lengths {sorted(n)}")
     total = n.pop() if n else 0
-    names = _order(list(cols))
-    missing = [r for r in REQUIRED if r not in cols]
+    names = _order(list(cols), machine == GENERIC)
+    missing = _missing(list(cols), machine == GENERIC)
     if missing:
         raise InputError(folder, None, f"missing required channel(s) {', '.join(missing)}")
     if total:

@@ -38,7 +38,7 @@ from pmctl.core.config import load_machine
 from pmctl.core.errors import InputError
 from pmctl.core.plant_effects import direction
 from pmctl.core.recording import (CMD, DATA_FILE, META_FILE, REQUIRED, _fast_parse, _header, _slow_parse,
-                                  channel_kind, read_meta, torn_tail)
+                                  channel_kind, is_generic, read_meta, torn_tail)
 
 BLOCK_BYTES = 16 << 20
 
@@ -50,9 +50,10 @@ def _folder(folder) -> Path:
     return folder
 
 
-def iter_chunks(folder, *, block_bytes=BLOCK_BYTES, progress=None, drop_torn_tail=False):
+def iter_chunks(folder, *, block_bytes=BLOCK_BYTES, progress=None, drop_torn_tail=False, generic=False):
     """Yield (names, first_row, block) over data.csv (see the module docstring); ``drop_torn_tail``:
-    a last line without its newline is left out (pmctl.core.recording.torn_tail)."""
+    a last line without its newline is left out (pmctl.core.recording.torn_tail); ``generic``: a
+    recording of independent axes (its header needs t and one cmd_<A>)."""
     path = _folder(folder) / DATA_FILE
     try:
         fh = open(path, "rb")
@@ -63,7 +64,7 @@ def iter_chunks(folder, *, block_bytes=BLOCK_BYTES, progress=None, drop_torn_tai
         head = fh.readline()
         if head.startswith(b"\xef\xbb\xbf"):
             head = head[3:]
-        names, _ = _header(head, path)
+        names, _ = _header(head, path, generic)
         ncol = len(names)
         jt = names.index("t")
         line = 2                   # file line of the next block's first line
@@ -176,22 +177,29 @@ def read_columns(folder, channels=None, *, measured_dtype=np.float32, block_byte
     """(meta, machine, columns) with only ``channels`` kept (default: all known channels) and, with
     ``rows`` (sorted disjoint (start, stop) ranges), only those rows."""
     folder = _folder(folder)
-    meta, machine_path, _ = read_meta(folder)
-    machine = load_machine(machine_path)
+    meta, machine_path, mp = read_meta(folder)
+    generic = is_generic(meta)
+    machine = None if generic else load_machine(machine_path)
+    conv = {}
     parts: dict[str, list] = {}
     keep = None
     total = 0
     motion = None           # per command: (its last value, direction of its last motion) so far
     before = [{} for _ in rows] if rows is not None else None
     for names, row0, arr in iter_chunks(folder, block_bytes=block_bytes, progress=progress,
-                                        drop_torn_tail=torn_tail(meta)):
+                                        drop_torn_tail=torn_tail(meta), generic=generic):
         total = row0 + len(arr)
         if keep is None:
-            want = [n for n in names if channel_kind(n) is not None] if channels is None else \
-                [n for n in names if n in set(channels) | set(REQUIRED)]
-            keep = [(n, names.index(n), np.float64 if n in REQUIRED or n in CMD else measured_dtype) for n in want]
+            cmds = [n for n in names if channel_kind(n, generic) == "cmd"]
+            req = ["t"] + cmds if generic else list(REQUIRED)
+            want = [n for n in names if channel_kind(n, generic) is not None] if channels is None else \
+                [n for n in names if n in set(channels) | set(req)]
+            keep = [(n, names.index(n), np.float64 if n in req or n in cmds else measured_dtype) for n in want]
             parts = {n: [] for n, _, _ in keep}
-            motion = {n: (None, 0.0) for n in names if n in CMD}
+            motion = {n: (None, 0.0) for n in names if n in cmds}
+            if generic:
+                from pmctl.core.recording_axes import axes_machine
+                machine, conv = axes_machine(names, meta, mp, mp.read_text(encoding="utf-8-sig", errors="replace"))
         if rows is not None:
             _motion_before(names, row0, arr, rows, motion, before)
             sel = [np.arange(max(a, row0), min(b, total)) - row0 for a, b in rows if a < total and b > row0]
@@ -208,4 +216,7 @@ def read_columns(folder, channels=None, *, measured_dtype=np.float32, block_byte
     for n, _, dt in keep:
         p = parts.pop(n)
         columns[n] = np.concatenate(p) if p else np.zeros(0, dt)
+    if generic:
+        from pmctl.core.recording_axes import convert
+        convert(columns, conv)
     return meta, machine, columns

@@ -100,6 +100,13 @@ class Backend(ABC):
     # limit. Devices that hold by themselves (CSP drives keep their last target and fault on their
     # own when the host's heartbeat stays away) tolerate more than a device that runs dry.
     stall_tolerance_s = 0.0
+    # Whether a stall beyond that (a moment without ticks) can be ridden out by a feed hold on the
+    # path that resumes once the ticks are on time again, instead of a controlled stop and an alarm:
+    # only a device that cannot have moved, nor stopped abruptly, without commands (the simulation,
+    # whose plant advances with the ticks). A step/dir bridge runs dry within its few queued ticks
+    # (its motors stop without deceleration: steps may be lost) and CSP drives fault by themselves
+    # past their host timeout: those stop and raise the alarm.
+    stall_hold = False
 
     @classmethod
     def validate_options(cls, table: dict, where: str):

@@ -33,10 +33,11 @@ REJECT_TEXT = {E_OK: "ok", E_BUSY: "busy (moving)", E_ARGS: "bad arguments", E_F
 S_IDLE, S_ARMED, S_RUNNING, S_DRAINING, S_FAULT = range(5)
 STATE_NAMES = {S_IDLE: "idle", S_ARMED: "armed", S_RUNNING: "running", S_DRAINING: "draining", S_FAULT: "fault"}
 
-F_WATCHDOG, F_ESTOP, F_ALARM, F_PROTOCOL, F_OVERSPEED, F_HOST_STOP = 0x01, 0x02, 0x04, 0x08, 0x10, 0x20
+F_WATCHDOG, F_ESTOP, F_ALARM, F_PROTOCOL, F_OVERSPEED, F_HOST_STOP, F_LATE = 0x01, 0x02, 0x04, 0x08, 0x10, 0x20, 0x40
 FAULT_TEXT = {F_WATCHDOG: "watchdog: no valid tick within the watchdog time (host timeout)",
               F_ESTOP: "E-stop input", F_ALARM: "drive alarm input", F_PROTOCOL: "protocol error (tick out of order)",
-              F_OVERSPEED: "more pulses than fit in a tick", F_HOST_STOP: "stopped by the host"}
+              F_OVERSPEED: "more pulses than fit in a tick", F_HOST_STOP: "stopped by the host",
+              F_LATE: "the bridge fell behind its step schedule (more steps than it can time)"}
 
 WHY_TICK, WHY_OTHER = 0, 1
 IN_ESTOP = 1 << 5

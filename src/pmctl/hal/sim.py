@@ -173,6 +173,7 @@ class SimOptions:
 
 
 class SimBackend(Backend):
+    stall_hold = True          # the plant advances with the ticks: a stall moves nothing (base.Backend)
     name = "sim"
     accepts = "pulses"
     can_rereference = True

@@ -23,7 +23,7 @@ from pmctl import __version__
 from pmctl.core.errors import PmctlError
 
 # Subcommand modules, in the order --help lists them.
-COMMANDS = ["run", "serve", "ctl", "kin", "analyze", "twin", "calibrate"]
+COMMANDS = ["run", "check", "post", "serve", "ctl", "init_config", "kin", "analyze", "twin", "calibrate"]
 
 
 def add_module_parsers(subparsers, modules, hook="add_parser"):
@@ -55,11 +55,21 @@ def build_parser() -> argparse.ArgumentParser:
         prog="pmctl",
         description="Controller and digital twin for the 3-RPS + XY-table hybrid milling machine.",
         epilog="Each command has --help. Documentation: README.md and docs/ in the repository "
-               "(docs/README.md is the index).")
+               "(docs/README.md is the index). Exit status: 0 done, 1 an error pmctl reports (bad input, "
+               "config, a refused request), 2 usage (the command's own usage is printed), 70 internal "
+               "error, 130 interrupted; pmctl run also 3 (controlled stop) and 4 (fault).")
     p.add_argument("--version", action="version", version=f"pmctl {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     add_module_parsers(sub, [f"pmctl.interfaces.commands.{name}" for name in COMMANDS])
     return p
+
+
+def _subparser(parser, name):
+    """The parser of subcommand ``name`` (None when there is none)."""
+    for act in parser._actions:
+        if isinstance(act, argparse._SubParsersAction):
+            return act.choices.get(name)
+    return None
 
 
 # A value such as "-5,0,173" looks like an option to argparse; glue it to its option.
@@ -104,7 +114,11 @@ def main(argv=None) -> int:
 def _main(argv) -> int:
     try:
         parser = build_parser()
-        args = parser.parse_args(_glue_negative_values(sys.argv[1:] if argv is None else list(argv)))
+        argv = _glue_negative_values(sys.argv[1:] if argv is None else list(argv))
+        args, extra = parser.parse_known_args(argv)
+        if extra:                 # an unknown option of a subcommand: that subcommand's usage, not pmctl's
+            sub = _subparser(parser, getattr(args, "command", None))
+            (sub or parser).error(f"unrecognized arguments: {' '.join(extra)}")
         if not getattr(args, "func", None):
             parser.print_help()
             return EXIT_USAGE

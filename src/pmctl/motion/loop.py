@@ -11,8 +11,11 @@
 - Per-tick compute time and lateness in a bounded window; overruns counted, warned about
   (rate-limited), and N in a row stop the machine safely (decelerating stop).
 - A tick longer than the stall timeout (in real time; offline, with ``realtime=False``, a slow tick
-  is only counted and reported), or a backend that does not answer, ends in a controlled stop with
-  a reason; any other exception inside the loop halts it with the reason, the counters true. The pulse counters are persisted by a writer thread every N ticks and at the
+  is only counted and reported) while the path moves ends in a controlled stop with a reason, unless
+  the backend can ride it out (``Backend.stall_hold``: the simulation) and the loop has an
+  ``on_stall`` handler (the rt process: a feed hold on the path, resumed once the ticks are on time
+  again); at rest (nothing commanded to move) a stall is only reported. A backend that does not
+  answer ends in a controlled stop with a reason; any other exception inside the loop halts it with the reason, the counters true. The pulse counters are persisted by a writer thread every N ticks and at the
   stop (pmctl.motion.state_store).
 - Per-tick records (commands, encoders, strain, the simulated load side, sigma, line) go into a
   bounded ring (pmctl.motion.recorder) that a recorder drains: the loop's memory does not grow
@@ -330,6 +333,8 @@ class ControlLoop:
         self.stop_request = ""          # set from another thread: hold on the path, then stop
         self.quit = False
         self.dropped = 0
+        self.stalls = 0               # stalls seen (in real time, beyond the stall limit)
+        self.on_stall = None          # callable(reason): rides out a stall (Backend.stall_hold), else a stop
         self.sent = np.zeros(5, np.int64)
         self.chain_offset = None        # (3,) chain-length offset input, mm (the NC reads it each tick); None = none
         self._offset_refused = [False] * 3
@@ -527,9 +532,16 @@ class ControlLoop:
                 elif t1 - t1_prev > stall_ns and st.mode == RUN:
                     # the device went this long without a command: a slow tick, or a late wake-up
                     # (the process descheduled), both count
-                    st = _stopping(st, f"loop stalled: {(t1 - t1_prev) / 1e6:.1f} ms between two commands, "
-                                       f"{(t1 - t0) / 1e6:.1f} ms of it computing "
-                                       f"(limit {stall_ns / 1e6:g} ms){stall_hint(t1 - t1_prev, t1 - t0)}")
+                    why = (f"loop stalled: {(t1 - t1_prev) / 1e6:.1f} ms between two commands, "
+                           f"{(t1 - t0) / 1e6:.1f} ms of it computing "
+                           f"(limit {stall_ns / 1e6:g} ms){stall_hint(t1 - t1_prev, t1 - t0)}")
+                    self.stalls += 1
+                    if fol.sigma == 0.0 and fol.state != HOLDING:
+                        self.log(f"warning: {why}; at rest, nothing was commanded to move: no stop")
+                    elif be.stall_hold and self.on_stall is not None:
+                        self.on_stall(why)      # a feed hold on the path, resumed when on time again
+                    else:
+                        st = _stopping(st, why)
                 t1_prev = t1
                 if cfg.realtime:
                     deadline += period
@@ -542,7 +554,10 @@ class ControlLoop:
                         if t1 - last_warn > 1_000_000_000:
                             last_warn = t1
                             self.log(f"warning: tick {k} overran its deadline by {(t1 - deadline + missed * period) / 1e3:.0f} us "
-                                     f"({overruns} overruns so far)")
+                                     f"({overruns} overruns so far)" + ("" if overruns > 1 else
+                                     f": the computer is too busy for {cfg.rate_hz:g} Hz; stop other work, give the "
+                                     f"loop real-time priority and a core of its own (docs/service.md: PREEMPT_RT, "
+                                     f"isolcpus) or lower [loop] rate_hz"))
                         if in_row >= cfg.max_overruns_in_row and st.mode == RUN:
                             st = _stopping(st, f"{in_row} deadlines missed in a row at {cfg.rate_hz:g} Hz")
                     else:

@@ -14,7 +14,8 @@ Rest deadband (between steps 3 and 4): while the target stands still (its feed-f
 velocity components, all exactly zero: a dwell, a feed hold once sigma is 0, a job's end, the idle
 rest pose; the slowest feed still moves the target every tick), a joint whose desired rate is
 worth at most ``rest_deadband_pulses`` (half a pulse) of position error, |qdot_i| <= kv x 0.5 /
-pulses_per_mm_i, is commanded rate zero, and once its rate is zero its V-F residue is dropped
+pulses_per_mm_i (an exact half pulse is inside, by a margin of 1e-9 pulse so that both cores agree),
+is commanded rate zero, and once its rate is zero its V-F residue is dropped
 (nothing is owed: the counter is the pulse nearest the target, as at a stop's halt). The desired
 rate there is the whole V-F input, the pose error through J+ plus the strain term, so a joint
 pushed out of the band (a new target, K_theta, a compensation or chain-offset change) is driven
@@ -74,7 +75,7 @@ from pmctl.core.compensation import comp_tick
 from pmctl.core.config import Machine
 from pmctl.core.errors import KinematicsError
 from pmctl.core.kinematics import FK_MAX_ITER, FK_TOL_MM
-from pmctl.core.vf import vf_tick
+from pmctl.core.vf import TIE, vf_tick
 
 RUN, STOPPING, HALTED, DONE = 0, 1, 2, 3
 IMPLEMENTATIONS = ("compiled", "python")
@@ -430,8 +431,11 @@ class NCParams:
             # the joint would step back and forth between them (the limit cycle again)
             raise ValueError(f"rest_deadband_pulses must be 0 (off) or in [0.5, 1], got {self.rest_deadband_pulses!r}")
         object.__setattr__(self, "rest_deadband_pulses", db)
-        # the band in rate units per axis, mm/s (kv x pulses / pulses_per_mm)
-        object.__setattr__(self, "_rest_band", [float(self.kv) * db / x for x in self._l.ppm])
+        # the band in rate units per axis, mm/s (kv x pulses / pulses_per_mm); a target exactly on
+        # the band's edge (a half pulse from the counters) is inside it by TIE in both cores (their
+        # pseudo-inverses round its rate a few units in the last place apart: pmctl.core.vf.TIE)
+        object.__setattr__(self, "_rest_band",
+                           [float(self.kv) * (db + TIE if db else 0.0) / x for x in self._l.ppm])
 
     @classmethod
     def from_machine(cls, machine: Machine, dt: float, *, max_pulses_per_tick=None, k_theta=0.0,

@@ -15,7 +15,10 @@ in ``spec`` (a dict of plain values). Per tick, after the NC step, its hook:
 - writes the status block (counters, model pose, sigma, line, phase, timing) under a sequence
   counter;
 - every 50 ticks checks that the supervisor is still its parent: if it died, the machine is
-  brought to a feed hold on the path, the counters are saved (clean) and the process exits.
+  brought to a feed hold on the path, the counters are saved (clean) and the process exits;
+- rides out a stall of the loop (a moment without ticks: a loaded computer) on a backend that allows
+  it (``Backend.stall_hold``: the sim) with a feed hold on the path, released once ``STALL_RESUME_TICKS``
+  ticks in a row were on time, unless the operator held meanwhile or the path waits at an event.
 A fault (NC halt) or an NC stop drops the queued samples: motion resumes only after an unlock.
 SIGTERM is a quit: hold on the path, save the counters, exit. As it exits, the rt side writes its
 result into the channel (Channel.set_result: end status, reason, ticks, pulses sent, and the loop's
@@ -42,6 +45,10 @@ from pmctl.hal.base import as_inputs
 from pmctl.motion import channel as C
 
 
+FINISHED = "finished: the job ran to its end"     # the quit of a run that is done (C_QUIT 1)
+STALL_RESUME_TICKS = 200          # on-time ticks in a row after a stall before its feed hold is released
+
+
 def apply_nc_overrides(svc, nc: dict | None):
     """A run's NC settings that differ from the service config file (``pmctl run --k-theta --shaper
     --pulse-mode``), applied to ``svc.nc`` the same way in the supervisor and in the rt process. Gains
@@ -52,6 +59,15 @@ def apply_nc_overrides(svc, nc: dict | None):
             if "k_theta_auto" not in nc:
                 svc.nc.k_theta_auto = False
         setattr(svc.nc, key, v)
+    return svc
+
+
+def apply_hal_overrides(svc, hal: dict | None):
+    """A run's backend options that differ from the service config file (``pmctl run --bridge``:
+    ``{"stepdir": {"port": "rp2040-emu"}}``), applied to ``svc.backend_tables`` the same way in the
+    supervisor and in the rt process."""
+    for name, table in (hal or {}).items():
+        svc.backend_tables[name] = {**svc.backend_tables.get(name, {}), **table}
     return svc
 
 
@@ -83,6 +99,10 @@ class RtHook:
         self.probe_seen = float(ch.probe[0])        # the probe table's last announcement taken
         self.probe_seq = 0
         self.probe_row = [float("nan")] * C.PROBE_RESULT_WIDTH
+        self.op_hold = False                        # the supervisor asked for a hold (C_HOLD) not yet resumed
+        self.event_hold = False                     # held at a C_HOLD_AT point until C_RESUME
+        self.stall_hold = False                     # held after a stall; released when on time again
+        self.stall_ok = 0
 
     def probe_fetch(self, fol):
         """ProbeMonitor's ``fetch``: the segment newly announced in the probe table, once the follower
@@ -110,7 +130,9 @@ class RtHook:
             self.last_ack = seq
             if code == C.C_HOLD:
                 sc.hold = True
+                self.op_hold = True
             elif code == C.C_RESUME:
+                self.op_hold = self.event_hold = self.stall_hold = False
                 if not (self.resetting or self.quitting):
                     sc.hold = False
             elif code == C.C_FEED_OV:
@@ -119,12 +141,13 @@ class RtHook:
                 sc.set_rapid_override(a1)
             elif code == C.C_RESET:
                 self.resetting = True
+                self.op_hold = self.event_hold = self.stall_hold = False
                 self.hold_at.clear()
                 sc.hold = True
                 if self.probe is not None:
                     self.probe.cancel(fol)
-            elif code == C.C_QUIT:
-                self.quitting = "stopped by the supervisor"
+            elif code == C.C_QUIT:       # a1 = 1: the job ran to its end (pmctl run), else a stop
+                self.quitting = FINISHED if a1 == 1.0 else "stopped by the supervisor"
                 sc.hold = True
             elif code == C.C_ESTOP:
                 st = _halt(st, "E-stop (software)")
@@ -208,6 +231,14 @@ class RtHook:
         late = getattr(lp, "last_late_ns", 0)
         comp = getattr(lp, "last_compute_ns", 0)
         self.ontime = self.ontime + 1 if (late + comp) < self.period_ns else 0
+        if self.stall_hold:
+            self.stall_ok = self.stall_ok + 1 if (late + comp) < self.period_ns else 0
+            if self.op_hold or self.event_hold or self.resetting or self.quitting:
+                self.stall_hold = False          # a hold of its own takes over: its resume releases it
+            elif self.stall_ok >= STALL_RESUME_TICKS:
+                self.stall_hold = False
+                sc.hold = False
+                self.log(f"resumed after the stall ({STALL_RESUME_TICKS} ticks on time)")
         s = self.st
         s[C.ST_SEQ] += 1.0
         s[C.ST_TICK:C.ST_COUNTS] = (k, _wall(), st.mode, fol.state, sc.sigma, fol.line, fol.s_total,
@@ -257,6 +288,7 @@ class RtHook:
         row, rest = self.hold_at[0]
         if fol.src.consumed + fol.frac + LOOKAHEAD_SAMPLES * sc.sigma * fol.k >= row:
             sc.hold = True
+            self.event_hold = True
             if rest:                  # on a planned stop the path is at rest: sigma means nothing there
                 sc.sigma = sc.dsigma = 0.0
             self.hold_at.pop(0)
@@ -372,7 +404,8 @@ def rt_main(spec: dict) -> int:
     ch.st[C.ST_COUNTS0:C.ST_COUNTS0 + 5] = [float(c) for c in spec["counts"]]
     ch.st[C.ST_DEV_COUNTS:C.ST_DEV_COUNTS + 5] = float("nan")
     machine = load_machine(spec["config"])
-    svc = apply_nc_overrides(load_service_config(spec.get("service")), spec.get("nc"))
+    svc = apply_hal_overrides(apply_nc_overrides(load_service_config(spec.get("service")), spec.get("nc")),
+                              spec.get("hal"))
     cfg = svc.loop
     cfg.rate_hz = float(spec.get("rate_hz") or cfg.rate_hz)
     realtime = bool(spec.get("realtime", cfg.realtime))
@@ -408,6 +441,11 @@ def rt_main(spec: dict) -> int:
             pass
 
     hook = RtHook(ch, machine, params, int(spec["ppid"]), log, offline=offline)
+
+    def on_stall(why):                    # Backend.stall_hold: ride it out on the path (loop.py)
+        hook.stall_hold, hook.stall_ok = True, 0
+        lp.follower.scaler.hold = True
+        log(f"warning: {why}: feed hold on the path, resumed once the ticks are on time again")
     from pmctl.motion.probe import ProbeMonitor
     hook.probe = ProbeMonitor(machine, [], svc.probe, dt, params, fetch=hook.probe_fetch)
 
@@ -417,6 +455,7 @@ def rt_main(spec: dict) -> int:
     lp = ControlLoop(machine, be, params, None, cfg, st, log=log, writer=writer, follower=fol,
                      records=ch.records, recorder=_Null(ch.records, keep=False), hook=hook,
                      exit_when_done=False, setup_rt=realtime and not offline, probe=hook.probe)
+    lp.on_stall = on_stall
     ch.st[C.ST_PHASE] = C.PH_RUNNING
     res = None
     try:
@@ -443,7 +482,8 @@ def rt_main(spec: dict) -> int:
             ch.st[C.ST_PHASE] = C.PH_EXITED
             if os.getppid() != int(spec["ppid"]):
                 ch.close(unlink=True)             # the supervisor died: nobody else removes the segment
-            log(f"stopped: {getattr(lp, 'quit_reason', '') or (res.reason if res else '')}; counters "
+            why = getattr(lp, 'quit_reason', '') or (res.reason if res else '')
+            log(f"{why if why == FINISHED else 'stopped: ' + why}; counters "
                 f"{final.counts.tolist()} saved; pulses sent = counter change: {'yes' if sent_ok else 'NO'}; "
                 + device_agreement(fb, final.counts, ppm))
     return 0

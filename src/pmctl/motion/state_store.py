@@ -47,23 +47,38 @@ class StateLock:
         self._fd = None
         self.path = Path(str(state_path) + ".lock")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                raise PmctlError(f"{state_path}: another pmctl run holds {self.path} "
+                                 f"(one controller per machine)") from None
+            try:                         # the holder before may have removed the file it locked
+                same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
             os.close(fd)
-            raise PmctlError(f"{state_path}: another pmctl run holds {self.path} "
-                             f"(one controller per machine)") from None
         self._fd = fd
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
 
-    def release(self):
+    def release(self, remove: bool = False):
+        """Drop the lock; ``remove`` (a clean exit): the lock file goes too, removed while held."""
         if self._fd is not None:
+            if remove:
+                try:
+                    os.unlink(self.path)
+                except OSError:
+                    pass
             os.close(self._fd)
             self._fd = None
 
-    __del__ = release
+    def __del__(self):                   # the run or the service ended: nothing is left behind
+        self.release(remove=True)
 
 
 @dataclass
@@ -121,20 +136,26 @@ def save_counters(path, counts, *, machine: str, clean: bool, tick: int = 0, off
     atomic_write(path, json.dumps(data) + "\n")
 
 
-def atomic_write(path, text: str) -> None:
+def atomic_write(path, text) -> None:
     """Write ``text`` to ``path`` so that a crash or power cut leaves the old file or the new one,
     never a mix: a temporary sibling (named per process and thread, so two writers never share
-    one), fsync, rename, fsync of the folder."""
+    one), fsync, rename, fsync of the folder. ``text``: a str, or an iterable of str chunks written
+    as they come (a large file is never whole in memory); an error while writing leaves the old file
+    and no temporary."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     try:
-        os.write(fd, text.encode())
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    os.replace(tmp, path)
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            for chunk in ([text] if isinstance(text, str) else text):
+                f.write(chunk)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     try:
         dfd = os.open(path.parent, os.O_RDONLY)
         try:

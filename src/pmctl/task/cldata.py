@@ -36,7 +36,7 @@ import numpy as np
 
 from pmctl.core.errors import InputError
 from pmctl.core.tolerances import AXIS_TOL    # allowed | |V| - 1 |, the same as for pmctl kin --axis
-from pmctl.task.job import LINE, MAX_MOVES, RAPID, Job, Move, check_reach, read_job_text
+from pmctl.task.job import LINE, RAPID, Job, Move, check_reach, read_job_text
 
 DEFAULT_FEED_MM_MIN = 600.0     # 10 mm/s
 DEFAULT_CLEARANCE_MM = 5.0      # approach/retract distance along the tool axis
@@ -121,9 +121,6 @@ def parse_cl(text: str, path="<string>", *, vector="axis") -> CLData:
         elif flag == "e":
             open_pass = None
         n_pass += flag == "s"
-        if len(tips) + 1 + 2 * n_pass > MAX_MOVES:
-            raise InputError(path, lineno, f"more than {MAX_MOVES} moves (with the approach and retract of "
-                                           "each pass): longer than the batch planner takes (split the file)")
         tips.append(vals[:3])
         axes.append(v)
         flags.append(flag)

@@ -124,7 +124,7 @@ class Daemon:
             from pmctl.task.jog import make_jogger
             self.port = ConsolePort(self.console_spec)
             self.console = GrblConsole(sup, self.port.fd, self.journal, log=self.log, jogger=make_jogger(sup),
-                                       homing=self.home)
+                                       homing=self.home, present=self.port.client_present)
             self.console.start()
             self.log(f"console on {self.port.device}" + (f" (link {self.port.link})" if self.port.link else ""))
         from pmctl.task.notify import sd_notify
@@ -159,7 +159,10 @@ class Daemon:
         line = jline if line is None else int(line)
         if start is not None:
             start = (np.asarray(start[:3], float), np.asarray(start[3:], float))
-        job = load_job(path, sup.machine, start=start)
+        from pmctl.task.gcode import reader_options
+        offsets = self.console.interp.offsets() if getattr(self, "console", None) is not None else \
+            self.journal.data.get("offsets")
+        job = load_job(path, sup.machine, start=start, **reader_options(path, sup.svc.interpreter, offsets))
         tip, axis = sup.pose()
         rest = resume_job(job, line, tip, axis, sup.machine, sup.params,
                           CLEARANCE_MM if clearance_mm is None else float(clearance_mm))
@@ -327,5 +330,7 @@ class Daemon:
         self.journal.save(running=False)
         if self.port is not None:
             self.port.close()
+        if self.lock is not None:
+            self.lock.release(remove=True)
         self.log(f"stopped; counters {None if counts is None else counts.tolist()}")
         return 0

@@ -27,19 +27,23 @@ Fields added for the full RS-274 reader (each defaults to the old meaning):
 - ``tool_offset``: the tool length offset in force (G43 H / G43.1, mm; 0 with G49): the tool is that much
   longer than the machine config's reference tool (``geometry.tool_length``), so the platform sits
   ``tool_offset`` further up the tool axis for the same tip; every IK of the move's poses uses
-  ``tool_length + tool_offset``;
+  ``tool_length + tool_offset``, which is IK of ``controlled_point(tip, axis, tool_offset)`` with the
+  reference tool: the planner converts every pose it plans, once, and its samples are of that point;
+  a change of offset is taken up by the move after it;
 - ``duration``: G93 inverse-time feed: the move takes this many seconds at 100 % feed (0: ``feed`` applies);
 - ``tolerance``: G64 P, the path tolerance (mm) the planner may use to blend or merge (0: exact path);
 - ``events``: for ``EVENT``, a tuple of (name, value) in program order: ``("spindle", rpm)`` (signed, 0
   = stop), ``("coolant", "mist" | "flood" | "off")``, ``("tool_change", n)`` (M6: wait for the operator),
-  ``("pause", "M0" | "M1" | "M60")``, ``("output", (name, index, value))`` (M62-M68; the sim records them),
-  ``("message", text)``, ``("user_m", (code, p, q))`` (a configured M100-M199);
+  ``("tool_offset", mm)`` (G43/G43.1/G49 changed the tool length offset at rest: the EVENT's tip is the
+  new tip, the reference tool's point has not moved), ``("pause", "M0" | "M1" | "M60")``,
+  ``("output", (name, index, value))`` (M62-M68, name "digital" or "analog"; the sim records them),
+  ``("message", text)``, ``("user_m", (code, p, q))`` (a configured M100-M199); docs/gcode.md, "Events";
 - ``file``: the source file when it is not the job's own (an external O-word subroutine); "" otherwise.
 
 ``load_job(path, machine)`` reads a file of either format by its suffix; ``read_job_text(path)`` is how
 both readers get the text (UTF-8, at most ``MAX_JOB_BYTES`` and ``MAX_JOB_LINES``; a bad byte is reported with its line and
-column). A job holds at most ``MAX_MOVES`` moves (the batch planner's bound; the readers refuse the
-line that crosses it). ``Job.messages`` holds the program's operator messages (G-code ``(MSG, ...)`` comments) as
+column). There is no bound on the number of moves: the streaming planner holds an index of the
+job's segments and one window of it (docs/planning.md). ``Job.messages`` holds the program's operator messages (G-code ``(MSG, ...)`` comments) as
 (line, text) pairs, for the operator to see before the job runs.
 """
 
@@ -51,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core import kinematics as K
-from pmctl.core.errors import InputError
+from pmctl.core.errors import InputError, JobProblems, Problem
 
 RAPID, LINE, ARC, DWELL, EVENT = "rapid", "line", "arc", "dwell", "event"
 KINDS = (RAPID, LINE, ARC, DWELL, EVENT)
@@ -60,8 +64,6 @@ GCODE_SUFFIXES = (".ngc", ".nc", ".gcode", ".tap")
 CL_SUFFIXES = (".cl", ".cls", ".txt", ".csv")
 MAX_JOB_BYTES = 8 * 2**20         # a job file larger than this is refused before it is parsed (~300k lines)
 MAX_JOB_LINES = 200_000           # lines in a job file (4x the move bound: room for comments and modal lines)
-MAX_MOVES = 50_000                # moves in one job: the batch planner's bound (~12 s of planning), checked
-                                  # by the readers as they go (the line that crosses it is named)
 
 
 @dataclass(frozen=True)
@@ -119,6 +121,19 @@ def read_job_text(path) -> str:
         raise InputError(path, line, f"byte 0x{raw[e.start]:02x} is not UTF-8 text", column=col) from None
 
 
+def controlled_point(tip, axis, tool_offset):
+    """The point the machine's model must put its tip on for the tool tip ``tip`` with the tool axis
+    ``axis`` (unit) and a tool ``tool_offset`` mm longer than the reference tool: ``tip + tool_offset *
+    axis`` (any leading dimensions; ``tool_offset`` broadcasts). The machine model (pmctl.core.kinematics,
+    the rt side, the simulation, recordings) knows only the reference tool (``geometry.tool_length``):
+    IK of this point with it is IK of ``tip`` with a tool of ``tool_length + tool_offset``. The planner
+    applies it, once, to every pose it plans (its samples are of this point); this is the one place
+    where the conversion is written."""
+    tip = np.asarray(tip, float)
+    off = np.asarray(tool_offset, float)
+    return tip + off[..., None] * np.asarray(axis, float)
+
+
 def home_pose(machine):
     """Tool tip (W) and axis at home: P = (0, 0, Z_home), level platform, table at X = Y = 0."""
     g = machine.geometry
@@ -126,8 +141,9 @@ def home_pose(machine):
     return tip, axis / np.linalg.norm(axis)
 
 
-def check_reach(tip, axis, lines, machine, path) -> K.IKResult:
-    """IK of every pose; InputError at the first line whose pose is out of the tilt range or unreachable."""
+def check_reach(tip, axis, lines, machine, path, tool_offset=None) -> K.IKResult:
+    """IK of every pose (with the tool length offsets ``tool_offset`` of the poses, mm; None: the
+    reference tool); InputError at the first line whose pose is out of the tilt range or unreachable."""
     lo, hi = machine.limits.theta2_deg
     tilt = np.degrees(np.arccos(np.clip(axis[:, 2], -1.0, 1.0)))
     bad = tilt > min(abs(lo), abs(hi)) + 1e-9
@@ -135,6 +151,8 @@ def check_reach(tip, axis, lines, machine, path) -> K.IKResult:
         k = int(np.argmax(bad))
         raise InputError(path, int(lines[k]), f"tool axis tilted {tilt[k]:.4f} deg, beyond the machine's "
                                               f"theta2 limit {min(abs(lo), abs(hi)):g} deg")
+    if tool_offset is not None:
+        tip = controlled_point(tip, axis / np.linalg.norm(axis, axis=-1, keepdims=True), tool_offset)
     r = K.ik_batch(tip, axis, machine)
     if not np.all(r.ok):
         k = int(np.argmax(~r.ok))
@@ -161,3 +179,37 @@ def load_job(path, machine, *, start=None, **options) -> Job:
         return read_cl_job(path, machine, **options)
     raise InputError(path, None, f"unknown job format {suffix!r}: use G-code ({' '.join(GCODE_SUFFIXES)}) "
                                  f"or CL data ({' '.join(CL_SUFFIXES)})")
+
+
+_UNSUPPORTED_WORDS = ("not supported", "unsupported", "refused", "unknown job format", "is not implemented")
+
+
+def problem_kind(reason: str) -> str:
+    """The kind of a reader's refusal (``syntax`` or ``unsupported``) from its message: what the reader
+    understood but does not do is ``unsupported``, anything malformed ``syntax``."""
+    low = reason.lower()
+    return "unsupported" if any(w in low for w in _UNSUPPORTED_WORDS) else "syntax"
+
+
+def parse_job(path, machine, *, start=None, **options) -> tuple:
+    """Read and parse a job file without checking it against the machine, and without raising:
+    (Job or None, [Problem, ...]). Every problem the reader reports is listed: the G-code reader
+    (pmctl.task.rs274) finds them all and gives the job of the blocks that had none; the CL reader
+    stops at its first refusal (no job). The machine and the planner are checked by pmctl.task.jobcheck.
+    ``start`` and ``options`` as for :func:`load_job`."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    try:
+        if suffix in GCODE_SUFFIXES:
+            from pmctl.task.gcode import interpret_file      # (job, problems): every problem, no raise
+            return interpret_file(path, machine, start=start, **options)
+        if suffix in CL_SUFFIXES:
+            from pmctl.task.cldata import cl_job, parse_cl
+            vector = options.pop("vector", "axis")
+            return cl_job(parse_cl(read_job_text(path), path, vector=vector), None, **options), []
+        raise InputError(path, None, f"unknown job format {suffix!r}: use G-code ({' '.join(GCODE_SUFFIXES)}) "
+                                     f"or CL data ({' '.join(CL_SUFFIXES)})")
+    except JobProblems as e:
+        return None, list(e.problems)
+    except InputError as e:
+        return None, [Problem(e.path, e.line, e.column, problem_kind(e.reason), e.reason)]

@@ -3,22 +3,36 @@
 Public API (stable)::
 
     plan(job, machine, dt, *, feed_override=1.0, limits=PlannerLimits(), start=None) -> Trajectory
-    validate(job, machine, dt, ...) -> path index  # the whole job checked, bounded memory
+    validate(job, machine, dt, ..., full=False, problems=None) -> path index  # checked, bounded memory
     plan_stream(job, machine, dt, ..., path=None)  # Trajectory pieces; joined = plan(...)
     home_pose(machine) -> (tip, axis)          # the default start pose (q at home)
     load_job(path, machine, **options)         # re-exported from pmctl.task.job, dispatches on suffix
 
 ``start`` is (tip, axis) in W where the tool is when the job begins (default: the home pose, tool
 vertical at Z_home with the table centred). The first sample is exactly ``start``, the last exactly the
-last programmed point; ``Trajectory.points`` holds the job's programmed points.
+last programmed point; ``Trajectory.points`` holds the job's programmed points. docs/planning.md says
+what a user needs to know (CAM output, tolerances, the checks); this says how it is done.
 
 How it works (all vectorised with numpy):
 
 1. **Geometry.** Each move becomes a segment with a path parameter s: the tip's arc length (for a
    pure reorientation, or a tilt whose tip travels under ``ROT_SWITCH`` of it, ``rotation_length_mm``
-   x the slerp angle). Tip: straight line, or arc/helix in
-   XY about the centre; tool axis: slerp between the end axes. The path is exactly the programmed one:
-   corners are never rounded.
+   x the slerp angle, plus the change of the tool length offset). Tip: straight line, or arc/helix in
+   any plane (``_arc_frame``: a centre point, the plane's normal; the radius and the height along the
+   normal linear in the angle); tool axis: slerp between the end axes. A G93 move's top speed is its
+   length / duration. A tool length offset (Move.tool_offset) moves every pose the planner plans to
+   the controlled point tip + offset * axis (pmctl.task.job.controlled_point: the reference tool's tip,
+   what the machine's model commands); IK, the joint limits and the samples are of that point, the
+   feed and the tip's limits of the programmed tip. Corners are never rounded, except under G64 P
+   (Move.tolerance > 0): a corner between two feed lines with the same feed, spindle speed, offset
+   and axis, turning by less than ``BLEND_MAX_TURN``, is replaced by a tangent arc whose middle is P
+   from the corner (``_blend``; at most half of each line). **CAM output**: a run
+   of feed lines with the same feed, spindle speed, offset, tolerance and tool axis is simplified
+   before anything else (``_merged_away``, LinuxCNC's naive-CAM detector, Douglas-Peucker): every
+   dropped point within the run's tolerance (G64 P, Move.tolerance; without one the larger of
+   ``naive_cam_mm`` and the resolution the coordinates are written at, at most ``MAX_QUANTUM_MM``) of
+   the line that replaces it, never across a turn back. Samples of a merged segment carry the line
+   of the absorbed move they are on (``_Path.lines``).
 2. **Limits along the path** on a grid in s (``grid_mm``): the feed (F x override, or the rapid speed)
    on the tip speed, the tool-axis angular rate, the tip's normal acceleration on curves, and the
    joint speed/acceleration limits of ``machine.limits``: q' = dq/ds and q'' from ``ik_batch`` by
@@ -26,7 +40,8 @@ How it works (all vectorised with numpy):
 3. **Junctions** (grbl/Klipper-style look-ahead, adapted to a sampled trajectory that passes through
    the corner point): the velocity direction changes within one tick, so the corner speed is limited
    to v_j <= a_max dt / |d_out - d_in| for the tip and each joint. Exact stops at the start and end,
-   dwells (G4), spindle changes and reversals.
+   dwells (G4), EVENT moves (spindle, coolant, tool change, pause...: pmctl.task.job), spindle changes
+   and reversals.
 4. **Velocity profile**: backward and forward passes of v^2 <= v_prev^2 + 2 a ds in closed form
    (prefix sums and running minima), giving a time-optimal, acceleration-limited profile s(t).
 5. **Jerk limit**: s(t) is averaged over a moving window T = 2 a_t / j (exactly, via the integral of
@@ -34,40 +49,57 @@ How it works (all vectorised with numpy):
    the filtered profile has trapezoidal acceleration (an S-curve) with jerk <= 2 a_t / T. Limits are
    eroded beforehand (each cap extends c T around its point, every stop is held for T) so the filtered
    profile still respects them.
-6. **Exact arrival**: a time warp puts every segment end on a tick, and that sample is set to the
-   programmed pose itself (tip and axis, bit for bit). The warped clock lags real time by D(t), a
-   monotone (PCHIP) interpolant of the lags at the ends, so the warp rate 1 - D' is <= 1: it only ever
-   slows the profile (by at most about one tick per segment) and never breaks a limit. Samples held at
-   a stop sit exactly on the point with zero velocity; those of a dwell carry the G4's line.
+6. **Exact arrival**: a time warp puts every knot on a tick, and that sample is set to the programmed
+   pose itself (tip and axis, bit for bit). The knots (``_Path.pin``) are the stops and, walking along
+   the path, every boundary at least two ticks of top speed past the last knot: every segment end of
+   ordinary moves; inside a run of micro-segments (shorter than that, left after merging) the points
+   between knots are passed through on the path, not sampled (a tick each would make the samples'
+   speed follow the segments' lengths). The warped clock lags real time by D(t), a
+   monotone (PCHIP) interpolant of the lags at the knots, so the warp rate 1 - D' is <= 1: it only ever
+   slows the profile (by at most about one tick per knot) and never breaks a limit. Samples held at
+   a stop sit exactly on the point with zero velocity; those of a dwell carry the G4's line. Each
+   EVENT move puts a mark (sample index in the piece, line, events) into ``Trajectory.marks`` on a
+   sample held at its stop: the boundary's own tick, or, where a dwell is programmed at the same
+   point, the dwell's sample after the part of the dwell programmed before the EVENT. Marks are in
+   program order and the same from ``plan`` and ``plan_stream`` (``Trajectory.join`` keeps them); a job
+   that does not move (only EVENTs and dwells) plans to its dwells' samples (one sample without a
+   dwell) at the start pose, carrying the marks.
 7. **Check and iterate**: the samples go through ``ik_batch``; an unreachable sample raises InputError
    with the job line; joint speed/acceleration, tip speed and acceleration are measured on the samples
    by finite differences, and where one exceeds its limit by more than ``VIOLATION_TOL`` the caps around
-   it are lowered and the profile is re-planned (``max_iterations``, else PlanningError).
+   it are lowered and the profile is re-planned (``max_iterations``). Where that does not meet the
+   limits, the **fallback** (``_fall_back``): the segments around the offending samples get exact stops
+   at both ends and half their top speed, and the path is planned again; after ``MAX_FALLBACKS``
+   rounds PlanningError names the line.
 
-Resource bounds: the planner holds the whole trajectory in memory (about 0.75 kB per sample at its
-peak), so it refuses, with the file, the line and the reason and before allocating anything large,
-a job of more than ``MAX_MOVES`` moves (pmctl.task.job), of more than ``MAX_SAMPLES`` ticks (20 min
-at 1 kHz) or a path of more than
-``MAX_GRID_POINTS`` limit-grid points (500 m at the default 0.25 mm grid). The duration is checked
+Resource bounds: the batch planner holds the whole trajectory in memory (about 0.75 kB per sample at
+its peak), so it refuses, with the file, the line and the reason and before allocating anything large,
+a job of more than ``MAX_SAMPLES`` ticks (20 min at 1 kHz) or a path of more than ``MAX_GRID_POINTS``
+limit-grid points (500 m at the default 0.25 mm grid). The duration is checked
 three times: a lower bound (length / feed + dwells) before the limit grid, the grid size before
 it is built, and the profile's true duration before it is sampled. A typo such as ``F0.42`` or a
-``G4`` of days is refused this way in well under a second.
+``G4`` of days is refused this way in well under a second. There is no bound on the number of moves.
 
 Streaming (``plan_stream``, what the daemon and ``pmctl run`` use): ``validate`` checks the whole job
 first in chunks (feeds, a duration bound of ``MAX_STREAM_SECONDS``, the size of each move, the
 reachability of every programmed pose and of the path between them every ``grid_mm``), so a bad line
-is refused, named, before anything moves. Then windows of ``STREAM_WINDOW`` segments are planned
+is refused, named, before anything moves; ``validate(full=True)`` also plans the whole job, window by
+window without keeping samples, and puts the fallback into the path where it is needed, so that
+``plan_stream(path=...)`` of that path cannot fail midway (pmctl check, pmctl run and the supervisor
+do this). Then windows of about ``STREAM_WINDOW`` segments, from knot to knot, are planned
 by steps 2-7 above, each with margins of path on both sides: everything a sample depends on (cap
 erosion, junction caps, the jerk filter, the warp's neighbouring knots, re-planning around a
 violation) reaches a bounded distance of about v T, and the look-ahead of the speeds is checked (the
 passes run again with the margins' ends at rest and must agree inside, else the margin doubles). A
 window is computed in the job's own path coordinate and time is summed in extended precision, so
 the pieces agree with ``plan`` to ~1e-11 mm on the bundled jobs (a few 1e-9 mm where a boundary is
-passed at nearly zero speed). Memory: the job's segment index (~0.3 kB per move) and one window,
+passed at nearly zero speed). Memory: the job's segment index (~0.4 kB per move) and one window,
 sampled ``SAMPLE_CHUNK`` ticks at a time.
 
 Feeds are capped at ``rapid_mm_s``, the tool tip's top speed. Cost: a 10-minute 5-axis CL job
-(18 000 moves, 614 000 samples at 1 kHz) plans in about 4 s of CPU (benchmarks/bench_planner.py).
+(18 000 moves, 614 000 samples at 1 kHz) plans in about 4 s of CPU (benchmarks/bench_planner.py); a
+1.10 MB V-carve program of 31 000 steps of 1 um and less is read, checked and planned in about 1.1 s of
+CPU (benchmarks/bench_microsegments.py).
 """
 
 from __future__ import annotations
@@ -78,8 +110,8 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 
 from pmctl.core import kinematics as K
-from pmctl.core.errors import InputError, PmctlError
-from pmctl.task.job import ARC, DWELL, MAX_MOVES, RAPID, Job, home_pose, load_job  # noqa: F401  (re-exported)
+from pmctl.core.errors import InputError, PmctlError, Problem
+from pmctl.task.job import ARC, DWELL, EVENT, LINE, RAPID, Job, controlled_point, home_pose, load_job  # noqa: F401
 from pmctl.task.trajectory import Trajectory
 
 __all__ = ["PlannerLimits", "plan", "plan_stream", "validate", "home_pose", "load_job", "PlanningError"]
@@ -100,7 +132,23 @@ STREAM_KEEP = 60_000          # a window's samples up to this count are kept fro
 
 
 class PlanningError(PmctlError):
-    """The planner could not meet the limits (should not happen for a reachable job)."""
+    """The planner could not meet the limits (should not happen for a reachable job); ``path`` and
+    ``line`` say where, when known."""
+
+    def __init__(self, msg, path=None, line=None):
+        self.path, self.line = path, line
+        super().__init__(msg)
+
+
+class _NotConverged(Exception):
+    """The limits still fail on the samples after ``max_iterations``: the segments of the offending
+    samples and the line of the first."""
+
+    def __init__(self, path, s_bad):
+        super().__init__()
+        seg, u = path.locate(np.sort(s_bad))
+        self.segs = seg
+        self.line = int(path.lines(seg[:1], u[:1])[0])
 
 
 @dataclass(frozen=True)
@@ -113,6 +161,7 @@ class PlannerLimits:
     joint_fraction: float = 0.9       # share of the joint speed/accel limits the plan may use
     grid_mm: float = 0.25             # spacing of the limit grid along the path
     max_iterations: int = 10
+    naive_cam_mm: float = 0.0005      # least path tolerance of a run of feed lines without G64 P (a chain pulse)
 
     @property
     def tangential_accel(self):
@@ -125,90 +174,355 @@ class PlannerLimits:
 
 # ---------------------------------------------------------------- geometry
 
-class _Path:
-    """Segments of a job as arrays; pose(seg, u) evaluates any number of points at once."""
+MERGE_CHUNK = 4096            # points of a run of lines simplified at once (bounds the work of a run)
+MAX_QUANTUM_MM = 0.01         # the coarsest coordinate resolution taken as a run's default tolerance
+_QUANTA = sorted([10.0 ** -k for k in range(2, 7)] + [25.4 * 10.0 ** -k for k in range(3, 8)], reverse=True)
 
-    def __init__(self, job: Job, start, limits: PlannerLimits, feed_override: float):
+
+def _quantum(pts):
+    """The resolution the points' coordinates are written at (mm): the coarsest of 10^-k mm and
+    10^-k inch (k such that it is at most MAX_QUANTUM_MM) that every coordinate is a multiple of; 0
+    when none is."""
+    for q in _QUANTA:
+        if q <= MAX_QUANTUM_MM * (1 + 1e-9):
+            x = pts / q
+            if np.all(np.abs(x - np.round(x)) < 1e-6):
+                return q
+    return 0.0
+
+
+def _merged_away(job: Job, start, limits: PlannerLimits):
+    """Which moves' end points the planner drops (a bool per move): LinuxCNC's naive-CAM detector. A
+    run of consecutive feed lines (LINE, no probing, no G93 duration) with the same feed, spindle
+    speed, tool offset, tolerance and tool axis (the axis of the point before the run too) is
+    simplified within its tolerance: G64 P (``Move.tolerance``), or where that is 0 the larger of
+    ``limits.naive_cam_mm`` and the resolution the run's coordinates are written at (``_quantum``: a
+    point written to 4 decimals in inches is only known to 2.54 um; dropping it within that loses
+    nothing the program says). Every dropped point lies within the tolerance of the line that replaces it (Douglas-Peucker
+    on the tip points, a run of more than ``MERGE_CHUNK`` points in chunks), so the path stays within
+    the tolerance of the programmed one; the lines kept run through kept points exactly."""
+    moves = job.moves
+    nm = len(moves)
+    drop = np.zeros(nm, bool)
+    if nm < 2:
+        return drop
+    line_kind = np.fromiter((m.kind == "line" and not m.probe and not m.duration > 0 for m in moves), bool, nm)
+    if line_kind.sum() < 2:
+        return drop
+    tips = np.array([m.tip for m in moves], float)
+    axes = np.array([m.axis for m in moves], float)
+    attrs = np.array([(m.feed, m.spindle_rpm, m.tool_offset, m.tolerance) for m in moves], float)
+    moving = np.fromiter((m.kind not in (DWELL, EVENT) for m in moves), bool, nm)
+    # the point before each move (its start) and the axis there
+    prev_tip = np.empty_like(tips)
+    prev_axis = np.empty_like(axes)
+    last_tip, last_axis = np.asarray(start[0], float), np.asarray(start[1], float)
+    for i in range(nm):
+        prev_tip[i], prev_axis[i] = last_tip, last_axis
+        if moving[i]:
+            last_tip, last_axis = tips[i], axes[i]
+    # move i continues the run of move i-1: both lines, nothing between them, the same attributes, the
+    # same axis all along
+    same = np.zeros(nm, bool)
+    same[1:] = (line_kind[1:] & line_kind[:-1] & np.all(attrs[1:] == attrs[:-1], axis=1)
+                & np.all(axes[1:] == axes[:-1], axis=1) & np.all(prev_axis[:-1] == axes[:-1], axis=1))
+    i = 1
+    while i < nm:
+        if not same[i]:
+            i += 1
+            continue
+        a = i - 1                         # the run: moves a .. b, points prev_tip[a], tips[a .. b]
+        b = i
+        while b + 1 < nm and same[b + 1]:
+            b += 1
+        tol = attrs[a, 3]
+        if not tol > 0:
+            tol = max(limits.naive_cam_mm, _quantum(np.vstack([prev_tip[a][None], tips[a:b + 1]])))
+        c0 = a
+        while c0 <= b:                             # moves c0 .. c1 from the kept point before c0
+            c1 = min(b, c0 + MERGE_CHUNK - 1)      # (c1's end is kept)
+            pts = np.vstack([prev_tip[c0][None], tips[c0:c1 + 1]])
+            drop[c0:c1 + 1] = ~_douglas_peucker(pts, tol)[1:]
+            c0 = c1 + 1
+        i = b + 1
+    return drop
+
+
+def _douglas_peucker(pts, tol):
+    """Points of a polyline to keep (the ends always) so that each dropped point is within ``tol`` of
+    the chord between the kept points around it, and the dropped points go along the chord without
+    turning back by more than ``tol``."""
+    keep = np.zeros(len(pts), bool)
+    keep[0] = keep[-1] = True
+    stack = [(0, len(pts) - 1)]
+    while stack:
+        a, b = stack.pop()
+        if b - a < 2:
+            continue
+        p, q = pts[a], pts[b]
+        d = q - p
+        dd = float(d @ d)
+        w = pts[a + 1:b] - p
+        t = np.clip(w @ d / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(w))
+        dist = np.linalg.norm(w - t[:, None] * d, axis=1)
+        if dd > 0:                 # a run that turns back along the chord is no straight line: keep its turns
+            along = w @ d / np.sqrt(dd)
+            dist = np.maximum(dist, np.maximum.accumulate(along) - along)
+        k = int(np.argmax(dist))
+        if dist[k] > tol:
+            m = a + 1 + k
+            keep[m] = True
+            stack.append((a, m))
+            stack.append((m, b))
+    return keep
+
+
+SYNTH_KNOT_TICKS = 25         # ticks of top speed between knots that are no programmed point
+BLEND_MAX_TURN = np.radians(170.0)   # a corner turning more than this is not rounded (nearly a reversal)
+
+
+def _blend(tip, corner, m, m2, axis, a_1):
+    """The arc rounding the corner at the end of feed line ``m`` (from ``tip``; the corner before it,
+    the last programmed point, is ``corner``) into the next move ``m2``, within the tolerance G64 P:
+    (end of the shortened line, end of the arc, arc frame, turn angle), or None where the corner is not
+    rounded (m2 not a feed line with the same feed, spindle speed, offset and tool axis; no turn; a
+    turn of more than BLEND_MAX_TURN). The arc is tangent to both lines; its middle is within the
+    tolerance of the corner; it takes at most half of each line (corner to corner)."""
+    if (m2.kind != LINE or m2.probe or m2.duration > 0 or not m2.tolerance > 0 or m2.feed != m.feed
+            or m2.spindle_rpm != m.spindle_rpm or m2.tool_offset != m.tool_offset):
+        return None
+    a2 = np.asarray(m2.axis, float)
+    if not (np.allclose(a2 / np.linalg.norm(a2), a_1, rtol=0, atol=1e-12) and np.allclose(axis, a_1, rtol=0,
+                                                                                        atol=1e-12)):
+        return None
+    c = np.asarray(m.tip, float)
+    v_in, v_out = c - np.asarray(corner, float), np.asarray(m2.tip, float) - c
+    l_in, l_out = float(np.linalg.norm(v_in)), float(np.linalg.norm(v_out))
+    if l_in < 1e-9 or l_out < 1e-9 or float(np.linalg.norm(c - tip)) < 1e-9:
+        return None
+    d_in, d_out = v_in / l_in, v_out / l_out
+    turn = float(np.arccos(np.clip(d_in @ d_out, -1.0, 1.0)))
+    if not 1e-7 < turn < BLEND_MAX_TURN:
+        return None
+    tol = min(float(m.tolerance), float(m2.tolerance))
+    h = 0.5 * turn
+    r = tol * np.cos(h) / (1.0 - np.cos(h))       # the arc's middle is tol from the corner
+    d = r * np.tan(h)
+    dmax = 0.5 * min(l_in, l_out, 2.0 * float(np.linalg.norm(c - tip)))
+    if d > dmax:
+        d = dmax
+        r = d / np.tan(h)
+    q1, q2 = c - d * d_in, c + d * d_out
+    n = np.cross(d_in, d_out)
+    n = n / np.linalg.norm(n)
+    centre = q1 + r * np.cross(n, d_in)
+    e1 = (q1 - centre) / r
+    return q1, q2, (centre, n, e1, np.cross(n, e1), r, r, 0.0, 0.0), turn
+
+
+def _arc_frame(p_start, p_end, m):
+    """The frame of an ARC move from ``p_start``: (centre point, unit normal, e1, e2, r0, r1, h0, h1);
+    the tip is c + h n + r (cos(sweep u) e1 + sin(sweep u) e2) with r and h linear in u (e1 towards the
+    start, e2 = n x e1: a positive sweep turns counter-clockwise seen from the tip of n). A 2-vector
+    centre is an XY arc's (x, y); a missing normal is +z (G17)."""
+    c = np.asarray(m.center, float)
+    if c.shape == (2,):
+        c = np.array([c[0], c[1], 0.0])
+    n = np.array([0.0, 0.0, 1.0]) if m.normal is None else np.asarray(m.normal, float)
+    n = n / np.linalg.norm(n)
+    w0, w1 = p_start - c, p_end - c
+    h0, h1 = float(np.dot(w0, n)), float(np.dot(w1, n))
+    d0, d1 = w0 - h0 * n, w1 - h1 * n
+    r0, r1 = float(np.linalg.norm(d0)), float(np.linalg.norm(d1))
+    if r0 > 1e-12:
+        e1 = d0 / r0
+    elif r1 > 1e-12:              # starting on the axis: e1 is where the end lies, turned back by the sweep
+        f1 = d1 / r1
+        e1 = np.cos(m.sweep) * f1 - np.sin(m.sweep) * np.cross(n, f1)
+    else:
+        e1 = K._perp_basis(n)[0]
+    return c, n, e1, np.cross(n, e1), r0, r1, h0, h1
+
+
+_SEG_FIELDS = ("kind", "p0", "p1", "a0", "a1", "phi", "c", "nrm", "e1", "e2", "r0", "r1", "h0", "h1", "sweep",
+               "length", "vmax", "rot", "feed_length", "line", "rpm", "off0", "off1")
+
+
+class _Path:
+    """Segments of a job as arrays; pose(seg, u) evaluates any number of points at once.
+
+    The tip is the programmed (cutting) tip; ``controlled`` adds the tool length offset
+    (pmctl.task.job.controlled_point): the point the machine's model, built for the reference tool,
+    must put its tip on. Every IK of the planner and every sample it hands out is of that point."""
+
+    def __init__(self, job: Job, start, limits: PlannerLimits, feed_override: float, dt: float):
         tip, axis = (np.asarray(start[0], float), np.asarray(start[1], float))
         axis = axis / np.linalg.norm(axis)
         # Filled move by move into arrays of the job's size (no per-move objects: a long job's index
-        # stays at ~0.3 kB per move), trimmed to the segments at the end.
+        # stays at ~0.4 kB per move), trimmed to the segments at the end.
         nm = len(job.moves)
+        nm += sum(1 for m in job.moves if m.tolerance > 0)       # room for the arcs rounding corners
         kind = np.zeros(nm, int)
-        p0, p1, a0, a1 = (np.zeros((nm, 3)) for _ in range(4))
-        phi, r0, r1, th0, sweep, length, vmax_, rpm_ = (np.zeros(nm) for _ in range(8))
-        cc = np.zeros((nm, 2))
+        p0, p1, a0, a1, cc, nrm, e1, e2 = (np.zeros((nm, 3)) for _ in range(8))
+        phi, r0, r1, h0, h1, sweep, length, vmax_, rpm_, off0, off1 = (np.zeros(nm) for _ in range(11))
         rot_ = np.zeros(nm, bool)
         tip_len = np.zeros(nm)             # the length the feed applies to (the tip's; s for a pure rotation)
         line_ = np.zeros(nm, int)
         n = 0
         stop = {0}                    # boundaries (index = segments completed) with an exact stop
         dwell, dwell_line = {}, {}
+        ev_b, ev_before, ev_line, ev_data = [], [], [], []     # EVENT moves: boundary, dwell before, line
         rpm_prev = None
+        off = 0.0                     # the tool length offset at the start pose: none (the reference tool)
         self.start_line = job.moves[0].line if job.moves else 0
-        for m in job.moves:
+        drop = _merged_away(job, start, limits)
+        # the next move kept after each (-1: none), and which may round its corner with it (G64 P)
+        nxt = np.full(len(job.moves), -1)
+        kept = np.nonzero(~drop)[0]
+        if len(kept) > 1:
+            nxt[kept[:-1]] = kept[1:]
+        blendable = np.fromiter((m.kind == LINE and m.tolerance > 0 and not m.probe and not m.duration > 0
+                                 for m in job.moves), bool, len(job.moves))
+        corner = tip                  # the last programmed point kept (a rounded corner is not reached)
+        synth = set()                 # boundaries that are no programmed point (the ends of rounding arcs)
+        absorbed = []                 # (end point, line) of the moves merged into the next segment
+        mrg_seg, mrg_u, mrg_line = [], [], []
+        for i_m, m in enumerate(job.moves):
+            if drop[i_m]:
+                absorbed.append((m.tip, m.line))
+                continue
             if m.kind == DWELL:
                 b = n
                 stop.add(b)
                 dwell[b] = dwell.get(b, 0.0) + float(m.dwell)
                 dwell_line[b] = m.line
                 continue
+            if m.kind == EVENT:       # an exact stop; its mark goes on the stop's sample (after the
+                stop.add(n)           # dwells programmed before it at this point)
+                ev_b.append(n)
+                ev_before.append(dwell.get(n, 0.0))
+                ev_line.append(int(m.line))
+                ev_data.append(tuple(m.events))
+                continue
             t1 = np.asarray(m.tip, float)
             a_1 = np.asarray(m.axis, float)
             a_1 = a_1 / np.linalg.norm(a_1)
-            ph = float(np.arccos(np.clip(np.dot(axis, a_1), -1.0, 1.0)))
-            if m.kind == ARC:
-                c = np.asarray(m.center, float)[:2]
-                rr0 = float(np.hypot(*(tip[:2] - c)))
-                rr1 = float(np.hypot(*(t1[:2] - c)))
-                rm = 0.5 * (rr0 + rr1)
-                ltip = float(np.hypot(rm * m.sweep, t1[2] - tip[2]))
+            o1 = float(m.tool_offset)
+            # the pieces of this move: (end point, arc frame or None, sweep); a corner between two feed
+            # lines under G64 P is rounded by an arc within the tolerance (_blend)
+            j = nxt[i_m]
+            bl = _blend(tip, corner, m, job.moves[j], axis, a_1) if j >= 0 and blendable[i_m] else None
+            if bl is None:
+                pieces = [(t1, _arc_frame(tip, t1, m) if m.kind == ARC else None, float(m.sweep))]
             else:
-                ltip = float(np.linalg.norm(t1 - tip))
-            rot = ltip < 1e-6
-            # s is the tip's arc length, but for a tilt with a tiny tip motion (under ROT_SWITCH x
-            # the rotation length) it is the rotation length: with 1e-5 mm of tip for 2 degrees the
-            # joint derivatives dq/ds would be 1e6 and the acceleration caps crawl (2300 s for a
-            # 3 s move). The feed still caps the tip's speed (v <= F / |dtip/ds|).
-            ln = limits.rotation_length_mm * ph if rot or ltip < ROT_SWITCH * limits.rotation_length_mm * ph else ltip
-            if ln < 1e-9:
-                tip, axis = t1, a_1        # nothing moves: the point is the current pose
-                continue
-            if rpm_prev is not None and m.spindle_rpm != rpm_prev:
-                stop.add(n)
-            rpm_prev = m.spindle_rpm
-            vm = limits.rapid_mm_s if m.kind == RAPID else min(m.feed * feed_override, limits.rapid_mm_s)
-            if not vm > 0:
-                raise InputError(job.source, m.line, f"move has no positive feed ({vm!r} mm/s)")
-            p0[n], p1[n], a0[n], a1[n], phi[n] = tip, t1, axis, a_1, ph
-            if m.kind == ARC:
-                kind[n], cc[n], r0[n], r1[n] = 1, c, rr0, rr1
-                th0[n], sweep[n] = float(np.arctan2(tip[1] - c[1], tip[0] - c[0])), float(m.sweep)
-            line_[n], rpm_[n], length[n], rot_[n], vmax_[n] = m.line, m.spindle_rpm, ln, rot, vm
-            tip_len[n] = ln if rot else ltip
-            n += 1
-            tip, axis = t1, a_1
+                pieces = [(bl[0], None, 0.0), (bl[1], bl[2], bl[3])]
+            corner = t1
+            for t1, arc, sw in pieces:
+                ph = float(np.arccos(np.clip(np.dot(axis, a_1), -1.0, 1.0)))
+                if arc is not None:
+                    ltip = float(np.hypot(0.5 * (arc[4] + arc[5]) * sw, arc[7] - arc[6]))
+                else:
+                    ltip = float(np.linalg.norm(t1 - tip))
+                rot = ltip < 1e-6
+                # s is the tip's arc length, but for a tilt with a tiny tip motion (under ROT_SWITCH x
+                # the rotation length) it is the rotation length: with 1e-5 mm of tip for 2 degrees the
+                # joint derivatives dq/ds would be 1e6 and the acceleration caps crawl (2300 s for a
+                # 3 s move). The feed still caps the tip's speed (v <= F / |dtip/ds|). A change of the
+                # tool length offset alone moves the machine by that change along the tool axis.
+                rl = limits.rotation_length_mm * ph + abs(o1 - off)
+                ln = rl if rot or ltip < ROT_SWITCH * rl else ltip
+                if ln < 1e-9:
+                    tip, axis, off = t1, a_1, o1     # nothing moves: the point is the current pose
+                    continue
+                if rpm_prev is not None and m.spindle_rpm != rpm_prev:
+                    stop.add(n)
+                rpm_prev = m.spindle_rpm
+                flen = ln if rot else ltip
+                if m.kind == RAPID:
+                    vm = limits.rapid_mm_s
+                elif m.duration > 0:          # G93: the move takes `duration` s at 100 % feed
+                    vm = min(flen / float(m.duration) * feed_override, limits.rapid_mm_s)
+                else:
+                    vm = min(m.feed * feed_override, limits.rapid_mm_s)
+                if not vm > 0:
+                    raise InputError(job.source, m.line, f"move has no positive feed ({vm!r} mm/s)")
+                p0[n], p1[n], a0[n], a1[n], phi[n] = tip, t1, axis, a_1, ph
+                off0[n], off1[n] = off, o1
+                if absorbed:              # where along this (merged) segment each absorbed move ended
+                    d = t1 - tip
+                    q = np.array([a_[0] for a_ in absorbed], float) - tip
+                    u_ = np.maximum.accumulate(np.clip(q @ d / max(float(d @ d), 1e-300), 0.0, 1.0))
+                    mrg_seg.extend([n] * len(absorbed))
+                    mrg_u.extend(u_.tolist())
+                    mrg_line.extend(int(a_[1]) for a_ in absorbed)
+                    absorbed = []
+                if arc is not None:
+                    kind[n] = 1
+                    cc[n], nrm[n], e1[n], e2[n], r0[n], r1[n], h0[n], h1[n] = arc
+                    sweep[n] = sw
+                line_[n], rpm_[n], length[n], rot_[n], vmax_[n] = m.line, m.spindle_rpm, ln, rot, vm
+                tip_len[n] = flen
+                n += 1
+                tip, axis, off = t1, a_1, o1
+                if bl is not None:
+                    synth.add(n)          # a point of a rounded corner, not a programmed one
         self.n = n
         stop.add(n)
         self.stop = np.zeros(n + 1, bool)
         self.stop[sorted(stop)] = True
+        self.synth = np.zeros(n + 1, bool)
+        self.synth[sorted(synth)] = True
         self.dwell = np.zeros(n + 1)
         self.dwell_line = np.zeros(n + 1, int)
         for b, d in dwell.items():
             self.dwell[b] = d
             self.dwell_line[b] = dwell_line[b]
+        self.mrg_seg, self.mrg_u = np.array(mrg_seg, int), np.array(mrg_u, float)
+        self.mrg_line = np.array(mrg_line, int)
+        self.ev_b, self.ev_before = np.array(ev_b, int), np.array(ev_before, float)
+        self.ev_line, self.ev_data = np.array(ev_line, int), tuple(ev_data)
         self.end_tip, self.end_axis = tip, axis
         self.start_tip, self.start_axis = np.asarray(start[0], float), np.asarray(start[1], float)
-        self.kind = kind[:n].copy()
-        self.p0, self.p1, self.a0, self.a1 = p0[:n].copy(), p1[:n].copy(), a0[:n].copy(), a1[:n].copy()
-        self.phi, self.c, self.r0, self.r1 = phi[:n].copy(), cc[:n].copy(), r0[:n].copy(), r1[:n].copy()
-        self.th0, self.sweep, self.length, self.vmax = th0[:n].copy(), sweep[:n].copy(), length[:n].copy(), \
-            vmax_[:n].copy()
-        self.rot = rot_[:n].copy()
-        self.feed_length = tip_len[:n].copy()
-        self.line = line_[:n].copy()
-        self.rpm = rpm_[:n].copy()
+        local = dict(kind=kind, p0=p0, p1=p1, a0=a0, a1=a1, phi=phi, c=cc, nrm=nrm, e1=e1, e2=e2, r0=r0, r1=r1,
+                     h0=h0, h1=h1, sweep=sweep, length=length, vmax=vmax_, rot=rot_, feed_length=tip_len,
+                     line=line_, rpm=rpm_, off0=off0, off1=off1)
+        for k in _SEG_FIELDS:
+            setattr(self, k, local[k][:n].copy())
+        self.has_off = bool(np.any(self.off0) or np.any(self.off1))
         self._bounds(self.start_axis / np.linalg.norm(self.start_axis))
+        self._pins(dt, limits)
+
+    def _pins(self, dt, limits):
+        """Which boundaries get a tick of their own (the knots of the time warp: exact arrival,
+        ``pin``): the stops, and, walking along the path, every boundary at least two ticks of the top
+        speed since the last knot (every boundary of a path of ordinary moves). The points between
+        knots (inside runs of micro-segments) are passed through on the path, not sampled: a tick for
+        each would make every segment last at least a tick, and the samples' speed would follow the
+        segments' lengths and jump from tick to tick. The ends of the arcs rounding corners (no
+        programmed point) are knots only ``SYNTH_KNOT_TICKS`` ticks of top speed past the last: the warp
+        then changes the speed by a few percent at most from knot to knot."""
+        n = self.n
+        vs = self.vmax.copy()                   # an upper bound of ds/dt on each segment
+        tipish = ~self.rot & (self.feed_length < self.length)       # parameterised by the rotation
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vs[tipish] = self.vmax[tipish] * self.length[tipish] / np.maximum(self.feed_length[tipish], 1e-300)
+            turn = tipish & (self.phi > 0)
+            vs[turn] = np.minimum(vs[turn], limits.axis_rate_rad_s * self.length[turn] / self.phi[turn])
+        need = 2.0 * dt * vs
+        self.pin = self.stop.copy()
+        if n and (not np.all(self.length >= need) or self.synth.any()):
+            pin, b_s, stop = self.pin, self.b_s, self.stop
+            more = np.where(self.synth, 0.5 * SYNTH_KNOT_TICKS, 1.0)
+            last, top = 0.0, 0.0
+            for b in range(1, n + 1):                 # (a loop of ~1 us a boundary)
+                top = max(top, need[b - 1])
+                if stop[b] or b_s[b] - last >= top * more[b]:
+                    pin[b] = True
+                    last, top = b_s[b], 0.0
+        else:
+            self.pin[:] = True
+        self.pin[0] = self.pin[n] = True
+        self.pin_idx = np.nonzero(self.pin)[0]
 
     def _bounds(self, start_axis):
         n = self.n
@@ -218,17 +532,23 @@ class _Path:
         # Boundary poses, exact: b = 0 the start, b = i + 1 the end of segment i.
         self.b_tip = np.vstack([self.start_tip[None], self.p1]) if n else self.start_tip[None].copy()
         self.b_axis = np.vstack([start_axis[None], self.a1]) if n else self.start_axis[None].copy()
+        self.b_off = np.concatenate([[0.0], self.off1])
+        self.b_ctl = controlled_point(self.b_tip, self.b_axis, self.b_off) if self.has_off else self.b_tip
         self.b_s = np.concatenate([[0.0], self.s_end])
 
     def sub(self, i0, i1):
         """The segments i0 .. i1-1 as a path of their own, in the job's path coordinate s (the same
         floats as the whole job's, so a window computes with the same numbers). Its ends are exact
-        stops only where the job has one (the job's ends, dwells, spindle changes)."""
+        stops only where the job has one (the job's ends, dwells, EVENTs, spindle changes)."""
         p = object.__new__(_Path)
-        for k in ("kind", "p0", "p1", "a0", "a1", "phi", "c", "r0", "r1", "th0", "sweep", "length", "vmax",
-                  "rot", "feed_length", "line", "rpm"):
+        for k in _SEG_FIELDS:
             setattr(p, k, getattr(self, k)[i0:i1])
         p.n = i1 - i0
+        p.has_off = self.has_off
+        p.synth = self.synth[i0:i1 + 1]
+        p.pin = self.pin[i0:i1 + 1].copy()
+        p.pin[0] = p.pin[-1] = True            # a window's ends are its knots (far from what it emits)
+        p.pin_idx = np.nonzero(p.pin)[0]
         p.stop, p.dwell, p.dwell_line = self.stop[i0:i1 + 1], self.dwell[i0:i1 + 1], self.dwell_line[i0:i1 + 1]
         p.start_tip, p.start_axis = self.b_tip[i0], self.b_axis[i0]
         p.end_tip, p.end_axis = self.b_tip[i1], self.b_axis[i1]
@@ -236,9 +556,33 @@ class _Path:
         p.s_end, p.s_start, p.b_s = self.s_end[i0:i1], self.s_start[i0:i1], self.b_s[i0:i1 + 1]
         p.total = float(self.b_s[i1])
         p.b_tip, p.b_axis = self.b_tip[i0:i1 + 1], self.b_axis[i0:i1 + 1]
+        p.b_off, p.b_ctl = self.b_off[i0:i1 + 1], self.b_ctl[i0:i1 + 1]
+        e0, e1 = np.searchsorted(self.ev_b, i0, "left"), np.searchsorted(self.ev_b, i1, "right")
+        p.ev_b, p.ev_before, p.ev_line = self.ev_b[e0:e1] - i0, self.ev_before[e0:e1], self.ev_line[e0:e1]
+        p.ev_data = self.ev_data[e0:e1]
+        m0, m1 = np.searchsorted(self.mrg_seg, i0, "left"), np.searchsorted(self.mrg_seg, i1, "left")
+        p.mrg_seg, p.mrg_u, p.mrg_line = self.mrg_seg[m0:m1] - i0, self.mrg_u[m0:m1], self.mrg_line[m0:m1]
         return p
 
+    def lines(self, seg, u):
+        """The source line of points (seg, u): the segment's, or inside a merged segment the line of
+        the move being executed there (the first absorbed move ending at or after u)."""
+        line = self.line[seg]
+        if len(self.mrg_seg):
+            key = self.mrg_seg + self.mrg_u
+            i = np.minimum(np.searchsorted(key, seg + u, "left"), len(key) - 1)
+            inside = self.mrg_seg[i] == seg
+            line = np.where(inside & (seg + u <= key[i]), self.mrg_line[i], line)
+        return line
+
+    def rest_marks(self, dt, n_samples):
+        """Marks of a path that does not move (n == 0): every EVENT at boundary 0, after the dwells
+        before it: ((sample, line, events), ...)."""
+        return tuple((min(int(round(b4 / dt)), n_samples - 1), int(ln), ev)
+                     for b4, ln, ev in zip(self.ev_before, self.ev_line, self.ev_data))
+
     def pose(self, seg, u):
+        """Programmed tip and unit tool axis at (seg, u)."""
         seg = np.asarray(seg, int)
         u = np.asarray(u, float)
         uu = u[..., None]
@@ -246,11 +590,10 @@ class _Path:
         tip = p0 + uu * (p1 - p0)
         arc = self.kind[seg] == 1
         if np.any(arc):
-            th = self.th0[seg] + self.sweep[seg] * u
-            r = self.r0[seg] + (self.r1[seg] - self.r0[seg]) * u
-            c = self.c[seg]
-            at = np.stack([c[..., 0] + r * np.cos(th), c[..., 1] + r * np.sin(th),
-                           p0[..., 2] + u * (p1[..., 2] - p0[..., 2])], -1)
+            th = (self.sweep[seg] * u)[..., None]
+            r = (self.r0[seg] + (self.r1[seg] - self.r0[seg]) * u)[..., None]
+            h = (self.h0[seg] + (self.h1[seg] - self.h0[seg]) * u)[..., None]
+            at = self.c[seg] + h * self.nrm[seg] + r * (np.cos(th) * self.e1[seg] + np.sin(th) * self.e2[seg])
             tip = np.where(arc[..., None], at, tip)
         phi = self.phi[seg][..., None]
         a0, a1 = self.a0[seg], self.a1[seg]
@@ -262,6 +605,20 @@ class _Path:
         axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
         return tip, axis
 
+    def controlled(self, seg, u, tip, axis):
+        """The point the reference tool's tip goes to for the programmed ``tip``, ``axis`` at (seg, u):
+        the tool length offset goes linearly from the segment's start to its end (a change of offset
+        is taken up by the move after it, as in LinuxCNC)."""
+        if not self.has_off:
+            return tip
+        u = np.asarray(u, float)
+        return controlled_point(tip, axis, self.off0[seg] * (1.0 - u) + self.off1[seg] * u)
+
+    def point(self, seg, u):
+        """Controlled point and axis at (seg, u) (what IK and the samples take)."""
+        tip, axis = self.pose(seg, u)
+        return self.controlled(seg, u, tip, axis), axis
+
     def derivatives(self, seg, u, machine, delta=1e-3):
         """d/ds and d2/ds2 of tip, axis and joints at (seg, u), central differences of step delta mm."""
         seg = np.asarray(seg, int)
@@ -269,7 +626,7 @@ class _Path:
         uu = np.concatenate([u - du, u, u + du])
         ss = np.concatenate([seg, seg, seg])
         tip, axis = self.pose(ss, uu)
-        q = K.ik_batch(tip, axis, machine, check_limits=False).q
+        q = K.ik_batch(self.controlled(ss, uu, tip, axis), axis, machine, check_limits=False).q
         m = len(seg)
         out = {}
         for name, x in (("tip", tip), ("axis", axis), ("q", q)):
@@ -405,10 +762,7 @@ def plan(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: Pl
          start=None) -> Trajectory:
     """Plan ``job`` into a Trajectory sampled every ``dt`` seconds (see the module docstring)."""
     limits, start = _start(job, machine, dt, feed_override, limits, start)
-    if len(job.moves) > MAX_MOVES:
-        raise InputError(job.source, int(job.moves[MAX_MOVES].line) or None,
-                         f"more than {MAX_MOVES} moves: longer than the batch planner takes (split the job)")
-    path = _Path(job, start, limits, feed_override)
+    path = _Path(job, start, limits, feed_override, dt)
     T = max(2.0 * limits.tangential_accel / limits.jerk_mm_s3, 2.0 * dt)
     _check_size(path, job, dt, limits)
     if path.n == 0:
@@ -417,16 +771,17 @@ def plan(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: Pl
         axis = np.repeat(path.b_axis[:1], nt, 0)
         z = np.zeros((nt, 3))
         return Trajectory(dt, tip, axis, z, z.copy(), np.full(nt, path.start_line, int), np.zeros(nt),
-                          job.source, np.asarray(job.points, float))
+                          job.source, np.asarray(job.points, float), marks=path.rest_marks(dt, nt))
     _check_reachable(path, job, machine)
-    grid = _limit_grid(path, machine, limits, dt, T)
-    scale = np.ones(len(grid["s"]))
-    for it in range(limits.max_iterations):
-        traj, worst = _sample(path, grid, scale, machine, limits, dt, T, job)
-        if worst is None:
-            return traj
-        scale = _lower_caps(grid, scale, worst, limits, T)
-    raise _not_met(job, limits)
+    while True:
+        grid = _limit_grid(path, machine, limits, dt, T)
+        scale = np.ones(len(grid["s"]))
+        for it in range(max(1, limits.max_iterations)):
+            traj, worst = _sample(path, grid, scale, machine, limits, dt, T, job)
+            if worst is None:
+                return traj
+            scale = _lower_caps(grid, scale, worst, limits, T)
+        _fall_back(path, _NotConverged(path, worst[0]), dt, limits, job)
 
 
 def _lower_caps(grid, scale, worst, limits, T):
@@ -438,9 +793,26 @@ def _lower_caps(grid, scale, worst, limits, T):
     return np.minimum(scale, _range_min(len(scale), lo, hi, factor))
 
 
-def _not_met(job, limits):
-    return PlanningError(f"{job.source}: could not meet the joint/feed limits after {limits.max_iterations} "
-                         "re-planning iterations")
+MAX_FALLBACKS = 6        # rounds of the fallback (exact stops, half the speed) before a job is refused
+
+
+def _fall_back(path, e, dt, limits, job):
+    """The guaranteed-feasible fallback where re-planning did not meet the limits: the segments
+    ``segs`` and their neighbours get exact stops at both ends and half their top speed (each round
+    halves it again; ``path.fallbacks`` counts the rounds); after ``MAX_FALLBACKS`` rounds
+    PlanningError names the line. ``e``: the _NotConverged. The path is changed in place: plan again."""
+    n = path.n
+    segs = np.unique(np.clip(np.concatenate([e.segs - 1, e.segs, e.segs + 1]), 0, n - 1))
+    path.fallbacks = getattr(path, "fallbacks", 0) + 1
+    if path.fallbacks > MAX_FALLBACKS:
+        line = e.line
+        raise PlanningError(f"{job.source}:{line}: the planner could not meet the joint and feed limits here, "
+                            f"not even with exact stops at 1/{2 ** MAX_FALLBACKS} of the feed (its fallback): "
+                            f"lower the feed of these moves, or report the job", path=job.source, line=line)
+    path.stop[segs] = True
+    path.stop[segs + 1] = True
+    path.vmax[segs] *= 0.5
+    path._pins(dt, limits)
 
 
 def _start(job, machine, dt, feed_override, limits, start):
@@ -457,24 +829,34 @@ def _start(job, machine, dt, feed_override, limits, start):
 # ---------------------------------------------------------------- the streaming planner
 
 def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: PlannerLimits | None = None,
-             start=None, batch: bool = False) -> "_Path":
+             start=None, batch: bool = False, full: bool = False, window: int = STREAM_WINDOW,
+             problems: list | None = None) -> "_Path":
     """Check a whole job for the streaming planner before anything moves, in bounded memory: every
     move has a positive feed, the duration's lower bound is within ``MAX_STREAM_SECONDS``, no single
     move needs more than ``MAX_SEGMENT_GRID`` grid points, every programmed pose is reachable and so
     is the path between them (checked every ``grid_mm`` along it). InputError names the file and line.
     Returns the job's segment index, which ``plan_stream(path=...)`` takes. ``batch``: the batch
     planner's bounds on the duration and the whole grid instead (for a caller that holds the whole
-    trajectory)."""
+    trajectory).
+
+    ``full``: the job is also planned, whole, window by window as ``plan_stream`` will (no samples
+    kept), and where re-planning does not meet the limits the fallback (``_fall_back``: exact stops
+    and a lower speed there) goes into the returned path and the job is planned again, until it
+    passes or PlanningError names the line. ``plan_stream(path=...)`` of that path (with the same
+    arguments) then cannot fail: what ``pmctl check``, ``pmctl run`` and the supervisor's queue do
+    before anything moves. The path's ``planned_samples`` is then the trajectory's length.
+
+    ``problems`` (a list): every unreachable pose and every stretch of path between poses that
+    leaves the workspace is appended to it as a Problem (kind ``machine``, one per line) instead of
+    raising the first, and the job is then not planned; the other refusals still raise."""
     limits, start = _start(job, machine, dt, feed_override, limits, start)
-    if batch and len(job.moves) > MAX_MOVES:
-        raise InputError(job.source, int(job.moves[MAX_MOVES].line) or None,
-                         f"more than {MAX_MOVES} moves: longer than the batch planner takes (split the job)")
-    path = _Path(job, start, limits, feed_override)
+    path = _Path(job, start, limits, feed_override, dt)
     if batch:
         _check_size(path, job, dt, limits)
     else:
         _check_size(path, job, dt, limits, max_samples=int(MAX_STREAM_SECONDS / dt), whole_grid=False)
     if path.n == 0:
+        path.planned_samples = int(np.ceil(path.dwell.sum() / dt)) + 1
         return path
     counts = np.maximum(2, np.ceil(path.length / limits.grid_mm).astype(np.int64))
     if np.any(counts > MAX_SEGMENT_GRID):
@@ -482,7 +864,8 @@ def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits
         raise InputError(job.source, int(path.line[i]),
                          f"this move is {path.length[i]:.6g} mm long: more than {MAX_SEGMENT_GRID} grid points "
                          f"of {limits.grid_mm:g} mm (check arc turns P and the coordinates, or split the move)")
-    _check_reachable(path, job, machine)
+    seen = set()
+    _check_reachable(path, job, machine, problems, seen)
     # the path between the programmed poses, segment by segment in chunks of about SAMPLE_CHUNK points
     i = 0
     while i < path.n:
@@ -490,10 +873,29 @@ def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits
         c = counts[i:j]
         seg = np.repeat(np.arange(i, j), c)
         u = (np.arange(len(seg)) - np.repeat(np.cumsum(c) - c, c)) / np.repeat(c, c)
-        tip, axis = path.pose(seg, u)
-        _check_samples(tip, axis, path.line[seg], machine, job)
+        tip, axis = path.point(seg, u)
+        _check_samples(tip, axis, path.lines(seg, u), machine, job, problems, seen)
         i = j
+    if problems:                  # (only with a list) not planned: the path leaves the workspace
+        return path
+    if full:
+        _plan_whole(path, machine, limits, dt, job, window)
     return path
+
+
+def _plan_whole(path, machine, limits, dt, job, window):
+    """Plan the whole path window by window (nothing kept), with the fallback (see validate)."""
+    T = max(2.0 * limits.tangential_accel / limits.jerk_mm_s3, 2.0 * dt)
+    while True:
+        n_samples = 0
+        try:
+            for tm, (e0, e1), _ in _windows(path, machine, limits, dt, T, job, window, keep=False):
+                n_samples += e1 - e0
+        except _NotConverged as e:
+            _fall_back(path, e, dt, limits, job)
+            continue
+        path.planned_samples = n_samples
+        return
 
 
 def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits: PlannerLimits | None = None,
@@ -506,7 +908,10 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
     the velocity profile, the jerk filter and the time warp of the window are those of the whole
     job wherever the margins hold everything they depend on. The profile is checked for that (the
     speeds with the margin's ends free and at rest must agree in the window), else the margin grows.
-    Memory: the job's segment index (~0.3 kB per move) and one window with its margins."""
+    Where re-planning does not meet the limits before the first piece is handed out, the fallback
+    goes into ``path`` and the job is planned again; after that, PlanningError (with the line) stops
+    the stream: pass the path of ``validate(full=True)`` (same arguments) and that cannot happen.
+    Memory: the job's segment index (~0.4 kB per move) and one window with its margins."""
     limits, start = _start(job, machine, dt, feed_override, limits, start)
     if path is None:
         path = validate(job, machine, dt, feed_override=feed_override, limits=limits, start=start)
@@ -514,47 +919,86 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
     points = np.asarray(job.points, float).reshape(-1, 3)
     if path.n == 0:
         nt = int(np.ceil(path.dwell.sum() / dt)) + 1
+        marks = path.rest_marks(dt, nt)
         for k0 in range(0, nt, SAMPLE_CHUNK):
             m = min(nt, k0 + SAMPLE_CHUNK) - k0
             z = np.zeros((m, 3))
             yield Trajectory(dt, np.repeat(path.start_tip[None], m, 0), np.repeat(path.b_axis[:1], m, 0), z,
-                             z.copy(), np.full(m, path.start_line, int), np.zeros(m), job.source, points)
+                             z.copy(), np.full(m, path.start_line, int), np.zeros(m), job.source, points,
+                             marks=tuple((i - k0, ln, ev) for i, ln, ev in marks if k0 <= i < k0 + m))
         return
+    emitted = False
+    while True:
+        try:
+            for tm, rng, kept in _windows(path, machine, limits, dt, T, job, window):
+                if kept is not None:
+                    for k0, part in kept:
+                        emitted = True
+                        yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k0 + len(part[0])))
+                else:
+                    for k0 in range(rng[0], rng[1], SAMPLE_CHUNK):
+                        k1 = min(rng[1], k0 + SAMPLE_CHUNK)
+                        part, _ = tm.samples(k0, k1)
+                        emitted = True
+                        yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k1))
+            return
+        except _NotConverged as e:
+            if not emitted:           # nothing handed out yet: the fallback, and start again
+                _fall_back(path, e, dt, limits, job)
+                continue
+            # only without the full check (validate(full=True)), which falls back before anything moves
+            raise PlanningError(f"{job.source}:{e.line}: could not meet the joint/feed limits here after "
+                                f"{limits.max_iterations} re-planning iterations (the job was not checked in "
+                                "full before it was streamed)", path=job.source, line=e.line) from None
+
+
+def _windows(path, machine, limits, dt, T, job, window=STREAM_WINDOW, keep=True):
+    """The windows of the streaming planner, in order: (timing, tick range to emit, kept sample
+    chunks or None) each; _NotConverged where re-planning does not meet the limits."""
     # reach of what a window's result depends on: the erosion of the caps, the jerk filter, the
     # re-planning radius around a violation (all ~ v T), and the look-ahead of the speeds (checked)
     vt = 1.1 * float(path.vmax.max()) * T + 4 * limits.grid_mm
-    for c0 in range(0, path.n, window):
-        c1 = min(path.n, c0 + window)
+    pins = path.pin_idx
+    c1 = 0
+    while c1 < path.n:                 # windows of about `window` segments, from knot to knot
+        c0 = c1
+        c1 = int(pins[min(len(pins) - 1, np.searchsorted(pins, c0 + window, "left"))])
         margin = max(STREAM_MARGIN_MM, 2 * vt)
         while True:
             try:
-                tm, rng, kept = _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job)
+                yield _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep)
                 break
             except _NotLocal:
                 margin *= 2
-        if kept is not None:
-            for part in kept:
-                yield Trajectory(dt, *part, job.source, points)
-        else:
-            for k0 in range(rng[0], rng[1], SAMPLE_CHUNK):
-                part, _ = tm.samples(k0, min(rng[1], k0 + SAMPLE_CHUNK))
-                yield Trajectory(dt, *part, job.source, points)
 
 
-def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job):
+def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep_ok=True):
     """Plan segments c0 .. c1-1 with margins; returns (timing, tick range to emit, kept sample chunks
     or None) once the limits hold on the samples of the window and STREAM_CHECK_MM around it."""
     n, b_s = path.n, path.b_s
-    # the limits are checked on the samples between boundaries kb_lo and kb_hi (the window and at
-    # least STREAM_CHECK_MM around it); their times depend on the warp's knots one further out,
-    # which must not be a window end (those knots are not the whole job's); the profile must be the
-    # whole job's from there on, within vt
-    kb_lo = 0 if c0 == 0 else max(0, min(c0 - 1, int(np.searchsorted(b_s, b_s[c0] - STREAM_CHECK_MM, "right")) - 1))
-    kb_hi = n if c1 == n else min(n, max(c1 + 1, int(np.searchsorted(b_s, b_s[c1] + STREAM_CHECK_MM, "left"))))
-    lo_need = b_s[max(kb_lo - 1, 0)] - vt
-    hi_need = b_s[min(kb_hi + 1, n)] + vt
-    w0 = 0 if kb_lo <= 1 else max(0, min(kb_lo - 2, int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
-    w1 = n if kb_hi >= n - 1 else min(n, max(kb_hi + 2, int(np.searchsorted(b_s, hi_need + margin, "left"))))
+    # the limits are checked on the samples between knots kb_lo and kb_hi (the window and at least
+    # STREAM_CHECK_MM around it; knots are the boundaries with a tick of their own, _Path.pin); their
+    # times depend on the warp's knots one further out, which must not be a window end (those knots
+    # are not the whole job's); the profile must be the whole job's from there on, within vt
+    # (and at least vt beyond the knots next to the window: a violation there moves their ticks)
+    P = path.pin_idx
+    bp = b_s[P]
+    ic0, ic1 = int(np.searchsorted(P, c0)), int(np.searchsorted(P, c1))
+    if c0 == 0:
+        i_lo = 0
+    else:
+        reach = min(b_s[c0] - STREAM_CHECK_MM, bp[max(ic0 - 1, 0)] - vt)
+        i_lo = max(0, min(ic0 - 1, int(np.searchsorted(bp, reach, "right")) - 1))
+    if c1 == n:
+        i_hi = len(P) - 1
+    else:
+        reach = max(b_s[c1] + STREAM_CHECK_MM, bp[min(ic1 + 1, len(P) - 1)] + vt)
+        i_hi = min(len(P) - 1, max(ic1 + 1, int(np.searchsorted(bp, reach, "left"))))
+    kb_lo, kb_hi = int(P[i_lo]), int(P[i_hi])
+    lo_need = bp[max(i_lo - 1, 0)] - vt
+    hi_need = bp[min(i_hi + 1, len(P) - 1)] + vt
+    w0 = 0 if i_lo <= 1 else max(0, min(int(P[i_lo - 2]), int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
+    w1 = n if i_hi >= len(P) - 2 else min(n, max(int(P[i_hi + 2]), int(np.searchsorted(b_s, hi_need + margin, "left"))))
     sp = path.sub(w0, w1)
     zone = None
     if w0 > 0 or w1 < n:
@@ -562,23 +1006,23 @@ def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job):
                 lo_need if c0 > 0 else -np.inf, hi_need if c1 < n else np.inf)
     grid = _limit_grid(sp, machine, limits, dt, T)
     scale = np.ones(len(grid["s"]))
-    for it in range(limits.max_iterations):
+    for it in range(max(1, limits.max_iterations)):
         tm = _Timing(sp, grid, scale, dt, T, job, zone=zone)
         e0 = int(tm.K_b[c0 - w0])
         e1 = int(tm.K_b[c1 - w0]) + (1 if c1 == n else 0)
         k_lo = int(tm.K_b[kb_lo - w0])
         k_hi = int(tm.K_b[kb_hi - w0]) + (1 if kb_hi == n else 0)
-        keep = [] if e1 - e0 <= STREAM_KEEP else None
+        keep = [] if keep_ok and e1 - e0 <= STREAM_KEEP else None
         bad = []
         prev = None
         for k0 in range(k_lo, k_hi, SAMPLE_CHUNK):
             k1 = min(k_hi, k0 + SAMPLE_CHUNK)
-            part, (sf, v, seg) = tm.samples(k0, k1)
+            part, (sf, v, seg, tip) = tm.samples(k0, k1)
             q = _check_samples(part[0], part[1], part[4], machine, job)
             if keep is not None and k1 > e0 and k0 < e1:
                 a, b = max(k0, e0) - k0, min(k1, e1) - k0
-                keep.append(tuple(x[a:b] for x in part))
-            cur = (q, part[0], v, sf, seg)
+                keep.append((k0 + a, tuple(x[a:b] for x in part)))
+            cur = (q, tip, v, sf, seg)
             if prev is not None:       # two samples of overlap: the differences across the chunk edge
                 cur_x = tuple(np.concatenate([p_[-2:], c_]) for p_, c_ in zip(prev, cur))
             else:
@@ -589,8 +1033,9 @@ def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job):
             prev = cur
         if not bad:
             return tm, (e0, e1), keep
-        scale = _lower_caps(grid, scale, tuple(np.concatenate(x) for x in zip(*bad)), limits, T)
-    raise _not_met(job, limits)
+        worst = tuple(np.concatenate(x) for x in zip(*bad))
+        scale = _lower_caps(grid, scale, worst, limits, T)
+    raise _NotConverged(path, worst[0])
 
 
 def _too_long(job, line, what, dt, max_samples=None):
@@ -612,8 +1057,10 @@ def _check_size(path: _Path, job, dt, limits: PlannerLimits, max_samples=None, w
     if not t_b[-1] < limit_t:
         b = int(np.argmax(~(t_b < limit_t)))
         if b > 0 and t_b[b] - path.dwell[b] >= limit_t:          # crossed while moving into boundary b
-            line = path.line[b - 1]
-            what = (f"this move alone takes at least {seg_t[b - 1]:.4g} s ({path.feed_length[b - 1]:.4g} mm at "
+            line = int(path.lines(b - 1, 0.0))
+            which = ("this move alone takes" if line == path.line[b - 1] else
+                     f"the moves from this line to line {path.line[b - 1]} (one straight line) take")
+            what = (f"{which} at least {seg_t[b - 1]:.4g} s ({path.feed_length[b - 1]:.4g} mm at "
                     f"{path.vmax[b - 1] * 60:.4g} mm/min)" if seg_t[b - 1] >= 0.5 * limit_t
                     else f"the job takes at least {t_b[-1]:.4g} s, over the bound by this line")
         else:                                                     # crossed during the dwell at b
@@ -627,19 +1074,47 @@ def _check_size(path: _Path, job, dt, limits: PlannerLimits, max_samples=None, w
         max_grid = MAX_GRID_POINTS
         if cum[-1] > max_grid:
             i = int(np.argmax(cum > max_grid))
-            raise InputError(job.source, int(path.line[i]),
+            u = (max_grid - (cum[i] - counts[i])) / counts[i]
+            raise InputError(job.source, int(path.lines(i, u)),
                              f"the path is {path.total:.6g} mm long: more than the batch planner's "
                              f"{MAX_GRID_POINTS} grid points of {limits.grid_mm:g} mm by this line "
                              f"(check arc turns P and the coordinates, or split the job)")
 
 
-def _check_reachable(path, job, machine):
+def _reach_advice(reason: str) -> str:
+    """What to do about an unreachable pose, from the limit its reason names."""
+    if reason.startswith(("tilt", "spherical")):
+        return "reduce the tool tilt (A, B) there"
+    if reason.startswith("chain"):
+        return "the tool is too high or too low there: move the program (or the part) in Z"
+    if reason.startswith("table"):
+        return "move the program (or the part on the table) in X/Y so that the tool stays over the table's travel"
+    return "keep the tool inside the machine's workspace there"
+
+
+def _reach_problems(problems, seen, job, lines, reason, where):
+    """One Problem (kind machine) per line not reported yet, for the unreachable poses ``lines``."""
+    for ln, why in zip(lines, reason):
+        ln = int(ln)
+        if ln in seen:
+            continue
+        seen.add(ln)
+        problems.append(Problem(job.source, ln or None, None, "machine",
+                                f"{where}unreachable: {why}; {_reach_advice(str(why))}"))
+
+
+def _check_reachable(path, job, machine, problems=None, seen=None):
+    """IK of every boundary pose: InputError at the first unreachable one, or with ``problems`` (a list)
+    one Problem per line appended."""
     for b0 in range(1, path.n + 1, SAMPLE_CHUNK):        # the boundaries after the start, in chunks
         b1 = min(path.n + 1, b0 + SAMPLE_CHUNK)
-        r = K.ik_batch(path.b_tip[b0:b1], path.b_axis[b0:b1], machine)
+        r = K.ik_batch(path.b_ctl[b0:b1], path.b_axis[b0:b1], machine)
         if not np.all(r.ok):
-            i = int(np.argmax(~r.ok))
-            raise InputError(job.source, int(path.line[b0 + i - 1]), f"pose unreachable: {r.reason[i]}")
+            if problems is None:
+                i = int(np.argmax(~r.ok))
+                raise InputError(job.source, int(path.line[b0 + i - 1]), f"pose unreachable: {r.reason[i]}")
+            bad = np.nonzero(~r.ok)[0]
+            _reach_problems(problems, seen, job, path.line[b0 + bad - 1], r.reason[bad], "the programmed pose is ")
 
 
 def _limit_grid(path: _Path, machine, limits: PlannerLimits, dt, T):
@@ -774,13 +1249,14 @@ class _Timing:
         b_idx = grid["b_idx"]
         n = path.n
         self.path, self.prof, self.dt, self.job = path, prof, dt, job
-        # Filtered arrival time at every boundary.
-        tau = np.empty(n + 1)
+        # Filtered arrival time at every knot (the boundaries with a tick of their own, _Path.pin).
+        P = path.pin_idx
+        tau = np.empty(len(P))
         tau[0] = -0.5 * T
-        tau[n] = prof.t_end + 0.5 * T
-        inner = np.arange(1, n)
+        tau[-1] = prof.t_end + 0.5 * T
+        inner = P[1:-1]
         st = path.stop[inner]
-        tau[inner[st]] = prof.t_arrive[b_idx[inner[st]]] + 0.5 * (T + path.dwell[inner[st]])
+        tau[1:-1][st] = prof.t_arrive[b_idx[inner[st]]] + 0.5 * (T + path.dwell[inner[st]])
         mv = inner[~st]
         if len(mv):
             target = path.b_s[mv]
@@ -792,27 +1268,29 @@ class _Timing:
                 below = sf < target
                 lo = np.where(below, mid, lo)
                 hi = np.where(below, hi, mid)
-            tau[mv] = 0.5 * (lo + hi)
+            tau[1:-1][~st] = 0.5 * (lo + hi)
         gaps = np.diff(tau)
         if max_samples is not None:
-            over = np.cumsum(gaps) / dt > max_samples - n - 1      # before anything of that size exists
+            over = np.cumsum(gaps) / dt > max_samples - len(P)      # before anything of that size exists
             if np.any(over):
-                b = int(np.argmax(over))
-                raise _too_long(job, path.line[b], f"the planned job takes {tau[-1] - tau[0]:.6g} s "
-                                                   "(the joint and acceleration limits slow it down)", dt)
+                b = int(P[int(np.argmax(over))])
+                raise _too_long(job, path.line[min(b, n - 1)], f"the planned job takes {tau[-1] - tau[0]:.6g} s "
+                                                               "(the joint and acceleration limits slow it down)", dt)
         ticks = np.maximum(1, np.ceil(gaps / dt - 1e-9).astype(int))
-        self.K_b = K_b = np.concatenate([[0], np.cumsum(ticks)])
-        self.n_samples = int(K_b[-1]) + 1
+        K_p = np.concatenate([[0], np.cumsum(ticks)])
+        self.K_b = K_b = np.full(n + 1, -1, int)          # the tick of each knot; -1 for other boundaries
+        K_b[P] = K_p
+        self.n_samples = int(K_p[-1]) + 1
         # The warped clock lags real time by D(t) >= 0; D is a monotone (PCHIP) interpolant of its knot
         # values, so the warp rate 1 - D' never exceeds 1: the warp only ever slows the profile down.
-        x_b = K_b * dt
+        x_b = K_p * dt
         self.tau0 = tau[0]
         self.lag = PchipInterpolator(x_b, x_b - (tau - tau[0]))
         self.dlag = self.lag.derivative()
         self.warp = None
         for k0 in range(0, self.n_samples, SAMPLE_CHUNK):
             if np.any(1.0 - self.dlag(np.arange(k0, min(k0 + SAMPLE_CHUNK, self.n_samples)) * dt) < 0):
-                self.warp = PchipInterpolator(x_b, tau)    # only for segments far shorter than a tick
+                self.warp = PchipInterpolator(x_b, tau)    # only for knots far closer than a tick
                 self.dwarp = self.warp.derivative()
                 break
         # Samples held at a stop (within 1e-9 mm of it) sit exactly there, at rest: the tick range of each.
@@ -829,6 +1307,22 @@ class _Timing:
             extra = (hi_ - lo_) - nd
             a = lo_ + (0 if b == 0 else (extra // 2 if b < n else extra))
             self.dwells[int(b)] = (a, a + nd + 1)
+        # The tick of every EVENT's mark: the boundary's own tick (the exact stop, at rest), or inside
+        # a dwell at that point after the part of the dwell programmed before the EVENT (within the
+        # samples held on the point).
+        mk = K_b[path.ev_b].astype(int) if len(path.ev_b) else np.zeros(0, int)
+        for i, b in enumerate(path.ev_b):
+            if int(b) in self.dwells:
+                a, e = self.dwells[int(b)]
+                lo_, hi_ = self.hold[int(b)]
+                mk[i] = max(lo_, min(a + int(round(path.ev_before[i] / dt)), e - 1, hi_ - 1, self.n_samples - 1))
+        self.mark_tick = mk
+
+    def marks(self, k0, k1):
+        """The marks on ticks k0 .. k1-1, in program order, indexed from k0."""
+        p = self.path
+        sel = np.nonzero((self.mark_tick >= k0) & (self.mark_tick < k1))[0]
+        return tuple((int(self.mark_tick[i]) - k0, int(p.ev_line[i]), p.ev_data[i]) for i in sel)
 
     def _clock(self, k):
         """Profile time and warp rate of ticks k."""
@@ -855,7 +1349,9 @@ class _Timing:
         return lo
 
     def samples(self, k0, k1):
-        """Ticks k0 .. k1-1: (tip, axis, tip_vel, axis_vel, line, rpm) and, for the limit check, (s, v, seg)."""
+        """Ticks k0 .. k1-1: (tip, axis, tip_vel, axis_vel, line, rpm) of the controlled point (the tip
+        of the reference tool: pmctl.task.job.controlled_point) and, for the limit check, (s, v, seg,
+        programmed tip)."""
         path, K_b, n = self.path, self.K_b, self.path.n
         k = np.arange(k0, k1)
         sf, v = self._s(k)
@@ -880,6 +1376,7 @@ class _Timing:
             axis[lo:hi] = path.b_axis[b]
         tip[K_b[on] - k0] = path.b_tip[on]
         axis[K_b[on] - k0] = path.b_axis[on]
+        ctl = path.controlled(seg, u, tip, axis)          # on boundaries and holds: exactly b_ctl (u is 0 or 1)
         der_tip, der_ax = _tangent(path, seg, u)
         tip_vel = der_tip * v[:, None]
         axis_vel = der_ax * v[:, None]
@@ -887,13 +1384,13 @@ class _Timing:
             if k0 <= end < k1:
                 tip_vel[end - k0] = 0.0
                 axis_vel[end - k0] = 0.0
-        line = path.line[seg] if n else np.full(len(k), path.start_line, int)
+        line = path.lines(seg, u) if n else np.full(len(k), path.start_line, int)
         rpm = path.rpm[seg]
         for b, (a, e) in self.dwells.items():
             a, e = max(a, k0), min(e, k1)
             if a < e:
                 line[a - k0:e - k0] = path.dwell_line[b]
-        return (tip, axis, tip_vel, axis_vel, line.astype(int), rpm.astype(float)), (sf, v, seg)
+        return (ctl, axis, tip_vel, axis_vel, line.astype(int), rpm.astype(float)), (sf, v, seg, tip)
 
 
 SAMPLE_CHUNK = 20_000     # ticks sampled at once (the planner's peak is ~0.75 kB per sample)
@@ -902,29 +1399,33 @@ SAMPLE_CHUNK = 20_000     # ticks sampled at once (the planner's peak is ~0.75 k
 def _sample(path: _Path, grid, scale, machine, limits, dt, T, job):
     """The whole path sampled at once (the batch planner): (Trajectory, violations or None)."""
     tm = _Timing(path, grid, scale, dt, T, job, max_samples=MAX_SAMPLES)
-    (tip, axis, tip_vel, axis_vel, line, rpm), (sf, v, seg) = tm.samples(0, tm.n_samples)
-    q = _check_samples(tip, axis, line, machine, job)
-    traj = Trajectory(dt, tip, axis, tip_vel, axis_vel, line, rpm, job.source,
-                      np.asarray(job.points, float).reshape(-1, 3))
+    (ctl, axis, tip_vel, axis_vel, line, rpm), (sf, v, seg, tip) = tm.samples(0, tm.n_samples)
+    q = _check_samples(ctl, axis, line, machine, job)
+    traj = Trajectory(dt, ctl, axis, tip_vel, axis_vel, line, rpm, job.source,
+                      np.asarray(job.points, float).reshape(-1, 3), marks=tm.marks(0, tm.n_samples))
     worst = _violations(q, tip, v, sf, seg, path, machine, limits, dt)
     return traj, worst
 
 
-def _check_samples(tip, axis, line, machine, job):
-    """Reachability of the samples (InputError with the job line); their joint positions."""
+def _check_samples(tip, axis, line, machine, job, problems=None, seen=None):
+    """Reachability of the samples (InputError with the job line, or with ``problems`` one Problem per
+    line appended); their joint positions."""
     ik = K.ik_batch(tip, axis, machine)
     if not np.all(ik.ok):
-        i = int(np.argmax(~ik.ok))
-        raise InputError(job.source, int(line[i]), f"the path leaves the workspace at tip "
-                                                   f"{np.round(tip[i], 4).tolist()}: {ik.reason[i]}")
+        if problems is None:
+            i = int(np.argmax(~ik.ok))
+            raise InputError(job.source, int(line[i]), f"the path leaves the workspace at tip "
+                                                       f"{np.round(tip[i], 4).tolist()}: {ik.reason[i]}")
+        bad = np.nonzero(~ik.ok)[0]
+        _reach_problems(problems, seen, job, line[bad], ik.reason[bad], "the path between the programmed poses is ")
     return ik.q
 
 
 def _tangent(path, seg, u, delta=1e-4):
-    """d(tip)/ds, d(axis)/ds by central differences inside the segment's own geometry."""
+    """d(controlled point)/ds, d(axis)/ds by central differences inside the segment's own geometry."""
     du = delta / path.length[seg]
-    tp, ap = path.pose(seg, u + du)
-    tm, am = path.pose(seg, u - du)
+    tp, ap = path.point(seg, u + du)
+    tm, am = path.point(seg, u - du)
     return (tp - tm) / (2 * delta), (ap - am) / (2 * delta)
 
 

@@ -6,7 +6,8 @@ every tick kept compactly for the tracking figures at the end."""
 from __future__ import annotations
 
 AXES = ("L1", "L2", "L3", "X", "Y")
-_TRUTH_NOTE = "simulation: FK of the load-side joints (after drive lag and flexible mode)"
+_TRUTH_NOTE = ("simulation: FK of the load-side joints (after drive lag and flexible mode); the tip of the "
+               "machine config's reference tool (with a tool length offset d the cutting tip is tip - d * tool)")
 _STRAIN_NOTE = "simulation: gravity strain of the true pose + flexible-mode spring strain + gauge noise"
 
 

@@ -15,11 +15,19 @@ table), then -- once the rt side reports the probe ended -- the rest of the item
 probe stopped. The results land in ``Item.probe_results``; a G38.2 without contact raises ALARM 5
 and drops the queue (grbl's probe fail).
 
-- runs the devices that are no part of the tick: the spindle VFD (``[spindle]``: started and
-  waited at speed before a job's first sample; a speed change inside a job holds the path on its
-  planned stop, C_HOLD_AT, until the new speed is reached) and the strain DAQ (``[daq]``, polled for
-  the whole session, serving a simulated DAQ the plant's strain from the drained records); a fault
-  or lost link of either is a controlled stop on the path with the reason (ALARM 3).
+- acts on what happens where the path gets to it, in program order, as grbl's planner sync does:
+  the EVENT moves of a job (pmctl.task.job: spindle, coolant, tool change, pause, outputs, messages),
+  which the planner turns into exact stops marked in ``Trajectory.marks``, and the spindle speed
+  changes of a job that carries its speed only per move (``Move.spindle_rpm``: CL data, the reader
+  before EVENT moves). Each becomes a hold point: C_HOLD_AT at its sample, sent before that sample
+  is queued, so the rt side holds on the path there; when it is reached the events thread performs
+  the events (a spindle change waits until at speed) and releases the hold. A pause (M0, M1 with the
+  optional stop on, M6 tool change) stays held until cycle start (``resume``). A job's first speed is
+  such a point at its first sample. The state stays ``Run`` while the path waits for an event.
+- runs the devices that are no part of the tick: the spindle VFD (``[spindle]``) and the strain DAQ
+  (``[daq]``, polled for the whole session, serving a simulated DAQ the plant's strain from the
+  drained records); a fault or lost link of either is a controlled stop on the path with the reason
+  (ALARM 3).
 
 ``pmctl run`` is a one-shot client of this class (start, submit one job, wait, shutdown);
 ``offline=True`` (its --no-realtime) runs the rt side's ticks back to back, waiting for samples.
@@ -77,9 +85,10 @@ class MotionRefused(PmctlError):
         self.code = code
 
 
-@dataclass
+@dataclass(eq=False)
 class Item:
-    """One planned piece of motion: a job file, a batch of console lines, a jog, a homing move."""
+    """One planned piece of motion: a job file, a batch of console lines, a jog, a homing move. Items
+    compare by identity (``it in sup.items``: the queue holds this very item)."""
     kind: str                       # "job" | "gcode" | "jog" | "home"
     job: object                     # pmctl.task.job.Job
     start: tuple                    # (tip, axis) it starts from
@@ -94,19 +103,24 @@ class Item:
     probe_results: list = field(default_factory=list)   # pmctl.motion.probe.ProbeResult of each probe, in order
     parts: int = 1                               # pieces planned one after the other (probing splits an item)
     ends: int = 0                                # of which the rt side has passed the end
+    pushed: int = 0                              # samples queued for the rt side so far
+    pushed_line: int = 0                         # the job line of the last of them
+    all_pushed: bool = False                     # every sample of it is queued (its length is known)
 
 
 class Supervisor:
     def __init__(self, config="prototype", *, service=None, backend=None, state_file="", realtime=False,
-                 rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY, offline=False, nc=None):
+                 rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY, offline=False, nc=None, hal=None):
         from pmctl.core.config import load_machine
-        from pmctl.motion.rtproc import apply_nc_overrides
+        from pmctl.motion.rtproc import apply_hal_overrides, apply_nc_overrides
         from pmctl.motion.service_config import load_service_config
         self.config = config
         self.service = service
         self.machine = load_machine(config)
         self.nc_overrides = dict(nc or {})        # e.g. pmctl run --k-theta --shaper --pulse-mode
-        self.svc = apply_nc_overrides(load_service_config(service), self.nc_overrides)
+        self.hal_overrides = dict(hal or {})      # e.g. pmctl run --bridge rp2040-emu
+        self.svc = apply_hal_overrides(apply_nc_overrides(load_service_config(service), self.nc_overrides),
+                                       self.hal_overrides)
         self.offline = bool(offline)              # rt ticks back to back, waiting for samples
         self.backend = backend or self.svc.backend
         self.rate_hz = float(rate_hz or self.svc.loop.rate_hz)
@@ -117,14 +131,10 @@ class Supervisor:
         self.nc_setup = nc_setup(self.svc, self.machine, self.dt, self.backend)
         self.params = self.svc.nc.params(self.machine, self.dt, where=self.svc.source, modes=self.nc_setup.modes)
         self.svc.homing.check(self.params, self.svc.source)        # [homing] against this machine's joints
-        self.plan_machine = self.machine
-        if np.any(self.params.vmax < self.machine.limits.joint_speed - 1e-9):
-            # the V-F converters cap the joint speed below the machine's (seed mode: one pulse per
-            # tick): plan within what they can emit
-            from dataclasses import replace
-            lim = replace(self.machine.limits, chain_speed=float(self.params.vmax[:3].min()),
-                          table_speed=float(self.params.vmax[3:].min()))
-            self.plan_machine = replace(self.machine, limits=lim)
+        # the V-F converters may cap the joint speed below the machine's (seed mode: one pulse per
+        # tick): plan within what they can emit
+        from pmctl.task.jobcheck import machine_for_planning
+        self.plan_machine = machine_for_planning(self.machine, self.params)
         self._config_digest = config_digest(self.machine, self.svc)   # the files the rt process reads again
         self.state_file = state_file
         self.realtime = bool(realtime)
@@ -162,8 +172,20 @@ class Supervisor:
         self.spindle = None               # pmctl.hal.modbus_vfd.SpindleSession
         self.daq = None                   # pmctl.hal.modbus_daq.DaqSession
         self._devices_open = False
-        self._speed_points = collections.deque()   # (ring row, signed rpm) of queued C_HOLD_AT speed changes
+        self._hold_points = collections.deque()    # (ring row, events) of queued C_HOLD_AT points, in row order
         self._hold_at_seen = 0
+        self._events_q: queue.Queue = queue.Queue()   # (queue generation, events) of the points reached
+        self._auto_hold = False           # the path holds at a point while its events are performed
+        self._plan_rpm = None             # the spindle speed at the end of what is planned (None: as commanded)
+        self.paused = ""                  # a pause (M0, M1, M6) waiting for cycle start: what to do
+        self.optional_stop = False        # M1 pauses only with this switch on (pmctl ctl optional-stop on)
+        # who answers a tool change or a pause when no operator is at a console: None (they wait for
+        # cycle start), or a callable(what) that performs it and logs (pmctl run on the simulation)
+        self.stand_in_operator = None
+        self.tool = None                  # the tool in the spindle, once a tool change was confirmed (None: not known)
+        self._pause_tool = None           # the tool a waiting tool-change pause asks for
+        self.coolant = set()              # "mist" (M7), "flood" (M8); M9 clears
+        self.outputs = {}                 # M62-M68: "name index" -> value, as last set
         self._strain = None               # the plant's strain of the last drained record (a simulated DAQ serves it)
         self._rest_strain = [0.0, 0.0, 0.0]   # before the first record: the plant at rest at its start pose
         self.device_fault = ""            # the spindle's or the DAQ's fault that stopped motion
@@ -185,7 +207,8 @@ class Supervisor:
         except BaseException:
             self.close_devices()
             raise
-        for name, fn in (("pmctl-planner", self._planner), ("pmctl-monitor", self._monitor)):
+        for name, fn in (("pmctl-planner", self._planner), ("pmctl-monitor", self._monitor),
+                         ("pmctl-events", self._events_loop)):
             t = threading.Thread(target=fn, name=name, daemon=True)
             t.start()
             self._threads.append(t)
@@ -209,12 +232,12 @@ class Supervisor:
         ch.records.clear()
         ch.commands.clear()
         ch.clear_result()
-        self._speed_points.clear()
+        self._hold_points.clear()
         self._hold_at_seen = 0
         ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = np.asarray(counts, float)
         spec = {"shm": ch.name, "config": str(self.config), "service": self.service, "backend": self.backend,
                 "state_file": self.state_file, "rate_hz": self.rate_hz, "realtime": self.realtime,
-                "offline": self.offline, "nc": self._rt_nc(),
+                "offline": self.offline, "nc": self._rt_nc(), "hal": self.hal_overrides,
                 "counts": [int(c) for c in counts], "ppid": os.getpid()}
         import json
         import subprocess
@@ -246,7 +269,7 @@ class Supervisor:
         self._quitting = True         # the rt side's exit from here on is the asked-for one, not a death (ALARM 17)
         counts = None
         if self.proc is not None and self.proc.is_alive():
-            self.ch.command(C.C_QUIT)
+            self.ch.command(C.C_QUIT, 1.0 if reason == "done" else 0.0)
             self.proc.join(timeout_s)
             if self.proc.is_alive():
                 self.proc.terminate()
@@ -305,11 +328,8 @@ class Supervisor:
             return [0.0, 0.0, 0.0]
 
     def _spindle_session(self):
-        from pmctl.hal.modbus_vfd import SpeedChanger, SpindleSession
+        from pmctl.hal.modbus_vfd import SpindleSession
         self.spindle = SpindleSession(self.svc.spindle, self.log).connect()
-        # speed changes inside a job: the rt side holds on the path (C_HOLD_AT); the monitor's
-        # thread sends the new speed and releases the hold once at speed
-        self.spindle.changer = SpeedChanger(_OvLockedVfd(self.spindle.vfd, self._spindle_ov_lock), _RtLoopView(self), [])
         return self.spindle
 
     def spindle_start(self, rpm: float):
@@ -363,99 +383,191 @@ class Supervisor:
                     self.log(f"stopping after {why}: {type(e).__name__}: {e}")
         threading.Thread(target=stop, daemon=True, name="pmctl-device-stop").start()
 
-    def _job_spindle(self, it, row0):
-        """Before an item's first sample is queued: its start speed (the path waits for it when
-        nothing is under way, else holds at the item's first sample until at speed)."""
-        from pmctl.hal.modbus_vfd import job_speed
-        rpm = job_speed([getattr(m, "spindle_rpm", 0.0) for m in it.job.moves])
-        if not rpm:
-            return
-        if self.svc.spindle is None:
+    # ------------------------------------------------------------ events where the path gets to them
+    def _spindle_now(self) -> float:
+        """The spindle speed (signed programmed rpm) when the path reaches the end of what is planned."""
+        if self._plan_rpm is not None:
+            return self._plan_rpm
+        return float(self.spindle_prog)
+
+    def _hold_point(self, row: int, rest: bool, events: tuple, it=None):
+        """Hold the path at sample ``row`` of the ring and perform ``events`` there (sent before that
+        sample is queued); item ``it`` is not done before they are."""
+        with self._lock:
+            self._hold_points.append((row, tuple(events), it))
+            seq = self.command(C.C_HOLD_AT, float(row), 1.0 if rest else 0.0)
+        # the rt side takes commands after its path step: the point must be there before the sample
+        self.wait_ack(seq, 1.0)
+        for name, value in events:
+            if name == "spindle":
+                self._plan_rpm = float(value)
+
+    def _events_of(self, it, pieces, row0):
+        """The planner's pieces, passed through; before each piece's samples are queued, its hold
+        points are sent: the marks of its EVENT moves (on their exact stops), and for a job that
+        carries the spindle speed only per move, its first speed (at the item's first sample) and the
+        speed changes inside it (at the last sample of the old speed, as
+        pmctl.hal.modbus_vfd.speed_changes finds them in a whole plan)."""
+        from pmctl.hal.modbus_vfd import REST_STEP_MM, job_speed
+        from pmctl.task.job import EVENT
+        moves = it.job.moves
+        events = any(m.kind == EVENT and any(n == "spindle" for n, _ in m.events) for m in moves)
+        on_lines = [] if events else [m.line for m in moves if getattr(m, "spindle_rpm", 0.0)]
+        if on_lines and self.svc.spindle is None:
             if not self._spindle_note:
+                rpm = job_speed([getattr(m, "spindle_rpm", 0.0) for m in moves])
                 self._spindle_note = True
                 self.log(f"no [spindle] in {self.svc.source}: the job's S{abs(rpm):g} M{3 if rpm > 0 else 4} "
                          f"is not executed")
-            return
-        sp = self.spindle or self._spindle_session()
-        self._m5_written()
-        if sp.vfd.rpm_cmd == self._spindle_rpm(rpm):
-            self.spindle_prog = float(rpm)
-            return
-        s = self.raw()
-        if sp.monitor is None or (s[C.ST_QUEUED] <= 1 and s[C.ST_SIGMA] == 0):
-            self.spindle_start(rpm)
-        else:
-            self._speed_change(row0, rpm, True)
-
-    def _speed_change(self, row, rpm, rest):
-        """Hold the path at sample ``row`` of the ring until the spindle runs at ``rpm``."""
-        with self._lock:
-            self._speed_points.append((row, rpm))
-            self.spindle.changer.changes.append((row, rpm, rest))
-            self.command(C.C_HOLD_AT, float(row), 1.0 if rest else 0.0)
-
-    def _spindle_pieces(self, it, pieces, row0):
-        """The planner's pieces, passed through; the spindle speed changes inside the job (as
-        pmctl.hal.modbus_vfd.speed_changes finds them in a whole plan) become C_HOLD_AT points at
-        the last sample of the old speed, sent before that sample is queued."""
-        from pmctl.hal.modbus_vfd import REST_STEP_MM
-        on_lines = [m.line for m in it.job.moves if getattr(m, "spindle_rpm", 0.0)]
-        if not on_lines or self.svc.spindle is None:
-            yield from pieces
-            return
-        last_on = max(on_lines)
+            on_lines = []
+        last_on = max(on_lines) if on_lines else 0
         n0 = 0                         # samples before this piece
         prev = None                    # the speed of the sample before
         cur = None                     # the speed the spindle runs at (after the first on)
         tail = (np.zeros((0, 3)), np.zeros((0, 3)))
         for tr in pieces:
-            v = np.asarray(tr.spindle_rpm, float)
-            line = np.asarray(tr.line)
-            tips = np.concatenate([tail[0], np.asarray(tr.tip, float)])
-            axes = np.concatenate([tail[1], np.asarray(tr.axis, float)])
-            off = len(tail[0])
-            for i in range(len(v)):
-                x = v[i]
-                if cur is None:
-                    if x:
+            points = [(row0 + n0 + i, True, tuple(ev)) for i, _line, ev in tr.marks]
+            if on_lines:
+                v = np.asarray(tr.spindle_rpm, float)
+                line = np.asarray(tr.line)
+                tips = np.concatenate([tail[0], np.asarray(tr.tip, float)])
+                axes = np.concatenate([tail[1], np.asarray(tr.axis, float)])
+                off = len(tail[0])
+                for i in range(len(v)):
+                    x = float(v[i])
+                    if cur is None:
+                        if x:
+                            cur = x
+                            if x != self._spindle_now():     # the job's first speed, before its first sample
+                                points.insert(0, (row0, True, (("spindle", x),)))
+                    elif x != prev and x != cur and (x or int(line[i]) < last_on):
                         cur = x
-                elif x != prev and x != cur and (x or int(line[i]) < last_on):
-                    cur = x
-                    j = off + i                       # index of sample c in tips: the stop is c - 1
-                    lo = max(0, j - 1 - 2)
-                    q = K.ik_batch(tips[lo:j + 1], axes[lo:j + 1], self.machine, check_limits=False).q
-                    rest = len(q) > 1 and float(np.abs(np.diff(q, axis=0)).max()) <= REST_STEP_MM
-                    self._speed_change(row0 + n0 + i - 1, float(x), bool(rest))
-                prev = x
-            n0 += len(v)
-            tail = (tips[-3:], axes[-3:])
+                        j = off + i                       # index of sample c in tips: the stop is c - 1
+                        lo = max(0, j - 1 - 2)
+                        q = K.ik_batch(tips[lo:j + 1], axes[lo:j + 1], self.machine, check_limits=False).q
+                        rest = len(q) > 1 and float(np.abs(np.diff(q, axis=0)).max()) <= REST_STEP_MM
+                        points.append((row0 + n0 + i - 1, bool(rest), (("spindle", x),)))
+                    prev = x
+                tail = (tips[-3:], axes[-3:])
+            for row, rest, ev in sorted(points, key=lambda p: p[0]):
+                self._hold_point(row, rest, ev, it)
+            n0 += len(tr)
             yield tr
 
-    def _drop_speed_changes(self):
-        """A soft reset, an E-stop or a fault dropped the queue: no speed change is waited for."""
+    def _drop_hold_points(self):
+        """A soft reset, an E-stop or a fault dropped the queue: no event is waited for (the rt side
+        dropped its points too)."""
         with self._lock:
-            self._speed_points.clear()
-            ch = self.spindle.changer if self.spindle is not None else None
-            if ch is not None:
-                ch.pending = None
+            self._hold_points.clear()
+            self._plan_rpm = None
+            self._auto_item = None
+        self.paused = ""
 
-    def _follow_speed_points(self, s):
-        """(monitor thread) The rt side reached a C_HOLD_AT point and holds: the spindle monitor's
-        thread now sends the new speed and releases the hold at speed (SpeedChanger.poll)."""
+    def _follow_hold_points(self, s):
+        """(monitor thread) The rt side reached C_HOLD_AT points and holds: their events go to the
+        events thread, which performs them and releases the hold."""
         seq = int(s[C.ST_HOLD_AT_SEQ])
         while self._hold_at_seen < seq:
             self._hold_at_seen += 1
             with self._lock:
-                if not self._speed_points:
+                if not self._hold_points:
                     continue
-                _row, rpm = self._speed_points.popleft()
-            ch = self.spindle.changer if self.spindle is not None else None
-            if ch is not None:
-                ch.next += 1
-                ch.sent = False
-                ch.held_ticks.append([int(s[C.ST_TICK]), None])
-                self.spindle_prog = float(rpm)
-                ch.pending = self._spindle_rpm(rpm)
+                _row, events, it = self._hold_points.popleft()
+                self._auto_hold = True
+                self._auto_item = it
+                self._events_q.put((self._gen, events, it))
+
+    def _events_loop(self):
+        """Performs the events of the hold points the path reached, one point after the other, then
+        releases the hold (unless a pause waits for cycle start, or the operator holds)."""
+        while not self._stop.is_set():
+            try:
+                gen, events, it = self._events_q.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            self._auto_item = it
+            try:
+                for name, value in events:
+                    if gen != self._gen:
+                        break
+                    self._perform(name, value, gen)
+            except Exception as e:           # noqa: BLE001 (a device that failed: a controlled stop)
+                self._auto_hold = False
+                self._auto_item = None
+                if gen == self._gen:
+                    self._device_fault(f"{name} {value}: {e}")
+                continue
+            if gen == self._gen and not self.paused and not self.operator_hold and self._events_q.empty():
+                self.command(C.C_RESUME)
+            self._auto_hold = False
+            if not self.paused:
+                self._auto_item = None
+
+    _auto_item = None                     # the item whose events are performed (or whose pause waits)
+
+    def _perform(self, name, value, gen):
+        """One event, where the path holds for it."""
+        if name == "spindle":
+            self._set_spindle(float(value), gen)
+        elif name == "coolant":
+            if value == "off":
+                self.coolant.clear()
+            else:
+                self.coolant.add(str(value))
+            self._emit("coolant", {"coolant": sorted(self.coolant)})
+        elif name == "output":
+            out_name, index, v = value
+            self.outputs[f"{out_name} {index}"] = v
+            self._emit("output", {"name": out_name, "index": index, "value": v})
+        elif name == "message":
+            self._emit("message", {"msg": str(value)})
+        elif name in ("tool_change", "pause"):
+            if name == "pause" and value == "M1" and not self.optional_stop:
+                self.log("M1 optional stop: not taken (the optional-stop switch is off)")
+                return
+            what = (f"tool change: load tool {value}" if name == "tool_change" else
+                    f"program paused ({value})")
+            if self.stand_in_operator is not None:
+                self.stand_in_operator(what)
+                if name == "tool_change":
+                    self.tool = int(value)
+                return
+            self._pause_tool = int(value) if name == "tool_change" else None
+            self.paused = f"{what}; then cycle start (~ on the console, or pmctl ctl resume)"
+            self.log(self.paused)
+            self._emit("pause", {"msg": self.paused})
+        elif name == "tool_offset":
+            pass                           # the planner put the offset into the poses after it
+        else:
+            self.log(f"event {name} {value!r}: nothing here performs it")
+
+    def _set_spindle(self, rpm: float, gen):
+        """M3/M4 S (``rpm`` signed; 0: M5) where the path holds: the VFD gets the speed (with the
+        spindle override) and the path waits until it is at speed (a stop: until it turns no more
+        than the tolerance). A reset meanwhile wins: its M5 is written after this start, or this
+        start not at all (both hold ``_spindle_ov_lock``)."""
+        if self.svc.spindle is None:
+            self.spindle_prog = rpm
+            if rpm and not self._spindle_note:
+                self._spindle_note = True
+                self.log(f"no [spindle] in {self.svc.source}: S{abs(rpm):g} M{3 if rpm > 0 else 4} is not executed")
+            return
+        sp = self.spindle or self._spindle_session()
+        self._m5_written()
+        want = self._spindle_rpm(rpm)
+        with self._spindle_ov_lock:
+            if gen != self._gen:
+                return
+            self.spindle_prog = rpm
+            if want == sp.vfd.rpm_cmd:
+                return
+            _patient(sp.vfd, lambda: sp.vfd.start(want))
+        t0 = time.monotonic()
+        _patient(sp.vfd, sp.vfd.wait_at_speed)
+        self.log(f"spindle {'M5' if not rpm else ('M3' if rpm > 0 else 'M4') + f' S{abs(rpm):g}'}: "
+                 f"{'stopped' if not rpm else 'at speed'} after {time.monotonic() - t0:.2f} s")
+        if rpm and sp.monitor is None:
+            sp.watch(self._tick, self._device_fault)
 
     # ------------------------------------------------------------ spindle override
     def _spindle_rpm(self, rpm: float) -> float:
@@ -503,8 +615,6 @@ class Supervisor:
             vfd = sp.vfd if sp is not None else None
             if vfd is None or vfd.client is None or not self.spindle_prog or not vfd.rpm_cmd:
                 return True
-            if sp.changer is not None and sp.changer.pending is not None:
-                return False
             want = self._spindle_rpm(self.spindle_prog)
             if want != vfd.rpm_cmd and (want > 0) == (vfd.rpm_cmd > 0):
                 vfd.start(want)
@@ -550,6 +660,8 @@ class Supervisor:
             return "Home"
         s = self.raw()
         fol = s[C.ST_FOLLOW]
+        if s[C.ST_HOLD] and self._auto_hold and not self.operator_hold and not self.paused:
+            return "Run"                 # the path waits where an event takes effect (a spindle speed...)
         if s[C.ST_HOLD] and (self.busy() or fol in (HOLDING, HELD)):
             return "Hold:0" if (fol == HELD or (s[C.ST_SIGMA] == 0 and fol != HOLDING)) else "Hold:1"
         if self.check_mode:
@@ -588,7 +700,7 @@ class Supervisor:
     def submit(self, job, kind="job", name="", lines=None, source="") -> Item:
         """Queue a Job (planned from where the previous item ends). Raises MotionRefused in alarm."""
         self._check_motion_allowed()
-        moves = [m for m in job.moves if m.kind != "dwell"]
+        moves = [m for m in job.moves if m.kind not in ("dwell", "event")]     # those do not move
         with self._lock:
             start = self.end_pose()
             end = (np.asarray(moves[-1].tip, float), np.asarray(moves[-1].axis, float)) if moves else start
@@ -648,6 +760,15 @@ class Supervisor:
         if self.homing:                  # the homing cycle's stops are its own
             return
         self.operator_hold = False
+        if self.paused:                  # cycle start after M0, M1 or a tool change: the program goes on
+            self.log(f"resumed after: {self.paused}")
+            self.paused = ""
+            if self._pause_tool is not None:      # the operator confirmed the tool change
+                self.tool, self._pause_tool = self._pause_tool, None
+            self._auto_item = None
+            self._emit("resumed", {})
+        elif self._auto_hold:            # the path waits for an event: the events thread releases it
+            return
         if self.spindle_stopped_in_hold:
             # grbl: cycle start after a spindle stop in a hold brings the spindle back to its speed
             # first; the path goes on once it is there (a thread: the Modbus writes and the spin-up wait
@@ -677,19 +798,25 @@ class Supervisor:
         return True
 
     def _restore_spindle(self, then_resume: bool):
+        """The spindle back at its speed after a stop in the hold. 0x9E again (``then_resume`` False):
+        the start is written and the spindle counts as running at once, so a further 0x9E during the
+        spin-up stops it again. Cycle start (True): the path goes on once it is at speed."""
         self._m5_written()
         sp, rpm = self.spindle, self.spindle_prog
         try:
             if sp is not None and rpm and self.spindle_stopped_in_hold:
                 with self._spindle_ov_lock:
                     sp.vfd.start(self._spindle_rpm(rpm))
+                    if not then_resume:
+                        self.spindle_stopped_in_hold = False
                 sp.vfd.wait_at_speed()
-                self.log(f"spindle back at speed after the stop in the hold ({abs(self._spindle_rpm(rpm)):g} rpm)")
+                if sp.vfd.rpm_cmd:
+                    self.log(f"spindle back at speed after the stop in the hold ({abs(sp.vfd.rpm_cmd):g} rpm)")
         except Exception as e:            # noqa: BLE001
             self._device_fault(f"spindle VFD: restoring the speed after a stop in the hold: {e}")
             return
-        self.spindle_stopped_in_hold = False
         if then_resume:
+            self.spindle_stopped_in_hold = False
             self.command(C.C_RESUME)
 
     def feed_override(self, f: float):
@@ -736,7 +863,7 @@ class Supervisor:
         with self._lock:
             self.items.clear()
             self._gen += 1
-        self._drop_speed_changes()
+        self._drop_hold_points()
         # the planner thread drops what it holds once it sees the abort
         while not self._plan_q.empty():
             try:
@@ -764,7 +891,7 @@ class Supervisor:
             self.command(C.C_ESTOP)
             self._ended_base = int(self.raw()[C.ST_ENDED])
         self.raise_alarm(ALARM_ESTOP, reason)
-        self._drop_speed_changes()
+        self._drop_hold_points()
         self._spindle_off("at the E-stop")
         self._abort.clear()
 
@@ -866,6 +993,7 @@ class Supervisor:
                 it.planned = True
                 if self._push_rows(rows_iter, it) == 0:
                     self._ended_without_samples(it)
+                it.all_pushed = True
             except _Aborted:
                 continue
             except PmctlError as e:
@@ -910,7 +1038,9 @@ class Supervisor:
         rapid_lines = {m.line for m in job.moves if m.kind == RAPID}
         pm = self.plan_machine
         if self.nc_setup.shaper is None:
-            path = validate(job, pm, self.dt, feed_override=self.plan_feed_override, start=start)
+            # the whole job planned first (pmctl check's planning, with its fallback): nothing of it
+            # moves unless all of it can be planned, and the stream cannot fail midway
+            path = validate(job, pm, self.dt, feed_override=self.plan_feed_override, start=start, full=True)
             pieces = plan_stream(job, pm, self.dt, feed_override=self.plan_feed_override, start=start, path=path)
         else:
             # an input shaper reshapes the time law over whole segments: planned whole (memory
@@ -918,14 +1048,13 @@ class Supervisor:
             pieces = [shape_trajectory(plan(job, pm, self.dt, feed_override=self.plan_feed_override, start=start),
                                        self.nc_setup.shaper)]
         if it is not None:
-            row0 = self.ch.samples.written        # the ring row of the item's first sample
-            self._job_spindle(it, row0)
-            pieces = self._spindle_pieces(it, pieces, row0)
+            pieces = self._events_of(it, pieces, self.ch.samples.written)   # (the ring row of its first sample)
         return iter_stream_rows(pieces, self.machine, self.params, rapid_lines=rapid_lines,
                                 rapid_mm_s=rapid_mm_s)
 
     def _push_rows(self, rows_iter, it) -> int:
         """Push the rows as room frees up; returns how many were pushed."""
+        from pmctl.motion.timescale import S_LINE
         total = 0
         for rows in rows_iter:
             total += len(rows)
@@ -937,6 +1066,9 @@ class Supervisor:
                 i += n
                 if n == 0:
                     time.sleep(0.005)
+                else:
+                    it.pushed += n
+                    it.pushed_line = int(rows[i - 1, S_LINE])
         return total
 
     def _plan_probing(self, it):
@@ -1052,7 +1184,7 @@ class Supervisor:
             self.items.clear()
             self._gen += 1
             self._ended_base = int(s[C.ST_ENDED])
-        self._drop_speed_changes()
+        self._drop_hold_points()
         code = ALARM_SOFT_LIMIT if reason.startswith(("soft limit", "path error")) else (
             ALARM_ESTOP if reason.startswith("E-stop") else ALARM_MOTOR_FAULT)
         if code == ALARM_MOTOR_FAULT:
@@ -1069,7 +1201,7 @@ class Supervisor:
             s = ch.status()
             self._last_status = s
             if s[C.ST_HOLD_AT_SEQ] != self._hold_at_seen:
-                self._follow_speed_points(s)
+                self._follow_hold_points(s)
             self._take_fault(ch, s)
             if self.proc is not None and not self.proc.is_alive() and not self.rt_dead and not self._stop.is_set() \
                     and not self._quitting:
@@ -1097,6 +1229,8 @@ class Supervisor:
             with self._lock:
                 while self.items and self.items[0].planned:
                     head = self.items[0]
+                    if self._auto_item is head or any(p[2] is head for p in self._hold_points):
+                        break                   # its events first (the rt side may hold on its last sample)
                     if head.ends < head.parts:      # items planned to no samples have all their ends
                         if self._ended_base + 1 > ended:
                             break
@@ -1105,15 +1239,21 @@ class Supervisor:
                         if head.ends < head.parts:  # a piece of an item planned in pieces (probing)
                             continue
                     done = self.items.popleft()
+                    if not self.items:
+                        self._plan_rpm = None     # nothing planned ahead: the speed is the commanded one
                     self._emit("item_done", {"kind": done.kind, "name": done.name, "index": done.index})
                     self._spindle_at_job_end(done)
 
     _ended_base = 0
 
     def _spindle_at_job_end(self, it):
-        """M5 when a job ended with the spindle off and nothing queued needs it running."""
+        """M5 when a job that carries its speed per move (no spindle EVENT: those took effect where
+        the path got to them) ended with the spindle off and nothing queued needs it running."""
         sp = self.spindle
-        moves = [m for m in it.job.moves if m.kind != "dwell"] or list(it.job.moves)
+        if any(m.kind == "event" and any(n == "spindle" for n, _ in m.events) for m in it.job.moves):
+            return
+        moves = [m for m in it.job.moves if m.kind not in ("dwell", "event")] \
+            or [m for m in it.job.moves if m.kind == "dwell"]       # (EVENT moves carry no speed)
         if not self.spindle_off_at_job_end or sp is None or not sp.vfd.rpm_cmd or not moves \
                 or getattr(moves[-1], "spindle_rpm", 0.0) or self.items:
             return
@@ -1155,46 +1295,19 @@ class _Aborted(Exception):
     pass
 
 
-class _OvLockedVfd:
-    """The VFD as the speed changer inside a job sees it: its writes exclude the spindle override's
-    (Supervisor._apply_spindle_ov), so neither lands between the other's set-point and command."""
-
-    def __init__(self, vfd, lock):
-        self._vfd, self._ov_lock = vfd, lock
-
-    def start(self, rpm):
-        with self._ov_lock:
-            self._vfd.start(rpm)
-
-    def __getattr__(self, name):
-        return getattr(self._vfd, name)
-
-
-class _RtLoopView:
-    """The rt process's loop as pmctl.hal.modbus_vfd.SpeedChanger.poll sees a loop: its tick, a stop
-    asked for, and the follower's hold, whose release is a resume command on the channel."""
-
-    def __init__(self, sup):
-        self.sup = sup
-        self.follower = self
-        self.scaler = self
-
-    @property
-    def tick(self):
-        return self.sup._tick()
-
-    @property
-    def stop_request(self):
-        return self.sup._quitting or bool(self.sup.device_fault)
-
-    @property
-    def hold(self):
-        return bool(self.sup.raw()[C.ST_HOLD])
-
-    @hold.setter
-    def hold(self, value):
-        if not value:
-            self.sup.resume()
+def _patient(vfd, request):
+    """A VFD request (idempotent: a start, a wait at speed) tried again after an unanswered Modbus
+    request, up to the ``max_missed_polls`` the spindle monitor allows in a row (a busy computer or
+    link can miss one); then the link counts as lost."""
+    from pmctl.hal import HalTimeout
+    missed = 0
+    while True:
+        try:
+            return request()
+        except HalTimeout:
+            missed += 1
+            if missed >= vfd.opt.max_missed_polls:
+                raise
 
 
 class _RtProc:

@@ -2,6 +2,11 @@
 
 The planner (pmctl.task.planner) produces a Trajectory from a job (G-code or CL data); the loop reads
 one row per tick. All in the workpiece frame W: tip in mm, tool axis unit (tip -> spindle).
+
+``tip`` is the tip of the machine config's reference tool (``geometry.tool_length``), the point the
+machine's model and the rt side control: with a tool length offset d in force (Move.tool_offset, G43)
+the cutting tip is ``tip - d * axis`` (pmctl.task.job.controlled_point). ``points`` are the programmed
+(cutting) tip points.
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ import numpy as np
 @dataclass
 class Trajectory:
     dt: float                    # s, the tick period it was sampled at
-    tip: np.ndarray              # (N, 3) mm, tool tip in W
+    tip: np.ndarray              # (N, 3) mm, tip of the reference tool in W (the controlled point)
     axis: np.ndarray             # (N, 3) unit tool axis
     tip_vel: np.ndarray          # (N, 3) mm/s
     axis_vel: np.ndarray         # (N, 3) 1/s

@@ -6,6 +6,10 @@
     pmctl ctl --socket PATH override [--feed F] [--rapid R] [--spindle S]
     pmctl ctl --socket PATH queue add FILE | queue list
     pmctl ctl --socket PATH subscribe [--period S]
+    pmctl ctl --socket PATH optional-stop on|off
+
+``status`` prints a table (``--json``: the socket's JSON answer, as every other request prints it).
+Exit status: 0 the request was done, 1 refused or failed (the reason on stderr), 2 usage.
 """
 
 from __future__ import annotations
@@ -16,10 +20,14 @@ def add_parser(sub):
                        description="Send one request to the control socket of `pmctl serve` and print the answer.")
     p.add_argument("--socket", required=True, metavar="PATH", help="the control socket (pmctl serve --socket)")
     p.add_argument("what", choices=("status", "hold", "resume", "stop", "estop", "unlock", "home", "resume-job",
-                                    "override", "queue", "record", "subscribe"),
+                                    "override", "queue", "record", "subscribe", "optional-stop"),
                    help="home: the homing cycle ($H); resume-job: continue the job a crash interrupted from its "
-                        "line, after unlock or home (retract along the tool axis, move over, plunge at feed)")
-    p.add_argument("args", nargs="*", help="queue: 'add FILE' or 'list'; record: 'start DIR' or 'stop'")
+                        "line, after unlock or home (retract along the tool axis, move over, plunge at feed); "
+                        "resume: also cycle start after M0, M1 or a tool change (M6); optional-stop on|off: "
+                        "whether M1 pauses")
+    p.add_argument("args", nargs="*", help="queue: 'add FILE' or 'list'; record: 'start DIR' or 'stop'; "
+                                           "optional-stop: 'on' or 'off'")
+    p.add_argument("--json", action="store_true", help="status: the JSON answer instead of the table")
     p.add_argument("--feed", type=float, default=None, help="override: feed factor 0.1 .. 2.0")
     p.add_argument("--rapid", type=float, default=None, help="override: rapid factor 0.25, 0.5 or 1.0")
     p.add_argument("--spindle", type=float, default=None, help="override: spindle speed factor 0.1 .. 2.0 (the VFD's "
@@ -73,6 +81,10 @@ def run(args) -> int:
             req["stop"] = True
         else:
             raise PmctlError("record: use 'record start DIR' or 'record stop'")
+    elif args.what == "optional-stop":
+        if args.args not in (["on"], ["off"]):
+            raise PmctlError("optional-stop: use 'optional-stop on' or 'optional-stop off'")
+        req["on"] = args.args == ["on"]
     elif args.what == "override":
         if args.feed is not None:
             req["feed"] = args.feed
@@ -95,5 +107,39 @@ def run(args) -> int:
         ans = request(args.socket, req, timeout=None if args.what == "home" else 30.0)
     except OSError as e:
         raise PmctlError(f"--socket {args.socket}: {e.strerror or e}") from None
-    print(json.dumps(ans))
-    return 0 if ans.get("ok") else 1
+    if not ans.get("ok"):
+        raise PmctlError(f"{args.what}: {ans.get('error', 'refused')}")
+    if args.what == "status" and not args.json:
+        print(status_table(ans))
+    else:
+        print(json.dumps(ans))
+    return 0
+
+
+def status_table(st: dict) -> str:
+    """The status answer as a table an operator reads (positions to the micrometre, no -0.000)."""
+    def num(v, nd=3):
+        return f"{round(float(v), nd) + 0.0:.{nd}f}"
+    rows = [("state", st.get("state", "?") + (f" (alarm {st['alarm']}: {st.get('alarm_msg', '')})"
+                                               if st.get("alarm") else ""))]
+    if st.get("paused"):
+        rows.append(("paused", st["paused"]))
+    m = st.get("mpos") or []
+    if len(m) == 5:
+        rows.append(("position", f"X {num(m[0])}  Y {num(m[1])}  Z {num(m[2])} mm   A {num(m[3])}  B {num(m[4])} deg"))
+    rows.append(("line", str(st.get("line", 0))))
+    rows.append(("overrides", f"feed {num(100 * st.get('feed_override', 1), 0)} %, rapid "
+                              f"{num(100 * st.get('rapid_override', 1), 0)} %, spindle "
+                              f"{num(100 * st.get('spindle_override', 1), 0)} %"))
+    acc = [f"spindle {num(st.get('spindle_rpm', 0), 0)} rpm"] + list(st.get("coolant") or [])
+    rows.append(("accessories", ", ".join(acc)))
+    if st.get("outputs"):
+        rows.append(("outputs", ", ".join(f"{k} = {v}" for k, v in sorted(st["outputs"].items()))))
+    rows.append(("queued jobs", str(st.get("queued_items", 0))))
+    rows.append(("homed", "yes" if st.get("homed") else "no"))
+    rows.append(("rt process", "running" if st.get("rt_alive") else "DOWN"))
+    c = st.get("counts") or []
+    if c:
+        rows.append(("pulse counters", " ".join(str(int(x)) for x in c)))
+    w = max(len(k) for k, _ in rows)
+    return "\n".join(f"{k:<{w}}  {v}" for k, v in rows)

@@ -2,9 +2,12 @@
 
     pmctl run --config config/prototype.toml --backend sim --job examples/jobs/<job> --record DIR
               [--force] [--rate HZ] [--no-realtime] [--service config/service.toml] [--state FILE]
+              [--backend stepdir --bridge host-pty|rp2040-emu]
 
-Checks every input first (job, record target, backend, state file, the whole job against the
-machine), then runs it through the daemon's machinery as a one-shot client: a
+Checks every input first (job, record target, backend, state file, and the whole job as ``pmctl
+check`` does: every problem of the job, its poses and the path between them against the machine, the
+whole job planned, so that it cannot stop midway for a planning reason; a tool change is refused
+unless ``--tool`` says that tool is already in the spindle), then runs it through the daemon's machinery as a one-shot client: a
 pmctl.task.supervisor.Supervisor starts the rt motion process (pmctl.motion.rtproc: the loop, the
 NC and the backend in their own process) at the saved pulse counters (else home), the job is
 submitted, planned window by window and streamed into the shared sample ring (memory bounded by a
@@ -63,6 +66,10 @@ def add_parser(sub):
     p.add_argument("--config", default="prototype", help="machine config (default: config/prototype.toml)")
     p.add_argument("--service", default=None, help="service config (default: config/service.toml)")
     p.add_argument("--backend", default=None, help="HAL backend, e.g. 'sim' (default: [hal] backend of the service config)")
+    p.add_argument("--bridge", choices=("host-pty", "rp2040-emu"), default=None,
+                   help="with --backend stepdir: the bridge's host build on a pty (host-pty), or its RP2040 image "
+                        "in an emulated chip (rp2040-emu: needs --no-realtime and make -C firmware_bridge rp2040; "
+                        "docs/stepdir.md) (default: [hal.stepdir] port)")
     p.add_argument("--job", required=True, help="job file: G-code (.ngc .nc .gcode .tap) or CL data (.cl ...)")
     p.add_argument("--record", metavar="DIR", default=None,
                    help="write the run as a recording folder (must not exist yet; see --force)")
@@ -84,6 +91,10 @@ def add_parser(sub):
                    help="pulse-counter state file: where the machine is between runs (default: the service "
                         "config's state_file, per user); --state '' for none")
     p.add_argument("--feed-override", type=float, default=1.0, help="feed override factor (default 1)")
+    p.add_argument("--tool", type=int, default=None, metavar="N",
+                   help="the tool in the spindle at the start: a tool change (M6) to it goes on, a change to "
+                        "another tool is refused on a real machine (pmctl run has no operator to change "
+                        "tools); on --backend sim the simulation's operator changes tools and answers M0")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=run)
 
@@ -210,7 +221,6 @@ def run(args) -> int:
     from pmctl.motion.nc import counts_of, initial_state
     from pmctl.motion.service_config import load_service_config
     from pmctl.motion.state_store import StateLock, load_counters
-    from pmctl.task.planner import load_job
 
     out = _Out()
     log = out.log
@@ -225,6 +235,11 @@ def run(args) -> int:
         raise PmctlError(f"--feed-override must be within (0, 10], got {args.feed_override:g}")
     if args.backend is not None and args.backend not in hal.BACKENDS:
         raise PmctlError(f"--backend {args.backend!r}: unknown backend; known: {', '.join(sorted(hal.BACKENDS))}")
+    if args.bridge is not None and (args.backend or load_service_config(args.service).backend) != "stepdir":
+        raise PmctlError(f"--bridge {args.bridge} is the step/dir bridge's: it needs --backend stepdir")
+    if args.bridge == "rp2040-emu" and not args.no_realtime:
+        raise PmctlError("--bridge rp2040-emu: the emulated chip runs slower than real time; add --no-realtime "
+                         "(the host then waits for the chip)")
     if args.force and not args.record:
         raise PmctlError("--force replaces an existing --record folder; there is no --record")
     if args.record:               # find out now, not after the run, that the recording cannot be written
@@ -269,7 +284,17 @@ def run(args) -> int:
         where = "position: home" + (f" (no saved counters in {state_file})" if state_file else " (--state '')")
     st = initial_state(machine, counts0)
 
-    job = load_job(args.job, machine, start=(st.tip, st.axis))
+    # the job read and parsed (every problem the reader finds), then checked whole against the
+    # machine and planned (_run_client) before anything moves: pmctl check's check
+    from pmctl.core.errors import JobProblems
+    from pmctl.task.job import parse_job
+    from pmctl.task.gcode import reader_options
+    job, problems = parse_job(args.job, machine, start=(st.tip, st.axis),
+                              **reader_options(args.job, svc.interpreter))    # tool table, search path...
+    if problems:
+        raise JobProblems(problems)
+    if backend_name != "sim":      # the simulation's stand-in operator changes tools and answers pauses
+        _refuse_operator_waits(job, args.tool)
     if not job.moves:                 # nothing to run (an empty file, only comments and M30): say so
         from pmctl.core.errors import InputError
         raise InputError(args.job, None, "no motion in the job (no move and no dwell): nothing to run")
@@ -278,10 +303,42 @@ def run(args) -> int:
     if any(m.probe for m in job.moves):
         from pmctl.motion.probe import check_probe_job
         check_probe_job(job, svc.probe, args.job, args.feed_override)
+    # the whole job checked against the machine and planned before anything moves (pmctl check; the
+    # supervisor's queue plans it again the same way, with the same V-F cap on the joint speeds); an
+    # input shaper plans the job whole: the batch planner's bounds
+    from pmctl.task.jobcheck import check_job, machine_for_planning
+    rep = check_job(job, machine_for_planning(machine, params), dt, feed_override=args.feed_override,
+                    start=(st.tip, st.axis), batch=setup.shaper is not None)
+    if not rep.ok:
+        raise JobProblems(rep.problems)
     nc_over = {"k_theta_per_s": list(svc.nc.k_theta_per_s), "k_theta_auto": False, "shaper": svc.nc.shaper,
                "pulse_mode": svc.nc.pulse_mode}
     return _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, counts0, st, job,
                        nc_over, strain_in_loop, where, setup.notes)
+
+
+def _refuse_operator_waits(job, tool):
+    """What pmctl run on a real machine cannot do, refused before anything moves (InputError naming
+    the line): a tool change (M6) to any tool but ``tool``, the one already in the spindle (--tool),
+    and a program pause (M0, M60) that waits for a cycle start no one can give here. (M1 is not
+    taken: the optional-stop switch is off in pmctl run.)"""
+    from pmctl.core.errors import InputError
+    from pmctl.task.job import EVENT
+    for m in job.moves:
+        if m.kind != EVENT:
+            continue
+        for name, value in m.events:
+            if name == "tool_change" and (tool is None or int(value) != int(tool)):
+                have = "no tool is known to be loaded (--tool)" if tool is None else f"tool {tool} is loaded (--tool)"
+                raise InputError(m.file or job.source, m.line or None,
+                                 f"tool change to T{int(value)}: pmctl run cannot change tools and {have}; load "
+                                 f"tool {int(value)} and run with --tool {int(value)}, split the job at the change, "
+                                 "or queue it in pmctl serve where the operator changes tools")
+            if name == "pause" and value != "M1":
+                raise InputError(m.file or job.source, m.line or None,
+                                 f"{value} program pause: pmctl run has no cycle start to continue after it; "
+                                 "queue the job in pmctl serve (cycle start: ~ on the console or pmctl ctl "
+                                 f"resume), or remove the {value}")
 
 
 def _catch_stop_signals(handler) -> dict:
@@ -297,12 +354,27 @@ def _catch_stop_signals(handler) -> dict:
 
 class _RunView:
     """What the progress display reads of a job streamed to the rt process: ticks since the job
-    was submitted, an estimate of its length from the line being executed, and the NC mode."""
+    was submitted, an estimate of its length, and the NC mode. The length is the ticks so far plus
+    the samples planned and not yet run (the rt side runs one a tick at 100 % feed); while the
+    planner is still ahead of the machine (a job longer than the sample ring), the samples not yet
+    planned are extrapolated from the job line the planned ones reached."""
 
-    def __init__(self, sup, last_line: int):
+    def __init__(self, sup, last_line: int, job=None):
         from pmctl.motion import channel as C
         self.C, self.sup, self.last_line = C, sup, max(int(last_line), 1)
         self.tick0 = None
+        self.item = None                 # the job's supervisor Item, once submitted
+        self.s0 = 0.0                    # the rt side's path clock (samples run) when it was submitted
+        self.lines, self.share = _nominal_shares(job) if job is not None else (None, None)
+
+    def _planned_share(self, line: int) -> float:
+        """The share of the job planned once its samples reached ``line``: by the moves' nominal
+        times (length / feed, rapids at the planner's rapid speed, dwells), else by lines."""
+        if self.lines is None or not len(self.lines):
+            return min(1.0, line / self.last_line)
+        import numpy as np
+        k = int(np.searchsorted(self.lines, line, "right"))
+        return float(self.share[k - 1]) if k else 0.0
 
     def _st(self):
         ch = self.sup.ch
@@ -317,14 +389,51 @@ class _RunView:
 
     @property
     def n_ticks(self):
-        st = self._st()
-        frac = min(1.0, float(st[self.C.ST_LINE]) / self.last_line) if st is not None else 0.0
-        return int(self.tick / frac) if frac > 0 else self.tick
+        st, it = self._st(), self.item
+        if st is None or it is None or not it.pushed:
+            return self.tick
+        total = float(it.pushed)
+        if not it.all_pushed:
+            total /= max(self._planned_share(it.pushed_line), 1e-3)
+        return self.tick + int(max(0.0, total - (float(st[self.C.ST_S]) - self.s0)))
 
     @property
     def mode(self):
         st = self._st()
         return int(st[self.C.ST_MODE]) if st is not None else 0
+
+
+def _nominal_shares(job):
+    """(lines, share of the job's nominal time up to and including each line), lines increasing."""
+    import numpy as np
+
+    from pmctl.task.job import ARC, DWELL, RAPID
+    from pmctl.task.planner import PlannerLimits
+    rapid = PlannerLimits().rapid_mm_s
+    t, lines, prev = [], [], None
+    for m in job.moves:
+        tip = np.asarray(m.tip, float)
+        if m.kind == DWELL:
+            dt = float(m.dwell)
+        elif prev is None:
+            dt = 0.0
+        else:
+            if m.kind == ARC and m.center is not None:
+                r = float(np.hypot(*(tip[:2] - np.asarray(m.center, float)[:2])))
+                length = float(np.hypot(abs(m.sweep) * r, tip[2] - prev[2]))
+            else:
+                length = float(np.linalg.norm(tip - prev))
+            dt = length / (rapid if m.kind == RAPID or not m.feed else min(float(m.feed), rapid))
+        if m.kind != DWELL:
+            prev = tip
+        t.append(dt)
+        lines.append(int(m.line))
+    if not t or sum(t) <= 0:
+        return None, None
+    order = np.argsort(lines, kind="stable")
+    ls, share = np.asarray(lines)[order], np.cumsum(np.asarray(t)[order]) / sum(t)
+    keep = np.r_[ls[1:] != ls[:-1], True]                 # the last entry of each line
+    return ls[keep], share[keep]
 
 
 def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, counts0, st, job, nc_over,
@@ -341,20 +450,19 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
     from pmctl.hal.modbus_vfd import job_speed
     from pmctl.motion import channel as C
     from pmctl.motion.recorder import R_S, R_TICK
-    from pmctl.task.planner import validate
     from pmctl.task.supervisor import Supervisor
     log = out.log
     dt = cfg.dt
+    hal_over = {"stepdir": {"port": args.bridge}} if getattr(args, "bridge", None) else None
     sup = Supervisor(args.config, service=args.service, backend=backend_name, state_file=state_file or "",
-                     realtime=cfg.realtime, rate_hz=cfg.rate_hz, log=log, offline=not cfg.realtime, nc=nc_over)
+                     realtime=cfg.realtime, rate_hz=cfg.rate_hz, log=log, offline=not cfg.realtime, nc=nc_over,
+                     hal=hal_over)
+    if backend_name == "sim":                # the simulation's stand-in operator: tool changes and pauses
+        sup.stand_in_operator = lambda what: log(f"{what}: done by the simulation's operator, the job goes on")
     notes = list(setup_notes)              # chain modes, K_theta auto, shaper: as this run resolved them
     if sup.plan_machine is not sup.machine:
         notes.append(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: "
                      f"planning with that")
-    # the whole job checked before anything moves (the supervisor's planner checks it again as it plans);
-    # an input shaper plans the job whole: the batch planner's bounds
-    validate(job, sup.plan_machine, dt, feed_override=args.feed_override, start=(st.tip, st.axis),
-             batch=sup.nc_setup.shaper is not None)
     rpm0 = job_speed([m.spindle_rpm for m in job.moves])
     if rpm0 and svc.spindle is None:
         notes.append(f"no [spindle] in {svc.source}: the job's S{abs(rpm0):g} M{3 if rpm0 > 0 else 4} "
@@ -415,7 +523,7 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
             f"backend {backend_name}, V-F {mode}, K_theta "
             f"{'/'.join(f'{k:.4g}' for k in sorted(set(sup.svc.nc.k_theta_per_s)))}/s, "
             f"{'real-time' if cfg.realtime else 'no real-time (ticks back to back, waiting for samples)'}")
-        view = _RunView(sup, max((m.line for m in job.moves), default=1))
+        view = _RunView(sup, max((m.line for m in job.moves), default=1), job)
         prog = _Progress(view, Path(args.job).name, dt, args.quiet, out)
         return _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick, s0, rec_err, sink, rec,
                                        machine, cfg, dt, counts0, backend_name, state_file)
@@ -444,6 +552,7 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
             s0.append(float(s[C.ST_S]))
             ended0 = int(s[C.ST_ENDED])
             it = sup.submit(job, kind="job", name=Path(args.job).name, source=str(args.job))
+            view.item, view.s0 = it, s0[0]
         prog.start()
         done_tick = None
         while True:
@@ -491,7 +600,8 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
         status, reason = "fault", r.get("reason", "")
     ticks = int(r["ticks"])
     if state_file and r.get("clean") is False and status != "fault":
-        log(f"warning: the rt side did not save {state_file} as a clean stop")
+        log(f"warning: the rt side did not save {state_file} as a clean stop: the position may be off by the "
+            f"motion of the last persist interval; home the machine (or check it) before the next job")
 
     probes = list(getattr(it, "probe_results", None) or []) if it is not None else []
     probe_err = next((p.error for p in probes if p.error), "")
@@ -501,7 +611,8 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
     # ---- the recording first (the run's data must not depend on stdout staying open), then the report
     rec_error = rec_err[0] if rec_err else ""
     if rec_error:
-        log(f"warning: the recorder stopped at row {sink.rows}: {rec_error}")
+        log(f"warning: the recorder stopped at row {sink.rows}: {rec_error}; the recording ends there (marked "
+            f"incomplete): check the disk (space, permissions) and run the job again to record all of it")
     j0 = job_tick[0] if job_tick[0] is not None else (stop_tick if stop_tick is not None else ticks)
     res = SimpleNamespace(job_start=j0, ticks=ticks, status=status, reason=reason, dt=dt)
     i0, i1, track_note = tracking_window(res, stop_tick)
@@ -560,14 +671,16 @@ def _finish_recording(rec, args, backend_name, cfg, log, status, reason, ts, tm,
            else f"recording error: {rec_error}" if rec_error
            else f"{rec.rows} rows for {ticks} ticks")
     if rec._done:
-        log(f"warning: the recording {args.record} was abandoned during the run ({rec_error})")
+        log(f"warning: the recording {args.record} was abandoned during the run ({rec_error}); nothing of it was "
+            f"kept: check the disk (space, permissions) and run the job again to record it")
     else:
         try:
             rec_rows = rec.rows
             rec.finish(complete=not missing, reason=why if missing else "",
                        extra_meta={"description": desc, "run": run_meta})
         except Exception as e:
-            log(f"warning: the recording {args.record} could not be finished: {e}")
+            log(f"warning: the recording {args.record} could not be finished: {e}; what was written "
+                f"may be left in {args.record}.partial (it reads as an incomplete recording)")
             rec_rows = None
     return rec_rows
 

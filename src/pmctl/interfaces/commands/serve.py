@@ -14,7 +14,11 @@ from __future__ import annotations
 def add_parser(sub):
     p = sub.add_parser("serve", help="run the controller as a service: grbl console, control socket, state journal",
                        description="Run the controller: the rt motion process and the supervisor, with the grbl "
-                                   "1.1 console and the control socket.")
+                                   "1.1 console and the control socket.",
+                       epilog="The systemd unit runs it with --service /etc/pmctl/service.toml --config "
+                              "/etc/pmctl/machine.toml (pmctl init-config writes both; docs/service.md). Exit "
+                              "status: 0 stopped on request (SIGTERM, Ctrl-C: position saved), 1 refused at "
+                              "start-up (a flag, a config, the state file), 2 usage.")
     p.add_argument("--config", default="prototype", help="machine config (default: the bundled prototype)")
     p.add_argument("--service", default=None, help="service config (default: the bundled service.toml)")
     p.add_argument("--backend", default=None, help="HAL backend (default: from the service config; 'sim')")

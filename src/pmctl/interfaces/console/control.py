@@ -4,7 +4,8 @@ JSON lines, for scripts and a future UI. One request per line, one JSON answer p
     {"cmd": "status"}                          -> {"ok": true, "state": "Idle", "mpos": [...], ...}
     {"cmd": "queue", "add": "FILE"}            -> {"ok": true, "index": n}   (checked before it is queued)
     {"cmd": "queue", "list": true}             -> {"ok": true, "items": [{"index", "kind", "name", "planned"}]}
-    {"cmd": "hold"} / {"cmd": "resume"}        -> {"ok": true}
+    {"cmd": "hold"} / {"cmd": "resume"}        -> {"ok": true}   (resume: also cycle start after M0, M1, M6)
+    {"cmd": "optional_stop", "on": true}       -> M1 pauses (false: M1 is passed over; the default)
     {"cmd": "override", "feed": 1.2, "rapid": 0.5, "spindle": 1.1}
                                                -> feed 0.1 .. 2.0, rapid 0.25 / 0.5 / 1.0, spindle 0.1 .. 2.0
                                                   (the VFD's set-point, when a [spindle] is configured)
@@ -137,13 +138,15 @@ class ControlServer:
         s = sup.raw()
         tip, axis = sup.pose()
         a, b = roll_pitch_deg(axis)
-        return {"ok": True, "state": sup.state_name(), "mpos": [*map(float, tip), a, b],
+        return {"ok": True, "state": sup.state_name(), "mpos": [round(float(x), 6) + 0.0 for x in (*tip, a, b)],
                 "counts": [int(x) for x in s[C.ST_COUNTS:C.ST_COUNTS + 5]], "line": sup.current_line(),
                 "sent": [int(x) for x in s[C.ST_SENT:C.ST_SENT + 5]], "homed": bool(sup.homed),
                 "sigma": float(s[C.ST_SIGMA]), "feed_override": float(s[C.ST_FEED_OV]),
                 "rapid_override": float(s[C.ST_RAPID_OV]), "spindle_override": float(sup.spindle_ov),
                 "spindle_rpm": spindle_rpm(sup), "queued_items": sup.queued_items(),
                 "alarm": sup.alarm, "alarm_msg": sup.alarm_msg, "rt_alive": not sup.rt_dead,
+                "paused": sup.paused, "coolant": sorted(sup.coolant), "outputs": dict(sup.outputs),
+                "optional_stop": bool(sup.optional_stop),
                 "tick": int(s[C.ST_TICK]), "dropped_records": int(s[C.ST_DROPPED])}
 
     def handle(self, req) -> dict:
@@ -154,8 +157,13 @@ class ControlServer:
             return self.status()
         if cmd == "queue":
             if "add" in req:
+                from pmctl.task.gcode import reader_options
                 path = str(req["add"])
-                job = load_job(path, sup.machine, start=sup.end_pose())
+                console = getattr(self.daemon, "console", None)   # the work offsets in force, as at the console
+                offsets = console.interp.offsets() if console is not None else \
+                    self.daemon.journal.data.get("offsets")
+                job = load_job(path, sup.machine, start=sup.end_pose(),
+                               **reader_options(path, sup.svc.interpreter, offsets))
                 it = sup.submit(job, kind="job", name=os.path.basename(path), source=os.path.abspath(path))
                 return {"ok": True, "index": it.index}
             with sup._lock:
@@ -181,6 +189,8 @@ class ControlServer:
                 apply(v)
                 if getattr(self.daemon, "console", None) is not None:
                     setattr(self.daemon.console, console_attr, int(round(v * 100)))   # Ov: and its +/- steps
+        elif cmd == "optional_stop":
+            sup.optional_stop = bool(req.get("on"))
         elif cmd == "stop":
             sup.soft_reset()
         elif cmd == "estop":

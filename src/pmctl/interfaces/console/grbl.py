@@ -8,20 +8,32 @@ Two threads:
   ``[spindle]`` is configured), 0x9E spindle stop in a hold. Other bytes collect into
   lines (``\\n`` or ``\\r`` ends one); a line longer than ``LINE_MAX`` is dropped whole with error:11.
 - the worker executes lines in order and answers each with ``ok`` or ``error:N``. A motion line is
-  answered once it is checked (reader, reachability) and queued; when the motion queue is full the
-  answer waits (grbl's full planner buffer), so a character-counting sender with its 128-byte budget
-  is paced by the machine. Motion lines are collected into batches that the supervisor plans as one
-  job (a batch goes when it is large, when the sender pauses, or at M2/M30).
+  answered once it is checked (reader, reachability) and its blocks have entered the planner queue:
+  ``PLANNER_BLOCKS`` blocks (moves) accepted and not yet executed, the depth ``[OPT:]`` and ``Bf:``
+  advertise. It counts every block from its ``ok`` until the rt side has run past it: the ones still
+  collected here, the ones being planned and the ones whose samples wait in the sample ring ahead of
+  the tool (the look-ahead the time-scaling needs to stop on the path). When it is full the answer
+  waits (grbl's full planner buffer), so a character-counting sender is paced by the motion.
+  Accepted blocks are collected into batches that the supervisor plans as one job, from rest to rest:
+  a batch goes at once when the machine is idle (after ``BATCH_IDLE_S`` without a new line, or when
+  the queue is full), else when the motion queued before it is about to run out (``LOW_WATER_S``), at
+  a G4, or at M2/M30, whose ``ok`` comes when the program's end is queued; ``[MSG:Pgm End]`` follows
+  when the machine gets there.
 - a probing line (G38.2/G38.3) is executed as grbl does: the queued motion is sent, the probe goes
   alone, and the line is answered once the probe has ended -- ``[PRB:x,y,z,a,b:1]`` (``:0``
   without contact; after ``ALARM:5`` for a G38.2 without contact) then ``ok`` -- and the lines after
   it are read from where the probe stopped.
+- M-codes take effect in program order where the stream gets to them: a line's spindle (M3 M4 M5 S),
+  coolant (M7 M8 M9), tool change (M6), pause (M0 M1), output and message words come from the
+  interpreter as EVENT moves (pmctl.task.job) queued with the motion; the supervisor holds the path
+  where each takes effect (a lone one at once when idle).
 
 A bad line changes nothing: not the queued motion, not the parser state, not the next line.
 """
 
 from __future__ import annotations
 
+import collections
 import copy
 import math
 import os
@@ -40,8 +52,9 @@ from pmctl.task.supervisor import MotionRefused, roll_pitch_deg
 
 RX_BUFFER = 128
 LINE_MAX = 256
-BATCH_MOVES = 200
-BATCH_IDLE_S = 0.08
+PLANNER_BLOCKS = 15               # the planner queue's depth in blocks (moves): [OPT:VN,15,128], Bf:
+BATCH_IDLE_S = 0.08               # idle machine: a batch goes after the sender paused this long
+LOW_WATER_S = 1.0                 # running machine: the next batch goes when less is queued to run than this
 MAX_QUEUED_ITEMS = 3
 BANNER = "Grbl 1.1h ['$' for help]"
 HELP = "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $C $X $H ~ ! ? ctrl-x]"
@@ -51,15 +64,18 @@ RT_DOOR, RT_JOG_CANCEL = 0x84, 0x85
 
 
 class GrblConsole:
-    def __init__(self, sup, fd: int, journal, *, log=None, homing=None, jogger=None):
+    def __init__(self, sup, fd: int, journal, *, log=None, homing=None, jogger=None, present=None):
         self.sup = sup
         self.fd = fd
+        self.present = present or (lambda: True)   # a sender has the port open (a pty can tell)
+        self.connected = False
         self.journal = journal
         self.log = log or (lambda m: None)
         self.homing = homing                  # callable() -> (ok, msg) for $H, or None
         self.jogger = jogger
         tip, axis = sup.pose()
-        self.interp = LineInterpreter(sup.machine, tip, axis, journal.data.get("offsets"))
+        self.interp = LineInterpreter(sup.machine, tip, axis, journal.data.get("offsets"),
+                                      config=getattr(getattr(sup, "svc", None), "interpreter", None))
         self.last_prb = None                  # the last probe's ProbeResult ($# reports it)
         self.settings = {10: int(journal.data.get("settings", {}).get("10", 1))}
         self.lines: queue.Queue = queue.Queue()
@@ -68,6 +84,13 @@ class GrblConsole:
         self._reset_gen = 0
         self.batch: list = []
         self.batch_lines: dict = {}
+        self.blocks = collections.deque()     # [console line, blocks, item (None: still in the batch)] accepted, not run
+        self._blocks_lock = threading.Lock()  # the reader (Bf:) and the worker both take run blocks off its front
+        self._rx_lock = threading.Lock()
+        self._rx_pending = 0                  # bytes of lines received and not yet answered (Bf:'s second field)
+        self._line_bytes = 0
+        self._pgm_end = []                    # items ending with M2/M30: [MSG:Pgm End] when they have run
+        self._last_item = None                # the last item the console queued
         self.batch_t = 0.0
         self.seq = 0
         self.spindle_ov = 100
@@ -83,6 +106,8 @@ class GrblConsole:
 
     # ------------------------------------------------------------ output
     def write(self, text: str):
+        if not self.present():
+            return                         # nobody on the pty: it would wait there for the next sender
         data = (text + "\r\n").encode("ascii", "replace")
         with self._wlock:
             try:
@@ -96,12 +121,14 @@ class GrblConsole:
         if event == "alarm":
             self.write(f"ALARM:{detail['code']}")
             self.write(f"[MSG:{one_line(detail['msg'])}]")
-        elif event == "error":
+        elif event in ("error", "pause", "message"):
             self.write(f"[MSG:{one_line(detail['msg'])}]")
 
     # ------------------------------------------------------------ life
     def start(self):
-        self.welcome()
+        if self.present():                 # a serial device (or a sender already on the pty)
+            self.connected = True
+            self.welcome()
         for name, fn in (("pmctl-console-rx", self._reader), ("pmctl-console-lines", self._worker)):
             t = threading.Thread(target=fn, name=name, daemon=True)
             t.start()
@@ -130,6 +157,9 @@ class GrblConsole:
     # ------------------------------------------------------------ reader
     def _reader(self):
         while not self._stop.is_set():
+            if not self._check_client():
+                time.sleep(0.05)
+                continue
             try:
                 r, _, _ = select.select([self.fd], [], [], 0.05)
             except (OSError, ValueError):
@@ -142,12 +172,28 @@ class GrblConsole:
             except BlockingIOError:
                 continue
             except OSError:                 # the sender closed the port: wait for the next one
-                time.sleep(0.05)
+                if self.connected:
+                    self.connected = False
+                    self.log("console: the sender closed the port")
+                time.sleep(0.005)
                 continue
             if not data:
                 time.sleep(0.05)
                 continue
             self.feed(data)
+
+    def _check_client(self) -> bool:
+        """Whether a sender is there; one that has just opened the pty is greeted as a grbl board
+        greets when its port is opened (the banner; nothing is reset: queued motion goes on)."""
+        present = self.present()
+        if present and not self.connected:
+            self.connected = True
+            self.log("console: a sender opened the port")
+            self.welcome()
+        elif not present and self.connected:
+            self.connected = False
+            self.log("console: the sender closed the port")
+        return present
 
     def feed(self, data: bytes):
         """Bytes from the sender (the reader thread; tests may call it directly)."""
@@ -170,13 +216,17 @@ class GrblConsole:
             elif b >= 0x80:
                 self._override(b)
             elif b in (0x0A, 0x0D):
-                if self._overflow:
-                    self.lines.put((self._reset_gen, None))      # error:11 in order with the others
-                elif self._buf or b == 0x0A:
-                    self.lines.put((self._reset_gen, bytes(self._buf)))
+                self._line_bytes += 1
+                if self._overflow or self._buf or b == 0x0A:
+                    n, self._line_bytes = self._line_bytes, 0
+                    with self._rx_lock:
+                        self._rx_pending += n
+                    # (None: error:11 in order with the others)
+                    self.lines.put((self._reset_gen, None if self._overflow else bytes(self._buf), n))
                 self._buf.clear()
                 self._overflow = False
             else:
+                self._line_bytes += 1
                 if len(self._buf) >= LINE_MAX:
                     self._overflow = True
                     self._buf.clear()
@@ -205,12 +255,18 @@ class GrblConsole:
         self._reset_gen += 1
         self._buf.clear()
         self._overflow = False
+        self._line_bytes = 0
         while not self.lines.empty():
             try:
                 self.lines.get_nowait()
             except queue.Empty:
                 break
+        with self._rx_lock:
+            self._rx_pending = 0              # the unanswered lines are dropped (grbl clears its RX buffer)
         self.batch, self.batch_lines = [], {}
+        with self._blocks_lock:
+            self.blocks.clear()
+        self._pgm_end.clear()
         self.sup.soft_reset()
         self.interp.reset_modal()
         self.interp.sync(*self.sup.pose())
@@ -262,8 +318,11 @@ class GrblConsole:
         else:
             pos = "WPos:" + mm3(m[i] - wco[i] for i in range(5))
         parts = [state, pos, f"FS:{self.speed:.0f},{spindle_rpm(sup):.0f}"]
+        acc = accessories(sup)
+        if acc:
+            parts.append(f"A:{acc}")
         if self.settings[10] & 2:
-            parts.append(f"Bf:{max(0, 15 - sup.queued_items())},{RX_BUFFER}")
+            parts.append(f"Bf:{max(0, PLANNER_BLOCKS - self.queued_blocks())},{max(0, RX_BUFFER - self._rx_pending)}")
         line = self.n_word()
         if line > 0 and state not in ("Idle", "Alarm", "Jog"):
             parts.append(f"Ln:{line}")
@@ -274,36 +333,98 @@ class GrblConsole:
         parts.append("WCO:" + mm3(wco))
         return "<" + "|".join(parts) + ">"
 
+    # ------------------------------------------------------------ the planner queue
+    def queued_blocks(self) -> int:
+        """Blocks in the planner queue: accepted (answered) and not yet run past by the rt side; the
+        ones run past are dropped from its front (they complete in order)."""
+        with self._blocks_lock:
+            return self._queued_blocks()
+
+    def _queued_blocks(self) -> int:
+        sup, blocks = self.sup, self.blocks
+        line = None
+        while blocks:
+            seq, _n, it = blocks[0]
+            if it is None:
+                break                            # still in the batch being collected
+            if not sup.retired(it):
+                with sup._lock:
+                    head = sup.items[0] if sup.items else None
+                if head is not it:
+                    break
+                if line is None:
+                    line = int(sup.raw()[C.ST_LINE])
+                if line <= seq:                  # the tool is on this block (or before it)
+                    break
+            blocks.popleft()
+        return sum(n for _, n, _ in blocks)
+
+    def _want_flush(self) -> bool:
+        """Whether the batch should go to the supervisor now: the machine is idle, or what is queued
+        before it is about to run out (the next batch is planned while the last one ends)."""
+        sup = self.sup
+        if not sup.busy():
+            return True
+        if sup.queued_items() > 1:
+            return False
+        s = sup.raw()
+        return s[C.ST_QUEUED] * sup.dt < LOW_WATER_S
+
+    def _wait_room(self, n: int, gen) -> bool:
+        """grbl's full planner buffer: wait until ``n`` more blocks fit (or the queue is empty). The
+        batch goes to the supervisor meanwhile when it is due. False: a reset or an alarm ended it."""
+        while self.queued_blocks() + n > PLANNER_BLOCKS and self.blocks:
+            if gen != self._reset_gen or self._stop.is_set() or self.sup.alarm or self.sup.rt_dead:
+                return False
+            if self.batch and self._want_flush():
+                self._flush(gen)
+            time.sleep(0.005)
+        return True
+
+    def _announce_ends(self):
+        """[MSG:Pgm End] for the programs whose M2/M30 the machine has reached."""
+        while self._pgm_end and self.sup.retired(self._pgm_end[0]):
+            self._pgm_end.pop(0)
+            self.write("[MSG:Pgm End]")
+
     # ------------------------------------------------------------ lines
     def _worker(self):
         while not self._stop.is_set():
             try:
-                gen, raw = self.lines.get(timeout=0.02)
+                gen, raw, nbytes = self.lines.get(timeout=0.02)
             except queue.Empty:
-                if self.batch and time.monotonic() - self.batch_t > BATCH_IDLE_S:
+                if self.batch and time.monotonic() - self.batch_t > BATCH_IDLE_S and self._want_flush():
                     self._flush()
+                self._announce_ends()
                 continue
             if gen != self._reset_gen:
                 continue
+            answer = None
             if raw is None:
-                self.write("error:11")
-                continue
-            try:
-                text = raw.decode("ascii")
-            except UnicodeDecodeError:
-                self.write("error:1")
-                continue
-            try:
-                self.execute(text.strip(), gen)
-                if gen == self._reset_gen:
-                    self.write("ok")
-            except LineError as e:
-                self.write(f"error:{e.code}")
-            except MotionRefused as e:
-                self.write(f"error:{e.code}")
-            except Exception as e:              # a bug must not kill the console
-                self.log(f"console: {type(e).__name__}: {e}")
-                self.write("error:20")
+                answer = "error:11"
+            else:
+                try:
+                    text = raw.decode("ascii")
+                except UnicodeDecodeError:
+                    answer = "error:1"
+            if answer is None:
+                try:
+                    self.execute(text.strip(), gen)
+                    if gen == self._reset_gen:
+                        answer = "ok"
+                except LineError as e:
+                    answer = f"error:{e.code}"
+                except MotionRefused as e:
+                    answer = f"error:{e.code}"
+                except Exception as e:              # a bug must not kill the console
+                    self.log(f"console: {type(e).__name__}: {e}")
+                    answer = "error:20"
+            if gen == self._reset_gen:
+                with self._rx_lock:
+                    self._rx_pending = max(0, self._rx_pending - nbytes)
+            if answer is not None:
+                self.write(answer)
+            self._announce_ends()
 
     def execute(self, text: str, gen: int = 0):
         if not text:
@@ -331,21 +452,35 @@ class GrblConsole:
             return self._probe(moves, n_word, st0, gen)
         if flags.get("sync"):
             self._persist()
-        # grbl synchronises on G4 (mc_dwell) and M2/M30: the answer comes once all queued motion
-        # has run (and the dwell elapsed) -- a sender's way to know the buffer is empty
-        sync = not self.sup.check_mode and (flags.get("end") or any(m.kind == DWELL for m in moves))
+        # grbl synchronises on G4 (mc_dwell): the answer comes once all queued motion has run and the
+        # dwell elapsed -- a sender's way to know the buffer is empty. M2/M30 are answered when the
+        # program's end is queued; [MSG:Pgm End] when the machine gets there
+        sync = not self.sup.check_mode and any(m.kind == DWELL for m in moves)
         if moves and not self.sup.check_mode:
+            n = sum(1 for m in moves if m.kind != DWELL)
+            if n and not self._wait_room(n, gen):
+                if gen != self._reset_gen:
+                    return                # a soft reset dropped the line: no answer
+                raise MotionRefused("an alarm stopped the motion this line waited for", 9)
             if not self.batch:
                 self.batch_t = time.monotonic()
             self.batch.extend(moves)
             self.batch_lines[self.seq] = n_word
             self.batch_t = time.monotonic()
-        if len(self.batch) >= BATCH_MOVES or flags.get("end") or sync:
-            self._flush(gen)          # waits (the answer with it) while the motion queue is full
+            if n:
+                with self._blocks_lock:
+                    self.blocks.append([self.seq, n, None])
+        if flags.get("end") or sync:
+            it = self._flush(gen)     # waits (the answer with it) while the motion queue is full
+            if flags.get("end") and not self.sup.check_mode:
+                if it is None and self.sup.busy():
+                    it = self._last_item      # an end line without motion: the end is where the queued motion ends
+                if it is not None:
+                    self._pgm_end.append(it)
+                elif not self.sup.busy():
+                    self.write("[MSG:Pgm End]")
         if sync and not self._synchronize(gen):
             return                    # a soft reset dropped the line: no answer
-        if flags.get("end"):
-            self.write("[MSG:Pgm End]")
 
     def _synchronize(self, gen) -> bool:
         """grbl's protocol_buffer_synchronize: wait until every queued item has run and the machine
@@ -370,12 +505,19 @@ class GrblConsole:
                 return None
             time.sleep(0.01)
         batch, lines = self.batch, self.batch_lines
+        it = None
         try:                          # the batch stays visible (state Run) until the item is queued
-            return self.sup.submit(moves_job(batch, "console"), kind="gcode", name="console", lines=lines)
+            it = self.sup.submit(moves_job(batch, "console"), kind="gcode", name="console", lines=lines)
+            self._last_item = it
+            return it
         except MotionRefused:
             return None
         finally:
             self.batch, self.batch_lines = [], {}
+            with self._blocks_lock:
+                for b in self.blocks:
+                    if b[2] is None:
+                        b[2] = it if it is not None else _DROPPED
 
     def _probe(self, moves, n_word, st0, gen):
         """A G38.2/G38.3 line, as grbl runs it: the motion queued before it goes first, the probe is
@@ -427,16 +569,17 @@ class GrblConsole:
             for n in WCS_NAMES:
                 self.write(f"[{n}:" + mm3(self.interp.wcs[n]) + "]")
             z = ",".join(["0.000"] * 5)
-            self.write(f"[G28:{z}]")
-            self.write(f"[G30:{z}]")
+            offsets = self.interp.offsets()
+            self.write("[G28:" + mm3(offsets["g28"]) + "]")
+            self.write("[G30:" + mm3(offsets["g30"]) + "]")
             self.write("[G92:" + mm3(self.interp.g92) + "]")
-            self.write("[TLO:0.000]")
+            self.write(f"[TLO:{mm3([self.interp.tlo()])}]")
             self.write(self.last_prb.prb() if self.last_prb is not None else f"[PRB:{z}:0]")
         elif cmd == "$G":
             self.write(f"[GC:{self.interp.parser_state()}]")
         elif cmd == "$I":
             self.write(f"[VER:1.1h.pmctl-{__version__}:{sup.machine.name}]")
-            self.write(f"[OPT:VN,15,{RX_BUFFER}]")
+            self.write(f"[OPT:VN,{PLANNER_BLOCKS},{RX_BUFFER}]")
         elif cmd == "$N":
             self.write("$N0=")
             self.write("$N1=")
@@ -512,12 +655,29 @@ class GrblConsole:
         return out
 
 
-def spindle_rpm(sup) -> float:
+
+
+def accessories(sup) -> str:
+    """grbl's ``A:`` field: S spindle clockwise, C counter-clockwise, F flood, M mist ("" when none)."""
+    rpm = spindle_rpm(sup, signed=True)
+    out = "S" if rpm > 0 else "C" if rpm < 0 else ""
+    return out + ("F" if "flood" in sup.coolant else "") + ("M" if "mist" in sup.coolant else "")
+
+
+class _Dropped:
+    """The item of blocks whose batch the supervisor refused: they left the queue."""
+
+
+_DROPPED = _Dropped()
+
+
+def spindle_rpm(sup, signed=False) -> float:
     """The speed the spindle VFD is commanded to (the programmed S with the spindle override; 0:
     stopped or no ``[spindle]``), as grbl's ``FS:`` reports it. No Modbus request: the last command."""
     sp = sup.spindle
     vfd = getattr(sp, "vfd", None)
-    return abs(float(vfd.rpm_cmd)) if vfd is not None else 0.0
+    rpm = float(vfd.rpm_cmd) if vfd is not None else 0.0
+    return rpm if signed else abs(rpm)
 
 
 def one_line(text) -> str:

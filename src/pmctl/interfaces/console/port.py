@@ -1,5 +1,12 @@
 """Where the console talks: a pty created for it (``pty:LINK``, LINK a symlink to the slave side)
-or a serial device (a path: raw mode, 115200 baud, as grbl's USB serial)."""
+or a serial device (a path: raw mode, 115200 baud, as grbl's USB serial).
+
+On a pty the console sees a sender arrive and leave: pmctl keeps only the master side open, so the
+master reads as hung up (POLLHUP) while no program has the slave open, and the hang-up goes away
+when a sender opens it (:meth:`ConsolePort.client_present`). The console greets a sender that
+arrives (grbl's banner), as a grbl board does when its USB port is opened, and drops what it would
+write while nobody listens (it would otherwise wait in the pty for the next sender). The raw mode set
+on the slave stays with the pty between senders."""
 
 from __future__ import annotations
 
@@ -32,6 +39,7 @@ class ConsolePort:
         self.spec = spec
         self.link = None
         self._keep = None
+        self.pty = spec.startswith("pty:")
         if spec.startswith("pty:"):
             link = spec[4:]
             if not link:
@@ -48,7 +56,8 @@ class ConsolePort:
                 os.close(master)
                 os.close(slave)
                 raise PmctlError(f"--console {spec}: cannot create the link: {e.strerror or e}") from None
-            self.fd, self._keep, self.link, self.device = master, slave, link, name
+            os.close(slave)                         # the senders open it; meanwhile the master reads HUP
+            self.fd, self.link, self.device = master, link, name
         else:
             try:
                 fd = os.open(spec, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
@@ -63,6 +72,13 @@ class ConsolePort:
                 pass                                  # not a tty (a FIFO in a test): bytes as they are
             self.fd, self.device = fd, spec
 
+    def client_present(self) -> bool:
+        """Whether a sender has the port open: on a pty, the master is not hung up; a serial device
+        cannot tell (always True)."""
+        if not self.pty:
+            return True
+        return client_present(self.fd)
+
     def close(self):
         for fd in (self.fd, self._keep):
             if fd is not None:
@@ -75,3 +91,14 @@ class ConsolePort:
                 os.unlink(self.link)
             except OSError:
                 pass
+
+
+def client_present(fd: int) -> bool:
+    """A pty master ``fd``: whether some program has its slave side open (no POLLHUP)."""
+    import select
+    p = select.poll()
+    p.register(fd, select.POLLIN | select.POLLHUP)
+    try:
+        return not any(ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL) for _, ev in p.poll(0))
+    except OSError:
+        return False

@@ -17,6 +17,7 @@ import numpy as np
 
 from pmctl.core.compensation import STILL_MM_S
 from pmctl.core.config import Machine
+from pmctl.core.vf import TIE as VF_TIE
 from pmctl.motion import nc as _nc
 from pmctl.motion.nc import MODEL_LOST, ModelFK, NCParams, NCState
 
@@ -70,6 +71,8 @@ def constants(machine: Machine, params: NCParams | None, model: ModelFK | None =
         raise AssertionError(f"ncore NC_REST_FF {_ncore.NC_REST_FF} != nc.REST_FF_PULSES {_nc.REST_FF_PULSES}")
     if _ncore.NC_COMP_STILL != STILL_MM_S:
         raise AssertionError(f"ncore NC_COMP_STILL {_ncore.NC_COMP_STILL} != compensation.STILL_MM_S {STILL_MM_S}")
+    if _ncore.NC_VF_TIE != VF_TIE:
+        raise AssertionError(f"ncore NC_VF_TIE {_ncore.NC_VF_TIE} != vf.TIE {VF_TIE}")
     return a
 
 

@@ -252,5 +252,9 @@ PyMODINIT_FUNC PyInit__ncore(void)
         Py_DECREF(m);
         return NULL;
     }
+    if (PyModule_AddObject(m, "NC_VF_TIE", PyFloat_FromDouble(NC_VF_TIE)) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
     return m;
 }

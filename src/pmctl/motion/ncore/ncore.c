@@ -671,12 +671,12 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
             }
         }
     }
-    /* V-F converters (core.vf.vf_tick), threshold one pulse */
+    /* V-F converters (core.vf.vf_tick), threshold one pulse, reached within NC_VF_TIE */
     {
         int any = 0;
         for (i = 0; i < 5; i++) {
             double a = s[NC_S_ACC + i] + qdot[i] * c->ppm[i] * c->dt, m;
-            m = trunc(a / 1.0);
+            m = trunc(a >= 0.0 ? a / 1.0 + NC_VF_TIE : a / 1.0 - NC_VF_TIE);
             if (m > c->max_pulses)
                 m = c->max_pulses;
             else if (m < -c->max_pulses)

@@ -67,6 +67,10 @@
  * (pmctl.core.compensation.STILL_MM_S) */
 #define NC_COMP_STILL 1e-9
 
+/* V-F converters: an accumulator this close (pulses) below a whole pulse has reached it, so that a
+ * rate sum landing exactly on a pulse sends it in both cores (pmctl.core.vf.TIE) */
+#define NC_VF_TIE 1e-9
+
 /* Constants: filled once by nc_setup from a flat array of NC_C_LEN doubles, in this order. */
 typedef struct {
     /* model (ModelFK) */

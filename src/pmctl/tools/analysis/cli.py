@@ -53,9 +53,16 @@ def add_vibration_parsers(sub):
 def add_resonance_parser(sub):
     """``resonance`` (pmctl.tools.analysis.resonance)."""
     p = sub.add_parser("resonance", help="chain modes from the strain gauges: PSD, frequency and damping, "
-                       "input-shaper and K_theta advice (PNG); --make-job writes the test move",
+                       "input-shaper and K_theta advice (PNG); --make-job writes the test move; an accelerometer "
+                       "CSV (Klipper's) gets a shaper and its frequency",
                        description="Resonance measurement from the strain gauges of a recorded test move.")
-    p.add_argument("recording", nargs="?", help="recording folder of the test move (pmctl run --record)")
+    p.add_argument("recording", nargs="?",
+                   help="recording folder of the test move (pmctl run --record); or an accelerometer log: a "
+                        "Klipper CSV (raw '#time,accel_x,accel_y,accel_z' or a resonance PSD 'freq,psd_x,...'), or "
+                        "a recording of independent axes with acc_<A> channels, analysed the way Klipper's "
+                        "calibrate_shaper does (docs/vibration.md)")
+    p.add_argument("--accel-axis", choices=("x", "y", "z", "all"), default=None,
+                   help="accelerometer CSV: fit the shapers to this axis' PSD (default: the sum of all three)")
     p.add_argument("--make-job", metavar="OUT.ngc", help="write the impulse test move (G-code) and exit")
     p.add_argument("--axis", default="z", help="test-move axis x, y or z (default z: all three chains)")
     p.add_argument("--strokes", type=int, default=4, help="number of strokes (default 4)")

@@ -454,7 +454,11 @@ def cmd_resonance(args):
     if not args.recording:
         raise PmctlError("pmctl analyze resonance: give a RECORDING folder, or --make-job OUT.ngc for the test move")
     from pmctl.core.recording import read_recording
+    if Path(args.recording).is_file():          # a Klipper accelerometer CSV (raw or PSD)
+        return cmd_accel(args, args.recording)
     rec = read_recording(args.recording)
+    if not hasattr(rec.machine, "geometry"):     # a recording of independent axes: its accelerometers
+        return cmd_accel(args, rec)
     result, spectra = analyse(rec, args.fmin, args.fmax, args.kv, args.modes)
     out = Path(args.out)
     try:
@@ -487,4 +491,270 @@ def cmd_resonance(args):
         write_modes(args.write, entry)
         print(f"wrote [nc] {', '.join(f'{k} = {v}' for k, v in entry.items())} into {args.write} "
               f"(pmctl run --service {args.write} --k-theta auto --shaper auto uses them)")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------
+# Accelerometers, the way 3-D printers (Klipper) tune their input shapers
+# ---------------------------------------------------------------------------------------------
+#
+# An accelerometer on the toolhead, the machine shaken through a sweep of frequencies: the power
+# spectral density of what it measured says where the structure resonates, and each shaper is
+# scored by how much of that vibration it would leave and how much it would smooth the path. The
+# steps and numbers are those Klipper's calibrate_shaper uses (its documentation and source,
+# reimplemented here): Welch PSD with 0.5 s Kaiser windows, the PSD divided by the frequency (the
+# sweep's acceleration grows with it), the vibration that a shaper leaves pessimised over damping
+# ratios 0.075, 0.1 and 0.15 and counted above 1/20 of the peak (a shaper reduces no more than
+# that), shapers designed at damping 0.1, a score smoothing x (v^1.5 + 0.2 v + 0.01). The shapers
+# themselves are pmctl's (pmctl.core.shaper: Singhose's closed forms); Klipper's MZV, EI and
+# multi-hump EI use its own fitted coefficients, which shifts their best frequencies a little.
+
+ACC_WINDOW_S = 0.5
+ACC_MIN_HZ = 5.0
+ACC_MAX_HZ = 200.0
+MAX_SHAPER_HZ = 150.0
+TEST_DAMPING = (0.075, 0.1, 0.15)
+VIBRATION_REDUCTION = 20.0
+SHAPER_DAMPING = 0.1
+SHAPER_MIN_HZ = {"ZV": 21.0, "MZV": 23.0, "EI": 29.0, "2HUMP_EI": 39.0, "3HUMP_EI": 48.0}
+
+
+def read_accel_csv(path):
+    """A Klipper accelerometer CSV: raw samples ``#time,accel_x,accel_y,accel_z`` (mm/s²) ->
+    ("raw", {"t", "x", "y", "z"}), or a resonance PSD ``freq,psd_x,psd_y,psd_z,psd_xyz[,...]`` ->
+    ("psd", {"freq", "x", "y", "z", "sum", "normalized"}) (``normalized``: the file carries Klipper's
+    fitted shapers, so its PSD is already divided by the frequency). InputError naming the file and
+    line for anything else."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(p, None, f"cannot read: {getattr(e, 'strerror', None) or e}") from None
+    lines = text.splitlines()
+    hdr_i = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.startswith("##")), None)
+    if hdr_i is None:
+        raise InputError(p, 1, "empty file")
+    header = lines[hdr_i].strip().lstrip("#").strip()
+    names = [c.strip() for c in header.split(",")]
+    if names[:4] != ["time", "accel_x", "accel_y", "accel_z"] and names[:5] != ["freq", "psd_x", "psd_y", "psd_z", "psd_xyz"]:
+        raise InputError(p, hdr_i + 1, "not a Klipper accelerometer CSV: expected the header "
+                                       "'#time,accel_x,accel_y,accel_z' (raw samples) or "
+                                       "'freq,psd_x,psd_y,psd_z,psd_xyz' (a resonance PSD)")
+    rows, first = [], hdr_i + 2
+    for k, ln in enumerate(lines[hdr_i + 1:], first):
+        s = ln.strip()
+        if not s or s.startswith("#"):
+            continue
+        cells = s.split(",")
+        try:
+            vals = [float(c) if c.strip() else math.nan for c in cells]
+        except ValueError:
+            bad = next(c for c in cells if c.strip() and not _is_float(c))
+            raise InputError(p, k, f"{bad.strip()!r} is not a number") from None
+        if len(vals) < min(len(names), 4):
+            raise InputError(p, k, f"row has {len(vals)} cells, the header has {len(names)}")
+        rows.append(vals[:len(names)] + [math.nan] * (len(names) - len(vals)))
+    if len(rows) < 8:
+        raise InputError(p, first, "fewer than 8 rows of data")
+    a = np.array(rows, float)
+    if names[:4] == ["time", "accel_x", "accel_y", "accel_z"]:
+        if not np.all(np.diff(a[:, 0]) > 0):
+            r = int(np.argmax(np.diff(a[:, 0]) <= 0)) + 1
+            raise InputError(p, first + r, "time is not strictly increasing")
+        return "raw", {"t": a[:, 0], "x": a[:, 1], "y": a[:, 2], "z": a[:, 3]}
+    a = np.nan_to_num(a)
+    return "psd", {"freq": a[:, 0], "x": a[:, 1], "y": a[:, 2], "z": a[:, 3], "sum": a[:, 4],
+                   "normalized": "shapers:" in names}
+
+
+def _is_float(s):
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def accel_psd(t, acc):
+    """Welch PSD ((mm/s²)²/Hz) of one accelerometer axis: windows of ACC_WINDOW_S rounded up to a
+    power of two, half overlapping, Kaiser (β 6), each detrended by its mean; the rate is the
+    samples over the span (an accelerometer's clock, not the host's stamps)."""
+    t, acc = np.asarray(t, float), np.asarray(acc, float)
+    fs = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 else 1.0
+    nfft = 1 << int(fs * ACC_WINDOW_S - 1).bit_length()
+    if len(acc) <= nfft:
+        raise PmctlError(f"the accelerometer log is too short: {len(acc)} samples, a window needs {nfft}")
+    win = np.kaiser(nfft, 6.0)
+    step = nfft // 2
+    starts = np.arange(0, len(acc) - nfft + 1, step)
+    seg = np.stack([acc[s:s + nfft] for s in starts], 1)
+    seg = win[:, None] * (seg - seg.mean(0))
+    spec = np.abs(np.fft.rfft(seg, axis=0)) ** 2 / (fs * np.sum(win ** 2))
+    spec[1:-1] *= 2.0
+    return np.fft.rfftfreq(nfft, 1.0 / fs), spec.mean(1)
+
+
+def normalize_psd(freq, psd):
+    """The PSD of a frequency sweep divided by its frequency (the sweep's acceleration amplitude
+    grows with it), and the bins below 2·ACC_MIN_HZ faded out (the slow part of the sweep)."""
+    freq = np.asarray(freq, float)
+    out = np.asarray(psd, float) / (freq + 0.1)
+    low = freq < 2 * ACC_MIN_HZ
+    out[low] *= np.exp(-(2 * ACC_MIN_HZ / (freq[low] + 0.1)) ** 2 + 1.0)
+    return out
+
+
+def shaper_smoothing(sh, accel=5000.0, scv=5.0) -> float:
+    """How far a shaper pulls a corner in (mm) at ``accel`` with the square-corner velocity ``scv``:
+    the larger of the offsets of a 90° and a 180° turn, each the impulses' spread about their mean
+    time weighted by what they travel (Klipper's measure of smoothing)."""
+    A, T = np.asarray(sh.A, float), np.asarray(sh.T, float)
+    ts = float(A @ T)
+    d = T - ts
+    late = d >= 0
+    off90 = math.sqrt(2.0) * float(np.sum(A[late] * (scv + 0.5 * accel * d[late]) * d[late]))
+    off180 = float(np.sum(A * 0.5 * accel * d * d))
+    return max(off90, off180)
+
+
+def shaper_max_accel(sh, scv=5.0, target=0.12) -> float:
+    """The largest acceleration whose smoothing stays within ``target`` mm (bisection)."""
+    lo, hi = 0.0, 1.0
+    while shaper_smoothing(sh, hi, scv) <= target and hi < 1e9:
+        lo, hi = hi, hi * 2
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if shaper_smoothing(sh, mid, scv) <= target else (lo, mid)
+    return lo
+
+
+@dataclass
+class ShaperFit:
+    name: str
+    freq_hz: float
+    vibrations: float          # share of the vibration above the threshold that the shaper leaves
+    smoothing_mm: float
+    score: float
+    max_accel: float           # mm/s² that keeps the smoothing within 0.12 mm
+
+
+def remaining_vibrations(sh, freq, psd) -> float:
+    """Share of the PSD above max/VIBRATION_REDUCTION that the shaper leaves, the worst over
+    TEST_DAMPING (the structure's damping is unknown)."""
+    from pmctl.core import shaper as S
+    thr = psd.max() / VIBRATION_REDUCTION
+    total = np.maximum(psd - thr, 0.0).sum()
+    worst = 0.0
+    for z in TEST_DAMPING:
+        v = S.residual_vibration(sh, freq, z)
+        worst = max(worst, float(np.maximum(v * psd - thr, 0.0).sum() / total) if total > 0 else 0.0)
+    return worst
+
+
+def fit_shapers(freq, psd, scv=5.0, max_freq=ACC_MAX_HZ):
+    """Each shaper at its best frequency (0.2 Hz steps from its lowest up to MAX_SHAPER_HZ): the
+    frequency that leaves the least vibration, then among those within 10 % (+0.05 %) of it the one
+    with the best score; and the recommended one: a shaper replaces the one before it (ZV, MZV, EI,
+    2HUMP_EI, 3HUMP_EI) when its score is 20 % better, or 5 % better with 10 % less smoothing.
+    Returns (fits, recommended)."""
+    from pmctl.core import shaper as S
+    freq, psd = np.asarray(freq, float), np.asarray(psd, float)
+    keep = freq <= max_freq
+    freq, psd = freq[keep], psd[keep]
+    fits = []
+    for name, fmin in SHAPER_MIN_HZ.items():
+        res = []
+        for f in np.arange(fmin, MAX_SHAPER_HZ, 0.2)[::-1]:
+            sh = S.make_shaper(name, float(f), SHAPER_DAMPING)
+            vib = remaining_vibrations(sh, freq, psd)
+            sm = shaper_smoothing(sh, scv=scv)
+            res.append((float(f), vib, sm, sm * (vib ** 1.5 + 0.2 * vib + 0.01), sh))
+        best = min(res, key=lambda r: r[1])
+        sel = best
+        for r in res[::-1]:
+            if r[1] < best[1] * 1.1 + 0.0005 and r[3] < sel[3]:
+                sel = r
+        fits.append(ShaperFit(name, sel[0], sel[1], sel[2], sel[3], shaper_max_accel(sel[4], scv)))
+    rec = None
+    for s in fits:
+        if rec is None or s.score * 1.2 < rec.score or (s.score * 1.05 < rec.score and s.smoothing_mm * 1.1 < rec.smoothing_mm):
+            rec = s
+    return fits, rec
+
+
+def analyse_accel(path_or_rec, axis=None):
+    """Klipper's way on an accelerometer CSV or on the acc_* channels of a recording of independent
+    axes: (freq, psd per axis and summed, fits, recommended, source)."""
+    if isinstance(path_or_rec, (str, Path)) and Path(path_or_rec).is_file():
+        kind, d = read_accel_csv(path_or_rec)
+        if kind == "raw":
+            f, px = accel_psd(d["t"], d["x"])
+            _, py = accel_psd(d["t"], d["y"])
+            _, pz = accel_psd(d["t"], d["z"])
+            psd = {"x": px, "y": py, "z": pz, "sum": px + py + pz}
+            psd = {k: normalize_psd(f, v) for k, v in psd.items()}
+            src = f"raw accelerometer samples, {len(d['t'])} at {(len(d['t']) - 1) / (d['t'][-1] - d['t'][0]):.0f} Hz"
+        else:
+            f = d["freq"]
+            psd = {k: d[k] for k in ("x", "y", "z", "sum")}
+            if not d["normalized"]:
+                psd = {k: normalize_psd(f, v) for k, v in psd.items()}
+            src = "a resonance PSD"
+    else:
+        rec = path_or_rec
+        chans = [c for c in rec.columns if c.startswith("acc_")]
+        if not chans:
+            raise InputError(rec.path, None, "no acc_<A> channel: an accelerometer resonance analysis needs one")
+        psd = {}
+        for c in chans:
+            x = np.asarray(rec[c], float)
+            ok = np.isfinite(x)
+            f, p = accel_psd(rec.t[ok], x[ok])
+            psd[c[4:]] = normalize_psd(f, p)
+        psd["sum"] = sum(psd[c[4:]] for c in chans)
+        src = f"channels {', '.join(chans)} of the recording"
+    use = psd["sum"] if axis in (None, "all", "sum") else psd[axis]
+    fits, rec = fit_shapers(f, use)
+    return f, psd, fits, rec, src
+
+
+def cmd_accel(args, target) -> int:
+    """`pmctl analyze resonance FILE.csv` (or a recording with acc_* channels): PSD, each shaper at
+    its best frequency, the recommended one; resonance.png and resonance.json in --out."""
+    f, psd, fits, rec, src = analyse_accel(target, getattr(args, "accel_axis", None))
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise PmctlError(f"--out {out}: cannot create the folder: {e.strerror or e}") from None
+    use = psd["sum"]
+    band = (f >= ACC_MIN_HZ) & (f <= ACC_MAX_HZ)
+    peak = float(f[band][np.argmax(use[band])]) if band.any() else float("nan")
+    print(f"{Path(str(getattr(target, 'path', target))).name}: {src}; PSD peak at {peak:.1f} Hz")
+    for s in fits:
+        print(f"  {s.name.lower():9s} {s.freq_hz:6.1f} Hz  vibrations {100 * s.vibrations:5.1f} %  smoothing "
+              f"{s.smoothing_mm:.3f} mm  max_accel <= {s.max_accel:.0f} mm/s²")
+    print(f"recommended shaper: {rec.name.lower()} @ {rec.freq_hz:.1f} Hz")
+    js = out / "resonance.json"
+    js.write_text(json.dumps({"source": str(target if isinstance(target, (str, Path)) else target.path),
+                              "psd_peak_hz": peak,
+                              "shapers": [asdict(s) for s in fits],
+                              "recommended": {"shaper": rec.name.lower(), "freq_hz": rec.freq_hz}}, indent=1),
+                  encoding="utf-8")
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(9, 5))
+    m = f <= ACC_MAX_HZ
+    for k, v in psd.items():
+        ax.plot(f[m], v[m], label=k if k != "sum" else "sum", lw=1.6 if k == "sum" else 0.8)
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("PSD / frequency ((mm/s²)²/Hz per Hz)")
+    ax.set_title(f"accelerometer PSD; recommended {rec.name.lower()} @ {rec.freq_hz:.1f} Hz")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    png = out / "resonance.png"
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    print(f"wrote {png}\nwrote {js}")
     return 0

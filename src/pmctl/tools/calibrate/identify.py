@@ -185,7 +185,10 @@ def identify(q, tip, axis, ref: Geometry, *, tip_sigma_mm=TIP_SIGMA_MM, axis_sig
             break
     # Final analysis at the solution.
     J = _jac(pr, geom, amask, ws)
-    m = len(r)
+    # degrees of freedom of the residuals: 3 per measured tip, 2 per measured tool axis (a direction:
+    # its residual's 3 components are noise in 2, the one along the axis is second order)
+    n_ax = 0 if axis is None else (n if amask is True else int(np.sum(amask)))
+    m = 3 * n + 2 * n_ax
     dof = max(m - rank, 1)
     chi2 = cost / dof
     nf = math.sqrt(max(chi2, 1.0))

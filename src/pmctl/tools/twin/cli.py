@@ -10,11 +10,16 @@ from pmctl.tools.twin.catalogue import DEFAULT_CAP, EFFECTS, RUNS
 def add_diagnose_parser(sub):
     p = sub.add_parser("diagnose", help="where and why a recording differs from the nominal twin",
                        description="Locate the mismatch between a recording and the nominal twin, name the "
-                                   "physics it left out, fit it and show the held-out fit improve. "
+                                   "physics it left out, fit it and show the held-out fit improve. A recording of "
+                                   "independent axes (\"machine\": \"axes\", e.g. from pmctl twin import) gets the "
+                                   "drive's force model (mass, friction, constant load), servo tracking, backlash and "
+                                   "compliance of a load encoder, cogging and resonances. "
                                    "The report and its JSON form are described in docs/diagnosis-report.md.")
     p.add_argument("folder", help="recording folder (holding recording.json and data.csv); a folder with "
                                   "one recording in a sub-folder is accepted too")
-    p.add_argument("--json", metavar="PATH", help="also write the report as JSON here (docs/diagnosis-report.md)")
+    p.add_argument("--json", metavar="PATH", nargs="?", const="-",
+                   help="also write the report as JSON here (docs/diagnosis-report.md); --json alone (or "
+                        "--json -) prints the JSON on stdout and the text report on stderr")
     p.add_argument("--plots", metavar="DIR", help="write PNG plots here")
     p.add_argument("--config", metavar="PATH", help="machine config (default: the one the recording names)")
     p.add_argument("--cap", type=int, default=DEFAULT_CAP,
@@ -58,11 +63,45 @@ def add_synth_parser(sub):
                         "catalogue); loop: the run machined by the real control loop (no real time) on the sim "
                         "backend carrying the effects (backlash, pitch/periodic error, friction, servo lag; "
                         "plus the sensor, geometry and compliance effects)")
+    p.add_argument("--machine", choices=("prototype", "axes"), default="prototype",
+                   help="prototype (default): runs of the machine; axes: bench runs of one ball-screw axis, a "
+                        "recording of independent axes (cmd, enc, effort, load, acc) with the physics of real drives: "
+                        "inertia, friction, force_offset, servo_tracking, backlash, compliance, resonance, cogging "
+                        "(--effects from those; random: the force model and --max-effects others)")
     p.add_argument("--force", action="store_true", help="replace cases that already exist in OUT_DIR")
     p.set_defaults(func=lazy("pmctl.tools.twin.synth:_cmd"))
+    return p
+
+
+def add_import_parser(sub):
+    p = sub.add_parser("import", help="turn a bench log (CSV/TSV, halsampler, halscope, .mat, Klipper) into a "
+                                      "recording of independent axes",
+                       description="Write OUT_DIR as a recording of independent axes (\"machine\": \"axes\", "
+                                   "docs/recording.md) from SRC: a CSV or TSV with a header row, LinuxCNC halsampler "
+                                   "output or a halscope log, a MATLAB .mat file, or Klipper's raw accelerometer CSV. "
+                                   "Then: pmctl twin diagnose OUT_DIR.")
+    p.add_argument("src", metavar="SRC", help="the log to import")
+    p.add_argument("out_dir", metavar="OUT_DIR", help="the recording folder to write (refused if it exists, "
+                                                     "unless --force)")
+    p.add_argument("--format", choices=("csv", "halsampler", "halscope", "mat", "klipper"), default=None,
+                   help="the source's format (default: told by the file)")
+    p.add_argument("--map", action="append", metavar="CH=SRC[,CH=SRC]",
+                   help="which source column (name, or 1-based number) or .mat variable becomes which channel: "
+                        "cmd_<A> (required per axis), enc_<A>, load_<A>, effort_<A>, acc_<A>, temp_<name>; "
+                        "SRC*K or SRC/K scales it (K a number or a scalar variable of the .mat file)")
+    p.add_argument("--unit", action="append", metavar="CH=UNIT[,CH=UNIT]",
+                   help="each channel's unit as logged (mm, m, um, deg, rad, N, N m, A, m/s^2, g ...; "
+                        "default mm, deg for an axis whose command is an angle, N, mm/s^2)")
+    p.add_argument("--time", metavar="COLUMN", help="the time column (default: --rate)")
+    p.add_argument("--time-unit", metavar="UNIT", help="unit of --time (s, ms, us; default s)")
+    p.add_argument("--rate", type=float, metavar="HZ", help="sample rate when the log has no time column "
+                                                            "(halsampler: the sampled thread's rate)")
+    p.add_argument("--force", action="store_true", help="replace OUT_DIR if it holds a recording")
+    p.set_defaults(func=lazy("pmctl.tools.twin.importers:_cmd"))
     return p
 
 
 def add_parser(sub):
     add_diagnose_parser(sub)
     add_synth_parser(sub)
+    add_import_parser(sub)

@@ -347,16 +347,45 @@ class Candidate:
         return Fit(self.params_of(c, ctx), X @ c, X.shape[1], internal={"coef": c})
 
 
+def axis_names(ctx: Context) -> tuple:
+    """The axes of the context's machine: the prototype's L1..Y, or a generic recording's
+    (``"machine": "axes"``: its cmd_<A> columns, pmctl.tools.twin.axes)."""
+    return ctx.extra.get("axes", AXES)
+
+
+def axis_index(ctx: Context, name: str) -> int:
+    return list(axis_names(ctx)).index(name)
+
+
+def excited_axis(ctx: Context, channel: str) -> int:
+    """The axis whose motion drives a channel's mode: chain i for the prototype's strain_i; axis A
+    for a generic machine's acc_<A> or effort_<A>."""
+    if "axes" in ctx.extra:
+        return axis_index(ctx, channel.split("_", 1)[1])
+    return int(channel[-1]) - 1
+
+
 def axis_gain(ctx: Context, a: int, site: str = "load") -> np.ndarray:
     """(N,) whitened obs response to a unit error on actuator a.
 
     load: the tool channels move by J[:, a]; motor: enc_a sees it, and the tool channels too when
-    axis a has no encoder (the twin then predicted the tool from cmd)."""
+    axis a has no encoder (the twin then predicted the tool from cmd). A machine of independent
+    axes: the load side is its load_<A> encoder, the motor side its enc_<A> (and load_<A> when the
+    axis has no enc_<A>, predicted from cmd_<A>)."""
     key = ("axis_gain", a, site)
     if key in ctx.extra:
         return ctx.extra[key]
     o = ctx.obs
     g = np.zeros(o.y.shape)
+    if "axes" in ctx.extra:
+        A = ctx.extra["axes"][a]
+        names = [f"load_{A}"] if site == "load" else [f"enc_{A}"] + ([] if ctx.has_enc[a] else [f"load_{A}"])
+        for name in names:
+            if name in o.channels:
+                m = o.ch == o.channels.index(name)
+                g[m] = o.w[m]
+        ctx.extra[key] = g
+        return g
     for name, r in TOOL_ROWS.items():
         if name in o.channels and (site == "load" or not ctx.has_enc[a]):
             m = o.ch == o.channels.index(name)
@@ -375,9 +404,9 @@ class AxisSignal(Candidate):
 
     site = "load"
 
-    def __init__(self, axis):
+    def __init__(self, axis, index=None):
         super().__init__(axis)
-        self.a = AXES.index(axis)
+        self.a = AXES.index(axis) if index is None else index      # (index: a generic machine's axis)
         self._g = None
 
     def gain(self, ctx):
@@ -458,13 +487,18 @@ class Backlash(AxisSignal):
                                for k, (s, e) in enumerate(zip(cut[:-1], cut[1:])) if e > s])
 
 
-def screw_lead(ctx: Context, a: int) -> float:
+def screw_lead(ctx: Context, a: int) -> float | None:
+    """The lead of axis a's screw (mm); a generic machine's only when its recording gives it."""
+    if "axes" in ctx.extra:
+        return ctx.machine.lead_mm.get(ctx.extra["axes"][a])
     r = ctx.machine.resolution
     return float(r.screw_lead if a < 3 else r.table_screw_lead)
 
 
 def lead_harmonic(period, lead, tol=0.04):
-    """k when period is lead/k (k = 1..4) within ``tol`` relative, else 0."""
+    """k when period is lead/k (k = 1..4) within ``tol`` relative, else 0 (and 0 without a lead)."""
+    if not lead:
+        return 0
     for k in (1, 2, 3, 4):
         if abs(period * k / lead - 1) <= tol:
             return k
@@ -499,6 +533,30 @@ def position_weights(ch, x, period) -> np.ndarray:
     key = (b - b.min()) * (int(np.max(ch, initial=0)) + 1) + np.asarray(ch, np.int64)
     _, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
     return np.minimum(1.0, PER_BIN / cnt[inv])
+
+
+def position_lines(x, e, v, moving_share, min_cycles, strongest_if_none=True) -> list[float]:
+    """Periods (mm) of the strongest lines of the error ``e`` against the position ``x`` (samples
+    moving faster than ``moving_share`` of the top speed ``v``), at least ``min_cycles`` over the
+    travel and at least 0.2 mm, strongest first (at most 3); without a peak, the spectrum's
+    maximum when ``strongest_if_none``."""
+    from pmctl.tools.twin.locate import spectrum_position
+    span = float(np.ptp(x)) if len(x) else 0.0
+    sp = spectrum_position(x, e, np.abs(v) > moving_share * max(np.abs(v).max(initial=0.0), 1e-12))
+    if sp is None:
+        return []
+    f, amp = sp
+    ok = (f > min_cycles / max(span, 1e-9)) & (f < 1 / 0.2)
+    if not ok.any():
+        return []
+    fo, ao = f[ok], amp[ok]
+    pk, _ = signal.find_peaks(ao)
+    if len(pk) == 0:
+        if not strongest_if_none:
+            return []
+        pk = np.array([int(np.argmax(ao))])
+    pk = pk[np.argsort(ao[pk])[::-1]]
+    return [1.0 / float(fo[k]) for k in pk][:3]
 
 
 class PitchError(AxisSignal):
@@ -542,24 +600,10 @@ class PitchError(AxisSignal):
         span = float(np.ptp(ctx.q_cmd[rows, self.a])) if len(rows) else 0.0
         if self.effect == "pitch_error":
             lead = screw_lead(ctx, self.a)
-            return [lead / k for k in (1, 2, 3, 4) if span >= lead / k and k / lead < 5.0]
+            return [lead / k for k in (1, 2, 3, 4) if span >= lead / k and k / lead < 5.0] if lead else []
         if len(e) < 64:
             return []
-        x = ctx.q_cmd[rows, self.a]
-        v = axis_velocity(ctx, self.a)[rows]
-        sp = spectrum_position(x, e, np.abs(v) > 1e-3 * max(np.abs(v).max(), 1e-12))
-        if sp is None:
-            return []
-        f, amp = sp
-        ok = (f > 1.5 / max(span, 1e-9)) & (f < 1 / 0.2)
-        if not ok.any():
-            return []
-        fo, ao = f[ok], amp[ok]
-        pk, _ = signal.find_peaks(ao)
-        if len(pk) == 0:
-            pk = np.array([int(np.argmax(ao))])
-        pk = pk[np.argsort(ao[pk])[::-1]]
-        return [1.0 / float(fo[k]) for k in pk][:3]
+        return position_lines(ctx.q_cmd[rows, self.a], e, axis_velocity(ctx, self.a)[rows], 1e-3, 1.5)
 
     @staticmethod
     def _parabola(grid, cost):
@@ -676,8 +720,8 @@ class ThermalGrowth(AxisSignal):
     effect = "thermal_growth"
     nparams = 3
 
-    def __init__(self, axis, channel):
-        super().__init__(axis)
+    def __init__(self, axis, channel, index=None):
+        super().__init__(axis, index)
         self.channel = channel
 
     @property
@@ -1040,9 +1084,9 @@ class Resonance(Candidate):
         if ctx.uniform_dt is None and len(ctx.t) < 16:
             return False
         if self.target_key == "axis":
-            a = AXES.index(self.target)
+            a = axis_index(ctx, self.target)
             return bool(np.any(axis_gain(ctx, a) != 0)) and np.ptp(ctx.q_cmd[:, a]) > 0
-        return self.target in ctx.obs.channels and np.ptp(ctx.q_cmd[:, int(self.target[-1]) - 1]) > 0
+        return self.target in ctx.obs.channels and np.ptp(ctx.q_cmd[:, excited_axis(ctx, self.target)]) > 0
 
     def _uniform(self, ctx):
         if "uniform" not in ctx.extra:
@@ -1059,7 +1103,7 @@ class Resonance(Candidate):
         if key not in ctx.extra:
             o = ctx.obs
             # an axis mode is excited by that axis; a gauge's plate-link mode by its own chain
-            a = AXES.index(self.target) if self.target_key == "axis" else int(self.target[-1]) - 1
+            a = axis_index(ctx, self.target) if self.target_key == "axis" else excited_axis(ctx, self.target)
             ws = []
             if self.target_key == "axis":
                 ws.append(axis_gain(ctx, a))
@@ -1081,6 +1125,10 @@ class Resonance(Candidate):
         else:
             h = np.concatenate([np.interp(tt, tu, resonance_response(xu, dt, f, z))
                                 for tt, tu, xu in self._gridded(ctx, a, dt)])
+        if self.target_key == "channel" and self.target.startswith("acc_") and "axes" in ctx.extra:
+            # an accelerometer on the axis reads the mode's acceleration, y'' (its base part, the
+            # commanded acceleration, is the nominal prediction)
+            h = per_run(ctx, lambda tt, x: np.gradient(np.gradient(x, tt), tt) if len(x) > 2 else 0 * x, ctx.t, h)
         o = ctx.obs
         if idx is None:
             return (W * h[o.row]).T
@@ -1105,7 +1153,7 @@ class Resonance(Candidate):
         """Peaks of the spectrum of the target residual (uniform grid), strongest first."""
         o = ctx.obs
         if self.target_key == "axis":
-            g = axis_gain(ctx, AXES.index(self.target))
+            g = axis_gain(ctx, axis_index(ctx, self.target))
             m = g != 0
             sig = np.zeros(len(ctx.t))
             tt = ctx.t[o.row[m]]
@@ -1260,9 +1308,13 @@ class Resonance(Candidate):
             except (np.linalg.LinAlgError, KeyError, IndexError):
                 t_tool = np.inf
             if t_tool < TOOL_T_MIN:
-                gauge = f"strain_{AXES.index(self.target) + 1}"
+                gauge = f"strain_{axis_index(ctx, self.target) + 1}"
                 return [f"the tool does not see it ({t_tool:.1f} standard errors on the tool channels): only "
                         f"{gauge} rings, a mode of that channel, not of axis {self.target}"]
+        if "axes" in ctx.extra:
+            qs = _quasi_static_check(self, ctx, fit, y, f, sup)
+            if qs:
+                return qs
         # ringing decays after each acceleration; a line of constant amplitude at the same
         # frequency (forced vibration) must not explain as much
         t = ctx.t[ctx.obs.row]
@@ -1276,6 +1328,34 @@ class Resonance(Candidate):
             out.append(f"a steady {f:.2f} Hz line of constant amplitude explains it as well: forced "
                        "vibration, not a mode excited by the motion")
         return out + _gain_over_time_check(ctx, fit.pred, y)
+
+
+QS_SHARE = 0.7             # a mode whose quasi-static part alone explains this share of it does not ring
+
+
+def _quasi_static_check(res, ctx, fit, y, f, sup):
+    """Far below its frequency a mode's response is quasi-static, −a/ω²: a column proportional to
+    the acceleration. On a drive's force that is an inertia term (or what the force model's filtered
+    acceleration left of it), on an accelerometer the command's fourth derivative. When that column
+    alone explains QS_SHARE of what the mode explains, nothing rings: it is no resonance."""
+    a, W, _ = res._weights(ctx)
+    key = ("qs_col", a)
+    if key not in ctx.extra:
+        acc = per_run(ctx, lambda tt, x: np.gradient(np.gradient(x, tt), tt) if len(x) > 2 else 0 * x,
+                      ctx.t, ctx.q_cmd[:, a])
+        ctx.extra[key] = acc
+    h = ctx.extra[key]
+    if res.target_key == "channel" and res.target.startswith("acc_"):
+        h = per_run(ctx, lambda tt, x: np.gradient(np.gradient(x, tt), tt) if len(x) > 2 else 0 * x, ctx.t, h)
+    X = (W * h[ctx.obs.row]).T[sup]
+    c = _lstsq(X, y[sup])
+    g_qs = float(y[sup] @ y[sup] - (y[sup] - X @ c) @ (y[sup] - X @ c))
+    r = y[sup] - fit.pred[sup]
+    g_mode = float(y[sup] @ y[sup] - r @ r)
+    if g_mode > 0 and g_qs >= QS_SHARE * g_mode:
+        return [f"its quasi-static part alone (a term in the acceleration, as a mode far above the motion "
+                f"gives) explains {100 * g_qs / g_mode:.0f} % of it: nothing rings at {f:.1f} Hz"]
+    return []
 
 
 MODE_BLOCKS = 8            # a mode's gain fitted on each eighth of the record ...
@@ -1416,12 +1496,12 @@ class ForcedVibration(Candidate):
     def _w(self, ctx):
         o = ctx.obs
         if self.target_key == "axis":
-            return axis_gain(ctx, AXES.index(self.target))
+            return axis_gain(ctx, axis_index(ctx, self.target))
         return np.where(o.ch == o.channels.index(self.target), o.w, 0.0)
 
     def applicable(self, ctx):
         if self.target_key == "axis":
-            return bool(np.any(axis_gain(ctx, AXES.index(self.target)) != 0))
+            return bool(np.any(axis_gain(ctx, axis_index(ctx, self.target)) != 0))
         return self.target in ctx.obs.channels
 
     def _series(self, ctx, y):

@@ -21,7 +21,7 @@ import math
 import numpy as np
 from scipy import signal
 
-from pmctl.tools.twin.effects import AXES, Context, axis_gain, axis_velocity, welch_runs
+from pmctl.tools.twin.effects import Context, axis_gain, axis_names, axis_velocity, welch_runs
 
 MAD_K = 1.4826
 
@@ -157,7 +157,7 @@ def locate(ctx: Context, y=None) -> dict:
         tt = np.sort(np.concatenate(all_flags_t))
         out["windows_s"] = windows(tt, np.ones(len(tt), bool), tspan / 50)
     # per axis: motor side and load side as the tool sees it
-    for a, ax in enumerate(AXES):
+    for a, ax in enumerate(axis_names(ctx)):
         info = {}
         enc = f"enc_{ax}"
         if enc in o.channels:
@@ -193,8 +193,13 @@ def locate(ctx: Context, y=None) -> dict:
     if P is not None:
         feats["Z_mm"] = P[:, 2]
         feats["tilt_deg"] = np.degrees(np.arccos(np.clip(R[:, 2, 2], -1, 1)))
-    feats["X_mm"] = ctx.q_cmd[ctx.rows, 3]
-    feats["Y_mm"] = ctx.q_cmd[ctx.rows, 4]
+    if "axes" in ctx.extra:          # a machine of independent axes: each axis' position
+        for a, ax in enumerate(ctx.extra["axes"]):
+            feats[f"{ax}_{ctx.machine.pos_unit(ax)}"] = ctx.q_cmd[ctx.rows, a]
+        out["servo"] = servo_tracking(ctx, yy)
+    else:
+        feats["X_mm"] = ctx.q_cmd[ctx.rows, 3]
+        feats["Y_mm"] = ctx.q_cmd[ctx.rows, 4]
     for k, v in feats.items():
         vals = v[o.pos]
         if len(vals) == 0 or np.ptp(vals) <= 0:
@@ -207,4 +212,29 @@ def locate(ctx: Context, y=None) -> dict:
                 regs.append({"range": [float(q[i]), float(q[i + 1])],
                              "rms_over_noise": float(np.sqrt(np.mean(yy[m] ** 2)))})
         out["regions"][k] = regs
+    return out
+
+
+def servo_tracking(ctx: Context, y) -> dict:
+    """Per axis with an encoder (a machine of independent axes): the following error enc − cmd, its
+    rms and its least-squares dependence on the command's velocity and acceleration
+    (fe ≈ −(lag·v + k_a·a)): the servo's tracking as a table, before any finding."""
+    o = ctx.obs
+    out = {}
+    for a, ax in enumerate(axis_names(ctx)):
+        name = f"enc_{ax}"
+        if name not in o.channels:
+            continue
+        m = o.ch == o.channels.index(name)
+        r = o.row[m]
+        e = y[m] / o.w[m]
+        v = axis_velocity(ctx, a)[r]
+        acc = np.gradient(axis_velocity(ctx, a), ctx.t)[r]
+        X = np.stack([-v, -acc, np.ones_like(v)], 1)
+        ok = np.all(np.isfinite(X), 1)
+        c = np.linalg.lstsq(X[ok], e[ok], rcond=None)[0] if ok.sum() > 3 else np.zeros(3)
+        vmax = float(np.max(np.abs(v))) if len(v) else 0.0
+        out[ax] = {"fe_rms": float(np.sqrt(np.mean(e * e))) if len(e) else 0.0,
+                   "fe_max": float(np.max(np.abs(e))) if len(e) else 0.0,
+                   "lag_s": float(c[0]), "accel_lag_s2": float(c[1]), "v_max": vmax}
     return out

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pmctl.tools.twin.effects import AXES
-from pmctl.tools.twin.locate import axis_projection, channel_series, spectrum_position, spectrum_time
+from pmctl.tools.twin.effects import axis_names, welch_runs
+from pmctl.tools.twin.locate import axis_projection, channel_series, spectrum_position
 
 
 def _plt():
@@ -45,7 +45,7 @@ def write_plots(report, extras, out_dir) -> list[Path]:
     for ax, c in zip(axs[:, 0], chans):
         t, r0 = channel_series(ctx, c)
         _, r1 = channel_series(ctx, c, yf)
-        unit = "µε" if c.startswith("strain") else ("" if c.startswith("tool") else "mm")
+        unit = (report.get("units") or {}).get(c, "")
         ax.plot(t, r0, ".", ms=1.5, color="0.6", label="nominal twin")
         ax.plot(t, r1, ".", ms=1.5, color="C3", label="with the findings")
         ax.set_ylabel(f"{c} {unit}")
@@ -60,9 +60,10 @@ def write_plots(report, extras, out_dir) -> list[Path]:
     paths.append(p)
 
     # 2. direction split: tool-equivalent error along each axis, moving + vs −
-    fig, axs = plt.subplots(1, 5, figsize=(13, 3.4), squeeze=False)
+    names = axis_names(ctx)
+    fig, axs = plt.subplots(1, len(names), figsize=(max(2.6 * len(names), 5), 3.4), squeeze=False)
     for a, ax in enumerate(axs[0]):
-        ax.set_title(AXES[a])
+        ax.set_title(names[a])
         for y, lab, col in ((None, "nominal", "0.5"), (yf, "after", "C3")):
             _, e, rows = axis_projection(ctx, a, y)
             if not len(e):
@@ -78,7 +79,7 @@ def write_plots(report, extras, out_dir) -> list[Path]:
                 b.set_facecolor(col)
         ax.set_xticks([0.15, 1.15], ["+ motion", "− motion"])
         ax.axhline(0, color="k", lw=0.5)
-    axs[0, 0].set_ylabel("tool error along the axis (µm)")
+    axs[0, 0].set_ylabel("load-side error along the axis (µm)" if "axes" in ctx.extra else "tool error along the axis (µm)")
     fig.suptitle("direction split (grey: nominal twin, red: with the findings)")
     fig.tight_layout()
     p = out / "direction_split.png"
@@ -90,15 +91,8 @@ def write_plots(report, extras, out_dir) -> list[Path]:
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4))
     c = chans[0] if chans else None
     if c:
-        for y, lab, col in ((None, "nominal", "0.5"), (yf, "after", "C3")):
-            t, r = channel_series(ctx, c, y)
-            sp = spectrum_time(t, r)
-            if sp is not None:
-                a1.semilogy(sp[0][1:], sp[1][1:], color=col, label=lab)
-        a1.set_xlabel("frequency (Hz)")
-        a1.set_ylabel(f"PSD of {c} residual")
-        a1.legend(fontsize=8)
-    for a in range(5):
+        spectrum_panel(a1, report, extras, c)
+    for a in range(len(names)):
         _, e, rows = axis_projection(ctx, a)
         if not len(e):
             continue
@@ -108,11 +102,15 @@ def write_plots(report, extras, out_dir) -> list[Path]:
         if sp is not None:
             f, amp = sp
             m = f > 0
-            a2.plot(f[m], 1000 * amp[m], lw=0.8, label=AXES[a])
+            a2.plot(f[m], 1000 * amp[m], lw=0.8, label=names[a])
     a2.set_xlim(0, 1.0)
     a2.set_xlabel("spatial frequency along the screw (1/mm)  — a 5 mm pitch is a line at 0.2")
-    a2.set_ylabel("amplitude (µm)")
-    a2.legend(fontsize=8)
+    a2.set_ylabel("amplitude of the load-side error (µm)")
+    if a2.get_legend_handles_labels()[0]:
+        a2.legend(fontsize=8)
+    else:
+        a2.text(0.5, 0.5, "no load-side channel: no error against position", ha="center", va="center",
+                transform=a2.transAxes, fontsize=9, color="0.4")
     fig.suptitle("spectrum of the residual against time and against screw position")
     fig.tight_layout()
     p = out / "spectrum.png"
@@ -120,3 +118,58 @@ def write_plots(report, extras, out_dir) -> list[Path]:
     plt.close(fig)
     paths.append(p)
     return paths
+
+
+def full_rate_residual(report, extras, c):
+    """(t, residual) of channel ``c`` at every row where it was sampled (not only the analysis
+    samples the cap kept): the nominal twin recomputed there."""
+    cols, machine, ctx = extras.get("columns"), extras.get("machine"), extras["ctx"]
+    if cols is None or c not in cols:
+        return None
+    x = np.asarray(cols[c], float)
+    rows = np.flatnonzero(np.isfinite(x))
+    if len(rows) < 64:
+        return None
+    if "axes" in ctx.extra:
+        from pmctl.tools.twin.axes import predict_columns
+        b = ctx.extra.get("bounds")
+        pred = predict_columns(dict(cols, t=ctx.t), machine, [c], rows, b)[c]
+    else:
+        from pmctl.tools.twin import nominal
+        sub = {k: np.asarray(v, float)[rows] for k, v in cols.items()}
+        pred = nominal.predict_columns(sub, machine, [c])[c]
+    r = x[rows] - pred
+    ok = np.isfinite(r)
+    return ctx.t[rows][ok], r[ok]
+
+
+def spectrum_panel(ax, report, extras, c):
+    """PSD of channel ``c``'s residual, in its unit²/Hz: the nominal twin's at every sample of the
+    channel as recorded, up to its own Nyquist frequency (the analysis samples, thinned to the cap,
+    would alias a 246.6 Hz mode of a 1 kHz log below their 166 Hz); after the findings, at the
+    analysis samples, up to their Nyquist frequency (the findings are fitted there)."""
+    ctx, yf = extras["ctx"], extras["y_final"]
+    unit = (report.get("units") or {}).get(c, "")
+    cuts = ctx.extra.get("cuts")
+    full = full_rate_residual(report, extras, c)
+    t0, r0 = full if full is not None else channel_series(ctx, c)
+    sp = welch_runs(t0, r0, cuts)
+    if sp is not None:
+        ax.semilogy(sp[0][1:], sp[1][1:], color="0.5",
+                    label=f"nominal twin, all {len(r0)} samples (to {0.5 / np.median(np.diff(t0)):.0f} Hz)")
+    t1, r1 = channel_series(ctx, c, yf)
+    if len(r1) >= 64:
+        nyq = 0.5 / float(np.median(np.diff(t1)))
+        if full is not None and len(r1) < len(r0):       # thinned: before and after at the same samples too
+            tb, rb = channel_series(ctx, c)
+            spb = welch_runs(tb, rb, cuts)
+            if spb is not None:
+                ax.semilogy(spb[0][1:], spb[1][1:], color="0.75", lw=0.8,
+                            label=f"nominal twin, {len(rb)} analysis samples (to {nyq:.0f} Hz)")
+        sp1 = welch_runs(t1, r1, cuts)
+        if sp1 is not None:
+            ax.semilogy(sp1[0][1:], sp1[1][1:], color="C3",
+                        label=f"with the findings, {len(r1)} analysis samples (to {nyq:.0f} Hz)")
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel(f"PSD of the {c} residual ({unit}²/Hz)" if unit and unit != "1" else f"PSD of the {c} residual (1/Hz)")
+    ax.legend(fontsize=7)

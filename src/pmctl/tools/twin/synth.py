@@ -1179,6 +1179,8 @@ def _cmd(args) -> int:
         raise InputError("--run", None, "warmup runs heat the screws; the sim carries no thermal model: use --plant batch")
     if args.clean and args.effects != "random":
         raise InputError("--clean", None, f"contradicts --effects {args.effects}: a clean case hides no effect")
+    if getattr(args, "machine", "prototype") == "axes":
+        return _cmd_axes(args)
     eff = parse_effects(args.effects)
     if plant == "loop" and eff != "random":
         bad = [nm for nm in eff if nm not in LOOP_EFFECTS + SHARED_EFFECTS + ("resonance", "forced_vibration")]
@@ -1198,4 +1200,34 @@ def _cmd(args) -> int:
              progress=progress, overwrite=args.force, plant=plant)
     print(f"{args.count} case(s) in {time.perf_counter() - t0:.1f} s; answer keys are beside, not in, "
           f"each recording folder")
+    return 0
+
+
+def _cmd_axes(args) -> int:
+    """``--machine axes``: bench runs of one ball-screw axis (pmctl.tools.twin.synth_axes)."""
+    from pmctl.tools.twin.synth_axes import AXIS_EFFECTS, DRIVE, synth_axes_case, write_axes_case
+    if args.effects == "random":
+        names = None
+    else:
+        names = [e.strip() for e in args.effects.split(",") if e.strip()]
+        bad = [e for e in names if e not in AXIS_EFFECTS]
+        if bad:
+            raise InputError("--effects", None, f"{', '.join(bad)}: not an effect of a bench axis; one of "
+                                                f"{', '.join(AXIS_EFFECTS)}")
+    if args.plant != "batch" or args.run is not None:
+        raise InputError("--machine axes", None, "takes neither --plant loop nor --run (a bench axis has its own moves)")
+    out = Path(args.out_dir)
+    for k in range(args.count):
+        rng = np.random.default_rng([args.seed, k])
+        if args.clean:
+            eff = []
+        elif names is not None:
+            eff = names
+        else:      # the drive's force model always (every drive has one), and up to K other effects
+            extra = [e for e in AXIS_EFFECTS if e not in DRIVE]
+            eff = list(DRIVE) + list(rng.choice(extra, size=min(max(args.max_effects, 1), len(extra)), replace=False))
+        case = synth_axes_case(rng, eff, clean=args.clean, duration_s=args.duration or 20.0, rate_hz=args.rate or 1000.0)
+        write_axes_case(out, f"case-{k:03d}", case, overwrite=args.force)
+        print(f"case-{k:03d}  bench axis  {len(case[0]['t']):>7d} samples  [{', '.join(eff) or 'clean'}]", flush=True)
+    print(f"{args.count} case(s); answer keys are beside, not in, each recording folder")
     return 0

@@ -40,7 +40,8 @@ import math
 
 import numpy as np
 
-from pmctl.tools.twin.effects import AXES, Context, _line_frequencies, _lstsq, axis_direction, lstsq_rank, refine_max
+from pmctl.tools.twin.effects import (Context, _line_frequencies, _lstsq, axis_direction, axis_names, lstsq_rank,
+                                      refine_max)
 
 EXCESS_MIN = 1.0        # remaining rms ≥ 1.41 x noise ...
 CHI_SIGMA = 8.0         # ... and Σ(y²) − N beyond 8 standard deviations of noise (√(2N))
@@ -153,7 +154,7 @@ def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray, wins=()) 
         out["delay"] = (_frac(dp[:, None], yy), float(_lstsq(-dp[:, None], yy)[0]) if np.any(dp) else 0.0)
     # reversal-locked, per axis: a level flipping with the direction, and a decaying transient
     best = (0.0, None)
-    for a, ax in enumerate(AXES):
+    for a, ax in enumerate(axis_names(ctx)):
         x = ctx.q_cmd[:, a]
         if np.ptp(x) <= 0:
             continue
@@ -189,7 +190,7 @@ def _signatures(ctx: Context, name: str, m: np.ndarray, y: np.ndarray, wins=()) 
     out["intermittent"] = _bursts(tt, yy, wins, ctx.duration)
     # position-dependent: a smooth function of one axis' position (10 knots over its range)
     bestp = (0.0, None)
-    for a, ax in enumerate(AXES):
+    for a, ax in enumerate(axis_names(ctx)):
         x = ctx.q_cmd[rows, a]
         if np.ptp(x) <= 0:
             continue
@@ -216,7 +217,7 @@ def flexible_gain(ctx: Context, y: np.ndarray, channel_mask: np.ndarray, *, with
         rows = ctx.rows
         tt = ctx.t[rows]
         cols = [_hat(tt, np.linspace(tt[0], tt[-1], 10))] if len(tt) and np.ptp(tt) > 0 else []
-        for a in range(len(AXES)):
+        for a in range(ctx.q_cmd.shape[1]):
             x = ctx.q_cmd[rows, a]
             if np.ptp(x) <= 0:
                 continue
@@ -266,6 +267,8 @@ def _region(ctx, loc_regions, name):
 
 
 def _axis_of_channel(name):
+    if name.startswith(("load_", "effort_", "acc_")):       # a machine of independent axes
+        return name.split("_", 1)[1]
     if name.startswith("enc_"):
         return name[4:]
     if name.startswith("strain_"):
@@ -300,7 +303,7 @@ def _short_burst(ctx, y, m, mw):
         return None
     a, b = float(tt[mw].min()), float(tt[mw].max())
     rev = None
-    for j, ax in enumerate(AXES):          # an axis that reversed within 0.2 s before it, or in it
+    for j, ax in enumerate(axis_names(ctx)):          # an axis that reversed within 0.2 s before it, or in it
         d = axis_direction(ctx, j)
         sel = (ctx.t >= a - 0.2) & (ctx.t <= b)
         dd = d[sel][d[sel] != 0]
