@@ -96,7 +96,7 @@ def test_per_chain_shaping_keeps_the_path_and_shapes_only_the_pieces_that_move_c
     assert extra == len(z) * int(np.ceil(d / 1e-3 - 1e-9))
     sig = cs.index(planned.tip, planned.axis, 1e-3)
     for a, b in x:                                          # the table's pieces: the planned clock, delayed
-        k = int(np.searchsorted(sig, a - 1e-9))
+        k = int(np.searchsorted(sig, a + 0.5)) - 1           # the shaped piece's end, a to rounding
         np.testing.assert_allclose(sig[k:k + b - a + 1], np.arange(a, b + 1, dtype=float), atol=1e-6)
 
 
