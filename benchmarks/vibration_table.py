@@ -2,7 +2,7 @@
 the shipped defaults, with the best settings found, and with the mode designed 20 % off.
 
     .venv/bin/python benchmarks/vibration_table.py [--jobs comb,cone,xz60,yz90] [--quick] [--no-best]
-                                                   [--no-off] [--types] [--python]
+                                                   [--no-off] [--types] [--python] [--margins]
 
 The machine is the soft 40 Hz one: config/service.toml with [hal.sim] mode_stiffness_N_per_mm = 2000,
 mode_mass_kg = 31.66, mode_damping_ratio = 0.02 (written to a temporary service file, whose path the
@@ -34,6 +34,13 @@ Rows "20 % off": the NC is told the mode is 20 % below ([nc] mode_hz = 33.3) or 
 plant's 40 Hz ([nc] modal_stiffness_N_per_mm = 2000, the static gain, known), so K_theta auto and the
 shaper are both designed for a mode the plant does not have. --types adds, for each shaper type,
 the shaper alone designed 20 % off: what a shaper's robustness buys without the feedback.
+
+--margins prints, instead of running jobs, what ``k_theta_per_s = "auto"`` designs for chain modes
+from 10 to 246 Hz (pmctl.core.strain_loop.design_k_theta at kv 400/s, 1 kHz, 2 % damping): the
+gain, law, leak and stretch low-pass; the least closed-loop damping over the mode's error box
+(frequency +-20 %, damping x0.5..2); the gain, phase and delay margins of the sampled loop at the
+nominal mode and the least over the box; and each shaper type's analytic residual vibration
+(pmctl.core.shaper.residual_vibration) at the mode and 20 % below and above it, with its duration.
 """
 
 from __future__ import annotations
@@ -112,6 +119,35 @@ def line(job, case, r, ref):
             f"{r['job_s']:6.2f} s x{r['job_s'] / ref['job_s']:.3f}  {r['shaper'][8:]}{st}")
 
 
+def margins(kv: float = 400.0, dt: float = 1e-3, zeta: float = 0.02) -> None:
+    """The --margins tables (module docstring): pure model, no run."""
+    from pmctl.core import shaper as S
+    from pmctl.core.strain_loop import DAMPING_SPAN, MODE_ERROR, design_k_theta
+    print(f"k_theta_per_s = auto: kv {kv:g}/s, {1 / dt:g} Hz ticks, damping {zeta:g}; error box: frequency "
+          f"+-{100 * MODE_ERROR:.0f} %, damping x{DAMPING_SPAN[0]:g}..{DAMPING_SPAN[1]:g}")
+    print(f"{'mode':>7s} {'K_theta':>8s} {'law':>9s} {'leak':>7s} {'lp a*':>7s} {'least zeta':>10s} "
+          f"{'GM nom':>7s} {'PM nom':>7s} {'DM nom':>9s} {'GM box':>7s} {'PM box':>7s}  closed-loop mode (nominal)")
+    for f in (10.0, 20.0, F_MODE, 60.0, 80.0, 120.0, 160.0, 246.0):
+        d = design_k_theta(f, zeta, kv, dt)
+        n = d.nominal
+        leak = f"{d.leak / (2 * math.pi * f):.2f} w" if d.soft else "-"
+        lp = f"{d.acc_lp / (2 * math.pi * f):.2f} w" if d.soft else "-"
+        mode = "none oscillating" if math.isnan(n.mode_hz) else f"{n.mode_hz:.1f} Hz, zeta {n.mode_damping:.2f}"
+        print(f"{f:5.1f}Hz {d.k_theta:6.0f}/s {'decoupled' if d.soft else 'plain':>9s} {leak:>7s} "
+              f"{lp:>7s} {d.worst_damping:10.2f} "
+              f"{n.gain_margin:6.1f}x {n.phase_margin_deg:5.0f}deg {n.delay_margin_ticks:5.1f} tick "
+              f"{d.worst_gain_margin:6.1f}x {d.worst_phase_margin_deg:5.0f}deg  {mode}"
+              f"{'' if d.reached else '  (0.7 not reached: the most damping the margins allow)'}")
+    print(f"\nshapers designed at {F_MODE:.1f} Hz, damping {zeta:g}: residual vibration (share of unshaped) at "
+          "0.8, 1.0, 1.2 x the mode; worst over +-20 %; duration")
+    fr = F_MODE * (1 + MODE_ERROR * (2 * (__import__("numpy").arange(41) / 40) - 1))
+    for t in ("ZV", "MZV", "ZVD", "EI", "2HUMP_EI", "MA", "ZV*MA", "MZV*MA"):
+        sh = S.make_shaper(t, F_MODE, zeta)
+        v = S.residual_vibration(sh, [0.8 * F_MODE, F_MODE, 1.2 * F_MODE], zeta)
+        print(f"{t:9s} {v[0]:6.3f} {v[1]:6.3f} {v[2]:6.3f}  worst {max(S.residual_vibration(sh, fr, zeta)):6.3f}  "
+              f"{1e3 * sh.duration:5.1f} ms")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--jobs", default="comb,cone,xz60,yz90",
@@ -122,7 +158,12 @@ def main(argv=None):
     ap.add_argument("--types", action="store_true",
                     help="add, per shaper type, the shaper alone designed 20 %% below and above the mode")
     ap.add_argument("--python", action="store_true", help="run the Python reference NC (slower; same pulses)")
+    ap.add_argument("--margins", action="store_true",
+                    help="print K_theta auto's designs, their margins and the shapers' robustness (no runs)")
     a = ap.parse_args(argv)
+    if a.margins:
+        margins()
+        return 0
     jobs = a.jobs.split(",")[:1] if a.quick else a.jobs.split(",")
     with tempfile.TemporaryDirectory() as tmp:
         svc = soft_service_file(Path(tmp))
