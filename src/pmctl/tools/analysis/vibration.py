@@ -861,3 +861,46 @@ def add_parsers(sub):
     """Register ``vibration`` and ``vf`` under ``pmctl analyze`` (see :mod:`pmctl.tools.analysis.cli`)."""
     from pmctl.tools.analysis.cli import add_vibration_parsers
     add_vibration_parsers(sub)
+
+
+def ringdown_on_sim(machine, params, k_N_per_mm: float, mass_kg: float, zeta: float, y0_mm: float,
+                    duration_s: float, tip=None, axis=None, sim: dict | None = None):
+    """The real loop (NC ``params``, ControlLoop, the sim with its flexible chain mode and gauges, the
+    V-F converters) holding the pose (tip, axis) -- default 100 mm below home -- while the three
+    chains start from a deflection ``y0_mm``: (the load-side deflection y of chain 1, mm, one sample
+    a tick; the loop's result). The plant: modal stiffness ``k_N_per_mm`` and mass ``mass_kg`` per
+    chain, damping ratio ``zeta``; ``sim``: more [hal.sim] options (e.g. strain_noise_ue)."""
+    from pmctl import hal
+    from pmctl.core import kinematics as K
+    from pmctl.motion import loop as L
+    from pmctl.motion.nc import counts_of, initial_state
+    from pmctl.motion.service_config import LoopConfig
+    from pmctl.task.planner import home_pose
+    if tip is None:
+        tip, axis = home_pose(machine)
+        tip = np.asarray(tip, float) + [0.0, 0.0, -100.0]
+    c0 = counts_of(K.ik(tip, axis, machine).q, params)
+    st = initial_state(machine, c0)
+    dt = params.dt
+    n = int(duration_s / dt)
+    tg = L.build_targets(np.repeat(st.tip[None], n, 0), np.repeat(st.axis[None], n, 0), np.zeros(n, int), dt,
+                         machine, params)
+    be = hal.create("sim", machine, dt, dict(flex=True, mode_stiffness_N_per_mm=[k_N_per_mm] * 3,
+                                             mode_mass_kg=[mass_kg] * 3, mode_damping_ratio=[zeta] * 3, **(sim or {})))
+    be.open(c0)
+    Ly = be._lib.D_Y                                   # the plant's deflection state (simplant.c)
+    be._d[Ly:Ly + 3] = y0_mm
+    be._check(be._plant.sample(be._draw(), 0))         # the gauges read the initial deflection
+    ys = []
+    wp = be.write_pulses
+
+    def write(pl):
+        wp(pl)
+        ys.append(be._d[Ly])
+    be.write_pulses = write
+    try:
+        res = L.ControlLoop(machine, be, params, tg, LoopConfig(realtime=False, state_file="", settle_s=0.0,
+                                                                stall_timeout_s=60.0), st, log=lambda s: None).run()
+    finally:
+        be.close()
+    return np.array(ys), res
