@@ -24,11 +24,13 @@ pulse while out of the band) moves it: a chain mode ringing about the band's edg
 into pulses. Without the deadband, a target between two pulses makes the correction integrate in
 the V-F residue, pass the threshold, overshoot by the remaining fraction and come back: a one-pulse
 limit cycle at rest (LinuxCNC's stepgen likewise leaves a position within half a step alone).
-While the target moves, a joint whose own feed-forward rate (J+ of the target's velocity) is under
-``REST_FF_PULSES`` per tick -- a chain standing still while only the table moves, the table while
-only the chains move -- gets the same deadband: the same one-pulse limit cycle would run on it,
-and on a soft chain it rings the chain's mode (docs/vibration.md). Every other joint is driven as
-before, and pulses + residue = the integral of the rate.
+While the target moves and the soft-chain K_theta runs (a chain mode known, NCParams.mode_hz), a
+joint whose own feed-forward rate (J+ of the target's velocity) is under ``REST_FF_PULSES`` per
+tick -- a chain standing still while only the table moves, the table while only the chains move --
+gets the same deadband: the same one-pulse limit cycle would run on it, and through the feedback
+it rings the soft chain's mode (docs/vibration.md). Without that law such a joint is driven as
+before: the deadband would let the commanded path stand up to its width off the programmed one.
+Every other joint is driven as before, and pulses + residue = the integral of the rate.
 
 With a compensation (``NCParams.compensation``, the machine config's [compensation]), the joints of
 step 1 (and of the soft limits) are counts x resolution + the per-axis backlash and screw
@@ -768,7 +770,7 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK, 
         ppm, dt = L.ppm, params.dt
         for i in range(5):
             if band[i] > 0.0 and abs(qdot_des[i]) <= band[i] and (     # (a band of 0: off)
-                    not moving or abs(qfl[i]) * ppm[i] * dt <= REST_FF_PULSES):
+                    not moving or (params._kth_modal and abs(qfl[i]) * ppm[i] * dt <= REST_FF_PULSES)):
                 qdot_des[i] = 0.0
                 held[i] = True
         if perr > params.max_path_error_mm:

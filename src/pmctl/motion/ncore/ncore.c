@@ -628,12 +628,12 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
         memcpy(qd_des, qd, sizeof qd);
         {
             /* the target at rest (feed-forward exactly zero), or a joint whose own feed-forward is
-             * (nearly) zero: no correction for a joint whose desired rate is worth at most the
+             * (nearly) zero under the soft-chain K_theta: no correction for a joint whose desired rate is worth at most the
              * deadband's position error (nc.py, rest deadband) */
             int moving = !(t[6] == 0.0 && t[7] == 0.0 && t[8] == 0.0 && t[9] == 0.0 && t[10] == 0.0 && t[11] == 0.0);
             for (i = 0; i < 5; i++)
                 if (c->rest_band[i] > 0.0 && fabs(qd_des[i]) <= c->rest_band[i] &&     /* (a band of 0: off) */
-                    (!moving || fabs(qf[i]) * c->ppm[i] * c->dt <= NC_REST_FF)) {
+                    (!moving || (c->kth_modal != 0.0 && fabs(qf[i]) * c->ppm[i] * c->dt <= NC_REST_FF))) {
                     qd_des[i] = 0.0;
                     held[i] = 1;
                 }
