@@ -45,8 +45,8 @@ def test_pmctl_errors_usage_and_memory(monkeypatch, capsys, tmp_path):
     p.write_text("G0 X0 Y0 Z90\nG1 F0.42 X1e400\n")
     assert cli.main(["run", "--no-realtime", "--quiet", "--state", "", "--job", str(p)]) == 1
     err = capsys.readouterr().err
-    assert err == f"pmctl: error: {p}:2: column 12: unknown word 'E400': E is not a word here (numbers have " \
-                  "no exponent in G-code)\n"
+    assert err == f"pmctl: error: {p}:2: column 12: E400 has nothing to use it: E is an analog channel of " \
+                  "M66-M68 (numbers have no exponent in G-code)\n"
     with pytest.raises(SystemExit) as e:
         cli.main(["kin", "ik", "--tip"])
     assert e.value.code == 2

@@ -301,7 +301,14 @@ def test_pmctl_run_canopen_with_a_spindle_job_records_spindle_rpm(tmp_path):
     meta = json.loads((rec / "recording.json").read_text())
     assert "spindle_rpm" in meta["channels"]
     d = np.genfromtxt(rec / "data.csv", delimiter=",", names=True)
-    assert np.all(np.abs(d["spindle_rpm"] + 6000) <= 0.02 * 6000)       # M4: negative, at speed all along
+    rpm = d["spindle_rpm"]
+    cmd = np.column_stack([d[f"cmd_{a}"] for a in ("L1", "L2", "L3", "X", "Y")])
+    moving = np.zeros(len(rpm), bool)
+    moving[1:] = np.any(np.rint(np.diff(cmd, axis=0) * 2000) != 0, axis=1)
+    assert moving.sum() > 100
+    assert np.all(np.abs(rpm[moving] + 6000) <= 0.02 * 6000)      # M4: negative, at speed wherever a joint moves
+    last_move = np.flatnonzero(moving)[-1]
+    assert abs(rpm[-1]) < 60 and np.all(np.abs(rpm[last_move + 1:]) <= 6000 * 1.02)   # M5 before M2: stopped
     for a in ("L1", "L2", "L3", "X", "Y"):
         assert abs(d[f"enc_{a}"][-1] - d[f"cmd_{a}"][-1]) <= 1.0 / 2000 + 1e-9
 

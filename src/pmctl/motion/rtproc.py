@@ -101,6 +101,7 @@ class RtHook:
         self.probe_row = [float("nan")] * C.PROBE_RESULT_WIDTH
         self.op_hold = False                        # the supervisor asked for a hold (C_HOLD) not yet resumed
         self.event_hold = False                     # held at a C_HOLD_AT point until C_RESUME
+        self.rest_hold = False                      # ... a point at rest (a planned stop), held on its sample
         self.stall_hold = False                     # held after a stall; released when on time again
         self.stall_ok = 0
 
@@ -135,13 +136,16 @@ class RtHook:
                 self.op_hold = self.event_hold = self.stall_hold = False
                 if not (self.resetting or self.quitting):
                     sc.hold = False
+                    if self.rest_hold:
+                        fol.rest_here()       # leaves the planned stop on its samples' own acceleration
+                self.rest_hold = False
             elif code == C.C_FEED_OV:
                 sc.set_feed_override(a1)
             elif code == C.C_RAPID_OV:
                 sc.set_rapid_override(a1)
             elif code == C.C_RESET:
                 self.resetting = True
-                self.op_hold = self.event_hold = self.stall_hold = False
+                self.op_hold = self.event_hold = self.stall_hold = self.rest_hold = False
                 self.hold_at.clear()
                 sc.hold = True
                 if self.probe is not None:
@@ -286,9 +290,15 @@ class RtHook:
         (at most LOOKAHEAD_SAMPLES short of it, as pmctl.hal.modbus_vfd.SpeedChanger does in one process)."""
         from pmctl.hal.modbus_vfd import LOOKAHEAD_SAMPLES
         row, rest = self.hold_at[0]
-        if fol.src.consumed + fol.frac + LOOKAHEAD_SAMPLES * sc.sigma * fol.k >= row:
+        at = fol.src.consumed + fol.frac
+        if fol.at_end:
+            at += 1.0                 # resting on a job's last sample: the next one starts the next job
+        # a planned stop (rest): the path holds on its very sample, where the samples are at rest; on
+        # the move (a speed change inside a run of samples): the hold starts a little before the point
+        if (at >= row - 1e-9) if rest else (at + LOOKAHEAD_SAMPLES * sc.sigma * fol.k >= row):
             sc.hold = True
             self.event_hold = True
+            self.rest_hold = bool(rest)
             if rest:                  # on a planned stop the path is at rest: sigma means nothing there
                 sc.sigma = sc.dsigma = 0.0
             self.hold_at.pop(0)

@@ -371,6 +371,13 @@ class PathFollower:
         p[5] /= nrm
         return p
 
+    def rest_here(self):
+        """The path is held on a planned stop (a hold point at rest): the next start leaves it as a rest
+        point, sigma stepping to its goal at once (the samples accelerate from rest themselves), so the
+        path keeps its phase on the planned samples."""
+        if self.state == HELD and self.scaler.sigma == 0.0:
+            self.state = IDLE
+
     def clear(self):
         """Drop every queued sample (soft reset), keeping the current pose as the rest pose."""
         n = self.src.count()
@@ -568,6 +575,12 @@ class CompiledFollower:
         if pose is not None:
             self._st[F.FL_REST:F.FL_REST + 6] = [float(x) for x in pose]
         self._v[F.FL_HAS_REST] = float(pose is not None)
+
+    def rest_here(self):
+        """As :meth:`PathFollower.rest_here`."""
+        F = _follow
+        if int(self._v[F.FL_STATE]) == HELD and self._v[F.FL_SIGMA] == 0.0:
+            self._v[F.FL_STATE] = float(IDLE)
 
     def clear(self):
         """Drop every queued sample (soft reset), keeping the current pose as the rest pose."""

@@ -22,7 +22,8 @@ Two threads:
 - a probing line (G38.2/G38.3) is executed as grbl does: the queued motion is sent, the probe goes
   alone, and the line is answered once the probe has ended -- ``[PRB:x,y,z,a,b:1]`` (``:0``
   without contact; after ``ALARM:5`` for a G38.2 without contact) then ``ok`` -- and the lines after
-  it are read from where the probe stopped.
+  it are read from where the probe stopped. The answer comes once the probe has come to rest, so a
+  jog or a ``$`` command that needs Idle may follow at once.
 - M-codes take effect in program order where the stream gets to them: a line's spindle (M3 M4 M5 S),
   coolant (M7 M8 M9), tool change (M6), pause (M0 M1), output and message words come from the
   interpreter as EVENT moves (pmctl.task.job) queued with the motion; the supervisor holds the path
@@ -545,6 +546,11 @@ class GrblConsole:
             self.interp.sync(*self.sup.pose())
             return
         r = it.probe_results[-1]
+        while not self.sup.retired(it):   # grbl answers once the probe cycle has come to rest (Idle)
+            if gen != self._reset_gen or self._stop.is_set() or it.gen != self.sup._gen or self.sup.rt_dead \
+                    or self.sup.alarm:
+                break
+            time.sleep(0.005)
         t0 = time.monotonic()
         while r.error and not self.sup.alarm and time.monotonic() - t0 < 2.0:
             time.sleep(0.002)             # ALARM:5 first (the supervisor raises it right after the result)

@@ -41,7 +41,7 @@ WORD_MEANING = {"i": "an arc centre (G2/G3) or G87", "j": "an arc centre (G2/G3)
                 "p": "G4, G10, G64, an arc's turns, a canned cycle's dwell, M62-M68 or a user M-code",
                 "q": "G64, a peck cycle (G73 G83), M66-M68 or a user M-code",
                 "l": "G10 or a canned cycle's repeats", "d": "cutter compensation (G41 G42)",
-                "h": "G43", "e": "M66-M68"}
+                "h": "G43", "e": "an analog channel of M66-M68"}
 AXIS_INDEX = {"x": 0, "y": 1, "z": 2, "a": 3, "b": 4}
 _FAST_LETTERS = frozenset("xyzabfn")
 MODE_SWITCHES = (434, 435, 531, 682)   # another machine's TCP / tilted-plane modes: noted, the line goes on
@@ -76,11 +76,12 @@ class Block:
     """The evaluated words of a line: ``v`` letter -> value (program units), ``col`` letter ->
     column, ``g``/``m``: [(code, column)], ``comments``: [(text, column)]."""
 
-    __slots__ = ("v", "col", "g", "m", "groups", "mgroups")
+    __slots__ = ("v", "col", "g", "m", "groups", "mgroups", "glued_e")
 
     def __init__(self):
         self.v, self.col, self.g, self.m = {}, {}, [], []
         self.groups, self.mgroups = {}, {}
+        self.glued_e = None
 
 
 class Config:
@@ -240,6 +241,7 @@ class Executor:
     # ------------------------------------------------------------------ reading
     def read(self, line, lineno) -> Block:
         blk = Block()
+        blk.glued_e = getattr(line, "glued_e", None)
         v, col = blk.v, blk.col
         params = self.params
         for letter, val, c in line.words:
@@ -671,8 +673,10 @@ class Executor:
             if k in v and not used:
                 if k in "ijk" and 1 not in groups and motion in (20, 30) and not axis_words:
                     pass
-                raise Refusal("syntax", f"{k.upper()}{fmt(v[k])} has nothing to use it: {k.upper()} is "
-                                        f"{WORD_MEANING[k]}", col[k])
+                why = f"{k.upper()}{fmt(v[k])} has nothing to use it: {k.upper()} is {WORD_MEANING[k]}"
+                if k == "e" and blk.glued_e == col[k]:
+                    why += " (numbers have no exponent in G-code)"
+                raise Refusal("syntax", why, col[k])
 
     # ------------------------------------------------------------------ M62-M68
     def outputs(self, st, blk, code):

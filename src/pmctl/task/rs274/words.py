@@ -57,7 +57,7 @@ class Line:
     case); ``comments``: (text, column) with the text as written; ``oword``: an :class:`OWord` or
     None; ``delete``: a ``/`` line; ``percent``: a ``%`` line; ``blank``: nothing to execute."""
 
-    __slots__ = ("words", "assigns", "comments", "oword", "delete", "percent", "blank", "grbl")
+    __slots__ = ("words", "assigns", "comments", "oword", "delete", "percent", "blank", "grbl", "glued_e")
 
     def __init__(self):
         self.words = []
@@ -68,6 +68,7 @@ class Line:
         self.percent = False
         self.blank = True
         self.grbl = None                  # a grbl system command ($..., ?): its text
+        self.glued_e = None               # the column of an E written straight after a number's digit
 
 
 class _Text:
@@ -143,6 +144,8 @@ def lex_line(raw: str) -> Line:
             v = float(num)
             if v - v != 0.0:
                 raise LexError(_too_big(letter, num), pos + 1)
+            if letter in "eE" and not lead and words and pos:
+                out.glued_e = pos + 1                  # 1e400: read as 1 and E400
             words.append((letter.lower(), v, pos + 1))
             pos += 1 + len(gap) + len(num)
         return out
@@ -195,7 +198,11 @@ class _Reader:
                     raise self.err("an O-word must be the first word of its line (after an optional N word)",
                                    start)
                 v = self.real_value(ch, start)
-                out.words.append((ch, v, self.t.col(start)))
+                c = self.t.col(start)
+                if ch == "e" and start and (s[start - 1].isdigit() or s[start - 1] == ".") \
+                        and self.t.col(start - 1) == c - 1:
+                    out.glued_e = c                     # 1e400: read as 1 and E400
+                out.words.append((ch, v, c))
             elif ch in "@^":                           # polar coordinates: radius, angle
                 start = self.i
                 self.i += 1
