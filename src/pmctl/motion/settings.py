@@ -51,10 +51,13 @@ class Settings:
 
 def apply_nc_overrides(svc: ServiceConfig, nc: dict | None) -> ServiceConfig:
     """A run's NC settings that differ from the service config file (``pmctl run --k-theta --shaper
-    --pulse-mode``), applied to ``svc.nc``."""
+    --pulse-mode``), applied to ``svc.nc``. Gains given for ``k_theta_per_s`` replace a file's
+    ``"auto"`` unless ``k_theta_auto`` is given too."""
     for key, v in (nc or {}).items():
         if key == "k_theta_per_s":
             v = tuple(float(x) for x in v)
+            if "k_theta_auto" not in nc:
+                svc.nc.k_theta_auto = False
         setattr(svc.nc, key, v)
     return svc
 

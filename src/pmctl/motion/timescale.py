@@ -248,17 +248,22 @@ class RowStream:
 
 def shape_trajectory(traj, shaper):
     """The shaping stage between the planner and the loop (``pmctl run --shaper``, ``[nc] shaper``):
-    a planned Trajectory with its time law along the path shaped (pmctl.core.shaper.shaped_index,
-    piece by piece between corners). Every sample stays on the planned path, only later; the job
-    line and spindle speed follow the path position; velocities are the forward differences (the
-    NC's feed-forward). ``shaper`` None returns ``traj`` unchanged."""
+    a planned Trajectory with its time law along the path shaped piece by piece between corners
+    (``shaper``: a pmctl.core.shaper.Shaper for every piece, pmctl.core.shaper.shaped_index; or a
+    ChainShaping, a shaper per chain chosen for the chains each piece moves). Every sample stays on
+    the planned path, only later; the job line and spindle speed follow the path position;
+    velocities are the forward differences (the NC's feed-forward). ``shaper`` None returns
+    ``traj`` unchanged."""
     if shaper is None or len(traj) < 3:
         return traj
     from dataclasses import replace
 
     from pmctl.core import shaper as S
     tip, axis = np.asarray(traj.tip, float), np.asarray(traj.axis, float)
-    sig = S.shaped_index(tip, axis, traj.dt, shaper)
+    if isinstance(shaper, S.ChainShaping):      # a shaper per chain, chosen piece by piece
+        sig = shaper.index(tip, axis, traj.dt)
+    else:
+        sig = S.shaped_index(tip, axis, traj.dt, shaper)
     p, a = S.path_at_index(tip, axis, sig)
     i = np.minimum(np.floor(sig + 1e-9).astype(int), len(tip) - 1)
     tv, av = np.zeros_like(p), np.zeros_like(a)

@@ -80,11 +80,13 @@ def add_parser(sub):
                         "the same path: a slow tick is not a stall, and the motion process waits for planned "
                         "samples instead of slowing down)")
     p.add_argument("--k-theta", default=None, metavar="PER_S|auto",
-                   help="strain-gauge feedback gain per chain, 1/s (0 = off), or auto: per chain from the chain "
-                        "mode (docs/vibration.md; default: service config)")
+                   help="strain-gauge feedback gain per chain, 1/s (0 = off), or auto: designed per chain from "
+                        "its chain mode with margins kept for the mode 20 %% off (docs/vibration.md; default: "
+                        "service config)")
     p.add_argument("--shaper", default=None, metavar="TYPE|auto|none",
                    help="input shaper on the time law along the path (the tool stays on the path): ZV, MZV, ZVD, "
-                        "EI, 2HUMP_EI, 3HUMP_EI, auto (from the chain modes) or none (default: [nc] shaper)")
+                        "EI, 2HUMP_EI, 3HUMP_EI, MA, types joined by '*' (ZV*MA), auto (per chain from its mode) "
+                        "or none (default: [nc] shaper)")
     p.add_argument("--pulse-mode", choices=("multi", "single"), default=None,
                    help="V-F converters: integer pulses per tick (multi) or the original controller's one per tick (single; Kamiya et al. 2005)")
     p.add_argument("--state", default=None, metavar="FILE",
