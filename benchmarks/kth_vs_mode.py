@@ -45,6 +45,7 @@ from pmctl.motion import nc as NC
 from pmctl.motion.service_config import LoopConfig
 from pmctl.task.planner import home_pose
 from pmctl.tools.analysis import resonance as R
+from pmctl.tools.analysis.vibration import ringdown_on_sim
 
 MASS, ZETA, KV, DT = 31.66, 0.02, 400.0, 1e-3
 
@@ -77,31 +78,7 @@ def simulate(f, kth, modal=True, y0_mm=0.05, duration=None, accel_scale=100.0, l
     params = NC.NCParams.from_machine(m, DT, k_theta=kth, kv=KV, modal_stiffness_N_per_mm=k if modal else None,
                                       **dec)
     params = replace(params, amax=params.amax * accel_scale)
-    tip, axis = home_pose(m)
-    tip = np.asarray(tip, float) + [0, 0, -100.0]
-    q0 = K.ik(tip, axis, m).q
-    c0 = NC.counts_of(q0, params)
-    st = NC.initial_state(m, c0)
-    duration = duration or max(0.3, 10.0 / f)
-    n = int(duration / DT)
-    tg = L.build_targets(np.repeat(st.tip[None], n, 0), np.repeat(st.axis[None], n, 0), np.zeros(n, int), DT, m, params)
-    be = hal.create("sim", m, DT, dict(flex=True, mode_stiffness_N_per_mm=[k] * 3, mode_mass_kg=[MASS] * 3,
-                                       mode_damping_ratio=[ZETA] * 3))
-    be.open(c0)
-    Ly = be._lib.D_Y if hasattr(be._lib, "D_Y") else 15       # the plant's deflection y (simplant.c D_Y)
-    be._d[Ly:Ly + 3] = y0_mm
-    be._check(be._plant.sample(be._draw(), 0))                 # the gauges read the initial deflection
-    ys = []
-    wp = be.write_pulses
-
-    def write(p):
-        wp(p)
-        ys.append(be._d[Ly])
-    be.write_pulses = write
-    lp = L.ControlLoop(m, be, params, tg, LoopConfig(realtime=False, state_file="", settle_s=0.0, stall_timeout_s=60.0),
-                       st, log=lambda s: None)
-    res = lp.run()
-    y = np.array(ys)
+    y, res = ringdown_on_sim(m, params, k, MASS, ZETA, y0_mm, duration or max(0.3, 10.0 / f))
     t = np.arange(len(y)) * DT
     fd, zp = predict_sampled(f, kth if modal else kth / 10.0, leak=leak)
     w0 = 2 * math.pi * (fd if math.isfinite(fd) else f)

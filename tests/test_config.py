@@ -132,7 +132,7 @@ SVC = (CONFIG_DIR / "service.toml").read_text()
     (lambda t: t.replace("rate_hz = 1000", "rate_hz = " + "1" * 300), "loop.rate_hz", "300 digits"),
     (lambda t: t.replace("spin_us = 0", "spin_us = 5000"), "loop.spin_us", "shorter than the tick"),
     (lambda t: t.replace("kv_per_s = 400", "kv_per_s = 4000"), "nc.kv_per_s", "must be < 1"),
-    (lambda t: t.replace("k_theta_per_s = 200.0", 'k_theta_per_s = ["1", 2, 3]'), "nc.k_theta_per_s", "numbers"),
+    (lambda t: t.replace('k_theta_per_s = "auto"', 'k_theta_per_s = ["1", 2, 3]'), "nc.k_theta_per_s", "numbers"),
     (lambda t: t.replace('pulse_mode = "multi"', 'pulse_mode = "fast"'), "nc.pulse_mode", "one of 'multi'"),
     (lambda t: t.replace("seed = 1 ", 'seed = "" '), "seed", "must be an integer, got a string"),
     (lambda t: t.replace("mode_damping_ratio = [0.02, 0.02, 0.02]", 'mode_damping_ratio = "low"'),

@@ -28,14 +28,15 @@ def depth_of(s):
 def test_oks_are_paced_by_the_motion_and_bf_counts_the_queue(daemon):
     s, *_ = daemon
     depth, rx = depth_of(s)
-    assert (depth, rx) == (15, 128)
+    assert (depth, rx) == (128, 128)
     assert s.send("$10=3") == "ok"                        # MPos and Bf:
     st = s.status()
     assert st["Bf"] == f"{depth},{rx}", st                # idle: all free
-    assert s.send("G21 G91 F600") == "ok"
-    # 3 x depth moves of 1 mm at 10 mm/s (0.1 s each) around a 5 mm square, each with its N word
-    steps = ["X1", "Y1", "X-1", "Y-1"]
-    lines = [f"N{k + 1} G1 {steps[(k // 5) % 4]}" for k in range(3 * depth)]
+    assert s.send("G21 G91 F1200") == "ok"
+    # 3 x depth moves of 0.5 mm at 20 mm/s (25 ms each at speed) along the sides of a 16 mm square, each
+    # with its N word
+    steps = ["X0.5", "Y0.5", "X-0.5", "Y-0.5"]
+    lines = [f"N{k + 1} G1 {steps[(k // 32) % 4]}" for k in range(3 * depth)]
     seen = []                                             # (oks received, block executing) after each ok
     n0 = len(s.answers)
 
@@ -52,7 +53,7 @@ def test_oks_are_paced_by_the_motion_and_bf_counts_the_queue(daemon):
         assert ln >= k - 1 - depth, (k, ln, seen)
         free = int(bf.split(",")[0])
         assert 0 <= free <= depth
-    st = s.wait_state(("Idle",), 120)
+    st = s.wait_state(("Idle",), 300)
     assert st["Bf"] == f"{depth},{rx}"
     assert s.send("G90") == "ok" and s.send("$10=1") == "ok"
 
@@ -64,7 +65,7 @@ def test_the_queue_fills_to_its_depth_while_held(daemon):
     s.realtime(b"!")                                      # a hold while idle: motion sent now waits
     assert s.wait_state(("Hold:0",), 30)["state"] == "Hold:0"
     n0 = len(s.answers)
-    lines = ["G21 G91 F600"] + [f"G1 X{(-1) ** k * 0.5:g}" for k in range(depth + 5)]
+    lines = ["G21 G91 F3000"] + ["G1 X0.1"] * (depth + 5)            # 13.3 mm in a straight line
     for ln in lines:
         s.send(ln, wait=False)
     s.wait_for(lambda: len(s.answers) - n0 >= depth + 1, 30)

@@ -60,6 +60,7 @@ def test_realtime_bytes_work_during_the_wait_and_a_reset_ends_it(daemon):
     assert len(s.answers) == n                           # held: the dwell line is not answered
     s.realtime(b"~")
     assert s.wait_state(("Run",), 30)["state"] == "Run"
+    assert s.wait_for(lambda: s.status()["pos"][1] - p0[1] < -0.1, 60)    # on its way again
     pushed = s.reset()                                   # a soft reset ends the wait: no answer to G4
     assert "Grbl 1.1h ['$' for help]" in pushed
     st = s.wait_state(("Idle",), 30)

@@ -21,12 +21,12 @@ PMCTL = [sys.executable, "-m", "pmctl.interfaces.cli"]
 SHIPPED = ROOT / "config" / "service.toml"
 
 
-def _daq_source_service(tmp_path, k_theta="200.0"):
-    """The shipped service config with the DAQ named as K_theta's strain source."""
+def _daq_source_service(tmp_path, k_theta='"auto"'):
+    """The shipped service config (K_theta auto) with the DAQ named as K_theta's strain source."""
     text = SHIPPED.read_text()
-    assert 'k_theta_source = "backend"' in text and "k_theta_per_s = 200.0" in text
+    assert 'k_theta_source = "backend"' in text and 'k_theta_per_s = "auto"' in text
     text = text.replace('k_theta_source = "backend"', 'k_theta_source = "daq"')
-    text = text.replace("k_theta_per_s = 200.0", f"k_theta_per_s = {k_theta}")
+    text = text.replace('k_theta_per_s = "auto"', f"k_theta_per_s = {k_theta}")
     p = tmp_path / "service.toml"
     p.write_text(text)
     return p
@@ -91,20 +91,20 @@ def test_run_refuses_a_daq_too_slow_for_k_theta_before_anything_starts(tmp_path,
 @pytest.mark.parametrize("backend", ["sim", "canopen"])
 def test_k_theta_runs_only_where_the_backend_carries_strain_in_its_cyclic_data(backend):
     """The canopen drives carry no strain gauges: K_theta is off for pmctl serve as for pmctl run (the
-    Supervisor resolves it, and the rt process, which resolves the service config again from the
-    Supervisor's overrides and K_theta as resolved, gets the same gains). The sim plant's gauges are in
+    Supervisor resolves it once, and the rt process gets the resolved settings as data: the same gains). The sim plant's gauges are in
     its cyclic data: on."""
     import numpy as np
 
-    from pmctl.motion.rtproc import apply_nc_overrides
-    from pmctl.motion.service_config import load_service_config, nc_setup
+    from pmctl.motion.settings import Settings
     from pmctl.task.supervisor import Supervisor
+    from pmctl.core.strain_loop import design_k_theta
     sup = Supervisor("prototype", service=str(SHIPPED), backend=backend, state_file="")
-    want = np.zeros(3) if backend == "canopen" else np.full(3, 200.0)
+    f = chain_mode_hz(sup.machine)                  # the shipped sim plant's 246.6 Hz, K_theta "auto"
+    want = np.zeros(3) if backend == "canopen" else np.full(3, design_k_theta(f, 0.02, 400.0, sup.dt).k_theta)
+    assert backend == "canopen" or want[0] > 0
     assert np.array_equal(sup.params.k_theta, want)
     off = [n for n in sup.nc_setup.notes if n.startswith("K_theta off")]
     assert off == (["K_theta off: backend canopen carries no strain gauges in its cyclic data"]
                    if backend == "canopen" else [])
-    svc = apply_nc_overrides(load_service_config(str(SHIPPED)), sup._rt_nc())   # as the rt process, from its spec
-    rt = svc.nc.params(sup.machine, sup.dt, where=svc.source, modes=nc_setup(svc, sup.machine, sup.dt, backend).modes)
-    assert np.array_equal(rt.k_theta, want)
+    rt = Settings.from_bytes(sup.settings.to_bytes())        # what the rt process reads from its spawn pipe
+    assert np.array_equal(rt.params.k_theta, want) and rt.backend == backend

@@ -375,13 +375,14 @@ def test_streamed_bundled_job_is_the_whole_plan(bundled, machine, name, window):
 
 
 @st.composite
-def long_programs(draw):
-    """G0 to a start, then 6-24 moves: lines, rapids, arcs, tilts, dwells and spindle changes."""
+def long_programs(draw, runs=False):
+    """G0 to a start, then 6-24 moves: lines, rapids, arcs, tilts, dwells and spindle changes; with
+    ``runs`` also straight runs of 2-12 short lines (merged within the tolerance)."""
     f = "{:.6f}".format
     x, y, z = draw(st.floats(-20, 20)), draw(st.floats(-20, 20)), draw(st.floats(50, 90))
     lines = [f"G0 X{f(x)} Y{f(y)} Z{f(z)}", f"F{draw(st.floats(600, 2400)):.1f}"]
     for _ in range(draw(st.integers(6, 24))):
-        kind = draw(st.sampled_from(["G1", "G1", "G1", "G0", "arc", "G4", "S"]))
+        kind = draw(st.sampled_from(["G1", "G1", "G1", "G0", "arc", "G4", "S"] + (["run"] if runs else [])))
         if kind == "G4":
             lines.append(f"G4 P{draw(st.floats(0.001, 0.3)):.3f}")
             continue
@@ -391,7 +392,11 @@ def long_programs(draw):
         nx, ny = draw(st.floats(-25, 25)), draw(st.floats(-25, 25))
         nz = min(100.0, max(45.0, z + draw(st.floats(-8, 8))))
         a, b = draw(st.floats(-6, 6)), draw(st.floats(-6, 6))
-        if kind == "arc":
+        if kind == "run":
+            k = draw(st.integers(2, 12))
+            for j in range(1, k + 1):
+                lines.append(f"G1 X{f(x + (nx - x) * j / k)} Y{f(y + (ny - y) * j / k)} Z{f(z + (nz - z) * j / k)}")
+        elif kind == "arc":
             r = draw(st.floats(1.0, 10.0))
             ph = draw(st.floats(0, 2 * math.pi))
             ccw = draw(st.booleans())

@@ -1,6 +1,7 @@
 """CNCjs 1.11.5 (npm, pinned in tests/peers/npm/cncjs, installed by tests/peers/install) drives
 `pmctl serve` on the sim over its console pty, through CNCjs's socket.io API as its web UI does
-(tests/cncjs_driver.js): open the port as a Grbl controller, load and start the bundled cone job,
+(tests/cncjs_driver.js): open the port as a Grbl controller, load and start the bundled spiral job
+(longer than the console's planner queue),
 feed override +100 %, hold (gcode:pause) and resume, to the end with no error and no alarm; a jog as
 the Axes widget sends it (G91, G0 X.., G90); pause and a forced stop mid-job (gcode:stop sends ctrl-X
 once the machine holds), after which the machine is Idle where it stopped, without an alarm."""
@@ -106,10 +107,10 @@ def rig(tmp_path):
         stop_serve(p)
 
 
-def test_cncjs_streams_the_cone_with_override_hold_resume_then_jogs_and_stops(rig):
+def test_cncjs_streams_the_spiral_with_override_hold_resume_then_jogs_and_stops(rig):
     c, link = rig
-    gcode = (ROOT / "examples" / "jobs" / "cone.ngc").read_text()
-    c.emit("command", str(link), "gcode:load", "cone.ngc", gcode, {})
+    gcode = (ROOT / "examples" / "jobs" / "spiral.ngc").read_text()     # 370 lines: more than the queue
+    c.emit("command", str(link), "gcode:load", "spiral.ngc", gcode, {})
     c.wait(lambda: any(e["ev"] == "gcode:load" for e in c.log), 30, "gcode:load")
     total = c.sender.get("total") or len([ln for ln in gcode.splitlines() if ln.strip()])
     c.emit("command", str(link), "gcode:start")
@@ -120,6 +121,12 @@ def test_cncjs_streams_the_cone_with_override_hold_resume_then_jogs_and_stops(ri
     c.wait(lambda: c.sender.get("received", 0) >= 8, 120, "8 lines acknowledged")
     c.emit("command", str(link), "gcode:pause")
     c.wait(lambda: c.active() == "Hold", 60, "Hold")
+
+    def still():                                          # ("Hold" is grbl's Hold:1 too: still stopping)
+        p = c.pos()
+        time.sleep(0.5)
+        return np.allclose(c.pos(), p, atol=1e-4)
+    c.wait(still, 60, "the hold to come to rest")
     p_hold = c.pos()
     time.sleep(1.0)
     assert np.allclose(c.pos(), p_hold, atol=1e-3)        # held: nothing moves

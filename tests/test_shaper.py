@@ -139,3 +139,62 @@ def test_time_law_at_a_stop_corner_keeps_the_acceleration_bounded(name):
     corner = np.array([[-5.0, 0, 0], [0, 0, 0], [0, 5.0, 0]])
     assert S.path_error(p, corner).max() <= 1e-9
     assert np.min(np.linalg.norm(p, axis=1)) == 0.0
+
+
+def test_moving_average_leaves_no_vibration_at_the_mode_and_its_harmonics():
+    """MA: a damped period's taps; zero residual at f, 2 f, .. (MA_TAPS - 1) f for its damping, and the
+    undamped sinc between: sin(pi r) / (n sin(pi r / n)) at r = f / f0."""
+    for z in (0.0, 0.02, 0.1):
+        sh = S.make_shaper("MA", 40.0, z)
+        assert len(sh.A) == S.MA_TAPS and sh.duration == pytest.approx((1 - 1 / S.MA_TAPS) / (40.0 * math.sqrt(1 - z * z)))
+        for k in (1, 2, 5):
+            fk = 40.0 * k if z == 0.0 else 40.0
+            assert float(S.residual_vibration(sh, fk, z)) < 1e-12
+    sh = S.make_shaper("MA", 40.0, 0.0)
+    n = S.MA_TAPS
+    for r in (0.5, 0.8, 1.2, 1.5):
+        want = abs(math.sin(math.pi * r) / (n * math.sin(math.pi * r / n)))
+        assert float(S.residual_vibration(sh, 40.0 * r, 0.0)) == pytest.approx(want, rel=1e-9)
+
+
+def test_combination_is_the_product_of_the_curves_and_the_sum_of_the_durations():
+    zv, ma, both = (S.make_shaper(n, 40.0, 0.02) for n in ("ZV", "MA", "zv*ma"))
+    assert both.name == "ZV*MA" and both.duration == pytest.approx(zv.duration + ma.duration)
+    f = np.linspace(20.0, 80.0, 61)
+    np.testing.assert_allclose(S.residual_vibration(both, f, 0.02),
+                               S.residual_vibration(zv, f, 0.02) * S.residual_vibration(ma, f, 0.02), rtol=1e-9,
+                               atol=1e-12)
+    with pytest.raises(ValueError, match="joined by"):
+        S.make_shaper("ZV*XX", 40.0)
+
+
+def test_a_shaped_velocity_step_ramps_over_the_period():
+    """A piece of the path that starts at speed v (the planner's corner speed) is shaped from rest:
+    with the impulse shaper alone the velocity jumps by A_0 v in one tick; with MA it rises over a
+    period, at A_0 v dt f a tick on average (at most 2.5 times that: taps 0.78 ms apart fall two
+    into some ticks), a tenth of the step or less."""
+    dt, v, f = 1e-3, 2.0, 40.0
+    tip = np.c_[np.arange(400) * v * dt, np.zeros(400), np.zeros(400)]
+    axis = np.tile([0.0, 0.0, 1.0], (400, 1))
+    jumps = {}
+    for name in ("ZV", "ZV*MA"):
+        sh = S.make_shaper(name, f, 0.02)
+        p = S.path_at_index(tip, axis, S.shaped_clock(tip, axis, dt, sh))[0]
+        jumps[name] = np.abs(np.diff(np.diff(p[:, 0]) / dt)).max()
+    a0 = S.make_shaper("ZV", f, 0.02).A[0]
+    assert jumps["ZV"] == pytest.approx(a0 * v, rel=1e-6)
+    assert jumps["ZV*MA"] <= 2.5 * a0 * v * dt * f and jumps["ZV*MA"] <= 0.1 * jumps["ZV"]
+
+
+def test_auto_takes_the_moving_average_with_the_shortest_impulse_shaper_that_covers_the_drift():
+    cands = S.candidates()
+    assert cands[0] == "MA" and all(c == "MA" or c.endswith("*MA") for c in cands)
+    d = [S.make_shaper(c, 40.0, 0.02).duration for c in cands]
+    assert d == sorted(d)
+    for drift, zeta in ((0.1, 0.02), (0.2, 0.02), (0.1, 0.2)):
+        name = S.recommend(40.0, zeta, drift)
+        band = np.linspace(1 - drift, 1 + drift, 81) * 40.0
+        worst = lambda n: float(np.max(S.residual_vibration(S.make_shaper(n, 40.0, zeta), band, zeta)))  # noqa: E731
+        assert worst(name) <= S.AUTO_REMAINING
+        assert all(worst(c) > S.AUTO_REMAINING for c in cands[:cands.index(name)])
+    assert S.recommend(40.0, 0.02) == "ZV*MA"

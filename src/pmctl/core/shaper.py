@@ -22,9 +22,19 @@ EI         (1+V)/4, (1-V)/2 K, (1+V)/4 K^2                     0, 1/2, 1
 2HUMP_EI   a1, (1/2 - a1) K, (1/2 - a1) K^2, a1 K^3           0, 1/2, 1, 3/2
 3HUMP_EI   a1, (1-V)/4 K, ((1+V)/2 - 2 a1) K^2, (1-V)/4 K^3,   0, 1/2, 1, 3/2, 2
            a1 K^4
+MA         K_i = exp(-zeta w t_i), i = 0 .. MA_TAPS - 1            i / MA_TAPS (one damped period)
 =========  ================================================  ==================================
 
 (V = the EI shapers' tolerated vibration, 5 %.)
+
+**MA, the moving average over one period.** Its taps are a damped period's MA_TAPS roots of unity:
+the mode at the design frequency, and its first MA_TAPS - 1 harmonics, are left with no vibration
+at all, and between them its curve is a sinc (V = 0.24 at 0.8 f, 0.16 at 1.2 f). Unlike the
+impulse shapers, whose curves repeat every 2 f (ZV, ZVD, EI and the humps leave the whole motion at
+2 f, 4 f, ...), it also smooths: a velocity step (a corner the planner passes at its corner speed,
+a piece of the path starting or ending at speed) becomes a ramp over one period, so the motion
+keeps little content anywhere in the band around the mode. Combined with an impulse shaper
+(``"ZV*MA"``: a name joining types with ``*`` is their convolution) the curve is the product.
 
 **Applying a shaper without leaving the path.** Shaping the Cartesian targets (as 3-D printers do)
 averages points of different path segments, so a corner is cut: :func:`shape_cartesian`.
@@ -44,8 +54,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SHAPERS = ("ZV", "MZV", "ZVD", "EI", "2HUMP_EI", "3HUMP_EI")
+SHAPERS = ("ZV", "MZV", "ZVD", "EI", "2HUMP_EI", "3HUMP_EI", "MA")
 EI_TOLERANCE = 0.05
+MA_TAPS = 32              # taps of the moving average over one period (zero vibration at f .. 31 f)
 # Time-law shaping splits the path at corners turning more than this. At a split the shaped clock
 # comes to rest at the corner and leaves from rest: with the planner's corner speed v_c that costs
 # velocity steps adding up to 2 v_c. Not splitting costs a step |u2 - u1| v~ at the corner (v~ the
@@ -72,11 +83,24 @@ class Shaper:
         return float(self.A @ self.T)
 
 
+def shaper_name(name: str) -> str:
+    """The canonical name of a shaper type or of a combination of types joined by ``*`` (``"zv*ma"``
+    -> ``"ZV*MA"``); ValueError naming the choices for an unknown one."""
+    parts = [p.strip().upper() for p in str(name).split("*")]
+    for p in parts:
+        if p not in SHAPERS:
+            raise ValueError(f"unknown shaper {name!r}: choose one of {', '.join(SHAPERS)}, or types joined "
+                             f"by '*' (their convolution, e.g. ZV*MA)")
+    return "*".join(parts)
+
+
 def make_shaper(name: str, freq_hz: float, damping: float = 0.1, tolerance: float = EI_TOLERANCE) -> Shaper:
-    """The shaper ``name`` (one of SHAPERS, case-insensitive) designed for ``freq_hz`` and ``damping``."""
-    key = str(name).upper()
-    if key not in SHAPERS:
-        raise ValueError(f"unknown shaper {name!r}: choose one of {', '.join(SHAPERS)}")
+    """The shaper ``name`` (one of SHAPERS, case-insensitive, or types joined by ``*``: their
+    convolution, each designed for the same mode) designed for ``freq_hz`` and ``damping``."""
+    key = shaper_name(name)
+    if "*" in key:
+        sh = convolve([make_shaper(p, freq_hz, damping, tolerance) for p in key.split("*")])
+        return Shaper(key, float(freq_hz), float(damping), sh.A, sh.T)
     if not (math.isfinite(freq_hz) and freq_hz > 0):
         raise ValueError(f"shaper frequency must be > 0 Hz, got {freq_hz!r}")
     if not (0.0 <= damping < 1.0):
@@ -93,6 +117,10 @@ def make_shaper(name: str, freq_hz: float, damping: float = 0.1, tolerance: floa
         k = math.exp(-0.75 * z * math.pi / sq)
         a1 = 1.0 - 1.0 / math.sqrt(2.0)
         A, T = [a1, (math.sqrt(2.0) - 1.0) * k, a1 * k * k], [0.0, 0.375, 0.75]
+    elif key == "MA":
+        T = np.arange(MA_TAPS) / MA_TAPS * td
+        A = np.exp(-z * 2.0 * math.pi * freq_hz * T)
+        return Shaper(key, float(freq_hz), z, A / A.sum(), T)
     elif key == "EI":
         a1 = 0.25 * (1.0 + v)
         A, T = [a1, 0.5 * (1.0 - v) * K, a1 * K * K], [0.0, 0.5, 1.0]
@@ -131,6 +159,34 @@ def convolve(shapers, merge: float = 1e-9) -> Shaper:
     T2 = T[keep]
     s0 = shapers[0]
     return Shaper("*".join(sh.name for sh in shapers), s0.freq_hz, s0.damping, A2 / A2.sum(), T2 - T2[0])
+
+
+AUTO_DRIFT = 0.10         # recommend(): the mode may be this far (relative) from its design point
+AUTO_REMAINING = 0.05     # ... and leave at most this residual vibration anywhere within it
+
+
+def candidates() -> list[str]:
+    """The shapers :func:`recommend` chooses from, shortest first: the moving average over one period
+    (MA) alone and convolved with each impulse shaper. The MA always takes part: the time law's
+    steps (a piece of the path starting or ending at the planner's corner speed) carry motion
+    across the whole band around the mode, which an impulse shaper alone leaves (its curve repeats
+    every 2 f); the MA spreads them over a period."""
+    names = ["MA"] + [f"{n}*MA" for n in SHAPERS if n != "MA"]
+    return sorted(names, key=lambda n: make_shaper(n, 1.0, 0.0).duration)
+
+
+def recommend(freq_hz: float, damping: float, drift: float = AUTO_DRIFT, max_remaining: float = AUTO_REMAINING) -> str:
+    """The shaper ``auto`` takes for a mode (freq_hz, damping): the shortest of :func:`candidates`
+    whose residual vibration stays at most ``max_remaining`` over freq_hz x (1 -+ drift), else the one
+    with the least there."""
+    band = np.linspace(1.0 - drift, 1.0 + drift, 81) * freq_hz
+    worst = []
+    for n in candidates():
+        v = float(np.max(residual_vibration(make_shaper(n, freq_hz, damping), band, damping)))
+        if v <= max_remaining:
+            return n
+        worst.append((v, n))
+    return min(worst)[1]
 
 
 def residual_vibration(shaper: Shaper, freq_hz, damping: float | None = None):
@@ -210,6 +266,21 @@ def corner_samples(tip, axis, corner_deg: float = SPLIT_DEG, axis_weight_mm: flo
     return out
 
 
+def _pieces_index(tip, axis, dt: float, cuts, shaper_of):
+    """Fractional sample indices of the time law shaped piece by piece: ``cuts`` (sorted sample
+    indices, first 0, last n - 1) bound the pieces; ``shaper_of(a, b)`` is the Shaper of piece a..b,
+    or None to leave its clock as planned."""
+    out = []
+    for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
+        sh = shaper_of(a, b)
+        if sh is None:
+            sg = np.arange(a, b + 1, dtype=float)
+        else:
+            sg = a + shaped_clock(tip[a:b + 1], axis[a:b + 1], dt, sh)
+        out.append(sg[1:] if k else sg)        # the corner sample ends the previous piece
+    return np.concatenate(out)
+
+
 def shaped_index(tip, axis, dt: float, shaper: Shaper, *, split_at_corners: bool = True, corner_deg: float = SPLIT_DEG):
     """The time-law shaping of :func:`shape_time_law` as fractional sample indices of the input
     (non-decreasing; first 0, last n - 1): output sample k is the input path at index sigma_k, so
@@ -220,11 +291,120 @@ def shaped_index(tip, axis, dt: float, shaper: Shaper, *, split_at_corners: bool
     if not split_at_corners or n < 3:
         return shaped_clock(tip, axis, dt, shaper)
     cuts = [0] + [c for c in corner_samples(tip, axis, corner_deg) if 0 < c < n - 1] + [n - 1]
-    out = []
-    for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
-        sg = a + shaped_clock(tip[a:b + 1], axis[a:b + 1], dt, shaper)
-        out.append(sg[1:] if k else sg)        # the corner sample ends the previous piece
-    return np.concatenate(out)
+    return _pieces_index(tip, axis, dt, cuts, lambda a, b: shaper)
+
+
+CHAIN_SPLIT_DEG = 10.0   # a turn of the chains' velocity vector that splits the path (ChainShaping)
+PIECE_SHARE = 0.1        # a chain whose planned acceleration in a piece is under this share of the
+                         # piece's largest does not choose the piece's shaper (ChainShaping)
+MERGE_REL = 0.03         # design points this close (relative frequency) share one shaper
+
+
+@dataclass(frozen=True)
+class ChainShaping:
+    """Time-law shaping with a shaper per chain: each piece of the path (between corners) is shaped
+    for the chains it moves, so the path is kept (one clock along it) while a piece that moves
+    only chains with the same mode pays for one shaper, and a piece that moves no chain (a table
+    move) pays nothing.
+
+    ``shapers``: one Shaper per chain, designed for that chain's mode. ``joints``: a pure function
+    (tip (N, 3), axis (N, 3)) -> the planned chain lengths (N, 3), mm (the inverse kinematics).
+    ``jump_mm_s``: per chain, the velocity change within one tick that counts as a kink (it leaves
+    the chain's mode ringing by about jump / w); ``still_mm_s2``: per chain, the planned acceleration
+    below which the chain counts as still in a piece.
+
+    Pieces: the path is split at the corners of :func:`corner_samples` (the tip and axis turning
+    more than SPLIT_DEG) and where the chains' velocity vector turns by more than CHAIN_SPLIT_DEG
+    with a jump of some chain's velocity above its ``jump_mm_s`` (a junction of the plan that is
+    a corner for the chains: a G0 ending in a plunge, a tilt that stops). A chain chooses the shaper
+    of a piece when its largest planned acceleration there (its first and last rates count as a
+    step from rest in one tick) reaches both its ``still_mm_s2`` and PIECE_SHARE of the largest
+    chain's; the piece is
+    shaped with the convolution of the chosen chains' shapers (one per distinct design point,
+    within MERGE_REL), or not at all when no chain is chosen."""
+
+    shapers: tuple
+    joints: object
+    jump_mm_s: tuple = (0.0, 0.0, 0.0)
+    still_mm_s2: tuple = (0.0, 0.0, 0.0)
+
+    @property
+    def name(self) -> str:
+        return self.combined(range(len(self.shapers))).name
+
+    @property
+    def duration(self) -> float:
+        """The longest a piece can be delayed (all chains' shapers convolved)."""
+        return self.combined(range(len(self.shapers))).duration
+
+    def combined(self, chains) -> Shaper:
+        """The shaper of a piece moving ``chains``: their shapers, one per distinct design point."""
+        pts = []
+        for i in sorted(set(chains)):
+            sh = self.shapers[i]
+            if not any(p.name == sh.name and abs(p.freq_hz - sh.freq_hz) <= MERGE_REL * p.freq_hz for p in pts):
+                pts.append(sh)
+        return pts[0] if len(pts) == 1 else convolve(pts)
+
+    def plan(self, tip, axis, dt: float):
+        """(cuts, chosen, kinks): the sample indices bounding the pieces (first 0, last n - 1), per
+        piece the tuple of chains that choose its shaper (empty: not shaped), and the set of cuts
+        that are kinks of the chains rather than corners of the path."""
+        tip = np.asarray(tip, float)
+        axis = np.asarray(axis, float)
+        n = len(tip)
+        if n < 3:
+            return [0, max(n - 1, 0)], [()] if n > 1 else [], set()
+        q = np.asarray(self.joints(tip, axis), float)[:, :len(self.shapers)]
+        v = np.diff(q, axis=0) / dt                       # (n - 1, C): rate of sample k -> k + 1
+        jump = np.abs(np.diff(v, axis=0))                 # (n - 2, C): at samples 1 .. n - 2
+        corners = set(c for c in corner_samples(tip, axis) if 0 < c < n - 1)
+        big = np.any(jump > np.asarray(self.jump_mm_s, float), axis=1)
+        vi, vo = v[:-1], v[1:]
+        ni, no = np.linalg.norm(vi, axis=1), np.linalg.norm(vo, axis=1)
+        cosang = np.einsum("ij,ij->i", vi, vo) / np.maximum(ni * no, 1e-300)
+        turn = (ni > 0) & (no > 0) & (cosang < math.cos(math.radians(CHAIN_SPLIT_DEG)))
+        kinks = set(int(k) + 1 for k in np.nonzero(big & turn)[0]) - corners
+        cuts = [0] + sorted(c for c in corners | kinks if 0 < c < n - 1) + [n - 1]
+        acc = np.zeros_like(q)
+        acc[1:-1] = jump / dt
+        floor = np.asarray(self.still_mm_s2, float)
+        chosen = []
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            # the piece's own motion: its inner samples' accelerations and its first and last rates
+            # (the shaped clock starts and ends at rest), not the jumps at its ends, which belong to
+            # the clock of the piece on the other side
+            peak = np.maximum(np.abs(v[a]), np.abs(v[b - 1])) / dt
+            if b - a > 1:
+                peak = np.maximum(peak, np.abs(acc[a + 1:b]).max(axis=0))
+            top = float(peak.max())
+            chosen.append(tuple(int(i) for i in np.nonzero((peak >= floor) & (peak >= PIECE_SHARE * top)
+                                                            & (peak > 0))[0]))
+        return cuts, chosen, kinks
+
+    def index(self, tip, axis, dt: float):
+        """Fractional sample indices of the shaped time law (as :func:`shaped_index`)."""
+        tip = np.asarray(tip, float)
+        axis = np.asarray(axis, float)
+        if len(tip) < 3:
+            return np.arange(len(tip), dtype=float)
+        cuts, chosen, kinks = self.plan(tip, axis, dt)
+        of = dict(zip(zip(cuts[:-1], cuts[1:]), chosen))
+        cache = {}
+
+        def shaper_of(a, b):
+            ch = of[(a, b)]
+            if not ch:
+                return None
+            key = (ch, a in kinks or b in kinks)
+            if key not in cache:
+                sh = self.combined(ch)
+                if key[1]:          # a stop the planner did not make: brought to rest over two periods
+                    lo = min(self.shapers[i].freq_hz for i in ch)
+                    sh = convolve([sh, make_shaper("MA", 0.5 * lo, 0.0)])
+                cache[key] = sh
+            return cache[key]
+        return _pieces_index(tip, axis, dt, cuts, shaper_of)
 
 
 def shape_time_law(tip, axis, dt: float, shaper: Shaper, *, split_at_corners: bool = True,

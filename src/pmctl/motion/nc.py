@@ -24,7 +24,13 @@ pulse while out of the band) moves it: a chain mode ringing about the band's edg
 into pulses. Without the deadband, a target between two pulses makes the correction integrate in
 the V-F residue, pass the threshold, overshoot by the remaining fraction and come back: a one-pulse
 limit cycle at rest (LinuxCNC's stepgen likewise leaves a position within half a step alone).
-While the target moves nothing changes, and pulses + residue = the integral of the rate.
+While the target moves and the soft-chain K_theta runs (a chain mode known, NCParams.mode_hz), a
+joint whose own feed-forward rate (J+ of the target's velocity) is under ``REST_FF_PULSES`` per
+tick -- a chain standing still while only the table moves, the table while only the chains move --
+gets the same deadband: the same one-pulse limit cycle would run on it, and through the feedback
+it rings the soft chain's mode (docs/vibration.md). Without that law such a joint is driven as
+before: the deadband would let the commanded path stand up to its width off the programmed one.
+Every other joint is driven as before, and pulses + residue = the integral of the rate.
 
 With a compensation (``NCParams.compensation``, the machine config's [compensation]), the joints of
 step 1 (and of the soft limits) are counts x resolution + the per-axis backlash and screw
@@ -77,6 +83,7 @@ IMPLEMENTATIONS = ("compiled", "python")
 _ZERO5 = [0.0] * 5
 _ZERO3 = [0.0] * 3
 ACC_LP = 2.0          # soft-chain K_theta: the planned acceleration is low-passed at ACC_LP x the mode
+REST_FF_PULSES = 1e-6  # a joint whose feed-forward rate is worth at most this many pulses per tick stands still
 MODE_NAMES = {RUN: "run", STOPPING: "stopping", HALTED: "halted", DONE: "done"}
 
 # ---------------------------------------------------------------- reason texts
@@ -153,6 +160,9 @@ class NCParams:
     # loop through a leaky offset per chain (leak 1/s), and optionally the motor leads by a*/w^2.
     mode_hz: np.ndarray = field(default_factory=lambda: np.zeros(3))   # chain mode per chain, 0 = unknown
     k_theta_leak: np.ndarray = field(default_factory=lambda: np.zeros(3))   # 1/s per chain
+    # low-pass of the planned chain acceleration (the planned stretch a*/w^2), 1/s per chain; 0 = ACC_LP x w
+    # (the service config's K_theta design sets it: pmctl.core.strain_loop)
+    k_theta_lp: np.ndarray = field(default_factory=lambda: np.zeros(3))
     deflection_ff: bool = False        # motor leads by the planned stretch a*/w^2 (load side on the path)
     max_pulses_per_tick: int = 1
     ferror_mm: float = 1.0             # following-error limit at full speed (LinuxCNC FERROR)
@@ -176,9 +186,9 @@ class NCParams:
         # Arrays are frozen too (use dataclasses.replace to change a limit), so the plain-float
         # copies for the per-tick scalar code (5 numbers: cheaper than numpy calls) stay in step.
         for f in ("pulses_per_mm", "vmax", "amax", "lower", "upper", "k_theta", "deflection_per_ue", "mode_hz",
-                  "k_theta_leak"):
+                  "k_theta_leak", "k_theta_lp"):
             a = np.array(getattr(self, f), float)
-            if f in ("k_theta", "mode_hz", "k_theta_leak"):     # one value for all chains, or one per chain
+            if f in ("k_theta", "mode_hz", "k_theta_leak", "k_theta_lp"):     # one value for all chains, or one per chain
                 a = np.broadcast_to(a, (3,)).copy()
             a.setflags(write=False)
             object.__setattr__(self, f, a)
@@ -187,12 +197,13 @@ class NCParams:
                              f"got {self.implementation!r}")
         object.__setattr__(self, "_l", _Lists(self))
         object.__setattr__(self, "_kth_on", bool(np.any(self.k_theta)))
-        if np.any(self.mode_hz < 0) or np.any(self.k_theta_leak < 0):
-            raise ValueError("mode_hz and k_theta_leak must be >= 0")
+        if np.any(self.mode_hz < 0) or np.any(self.k_theta_leak < 0) or np.any(self.k_theta_lp < 0):
+            raise ValueError("mode_hz, k_theta_leak and k_theta_lp must be >= 0")
         w = 2.0 * math.pi * self.mode_hz
         inv_w2 = [1.0 / (x * x) if x > 0 else 0.0 for x in w.tolist()]
         object.__setattr__(self, "_inv_w2", inv_w2)
-        object.__setattr__(self, "_acc_lp", [1.0 - math.exp(-ACC_LP * x * self.dt) for x in w.tolist()])
+        lp = [x if x > 0 else ACC_LP * wi for x, wi in zip(self.k_theta_lp.tolist(), w.tolist())]
+        object.__setattr__(self, "_acc_lp", [1.0 - math.exp(-x * self.dt) for x in lp])
         object.__setattr__(self, "_kth_modal", self._kth_on and bool(np.any(self.mode_hz > 0)))
         for f in ("chain_offset_max_mm", "chain_offset_rate_mm_s"):
             v = float(getattr(self, f))
@@ -220,7 +231,9 @@ class NCParams:
         The strain->deflection scale is 1/(strain gain x chain stiffness): the chain's modal
         stiffness when given, else the machine config's chain_axial. ``mode_hz`` (one or three):
         the chain mode, which turns on the soft-chain K_theta (quasi-static stretch removed,
-        decoupled from the pose loop with a leak of ``leak_frac`` x w unless k_theta_leak is given)."""
+        decoupled from the pose loop with a leak of ``leak_frac`` x w unless k_theta_leak is given;
+        the service config gives the leak and k_theta_lp its design derives from the mode,
+        pmctl.core.strain_loop.design_k_theta)."""
         if mode_hz is not None:
             mh = np.broadcast_to(np.asarray(mode_hz, float), (3,)).copy()
             kw["mode_hz"] = mh
@@ -361,9 +374,10 @@ def _kth_modal_l(qd, qf, defl, kth, params: NCParams):
     qf: the targets' feed-forward chain rates of this tick; defl: theta_m - theta_L per chain, mm;
     kth: (12,) state (offset d, last feed-forward rate, last stretch o, low-passed a*). Adds to
     qd[:3] and returns the new state: a* = (qf - qf_prev)/dt (the targets' second difference),
-    low-passed (af += c (a* - af), c = 1 - exp(-ACC_LP w dt), a cut at twice the mode: the stretch a*/w^2 is the
-    deflection only for what lies below the mode, and a one-tick velocity step of the targets would
-    otherwise become a one-tick motor blip of a*/w^2), o = af/w^2 the planned stretch, y_dyn = y + o
+    low-passed (af += c (a* - af), c = 1 - exp(-w_lp dt), w_lp = params.k_theta_lp, by default ACC_LP w:
+    the stretch a*/w^2 is the deflection only for what lies below the mode, and a one-tick velocity
+    step of the targets would otherwise become a one-tick motor blip of a*/w^2; the service config
+    sets w_lp = K_theta, pmctl.core.strain_loop), o = af/w^2 the planned stretch, y_dyn = y + o
     (y = -defl), rate K_theta y_dyn + kv d (+ kv o + (o - o_prev)/dt with deflection feed-forward),
     d += dt (K_theta y_dyn - leak d)."""
     dt, kv, iw2, cf = params.dt, params.kv, params._inv_w2, params._acc_lp
@@ -509,11 +523,10 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK, 
             for r in (3, 4, 5):
                 Jr = J[r]
                 J[r] = [Jr[0] * w, Jr[1] * w, Jr[2] * w, 0.0, 0.0]
-            if params._kth_modal:       # the targets' own joint rates too (feed-forward only)
-                qd, qf = _damped_pinv_apply(np.array(J), x, params,
-                                            np.array([t[6], t[7], t[8], t[9] * w, t[10] * w, t[11] * w]))
-            else:
-                qd = _damped_pinv_apply(np.array(J), x, params)
+            # the targets' own joint rates too (feed-forward only): the soft-chain K_theta's planned
+            # stretch and the rest deadband of a joint standing still
+            qd, qf = _damped_pinv_apply(np.array(J), x, params,
+                                        np.array([t[6], t[7], t[8], t[9] * w, t[10] * w, t[11] * w]))
         except KinematicsError as e:
             return zero, replace(state, qdot=np.zeros(5), acc=np.zeros(5), mode=HALTED,
                                  reason=f"{MODEL_LOST}{e}")
@@ -531,14 +544,18 @@ def nc_step(state: NCState, target, feedback, params: NCParams, model: ModelFK, 
             else:
                 qd[:3] -= params.k_theta * defl
         qdot_des = qd.tolist()
-        if not (t[6] or t[7] or t[8] or t[9] or t[10] or t[11]):
-            # the target at rest: no correction for a joint within the deadband (module docstring)
-            band = params._rest_band
-            held = [False] * 5
-            for i in range(5):
-                if band[i] > 0.0 and abs(qdot_des[i]) <= band[i]:     # (a band of 0: off)
-                    qdot_des[i] = 0.0
-                    held[i] = True
+        # the target at rest, or a joint whose own feed-forward is (nearly) zero: no correction for a
+        # joint within the deadband (module docstring)
+        moving = bool(t[6] or t[7] or t[8] or t[9] or t[10] or t[11])
+        band = params._rest_band
+        held = [False] * 5
+        qfl = qf.tolist()
+        ppm, dt = L.ppm, params.dt
+        for i in range(5):
+            if band[i] > 0.0 and abs(qdot_des[i]) <= band[i] and (     # (a band of 0: off)
+                    not moving or (params._kth_modal and abs(qfl[i]) * ppm[i] * dt <= REST_FF_PULSES)):
+                qdot_des[i] = 0.0
+                held[i] = True
         if perr > params.max_path_error_mm:
             mode, reason = STOPPING, path_error_text(perr, params)
         elif R[2][2] < math.cos(params.theta2_max_rad) - 1e-12:

@@ -7,8 +7,10 @@ whether or not that backend is the one selected."""
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +19,9 @@ from pmctl import hal
 from pmctl.core import shaper as S
 from pmctl.core.config import CONFIG_DIR, Machine
 from pmctl.core.errors import ConfigError, PmctlError
-from pmctl.core.shaper import SHAPERS
+from pmctl.core.kinematics import ik_batch
+from pmctl.core.shaper import SHAPERS, shaper_name
+from pmctl.core.strain_loop import MODE_ERROR, design_k_theta
 from pmctl.core.strict_toml import Table, check_tables, read_toml
 from pmctl.hal import BACKENDS, validate_options
 from pmctl.hal.base import AXES as HOMING_AXES
@@ -73,39 +77,38 @@ class NCConfig:
 
     def params(self, machine: Machine, dt: float, where="service config", modes: "ChainModes | None" = None) -> NCParams:
         """NC parameters. ``modes``: the chain modes (:func:`chain_modes`); they set the strain ->
-        deflection scale (modal stiffness), turn on the soft-chain K_theta for modes below
-        SOFT_MODE_FACTOR x kv (where the pose loop would undo the feedback), and size
-        ``k_theta_per_s = "auto"``."""
+        deflection scale (modal stiffness) and, per chain with K_theta on, the strain feedback's
+        design (:func:`k_theta_designs`: ``k_theta_per_s = "auto"`` sized, the law -- decoupled
+        on a soft chain -- and its leak and stretch low-pass). ``"auto"`` without modes designs for
+        :func:`nominal_modes`, as nc_setup does."""
         if self.kv_per_s * dt >= 1.0:
             raise ConfigError(where, "nc.kv_per_s",
                               f"{self.kv_per_s:g}/s at {1 / dt:g} Hz gives kv*dt = {self.kv_per_s * dt:.2f}; "
                               f"must be < 1 for a stable loop (lower the gain or raise the rate)")
         kw = {}
-        if modes is not None:
-            kw["modal_stiffness_N_per_mm"] = np.asarray(modes.stiffness_N_per_mm, float)
-            soft = modes.soft(self.kv_per_s)
-            if np.any(soft):
-                kw["mode_hz"] = np.where(soft, modes.hz, 0.0)
-                kw["deflection_ff"] = self.deflection_feedforward
+        if self.k_theta_auto and modes is None:      # designed for the chain the machine config describes
+            modes = nominal_modes(machine)
+        designs = k_theta_designs(self, modes, dt, where)
         if self.k_theta_auto:
-            if modes is None:
-                raise ConfigError(where, "nc.k_theta_per_s",
-                                  '"auto" needs the chain modes: nc.mode_hz, a [hal.sim] plant with flex = true, '
-                                  "or pmctl analyze resonance --write")
-            kth = np.array(auto_k_theta(modes, self.kv_per_s, dt))
+            kth = np.array([d.k_theta for d in designs])
         else:
             kth = np.asarray(self.k_theta_per_s, float)
         if np.any(kth * dt >= 1.0):
             raise ConfigError(where, "nc.k_theta_per_s", "k_theta*dt must be < 1")
+        if modes is not None:
+            kw["modal_stiffness_N_per_mm"] = np.asarray(modes.stiffness_N_per_mm, float)
+            soft = [d is not None and d.soft for d in designs]
+            if any(soft):
+                kw["mode_hz"] = np.where(soft, modes.hz, 0.0)
+                kw["k_theta_leak"] = [d.leak if s else 0.0 for d, s in zip(designs, soft)]
+                kw["k_theta_lp"] = [d.acc_lp if s else 0.0 for d, s in zip(designs, soft)]
+                kw["deflection_ff"] = self.deflection_feedforward
         return NCParams.from_machine(
             machine, dt, max_pulses_per_tick=1 if self.pulse_mode == "single" else None,
             k_theta=kth, kv=self.kv_per_s, damping=self.damping, sv_threshold=self.sv_threshold,
             ferror_mm=self.ferror_mm, min_ferror_mm=self.min_ferror_mm,
             max_path_error_mm=self.max_path_error_mm, implementation=self.implementation,
             chain_offset_max_mm=self.chain_offset_max_mm, chain_offset_rate_mm_s=self.chain_offset_rate_mm_s, **kw)
-
-
-SOFT_MODE_FACTOR = 2.0      # the soft-chain K_theta below w = 2 kv (docs/vibration.md, eq. 3.1 table)
 
 
 @dataclass
@@ -116,11 +119,7 @@ class ChainModes:
     damping_ratio: np.ndarray         # (3,)
     stiffness_N_per_mm: np.ndarray    # (3,) chain stiffness at the gauge (strain -> deflection scale)
     source: str
-
-    def soft(self, kv: float) -> np.ndarray:
-        """Chains whose mode lies below SOFT_MODE_FACTOR x kv: the pose loop, closed on the motor side,
-        would pull back the feedback's own motion there (docs/vibration.md §1.4)."""
-        return 2 * np.pi * self.hz < SOFT_MODE_FACTOR * kv
+    nominal: bool = False             # implied by the machine config, not measured or declared
 
     def describe(self) -> str:
         f = ", ".join(f"{x:.1f}" for x in self.hz)
@@ -129,44 +128,73 @@ class ChainModes:
         return f"chain modes [{f}] Hz, damping [{z}], stiffness [{k}] N/mm (from {self.source})"
 
 
-def auto_k_theta(modes: ChainModes, kv: float, dt: float) -> list[float]:
-    """K_theta per chain for ``k_theta = auto``: the sampled eq. 3.1 model's smallest gain that damps
-    the chain's mode to 0.3 (pmctl.tools.analysis.resonance.k_theta_for_mode), with the feedback the
-    NC will run (decoupled for a soft chain)."""
-    from pmctl.tools.analysis.resonance import k_theta_for_mode
-    soft = modes.soft(kv)
+def nominal_modes(machine: Machine) -> ChainModes:
+    """The chain mode the machine config implies: its chain stiffness (chain_axial) under a third of
+    the platform's mass, 2 % damping -- what ``k_theta_per_s = "auto"`` designs for when no mode is
+    measured or declared (the NC then scales the strain with the same stiffness)."""
+    k = float(machine.stiffness.chain_axial)
+    m = float(machine.mass.platform_kg) / 3.0
+    f = math.sqrt(k * 1e3 / m) / (2 * math.pi)
+    return ChainModes(np.full(3, f), np.full(3, 0.02), np.full(3, k),
+                      "the machine config: chain_axial over a third of the platform mass, 2 % damping", nominal=True)
+
+
+def k_theta_designs(nc: NCConfig, modes: "ChainModes | None", dt: float, where: str = "service config"):
+    """Per chain, the strain feedback's design (pmctl.core.strain_loop.design_k_theta) for its mode, or
+    None (no mode known, or K_theta 0): with ``k_theta_per_s = "auto"`` the gain, law and leak that
+    damp every closed-loop pole to DAMPING_TARGET with the mode 20 % off (or the most damping the
+    margins allow); with a gain given, the law and leak for it. ConfigError naming the key when no
+    gain keeps the margins."""
+    if modes is None:
+        return [None] * 3
     out = []
     for i in range(3):
-        f, z = float(modes.hz[i]), float(modes.damping_ratio[i])
-        leak = 0.1 * 2 * np.pi * f if soft[i] else None
-        out.append(k_theta_for_mode(f, kv, dt, z, leak=leak)[0])
+        k = None if nc.k_theta_auto else float(np.broadcast_to(np.asarray(nc.k_theta_per_s, float), (3,))[i])
+        if k == 0.0:
+            out.append(None)
+            continue
+        try:
+            out.append(design_k_theta(float(modes.hz[i]), float(modes.damping_ratio[i]), float(nc.kv_per_s),
+                                      float(dt), k))
+        except PmctlError as e:
+            raise ConfigError(where, "nc.k_theta_per_s", str(e)) from None
     return out
 
 
-def shaper_design(f_hz: float, zeta: float, k_theta: float, kv: float, dt: float, soft: bool):
-    """(frequency Hz, damping ratio) a shaper should be designed for, for a chain mode (f_hz, zeta):
-    the mode itself without feedback; with K_theta on, the closed-loop mode that the feedback leaves
-    (the sampled eq. 3.1 model, pmctl.tools.analysis.resonance.predict_sampled, with the feedback the
-    NC runs). A shaper tuned to the open-loop mode misses the damped, shifted closed-loop one and
-    only adds its own impulses' excitation (docs/vibration.md §5)."""
-    if k_theta <= 0:
-        return f_hz, zeta
-    from pmctl.tools.analysis.resonance import predict_sampled
-    fc, zc = predict_sampled(f_hz, k_theta, kv, dt, zeta, leak=0.1 * 2 * np.pi * f_hz if soft else None)
-    if not (np.isfinite(fc) and 0.0 <= zc < 0.95):
-        return f_hz, zeta
-    return float(fc), float(zc)
+def describe_designs(designs, modes: ChainModes) -> str:
+    """One sentence per distinct design: gain, law, leak, damping over the mode's error, margins."""
+    seen, parts = [], []
+    for i, d in enumerate(designs):
+        if d is None or d in seen:
+            continue
+        seen.append(d)
+        chains = ",".join(str(j + 1) for j, e in enumerate(designs) if e == d)
+        law = (f"decoupled, leak {d.leak:.1f}/s ({d.leak / (2 * math.pi * modes.hz[i]):.2f} w), stretch low-pass "
+               f"{d.acc_lp:.0f}/s" if d.soft else "plain")
+        parts.append(f"chain {chains}: {d.k_theta:.1f}/s {law}; least damping {d.worst_damping:.2f} with the mode "
+                     f"{100 * MODE_ERROR:.0f} % off, margins: gain x{d.worst_gain_margin:.1f}, phase "
+                     f"{d.worst_phase_margin_deg:.0f} deg")
+    return "; ".join(parts)
 
 
-def choose_shaper(nc: NCConfig, modes: "ChainModes | None", k_theta, dt: float, where: str = "service config"):
+def _chain_lengths(tip, axis, machine):
+    """The planned chain lengths (N, 3) of tool poses (the shaping stage's joints: ChainShaping)."""
+    return ik_batch(tip, axis, machine, check_limits=False).q[:, :3]
+
+
+def choose_shaper(nc: NCConfig, modes: "ChainModes | None", dt: float, where: str = "service config",
+                  machine: Machine | None = None):
     """The time-law shaper of a run (None = off) and a sentence saying what it is and why.
-    ``nc.shaper``: none, a type, or auto (the type the resonance analysis recommends: the shortest
-    whose remaining vibration stays within 5 % over +-10 % of the mode). Frequencies: nc.shaper_hz
-    (per chain) else the chain modes; each chain's design point is :func:`shaper_design` with that
-    chain's K_theta; distinct design points (more than 3 % apart) are convolved."""
+    ``nc.shaper``: none, a type (or types joined by '*'), or auto (pmctl.core.shaper.recommend).
+    Design points: nc.shaper_hz (per chain) else the chain modes themselves -- with K_theta on too:
+    the shaper keeps the plan's motion out of the band around the mode, where the feedback leaves
+    the load following the plan (docs/vibration.md §5). With ``machine``: a
+    pmctl.core.shaper.ChainShaping, a shaper per chain chosen piece by piece for the chains the
+    piece moves; without: one shaper, the distinct design points (more than 3 % apart) convolved."""
     name = nc.shaper
     if name == "none":
         return None, "shaper: none"
+
     if nc.shaper_hz is not None:
         hz = np.broadcast_to(np.asarray(nc.shaper_hz, float), (3,))
         zs = np.broadcast_to(np.asarray(modes.damping_ratio if modes is not None else 0.02, float), (3,))
@@ -178,22 +206,26 @@ def choose_shaper(nc: NCConfig, modes: "ChainModes | None", k_theta, dt: float, 
                                               "(pmctl analyze resonance --write), or a [hal.sim] plant with flex = true")
     if nc.shaper_damping_ratio is not None:
         zs = np.full(3, nc.shaper_damping_ratio)
-    kth = np.broadcast_to(np.asarray(k_theta, float), (3,))
-    soft = (2 * np.pi * np.asarray(hz) < SOFT_MODE_FACTOR * nc.kv_per_s)
+    design = [(float(hz[i]), float(min(zs[i], 0.9))) for i in range(3)]
     points = []
-    for i in range(3):
-        fz = shaper_design(float(hz[i]), float(zs[i]), float(kth[i]), nc.kv_per_s, dt, bool(soft[i]))
-        if not any(abs(fz[0] - p[0]) <= 0.03 * p[0] for p in points):
+    for fz in design:
+        if not any(abs(fz[0] - p[0]) <= S.MERGE_REL * p[0] for p in points):
             points.append(fz)
     if name == "auto":
-        from pmctl.tools.analysis.resonance import shaper_advice
-        name = shaper_advice(points[0][0], points[0][1])[1].name
-    sh = S.convolve([S.make_shaper(name, f, min(z, 0.9)) for f, z in points]) if len(points) > 1 \
-        else S.make_shaper(name, *points[0])
+        name = S.recommend(*points[0])
+    if machine is not None:
+        ppm = np.asarray(machine.resolution.pulses_per_mm, float)[:3]
+        w = 2 * np.pi * np.asarray(hz, float)
+        half = 0.5 / ppm                              # half a pulse, mm
+        sh = S.ChainShaping(tuple(S.make_shaper(name, f, z) for f, z in design),
+                            partial(_chain_lengths, machine=machine), tuple(w * half), tuple(w * w * half))
+    else:
+        sh = S.convolve([S.make_shaper(name, f, z) for f, z in points]) if len(points) > 1 \
+            else S.make_shaper(name, *points[0])
     pts = ", ".join(f"{f:.1f} Hz / {z:.3f}" for f, z in points)
-    why = " (closed-loop mode with K_theta)" if np.any(kth > 0) else ""
-    return sh, (f"shaper: {sh.name}{' (auto)' if nc.shaper == 'auto' else ''} at {pts}{why}, "
-                f"{1e3 * sh.duration:.1f} ms per stop, time law along the path; modes from {src}")
+    per = " per chain, for the chains each piece moves" if machine is not None else ""
+    return sh, (f"shaper: {sh.name}{' (auto)' if nc.shaper == 'auto' else ''} at {pts}{per}, "
+                f"up to {1e3 * sh.duration:.1f} ms per stop, time law along the path; modes from {src}")
 
 
 def chain_modes(svc: "ServiceConfig", machine: Machine, backend: str | None = None) -> ChainModes | None:
@@ -393,7 +425,12 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
     mode_z = opt_vec("mode_damping_ratio", nonneg=True, hi=1.0)
     modal_k = opt_vec("modal_stiffness_N_per_mm", positive=True, hi=1e10)
     shaper_hz = opt_vec("shaper_hz", positive=True, hi=1e4)
-    shaper = s.string("shaper", default="none", choices=("none", "auto") + tuple(SHAPERS))
+    shaper = s.string("shaper", default="none")
+    if shaper not in ("none", "auto"):
+        try:
+            shaper = shaper_name(shaper)
+        except ValueError as e:
+            raise ConfigError(path, "nc.shaper", f"{e}; or none, auto") from None
     shaper_z = s.number("shaper_damping_ratio", nonneg=True, hi=0.9) if "shaper_damping_ratio" in data.get("nc", {}) \
         else None
     if mode_z is not None and mode_hz is None:
@@ -481,14 +518,14 @@ def nc_setup(svc: ServiceConfig, machine: Machine, dt: float, backend: str | Non
     if modes is not None:
         notes.append(modes.describe())
     if nc.k_theta_auto:
-        if modes is None:
-            raise ConfigError(svc.source, "nc.k_theta_per_s",
-                              '"auto" needs the chain modes: nc.mode_hz (pmctl analyze resonance --write) '
-                              "or a [hal.sim] plant with flex = true")
-        nc.k_theta_per_s = tuple(auto_k_theta(modes, nc.kv_per_s, dt))
+        if modes is None:           # designed for the chain the machine config describes
+            modes = nominal_modes(machine)
+            notes.append(modes.describe())
+        designs = k_theta_designs(nc, modes, dt, svc.source)
+        nc.k_theta_per_s = tuple(d.k_theta for d in designs)
         nc.k_theta_auto = False
-        notes.append("K_theta auto: [" + ", ".join(f"{k:.0f}" for k in nc.k_theta_per_s)
-                     + "]/s per chain (sampled eq. 3.1 model: the smallest gain damping the chain mode to 0.3)")
+        notes.append("K_theta auto, designed on the sampled loop (pmctl.core.strain_loop): "
+                     + describe_designs(designs, modes))
     # [daq] k_theta_source = "daq": refused when the DAQ samples slower than twice the chain mode. It
     # sees the K_theta the config asks for (auto resolved), before a backend without strain switches it
     # off below, so every backend refuses the same configs (pmctl run, pmctl serve, the rt process).
@@ -497,11 +534,12 @@ def nc_setup(svc: ServiceConfig, machine: Machine, dt: float, backend: str | Non
         nc.k_theta_per_s = (0.0,) * 3
         notes.append(f"K_theta off: backend {backend} carries no strain gauges in its cyclic data")
     if modes is not None and any(nc.k_theta_per_s):
-        soft = modes.soft(nc.kv_per_s)
-        if np.any(soft):
-            notes.append("K_theta on soft chains (mode below 2 kv): planned stretch off, decoupled from the pose "
+        designs = k_theta_designs(nc, modes, dt, svc.source)
+        if any(d is not None and d.soft for d in designs):
+            notes.append("K_theta decoupled on the soft chains: planned stretch off, decoupled from the pose "
                          "loop" + (", deflection feed-forward" if nc.deflection_feedforward else ""))
-    shaper, text = choose_shaper(nc, modes, nc.k_theta_per_s, dt, svc.source)
+    shaper, text = choose_shaper(nc, None if modes is not None and modes.nominal else modes, dt, svc.source,
+                                 machine)
     if shaper is not None:
         notes.append(text)
     return NCSetup(modes, shaper, notes)
@@ -527,6 +565,8 @@ def parse_shaper_flag(v):
     key = str(v).strip()
     if key.lower() in ("none", "auto"):
         return key.lower()
-    if key.upper() in SHAPERS:
-        return key.upper()
-    raise PmctlError(f"--shaper must be one of none, auto, {', '.join(SHAPERS)}; got {v!r}")
+    try:
+        return shaper_name(key)
+    except ValueError:
+        raise PmctlError(f"--shaper must be one of none, auto, {', '.join(SHAPERS)}, or types joined by '*' "
+                         f"(their convolution, e.g. ZV*MA); got {v!r}") from None

@@ -82,6 +82,15 @@ def backward_pass(cap, dt_plan: float, decel: float, end_allowed: float = SIGMA_
     return np.sqrt(np.maximum(m[:n] - 2 * decel * tau[:n], 0.0))
 
 
+def full_speed_queue(params, dt: float, capacity: int) -> int:
+    """Samples the path follower needs queued ahead (with no job end among them) to run at
+    SIGMA_MAX: its starvation limit sigma <= 0.9 sqrt(accel remain) (PathFollower.next_target), in
+    samples at the tick period ``dt``; at most half the ring's ``capacity``."""
+    accel = scaling_limits(params)[0]
+    tau = SIGMA_MAX ** 2 / (0.81 * accel)
+    return min(int(math.ceil(tau / dt)) + 2, capacity // 2)
+
+
 def derivatives(q, dt_plan: float, q_before=None, q_after=None):
     """q_tau, q_tautau of samples q (n, k) by central differences; the neighbours outside the chunk
     (or, at a job's ends, a linear extension) close the ends."""
@@ -154,57 +163,86 @@ def iter_stream_rows(trajs, machine, params, *, rapid_lines=(), rapid_mm_s=50.0,
 
 
 def _rows(pieces, dtp, machine, params, rapid_mm_s, chunk, decel):
-    """Rows of samples arriving in pieces (tip, axis, line, rapid-or-None): regrouped into chunks of
-    ``chunk`` samples, each with its neighbours (the last sample of the chunk before, the first of
-    the next) for the derivatives; the backward pass of a chunk runs once the next chunk's first
-    allowed value is known, so caps are looked ahead across chunk boundaries (chunks must be longer
-    than a stop from SIGMA_MAX, which 2000 samples at 1 kHz are)."""
-    decel = decel if decel is not None else 0.5 * scaling_limits(params)[0]
-    buf = []                     # pieces not yet made into rows: [tip, axis, line, rapid]
-    nbuf = 0
-    before = (None, None, None)  # (tip, axis, q) of the sample before the next chunk
-    pending = None
-    any_rapid = False
-    done = False
-    pieces = iter(pieces)
-    while not done:
-        while nbuf < chunk + 1:
-            p = next(pieces, None)
-            if p is None:
-                done = True
-                break
-            tip, axis, line, rapid = (np.asarray(x, float) if i < 2 else x for i, x in enumerate(p))
-            if len(tip) == 0:
-                continue
-            any_rapid |= rapid is not None
-            buf.append([tip, axis, np.asarray(line), rapid if rapid is not None else np.zeros(len(tip), bool)])
-            nbuf += len(tip)
-        if nbuf == 0:
-            break
-        take = min(chunk, nbuf)
-        more = nbuf > take                       # a sample follows this chunk
-        cat = [np.concatenate([b[i] for b in buf]) for i in range(4)]
-        m = take + (1 if more else 0)
-        tip, axis = cat[0][:m], cat[1][:m]
-        q = K.ik_batch(tip, axis, machine, check_limits=False).q
-        after = (tip[take], axis[take], q[take]) if more else (None, None, None)
-        rows = make_rows(tip[:take], axis[:take], q[:take], cat[2][:take], dtp, params,
-                         rapid=cat[3][:take] if any_rapid else None, rapid_mm_s=rapid_mm_s,
-                         end=not more, neighbours=(before, after))
-        before = (tip[take - 1], axis[take - 1], q[take - 1])
-        rest = [x[take:] for x in cat]
-        buf = [rest] if len(rest[0]) else []
-        nbuf = len(rest[0])
-        own = backward_pass(rows[:, S_CAP], dtp, decel)
-        if pending is not None:
-            pending[:, S_CAP] = backward_pass(pending[:, S_CAP], dtp, decel, float(own[0]))
-            yield pending
-        pending = rows
-        if not more:
-            break
-    if pending is not None:
-        pending[:, S_CAP] = backward_pass(pending[:, S_CAP], dtp, decel)
-        yield pending
+    """Rows of samples arriving in pieces (tip, axis, line, rapid-or-None), ``chunk`` samples at a
+    time (a RowStream fed piece by piece)."""
+    rs = RowStream(dtp, machine, params, rapid_mm_s=rapid_mm_s, chunk=chunk, decel=decel)
+    for tip, axis, line, rapid in pieces:
+        rs.add(tip, axis, line, rapid)
+        if rs.buffered > chunk:
+            yield from rs.take()
+    yield from rs.take(end=True)
+
+
+class RowStream:
+    """Sample rows of a path whose samples arrive in pieces (``add``), handed out as soon as they
+    are final (``take``): rows of at most ``chunk`` samples, in memory O(chunk), the same rows
+    whatever the pieces. A row needs the sample after it (the derivatives, by central differences
+    with their neighbours), and its cap the caps ahead of it: the backward pass lowers sigma's cap
+    ahead of a tighter point as far as sigma takes to come down from SIGMA_MAX (``hold`` samples,
+    0.44 s at the default limits), so the last ``hold`` rows wait for the samples after them (or for
+    the end, ``take(end=True)``: the last sample is the job's end, FLAG_END). The console's stream
+    (pmctl.task.supervisor) takes rows as windows settle; a whole job's rows are taken chunk by
+    chunk (iter_job_rows, iter_stream_rows)."""
+
+    def __init__(self, dtp, machine, params, *, rapid_mm_s=50.0, chunk=2000, decel=None):
+        self.dtp, self.machine, self.params, self.rapid_mm_s = dtp, machine, params, rapid_mm_s
+        self.chunk = int(chunk)
+        self.decel = decel if decel is not None else 0.5 * scaling_limits(params)[0]
+        self.hold = int(math.ceil(SIGMA_MAX ** 2 / (2.0 * self.decel * dtp))) + 1
+        self.buf = []                 # samples not yet made into rows: [tip, axis, line, rapid]
+        self.buffered = 0
+        self.before = (None, None, None)   # (tip, axis, q) of the sample before the next row
+        self.rows = np.zeros((0, WIDTH))   # rows made whose caps may still come down (raw caps)
+        self.any_rapid = False
+
+    def add(self, tip, axis, line, rapid=None):
+        tip, axis = np.asarray(tip, float), np.asarray(axis, float)
+        if len(tip) == 0:
+            return
+        self.any_rapid |= rapid is not None
+        self.buf.append([tip, axis, np.asarray(line), np.asarray(rapid, bool) if rapid is not None
+                         else np.zeros(len(tip), bool)])
+        self.buffered += len(tip)
+
+    def _make(self, end):
+        """Rows of the buffered samples but the last (all of them at the end), appended to ``rows``."""
+        cat = [np.concatenate([b[i] for b in self.buf]) for i in range(4)] if self.buf else None
+        while cat is not None and len(cat[0]) > (0 if end else 1):
+            take = min(self.chunk, len(cat[0]) - (0 if end else 1))
+            more = len(cat[0]) > take
+            m = take + (1 if more else 0)
+            tip, axis = cat[0][:m], cat[1][:m]
+            q = K.ik_batch(tip, axis, self.machine, check_limits=False).q
+            after = (tip[take], axis[take], q[take]) if more else (None, None, None)
+            rows = make_rows(tip[:take], axis[:take], q[:take], cat[2][:take], self.dtp, self.params,
+                             rapid=cat[3][:take] if self.any_rapid else None, rapid_mm_s=self.rapid_mm_s,
+                             end=not more, neighbours=(self.before, after))
+            self.before = (tip[take - 1], axis[take - 1], q[take - 1])
+            self.rows = np.concatenate([self.rows, rows]) if len(self.rows) else rows
+            cat = [x[take:] for x in cat]
+            if len(self.rows) > self.chunk + self.hold:
+                break                     # hand these out before making more (memory O(chunk))
+        self.buf = [cat] if cat is not None and len(cat[0]) else []
+        self.buffered = len(cat[0]) if self.buf else 0
+
+    def take(self, end: bool = False):
+        """Rows that are final now (each array at most ``chunk`` rows); ``end``: all of them, the last
+        sample being the job's end."""
+        while True:
+            self._make(end)
+            done = end and not self.buf
+            keep = 0 if done else self.hold
+            n_out = len(self.rows) - keep
+            if n_out <= 0:
+                return
+            caps = backward_pass(self.rows[:, S_CAP], self.dtp, self.decel)
+            out = self.rows[:n_out].copy()
+            out[:, S_CAP] = caps[:n_out]
+            self.rows = self.rows[n_out:]
+            for a in range(0, n_out, self.chunk):
+                yield out[a:a + self.chunk]
+            if not self.buf:
+                return
 
 
 # ---------------------------------------------------------------- input shaping of the time law
@@ -212,15 +250,20 @@ def _rows(pieces, dtp, machine, params, rapid_mm_s, chunk, decel):
 
 def shape_trajectory(traj, shaper):
     """The shaping stage between the planner and the loop (``pmctl run --shaper``, ``[nc] shaper``):
-    a planned Trajectory with its time law along the path shaped (pmctl.core.shaper.shaped_index,
-    piece by piece between corners). Every sample stays on the planned path, only later; the job
-    line and spindle speed follow the path position; velocities are the forward differences (the
-    NC's feed-forward). ``shaper`` None returns ``traj`` unchanged."""
+    a planned Trajectory with its time law along the path shaped piece by piece between corners
+    (``shaper``: a pmctl.core.shaper.Shaper for every piece, pmctl.core.shaper.shaped_index; or a
+    ChainShaping, a shaper per chain chosen for the chains each piece moves). Every sample stays on
+    the planned path, only later; the job line and spindle speed follow the path position;
+    velocities are the forward differences (the NC's feed-forward). ``shaper`` None returns
+    ``traj`` unchanged."""
     if shaper is None or len(traj) < 3:
         return traj
 
     tip, axis = np.asarray(traj.tip, float), np.asarray(traj.axis, float)
-    sig = S.shaped_index(tip, axis, traj.dt, shaper)
+    if isinstance(shaper, S.ChainShaping):      # a shaper per chain, chosen piece by piece
+        sig = shaper.index(tip, axis, traj.dt)
+    else:
+        sig = S.shaped_index(tip, axis, traj.dt, shaper)
     p, a = S.path_at_index(tip, axis, sig)
     i = np.minimum(np.floor(sig + 1e-9).astype(int), len(tip) - 1)
     tv, av = np.zeros_like(p), np.zeros_like(a)

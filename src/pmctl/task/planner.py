@@ -175,41 +175,58 @@ class PlannerLimits:
 
 # ---------------------------------------------------------------- geometry
 
-MERGE_CHUNK = 4096            # points of a run of lines simplified at once (bounds the work of a run)
+MERGE_CHUNK = 4096            # points one merged line may pass through (bounds the work of a run)
+SIMPLIFY_BATCH = 32           # the next ends of a merged line tried at once (_simplify)
 MAX_QUANTUM_MM = 0.01         # the coarsest coordinate resolution taken as a run's default tolerance
 _QUANTA = sorted([10.0 ** -k for k in range(2, 7)] + [25.4 * 10.0 ** -k for k in range(3, 8)], reverse=True)
 
 
-def _quantum(pts):
-    """The resolution the points' coordinates are written at (mm): the coarsest of 10^-k mm and
-    10^-k inch (k such that it is at most MAX_QUANTUM_MM) that every coordinate is a multiple of; 0
-    when none is."""
-    for q in _QUANTA:
-        if q <= MAX_QUANTUM_MM * (1 + 1e-9):
-            x = pts / q
-            if np.all(np.abs(x - np.round(x)) < 1e-6):
-                return q
-    return 0.0
+def _quanta(pts):
+    """The resolutions the points' coordinates may be written at (the coarsest first: 10^-k mm and
+    10^-k inch, at most MAX_QUANTUM_MM) and, per point, a bit mask of those every coordinate of the
+    point is a multiple of (bit k: the k-th resolution)."""
+    qs = [q for q in _QUANTA if q <= MAX_QUANTUM_MM * (1 + 1e-9)]
+    mask = np.zeros(len(pts), np.int64)
+    for k, q in enumerate(qs):
+        x = np.asarray(pts, float) / q
+        mask |= np.all(np.abs(x - np.round(x)) < 1e-6, axis=1).astype(np.int64) << k
+    return qs, mask
 
 
-def _merged_away(job: Job, start, limits: PlannerLimits):
-    """Which moves' end points the planner drops (a bool per move): LinuxCNC's naive-CAM detector. A
-    run of consecutive feed lines (LINE, no probing, no G93 duration) with the same feed, spindle
-    speed, tool offset, tolerance and tool axis (the axis of the point before the run too) is
+def _quantum_of(qs, mask) -> float:
+    """The resolution a set of points is written at, from the AND of their masks (_quanta): the
+    coarsest that every coordinate is a multiple of; 0 when none is."""
+    mask = int(mask)
+    return qs[(mask & -mask).bit_length() - 1] if mask else 0.0
+
+
+def _merged_away(moves, start, limits: PlannerLimits, open_end: bool = False):
+    """Which of ``moves``' end points the planner drops (a bool per move): LinuxCNC's naive-CAM
+    detector. A run of consecutive feed lines (LINE, no probing, no G93 duration) with the same feed,
+    spindle speed, tool offset, tolerance and tool axis (the axis of the point before the run too) is
     simplified within its tolerance: G64 P (``Move.tolerance``), or where that is 0 the larger of
-    ``limits.naive_cam_mm`` and the resolution the run's coordinates are written at (``_quantum``: a
-    point written to 4 decimals in inches is only known to 2.54 um; dropping it within that loses
-    nothing the program says). Every dropped point lies within the tolerance of the line that replaces it (Douglas-Peucker
-    on the tip points, a run of more than ``MERGE_CHUNK`` points in chunks), so the path stays within
-    the tolerance of the programmed one; the lines kept run through kept points exactly."""
-    moves = job.moves
+    ``limits.naive_cam_mm`` and the resolution the points are written at (``_quanta``: a point
+    written to 4 decimals in inches is only known to 2.54 um; dropping it within that loses nothing
+    the program says). Along the run, from the last point kept, the line goes on to the next point
+    as long as every point it passes is within the tolerance of it and none turns back along it by
+    more than the tolerance (at most ``MERGE_CHUNK`` points a line); where the next point breaks
+    that, the point before it is kept (``_simplify``). So the path stays within the tolerance of the
+    programmed one, the lines kept run through kept points exactly, and each decision depends only
+    on the points from the last kept one to the one after it: a job planned as its blocks arrive
+    (pmctl.task.stream_planner) merges them as the whole job does.
+
+    ``open_end`` (a job still growing): more moves may follow the last one. Returns (drop, n_final):
+    the decisions for ``moves[:n_final]`` are final, those after the last point kept of a trailing
+    run of lines (which the next move may continue) wait for the moves after them. ``start`` is the
+    programmed pose before the first move."""
     nm = len(moves)
     drop = np.zeros(nm, bool)
-    if nm < 2:
-        return drop
     line_kind = np.fromiter((m.kind == "line" and not m.probe and not m.duration > 0 for m in moves), bool, nm)
-    if line_kind.sum() < 2:
-        return drop
+    n_final = nm
+    if open_end and nm and line_kind[-1]:
+        n_final = nm - 1              # the last line may start a run with the next move
+    if nm < 2 or line_kind.sum() < 2:
+        return (drop, n_final) if open_end else drop
     tips = np.array([m.tip for m in moves], float)
     axes = np.array([m.axis for m in moves], float)
     attrs = np.array([(m.feed, m.spindle_rpm, m.tool_offset, m.tolerance) for m in moves], float)
@@ -236,46 +253,62 @@ def _merged_away(job: Job, start, limits: PlannerLimits):
         b = i
         while b + 1 < nm and same[b + 1]:
             b += 1
-        tol = attrs[a, 3]
-        if not tol > 0:
-            tol = max(limits.naive_cam_mm, _quantum(np.vstack([prev_tip[a][None], tips[a:b + 1]])))
-        c0 = a
-        while c0 <= b:                             # moves c0 .. c1 from the kept point before c0
-            c1 = min(b, c0 + MERGE_CHUNK - 1)      # (c1's end is kept)
-            pts = np.vstack([prev_tip[c0][None], tips[c0:c1 + 1]])
-            drop[c0:c1 + 1] = ~_douglas_peucker(pts, tol)[1:]
-            c0 = c1 + 1
+        trailing = open_end and b == nm - 1
+        keep, anchor = _simplify(np.vstack([prev_tip[a][None], tips[a:b + 1]]), attrs[a, 3], limits.naive_cam_mm,
+                                 open_end=trailing)
+        drop[a:b + 1] = ~keep[1:]
+        if trailing:
+            n_final = a + anchor          # the points after the last one kept wait for the next moves
         i = b + 1
-    return drop
+    return (drop, n_final) if open_end else drop
 
 
-def _douglas_peucker(pts, tol):
-    """Points of a polyline to keep (the ends always) so that each dropped point is within ``tol`` of
-    the chord between the kept points around it, and the dropped points go along the chord without
-    turning back by more than ``tol``."""
-    keep = np.zeros(len(pts), bool)
-    keep[0] = keep[-1] = True
-    stack = [(0, len(pts) - 1)]
-    while stack:
-        a, b = stack.pop()
-        if b - a < 2:
+def _simplify(pts, tol_fixed, naive_mm, open_end=False):
+    """The points of a run to keep (``_merged_away``): from the last point kept (the first point
+    always), the line goes on to the next point while every point between is within the tolerance of
+    it and does not turn back along it by more than the tolerance (at most MERGE_CHUNK points a
+    line); where the next point breaks that, the point before it is kept. The tolerance: ``tol_fixed``
+    (G64 P) when > 0, else the larger of ``naive_mm`` and the resolution the points of the line are
+    written at. Returns (keep, the index of the last point kept); ``open_end``: the last point is
+    not decided (kept only where the end is the run's). The next ends are tried ``SIMPLIFY_BATCH``
+    at a time, each on its own (the same numbers whatever the batch)."""
+    m = len(pts)
+    keep = np.zeros(m, bool)
+    keep[0] = True
+    qs, masks = _quanta(pts) if not tol_fixed > 0 else ([], np.zeros(m, np.int64))
+    i0, j = 0, 1
+    while j + 1 < m:
+        ks = np.arange(j + 1, min(m, j + 1 + SIMPLIFY_BATCH))          # the next ends to try
+        p = pts[i0]
+        w = pts[i0 + 1:ks[-1]] - p                                       # the points a line to k passes
+        d = pts[ks] - p
+        dd = (d * d).sum(-1)
+        along = (w[:, None, :] * d[None]).sum(-1)                        # (point, end)
+        pos = dd > 0
+        ddp = np.where(pos, dd, 1.0)
+        t = np.where(pos, np.clip(along / ddp, 0.0, 1.0), 0.0)
+        off = w[:, None, :] - t[..., None] * d[None]
+        dist = np.sqrt((off * off).sum(-1))
+        al = along / np.sqrt(ddp)
+        dist = np.where(pos, np.maximum(dist, np.maximum.accumulate(al, axis=0) - al), dist)
+        passed = np.arange(len(w))[:, None] < (ks - i0 - 1)[None]        # point r lies before end k
+        worst = np.where(passed, dist, 0.0).max(axis=0) if len(w) else np.zeros(len(ks))
+        if tol_fixed > 0:
+            tol = np.full(len(ks), float(tol_fixed))
+        else:
+            cm = np.bitwise_and.accumulate(masks[i0:ks[-1] + 1])[ks - i0]
+            tol = np.array([max(naive_mm, _quantum_of(qs, c)) for c in cm])
+        ok = (worst <= tol) & (ks - i0 <= MERGE_CHUNK)
+        bad = np.nonzero(~ok)[0]
+        if not len(bad):
+            j = int(ks[-1])
             continue
-        p, q = pts[a], pts[b]
-        d = q - p
-        dd = float(d @ d)
-        w = pts[a + 1:b] - p
-        t = np.clip(w @ d / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(w))
-        dist = np.linalg.norm(w - t[:, None] * d, axis=1)
-        if dd > 0:                 # a run that turns back along the chord is no straight line: keep its turns
-            along = w @ d / np.sqrt(dd)
-            dist = np.maximum(dist, np.maximum.accumulate(along) - along)
-        k = int(np.argmax(dist))
-        if dist[k] > tol:
-            m = a + 1 + k
-            keep[m] = True
-            stack.append((a, m))
-            stack.append((m, b))
-    return keep
+        j = int(ks[bad[0]]) - 1          # the line to the first end that fails: the point before is kept
+        keep[j] = True
+        i0, j = j, j + 1
+    if not open_end:
+        keep[m - 1] = True
+    return keep, i0
 
 
 SYNTH_KNOT_TICKS = 25         # ticks of top speed between knots that are no programmed point
@@ -349,149 +382,297 @@ _SEG_FIELDS = ("kind", "p0", "p1", "a0", "a1", "phi", "c", "nrm", "e1", "e2", "r
                "length", "vmax", "rot", "feed_length", "line", "rpm", "off0", "off1")
 
 
+_SEG_DTYPES = {"kind": int, "rot": bool, "line": int}
+_SEG_VECTORS = ("p0", "p1", "a0", "a1", "c", "nrm", "e1", "e2")
+
+
+class _PathBuilder:
+    """A job's segments built move by move (the path of ``_Path``): the arrays grow as moves are
+    added, so the same code builds a whole job's path (``_Path(job, ...)``) and the path of a job that
+    grows as blocks arrive (pmctl.task.stream_planner). ``add(m, nxt)`` takes a move the planner keeps
+    (``nxt``: the next move it keeps, for rounding a corner under G64 P; None at the end), ``absorb(m)``
+    one it drops (merged into the next segment). Everything about boundaries before the last one
+    (``n``) is final once a segment starts there; the last boundary is the job's end so far.
+    ``base``: the index of the first segment held (segments before it were let go, ``forget``)."""
+
+    def __init__(self, start, limits: PlannerLimits, feed_override: float, dt: float, source="",
+                 capacity: int = 64):
+        tip, axis = (np.asarray(start[0], float), np.asarray(start[1], float))
+        self.start_tip, self.start_axis = tip, axis
+        self.limits, self.feed_override, self.dt, self.source = limits, feed_override, dt, source
+        self.tip, self.axis = tip, axis / np.linalg.norm(axis)
+        self.off = 0.0                # the tool length offset at the start pose: none (the reference tool)
+        self.corner = tip             # the last programmed point kept (a rounded corner is not reached)
+        self.rpm_prev = None
+        self.n = 0                    # segments built (absolute index of the next one)
+        self.base = 0                 # absolute index of the first segment held in the arrays
+        self.cap = max(int(capacity), 1)
+        self.a = {k: np.zeros((self.cap, 3) if k in _SEG_VECTORS else self.cap, _SEG_DTYPES.get(k, float))
+                  for k in _SEG_FIELDS}
+        self.s_end = np.zeros(self.cap)
+        self.s_last = 0.0             # the path coordinate at boundary n
+        self.stop = {0}               # boundaries (index = segments completed) with an exact stop
+        self.dwell, self.dwell_line = {}, {}
+        self.ev = []                  # EVENT moves: (boundary, dwell before, line, events)
+        self.synth = set()            # boundaries that are no programmed point (the ends of rounding arcs)
+        self.absorbed = []            # (end point, line) of the moves merged into the next segment
+        self.mrg = []                 # (segment, u, line) of the moves merged into a segment
+        self.has_off = False
+        self.start_line = None
+        # the knots (pin) decided so far, walking along the path (_pin_walk): boundaries <= pin_done
+        self.pin = {0}
+        self.pin_done, self.pin_last, self.pin_top = 0, 0.0, 0.0
+        self.need = np.zeros(self.cap)   # 2 ticks of the top speed on each segment (_pin_walk)
+
+    def _grow(self, n_more):
+        need = self.n - self.base + n_more
+        if need <= self.cap:
+            return
+        cap = max(need, 2 * self.cap)
+        for k, v in self.a.items():
+            w = np.zeros((cap,) + v.shape[1:], v.dtype)
+            w[:len(v)] = v
+            self.a[k] = w
+        for k in ("s_end", "need"):
+            v = getattr(self, k)
+            w = np.zeros(cap)
+            w[:len(v)] = v
+            setattr(self, k, w)
+        self.cap = cap
+
+    def absorb(self, m):
+        """A move whose end point is merged away (``_merged_away``): passed through, not a boundary."""
+        if self.start_line is None:
+            self.start_line = m.line
+        self.absorbed.append((m.tip, m.line))
+
+    def add(self, m, nxt=None):
+        if self.start_line is None:
+            self.start_line = m.line
+        n = self.n
+        if m.kind == DWELL:
+            self.stop.add(n)
+            self.dwell[n] = self.dwell.get(n, 0.0) + float(m.dwell)
+            self.dwell_line[n] = m.line
+            return
+        if m.kind == EVENT:           # an exact stop; its mark goes on the stop's sample (after the
+            self.stop.add(n)          # dwells programmed before it at this point)
+            self.ev.append((n, self.dwell.get(n, 0.0), int(m.line), tuple(m.events)))
+            return
+        limits, tip, axis, off = self.limits, self.tip, self.axis, self.off
+        t1 = np.asarray(m.tip, float)
+        a_1 = np.asarray(m.axis, float)
+        a_1 = a_1 / np.linalg.norm(a_1)
+        o1 = float(m.tool_offset)
+        # the pieces of this move: (end point, arc frame or None, sweep); a corner between two feed
+        # lines under G64 P is rounded by an arc within the tolerance (_blend)
+        bl = _blend(tip, self.corner, m, nxt, axis, a_1) if nxt is not None and _blendable(m) else None
+        if bl is None:
+            pieces = [(t1, _arc_frame(tip, t1, m) if m.kind == ARC else None, float(m.sweep))]
+        else:
+            pieces = [(bl[0], None, 0.0), (bl[1], bl[2], bl[3])]
+        self.corner = t1
+        self._grow(len(pieces))
+        a = self.a
+        for t1, arc, sw in pieces:
+            ph = float(np.arccos(np.clip(np.dot(axis, a_1), -1.0, 1.0)))
+            if arc is not None:
+                ltip = float(np.hypot(0.5 * (arc[4] + arc[5]) * sw, arc[7] - arc[6]))
+            else:
+                ltip = float(np.linalg.norm(t1 - tip))
+            rot = ltip < 1e-6
+            # s is the tip's arc length, but for a tilt with a tiny tip motion (under ROT_SWITCH x
+            # the rotation length) it is the rotation length: with 1e-5 mm of tip for 2 degrees the
+            # joint derivatives dq/ds would be 1e6 and the acceleration caps crawl (2300 s for a
+            # 3 s move). The feed still caps the tip's speed (v <= F / |dtip/ds|). A change of the
+            # tool length offset alone moves the machine by that change along the tool axis.
+            rl = limits.rotation_length_mm * ph + abs(o1 - off)
+            ln = rl if rot or ltip < ROT_SWITCH * rl else ltip
+            if ln < 1e-9:
+                tip, axis, off = t1, a_1, o1     # nothing moves: the point is the current pose
+                continue
+            if self.rpm_prev is not None and m.spindle_rpm != self.rpm_prev:
+                self.stop.add(n)
+            self.rpm_prev = m.spindle_rpm
+            flen = ln if rot else ltip
+            if m.kind == RAPID:
+                vm = limits.rapid_mm_s
+            elif m.duration > 0:          # G93: the move takes `duration` s at 100 % feed
+                vm = min(flen / float(m.duration) * self.feed_override, limits.rapid_mm_s)
+            else:
+                vm = min(m.feed * self.feed_override, limits.rapid_mm_s)
+            if not vm > 0:
+                raise InputError(self.source, m.line, f"move has no positive feed ({vm!r} mm/s)")
+            i = n - self.base
+            a["p0"][i], a["p1"][i], a["a0"][i], a["a1"][i], a["phi"][i] = tip, t1, axis, a_1, ph
+            a["off0"][i], a["off1"][i] = off, o1
+            if self.absorbed:             # where along this (merged) segment each absorbed move ended
+                d = t1 - tip
+                q = np.array([a_[0] for a_ in self.absorbed], float) - tip
+                u_ = np.maximum.accumulate(np.clip(q @ d / max(float(d @ d), 1e-300), 0.0, 1.0))
+                self.mrg.extend((n, float(uu), int(a_[1])) for uu, a_ in zip(u_, self.absorbed))
+                self.absorbed = []
+            if arc is not None:
+                a["kind"][i] = 1
+                a["c"][i], a["nrm"][i], a["e1"][i], a["e2"][i], a["r0"][i], a["r1"][i], a["h0"][i], a["h1"][i] = arc
+                a["sweep"][i] = sw
+            a["line"][i], a["rpm"][i], a["length"][i], a["rot"][i], a["vmax"][i] = m.line, m.spindle_rpm, ln, rot, vm
+            a["feed_length"][i] = flen
+            self.has_off = self.has_off or off != 0.0 or o1 != 0.0
+            self.s_last = self.s_last + ln        # the path coordinate: the same sums as np.cumsum
+            self.s_end[i] = self.s_last
+            self.need[i] = _knot_need(vm, ln, flen, rot, ph, limits, self.dt)
+            n += 1
+            tip, axis, off = t1, a_1, o1
+            if bl is not None:
+                self.synth.add(n)         # a point of a rounded corner, not a programmed one
+        self.n = n
+        self.tip, self.axis, self.off = tip, axis, off
+
+    def walk_pins(self):
+        """Decide the knots of every boundary before the last (whose stops are final; the last is the
+        job's end so far, a knot only as the end)."""
+        hi = self.n - 1
+        if self.pin_done < hi:
+            b_s = lambda b: self.s_end[b - 1 - self.base] if b > 0 else 0.0  # noqa: E731
+            self.pin_last, self.pin_top = _pin_walk(
+                self.pin_done + 1, hi, lambda b: self.need[b - 1 - self.base], b_s, self.stop, self.synth,
+                self.pin, self.pin_last, self.pin_top)
+            self.pin_done = hi
+
+    def forget(self, b):
+        """Let go of the segments before boundary ``b`` (a long stream: memory bounded by what the
+        windows still need)."""
+        k = b - self.base
+        if k <= 0:
+            return
+        j = k - 1                     # the pose and path coordinate at boundary b, kept
+        self.base_pose = (self.a["p1"][j].copy(), self.a["a1"][j].copy(), float(self.a["off1"][j]),
+                          float(self.s_end[j]))
+        for key in self.a:
+            self.a[key][:self.n - b] = self.a[key][k:self.n - self.base]
+        self.s_end[:self.n - b] = self.s_end[k:self.n - self.base]
+        self.need[:self.n - b] = self.need[k:self.n - self.base]
+        self.base = b
+        self.stop = {x for x in self.stop if x >= b}
+        self.synth = {x for x in self.synth if x >= b}
+        self.pin = {x for x in self.pin if x >= b}
+        self.dwell = {x: v for x, v in self.dwell.items() if x >= b}
+        self.dwell_line = {x: v for x, v in self.dwell_line.items() if x >= b}
+        self.ev = [e for e in self.ev if e[0] >= b]
+        self.mrg = [e for e in self.mrg if e[0] >= b]
+
+    def path(self, end: bool = True, i0: int | None = None) -> "_Path":
+        """The segments from ``i0`` (default: the first held) to the last as a _Path, in the job's path
+        coordinate. ``end``: the last boundary is the job's end (an exact stop); else it is only where
+        the job known so far ends (``job_end`` False: windows must not treat it as an end)."""
+        i0 = self.base if i0 is None else i0
+        lo, hi = i0 - self.base, self.n - self.base
+        p = object.__new__(_Path)
+        for k in _SEG_FIELDS:
+            setattr(p, k, self.a[k][lo:hi].copy())
+        n = p.n = self.n - i0
+        p.has_off = self.has_off
+        p.job_start, p.job_end = i0 == 0, bool(end)
+        bs = np.arange(i0, self.n + 1)
+        p.stop = np.fromiter((b in self.stop for b in bs), bool, n + 1)
+        if end:
+            p.stop[-1] = True
+        p.synth = np.fromiter((b in self.synth for b in bs), bool, n + 1)
+        p.dwell = np.array([self.dwell.get(b, 0.0) for b in bs], float)
+        p.dwell_line = np.array([self.dwell_line.get(b, 0) for b in bs], int)
+        ev = [e for e in self.ev if e[0] >= i0]
+        p.ev_b = np.array([e[0] - i0 for e in ev], int)
+        p.ev_before = np.array([e[1] for e in ev], float)
+        p.ev_line, p.ev_data = np.array([e[2] for e in ev], int), tuple(e[3] for e in ev)
+        mrg = [e for e in self.mrg if e[0] >= i0]
+        p.mrg_seg = np.array([e[0] - i0 for e in mrg], int)
+        p.mrg_u, p.mrg_line = np.array([e[1] for e in mrg], float), np.array([e[2] for e in mrg], int)
+        p.end_tip, p.end_axis = self.tip, self.axis
+        p.start_line = self.start_line if self.start_line is not None else 0
+        if i0 == 0:
+            p.start_tip, p.start_axis = self.start_tip, self.start_axis
+            start_axis = self.start_axis / np.linalg.norm(self.start_axis)
+            s0, off0 = 0.0, 0.0
+        else:
+            if lo > 0:
+                p.start_tip, p.start_axis = self.a["p1"][lo - 1].copy(), self.a["a1"][lo - 1].copy()
+                s0, off0 = float(self.s_end[lo - 1]), float(self.a["off1"][lo - 1])
+            else:                     # the first boundary held (forget)
+                p.start_tip, p.start_axis, off0, s0 = self.base_pose
+            start_axis = p.start_axis
+            p.start_line = int(p.line[0]) if n else p.start_line
+        p._bounds(start_axis, self.s_end[lo:hi].copy(), s0, off0)
+        self.walk_pins()
+        p.pin = np.fromiter((b in self.pin for b in bs), bool, n + 1)
+        p.pin |= p.stop & (bs < self.n)
+        p.pin[0] = p.pin[-1] = True
+        p.pin_idx = np.nonzero(p.pin)[0]
+        return p
+
+
+def _blendable(m) -> bool:
+    """A feed line that may round its corner into the next (G64 P)."""
+    return m.kind == LINE and m.tolerance > 0 and not m.probe and not m.duration > 0
+
+
+def _knot_need(vmax, length, feed_length, rot, phi, limits, dt):
+    """Two ticks of an upper bound of ds/dt on a segment: the path a knot needs before the next."""
+    vs = vmax
+    if not rot and feed_length < length:       # parameterised by the rotation
+        vs = vmax * length / max(feed_length, 1e-300)
+        if phi > 0:
+            vs = min(vs, limits.axis_rate_rad_s * length / phi)
+    return 2.0 * dt * vs
+
+
+def _pin_walk(b_lo, b_hi, need, b_s, stop, synth, pin, last, top):
+    """The knots of boundaries b_lo .. b_hi (added to the set ``pin``), walking along the path from
+    the state (``last``: the path coordinate of the last knot, ``top``: the largest need since) and
+    returning that state after b_hi: every stop, and every boundary at least ``need`` (two ticks of
+    the top speed since the last knot) past the last knot; the ends of the arcs rounding corners
+    (``synth``) only SYNTH_KNOT_TICKS ticks of top speed past it. ``need(b)`` is the need of the
+    segment ending at b, ``b_s(b)`` the path coordinate of b."""
+    for b in range(b_lo, b_hi + 1):                 # (a loop of ~1 us a boundary)
+        top = max(top, need(b))
+        sb = b_s(b)
+        if b in stop or sb - last >= top * (0.5 * SYNTH_KNOT_TICKS if b in synth else 1.0):
+            pin.add(b)
+            last, top = sb, 0.0
+    return last, top
+
+
 class _Path:
     """Segments of a job as arrays; pose(seg, u) evaluates any number of points at once.
 
     The tip is the programmed (cutting) tip; ``controlled`` adds the tool length offset
     (pmctl.core.job.controlled_point): the point the machine's model, built for the reference tool,
-    must put its tip on. Every IK of the planner and every sample it hands out is of that point."""
+    must put its tip on. Every IK of the planner and every sample it hands out is of that point.
+    ``job_start`` / ``job_end``: whether its first / last boundary is the job's start / end (a path of
+    a job still growing, pmctl.task.stream_planner, ends where the job known so far ends)."""
+
+    job_start = job_end = True
 
     def __init__(self, job: Job, start, limits: PlannerLimits, feed_override: float, dt: float):
-        tip, axis = (np.asarray(start[0], float), np.asarray(start[1], float))
-        axis = axis / np.linalg.norm(axis)
         # Filled move by move into arrays of the job's size (no per-move objects: a long job's index
-        # stays at ~0.4 kB per move), trimmed to the segments at the end.
-        nm = len(job.moves)
-        nm += sum(1 for m in job.moves if m.tolerance > 0)       # room for the arcs rounding corners
-        kind = np.zeros(nm, int)
-        p0, p1, a0, a1, cc, nrm, e1, e2 = (np.zeros((nm, 3)) for _ in range(8))
-        phi, r0, r1, h0, h1, sweep, length, vmax_, rpm_, off0, off1 = (np.zeros(nm) for _ in range(11))
-        rot_ = np.zeros(nm, bool)
-        tip_len = np.zeros(nm)             # the length the feed applies to (the tip's; s for a pure rotation)
-        line_ = np.zeros(nm, int)
-        n = 0
-        stop = {0}                    # boundaries (index = segments completed) with an exact stop
-        dwell, dwell_line = {}, {}
-        ev_b, ev_before, ev_line, ev_data = [], [], [], []     # EVENT moves: boundary, dwell before, line
-        rpm_prev = None
-        off = 0.0                     # the tool length offset at the start pose: none (the reference tool)
-        self.start_line = job.moves[0].line if job.moves else 0
-        drop = _merged_away(job, start, limits)
-        # the next move kept after each (-1: none), and which may round its corner with it (G64 P)
-        nxt = np.full(len(job.moves), -1)
+        # stays at ~0.4 kB per move).
+        moves = job.moves
+        cap = len(moves) + sum(1 for m in moves if m.tolerance > 0)   # room for the arcs rounding corners
+        b = _PathBuilder(start, limits, feed_override, dt, job.source, capacity=cap)
+        drop = _merged_away(moves, start, limits)
+        # the next move kept after each (-1: none), with which it may round its corner (G64 P)
+        nxt = np.full(len(moves), -1)
         kept = np.nonzero(~drop)[0]
         if len(kept) > 1:
             nxt[kept[:-1]] = kept[1:]
-        blendable = np.fromiter((m.kind == LINE and m.tolerance > 0 and not m.probe and not m.duration > 0
-                                 for m in job.moves), bool, len(job.moves))
-        corner = tip                  # the last programmed point kept (a rounded corner is not reached)
-        synth = set()                 # boundaries that are no programmed point (the ends of rounding arcs)
-        absorbed = []                 # (end point, line) of the moves merged into the next segment
-        mrg_seg, mrg_u, mrg_line = [], [], []
-        for i_m, m in enumerate(job.moves):
+        for i_m, m in enumerate(moves):
             if drop[i_m]:
-                absorbed.append((m.tip, m.line))
-                continue
-            if m.kind == DWELL:
-                b = n
-                stop.add(b)
-                dwell[b] = dwell.get(b, 0.0) + float(m.dwell)
-                dwell_line[b] = m.line
-                continue
-            if m.kind == EVENT:       # an exact stop; its mark goes on the stop's sample (after the
-                stop.add(n)           # dwells programmed before it at this point)
-                ev_b.append(n)
-                ev_before.append(dwell.get(n, 0.0))
-                ev_line.append(int(m.line))
-                ev_data.append(tuple(m.events))
-                continue
-            t1 = np.asarray(m.tip, float)
-            a_1 = np.asarray(m.axis, float)
-            a_1 = a_1 / np.linalg.norm(a_1)
-            o1 = float(m.tool_offset)
-            # the pieces of this move: (end point, arc frame or None, sweep); a corner between two feed
-            # lines under G64 P is rounded by an arc within the tolerance (_blend)
-            j = nxt[i_m]
-            bl = _blend(tip, corner, m, job.moves[j], axis, a_1) if j >= 0 and blendable[i_m] else None
-            if bl is None:
-                pieces = [(t1, _arc_frame(tip, t1, m) if m.kind == ARC else None, float(m.sweep))]
+                b.absorb(m)
             else:
-                pieces = [(bl[0], None, 0.0), (bl[1], bl[2], bl[3])]
-            corner = t1
-            for t1, arc, sw in pieces:
-                ph = float(np.arccos(np.clip(np.dot(axis, a_1), -1.0, 1.0)))
-                if arc is not None:
-                    ltip = float(np.hypot(0.5 * (arc[4] + arc[5]) * sw, arc[7] - arc[6]))
-                else:
-                    ltip = float(np.linalg.norm(t1 - tip))
-                rot = ltip < 1e-6
-                # s is the tip's arc length, but for a tilt with a tiny tip motion (under ROT_SWITCH x
-                # the rotation length) it is the rotation length: with 1e-5 mm of tip for 2 degrees the
-                # joint derivatives dq/ds would be 1e6 and the acceleration caps crawl (2300 s for a
-                # 3 s move). The feed still caps the tip's speed (v <= F / |dtip/ds|). A change of the
-                # tool length offset alone moves the machine by that change along the tool axis.
-                rl = limits.rotation_length_mm * ph + abs(o1 - off)
-                ln = rl if rot or ltip < ROT_SWITCH * rl else ltip
-                if ln < 1e-9:
-                    tip, axis, off = t1, a_1, o1     # nothing moves: the point is the current pose
-                    continue
-                if rpm_prev is not None and m.spindle_rpm != rpm_prev:
-                    stop.add(n)
-                rpm_prev = m.spindle_rpm
-                flen = ln if rot else ltip
-                if m.kind == RAPID:
-                    vm = limits.rapid_mm_s
-                elif m.duration > 0:          # G93: the move takes `duration` s at 100 % feed
-                    vm = min(flen / float(m.duration) * feed_override, limits.rapid_mm_s)
-                else:
-                    vm = min(m.feed * feed_override, limits.rapid_mm_s)
-                if not vm > 0:
-                    raise InputError(job.source, m.line, f"move has no positive feed ({vm!r} mm/s)")
-                p0[n], p1[n], a0[n], a1[n], phi[n] = tip, t1, axis, a_1, ph
-                off0[n], off1[n] = off, o1
-                if absorbed:              # where along this (merged) segment each absorbed move ended
-                    d = t1 - tip
-                    q = np.array([a_[0] for a_ in absorbed], float) - tip
-                    u_ = np.maximum.accumulate(np.clip(q @ d / max(float(d @ d), 1e-300), 0.0, 1.0))
-                    mrg_seg.extend([n] * len(absorbed))
-                    mrg_u.extend(u_.tolist())
-                    mrg_line.extend(int(a_[1]) for a_ in absorbed)
-                    absorbed = []
-                if arc is not None:
-                    kind[n] = 1
-                    cc[n], nrm[n], e1[n], e2[n], r0[n], r1[n], h0[n], h1[n] = arc
-                    sweep[n] = sw
-                line_[n], rpm_[n], length[n], rot_[n], vmax_[n] = m.line, m.spindle_rpm, ln, rot, vm
-                tip_len[n] = flen
-                n += 1
-                tip, axis, off = t1, a_1, o1
-                if bl is not None:
-                    synth.add(n)          # a point of a rounded corner, not a programmed one
-        self.n = n
-        stop.add(n)
-        self.stop = np.zeros(n + 1, bool)
-        self.stop[sorted(stop)] = True
-        self.synth = np.zeros(n + 1, bool)
-        self.synth[sorted(synth)] = True
-        self.dwell = np.zeros(n + 1)
-        self.dwell_line = np.zeros(n + 1, int)
-        for b, d in dwell.items():
-            self.dwell[b] = d
-            self.dwell_line[b] = dwell_line[b]
-        self.mrg_seg, self.mrg_u = np.array(mrg_seg, int), np.array(mrg_u, float)
-        self.mrg_line = np.array(mrg_line, int)
-        self.ev_b, self.ev_before = np.array(ev_b, int), np.array(ev_before, float)
-        self.ev_line, self.ev_data = np.array(ev_line, int), tuple(ev_data)
-        self.end_tip, self.end_axis = tip, axis
-        self.start_tip, self.start_axis = np.asarray(start[0], float), np.asarray(start[1], float)
-        local = dict(kind=kind, p0=p0, p1=p1, a0=a0, a1=a1, phi=phi, c=cc, nrm=nrm, e1=e1, e2=e2, r0=r0, r1=r1,
-                     h0=h0, h1=h1, sweep=sweep, length=length, vmax=vmax_, rot=rot_, feed_length=tip_len,
-                     line=line_, rpm=rpm_, off0=off0, off1=off1)
-        for k in _SEG_FIELDS:
-            setattr(self, k, local[k][:n].copy())
-        self.has_off = bool(np.any(self.off0) or np.any(self.off1))
-        self._bounds(self.start_axis / np.linalg.norm(self.start_axis))
-        self._pins(dt, limits)
+                b.add(m, moves[nxt[i_m]] if nxt[i_m] >= 0 else None)
+        full = b.path(end=True)
+        self.__dict__.update(full.__dict__)
+        self.start_line = moves[0].line if moves else 0
 
     def _pins(self, dt, limits):
         """Which boundaries get a tick of their own (the knots of the time warp: exact arrival,
@@ -501,41 +682,30 @@ class _Path:
         each would make every segment last at least a tick, and the samples' speed would follow the
         segments' lengths and jump from tick to tick. The ends of the arcs rounding corners (no
         programmed point) are knots only ``SYNTH_KNOT_TICKS`` ticks of top speed past the last: the warp
-        then changes the speed by a few percent at most from knot to knot."""
+        then changes the speed by a few percent at most from knot to knot. (Again after a fallback
+        changed stops and speeds; _PathBuilder walks them as the path grows.)"""
         n = self.n
-        vs = self.vmax.copy()                   # an upper bound of ds/dt on each segment
-        tipish = ~self.rot & (self.feed_length < self.length)       # parameterised by the rotation
-        with np.errstate(divide="ignore", invalid="ignore"):
-            vs[tipish] = self.vmax[tipish] * self.length[tipish] / np.maximum(self.feed_length[tipish], 1e-300)
-            turn = tipish & (self.phi > 0)
-            vs[turn] = np.minimum(vs[turn], limits.axis_rate_rad_s * self.length[turn] / self.phi[turn])
-        need = 2.0 * dt * vs
-        self.pin = self.stop.copy()
-        if n and (not np.all(self.length >= need) or self.synth.any()):
-            pin, b_s, stop = self.pin, self.b_s, self.stop
-            more = np.where(self.synth, 0.5 * SYNTH_KNOT_TICKS, 1.0)
-            last, top = 0.0, 0.0
-            for b in range(1, n + 1):                 # (a loop of ~1 us a boundary)
-                top = max(top, need[b - 1])
-                if stop[b] or b_s[b] - last >= top * more[b]:
-                    pin[b] = True
-                    last, top = b_s[b], 0.0
-        else:
-            self.pin[:] = True
+        need = [_knot_need(self.vmax[i], self.length[i], self.feed_length[i], self.rot[i], self.phi[i], limits, dt)
+                for i in range(n)]
+        pin = {0}
+        _pin_walk(1, n, lambda b: need[b - 1], lambda b: self.b_s[b], set(np.nonzero(self.stop)[0].tolist()),
+                  set(np.nonzero(self.synth)[0].tolist()), pin, float(self.b_s[0]), 0.0)
+        self.pin = np.zeros(n + 1, bool)
+        self.pin[sorted(pin)] = True
         self.pin[0] = self.pin[n] = True
         self.pin_idx = np.nonzero(self.pin)[0]
 
-    def _bounds(self, start_axis):
+    def _bounds(self, start_axis, s_end, s0=0.0, off0=0.0):
         n = self.n
-        self.s_end = np.cumsum(self.length)
+        self.s_end = s_end
         self.s_start = self.s_end - self.length
-        self.total = float(self.s_end[-1]) if n else 0.0
+        self.total = float(self.s_end[-1]) if n else s0
         # Boundary poses, exact: b = 0 the start, b = i + 1 the end of segment i.
         self.b_tip = np.vstack([self.start_tip[None], self.p1]) if n else self.start_tip[None].copy()
         self.b_axis = np.vstack([start_axis[None], self.a1]) if n else self.start_axis[None].copy()
-        self.b_off = np.concatenate([[0.0], self.off1])
+        self.b_off = np.concatenate([[off0], self.off1])
         self.b_ctl = controlled_point(self.b_tip, self.b_axis, self.b_off) if self.has_off else self.b_tip
-        self.b_s = np.concatenate([[0.0], self.s_end])
+        self.b_s = np.concatenate([[s0], self.s_end])
 
     def sub(self, i0, i1):
         """The segments i0 .. i1-1 as a path of their own, in the job's path coordinate s (the same
@@ -859,6 +1029,18 @@ def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits
     if path.n == 0:
         path.planned_samples = int(np.ceil(path.dwell.sum() / dt)) + 1
         return path
+    check_segments(path, job, machine, limits, problems)
+    if problems:                  # (only with a list) not planned: the path leaves the workspace
+        return path
+    if full:
+        _plan_whole(path, machine, limits, dt, job, window)
+    return path
+
+
+def check_segments(path, job, machine, limits, problems=None):
+    """The checks of each segment of ``path``: no move needs more than ``MAX_SEGMENT_GRID`` grid
+    points, every programmed pose is reachable and so is the path between them (every ``grid_mm``,
+    in chunks of about SAMPLE_CHUNK points). InputError with the line (``problems``: appended)."""
     counts = np.maximum(2, np.ceil(path.length / limits.grid_mm).astype(np.int64))
     if np.any(counts > MAX_SEGMENT_GRID):
         i = int(np.argmax(counts > MAX_SEGMENT_GRID))
@@ -867,7 +1049,6 @@ def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits
                          f"of {limits.grid_mm:g} mm (check arc turns P and the coordinates, or split the move)")
     seen = set()
     _check_reachable(path, job, machine, problems, seen)
-    # the path between the programmed poses, segment by segment in chunks of about SAMPLE_CHUNK points
     i = 0
     while i < path.n:
         j = i + 1 + int(np.searchsorted(np.cumsum(counts[i + 1:]), SAMPLE_CHUNK))
@@ -877,25 +1058,25 @@ def validate(job: Job, machine, dt: float, *, feed_override: float = 1.0, limits
         tip, axis = path.point(seg, u)
         _check_samples(tip, axis, path.lines(seg, u), machine, job, problems, seen)
         i = j
-    if problems:                  # (only with a list) not planned: the path leaves the workspace
-        return path
-    if full:
-        _plan_whole(path, machine, limits, dt, job, window)
-    return path
 
 
 def _plan_whole(path, machine, limits, dt, job, window):
-    """Plan the whole path window by window (nothing kept), with the fallback (see validate)."""
+    """Plan the whole path window by window (nothing kept), with the fallback (see validate). The
+    settled windows (their extents and the caps re-planning lowered) are kept on the path
+    (``path.settled``): plan_stream of this path samples them without planning them again."""
     T = max(2.0 * limits.tangential_accel / limits.jerk_mm_s3, 2.0 * dt)
     while True:
         n_samples = 0
+        settled = []
         try:
-            for tm, (e0, e1), _ in _windows(path, machine, limits, dt, T, job, window, keep=False):
-                n_samples += e1 - e0
+            for w in _windows(path, machine, limits, dt, T, job, window, keep=False):
+                n_samples += w.e1 - w.e0
+                settled.append(w.record)
         except _NotConverged as e:
             _fall_back(path, e, dt, limits, job)
             continue
         path.planned_samples = n_samples
+        path.settled, path.settled_for = settled, (dt, limits, machine)
         return
 
 
@@ -912,6 +1093,8 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
     Where re-planning does not meet the limits before the first piece is handed out, the fallback
     goes into ``path`` and the job is planned again; after that, PlanningError (with the line) stops
     the stream: pass the path of ``validate(full=True)`` (same arguments) and that cannot happen.
+    That path also holds its settled windows: they are sampled as they were planned there (the same
+    samples), not planned again (``window`` is then the check's).
     Memory: the job's segment index (~0.4 kB per move) and one window with its margins."""
     limits, start = _start(job, machine, dt, feed_override, limits, start)
     if path is None:
@@ -919,29 +1102,22 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
     T = max(2.0 * limits.tangential_accel / limits.jerk_mm_s3, 2.0 * dt)
     points = np.asarray(job.points, float).reshape(-1, 3)
     if path.n == 0:
-        nt = int(np.ceil(path.dwell.sum() / dt)) + 1
-        marks = path.rest_marks(dt, nt)
-        for k0 in range(0, nt, SAMPLE_CHUNK):
-            m = min(nt, k0 + SAMPLE_CHUNK) - k0
-            z = np.zeros((m, 3))
-            yield Trajectory(dt, np.repeat(path.start_tip[None], m, 0), np.repeat(path.b_axis[:1], m, 0), z,
-                             z.copy(), np.full(m, path.start_line, int), np.zeros(m), job.source, points,
-                             marks=tuple((i - k0, ln, ev) for i, ln, ev in marks if k0 <= i < k0 + m))
+        yield from _rest_pieces(path, dt, job.source, points)
         return
+    settled = getattr(path, "settled", None)
+    if settled is not None:
+        pdt, plim, pm = path.settled_for
+        if pdt == dt and plim == limits and _same(pm, machine):
+            for rec in settled:
+                yield from _replay_window(path, rec, machine, limits, dt, T, job).pieces(job.source, points)
+            return
     emitted = False
     while True:
         try:
-            for tm, rng, kept in _windows(path, machine, limits, dt, T, job, window):
-                if kept is not None:
-                    for k0, part in kept:
-                        emitted = True
-                        yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k0 + len(part[0])))
-                else:
-                    for k0 in range(rng[0], rng[1], SAMPLE_CHUNK):
-                        k1 = min(rng[1], k0 + SAMPLE_CHUNK)
-                        part, _ = tm.samples(k0, k1)
-                        emitted = True
-                        yield Trajectory(dt, *part, job.source, points, marks=tm.marks(k0, k1))
+            for w in _windows(path, machine, limits, dt, T, job, window):
+                for piece in w.pieces(job.source, points):
+                    emitted = True
+                    yield piece
             return
         except _NotConverged as e:
             if not emitted:           # nothing handed out yet: the fallback, and start again
@@ -953,66 +1129,153 @@ def plan_stream(job: Job, machine, dt: float, *, feed_override: float = 1.0, lim
                                 "full before it was streamed)", path=job.source, line=e.line) from None
 
 
+def _same(a, b) -> bool:
+    """Whether two configs (dataclasses of numbers, arrays, tuples) hold the same values."""
+    if a is b:
+        return True
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, np.ndarray):
+        return a.shape == b.shape and bool(np.array_equal(a, b))
+    if hasattr(a, "__dataclass_fields__"):
+        return all(_same(getattr(a, f), getattr(b, f)) for f in a.__dataclass_fields__)
+    if isinstance(a, (tuple, list)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    return bool(a == b)
+
+
+def _rest_pieces(path, dt, source, points):
+    """The pieces of a path that does not move (only dwells and EVENTs): its dwells' samples at the
+    start pose (one sample without a dwell), carrying the marks."""
+    nt = int(np.ceil(path.dwell.sum() / dt)) + 1
+    marks = path.rest_marks(dt, nt)
+    for k0 in range(0, nt, SAMPLE_CHUNK):
+        m = min(nt, k0 + SAMPLE_CHUNK) - k0
+        z = np.zeros((m, 3))
+        yield Trajectory(dt, np.repeat(path.start_tip[None], m, 0), np.repeat(path.b_axis[:1], m, 0), z,
+                         z.copy(), np.full(m, path.start_line, int), np.zeros(m), source, points,
+                         marks=tuple((i - k0, ln, ev) for i, ln, ev in marks if k0 <= i < k0 + m))
+
+
+def _reach(path, T, limits):
+    """How far along the path what a window's samples depend on reaches (the erosion of the caps,
+    the jerk filter, the re-planning radius around a violation: all ~ v T, at the path's top speed)."""
+    return 1.1 * float(path.vmax.max()) * T + 4 * limits.grid_mm
+
+
 def _windows(path, machine, limits, dt, T, job, window=STREAM_WINDOW, keep=True):
-    """The windows of the streaming planner, in order: (timing, tick range to emit, kept sample
-    chunks or None) each; _NotConverged where re-planning does not meet the limits."""
+    """The windows of the streaming planner, in order (_Window each); _NotConverged where
+    re-planning does not meet the limits."""
     # reach of what a window's result depends on: the erosion of the caps, the jerk filter, the
     # re-planning radius around a violation (all ~ v T), and the look-ahead of the speeds (checked)
-    vt = 1.1 * float(path.vmax.max()) * T + 4 * limits.grid_mm
+    vt = _reach(path, T, limits)
     pins = path.pin_idx
     c1 = 0
     while c1 < path.n:                 # windows of about `window` segments, from knot to knot
         c0 = c1
         c1 = int(pins[min(len(pins) - 1, np.searchsorted(pins, c0 + window, "left"))])
-        margin = max(STREAM_MARGIN_MM, 2 * vt)
-        while True:
-            try:
-                yield _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep)
-                break
-            except _NotLocal:
-                margin *= 2
+        yield _settle_growing(path, c0, c1, max(STREAM_MARGIN_MM, 2 * vt), vt, machine, limits, dt, T, job, keep)
 
 
-def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep_ok=True):
-    """Plan segments c0 .. c1-1 with margins; returns (timing, tick range to emit, kept sample chunks
-    or None) once the limits hold on the samples of the window and STREAM_CHECK_MM around it."""
+def _settle_growing(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep=True, check_mm=STREAM_CHECK_MM):
+    """_settle_window, the margin doubled until the window's speeds do not depend on what lies beyond
+    it (``_NotLocal``)."""
+    while True:
+        try:
+            return _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep, check_mm)
+        except _NotLocal:
+            margin *= 2
+
+
+class _Window:
+    """A settled window: its timing, the tick range it emits (e0 .. e1-1 of its own ticks), the sample
+    chunks kept from its check (or None: sampled again), and ``record`` = (w0, w1, c0, c1, indices and
+    values of the lowered caps) from which ``_replay_window`` samples it again without planning."""
+
+    def __init__(self, tm, e0, e1, keep, record):
+        self.tm, self.e0, self.e1, self.keep, self.record = tm, e0, e1, keep, record
+
+    def pieces(self, source, points):
+        """Its samples as Trajectory pieces of at most SAMPLE_CHUNK samples, with their marks."""
+        tm, dt = self.tm, self.tm.dt
+        if self.keep is not None:
+            for k0, part in self.keep:
+                yield Trajectory(dt, *part, source, points, marks=tm.marks(k0, k0 + len(part[0])))
+            return
+        for k0 in range(self.e0, self.e1, SAMPLE_CHUNK):
+            k1 = min(self.e1, k0 + SAMPLE_CHUNK)
+            part, _ = tm.samples(k0, k1)
+            yield Trajectory(dt, *part, source, points, marks=tm.marks(k0, k1))
+
+
+def _window_extent(path, c0, c1, margin, vt, check_mm=STREAM_CHECK_MM, ahead=None):
+    """Where the window c0 .. c1 looks: (w0, w1, kb_lo, kb_hi, zone) -- the segments planned with it
+    (its margins), the knots between which the limits are checked, and the zone of _profile -- or None
+    on a path whose end is not the job's (``path.job_end`` False) when it would look beyond that end.
+    ``margin``, ``vt`` (the reach of what a sample depends on) and ``check_mm`` hold on both sides,
+    unless ``ahead`` = (margin, vt, check_mm, reach of the path beyond the margin) gives the side
+    after the window its own (pmctl.task.stream_planner: a rapid before the window does not make it
+    look further ahead)."""
     n, b_s = path.n, path.b_s
+    margin_hi, vt_hi, check_hi, vt_out = ahead if ahead is not None else (margin, vt, check_mm, vt)
     # the limits are checked on the samples between knots kb_lo and kb_hi (the window and at least
-    # STREAM_CHECK_MM around it; knots are the boundaries with a tick of their own, _Path.pin); their
+    # check_mm around it; knots are the boundaries with a tick of their own, _Path.pin); their
     # times depend on the warp's knots one further out, which must not be a window end (those knots
     # are not the whole job's); the profile must be the whole job's from there on, within vt
     # (and at least vt beyond the knots next to the window: a violation there moves their ticks)
+    start, end = c0 == 0 and path.job_start, c1 == n and path.job_end
     P = path.pin_idx
     bp = b_s[P]
     ic0, ic1 = int(np.searchsorted(P, c0)), int(np.searchsorted(P, c1))
-    if c0 == 0:
+    if start:
         i_lo = 0
     else:
-        reach = min(b_s[c0] - STREAM_CHECK_MM, bp[max(ic0 - 1, 0)] - vt)
+        reach = min(b_s[c0] - check_mm, bp[max(ic0 - 1, 0)] - vt)
         i_lo = max(0, min(ic0 - 1, int(np.searchsorted(bp, reach, "right")) - 1))
-    if c1 == n:
+    if end:
         i_hi = len(P) - 1
     else:
-        reach = max(b_s[c1] + STREAM_CHECK_MM, bp[min(ic1 + 1, len(P) - 1)] + vt)
+        reach = max(b_s[c1] + check_hi, bp[min(ic1 + 1, len(P) - 1)] + vt_hi)
         i_hi = min(len(P) - 1, max(ic1 + 1, int(np.searchsorted(bp, reach, "left"))))
     kb_lo, kb_hi = int(P[i_lo]), int(P[i_hi])
     lo_need = bp[max(i_lo - 1, 0)] - vt
-    hi_need = bp[min(i_hi + 1, len(P) - 1)] + vt
-    w0 = 0 if i_lo <= 1 else max(0, min(int(P[i_lo - 2]), int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
-    w1 = n if i_hi >= len(P) - 2 else min(n, max(int(P[i_hi + 2]), int(np.searchsorted(b_s, hi_need + margin, "left"))))
-    sp = path.sub(w0, w1)
+    hi_need = bp[min(i_hi + 1, len(P) - 1)] + vt_hi
+    if path.job_start:
+        w0 = 0 if i_lo <= 1 else max(0, min(int(P[i_lo - 2]), int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
+    else:                              # the segments before were let go: as far back as they are held
+        w0 = max(0, min(int(P[max(i_lo - 2, 0)]), int(np.searchsorted(b_s, lo_need - margin, "right")) - 1))
+    if path.job_end:
+        w1 = n if i_hi >= len(P) - 2 else min(n, max(int(P[i_hi + 2]), int(np.searchsorted(b_s, hi_need + margin_hi, "left"))))
+    else:                              # the job goes on beyond n: the window must not look that far
+        if i_hi >= len(P) - 2 or hi_need + margin_hi > b_s[n]:
+            return None
+        w1 = min(n, max(int(P[i_hi + 2]), int(np.searchsorted(b_s, hi_need + margin_hi, "left"))))
     zone = None
-    if w0 > 0 or w1 < n:
-        zone = (b_s[w0] + vt if w0 > 0 else -np.inf, b_s[w1] - vt if w1 < n else np.inf,
-                lo_need if c0 > 0 else -np.inf, hi_need if c1 < n else np.inf)
+    if w0 > 0 or w1 < n or not (path.job_start and path.job_end):
+        zone = (b_s[w0] + vt if (w0 > 0 or not path.job_start) else -np.inf,
+                b_s[w1] - vt_out if (w1 < n or not path.job_end) else np.inf,
+                lo_need if not start else -np.inf, hi_need if not end else np.inf)
+    return w0, w1, kb_lo, kb_hi, zone
+
+
+def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep_ok=True, check_mm=STREAM_CHECK_MM,
+                   ahead=None):
+    """Plan segments c0 .. c1-1 with margins; returns the _Window once the limits hold on the samples
+    of the window and ``check_mm`` around it (``ahead``: see _window_extent)."""
+    n = path.n
+    w0, w1, kb_lo, kb_hi, zone = _window_extent(path, c0, c1, margin, vt, check_mm, ahead)
+    end = path.job_end
+    sp = path.sub(w0, w1)
     grid = _limit_grid(sp, machine, limits, dt, T)
     scale = np.ones(len(grid["s"]))
     for it in range(max(1, limits.max_iterations)):
         tm = _Timing(sp, grid, scale, dt, T, job, zone=zone)
         e0 = int(tm.K_b[c0 - w0])
-        e1 = int(tm.K_b[c1 - w0]) + (1 if c1 == n else 0)
+        e1 = int(tm.K_b[c1 - w0]) + (1 if c1 == n and end else 0)
         k_lo = int(tm.K_b[kb_lo - w0])
-        k_hi = int(tm.K_b[kb_hi - w0]) + (1 if kb_hi == n else 0)
+        k_hi = int(tm.K_b[kb_hi - w0]) + (1 if kb_hi == n and end else 0)
         keep = [] if keep_ok and e1 - e0 <= STREAM_KEEP else None
         bad = []
         prev = None
@@ -1033,10 +1296,24 @@ def _settle_window(path, c0, c1, margin, vt, machine, limits, dt, T, job, keep_o
                 bad.append(w)
             prev = cur
         if not bad:
-            return tm, (e0, e1), keep
+            low = np.nonzero(scale < 1.0)[0]
+            return _Window(tm, e0, e1, keep, (w0, w1, c0, c1, low, scale[low]))
         worst = tuple(np.concatenate(x) for x in zip(*bad))
         scale = _lower_caps(grid, scale, worst, limits, T)
     raise _NotConverged(path, worst[0])
+
+
+def _replay_window(path, record, machine, limits, dt, T, job):
+    """A window settled before (``_Window.record``), sampled again as it was planned: its limit grid,
+    the caps re-planning lowered, its timing; no check, no iteration (the same samples)."""
+    w0, w1, c0, c1, low, val = record
+    sp = path.sub(w0, w1)
+    grid = _limit_grid(sp, machine, limits, dt, T)
+    scale = np.ones(len(grid["s"]))
+    scale[low] = val
+    tm = _Timing(sp, grid, scale, dt, T, job)
+    e1 = int(tm.K_b[c1 - w0]) + (1 if c1 == path.n and path.job_end else 0)
+    return _Window(tm, int(tm.K_b[c0 - w0]), e1, None, record)
 
 
 def _too_long(job, line, what, dt, max_samples=None):

@@ -40,7 +40,6 @@ reset, E-stop, unlock) go to the rt side as commands on the channel's command ri
 from __future__ import annotations
 
 import collections
-import hashlib
 import json
 import math
 import os
@@ -57,7 +56,6 @@ import numpy as np
 
 from pmctl.core import kinematics as K
 from pmctl.core.alarms import ALARM_ABORT, ALARM_ESTOP, ALARM_MOTOR_FAULT, ALARM_PROBE_FAIL_CONTACT, ALARM_SOFT_LIMIT
-from pmctl.core.config import load_machine
 from pmctl.core.errors import MotionRefused, PmctlError
 from pmctl.core.job import DWELL, EVENT, RAPID
 from pmctl.core.statics import static_strain
@@ -68,26 +66,19 @@ from pmctl.motion import channel as C
 from pmctl.motion.nc import RUN
 from pmctl.motion.probe import ProbeResult, check_probe_feeds, mark_probe_rows, probe_segments, split_at_probes
 from pmctl.motion.recorder import R_STRAIN, R_TICK
-from pmctl.motion.rtproc import apply_hal_overrides, apply_nc_overrides
-from pmctl.motion.service_config import load_service_config, nc_setup
-from pmctl.motion.timescale import HELD, HOLDING, MOVING, STARVED, S_LINE, iter_stream_rows, shape_trajectory
+from pmctl.motion.settings import resolve
+from pmctl.motion.timescale import (HELD, HOLDING, MOVING, STARVED, S_LINE, RowStream, full_speed_queue,
+                                    iter_stream_rows, shape_trajectory)
 from pmctl.task.homing import AXES, HomingFailed, RtMover, Sequence
+from pmctl.task.interp import moves_job
 from pmctl.task.jobcheck import machine_for_planning
 from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
+from pmctl.task.stream_planner import StreamPlanner
 
-
-def config_digest(machine, svc) -> dict:
-    """{file: sha256 of its bytes} of the configs the rt process loads at each (re)start: the machine
-    config, its compensation file, the service config (a missing file digests as None)."""
-    files = [machine.source, getattr(getattr(machine, "compensation", None), "source", ""), svc.source]
-    out = {}
-    for f in files:
-        if f and f not in out and not str(f).startswith("<"):
-            try:
-                out[str(f)] = hashlib.sha256(Path(f).read_bytes()).hexdigest()
-            except OSError:
-                out[str(f)] = None
-    return out
+# the open stream of console blocks (Supervisor.stream, _stream_rows)
+STREAM_REFILL_S = 1.0             # below this much motion queued ahead of the tool, every settled window is planned
+STREAM_LOW_WATER_S = 0.5          # below this, with no block coming, the stream is planned to rest at its last block
+STREAM_IDLE_S = 0.08              # no block for this long: the sender paused (a block may still come before)
 
 
 @dataclass(eq=False)
@@ -111,33 +102,42 @@ class Item:
     pushed: int = 0                              # samples queued for the rt side so far
     pushed_line: int = 0                         # the job line of the last of them
     all_pushed: bool = False                     # every sample of it is queued (its length is known)
+    path: object = None                          # the planner's checked path of its job (validate(full=True))
+    stream: bool = False                         # a stream of console blocks (Supervisor.stream): it grows
+    open: bool = False                           # a stream still taking blocks (``inbox``)
+    inbox: list = field(default_factory=list)    # blocks' moves appended, not yet given to its planner
+    last_in: float = 0.0                         # time.monotonic() of the last append
+    waiting: bool = False                        # the sender waits for room in the queue (the console's)
+    spindle_events: bool | None = None           # a spindle EVENT among its moves (None: look in job.moves)
 
 
 class Supervisor:
     def __init__(self, config="prototype", *, service=None, backend=None, state_file="", realtime=False,
-                 rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY, offline=False, nc=None, hal=None):
+                 rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY, offline=False, nc=None, hal=None,
+                 settings=None):
+        # the settings, resolved once (pmctl run resolves them and passes them in); the rt process gets
+        # them as data and never reads a config file
+        if settings is None:
+            settings = resolve(config, service, backend=backend, rate_hz=rate_hz, realtime=realtime,
+                               offline=offline, nc=nc, hal=hal)
+        self.settings = settings
         self.config = config
         self.service = service
-        self.machine = load_machine(config)
-        self.nc_overrides = dict(nc or {})        # e.g. pmctl run --k-theta --shaper --pulse-mode
-        self.hal_overrides = dict(hal or {})      # e.g. pmctl run --bridge rp2040-emu
-        self.svc = apply_hal_overrides(apply_nc_overrides(load_service_config(service), self.nc_overrides),
-                                       self.hal_overrides)
-        self.offline = bool(offline)              # rt ticks back to back, waiting for samples
-        self.backend = backend or self.svc.backend
-        self.rate_hz = float(rate_hz or self.svc.loop.rate_hz)
-        self.dt = 1.0 / self.rate_hz
-        # chain modes, K_theta auto (off on a backend without strain), the shaper; [daq] k_theta_source
-        # checked (pmctl serve and pmctl run alike, before the devices, the rt process or the state file)
-        self.nc_setup = nc_setup(self.svc, self.machine, self.dt, self.backend)
-        self.params = self.svc.nc.params(self.machine, self.dt, where=self.svc.source, modes=self.nc_setup.modes)
-        self.svc.homing.check(self.params, self.svc.source)        # [homing] against this machine's joints
+        self.machine = settings.machine
+        self.nc_overrides = settings.nc_overrides  # e.g. pmctl run --k-theta --shaper --pulse-mode
+        self.hal_overrides = settings.hal_overrides   # e.g. pmctl run --bridge rp2040-emu
+        self.svc = settings.svc
+        self.offline = settings.offline           # rt ticks back to back, waiting for samples
+        self.backend = settings.backend
+        self.rate_hz = settings.rate_hz
+        self.dt = settings.dt
+        self.nc_setup = settings.setup
+        self.params = settings.params
         # the V-F converters may cap the joint speed below the machine's (seed mode: one pulse per
         # tick): plan within what they can emit
         self.plan_machine = machine_for_planning(self.machine, self.params)
-        self._config_digest = config_digest(self.machine, self.svc)   # the files the rt process reads again
         self.state_file = state_file
-        self.realtime = bool(realtime)
+        self.realtime = settings.realtime
         self.log = log or (lambda m: None)
         self.sample_capacity = sample_capacity
         self.ch: C.Channel | None = None
@@ -172,6 +172,7 @@ class Supervisor:
         self.spindle = None               # pmctl.hal.modbus_vfd.SpindleSession
         self.daq = None                   # pmctl.hal.modbus_daq.DaqSession
         self._devices_open = False
+        self._stream_wake = threading.Event()     # a block appended to the open stream, or it closed
         self._hold_points = collections.deque()    # (ring row, events) of queued C_HOLD_AT points, in row order
         self._hold_at_seen = 0
         self._events_q: queue.Queue = queue.Queue()   # (queue generation, events) of the points reached
@@ -213,18 +214,7 @@ class Supervisor:
             t.start()
             self._threads.append(t)
 
-    def _rt_nc(self) -> dict:
-        """The rt process's NC overrides: the run's, plus K_theta as resolved here (auto, or off on a
-        backend without strain), so both sides run the same gains whatever the config file says now."""
-        return {**self.nc_overrides, "k_theta_per_s": [float(k) for k in self.svc.nc.k_theta_per_s],
-                "k_theta_auto": False}
-
     def _spawn(self, counts, timeout_s):
-        changed = [f for f, d in config_digest(self.machine, self.svc).items() if d != self._config_digest.get(f)]
-        if changed:                      # the rt process would read them as they are now, the supervisor did not
-            raise MotionRefused(f"{', '.join(changed)} changed since the controller started: the rt motion process "
-                                f"is not restarted with settings the supervisor does not run; put the file back, "
-                                f"or restart the service to apply it", 9)
         ch = self.ch
         ch.st[:] = 0.0                    # nothing of a previous rt process's status may count
         ch.st[C.ST_PHASE] = C.PH_STARTING
@@ -235,12 +225,16 @@ class Supervisor:
         self._hold_points.clear()
         self._hold_at_seen = 0
         ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = np.asarray(counts, float)
-        spec = {"shm": ch.name, "config": str(self.config), "service": self.service, "backend": self.backend,
-                "state_file": self.state_file, "rate_hz": self.rate_hz, "realtime": self.realtime,
-                "offline": self.offline, "nc": self._rt_nc(), "hal": self.hal_overrides,
-                "counts": [int(c) for c in counts], "ppid": os.getpid()}
-        self.proc = _RtProc(subprocess.Popen([sys.executable, "-m", "pmctl.motion.rtproc", json.dumps(spec)],
-                                             stdin=subprocess.DEVNULL))
+        spec = {"shm": ch.name, "state_file": self.state_file, "counts": [int(c) for c in counts],
+                "ppid": os.getpid()}
+        # the settings go as data over the spawn pipe (stdin): the rt process reads no config file
+        p = subprocess.Popen([sys.executable, "-m", "pmctl.motion.rtproc", json.dumps(spec)], stdin=subprocess.PIPE)
+        try:
+            p.stdin.write(self.settings.to_bytes())
+            p.stdin.close()
+        except BrokenPipeError:
+            pass                          # it died at once: said below
+        self.proc = _RtProc(p)
         t0 = time.monotonic()
         while ch.st[C.ST_PHASE] != C.PH_RUNNING:
             if not self.proc.is_alive():
@@ -395,7 +389,7 @@ class Supervisor:
             if name == "spindle":
                 self._plan_rpm = float(value)
 
-    def _events_of(self, it, pieces, row0):
+    def _events_of(self, it, pieces, row0, per_move=True):
         """The planner's pieces, passed through; before each piece's samples are queued, its hold
         points are sent: the marks of its EVENT moves (on their exact stops), and for a job that
         carries the spindle speed only per move, its first speed (at the item's first sample) and the
@@ -403,7 +397,7 @@ class Supervisor:
         pmctl.hal.modbus_vfd.speed_changes finds them in a whole plan)."""
         moves = it.job.moves
         events = any(m.kind == EVENT and any(n == "spindle" for n, _ in m.events) for m in moves)
-        on_lines = [] if events else [m.line for m in moves if getattr(m, "spindle_rpm", 0.0)]
+        on_lines = [] if events or not per_move else [m.line for m in moves if getattr(m, "spindle_rpm", 0.0)]
         if on_lines and self.svc.spindle is None:
             if not self._spindle_note:
                 rpm = job_speed([getattr(m, "spindle_rpm", 0.0) for m in moves])
@@ -688,15 +682,20 @@ class Supervisor:
                 return self.items[-1].end
         return self.pose()
 
-    def submit(self, job, kind="job", name="", lines=None, source="") -> Item:
-        """Queue a Job (planned from where the previous item ends). Raises MotionRefused in alarm."""
+    def submit(self, job, kind="job", name="", lines=None, source="", path=None, stream=False) -> Item:
+        """Queue a Job (planned from where the previous item ends). Raises MotionRefused in alarm.
+        ``path``: the job already checked in full from that start (pmctl.task.jobcheck: the path of
+        ``validate(full=True)`` with its settled windows), which the planner then samples instead of
+        planning the job again. ``stream``: the first blocks of a stream (use ``stream``)."""
         self._check_motion_allowed()
         moves = [m for m in job.moves if m.kind not in ("dwell", "event")]     # those do not move
         with self._lock:
+            self.stream_close()           # what comes after it goes after it
             start = self.end_pose()
             end = (np.asarray(moves[-1].tip, float), np.asarray(moves[-1].axis, float)) if moves else start
             it = Item(kind, job, start, end, name, self.n_submitted, lines=dict(lines or {}), gen=self._gen,
-                      source=str(source))
+                      source=str(source), path=path, stream=stream, open=stream,
+                      inbox=list(job.moves) if stream else [], last_in=time.monotonic())
             if any(m.probe for m in job.moves):
                 check_probe_feeds(job, self.svc.probe, source or name or job.source, self.plan_feed_override)
                 it.parts = len(split_at_probes(job))
@@ -704,6 +703,55 @@ class Supervisor:
             self.items.append(it)
         self._plan_q.put(it)
         return it
+
+    def stream(self, moves, lines=None, name="console") -> Item:
+        """Append the moves of accepted blocks (a console line's) to the open stream: one job that
+        grows as blocks arrive, planned by pmctl.task.stream_planner as they come -- windows of it
+        are handed to the rt side as soon as the blocks known beyond them settle them, so a program
+        streamed line by line runs as one job, without stops between the lines. A new stream (an
+        Item of kind "gcode") starts where the queue ends when none is open (the first block, after a
+        close, after an item of another kind). ``lines``: {stream line: reported line (N word)}.
+        MotionRefused in alarm."""
+        moving = [m for m in moves if m.kind not in (DWELL, EVENT)]
+        spindle = any(m.kind == EVENT and any(n == "spindle" for n, _ in m.events) for m in moves)
+        with self._lock:
+            it = self._stream_item
+            if it is None or not it.open or it.gen != self._gen or it not in self.items:
+                it = self.submit(moves_job(list(moves), name), kind="gcode", name=name, lines=lines, stream=True)
+                it.spindle_events = spindle
+                self._stream_item = it
+            else:
+                self._check_motion_allowed()
+                it.inbox.extend(moves)
+                it.lines.update(lines or {})
+                it.spindle_events = it.spindle_events or spindle
+                if moving:            # (the job of a stream: its last moves, for the spindle at its end)
+                    it.job = moves_job(list(moves), name)
+                    it.end = (np.asarray(moving[-1].tip, float), np.asarray(moving[-1].axis, float))
+            it.last_in = time.monotonic()
+        self._stream_wake.set()
+        return it
+
+    def stream_close(self):
+        """End the open stream at its last block: its planner plans the rest to rest there (M2/M30,
+        G4, a probe, a job queued after it). Returns the stream's Item (None: none open)."""
+        with self._lock:
+            it, self._stream_item = self._stream_item, None
+            if it is not None and it.open:
+                it.open = False
+                self._stream_wake.set()
+                return it
+        return None
+
+    def stream_waiting(self, waiting: bool):
+        """The console waits for room in its queue (True) or not any more: the open stream cannot
+        get a block before the tool runs past one."""
+        it = self._stream_item
+        if it is not None:
+            it.waiting = bool(waiting)
+            self._stream_wake.set()
+
+    _stream_item = None
 
     def stream_rows(self, rows, cancelled) -> None:
         """Push sample rows into the ring as room frees up; raises ``cancelled()``'s exception (the
@@ -977,7 +1025,7 @@ class Supervisor:
                 if it.parts > 1 or any(m.probe for m in it.job.moves):
                     self._plan_probing(it)
                     continue
-                rows_iter = self._rows_of(it.job, it.start, it)
+                rows_iter = self._stream_rows(it) if it.stream else self._rows_of(it.job, it.start, it)
                 it.planned = True
                 if self._push_rows(rows_iter, it) == 0:
                     self._ended_without_samples(it)
@@ -1006,6 +1054,7 @@ class Supervisor:
         """An unexpected exception while planning: log it with its traceback, stop on the path, drop
         the queue and raise an alarm saying why; the planner thread goes on (``$X`` unlocks)."""
         self.log(f"planner error on {it.name or it.kind}: {''.join(traceback.format_exception(e)).rstrip()}")
+        it.error = f"internal error: {type(e).__name__}: {e}"      # (pmctl run waits on it)
         with self._lock:
             self.items.clear()
             self._gen += 1
@@ -1023,8 +1072,12 @@ class Supervisor:
         pm = self.plan_machine
         if self.nc_setup.shaper is None:
             # the whole job planned first (pmctl check's planning, with its fallback): nothing of it
-            # moves unless all of it can be planned, and the stream cannot fail midway
-            path = validate(job, pm, self.dt, feed_override=self.plan_feed_override, start=start, full=True)
+            # moves unless all of it can be planned, and the stream cannot fail midway. A job checked
+            # so before it was queued (pmctl run) brings that path: its settled windows are sampled,
+            # not planned again
+            path = it.path if it is not None and job is it.job and _path_starts_at(it.path, start) else None
+            if path is None:
+                path = validate(job, pm, self.dt, feed_override=self.plan_feed_override, start=start, full=True)
             pieces = plan_stream(job, pm, self.dt, feed_override=self.plan_feed_override, start=start, path=path)
         else:
             # an input shaper reshapes the time law over whole segments: planned whole (memory
@@ -1035,6 +1088,109 @@ class Supervisor:
             pieces = self._events_of(it, pieces, self.ch.samples.written)   # (the ring row of its first sample)
         return iter_stream_rows(pieces, self.machine, self.params, rapid_lines=rapid_lines,
                                 rapid_mm_s=rapid_mm_s)
+
+    def _queued_s(self) -> float:
+        """Seconds of samples queued ahead of the tool (at 100 % feed)."""
+        return float(self.raw()[C.ST_QUEUED]) * self.dt
+
+    def _low_water_s(self) -> float:
+        """Below this much motion queued ahead of the tool the open stream is planned to rest at its
+        last block unless a block comes (offline the rt side waits for a queue it can stop within:
+        that is low water there)."""
+        if not self.offline:
+            return STREAM_LOW_WATER_S
+        return max(STREAM_LOW_WATER_S, (full_speed_queue(self.params, self.dt, self.sample_capacity) + 20) * self.dt)
+
+    def _stream_rows(self, it):
+        """Sample rows of a stream item (``stream``): its blocks planned as they come by a
+        StreamPlanner (pmctl.task.stream_planner), each window's samples handed out once the blocks
+        after it settle it, the rows taken as they are final (pmctl.motion.timescale.RowStream). While
+        more than ``STREAM_REFILL_S`` is queued ahead of the tool only whole windows are planned
+        (fewer, larger windows); below it, whatever the blocks settle. The stream is planned to rest
+        at its last block when it is closed (M2/M30, G4, a probe, a job after it), or when less than
+        the low water (``_low_water_s``) is queued, nothing more settles and no block is coming
+        (the sender paused for ``STREAM_IDLE_S``, or it waits for room in the queue): then the machine
+        stops on the path at the last block it has, and the blocks after start a new stream there.
+        Before that, when the console waits for room while a merged run of lines waits for its end,
+        the run is cut at its last block (StreamPlanner.cut_run) and the stream goes on."""
+        if self.nc_setup.shaper is not None:
+            return self._stream_batch_rows(it)
+        return self._stream_planned_rows(it)
+
+    def _stream_inbox(self, it):
+        """(the moves appended to the stream item since the last call, whether it is closed); raises
+        _Aborted when the queue was dropped."""
+        if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
+            raise _Aborted()
+        self._stream_wake.clear()
+        with self._lock:
+            new, it.inbox = it.inbox, []
+            return new, not it.open
+
+    def _stream_starved(self, it, low) -> bool:
+        """Close the stream when it starves: less than ``low`` s queued ahead of the tool and no block
+        coming (the sender paused for ``STREAM_IDLE_S``, or the console waits for room). True: it did
+        (unless a block came meanwhile)."""
+        if self._queued_s() < low and (it.waiting or time.monotonic() - it.last_in > STREAM_IDLE_S):
+            with self._lock:
+                if not it.inbox:
+                    it.open = False
+                    if self._stream_item is it:
+                        self._stream_item = None
+            return True
+        return False
+
+    def _stream_batch_rows(self, it):
+        """A stream with an input shaper configured: the shaper plans whole jobs (``_rows_of``), so the
+        blocks are collected until the stream closes (as ``_stream_planned_rows`` closes it) and then
+        planned from rest to rest: a streamed program stops where a batch ends."""
+        low = self._low_water_s()
+        moves = []
+        while True:
+            new, closing = self._stream_inbox(it)
+            moves += new
+            if closing:
+                break
+            if not self._stream_starved(it, low):
+                self._stream_wake.wait(0.005)
+        it.job = moves_job(moves, it.name or "console")
+        return self._rows_of(it.job, it.start, it)
+
+    def _stream_planned_rows(self, it):
+        limits = PlannerLimits()
+        sp = StreamPlanner(self.plan_machine, self.dt, start=it.start, feed_override=self.plan_feed_override,
+                           limits=limits, source=it.name or "console")
+        rs = RowStream(self.dt, self.machine, self.params, rapid_mm_s=limits.rapid_mm_s)
+        rapid = set()
+        low = self._low_water_s()
+
+        def pieces():
+            while True:
+                new, closing = self._stream_inbox(it)
+                if new:
+                    rapid.update(m.line for m in new if m.kind == RAPID)
+                    sp.extend(new)
+                got = False
+                for piece in sp.settled(eager=self._queued_s() < STREAM_REFILL_S):
+                    got = True
+                    yield piece
+                if closing:
+                    yield from sp.close()
+                    return
+                if got or new:
+                    continue
+                if it.waiting and sp.pending and self._queued_s() < STREAM_REFILL_S:
+                    # the queue is full of blocks a merged run of lines waits on (a straight run of short
+                    # lines): the run ends at its last block, the stream goes on
+                    sp.cut_run()
+                    continue
+                if not self._stream_starved(it, low):     # (starved: planned to rest at the last block)
+                    self._stream_wake.wait(0.005)
+
+        for piece in self._events_of(it, pieces(), self.ch.samples.written, per_move=False):
+            rs.add(piece.tip, piece.axis, piece.line, np.isin(piece.line, list(rapid)) if rapid else None)
+            yield from rs.take()
+        yield from rs.take(end=True)
 
     def _push_rows(self, rows_iter, it) -> int:
         """Push the rows as room frees up; returns how many were pushed."""
@@ -1230,7 +1386,8 @@ class Supervisor:
         """M5 when a job that carries its speed per move (no spindle EVENT: those took effect where
         the path got to them) ended with the spindle off and nothing queued needs it running."""
         sp = self.spindle
-        if any(m.kind == "event" and any(n == "spindle" for n, _ in m.events) for m in it.job.moves):
+        if it.spindle_events or (it.spindle_events is None and any(
+                m.kind == "event" and any(n == "spindle" for n, _ in m.events) for m in it.job.moves)):
             return
         moves = [m for m in it.job.moves if m.kind not in ("dwell", "event")] \
             or [m for m in it.job.moves if m.kind == "dwell"]       # (EVENT moves carry no speed)
@@ -1273,6 +1430,16 @@ class Supervisor:
 
 class _Aborted(Exception):
     pass
+
+
+def _path_starts_at(path, start, tol_mm=1e-9) -> bool:
+    """Whether a checked path (validate(full=True)) starts at ``start`` (tip, axis): the pose the
+    check took for the machine's (the two computations of the pose from the counters agree to
+    ~1e-12 mm), so that it plans the job the queue would plan."""
+    if path is None or getattr(path, "settled", None) is None:
+        return False
+    return (float(np.abs(np.asarray(path.start_tip, float) - np.asarray(start[0], float)).max()) <= tol_mm
+            and float(np.abs(np.asarray(path.start_axis, float) - np.asarray(start[1], float)).max()) <= tol_mm * 1e-2)
 
 
 def _patient(vfd, request):

@@ -83,11 +83,13 @@ def add_parser(sub):
                         "the same path: a slow tick is not a stall, and the motion process waits for planned "
                         "samples instead of slowing down)")
     p.add_argument("--k-theta", default=None, metavar="PER_S|auto",
-                   help="strain-gauge feedback gain per chain, 1/s (0 = off), or auto: per chain from the chain "
-                        "mode (docs/vibration.md; default: service config)")
+                   help="strain-gauge feedback gain per chain, 1/s (0 = off), or auto: designed per chain from "
+                        "its chain mode with margins kept for the mode 20 %% off (docs/vibration.md; default: "
+                        "service config)")
     p.add_argument("--shaper", default=None, metavar="TYPE|auto|none",
                    help="input shaper on the time law along the path (the tool stays on the path): ZV, MZV, ZVD, "
-                        "EI, 2HUMP_EI, 3HUMP_EI, auto (from the chain modes) or none (default: [nc] shaper)")
+                        "EI, 2HUMP_EI, 3HUMP_EI, MA, types joined by '*' (ZV*MA), auto (per chain from its mode) "
+                        "or none (default: [nc] shaper)")
     p.add_argument("--pulse-mode", choices=("multi", "single"), default=None,
                    help="V-F converters: integer pulses per tick (multi) or the original controller's one per tick (single; Kamiya et al. 2005)")
     p.add_argument("--state", default=None, metavar="FILE",
@@ -216,10 +218,8 @@ def tracking_window(res, stop_tick: int | None) -> tuple[int, int, str]:
 def run(args) -> int:
     from pmctl import hal
     from pmctl.core import kinematics as K
-    from pmctl.core.config import load_machine
     from pmctl.core.recording import check_target
     from pmctl.motion.nc import counts_of, initial_state
-    from pmctl.motion.service_config import load_service_config
     from pmctl.motion.state_store import StateLock, load_counters
 
     out = _Out()
@@ -235,8 +235,6 @@ def run(args) -> int:
         raise PmctlError(f"--feed-override must be within (0, 10], got {args.feed_override:g}")
     if args.backend is not None and args.backend not in hal.BACKENDS:
         raise PmctlError(f"--backend {args.backend!r}: unknown backend; known: {', '.join(sorted(hal.BACKENDS))}")
-    if args.bridge is not None and (args.backend or load_service_config(args.service).backend) != "stepdir":
-        raise PmctlError(f"--bridge {args.bridge} is the step/dir bridge's: it needs --backend stepdir")
     if args.bridge == "rp2040-emu" and not args.no_realtime:
         raise PmctlError("--bridge rp2040-emu: the emulated chip runs slower than real time; add --no-realtime "
                          "(the host then waits for the chip)")
@@ -245,28 +243,28 @@ def run(args) -> int:
     if args.record:               # find out now, not after the run, that the recording cannot be written
         folder = Path(args.record)
         check_target(folder, overwrite=args.force)          # (and its .partial, which a killed run left)
-    machine = load_machine(args.config)
-    svc = load_service_config(args.service)
-    cfg = svc.loop
-    if args.rate is not None:
-        cfg.rate_hz = float(args.rate)
-    if args.no_realtime:
-        cfg.realtime = False
+    nc_over = {}                          # what the flags change in the service config's [nc]
     if k_theta_arg is not None:
-        svc.nc.k_theta_auto = k_theta_arg == "auto"
-        svc.nc.k_theta_per_s = (0.0,) * 3 if svc.nc.k_theta_auto else (k_theta_arg,) * 3
+        auto = k_theta_arg == "auto"
+        nc_over.update(k_theta_auto=auto, k_theta_per_s=(0.0,) * 3 if auto else (k_theta_arg,) * 3)
     if shaper_arg is not None:
-        svc.nc.shaper = shaper_arg
+        nc_over["shaper"] = shaper_arg
     if args.pulse_mode:
-        svc.nc.pulse_mode = args.pulse_mode
-    backend_name = args.backend or svc.backend
+        nc_over["pulse_mode"] = args.pulse_mode
+    from pmctl.motion.settings import resolve
+    # the settings, resolved once for the whole run (the supervisor and the rt process get these)
+    settings = resolve(args.config, args.service, backend=args.backend, rate_hz=args.rate,
+                       realtime=False if args.no_realtime else None, nc=nc_over,
+                       hal={"stepdir": {"port": args.bridge}} if args.bridge else None)
+    if args.bridge is not None and settings.backend != "stepdir":
+        raise PmctlError(f"--bridge {args.bridge} is the step/dir bridge's: it needs --backend stepdir")
+    machine, svc, params, setup = settings.machine, settings.svc, settings.params, settings.setup
+    cfg = svc.loop
+    backend_name = settings.backend
     state_file = cfg.state_file if args.state is None else args.state
-    dt = cfg.dt
-    from pmctl.motion.service_config import nc_setup
+    dt = settings.dt
     from pmctl.motion.service_config import strain_in_loop as carries_strain
-    setup = nc_setup(svc, machine, dt, backend_name)     # chain modes, K_theta auto or off, shaper; checked
     strain_in_loop = carries_strain(backend_name)
-    params = svc.nc.params(machine, dt, where=svc.source, modes=setup.modes)
 
     # Where the machine is: saved counters, else home (said only once everything has been checked).
     lock = StateLock(state_file) if state_file else None      # noqa: F841 (held until the process exits)
@@ -301,18 +299,16 @@ def run(args) -> int:
     if any(m.probe for m in job.moves):
         from pmctl.motion.probe import check_probe_job
         check_probe_job(job, svc.probe, args.job, args.feed_override)
-    # the whole job checked against the machine and planned before anything moves (pmctl check; the
-    # supervisor's queue plans it again the same way, with the same V-F cap on the joint speeds); an
-    # input shaper plans the job whole: the batch planner's bounds
+    # the whole job checked against the machine and planned before anything moves (pmctl check, with
+    # the V-F cap on the joint speeds the supervisor plans with); the supervisor's queue samples the
+    # windows this check settled instead of planning them again. An input shaper plans the job whole:
+    # the batch planner's bounds
     from pmctl.task.jobcheck import check_job, machine_for_planning
     rep = check_job(job, machine_for_planning(machine, params), dt, feed_override=args.feed_override,
                     start=(st.tip, st.axis), batch=setup.shaper is not None)
     if not rep.ok:
         raise JobProblems(rep.problems)
-    nc_over = {"k_theta_per_s": list(svc.nc.k_theta_per_s), "k_theta_auto": False, "shaper": svc.nc.shaper,
-               "pulse_mode": svc.nc.pulse_mode}
-    return _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, counts0, st, job,
-                       nc_over, strain_in_loop, where, setup.notes)
+    return _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loop, where, path=rep.path)
 
 
 def _refuse_operator_waits(job, tool):
@@ -433,10 +429,10 @@ def _nominal_shares(job):
     return ls[keep], share[keep]
 
 
-def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, counts0, st, job, nc_over,
-                strain_in_loop, where, setup_notes) -> int:
+def _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loop, where, path=None) -> int:
     """The job through the machinery of the daemon: a Supervisor starts the rt motion process (its
-    own process: loop, NC, backend), the job is submitted, planned window by window and streamed into
+    own process: loop, NC, backend), the job is submitted with its checked ``path`` (the check's
+    settled windows are sampled, not planned again), planned window by window and streamed into
     the sample ring (memory bounded by a window, whatever the job's length), the records stream back
     into the recording; then the supervisor shuts the rt side down and the run is reported with the
     timing figures the rt side hands over as it exits (Channel.result)."""
@@ -450,11 +446,11 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
     from pmctl.task.run_sink import RunSink
     from pmctl.task.supervisor import Supervisor
     log = out.log
-    dt = cfg.dt
-    hal_over = {"stepdir": {"port": args.bridge}} if getattr(args, "bridge", None) else None
-    sup = Supervisor(args.config, service=args.service, backend=backend_name, state_file=state_file or "",
-                     realtime=cfg.realtime, rate_hz=cfg.rate_hz, log=log, offline=not cfg.realtime, nc=nc_over,
-                     hal=hal_over)
+    machine, svc, params, backend_name = settings.machine, settings.svc, settings.params, settings.backend
+    cfg = svc.loop
+    dt = settings.dt
+    setup_notes = settings.setup.notes
+    sup = Supervisor(args.config, service=args.service, state_file=state_file or "", log=log, settings=settings)
     if backend_name == "sim":                # the simulation's stand-in operator: tool changes and pauses
         sup.stand_in_operator = lambda what: log(f"{what}: done by the simulation's operator, the job goes on")
     notes = list(setup_notes)              # chain modes, K_theta auto, shaper: as this run resolved them
@@ -524,14 +520,14 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
         view = _RunView(sup, max((m.line for m in job.moves), default=1), job)
         prog = _Progress(view, Path(args.job).name, dt, args.quiet, out)
         return _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick, s0, rec_err, sink, rec,
-                                       machine, cfg, dt, counts0, backend_name, state_file)
+                                       machine, cfg, dt, counts0, backend_name, state_file, path)
     finally:
         for sig, h in old.items():
             signal.signal(sig, h)
 
 
 def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick, s0, rec_err, sink, rec, machine,
-                            cfg, dt, counts0, backend_name, state_file) -> int:
+                            cfg, dt, counts0, backend_name, state_file, path=None) -> int:
 
     from pmctl.motion import channel as C
     log = out.log
@@ -547,7 +543,7 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
         if not stop_req:
             s0.append(float(s[C.ST_S]))
             ended0 = int(s[C.ST_ENDED])
-            it = sup.submit(job, kind="job", name=Path(args.job).name, source=str(args.job))
+            it = sup.submit(job, kind="job", name=Path(args.job).name, source=str(args.job), path=path)
             view.item, view.s0 = it, s0[0]
         prog.start()
         done_tick = None

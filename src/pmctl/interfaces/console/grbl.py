@@ -8,17 +8,20 @@ Two threads:
   ``[spindle]`` is configured), 0x9E spindle stop in a hold. Other bytes collect into
   lines (``\\n`` or ``\\r`` ends one); a line longer than ``LINE_MAX`` is dropped whole with error:11.
 - the worker executes lines in order and answers each with ``ok`` or ``error:N``. A motion line is
-  answered once it is checked (reader, reachability) and its blocks have entered the planner queue:
-  ``PLANNER_BLOCKS`` blocks (moves) accepted and not yet executed, the depth ``[OPT:]`` and ``Bf:``
-  advertise. It counts every block from its ``ok`` until the rt side has run past it: the ones still
-  collected here, the ones being planned and the ones whose samples wait in the sample ring ahead of
-  the tool (the look-ahead the time-scaling needs to stop on the path). When it is full the answer
-  waits (grbl's full planner buffer), so a character-counting sender is paced by the motion.
-  Accepted blocks are collected into batches that the supervisor plans as one job, from rest to rest:
-  a batch goes at once when the machine is idle (after ``BATCH_IDLE_S`` without a new line, or when
-  the queue is full), else when the motion queued before it is about to run out (``LOW_WATER_S``), at
-  a G4, or at M2/M30, whose ``ok`` comes when the program's end is queued; ``[MSG:Pgm End]`` follows
-  when the machine gets there.
+  answered once it is checked (reader, reachability of its poses and of the path to them) and its
+  blocks have entered the planner queue: ``PLANNER_BLOCKS`` blocks (moves) accepted and not yet
+  executed, the depth ``[OPT:]`` and ``Bf:`` advertise. It counts every block from its ``ok`` until
+  the rt side has run past it: the ones waiting for the look-ahead that settles them, the ones being
+  planned and the ones whose samples wait in the sample ring ahead of the tool (the look-ahead the
+  time-scaling needs to stop on the path). When it is full the answer waits (grbl's full planner
+  buffer), so a character-counting sender is paced by the motion.
+  Accepted blocks go at once into the supervisor's open stream (Supervisor.stream): one job that
+  grows as they come, planned window by window once the blocks after a window settle it
+  (pmctl.task.stream_planner), so a streamed program runs as ``pmctl run`` runs the same file,
+  without stops between lines. The stream is planned to rest at its last block at M2/M30 (whose
+  ``ok`` comes when the program's end is queued; ``[MSG:Pgm End]`` follows when the machine gets
+  there), at a G4 and a probe, and when the sender starves the queue (the supervisor decides:
+  little motion left queued and no block coming).
 - a probing line (G38.2/G38.3) is executed as grbl does: the queued motion is sent, the probe goes
   alone, and the line is answered once the probe has ended -- ``[PRB:x,y,z,a,b:1]`` (``:0``
   without contact; after ``ALARM:5`` for a G38.2 without contact) then ``ok`` -- and the lines after
@@ -49,16 +52,15 @@ from pmctl import __version__
 from pmctl.motion import channel as C
 from pmctl.motion.probe import check_probe_feeds
 from pmctl.task.interp import AXES, WCS_NAMES, LineError, LineInterpreter, moves_job
-from pmctl.core.job import DWELL
+from pmctl.core.job import DWELL, EVENT, Job
+from pmctl.task.planner import PlannerLimits, _PathBuilder, check_segments
 from pmctl.task.supervisor import roll_pitch_deg
 from pmctl.core.errors import InputError, MotionRefused
 
 RX_BUFFER = 128
 LINE_MAX = 256
-PLANNER_BLOCKS = 15               # the planner queue's depth in blocks (moves): [OPT:VN,15,128], Bf:
-BATCH_IDLE_S = 0.08               # idle machine: a batch goes after the sender paused this long
-LOW_WATER_S = 1.0                 # running machine: the next batch goes when less is queued to run than this
-MAX_QUEUED_ITEMS = 3
+PLANNER_BLOCKS = 128              # the planner queue's depth in blocks (moves): [OPT:VN,128,128], Bf:
+MAX_QUEUED_ITEMS = 3              # items queued before a probe is queued (it waits for room)
 BANNER = "Grbl 1.1h ['$' for help]"
 HELP = "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $C $X $H ~ ! ? ctrl-x]"
 
@@ -85,16 +87,13 @@ class GrblConsole:
         self._wlock = threading.Lock()
         self._stop = threading.Event()
         self._reset_gen = 0
-        self.batch: list = []
-        self.batch_lines: dict = {}
-        self.blocks = collections.deque()     # [console line, blocks, item (None: still in the batch)] accepted, not run
+        self.blocks = collections.deque()     # [console line, blocks, item] accepted, not run
         self._blocks_lock = threading.Lock()  # the reader (Bf:) and the worker both take run blocks off its front
         self._rx_lock = threading.Lock()
         self._rx_pending = 0                  # bytes of lines received and not yet answered (Bf:'s second field)
         self._line_bytes = 0
         self._pgm_end = []                    # items ending with M2/M30: [MSG:Pgm End] when they have run
         self._last_item = None                # the last item the console queued
-        self.batch_t = 0.0
         self.seq = 0
         self.spindle_ov = 100
         self.feed_ov = 100
@@ -266,7 +265,6 @@ class GrblConsole:
                 break
         with self._rx_lock:
             self._rx_pending = 0              # the unanswered lines are dropped (grbl clears its RX buffer)
-        self.batch, self.batch_lines = [], {}
         with self._blocks_lock:
             self.blocks.clear()
         self._pgm_end.clear()
@@ -288,10 +286,9 @@ class GrblConsole:
 
     # ------------------------------------------------------------ status
     def state(self) -> str:
-        """The machine state as the sender sees it: Run as soon as a motion line is accepted (it
-        may still wait in the batch that goes to the supervisor)."""
-        state = self.sup.state_name()
-        return "Run" if state == "Idle" and self.batch else state
+        """The machine state as the sender sees it: Run as soon as a motion line is accepted (its
+        stream is queued, planned or not)."""
+        return self.sup.state_name()
 
     def n_word(self) -> int:
         """The N word of the line being executed (0: the line had none; grbl reports Ln only then)."""
@@ -348,8 +345,6 @@ class GrblConsole:
         line = None
         while blocks:
             seq, _n, it = blocks[0]
-            if it is None:
-                break                            # still in the batch being collected
             if not sup.retired(it):
                 with sup._lock:
                     head = sup.items[0] if sup.items else None
@@ -360,28 +355,23 @@ class GrblConsole:
                 if line <= seq:                  # the tool is on this block (or before it)
                     break
             blocks.popleft()
+            it.lines.pop(seq, None)          # (the stream's map of N words: what is still to run)
         return sum(n for _, n, _ in blocks)
 
-    def _want_flush(self) -> bool:
-        """Whether the batch should go to the supervisor now: the machine is idle, or what is queued
-        before it is about to run out (the next batch is planned while the last one ends)."""
-        sup = self.sup
-        if not sup.busy():
-            return True
-        if sup.queued_items() > 1:
-            return False
-        s = sup.raw()
-        return s[C.ST_QUEUED] * sup.dt < LOW_WATER_S
-
     def _wait_room(self, n: int, gen) -> bool:
-        """grbl's full planner buffer: wait until ``n`` more blocks fit (or the queue is empty). The
-        batch goes to the supervisor meanwhile when it is due. False: a reset or an alarm ended it."""
-        while self.queued_blocks() + n > PLANNER_BLOCKS and self.blocks:
-            if gen != self._reset_gen or self._stop.is_set() or self.sup.alarm or self.sup.rt_dead:
-                return False
-            if self.batch and self._want_flush():
-                self._flush(gen)
-            time.sleep(0.005)
+        """grbl's full planner buffer: wait until ``n`` more blocks fit (or the queue is empty); the
+        open stream knows meanwhile that no block comes before the tool runs past one. False: a
+        reset or an alarm ended it."""
+        if self.queued_blocks() + n <= PLANNER_BLOCKS or not self.blocks:
+            return True
+        self.sup.stream_waiting(True)
+        try:
+            while self.queued_blocks() + n > PLANNER_BLOCKS and self.blocks:
+                if gen != self._reset_gen or self._stop.is_set() or self.sup.alarm or self.sup.rt_dead:
+                    return False
+                time.sleep(0.005)
+        finally:
+            self.sup.stream_waiting(False)
         return True
 
     def _announce_ends(self):
@@ -396,8 +386,6 @@ class GrblConsole:
             try:
                 gen, raw, nbytes = self.lines.get(timeout=0.02)
             except queue.Empty:
-                if self.batch and time.monotonic() - self.batch_t > BATCH_IDLE_S and self._want_flush():
-                    self._flush()
                 self._announce_ends()
                 continue
             if gen != self._reset_gen:
@@ -442,13 +430,12 @@ class GrblConsole:
         if state == "Jog":
             raise LineError(9, "G-code locked out while jogging")
         self.seq += 1
-        if not self.batch:
-            # motion from elsewhere (a jog, a job from the control socket, a hold) may have moved
-            # the machine: the parser continues from where the queued motion ends
-            with self.sup._lock:
-                last = self.sup.items[-1].kind if self.sup.items else None
-            if last != "gcode":
-                self.interp.sync(*self.sup.end_pose())
+        # motion from elsewhere (a jog, a job from the control socket, a hold) may have moved the
+        # machine: the parser continues from where the queued motion ends
+        with self.sup._lock:
+            last = self.sup.items[-1].kind if self.sup.items else None
+        if last != "gcode":
+            self.interp.sync(*self.sup.end_pose())
         st0 = copy.deepcopy(self.interp.st)     # a refused probe line changes nothing
         moves, n_word, flags = self.interp.execute(text, self.seq)
         if any(m.probe for m in moves) and not self.sup.check_mode:
@@ -460,21 +447,23 @@ class GrblConsole:
         # program's end is queued; [MSG:Pgm End] when the machine gets there
         sync = not self.sup.check_mode and any(m.kind == DWELL for m in moves)
         if moves and not self.sup.check_mode:
+            self._check_path(st0, moves)
             n = sum(1 for m in moves if m.kind != DWELL)
             if n and not self._wait_room(n, gen):
                 if gen != self._reset_gen:
                     return                # a soft reset dropped the line: no answer
                 raise MotionRefused("an alarm stopped the motion this line waited for", 9)
-            if not self.batch:
-                self.batch_t = time.monotonic()
-            self.batch.extend(moves)
-            self.batch_lines[self.seq] = n_word
-            self.batch_t = time.monotonic()
+            try:
+                it = self.sup.stream(moves, {self.seq: n_word})
+            except MotionRefused:
+                self.interp.st = st0
+                raise
+            self._last_item = it
             if n:
                 with self._blocks_lock:
-                    self.blocks.append([self.seq, n, None])
+                    self.blocks.append([self.seq, n, it])
         if flags.get("end") or sync:
-            it = self._flush(gen)     # waits (the answer with it) while the motion queue is full
+            it = self.sup.stream_close()
             if flags.get("end") and not self.sup.check_mode:
                 if it is None and self.sup.busy():
                     it = self._last_item      # an end line without motion: the end is where the queued motion ends
@@ -499,28 +488,39 @@ class GrblConsole:
             time.sleep(0.005)
         return False
 
-    def _flush(self, gen=None):
-        if not self.batch:
-            return None
+    def _check_path(self, st0, moves):
+        """The path of a line's moves from where the queued motion ends (where the line starts),
+        checked before its ``ok`` as the planner checks it (every grid step reachable: an arc or a
+        tilt may leave the workspace between reachable ends): error:33 naming what is unreachable,
+        and the parser state back to ``st0`` (before the line)."""
+        moving = [m for m in moves if m.kind not in (DWELL, EVENT)]
+        if not moving:
+            return
+        tip, axis = self.sup.end_pose()
+        start = (np.array(tip, float), np.array(axis, float))
+        lim = PlannerLimits()
+        pb = _PathBuilder(start, lim, 1.0, self.sup.dt, "console")
+        try:
+            for m in moving:
+                pb.add(m)
+            check_segments(pb.path(), Job((), "console"), self.sup.plan_machine, lim)
+        except InputError as e:
+            self.interp.st = st0
+            raise LineError(33, f"path unreachable: {e.reason}") from None
+
+    def _queue_alone(self, moves, lines, gen=None):
+        """A probe's moves as an item of their own (after the open stream, which is closed)."""
+        self.sup.stream_close()
         while self.sup.queued_items() >= MAX_QUEUED_ITEMS:
             if (gen is not None and gen != self._reset_gen) or self._stop.is_set() or self.sup.alarm:
-                self.batch, self.batch_lines = [], {}
                 return None
             time.sleep(0.01)
-        batch, lines = self.batch, self.batch_lines
-        it = None
-        try:                          # the batch stays visible (state Run) until the item is queued
-            it = self.sup.submit(moves_job(batch, "console"), kind="gcode", name="console", lines=lines)
+        try:
+            it = self.sup.submit(moves_job(moves, "console"), kind="gcode", name="console", lines=lines)
             self._last_item = it
             return it
         except MotionRefused:
             return None
-        finally:
-            self.batch, self.batch_lines = [], {}
-            with self._blocks_lock:
-                for b in self.blocks:
-                    if b[2] is None:
-                        b[2] = it if it is not None else _DROPPED
 
     def _probe(self, moves, n_word, st0, gen):
         """A G38.2/G38.3 line, as grbl runs it: the motion queued before it goes first, the probe is
@@ -532,9 +532,7 @@ class GrblConsole:
             self.interp.st = st0
             self.write(f"[MSG:{e.reason}]")
             raise LineError(20, e.reason) from None
-        self._flush(gen)
-        self.batch, self.batch_lines, self.batch_t = list(moves), {self.seq: n_word}, time.monotonic()
-        it = self._flush(gen)
+        it = self._queue_alone(list(moves), {self.seq: n_word}, gen)
         if it is None:
             self.interp.st = st0
             raise MotionRefused("the probe could not be queued", 9)
@@ -670,11 +668,7 @@ def accessories(sup) -> str:
     return out + ("F" if "flood" in sup.coolant else "") + ("M" if "mist" in sup.coolant else "")
 
 
-class _Dropped:
-    """The item of blocks whose batch the supervisor refused: they left the queue."""
 
-
-_DROPPED = _Dropped()
 
 
 def spindle_rpm(sup, signed=False) -> float:

@@ -64,6 +64,8 @@ def constants(machine: Machine, params: NCParams | None, model: ModelFK | None =
     a = np.array(c, float)
     if len(a) != _ncore.NC_C_LEN:
         raise AssertionError(f"ncore constants: {len(a)} values, the core takes {_ncore.NC_C_LEN}")
+    if _ncore.NC_REST_FF != _nc.REST_FF_PULSES:
+        raise AssertionError(f"ncore NC_REST_FF {_ncore.NC_REST_FF} != nc.REST_FF_PULSES {_nc.REST_FF_PULSES}")
     if _ncore.NC_COMP_STILL != STILL_MM_S:
         raise AssertionError(f"ncore NC_COMP_STILL {_ncore.NC_COMP_STILL} != compensation.STILL_MM_S {STILL_MM_S}")
     if _ncore.NC_VF_TIE != VF_TIE:

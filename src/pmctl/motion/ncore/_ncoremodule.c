@@ -244,6 +244,10 @@ PyMODINIT_FUNC PyInit__ncore(void)
     C(NC_EV_SOFT_LIMIT);
     C(NC_RUN); C(NC_STOPPING); C(NC_HALTED); C(NC_DONE);
 #undef C
+    if (PyModule_AddObject(m, "NC_REST_FF", PyFloat_FromDouble(NC_REST_FF)) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
     if (PyModule_AddObject(m, "NC_COMP_STILL", PyFloat_FromDouble(NC_COMP_STILL)) < 0) {
         Py_DECREF(m);
         return NULL;

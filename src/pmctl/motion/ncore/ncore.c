@@ -584,9 +584,10 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
             J[i] *= w; J[i + 1] *= w; J[i + 2] *= w; J[i + 3] = 0.0; J[i + 4] = 0.0;
         }
         {
+            /* the targets' own joint rates too (feed-forward only): the soft-chain K_theta's planned
+             * stretch and the rest deadband of a joint standing still */
             double xf[6] = {t[6], t[7], t[8], t[9] * w, t[10] * w, t[11] * w};
-            int modal = c->kth_modal != 0.0;
-            if (damped_pinv_apply(J, x, c->damping, c->sv_threshold, qd, modal ? xf : NULL, qf))
+            if (damped_pinv_apply(J, x, c->damping, c->sv_threshold, qd, xf, qf))
                 return halt_now(s, n, NC_EV_SVD);
         }
         if (c->kth_on != 0.0) {
@@ -625,11 +626,14 @@ int nc_step(const nc_const *c, double *s, int64_t *n, const double *t, const dou
         n[NC_N_HAS_QM] = 1;
         n[NC_N_ITER] = iters;
         memcpy(qd_des, qd, sizeof qd);
-        if (t[6] == 0.0 && t[7] == 0.0 && t[8] == 0.0 && t[9] == 0.0 && t[10] == 0.0 && t[11] == 0.0) {
-            /* the target at rest (feed-forward exactly zero): no correction for a joint whose
-             * desired rate is worth at most the deadband's position error (nc.py, rest deadband) */
+        {
+            /* the target at rest (feed-forward exactly zero), or a joint whose own feed-forward is
+             * (nearly) zero under the soft-chain K_theta: no correction for a joint whose desired rate is worth at most the
+             * deadband's position error (nc.py, rest deadband) */
+            int moving = !(t[6] == 0.0 && t[7] == 0.0 && t[8] == 0.0 && t[9] == 0.0 && t[10] == 0.0 && t[11] == 0.0);
             for (i = 0; i < 5; i++)
-                if (c->rest_band[i] > 0.0 && fabs(qd_des[i]) <= c->rest_band[i]) {     /* (a band of 0: off) */
+                if (c->rest_band[i] > 0.0 && fabs(qd_des[i]) <= c->rest_band[i] &&     /* (a band of 0: off) */
+                    (!moving || (c->kth_modal != 0.0 && fabs(qf[i]) * c->ppm[i] * c->dt <= NC_REST_FF))) {
                     qd_des[i] = 0.0;
                     held[i] = 1;
                 }

@@ -59,6 +59,10 @@
 #define NC_N_ITER 13    /* Newton iterations of the last solve */
 #define NC_N_LEN 14
 
+/* rest deadband: a joint whose feed-forward rate is worth at most this many pulses per tick stands
+ * still (pmctl.motion.nc.REST_FF_PULSES) */
+#define NC_REST_FF 1e-6
+
 /* compensation: a commanded rate below this (mm/s) leaves an axis's direction as it was
  * (pmctl.core.compensation.STILL_MM_S) */
 #define NC_COMP_STILL 1e-9

@@ -20,8 +20,10 @@ removed by a zero-phase 2.5 Hz high-pass):
   within +-10 % (drift, mistuning), the time each stop costs (the shaper's duration) and the corner
   it would cut if applied to the Cartesian targets at 50 mm/s (time-law shaping cuts none);
   the recommendation is the shortest shaper whose worst residual within +-10 % is <= 5 %;
-- K_theta for the mode from the sampled eq. 3.1 model (:func:`predict_sampled`), for the plain
-  feedback and for the decoupled one the NC runs on soft chains (docs/vibration.md);
+- K_theta for the mode: what ``k_theta_per_s = "auto"`` designs for it
+  (pmctl.core.strain_loop.design_k_theta: gain, law, leak, the least damping with the mode 20 % off
+  and the sampled loop's gain and phase margins; docs/vibration.md), and the shaper ``--shaper
+  auto`` takes (pmctl.core.shaper.recommend);
 - ``--write SERVICE.toml``: the modes into that service config's ``[nc]`` (mode_hz,
   mode_damping_ratio, modal_stiffness_N_per_mm from the fit's static gain), where ``pmctl run
   --k-theta auto --shaper auto`` takes them from.
@@ -37,12 +39,12 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.linalg import expm
 from scipy.signal import butter, find_peaks, sosfilt, sosfiltfilt
 
 from pmctl.core import shaper as S
 from pmctl.core.errors import InputError, PmctlError
 from pmctl.core.recording import read_recording
+from pmctl.core.strain_loop import closed_loop_poles, design_k_theta, least_damped_oscillation
 from pmctl.motion.service_config import load_service_config
 
 DRIFT = 0.10            # frequency tolerance the recommendation must cover
@@ -280,40 +282,12 @@ def predict_continuous(f, kth, kv, zeta=0.0, leak=None):
 
 
 def predict_sampled(f, kth, kv, dt, zeta=0.0, leak=None):
-    """The same loop sampled at dt as the NC runs it: state (x_m, y, y', v_prev, d); each tick
-    v = -kv x_m + kv d + K_theta y (deflection read at the tick start; d = 0 without ``leak``), the
-    motor ramps by v dt (y' jumps by -(v - v_prev), then (y, y') propagate exactly), and
-    d += dt (K_theta y - leak d). Returns the least damped oscillating pole as (Hz, damping ratio)."""
-    w = 2 * math.pi * f
-    Phi = expm(np.array([[0.0, 1.0], [-w * w, -2 * zeta * w]]) * dt)
-    on = leak is not None
-    V = np.array([-kv, kth, 0.0, 0.0, kv if on else 0.0])
-    A = np.zeros((5, 5))
-    A[0] = np.eye(5)[0] + dt * V
-    J = np.eye(5)
-    J[2] -= V
-    J[2, 3] += 1.0
-    A[1:3] = Phi @ J[1:3]
-    A[3] = V
-    A[4] = np.eye(5)[4] + (dt * np.array([0.0, kth, 0.0, 0.0, -(leak or 0.0)]) if on else 0.0)
-    z = np.linalg.eigvals(A)
-    osc = z[z.imag > 1e-12]
-    if len(osc) == 0:
-        return float("nan"), 1.0
-    lz = np.log(osc)
-    zs = -lz.real / np.abs(lz)
-    i = int(np.argmin(zs))
-    return abs(lz[i].imag) / (2 * math.pi * dt), float(zs[i])
-
-
-def k_theta_for_mode(f, kv, dt, zeta=0.02, leak=None, target=0.3, max_kdt=0.4):
-    """Smallest K_theta (1/s, K_theta dt <= max_kdt) giving the mode ``target`` damping in the
-    sampled model, else the one giving the most. Returns (K_theta, damping ratio reached)."""
-    g = np.linspace(0.0, max_kdt / dt, 161)
-    zs = np.array([predict_sampled(f, k, kv, dt, zeta, leak)[1] for k in g])
-    hit = np.nonzero(zs >= target)[0]
-    i = int(hit[0]) if len(hit) else int(np.nanargmax(zs))
-    return float(g[i]), float(zs[i])
+    """The same loop sampled at dt as the NC runs it (pmctl.core.strain_loop: state (x_m, y, y',
+    v_prev, d); each tick v = -kv x_m + kv d + K_theta y (deflection read at the tick start; d = 0
+    without ``leak``), the motor ramps by v dt (y' jumps by -(v - v_prev), then (y, y') propagate
+    exactly), and d += dt (K_theta y - leak d)). Returns the least damped oscillating pole as
+    (damped frequency Hz, damping ratio)."""
+    return least_damped_oscillation(closed_loop_poles(f, zeta, kth, kv, dt, leak), dt)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -357,9 +331,16 @@ def analyse(rec, fmin: float = 5.0, fmax: float | None = None, kv: float = 400.0
             entry["shapers"] = [asdict(a) for a in adv]
             entry["recommended_shaper"] = best.name
             z = m0.damping if math.isfinite(m0.damping) else 0.02
-            k_now, z_now = k_theta_for_mode(m0.freq_hz, kv, 1.0 / fs, z)
-            k_dec, z_dec = k_theta_for_mode(m0.freq_hz, kv, 1.0 / fs, z, leak=0.2 * math.pi * m0.freq_hz)
-            entry["k_theta"] = {"nc_as_is": [k_now, z_now], "decoupled": [k_dec, z_dec]}
+            entry["auto_shaper"] = S.recommend(m0.freq_hz, min(z, 0.9))
+            try:
+                d = design_k_theta(float(m0.freq_hz), float(z), float(kv), 1.0 / fs)
+            except PmctlError as e:
+                entry["k_theta"] = {"error": str(e)}
+            else:
+                entry["k_theta"] = {"k_theta_per_s": d.k_theta, "law": "decoupled" if d.soft else "plain",
+                                    "leak_per_s": d.leak, "stretch_lowpass_per_s": d.acc_lp if d.soft else None,
+                                    "worst_damping": d.worst_damping, "reached": d.reached,
+                                    "gain_margin": d.worst_gain_margin, "phase_margin_deg": d.worst_phase_margin_deg}
         result["chains"].append(entry)
     return result, spectra
 
@@ -493,9 +474,16 @@ def cmd_resonance(args):
             mark = "  <- recommended" if a["name"] == ch["recommended_shaper"] else ""
             print(f"  {a['name']:9s} {100 * a['remaining_at_mode']:7.2f}% {100 * a['remaining_worst']:11.2f}% "
                   f"{a['duration_ms']:8.1f} ms {1e3 * a['smoothing_mm']:15.1f} um at 50 mm/s{mark}")
+        print(f"  --shaper auto: {ch['auto_shaper']}")
         k = ch["k_theta"]
-        print(f"  K_theta for this mode: {k['nc_as_is'][0]:.0f}/s -> damping {k['nc_as_is'][1]:.3f} with nc.py as it is; "
-              f"{k['decoupled'][0]:.0f}/s -> {k['decoupled'][1]:.3f} with the decoupled feedback (docs/vibration.md)")
+        if "error" in k:
+            print(f"  K_theta auto: {k['error']}")
+        else:
+            law = (f"decoupled, leak {k['leak_per_s']:.1f}/s, stretch low-pass {k['stretch_lowpass_per_s']:.0f}/s"
+                   if k["law"] == "decoupled" else "plain")
+            print(f"  K_theta auto for this mode: {k['k_theta_per_s']:.0f}/s ({law}); least damping "
+                  f"{k['worst_damping']:.2f} with the mode 20 % off, margins: gain x{k['gain_margin']:.1f}, "
+                  f"phase {k['phase_margin_deg']:.0f} deg (docs/vibration.md)")
     png = out / "resonance.png"
     _plot(result, spectra, png, f"{rec.name}: strain-gauge PSD per chain")
     js = out / "resonance.json"

@@ -37,9 +37,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import signal
 from scipy.linalg import expm
+from scipy.signal import butter, sosfiltfilt
 
-from pmctl.core import vf
+from pmctl import hal
+from pmctl.core import kinematics as K, vf
+from pmctl.core.config import load_machine
 from pmctl.core.errors import PmctlError
+from pmctl.core.shaper import corner_samples, path_error
+from pmctl.motion import loop as L
+from pmctl.motion.loop import ControlLoop, prepare
+from pmctl.motion.nc import counts_of, initial_state
+from pmctl.motion.service_config import (LoopConfig, load_service_config, nc_setup, parse_k_theta_flag,
+                                         parse_shaper_flag)
+from pmctl.motion.timescale import shape_trajectory
+from pmctl.task.planner import home_pose, load_job, plan
 
 # ---------------------------------------------------------------------------------------------
 # Seed 004 chapter 3 parameters
@@ -512,6 +523,123 @@ def run_ramp_cases(duration=7.0, window_delay=1.0):
     return out
 
 
+# ---------------------------------------------------------------------------------------------
+# Chain vibration of a run, band-passed around the chain mode (docs/vibration.md §5)
+# ---------------------------------------------------------------------------------------------
+
+BAND = (0.5, 2.0)    # the band around the chain mode: 20-80 Hz at 40 Hz
+
+
+def band_pass(x, dt: float, mode_hz: float, band=BAND):
+    """``x`` (along axis 0) through a zero-phase 2nd-order Butterworth band-pass over band x mode_hz:
+    the quasi-static stretch m a / k of a planned acceleration lies below it, the pulses' steps
+    above it."""
+    sos = butter(2, [band[0] * mode_hz, band[1] * mode_hz], "bandpass", fs=1.0 / dt, output="sos")
+    return sosfiltfilt(sos, np.asarray(x, float), axis=0)
+
+
+def chain_vibration_um(load, motor, dt: float, mode_hz: float, band=BAND) -> float:
+    """RMS over the ticks and chains (µm) of the chain deflection, load side against motor side
+    ((N, C) chain positions, mm), band-passed around the mode."""
+    y = band_pass(np.asarray(load, float) - np.asarray(motor, float), dt, mode_hz, band)
+    return 1e3 * float(np.sqrt(np.mean(y ** 2)))
+
+
+def path_error_vectors(points, path, along=None, window: int = 64):
+    """From the closest point of the polyline through ``path`` (N, 3) to each of ``points`` (M, 3),
+    which follow the path in order (a tool tip near a target moving along it): the vectors (M, 3), mm.
+    Each point is searched over the ``window`` segments either side of where the running arc length
+    of ``along`` (M, 3: the targets on the path the points follow; default the points) falls on the
+    path's."""
+    P = np.asarray(points, float)
+    Q = np.asarray(path, float)
+    if len(Q) < 2:
+        return P - Q[:1]
+    G = P if along is None else np.asarray(along, float)
+    s_path = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(Q, axis=0), axis=1))]
+    s_pts = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(G, axis=0), axis=1))]
+    k0 = np.clip(np.searchsorted(s_path, s_pts) - 1, 0, len(Q) - 2)
+    out = np.empty_like(P)
+    best = np.full(len(P), np.inf)
+    for off in range(-window, window + 1):
+        k = np.clip(k0 + off, 0, len(Q) - 2)
+        a, d = Q[k], Q[k + 1] - Q[k]
+        L2 = np.einsum("ij,ij->i", d, d)
+        u = np.clip(np.einsum("ij,ij->i", P - a, d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+        v = P - (a + u[:, None] * d)
+        r = np.einsum("ij,ij->i", v, v)
+        upd = r < best
+        best[upd] = r[upd]
+        out[upd] = v[upd]
+    return out
+
+
+def tip_band_error_um(tip, path, dt: float, mode_hz: float, along=None, band=BAND, window: int = 64) -> float:
+    """RMS (µm) of the tool tip's error from the path (:func:`path_error_vectors`), band-passed
+    around the mode: the vibration the part sees, without the stretch's slow lag."""
+    e = band_pass(path_error_vectors(tip, path, along, window), dt, mode_hz, band)
+    return 1e3 * float(np.sqrt(np.mean(np.sum(e ** 2, -1))))
+
+
+def run_on_sim(service, job: str, *, k_theta=None, shaper=None, mode_hz=None, modal_stiffness=None,
+               start_tip=None, tip_metric: bool = True, implementation: str | None = None) -> dict:
+    """One job as ``pmctl run --service SERVICE --job JOB [--k-theta K] [--shaper S] --no-realtime
+    --state ''`` runs it against the sim backend (the same calls: the service config, nc_setup, the
+    NC parameters, the planner, the shaping stage, the loop), in this process, so the sim's load-side
+    truth is at hand; returns the figures of docs/vibration.md §5: ``chain_um``
+    (:func:`chain_vibration_um` around the plant's mode), ``tip_um`` (:func:`tip_band_error_um`),
+    ``p99_um`` (the load-side tip's distance from the programmed path), ``job_s``, the K_theta per
+    chain and the shaper's note. ``k_theta`` / ``shaper``: the flags (None: the service file's);
+    ``mode_hz`` (+ ``modal_stiffness``): [nc] mode_hz as if measured; ``start_tip``: the tool stands
+    there, vertical, when the job starts (default: the home pose)."""
+    m = load_machine("prototype")
+    svc = load_service_config(service)
+    cfg = svc.loop
+    cfg.realtime, cfg.settle_s, cfg.state_file = False, 0.0, ""
+    if k_theta is not None:
+        k = parse_k_theta_flag(k_theta)
+        svc.nc.k_theta_auto = k == "auto"
+        svc.nc.k_theta_per_s = (0.0,) * 3 if k == "auto" else (float(k),) * 3
+    if shaper is not None:
+        svc.nc.shaper = parse_shaper_flag(shaper)
+    if mode_hz is not None:
+        svc.nc.mode_hz = (float(mode_hz),) * 3
+        if modal_stiffness is not None:
+            svc.nc.modal_stiffness_N_per_mm = (float(modal_stiffness),) * 3
+    if implementation:
+        svc.nc.implementation = implementation
+    dt = cfg.dt
+    setup = nc_setup(svc, m, dt, "sim")
+    params = svc.nc.params(m, dt, where=svc.source, modes=setup.modes)
+    h_tip, h_axis = home_pose(m)
+    if start_tip is not None:
+        h_tip = np.asarray(start_tip, float)
+    c0 = counts_of(K.ik(h_tip, h_axis, m).q, params)
+    st = initial_state(m, c0)
+    planned = plan(load_job(job, m, start=(st.tip, st.axis)), m, dt, start=(st.tip, st.axis))
+    traj = shape_trajectory(planned, setup.shaper)
+    tg = prepare(m, params, traj, dt, c0)
+    be = hal.create("sim", m, dt, svc.backend_tables.get("sim", {}))
+    be.open(c0)
+    try:
+        res = ControlLoop(m, be, params, tg, cfg, st, log=lambda s: None).run()
+    finally:
+        be.close()
+    i0 = res.job_start
+    f0 = float(np.mean(be.omega)) / (2 * math.pi)          # the plant's mode: the band's centre
+    pl, _ = K.fk_batch(res.truth[i0:], m)
+    keep = sorted(set([0] + corner_samples(planned.tip, planned.axis, corner_deg=1e-3) + [len(planned) - 1]))
+    e = path_error(pl.tip, planned.tip[keep])               # the same polyline, straight runs merged
+    shtxt = [t for t in setup.notes if t.startswith("shaper")]
+    return dict(status=res.status, reason=res.reason,
+                chain_um=chain_vibration_um(res.truth[i0:, :3], res.enc[i0:, :3], dt, f0),
+                tip_um=(tip_band_error_um(pl.tip, planned.tip, dt, f0, along=res.target[i0:, :3])
+                        if tip_metric else float("nan")),
+                p99_um=1e3 * float(np.percentile(e, 99)), job_s=(res.ticks - i0) * dt,
+                kth=params.k_theta.tolist(), shaper=shtxt[0].split(" at ")[0] if shtxt else "shaper: none",
+                notes=list(setup.notes))
+
+
 def _plt():
     import matplotlib  # lazy: matplotlib (heavy) loads only when a figure is drawn
     matplotlib.use("Agg")
@@ -728,3 +856,40 @@ def cmd_vf(args):
     plt.close(fig)
     print(f"\nwrote {p1}\nwrote {p2}")
     return 0
+
+
+def ringdown_on_sim(machine, params, k_N_per_mm: float, mass_kg: float, zeta: float, y0_mm: float,
+                    duration_s: float, tip=None, axis=None, sim: dict | None = None):
+    """The real loop (NC ``params``, ControlLoop, the sim with its flexible chain mode and gauges, the
+    V-F converters) holding the pose (tip, axis) -- default 100 mm below home -- while the three
+    chains start from a deflection ``y0_mm``: (the load-side deflection y of chain 1, mm, one sample
+    a tick; the loop's result). The plant: modal stiffness ``k_N_per_mm`` and mass ``mass_kg`` per
+    chain, damping ratio ``zeta``; ``sim``: more [hal.sim] options (e.g. strain_noise_ue)."""
+    if tip is None:
+        tip, axis = home_pose(machine)
+        tip = np.asarray(tip, float) + [0.0, 0.0, -100.0]
+    c0 = counts_of(K.ik(tip, axis, machine).q, params)
+    st = initial_state(machine, c0)
+    dt = params.dt
+    n = int(duration_s / dt)
+    tg = L.build_targets(np.repeat(st.tip[None], n, 0), np.repeat(st.axis[None], n, 0), np.zeros(n, int), dt,
+                         machine, params)
+    be = hal.create("sim", machine, dt, dict(flex=True, mode_stiffness_N_per_mm=[k_N_per_mm] * 3,
+                                             mode_mass_kg=[mass_kg] * 3, mode_damping_ratio=[zeta] * 3, **(sim or {})))
+    be.open(c0)
+    Ly = be._lib.D_Y                                   # the plant's deflection state (simplant.c)
+    be._d[Ly:Ly + 3] = y0_mm
+    be._check(be._plant.sample(be._draw(), 0))         # the gauges read the initial deflection
+    ys = []
+    wp = be.write_pulses
+
+    def write(pl):
+        wp(pl)
+        ys.append(be._d[Ly])
+    be.write_pulses = write
+    try:
+        res = L.ControlLoop(machine, be, params, tg, LoopConfig(realtime=False, state_file="", settle_s=0.0,
+                                                                stall_timeout_s=60.0), st, log=lambda s: None).run()
+    finally:
+        be.close()
+    return np.array(ys), res
