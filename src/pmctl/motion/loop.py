@@ -38,6 +38,7 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -291,28 +292,55 @@ class LoopResult:
         return self.status == "done"
 
 
+@dataclass
+class LoopParts:
+    """What a :class:`ControlLoop` is wired to besides the machine, the backend, the NC settings and
+    its targets; every part optional.
+
+    ``log``: callable(message) (default: stderr). ``writer``: the :class:`CounterWriter` that persists
+    the pulse counters. ``follower``: the path follower (None: one made for the targets, followed at
+    sigma = 1; a stream, the daemon's rt process, brings its own). ``records``: the per-tick record
+    ring (default a private one of REC_CAPACITY rows); ``recorder`` drains it (default: one that
+    keeps the rows for the LoopResult). ``hook(loop, k, state)`` runs at the end of every tick and
+    returns the state (the daemon's command/status exchange). ``exit_when_done=False``: run until
+    ``quit`` is set (halts and job ends do not end the loop). ``setup_rt``: SCHED_FIFO + mlockall
+    (default: when the loop runs in real time). ``probe``: a
+    :class:`pmctl.motion.probe.ProbeMonitor` that stops probing moves on contact (per tick)."""
+
+    log: Callable[[str], None] | None = None
+    writer: CounterWriter | None = None
+    follower: object | None = None
+    records: object | None = None
+    recorder: object | None = None
+    hook: Callable | None = None
+    exit_when_done: bool = True
+    setup_rt: bool | None = None
+    probe: object | None = None
+
+
 class ControlLoop:
     """Runs the NC against a backend, its targets taken from a :class:`PathFollower` that
     time-scales planned samples. ``run()`` returns a LoopResult.
 
     ``targets``: a :class:`Targets` (a one-shot job: followed at sigma = 1 and the loop ends when it
-    is done), or None with ``follower`` given (a stream: the daemon's rt process).
-    ``records``: the per-tick record ring (default a private one of REC_CAPACITY rows); ``recorder``
-    drains it (default: one that keeps the rows for the LoopResult). ``hook(loop, k, state)`` runs
-    at the end of every tick and returns the state (the daemon's command/status exchange).
-    ``exit_when_done=False``: run until ``quit`` is set (halts and job ends do not end the loop).
-    ``probe``: a :class:`pmctl.motion.probe.ProbeMonitor` that stops probing moves on contact (per tick).
+    is done), or None with a follower in ``parts`` (a stream: the daemon's rt process). ``parts``: a
+    :class:`LoopParts`, or its fields as keywords (``log=..., hook=...``), not both.
 
     Attributes ``tick``, ``n_ticks`` and ``mode`` are updated every tick for a progress display
     running in another thread."""
 
     def __init__(self, machine: Machine, backend: Backend, params: NCParams, targets: Targets | None,
-                 cfg: LoopConfig, state: NCState, *, log=None, writer: CounterWriter | None = None,
-                 follower=None, records=None, recorder=None, hook=None, exit_when_done: bool = True,
-                 setup_rt: bool | None = None, probe=None):
+                 cfg: LoopConfig, state: NCState, parts: LoopParts | None = None, **part_fields):
         from pmctl.motion.recorder import REC_CAPACITY, REC_WIDTH, Recorder
         from pmctl.motion.ring import ArraySource, Ring
         from pmctl.motion.timescale import make_follower
+        if parts is None:
+            parts = LoopParts(**part_fields)       # an unknown keyword is a TypeError naming it
+        elif part_fields:
+            raise TypeError(f"ControlLoop: parts given, and also {', '.join(sorted(part_fields))}")
+        log, writer, follower, records = parts.log, parts.writer, parts.follower, parts.records
+        recorder, hook, exit_when_done, setup_rt, probe = (parts.recorder, parts.hook, parts.exit_when_done,
+                                                           parts.setup_rt, parts.probe)
         self.machine, self.backend, self.params = machine, backend, params
         self.targets, self.cfg, self.state0 = targets, cfg, state
         self.log = log or (lambda msg: print(f"pmctl: {msg}", file=sys.stderr))

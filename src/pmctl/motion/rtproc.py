@@ -397,7 +397,7 @@ def rt_main(spec: dict) -> int:
     """Entry point of the rt process (multiprocessing, spawn)."""
     from pmctl import hal
     from pmctl.core.config import load_machine
-    from pmctl.motion.loop import ControlLoop
+    from pmctl.motion.loop import ControlLoop, LoopParts
     from pmctl.motion.nc import HALTED, initial_state
     from pmctl.motion.recorder import Recorder
     from pmctl.motion.service_config import load_service_config
@@ -459,9 +459,10 @@ def rt_main(spec: dict) -> int:
     def _term(signum, frame):
         hook.term = True
     signal.signal(signal.SIGTERM, _term)
-    lp = ControlLoop(machine, be, params, None, cfg, st, log=log, writer=writer, follower=fol,
-                     records=ch.records, recorder=_Null(ch.records, keep=False), hook=hook,
-                     exit_when_done=False, setup_rt=realtime and not offline, probe=hook.probe)
+    lp = ControlLoop(machine, be, params, None, cfg, st,
+                     LoopParts(log=log, writer=writer, follower=fol, records=ch.records,
+                               recorder=_Null(ch.records, keep=False), hook=hook, exit_when_done=False,
+                               setup_rt=realtime and not offline, probe=hook.probe))
     lp.on_stall = on_stall
     ch.st[C.ST_PHASE] = C.PH_RUNNING
     res = None
