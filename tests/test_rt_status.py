@@ -1,8 +1,6 @@
 """RtStatus (pmctl.motion.status): the one reader of the shared status block reads every slot the
 rt side writes, each into its named field, from a real shared-memory channel."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -19,14 +17,16 @@ def test_every_slot_of_the_block_is_one_field():
     block = np.arange(C.STATUS_WIDTH, dtype=float) + 2.0
     s = RtStatus.from_block(block)
     seen = []
-    for f in dataclasses.fields(RtStatus):
-        v = getattr(s, f.name)
-        if f.name == "hold":                    # a flag: slot ST_HOLD read as != 0
+    for name in RtStatus.FIELDS:
+        v = getattr(s, name)
+        if name == "hold":                    # a flag: slot ST_HOLD read as != 0
             assert v is True
             seen.append(block[C.ST_HOLD])
         else:
             seen += np.atleast_1d(np.asarray(v, float)).tolist()
     assert sorted(seen) == block.tolist()
+    assert set(RtStatus.FIELDS) == {n for n, v in vars(RtStatus).items()
+                                    if isinstance(v, property) and n not in ("running", "stopped")}
 
 
 @pytest.fixture(scope="module")
@@ -68,14 +68,21 @@ def test_fields_read_what_the_rt_side_wrote(channel, counts, tick, line, sigma, 
 
 
 def test_a_snapshot_does_not_follow_the_block(channel):
-    """A snapshot is a copy: the rt side's next write does not change what a reader holds."""
+    """A snapshot is a copy: the rt side's next write, or a reader changing an array it got, does
+    not change what the snapshot holds; its fields cannot be set."""
     channel.st[:] = 0.0
     channel.st[C.ST_COUNTS:C.ST_COUNTS + 5] = [1, 2, 3, 4, 5]
+    channel.st[C.ST_TIP:C.ST_TIP + 3] = [1.0, 2.0, 3.0]
     s = read_status(channel)
     channel.st[C.ST_COUNTS:C.ST_COUNTS + 5] = [9, 9, 9, 9, 9]
-    assert s.counts.tolist() == [1, 2, 3, 4, 5]
-    with pytest.raises(dataclasses.FrozenInstanceError):
+    s.counts[0] = 7
+    s.tip_mm[0] = 7.0
+    assert s.counts.tolist() == [1, 2, 3, 4, 5] and s.tip_mm.tolist() == [1.0, 2.0, 3.0]
+    with pytest.raises(AttributeError):
         s.tick = 3
+    assert RtStatus.from_block(channel.st).counts.tolist() == [9, 9, 9, 9, 9]
+    with pytest.raises(ValueError, match="floats"):
+        RtStatus.from_block(np.zeros(C.STATUS_WIDTH - 1))
 
 
 def test_probe_result_round_trips_through_the_block(channel):
