@@ -338,27 +338,25 @@ class ControlLoop:
             parts = LoopParts(**part_fields)       # an unknown keyword is a TypeError naming it
         elif part_fields:
             raise TypeError(f"ControlLoop: parts given, and also {', '.join(sorted(part_fields))}")
-        log, writer, follower, records = parts.log, parts.writer, parts.follower, parts.records
-        recorder, hook, exit_when_done, setup_rt, probe = (parts.recorder, parts.hook, parts.exit_when_done,
-                                                           parts.setup_rt, parts.probe)
         self.machine, self.backend, self.params = machine, backend, params
         self.targets, self.cfg, self.state0 = targets, cfg, state
-        self.log = log or (lambda msg: print(f"pmctl: {msg}", file=sys.stderr))
-        self.writer = writer
+        self.log = parts.log or (lambda msg: print(f"pmctl: {msg}", file=sys.stderr))
+        self.writer = parts.writer
         self.nc = make_nc(machine, params)      # params.implementation: "compiled" (C core) or "python"
         self.settle_ticks = int(round(cfg.settle_s * cfg.rate_hz))
+        follower = parts.follower
         if follower is None:
             if targets is None:
                 raise PmctlError("ControlLoop needs targets or a follower")
             follower = make_follower(ArraySource(target_samples(targets, cfg.dt, params)), params, cfg.dt)
             follower.scaler.sigma = 1.0       # a one-shot job is replayed as planned from its first sample
         self.follower = follower
-        self.records = records if records is not None else Ring(REC_CAPACITY, REC_WIDTH)
-        self.recorder = recorder if recorder is not None else Recorder(self.records)
-        self.hook = hook
-        self.probe = probe              # pmctl.motion.probe.ProbeMonitor: stop on contact (G38.2/G38.3), or None
-        self.exit_when_done = exit_when_done
-        self.setup_rt = cfg.realtime if setup_rt is None else bool(setup_rt)   # SCHED_FIFO + mlockall
+        self.records = parts.records if parts.records is not None else Ring(REC_CAPACITY, REC_WIDTH)
+        self.recorder = parts.recorder if parts.recorder is not None else Recorder(self.records)
+        self.hook = parts.hook
+        self.probe = parts.probe        # pmctl.motion.probe.ProbeMonitor: stop on contact (G38.2/G38.3), or None
+        self.exit_when_done = parts.exit_when_done
+        self.setup_rt = cfg.realtime if parts.setup_rt is None else bool(parts.setup_rt)   # SCHED_FIFO + mlockall
         self.last_late_ns = self.last_compute_ns = 0
         self.quit_reason = ""
         self.last_fb = None
