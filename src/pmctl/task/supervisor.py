@@ -562,7 +562,11 @@ class Supervisor:
                 return
             _patient(sp.vfd, lambda: sp.vfd.start(want))
         t0 = time.monotonic()
-        _patient(sp.vfd, sp.vfd.wait_at_speed)
+        got = _patient(sp.vfd, sp.vfd.wait_at_speed)
+        if rpm and sp.monitor is not None:
+            # the reading that releases the path is the spindle's speed from here on: the monitor's
+            # next poll may come after the path has moved on (offline, ticks run back to back)
+            sp.monitor.samples.append((self._tick(), -got if sp.vfd.rpm_cmd < 0 else got))
         self.log(f"spindle {'M5' if not rpm else ('M3' if rpm > 0 else 'M4') + f' S{abs(rpm):g}'}: "
                  f"{'stopped' if not rpm else 'at speed'} after {time.monotonic() - t0:.2f} s")
         if rpm and sp.monitor is None:
