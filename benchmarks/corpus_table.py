@@ -109,8 +109,10 @@ def machine_it(pmctl, program: Path, timeout: float) -> tuple[bool, str]:
     result = next((ln.split(":", 1)[1].strip() for ln in out.splitlines() if ln.strip().startswith("result:")), None)
     if code == 0 and result == "done":
         return True, f"done in {secs:.0f} s"
-    last = [ln for ln in (err or out).strip().splitlines() if ln.strip()][-1:]
-    return False, f"not done: exit {code}, result {result}: {last[0].strip() if last else ''}"[:160]
+    lines = [ln.strip() for ln in (err + "\n" + out).splitlines() if ln.strip()]
+    why = [ln for ln in lines if ln.startswith(("pmctl: error", "pmctl rt: stopped", "reason:", "Traceback"))]
+    last = why[-1:] or [ln for ln in lines if "resource_tracker" not in ln and "warnings.warn" not in ln][-1:]
+    return False, f"not done: exit {code}, result {result}: {last[0] if last else ''}"[:240]
 
 
 def rs274_verdicts(files, live: bool) -> dict[str, dict]:

@@ -48,7 +48,7 @@ def service_file(tmp_path, backend, switch=SW, order=("L1", "X"), homing=FAST):
     assert 'backend = "sim"' in text
     text = text.replace('backend = "sim"', f'backend = "{backend}"', 1)
     # generous link timeouts: these tests check positions, not timing, on a shared loaded machine
-    keys = ({"home_switch_mm": sw, "watchdog_ms": 1000, "read_timeout_ms": 200, "link_timeout_ms": 500}
+    keys = ({"home_switch_mm": sw, "watchdog_ms": 5000, "read_timeout_ms": 1000, "link_timeout_ms": 4000}
             if backend == "stepdir" else {"sim_home_switch_mm": sw, "heartbeat_timeout_ms": 1000,
                                           "host_timeout_ms": 3000})
     for section, table in ((f"[hal.{backend}]", keys), ("[homing]", {"order": list(order), **homing})):
@@ -69,7 +69,7 @@ def service_file(tmp_path, backend, switch=SW, order=("L1", "X"), homing=FAST):
 def bridge_backend():          # one bridge for all the examples of the test (hypothesis runs it once)
     from pmctl.hal.stepdir import StepDirBackend
     be = StepDirBackend(M, 1e-3, {"home_switch_mm": [float(x) for x in SW], "bridge_rt_priority": 0,
-                                  "read_timeout_ms": 200.0, "link_timeout_ms": 500.0, "watchdog_ms": 5000.0})
+                                  "read_timeout_ms": 1000.0, "link_timeout_ms": 4000.0, "watchdog_ms": 5000.0})
     be.open(C0)
     state = {"counts": C0.copy(), "motor": C0.copy()}       # counters and true motor steps, per axis
     yield be, state

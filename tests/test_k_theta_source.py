@@ -91,13 +91,11 @@ def test_run_refuses_a_daq_too_slow_for_k_theta_before_anything_starts(tmp_path,
 @pytest.mark.parametrize("backend", ["sim", "canopen"])
 def test_k_theta_runs_only_where_the_backend_carries_strain_in_its_cyclic_data(backend):
     """The canopen drives carry no strain gauges: K_theta is off for pmctl serve as for pmctl run (the
-    Supervisor resolves it, and the rt process, which resolves the service config again from the
-    Supervisor's overrides and K_theta as resolved, gets the same gains). The sim plant's gauges are in
+    Supervisor resolves it once, and the rt process gets the resolved settings as data: the same gains). The sim plant's gauges are in
     its cyclic data: on."""
     import numpy as np
 
-    from pmctl.motion.rtproc import apply_nc_overrides
-    from pmctl.motion.service_config import load_service_config, nc_setup
+    from pmctl.motion.settings import Settings
     from pmctl.task.supervisor import Supervisor
     sup = Supervisor("prototype", service=str(SHIPPED), backend=backend, state_file="")
     want = np.zeros(3) if backend == "canopen" else np.full(3, 200.0)
@@ -105,6 +103,5 @@ def test_k_theta_runs_only_where_the_backend_carries_strain_in_its_cyclic_data(b
     off = [n for n in sup.nc_setup.notes if n.startswith("K_theta off")]
     assert off == (["K_theta off: backend canopen carries no strain gauges in its cyclic data"]
                    if backend == "canopen" else [])
-    svc = apply_nc_overrides(load_service_config(str(SHIPPED)), sup._rt_nc())   # as the rt process, from its spec
-    rt = svc.nc.params(sup.machine, sup.dt, where=svc.source, modes=nc_setup(svc, sup.machine, sup.dt, backend).modes)
-    assert np.array_equal(rt.k_theta, want)
+    rt = Settings.from_bytes(sup.settings.to_bytes())        # what the rt process reads from its spawn pipe
+    assert np.array_equal(rt.params.k_theta, want) and rt.backend == backend

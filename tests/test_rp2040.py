@@ -323,6 +323,11 @@ def test_pmctl_run_machines_a_job_through_the_emulated_chip(tmp_path):
     log = bp.read_edge_log(edges)
     assert np.array_equal(bp.executed_steps(log), np.rint((cmd[-1] - cmd[0]) * 2000.0).astype(np.int64))
     assert np.sum(log["kind"] == bp.EDGE_HIGH) > 1000                  # it moved (there and back)
+    # the shipped machine (joints to 100 mm/s) is capped to what the chip holds, 20 kstep/s per axis:
+    # F900 on X (15 mm/s, 30 steps a tick) runs at 10 mm/s, never over 20 steps in a 1 ms tick
+    assert "joint speeds capped at 10 mm/s" in r.stderr, r.stderr
+    per_tick = np.abs(np.rint(np.diff(cmd, axis=0) * 2000.0))
+    assert per_tick.max() <= 20 and per_tick[:, 3].max() >= 19
 
 
 def test_rp2040_emu_needs_no_realtime(tmp_path):

@@ -264,8 +264,15 @@ def test_a_bridge_process_that_is_not_scheduled_is_named_so(bridge):
         bridge.proc.send_signal(signal.SIGCONT)
     be.close()
     assert "corrupted" not in str(ei.value)
-    time.sleep(0.3)                                  # running again, it catches up and takes the STOP sent meanwhile
-    s = bridge.status()
+    # running again, it catches up and takes the STOP sent meanwhile: its counters settle (however long a
+    # loaded machine takes to run it), and then they are the steps on its pins
+    t_end, last = time.monotonic() + 30.0, None
+    while time.monotonic() < t_end:
+        s = bridge.status()
+        if last is not None and np.array_equal(s.counters, last) and s.queue == 0:
+            break
+        last = s.counters
+        time.sleep(0.2)
     assert np.array_equal(s.counters, bp.executed_steps(bridge.edges()))
 
 

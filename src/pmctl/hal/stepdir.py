@@ -42,6 +42,9 @@ from pmctl.hal.base import Backend, Feedback, HalError, HalTimeout, Inputs, Stat
 FIRMWARE_DIR = Path(__file__).resolve().parents[3] / "firmware_bridge"
 HOST_PTY = "host-pty"
 EMU = "rp2040-emu"
+# what the RP2040 port holds in the emulated chip (simulated time, 125 MHz; benchmarks/bench_rp2040.py):
+# about 120 kstep/s on one axis and 150 k on the five together, so 20 k on each of the five at once
+EMU_STEP_RATE_HZ = 20_000.0
 
 
 class BridgeFault(HalError):
@@ -80,6 +83,14 @@ class StepDirOptions:
                                          # positions, mm, in the counters' frame at start); () = none
     strain_ue_per_count: tuple = (0.01, 0.01, 0.01)   # strain ADC scale, microstrain per count
     strain_offset_counts: tuple = (0.0, 0.0, 0.0)     # ADC reading at zero strain
+    max_step_rate_hz: float = 0.0        # steps per second per axis the bridge holds; the joints' speed is capped
+                                         # to it (0: no cap, except rp2040-emu: EMU_STEP_RATE_HZ)
+
+    def step_rate_cap(self) -> float:
+        """The step rate per axis the run's joint speeds are capped to (0: none)."""
+        if self.max_step_rate_hz:
+            return float(self.max_step_rate_hz)
+        return EMU_STEP_RATE_HZ if self.port == EMU else 0.0
 
     @classmethod
     def from_dict(cls, d: dict, where="hal.stepdir"):
@@ -121,6 +132,7 @@ class StepDirOptions:
         number("link_timeout_ms", 1.0, 10_000.0)
         number("retransmit_ms", 0.1, 1000.0)
         number("open_timeout_ms", 10.0, 60_000.0)
+        number("max_step_rate_hz", 0.0, 10_000_000.0)
         for k in ("strain_ue_per_count", "strain_offset_counts"):
             v = getattr(o, k)
             a = np.atleast_1d(np.asarray(v if not isinstance(v, bool) else [v], dtype=object))

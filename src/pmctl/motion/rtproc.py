@@ -24,7 +24,7 @@ SIGTERM is a quit: hold on the path, save the counters, exit. As it exits, the r
 result into the channel (Channel.set_result: end status, reason, ticks, pulses sent, and the loop's
 timing summary), which a one-shot client (``pmctl run``) reports and records.
 
-``spec["offline"]`` (``pmctl run --no-realtime``): an offline simulation on the same path. Ticks
+``settings.offline`` (``pmctl run --no-realtime``): an offline simulation on the same path. Ticks
 run back to back while the path moves, and the rt side waits for planned samples instead of
 decelerating for an empty queue (starvation is a real-time matter: offline nothing is late), and
 for room in the record ring instead of dropping records. With nothing to follow (idle, held, at a
@@ -33,6 +33,7 @@ job's end) the ticks are paced at the tick period.
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import signal
@@ -47,25 +48,6 @@ from pmctl.motion import channel as C
 
 FINISHED = "finished: the job ran to its end"     # the quit of a run that is done (C_QUIT 1)
 STALL_RESUME_TICKS = 200          # on-time ticks in a row after a stall before its feed hold is released
-
-
-def apply_nc_overrides(svc, nc: dict | None):
-    """A run's NC settings that differ from the service config file (``pmctl run --k-theta --shaper
-    --pulse-mode``), applied to ``svc.nc`` the same way in the supervisor and in the rt process."""
-    for key, v in (nc or {}).items():
-        if key == "k_theta_per_s":
-            v = tuple(float(x) for x in v)
-        setattr(svc.nc, key, v)
-    return svc
-
-
-def apply_hal_overrides(svc, hal: dict | None):
-    """A run's backend options that differ from the service config file (``pmctl run --bridge``:
-    ``{"stepdir": {"port": "rp2040-emu"}}``), applied to ``svc.backend_tables`` the same way in the
-    supervisor and in the rt process."""
-    for name, table in (hal or {}).items():
-        svc.backend_tables[name] = {**svc.backend_tables.get(name, {}), **table}
-    return svc
 
 
 class RtHook:
@@ -393,14 +375,15 @@ def _restart(st, machine, lp, counts=None):
                                     offset=None if off is None else np.array(off, float)))
 
 
-def rt_main(spec: dict) -> int:
-    """Entry point of the rt process (multiprocessing, spawn)."""
+def rt_main(spec: dict, settings) -> int:
+    """Entry point of the rt process (spawned by the supervisor): ``spec`` says where (the shared
+    channel, the counters, the state file, the supervisor's pid); ``settings``
+    (pmctl.motion.settings.Settings, resolved by the supervisor) says with what. No config file is
+    read here."""
     from pmctl import hal
-    from pmctl.core.config import load_machine
     from pmctl.motion.loop import ControlLoop, LoopParts
     from pmctl.motion.nc import HALTED, initial_state
     from pmctl.motion.recorder import Recorder
-    from pmctl.motion.service_config import load_service_config
     from pmctl.motion.state_store import CounterWriter, save_counters
     from pmctl.motion.timescale import make_follower
 
@@ -410,23 +393,19 @@ def rt_main(spec: dict) -> int:
     ch.st[C.ST_PID] = os.getpid()
     ch.st[C.ST_COUNTS0:C.ST_COUNTS0 + 5] = [float(c) for c in spec["counts"]]
     ch.st[C.ST_DEV_COUNTS:C.ST_DEV_COUNTS + 5] = float("nan")
-    machine = load_machine(spec["config"])
-    svc = apply_hal_overrides(apply_nc_overrides(load_service_config(spec.get("service")), spec.get("nc")),
-                              spec.get("hal"))
-    cfg = svc.loop
-    cfg.rate_hz = float(spec.get("rate_hz") or cfg.rate_hz)
-    realtime = bool(spec.get("realtime", cfg.realtime))
-    offline = bool(spec.get("offline", False))
+    machine, svc, params = settings.machine, settings.svc, settings.params
+    cfg = copy.copy(svc.loop)
+    cfg.rate_hz = settings.rate_hz
+    realtime = settings.realtime
+    offline = settings.offline
     cfg.realtime = not offline            # the daemon always keeps time (deadlines); offline: back to back
     if not realtime:
         cfg.lock_memory = False
         cfg.stall_timeout_s = max(cfg.stall_timeout_s, 5.0)
         cfg.max_overruns_in_row = 1 << 30
     dt = cfg.dt
-    from pmctl.motion.service_config import nc_setup
-    params = svc.nc.params(machine, dt, where=svc.source, modes=nc_setup(svc, machine, dt, spec["backend"]).modes)
     counts = np.array(spec["counts"], np.int64)
-    be = hal.create(spec["backend"], machine, dt, svc.backend_tables.get(spec["backend"], {}))
+    be = hal.create(settings.backend, machine, dt, svc.backend_tables.get(settings.backend, {}))
     state_file = spec.get("state_file") or ""
     _restore_offset(be, state_file, machine.name, log, machine.resolution.pulses_per_mm)
     be.open(counts)
@@ -517,4 +496,6 @@ def device_agreement(fb, counts, ppm) -> str:
 
 if __name__ == "__main__":
     import json
-    sys.exit(rt_main(json.loads(sys.argv[1])))
+
+    from pmctl.motion.settings import Settings
+    sys.exit(rt_main(json.loads(sys.argv[1]), Settings.from_bytes(sys.stdin.buffer.read())))

@@ -63,21 +63,6 @@ ALARM_HOMING_PULLOFF, ALARM_HOMING_APPROACH, ALARM_ESTOP, ALARM_HOMING_REQUIRED,
 ALARM_PROBE_FAIL_CONTACT = 5      # G38.2 ended without contact
 
 
-def config_digest(machine, svc) -> dict:
-    """{file: sha256 of its bytes} of the configs the rt process loads at each (re)start: the machine
-    config, its compensation file, the service config (a missing file digests as None)."""
-    import hashlib
-    files = [machine.source, getattr(getattr(machine, "compensation", None), "source", ""), svc.source]
-    out = {}
-    for f in files:
-        if f and f not in out and not str(f).startswith("<"):
-            try:
-                out[str(f)] = hashlib.sha256(Path(f).read_bytes()).hexdigest()
-            except OSError:
-                out[str(f)] = None
-    return out
-
-
 class MotionRefused(PmctlError):
     """Motion is not allowed now (alarm, rt process down); ``code`` is the grbl error code."""
 
@@ -111,34 +96,33 @@ class Item:
 
 class Supervisor:
     def __init__(self, config="prototype", *, service=None, backend=None, state_file="", realtime=False,
-                 rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY, offline=False, nc=None, hal=None):
-        from pmctl.core.config import load_machine
-        from pmctl.motion.rtproc import apply_hal_overrides, apply_nc_overrides
-        from pmctl.motion.service_config import load_service_config
+                 rate_hz=None, log=None, sample_capacity=C.SAMPLE_CAPACITY, offline=False, nc=None, hal=None,
+                 settings=None):
+        from pmctl.motion.settings import resolve
+        # the settings, resolved once (pmctl run resolves them and passes them in); the rt process gets
+        # them as data and never reads a config file
+        if settings is None:
+            settings = resolve(config, service, backend=backend, rate_hz=rate_hz, realtime=realtime,
+                               offline=offline, nc=nc, hal=hal)
+        self.settings = settings
         self.config = config
         self.service = service
-        self.machine = load_machine(config)
-        self.nc_overrides = dict(nc or {})        # e.g. pmctl run --k-theta --shaper --pulse-mode
-        self.hal_overrides = dict(hal or {})      # e.g. pmctl run --bridge rp2040-emu
-        self.svc = apply_hal_overrides(apply_nc_overrides(load_service_config(service), self.nc_overrides),
-                                       self.hal_overrides)
-        self.offline = bool(offline)              # rt ticks back to back, waiting for samples
-        self.backend = backend or self.svc.backend
-        self.rate_hz = float(rate_hz or self.svc.loop.rate_hz)
-        self.dt = 1.0 / self.rate_hz
-        from pmctl.motion.service_config import nc_setup
-        # chain modes, K_theta auto (off on a backend without strain), the shaper; [daq] k_theta_source
-        # checked (pmctl serve and pmctl run alike, before the devices, the rt process or the state file)
-        self.nc_setup = nc_setup(self.svc, self.machine, self.dt, self.backend)
-        self.params = self.svc.nc.params(self.machine, self.dt, where=self.svc.source, modes=self.nc_setup.modes)
-        self.svc.homing.check(self.params, self.svc.source)        # [homing] against this machine's joints
+        self.machine = settings.machine
+        self.nc_overrides = settings.nc_overrides  # e.g. pmctl run --k-theta --shaper --pulse-mode
+        self.hal_overrides = settings.hal_overrides   # e.g. pmctl run --bridge rp2040-emu
+        self.svc = settings.svc
+        self.offline = settings.offline           # rt ticks back to back, waiting for samples
+        self.backend = settings.backend
+        self.rate_hz = settings.rate_hz
+        self.dt = settings.dt
+        self.nc_setup = settings.setup
+        self.params = settings.params
         # the V-F converters may cap the joint speed below the machine's (seed mode: one pulse per
         # tick): plan within what they can emit
         from pmctl.task.jobcheck import machine_for_planning
         self.plan_machine = machine_for_planning(self.machine, self.params)
-        self._config_digest = config_digest(self.machine, self.svc)   # the files the rt process reads again
         self.state_file = state_file
-        self.realtime = bool(realtime)
+        self.realtime = settings.realtime
         self.log = log or (lambda m: None)
         self.sample_capacity = sample_capacity
         self.ch: C.Channel | None = None
@@ -214,18 +198,7 @@ class Supervisor:
             t.start()
             self._threads.append(t)
 
-    def _rt_nc(self) -> dict:
-        """The rt process's NC overrides: the run's, plus K_theta as resolved here (auto, or off on a
-        backend without strain), so both sides run the same gains whatever the config file says now."""
-        return {**self.nc_overrides, "k_theta_per_s": [float(k) for k in self.svc.nc.k_theta_per_s],
-                "k_theta_auto": False}
-
     def _spawn(self, counts, timeout_s):
-        changed = [f for f, d in config_digest(self.machine, self.svc).items() if d != self._config_digest.get(f)]
-        if changed:                      # the rt process would read them as they are now, the supervisor did not
-            raise MotionRefused(f"{', '.join(changed)} changed since the controller started: the rt motion process "
-                                f"is not restarted with settings the supervisor does not run; put the file back, "
-                                f"or restart the service to apply it", 9)
         ch = self.ch
         ch.reset_status(counts)           # nothing of a previous rt process's status may count
         ch.samples.clear()
@@ -234,15 +207,19 @@ class Supervisor:
         ch.clear_result()
         self._hold_points.clear()
         self._hold_at_seen = 0
-        spec = {"shm": ch.name, "config": str(self.config), "service": self.service, "backend": self.backend,
-                "state_file": self.state_file, "rate_hz": self.rate_hz, "realtime": self.realtime,
-                "offline": self.offline, "nc": self._rt_nc(), "hal": self.hal_overrides,
-                "counts": [int(c) for c in counts], "ppid": os.getpid()}
+        spec = {"shm": ch.name, "state_file": self.state_file, "counts": [int(c) for c in counts],
+                "ppid": os.getpid()}
         import json
         import subprocess
         import sys
-        self.proc = _RtProc(subprocess.Popen([sys.executable, "-m", "pmctl.motion.rtproc", json.dumps(spec)],
-                                             stdin=subprocess.DEVNULL))
+        # the settings go as data over the spawn pipe (stdin): the rt process reads no config file
+        p = subprocess.Popen([sys.executable, "-m", "pmctl.motion.rtproc", json.dumps(spec)], stdin=subprocess.PIPE)
+        try:
+            p.stdin.write(self.settings.to_bytes())
+            p.stdin.close()
+        except BrokenPipeError:
+            pass                          # it died at once: said below
+        self.proc = _RtProc(p)
         t0 = time.monotonic()
         while not self.status().running:
             if not self.proc.is_alive():

@@ -215,11 +215,9 @@ def tracking_window(res, stop_tick: int | None) -> tuple[int, int, str]:
 def run(args) -> int:
     from pmctl import hal
     from pmctl.core import kinematics as K
-    from pmctl.core.config import load_machine
     from pmctl.core.errors import PmctlError
     from pmctl.core.recording import check_target
     from pmctl.motion.nc import counts_of, initial_state
-    from pmctl.motion.service_config import load_service_config
     from pmctl.motion.state_store import StateLock, load_counters
 
     out = _Out()
@@ -235,8 +233,6 @@ def run(args) -> int:
         raise PmctlError(f"--feed-override must be within (0, 10], got {args.feed_override:g}")
     if args.backend is not None and args.backend not in hal.BACKENDS:
         raise PmctlError(f"--backend {args.backend!r}: unknown backend; known: {', '.join(sorted(hal.BACKENDS))}")
-    if args.bridge is not None and (args.backend or load_service_config(args.service).backend) != "stepdir":
-        raise PmctlError(f"--bridge {args.bridge} is the step/dir bridge's: it needs --backend stepdir")
     if args.bridge == "rp2040-emu" and not args.no_realtime:
         raise PmctlError("--bridge rp2040-emu: the emulated chip runs slower than real time; add --no-realtime "
                          "(the host then waits for the chip)")
@@ -245,28 +241,28 @@ def run(args) -> int:
     if args.record:               # find out now, not after the run, that the recording cannot be written
         folder = Path(args.record)
         check_target(folder, overwrite=args.force)          # (and its .partial, which a killed run left)
-    machine = load_machine(args.config)
-    svc = load_service_config(args.service)
-    cfg = svc.loop
-    if args.rate is not None:
-        cfg.rate_hz = float(args.rate)
-    if args.no_realtime:
-        cfg.realtime = False
+    nc_over = {}                          # what the flags change in the service config's [nc]
     if k_theta_arg is not None:
-        svc.nc.k_theta_auto = k_theta_arg == "auto"
-        svc.nc.k_theta_per_s = (0.0,) * 3 if svc.nc.k_theta_auto else (k_theta_arg,) * 3
+        auto = k_theta_arg == "auto"
+        nc_over.update(k_theta_auto=auto, k_theta_per_s=(0.0,) * 3 if auto else (k_theta_arg,) * 3)
     if shaper_arg is not None:
-        svc.nc.shaper = shaper_arg
+        nc_over["shaper"] = shaper_arg
     if args.pulse_mode:
-        svc.nc.pulse_mode = args.pulse_mode
-    backend_name = args.backend or svc.backend
+        nc_over["pulse_mode"] = args.pulse_mode
+    from pmctl.motion.settings import resolve
+    # the settings, resolved once for the whole run (the supervisor and the rt process get these)
+    settings = resolve(args.config, args.service, backend=args.backend, rate_hz=args.rate,
+                       realtime=False if args.no_realtime else None, nc=nc_over,
+                       hal={"stepdir": {"port": args.bridge}} if args.bridge else None)
+    if args.bridge is not None and settings.backend != "stepdir":
+        raise PmctlError(f"--bridge {args.bridge} is the step/dir bridge's: it needs --backend stepdir")
+    machine, svc, params, setup = settings.machine, settings.svc, settings.params, settings.setup
+    cfg = svc.loop
+    backend_name = settings.backend
     state_file = cfg.state_file if args.state is None else args.state
-    dt = cfg.dt
-    from pmctl.motion.service_config import nc_setup
+    dt = settings.dt
     from pmctl.motion.service_config import strain_in_loop as carries_strain
-    setup = nc_setup(svc, machine, dt, backend_name)     # chain modes, K_theta auto or off, shaper; checked
     strain_in_loop = carries_strain(backend_name)
-    params = svc.nc.params(machine, dt, where=svc.source, modes=setup.modes)
 
     # Where the machine is: saved counters, else home (said only once everything has been checked).
     lock = StateLock(state_file) if state_file else None      # noqa: F841 (held until the process exits)
@@ -311,10 +307,7 @@ def run(args) -> int:
                     start=(st.tip, st.axis), batch=setup.shaper is not None)
     if not rep.ok:
         raise JobProblems(rep.problems)
-    nc_over = {"k_theta_per_s": list(svc.nc.k_theta_per_s), "k_theta_auto": False, "shaper": svc.nc.shaper,
-               "pulse_mode": svc.nc.pulse_mode}
-    return _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, counts0, st, job,
-                       nc_over, strain_in_loop, where, setup.notes)
+    return _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loop, where)
 
 
 def _refuse_operator_waits(job, tool):
@@ -436,8 +429,7 @@ def _nominal_shares(job):
     return ls[keep], share[keep]
 
 
-def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, counts0, st, job, nc_over,
-                strain_in_loop, where, setup_notes) -> int:
+def _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loop, where) -> int:
     """The job through the machinery of the daemon: a Supervisor starts the rt motion process (its
     own process: loop, NC, backend), the job is submitted, planned window by window and streamed into
     the sample ring (memory bounded by a window, whatever the job's length), the records stream back
@@ -451,11 +443,11 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
     from pmctl.motion.recorder import R_S, R_TICK
     from pmctl.task.supervisor import Supervisor
     log = out.log
-    dt = cfg.dt
-    hal_over = {"stepdir": {"port": args.bridge}} if getattr(args, "bridge", None) else None
-    sup = Supervisor(args.config, service=args.service, backend=backend_name, state_file=state_file or "",
-                     realtime=cfg.realtime, rate_hz=cfg.rate_hz, log=log, offline=not cfg.realtime, nc=nc_over,
-                     hal=hal_over)
+    machine, svc, params, backend_name = settings.machine, settings.svc, settings.params, settings.backend
+    cfg = svc.loop
+    dt = settings.dt
+    setup_notes = settings.setup.notes
+    sup = Supervisor(args.config, service=args.service, state_file=state_file or "", log=log, settings=settings)
     if backend_name == "sim":                # the simulation's stand-in operator: tool changes and pauses
         sup.stand_in_operator = lambda what: log(f"{what}: done by the simulation's operator, the job goes on")
     notes = list(setup_notes)              # chain modes, K_theta auto, shaper: as this run resolved them
