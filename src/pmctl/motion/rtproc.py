@@ -380,7 +380,7 @@ def rt_main(spec: dict, settings) -> int:
     (pmctl.motion.settings.Settings, resolved by the supervisor) says with what. No config file is
     read here."""
     from pmctl import hal
-    from pmctl.motion.loop import ControlLoop
+    from pmctl.motion.loop import ControlLoop, LoopParts
     from pmctl.motion.nc import HALTED, initial_state
     from pmctl.motion.recorder import Recorder
     from pmctl.motion.state_store import CounterWriter, save_counters
@@ -437,9 +437,10 @@ def rt_main(spec: dict, settings) -> int:
     def _term(signum, frame):
         hook.term = True
     signal.signal(signal.SIGTERM, _term)
-    lp = ControlLoop(machine, be, params, None, cfg, st, log=log, writer=writer, follower=fol,
-                     records=ch.records, recorder=_Null(ch.records, keep=False), hook=hook,
-                     exit_when_done=False, setup_rt=realtime and not offline, probe=hook.probe)
+    lp = ControlLoop(machine, be, params, None, cfg, st,
+                     LoopParts(log=log, writer=writer, follower=fol, records=ch.records,
+                               recorder=_Null(ch.records, keep=False), hook=hook, exit_when_done=False,
+                               setup_rt=realtime and not offline, probe=hook.probe))
     lp.on_stall = on_stall
     ch.st[C.ST_PHASE] = C.PH_RUNNING
     res = None

@@ -23,7 +23,6 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core import kinematics as K
-from pmctl.motion import channel as C
 
 
 RT_FRESH_S = 0.5      # the rt status older than this (or than the ping period, if shorter) stops the pings
@@ -301,9 +300,9 @@ class Daemon:
         sup = self.sup
         if sup.rt_dead or sup.ch is None:
             return False
-        s = sup.raw()
-        fresh = time.monotonic() - s[C.ST_MONO] < max_age_s
-        return bool(fresh and (s[C.ST_ONTIME] > 0 or not self.realtime))
+        s = sup.status()
+        fresh = time.monotonic() - s.mono_s < max_age_s
+        return bool(fresh and (s.ontime > 0 or not self.realtime))
 
     def _on_signal(self, signum, frame):
         self.stop_reason = signal.Signals(signum).name
