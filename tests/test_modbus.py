@@ -89,6 +89,11 @@ def test_pymodbus_client_m3_m4_m5_and_at_speed(vfd):
         assert abs(got - 6000) <= 0.02 * 6000 and dev.direction == -1
         v.stop()
         assert dev.commands[-1] == (0x1000, 5)
+        # S1 (LinuxCNC's samples say "spindle on" so) is below one set-point step (2.4 rpm): it commands 0,
+        # and the spindle is at that speed, not waited for until the spin-up timeout
+        v.start(1)
+        assert dev.commands[-2] == (0x2000, 0) and abs(v.wait_at_speed()) <= 2.4
+        v.stop()
         with pytest.raises(HalError) as e:
             v.start(30000)
         assert "exceeds" in str(e.value)

@@ -215,8 +215,12 @@ class SpindleVFD:
         self.rpm_cmd = 0.0
 
     def at_speed(self, rpm_meas: float) -> bool:
-        want = abs(self.rpm_cmd)
-        return abs(rpm_meas - want) <= self.opt.at_speed_tolerance * want
+        """Within at_speed_tolerance of the speed the set-point commands: the set-point has 10000 steps
+        of max_rpm (S1 on a 24000 rpm spindle commands 0) and the speed register whole rpm, so the
+        tolerance is never below one step of either."""
+        sp = round(abs(self.rpm_cmd) / self.opt.max_rpm * 10000)
+        want = sp / 10000 * self.opt.max_rpm
+        return abs(rpm_meas - want) <= max(self.opt.at_speed_tolerance * want, self.opt.max_rpm / 10000, 1.0)
 
     def wait_at_speed(self, sleep=time.sleep) -> float:
         t_end = time.monotonic() + self.opt.spinup_timeout_s

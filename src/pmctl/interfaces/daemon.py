@@ -33,7 +33,6 @@ from pmctl.hal.base import Backend
 from pmctl.interfaces.console.control import ControlServer
 from pmctl.interfaces.console.grbl import GrblConsole
 from pmctl.interfaces.console.port import ConsolePort
-from pmctl.motion import channel as C
 from pmctl.motion.nc import counts_of
 from pmctl.motion.service_config import strain_in_loop
 from pmctl.motion.state_store import StateLock, load_counters
@@ -297,9 +296,9 @@ class Daemon:
         sup = self.sup
         if sup.rt_dead or sup.ch is None:
             return False
-        s = sup.raw()
-        fresh = time.monotonic() - s[C.ST_MONO] < max_age_s
-        return bool(fresh and (s[C.ST_ONTIME] > 0 or not self.realtime))
+        s = sup.status()
+        fresh = time.monotonic() - s.mono_s < max_age_s
+        return bool(fresh and (s.ontime > 0 or not self.realtime))
 
     def _on_signal(self, signum, frame):
         self.stop_reason = signal.Signals(signum).name

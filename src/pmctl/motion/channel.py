@@ -147,6 +147,13 @@ class Channel:
         self._result[:8] = np.frombuffer(np.int64(len(b)).tobytes(), np.uint8)
 
     # ---- supervisor side
+    def reset_status(self, counts):
+        """Before an rt process starts: a zeroed status block (nothing of a previous rt process's
+        status may count), phase PH_STARTING, and the counters it starts from."""
+        self.st[:] = 0.0
+        self.st[ST_PHASE] = PH_STARTING
+        self.st[ST_COUNTS:ST_COUNTS + 5] = np.asarray(counts, float)
+
     def result(self) -> dict | None:
         """The rt side's end result, or None when it has not written one (killed, or still running)."""
         n = int(np.frombuffer(bytes(self._result[:8]), np.int64)[0])

@@ -1,5 +1,12 @@
 """The fixed-rate control loop: read feedback -> NC step -> write pulses, on absolute deadlines.
 
+- Each tick runs as LinuxCNC's emcmotController, one method per phase of :class:`ControlLoop`,
+  the loose values of the run in one :class:`Tick` context: read inputs (``_read_inputs``), model
+  pose (``_model_pose``: the path follower's target, the probe monitor), NC (``_nc``), output
+  (``_output``), record (``_record``; the hot path's compute time ends here), status (``_status``:
+  the hook, the rt process's command/status exchange), supervise (``_supervise``: the stop rules,
+  stalls) and wait (``_wait``: the overrun policy, the sleep to the next deadline).
+
 - Fixed rate (default 1 kHz), deadlines on CLOCK_MONOTONIC, slept to with
   clock_nanosleep(TIMER_ABSTIME) (no drift); ``realtime=False`` runs the same ticks back to back
   (tests, CI, offline simulation).
@@ -31,6 +38,7 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,7 +47,7 @@ from pmctl.core import kinematics as K
 from pmctl.core.config import Machine
 from pmctl.core.errors import KinematicsError, PmctlError, UnreachablePose
 from pmctl.hal import Backend, HalError, HalTimeout
-from pmctl.motion.nc import HALTED, RUN, NCParams, NCState
+from pmctl.motion.nc import HALTED, NCParams, NCState, RUN
 from pmctl.motion.ncore import make_nc
 from pmctl.motion.recorder import (REC_CAPACITY, REC_WIDTH, R_COUNTS, R_ENC, R_LINE, R_S, R_SIGMA, R_STRAIN,
                                    R_TARGET, R_TRUTH, Recorder)
@@ -288,43 +296,68 @@ class LoopResult:
         return self.status == "done"
 
 
+@dataclass
+class LoopParts:
+    """What a :class:`ControlLoop` is wired to besides the machine, the backend, the NC settings and
+    its targets; every part optional.
+
+    ``log``: callable(message) (default: stderr). ``writer``: the :class:`CounterWriter` that persists
+    the pulse counters. ``follower``: the path follower (None: one made for the targets, followed at
+    sigma = 1; a stream, the daemon's rt process, brings its own). ``records``: the per-tick record
+    ring (default a private one of REC_CAPACITY rows); ``recorder`` drains it (default: one that
+    keeps the rows for the LoopResult). ``hook(loop, k, state)`` runs at the end of every tick and
+    returns the state (the daemon's command/status exchange). ``exit_when_done=False``: run until
+    ``quit`` is set (halts and job ends do not end the loop). ``setup_rt``: SCHED_FIFO + mlockall
+    (default: when the loop runs in real time). ``probe``: a
+    :class:`pmctl.motion.probe.ProbeMonitor` that stops probing moves on contact (per tick)."""
+
+    log: Callable[[str], None] | None = None
+    writer: CounterWriter | None = None
+    follower: object | None = None
+    records: object | None = None
+    recorder: object | None = None
+    hook: Callable | None = None
+    exit_when_done: bool = True
+    setup_rt: bool | None = None
+    probe: object | None = None
+
+
 class ControlLoop:
     """Runs the NC against a backend, its targets taken from a :class:`PathFollower` that
     time-scales planned samples. ``run()`` returns a LoopResult.
 
     ``targets``: a :class:`Targets` (a one-shot job: followed at sigma = 1 and the loop ends when it
-    is done), or None with ``follower`` given (a stream: the daemon's rt process).
-    ``records``: the per-tick record ring (default a private one of REC_CAPACITY rows); ``recorder``
-    drains it (default: one that keeps the rows for the LoopResult). ``hook(loop, k, state)`` runs
-    at the end of every tick and returns the state (the daemon's command/status exchange).
-    ``exit_when_done=False``: run until ``quit`` is set (halts and job ends do not end the loop).
-    ``probe``: a :class:`pmctl.motion.probe.ProbeMonitor` that stops probing moves on contact (per tick).
+    is done), or None with a follower in ``parts`` (a stream: the daemon's rt process). ``parts``: a
+    :class:`LoopParts`, or its fields as keywords (``log=..., hook=...``), not both.
 
     Attributes ``tick``, ``n_ticks`` and ``mode`` are updated every tick for a progress display
     running in another thread."""
 
     def __init__(self, machine: Machine, backend: Backend, params: NCParams, targets: Targets | None,
-                 cfg: LoopConfig, state: NCState, *, log=None, writer: CounterWriter | None = None,
-                 follower=None, records=None, recorder=None, hook=None, exit_when_done: bool = True,
-                 setup_rt: bool | None = None, probe=None):
+                 cfg: LoopConfig, state: NCState, parts: LoopParts | None = None, **part_fields):
+        if parts is None:
+            parts = LoopParts(**part_fields)       # an unknown keyword is a TypeError naming it
+        elif part_fields:
+            raise TypeError(f"ControlLoop: parts given, and also {', '.join(sorted(part_fields))}")
         self.machine, self.backend, self.params = machine, backend, params
         self.targets, self.cfg, self.state0 = targets, cfg, state
-        self.log = log or (lambda msg: print(f"pmctl: {msg}", file=sys.stderr))
-        self.writer = writer
+        self.log = parts.log or (lambda msg: print(f"pmctl: {msg}", file=sys.stderr))
+        self.writer = parts.writer
         self.nc = make_nc(machine, params)      # params.implementation: "compiled" (C core) or "python"
         self.settle_ticks = int(round(cfg.settle_s * cfg.rate_hz))
+        follower = parts.follower
         if follower is None:
             if targets is None:
                 raise PmctlError("ControlLoop needs targets or a follower")
             follower = make_follower(ArraySource(target_samples(targets, cfg.dt, params)), params, cfg.dt)
             follower.scaler.sigma = 1.0       # a one-shot job is replayed as planned from its first sample
         self.follower = follower
-        self.records = records if records is not None else Ring(REC_CAPACITY, REC_WIDTH)
-        self.recorder = recorder if recorder is not None else Recorder(self.records)
-        self.hook = hook
-        self.probe = probe              # pmctl.motion.probe.ProbeMonitor: stop on contact (G38.2/G38.3), or None
-        self.exit_when_done = exit_when_done
-        self.setup_rt = cfg.realtime if setup_rt is None else bool(setup_rt)   # SCHED_FIFO + mlockall
+        self.records = parts.records if parts.records is not None else Ring(REC_CAPACITY, REC_WIDTH)
+        self.recorder = parts.recorder if parts.recorder is not None else Recorder(self.records)
+        self.hook = parts.hook
+        self.probe = parts.probe        # pmctl.motion.probe.ProbeMonitor: stop on contact (G38.2/G38.3), or None
+        self.exit_when_done = parts.exit_when_done
+        self.setup_rt = cfg.realtime if parts.setup_rt is None else bool(parts.setup_rt)   # SCHED_FIFO + mlockall
         self.last_late_ns = self.last_compute_ns = 0
         self.quit_reason = ""
         self.last_fb = None
@@ -372,224 +405,332 @@ class ControlLoop:
         return ok
 
     def run(self) -> LoopResult:
+        """The ticks, each as LinuxCNC's emcmotController: read inputs, model pose, NC, output,
+        record, status, supervise, wait; until the job is done, a stop, a fault or ``quit``."""
+        c = self._start()
+        read, pose, nc, output, record = self._read_inputs, self._model_pose, self._nc, self._output, self._record
+        status, supervise, wait = self._status, self._supervise, self._wait
+        try:
+            self._sleep(c)
+            while True:
+                # ---- hot path (timed: compute_ns)
+                if not read(c):
+                    break
+                pose(c)
+                nc(c)
+                if not output(c):
+                    break
+                record(c)
+                # ---- end of hot path
+                status(c)
+                if supervise(c):
+                    break
+                wait(c)
+        except Exception as e:        # anything else (a bug, an unexpected error of a backend): halt, say why
+            c.status, c.reason = "fault", f"loop error at tick {c.k}: {type(e).__name__}: {e}"
+            st = c.st
+            if c.pending is not None:  # not known to be taken by the backend: the counters must not claim them
+                st = st.uncounted(c.pending)
+            c.st = _halt(st, c.reason)
+        finally:
+            self._finish(c)
+        return self._result(c)
+
+    # ---- setting up and ending a run
+
+    def _start(self) -> Tick:
+        """The run's context; real-time scheduling (when asked), the recorder started, the garbage
+        collector paused (no collection pauses on the hot path)."""
         cfg, p, be = self.cfg, self.params, self.backend
-        fol = self.follower
-        rec = self.records
-        recorder = self.recorder
-        probe = self.probe
-        sent = self.sent
-        has_truth = be.truth() is not None
-        positions, ppm = be.accepts == "positions", p.pulses_per_mm     # CSP drives take joint targets, mm
-        nan5 = [math.nan] * 5
-        zero3 = [0.0] * 3
-        period = int(round(1e9 / cfg.rate_hz))
-        stall_ns = int(max(cfg.stall_timeout_s, be.stall_tolerance_s) * 1e9)
-        spin_ns = int(cfg.spin_us * 1e3)
+        c = Tick()
+        c.realtime = cfg.realtime
+        c.has_truth = be.truth() is not None
+        c.positions, c.ppm = be.accepts == "positions", p.pulses_per_mm     # CSP drives take joint targets, mm
+        c.nan5 = [math.nan] * 5
+        c.zero3 = [0.0] * 3
+        c.period = int(round(1e9 / cfg.rate_hz))
+        c.stall_ns = int(max(cfg.stall_timeout_s, be.stall_tolerance_s) * 1e9)
+        c.spin_ns = int(cfg.spin_us * 1e3)
         # timing statistics in a bounded window (the last TIMING_WINDOW ticks)
-        comp = np.zeros(TIMING_WINDOW, np.int64)
-        late = np.zeros(TIMING_WINDOW, np.int64)
-        ncns = np.zeros(TIMING_WINDOW, np.int64)
-        msgs = []
+        c.comp = np.zeros(TIMING_WINDOW, np.int64)
+        c.late = np.zeros(TIMING_WINDOW, np.int64)
+        c.ncns = np.zeros(TIMING_WINDOW, np.int64)
+        c.msgs = []
         if cfg.realtime:
             if self.setup_rt:
-                msgs = setup_realtime(cfg.rt_priority, cfg.lock_memory)
-                for m in msgs:
+                c.msgs = setup_realtime(cfg.rt_priority, cfg.lock_memory)
+                for m in c.msgs:
                     self.log(m)
-            recorder.start()
-        sleeper = AbsoluteSleeper()
-        st = self.nc.load(self.state0)
-        status, reason = "done", ""
-        overruns = in_row = max_in_row = slow = 0
-        pending = None                  # pulses computed but not yet taken by the backend
-        last_warn = 0
-        persist_every = cfg.persist_every_ticks
-        gc_was = gc.isenabled()
+            self.recorder.start()
+        c.sleeper = AbsoluteSleeper()
+        c.st = self.nc.load(self.state0)
+        c.status, c.reason = "done", ""
+        c.overruns = c.in_row = c.max_in_row = c.slow = 0
+        c.pending = None                # pulses computed but not yet taken by the backend
+        c.last_warn = 0
+        c.persist_every = cfg.persist_every_ticks
+        c.gc_was = gc.isenabled()
         gc.collect()
         gc.disable()
-        switch = sys.getswitchinterval()
+        c.switch = sys.getswitchinterval()
         if cfg.realtime:
             # a helper thread (progress, counter writer, recorder) holding the GIL when the tick
             # wakes is asked to let go after 100 us instead of 5 ms
             sys.setswitchinterval(1e-4)
-        mono = time.monotonic_ns
-        k = 0
-        done_at = -1
-        stop_from_hold = False
-        held_at = -1                    # tick at which a stop's feed hold reached sigma = 0
+        c.mono = mono = time.monotonic_ns
+        c.k = 0
+        c.done_at = -1
+        c.stop_from_hold = False
+        c.held_at = -1                  # tick at which a stop's feed hold reached sigma = 0
         # held on the path, the NC's rest deadband zeroes the rates within half a pulse of the target;
         # K_theta answering the chains' ringing may still ask for a pulse or two's worth (K_v x a
         # pulse's worth of error): that is at rest too
-        rest_rate = (2.0 * p.kv / p.pulses_per_mm).tolist()
-        deadline = mono() + period
-        t1_prev = deadline - period     # end of the previous tick: the last command sent
-        try:
-            while True:
-                w = k % TIMING_WINDOW
-                if cfg.realtime:
-                    if spin_ns:
-                        sleeper.until(deadline - spin_ns)
-                        while mono() < deadline:
-                            pass
-                    else:
-                        sleeper.until(deadline)
-                    t0 = mono()
-                    late[w] = t0 - deadline
-                else:
-                    t0 = mono()
-                # ---- hot path
-                try:
-                    fb = be.read()
-                except HalTimeout as e:
-                    status, reason = "fault", f"backend not answering: {e}"
-                    st = _halt(_executed(st, e), reason)
-                    comp[w] = mono() - t0
-                    break
-                except HalError as e:
-                    status, reason = "fault", f"backend fault: {e}"
-                    st = _halt(_executed(st, e), reason)
-                    comp[w] = mono() - t0
-                    break
-                if self.stop_request and st.mode == RUN and not stop_from_hold:
-                    fol.scaler.hold = True          # a stop is a feed hold on the path, then a halt
-                    stop_from_hold = True
-                tg = fol.next_target()
-                if probe is not None:
-                    probe.tick(fol, tg, fb.strain, k)      # strain as read: the plant at this target
-                # the tick's start: copies (the backend reuses its feedback object)
-                row = st.counts.tolist()
-                row += fb.enc.tolist()
-                row += fb.strain.tolist()
-                row += be.truth().tolist() if has_truth else nan5
-                t_nc = mono()
-                pulses, st = self.nc.step(st, tg, fb, self.chain_offset)   # the one NC call site (compiled or Python)
-                ncns[w] = mono() - t_nc
-                pending = pulses
-                try:
-                    if positions:
-                        be.write_positions(st.counts / ppm)
-                    else:
-                        be.write_pulses(pulses)
-                except HalError as e:
-                    # the backend did not take this tick's pulses: the counters must not claim them
-                    status, reason = "fault", f"backend fault: {e}"
-                    st = _halt(_executed(st.uncounted(pulses), e), reason)
-                    pending = None
-                    break
-                sent += pulses
-                pending = None
-                row = [k, fol.s_total, fol.scaler.sigma, fol.line, st.mode, fol.state] + row
-                row += tg[:6].tolist()
-                row.append(late[w])
-                row.append(self.last_compute_ns)
-                row += zero3 if st.offset is None else st.offset.tolist()
-                if not rec.push_row(row):
-                    if cfg.realtime or not getattr(recorder, "inline", True):
-                        self.dropped += 1
-                    else:
-                        recorder.drain()
-                        rec.push_row(row)
-                if writer := self.writer:
-                    if k % persist_every == 0:
-                        writer.offer(st.counts, k)
-                t1 = mono()
-                comp[w] = t1 - t0
-                self.last_compute_ns = t1 - t0
-                self.last_late_ns = late[w]
-                self.last_fb = fb
-                # ---- end of hot path
-                self.tick = k
-                self.mode = st.mode
-                k += 1
-                if self.hook is not None:
-                    st = self.hook(self, k, st)
-                if self.quit:
-                    status, reason = ("stopped" if st.mode != HALTED or _was_stop(st) else "fault"), \
-                        (self.quit_reason or st.reason or "quit")
-                    break
-                if self.exit_when_done:
-                    if st.mode == HALTED:
-                        status, reason = ("stopped" if _was_stop(st) else "fault"), st.reason
-                        break
-                    if stop_from_hold and st.mode == RUN and fol.sigma == 0.0:
-                        # held on the path: halt once the joints are at rest (rates within a pulse
-                        # or two's worth), or at the latest after the settling time
-                        if held_at < 0:
-                            held_at = k
-                        if all(abs(v) <= r for v, r in zip(st.qdot.tolist(), rest_rate)) \
-                                or k - held_at >= self.settle_ticks:
-                            st = _halt(st, self.stop_request)
-                            status, reason = "stopped", self.stop_request
-                            break
-                    if st.mode == RUN and fol.at_end and fol.src.count() <= 1 and fol.state != HOLDING:
-                        if done_at < 0:
-                            done_at = k
-                        if k - done_at >= self.settle_ticks:
-                            st = _done(st)
-                            status, reason = "done", ""
-                            break
-                if not cfg.realtime:
-                    if t1 - t0 > stall_ns:
-                        slow += 1      # offline simulation: a slow tick harms nothing; counted, reported
-                elif t1 - t1_prev > stall_ns and st.mode == RUN:
-                    # the device went this long without a command: a slow tick, or a late wake-up
-                    # (the process descheduled), both count
-                    why = (f"loop stalled: {(t1 - t1_prev) / 1e6:.1f} ms between two commands, "
-                           f"{(t1 - t0) / 1e6:.1f} ms of it computing "
-                           f"(limit {stall_ns / 1e6:g} ms){stall_hint(t1 - t1_prev, t1 - t0)}")
-                    self.stalls += 1
-                    if fol.sigma == 0.0 and fol.state != HOLDING:
-                        self.log(f"warning: {why}; at rest, nothing was commanded to move: no stop")
-                    elif be.stall_hold and self.on_stall is not None:
-                        self.on_stall(why)      # a feed hold on the path, resumed when on time again
-                    else:
-                        st = _stopping(st, why)
-                t1_prev = t1
-                if cfg.realtime:
-                    deadline += period
-                    if t1 > deadline:
-                        missed = (t1 - deadline) // period + 1
-                        overruns += 1
-                        in_row += 1
-                        max_in_row = max(max_in_row, in_row)
-                        deadline += missed * period
-                        if t1 - last_warn > 1_000_000_000:
-                            last_warn = t1
-                            self.log(f"warning: tick {k} overran its deadline by {(t1 - deadline + missed * period) / 1e3:.0f} us "
-                                     f"({overruns} overruns so far)" + ("" if overruns > 1 else
-                                     f": the computer is too busy for {cfg.rate_hz:g} Hz; stop other work, give the "
-                                     f"loop real-time priority and a core of its own (docs/service.md: PREEMPT_RT, "
-                                     f"isolcpus) or lower [loop] rate_hz"))
-                        if in_row >= cfg.max_overruns_in_row and st.mode == RUN:
-                            st = _stopping(st, f"{in_row} deadlines missed in a row at {cfg.rate_hz:g} Hz")
-                    else:
-                        in_row = 0
-        except Exception as e:        # anything else (a bug, an unexpected error of a backend): halt, say why
-            status, reason = "fault", f"loop error at tick {k}: {type(e).__name__}: {e}"
-            if pending is not None:    # not known to be taken by the backend: the counters must not claim them
-                st = st.uncounted(pending)
-            st = _halt(st, reason)
-        finally:
-            self.state = st
-            sys.setswitchinterval(switch)
-            if gc_was:
-                gc.enable()
-            if cfg.realtime and self.setup_rt:
-                undo_realtime(cfg.lock_memory)
-            recorder.stop()
-        n = k
+        c.rest_rate = (2.0 * p.kv / p.pulses_per_mm).tolist()
+        c.deadline = mono() + c.period
+        c.t1_prev = c.deadline - c.period   # end of the previous tick: the last command sent
+        return c
+
+    def _finish(self, c: Tick) -> None:
+        """Whatever the run ended with: the final state kept, scheduling, the switch interval and the
+        garbage collector as they were, the recorder stopped."""
+        cfg = self.cfg
+        self.state = c.st
+        sys.setswitchinterval(c.switch)
+        if c.gc_was:
+            gc.enable()
+        if cfg.realtime and self.setup_rt:
+            undo_realtime(cfg.lock_memory)
+        self.recorder.stop()
+
+    def _result(self, c: Tick) -> LoopResult:
+        cfg, recorder = self.cfg, self.recorder
+        n = c.k
         m = min(n, TIMING_WINDOW)
         order = np.arange(n - m, n) % TIMING_WINDOW
-        if slow:
-            self.log(f"{slow} ticks took longer than the stall limit ({cfg.stall_timeout_s * 1e3:g} ms); "
+        if c.slow:
+            self.log(f"{c.slow} ticks took longer than the stall limit ({cfg.stall_timeout_s * 1e3:g} ms); "
                      f"not a stall without real time")
-        timing = TimingStats(comp[order].copy(), late[order].copy(), ncns[order].copy(), overruns, max_in_row,
-                             cfg.realtime, msgs, slow)
+        timing = TimingStats(c.comp[order].copy(), c.late[order].copy(), c.ncns[order].copy(), c.overruns,
+                             c.max_in_row, cfg.realtime, c.msgs, c.slow)
         a = recorder.arrays() if recorder.keep else np.zeros((0, self.records.width))
-        return LoopResult(status, reason, n, st.snapshot(), timing, 1.0 / cfg.rate_hz,
+        return LoopResult(c.status, c.reason, n, c.st.snapshot(), timing, 1.0 / cfg.rate_hz,
                           a[:, R_COUNTS:R_COUNTS + 5].astype(np.int64), a[:, R_ENC:R_ENC + 5],
                           a[:, R_STRAIN:R_STRAIN + 3], a[:, R_TRUTH:R_TRUTH + 5], a[:, R_TARGET:R_TARGET + 6],
-                          sent.copy(), self.targets.job_start if self.targets is not None else 0,
+                          self.sent.copy(), self.targets.job_start if self.targets is not None else 0,
                           a[:, R_SIGMA], a[:, R_S], a[:, R_LINE].astype(int), self.dropped)
+
+    # ---- the phases of a tick, in order
+
+    def _read_inputs(self, c: Tick) -> bool:
+        """Read inputs: the backend's feedback, and the tick's start as the record will hold it
+        (copies: the backend reuses its feedback object). False: the backend failed, halted."""
+        be = self.backend
+        c.t0 = c.mono()                 # the hot path's start: its compute time runs from here
+        try:
+            fb = be.read()
+        except HalTimeout as e:
+            return self._backend_lost(c, f"backend not answering: {e}", e)
+        except HalError as e:
+            return self._backend_lost(c, f"backend fault: {e}", e)
+        c.fb = fb
+        row = c.st.counts.tolist()
+        row += fb.enc.tolist()
+        row += fb.strain.tolist()
+        row += be.truth().tolist() if c.has_truth else c.nan5
+        c.row = row
+        return True
+
+    def _backend_lost(self, c: Tick, reason: str, e: HalError) -> bool:
+        c.status, c.reason = "fault", reason
+        c.st = _halt(_executed(c.st, e), reason)
+        c.comp[c.w] = c.mono() - c.t0
+        return False
+
+    def _model_pose(self, c: Tick) -> None:
+        """Model pose: the pose the model is to reach this tick, the path follower's next target (a
+        stop request turns into a feed hold on the path first); the probe monitor watches it."""
+        fol = self.follower
+        if self.stop_request and c.st.mode == RUN and not c.stop_from_hold:
+            fol.scaler.hold = True          # a stop is a feed hold on the path, then a halt
+            c.stop_from_hold = True
+        c.tg = tg = fol.next_target()
+        if self.probe is not None:
+            self.probe.tick(fol, tg, c.fb.strain, c.k)      # strain as read: the plant at this target
+
+    def _nc(self, c: Tick) -> None:
+        """NC: this tick's pulses and the next state (the one NC call site, compiled or Python)."""
+        mono = c.mono
+        t_nc = mono()
+        pulses, c.st = self.nc.step(c.st, c.tg, c.fb, self.chain_offset)
+        c.ncns[c.w] = mono() - t_nc
+        c.pulses = c.pending = pulses
+
+    def _output(self, c: Tick) -> bool:
+        """Output: the pulses (or, to a CSP drive, the joint positions) to the backend. False: it did
+        not take them, halted, and the counters do not claim them."""
+        pulses = c.pulses
+        try:
+            if c.positions:
+                self.backend.write_positions(c.st.counts / c.ppm)
+            else:
+                self.backend.write_pulses(pulses)
+        except HalError as e:
+            c.status, c.reason = "fault", f"backend fault: {e}"
+            c.st = _halt(_executed(c.st.uncounted(pulses), e), c.reason)
+            c.pending = None
+            return False
+        sent = self.sent
+        sent += pulses
+        c.pending = None
+        return True
+
+    def _record(self, c: Tick) -> None:
+        """Record: the tick's row into the record ring, the counters offered to the writer every
+        persist_every ticks; the end of the hot path (its compute time)."""
+        st, w = c.st, c.w
+        s_total, sigma, line, state = self.follower.progress()
+        row = [c.k, s_total, sigma, line, st.mode, state] + c.row
+        row += c.tg.tolist()[:6]
+        row.append(c.late_ns)
+        row.append(self.last_compute_ns)
+        row += c.zero3 if st.offset is None else st.offset.tolist()
+        if not self.records.push_row(row):
+            recorder = self.recorder
+            if c.realtime or not getattr(recorder, "inline", True):
+                self.dropped += 1
+            else:
+                recorder.drain()
+                self.records.push_row(row)
+        if writer := self.writer:
+            if c.k % c.persist_every == 0:
+                writer.offer(st.counts, c.k)
+        c.t1 = t1 = c.mono()
+        c.comp[w] = t1 - c.t0
+        self.last_compute_ns = t1 - c.t0
+        self.last_late_ns = c.late_ns
+        self.last_fb = c.fb
+
+    def _status(self, c: Tick) -> None:
+        """Status: the tick and mode for a progress display, then the hook (the rt process's
+        command/status exchange), which may change the state."""
+        self.tick = c.k
+        self.mode = c.st.mode
+        c.k += 1
+        if self.hook is not None:
+            c.st = self.hook(self, c.k, c.st)
+
+    def _supervise(self, c: Tick) -> bool:
+        """Supervise, the stop rules: quit; with exit_when_done a halt, a stop's hold come to rest,
+        the job's end after settling; a stall. True: the run ends."""
+        st, fol = c.st, self.follower
+        k = c.k
+        if self.quit:
+            c.status, c.reason = ("stopped" if st.mode != HALTED or _was_stop(st) else "fault"), \
+                (self.quit_reason or st.reason or "quit")
+            return True
+        if self.exit_when_done:
+            if st.mode == HALTED:
+                c.status, c.reason = ("stopped" if _was_stop(st) else "fault"), st.reason
+                return True
+            if c.stop_from_hold and st.mode == RUN and fol.sigma == 0.0:
+                # held on the path: halt once the joints are at rest (rates within a pulse
+                # or two's worth), or at the latest after the settling time
+                if c.held_at < 0:
+                    c.held_at = k
+                if all(abs(v) <= r for v, r in zip(st.qdot.tolist(), c.rest_rate)) \
+                        or k - c.held_at >= self.settle_ticks:
+                    c.st = _halt(st, self.stop_request)
+                    c.status, c.reason = "stopped", self.stop_request
+                    return True
+            if st.mode == RUN and fol.at_end and fol.src.count() <= 1 and fol.state != HOLDING:
+                if c.done_at < 0:
+                    c.done_at = k
+                if k - c.done_at >= self.settle_ticks:
+                    c.st = _done(st)
+                    c.status, c.reason = "done", ""
+                    return True
+        self._check_stall(c)
+        c.t1_prev = c.t1
+        return False
+
+    def _check_stall(self, c: Tick) -> None:
+        """A tick that left the device too long without a command: in real time, while the path
+        moves, a stop with the reason (or a hold that rides it out); offline only counted."""
+        t0, t1, stall_ns = c.t0, c.t1, c.stall_ns
+        if not c.realtime:
+            if t1 - t0 > stall_ns:
+                c.slow += 1      # offline simulation: a slow tick harms nothing; counted, reported
+        elif t1 - c.t1_prev > stall_ns and c.st.mode == RUN:
+            # the device went this long without a command: a slow tick, or a late wake-up
+            # (the process descheduled), both count
+            gap = t1 - c.t1_prev
+            why = (f"loop stalled: {gap / 1e6:.1f} ms between two commands, "
+                   f"{(t1 - t0) / 1e6:.1f} ms of it computing "
+                   f"(limit {stall_ns / 1e6:g} ms){stall_hint(gap, t1 - t0)}")
+            self.stalls += 1
+            fol = self.follower
+            if fol.sigma == 0.0 and fol.state != HOLDING:
+                self.log(f"warning: {why}; at rest, nothing was commanded to move: no stop")
+            elif self.backend.stall_hold and self.on_stall is not None:
+                self.on_stall(why)      # a feed hold on the path, resumed when on time again
+            else:
+                c.st = _stopping(c.st, why)
+
+    def _wait(self, c: Tick) -> None:
+        """Wait: in real time the next deadline and the overrun policy (missed deadlines counted,
+        warned about, N in a row stop the machine), then sleep to it."""
+        if c.realtime:
+            self._pace(c)
+        self._sleep(c)
+
+    def _pace(self, c: Tick) -> None:
+        cfg, period, t1 = self.cfg, c.period, c.t1
+        c.deadline += period
+        if t1 > c.deadline:
+            missed = (t1 - c.deadline) // period + 1
+            c.overruns += 1
+            c.in_row += 1
+            c.max_in_row = max(c.max_in_row, c.in_row)
+            c.deadline += missed * period
+            if t1 - c.last_warn > 1_000_000_000:
+                c.last_warn = t1
+                self.log(f"warning: tick {c.k} overran its deadline by {(t1 - c.deadline + missed * period) / 1e3:.0f} us "
+                         f"({c.overruns} overruns so far)" + ("" if c.overruns > 1 else
+                         f": the computer is too busy for {cfg.rate_hz:g} Hz; stop other work, give the "
+                         f"loop real-time priority and a core of its own (docs/service.md: PREEMPT_RT, "
+                         f"isolcpus) or lower [loop] rate_hz"))
+            if c.in_row >= cfg.max_overruns_in_row and c.st.mode == RUN:
+                c.st = _stopping(c.st, f"{c.in_row} deadlines missed in a row at {cfg.rate_hz:g} Hz")
+        else:
+            c.in_row = 0
+
+    def _sleep(self, c: Tick) -> None:
+        """Until the tick's deadline (real time; ``spin_us`` of it busy-waiting), and the lateness of
+        the wake-up; offline the tick starts at once."""
+        c.w = w = c.k % TIMING_WINDOW
+        if c.realtime:
+            mono = c.mono
+            deadline = c.deadline
+            if c.spin_ns:
+                c.sleeper.until(deadline - c.spin_ns)
+                while mono() < deadline:
+                    pass
+            else:
+                c.sleeper.until(deadline)
+            c.late[w] = c.late_ns = mono() - deadline
+        else:
+            c.late_ns = 0
+
+
+class Tick:
+    """The loose values of a run that travel from phase to phase and from tick to tick: the NC state,
+    this tick's feedback, target and pulses, the deadline, the timing window, the stop rules' memory."""
+
+    __slots__ = ("realtime", "has_truth", "positions", "ppm", "nan5", "zero3", "period", "stall_ns", "spin_ns",
+                 "comp", "late", "ncns", "msgs", "sleeper", "st", "status", "reason", "overruns", "in_row",
+                 "max_in_row", "slow", "pending", "last_warn", "persist_every", "gc_was", "switch", "mono", "k",
+                 "w", "done_at", "stop_from_hold", "held_at", "rest_rate", "deadline", "t0", "t1", "t1_prev",
+                 "fb", "tg", "pulses", "row", "late_ns")
 
 
 def _executed(st: NCState, e: HalError) -> NCState:

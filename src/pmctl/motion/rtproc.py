@@ -47,7 +47,7 @@ from pmctl.core.errors import PmctlError
 from pmctl.hal.base import as_inputs
 from pmctl.hal.modbus_vfd import LOOKAHEAD_SAMPLES
 from pmctl.motion import channel as C
-from pmctl.motion.loop import ControlLoop
+from pmctl.motion.loop import ControlLoop, LoopParts
 from pmctl.motion.nc import HALTED, RUN, STOPPING, initial_state
 from pmctl.motion.probe import ProbeMonitor, ProbeSegment
 from pmctl.motion.recorder import Recorder
@@ -429,9 +429,10 @@ def rt_main(spec: dict, settings) -> int:
     def _term(signum, frame):
         hook.term = True
     signal.signal(signal.SIGTERM, _term)
-    lp = ControlLoop(machine, be, params, None, cfg, st, log=log, writer=writer, follower=fol,
-                     records=ch.records, recorder=_Null(ch.records, keep=False), hook=hook,
-                     exit_when_done=False, setup_rt=realtime and not offline, probe=hook.probe)
+    lp = ControlLoop(machine, be, params, None, cfg, st,
+                     LoopParts(log=log, writer=writer, follower=fol, records=ch.records,
+                               recorder=_Null(ch.records, keep=False), hook=hook, exit_when_done=False,
+                               setup_rt=realtime and not offline, probe=hook.probe))
     lp.on_stall = on_stall
     ch.st[C.ST_PHASE] = C.PH_RUNNING
     res = None

@@ -395,6 +395,10 @@ class PathFollower:
     def sigma(self) -> float:
         return self.scaler.sigma
 
+    def progress(self) -> tuple:
+        """(s_total, sigma, line, state) at once: what the loop's per-tick record reads."""
+        return self.s_total, self.scaler.sigma, self.line, self.state
+
     def _pose(self, i, f):
         r0 = self.src.row(i)
         if f <= 0.0:
@@ -533,6 +537,9 @@ def _slot(name: str, kind=float, writable: bool = True):
     return property(get, put if writable else None)
 
 
+_PROGRESS = tuple(getattr(_follow, n, -1) for n in ("FL_S_TOTAL", "FL_SIGMA", "FL_LINE", "FL_STATE"))
+
+
 class CompiledScaler(TimeScaler):
     """The TimeScaler of a :class:`CompiledFollower`: the same attributes and methods, its numbers
     kept in the follower's state buffer, where the compiled tick reads and writes them."""
@@ -600,6 +607,12 @@ class CompiledFollower:
     @property
     def reason(self) -> str:
         return _REASONS[int(self._v[_follow.FL_REASON])]
+
+    def progress(self) -> tuple:
+        """(s_total, sigma, line, state) at once: what the loop's per-tick record reads, in one call
+        instead of four properties (a third of the time)."""
+        v, (i_s, i_sigma, i_line, i_state) = self._v, _PROGRESS
+        return v[i_s], v[i_sigma], int(v[i_line]), int(v[i_state])
 
     @property
     def _rest(self):

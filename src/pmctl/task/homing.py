@@ -132,11 +132,11 @@ class RtMover:
         self.scaling = scaling_limits(sup.params)
 
     def _s(self):
-        return self.sup.raw()
+        return self.sup.status()
 
     def _check(self, latch_seq=None):
         sup = self.sup
-        if latch_seq is not None and self._s()[C.ST_LATCH_SEQ] != latch_seq:
+        if latch_seq is not None and self._s().latch_seq != latch_seq:
             raise _Latched()
         if self.abort.is_set() or sup._stop.is_set():
             raise HomingFailed(ALARM_HOMING_RESET, "homing aborted by a reset")
@@ -144,10 +144,10 @@ class RtMover:
             raise MotionRefused(sup.alarm_msg or "the rt motion process is down", 9)
 
     def count(self, i):
-        return int(self._s()[C.ST_COUNTS + i])
+        return int(self._s().counts[i])
 
     def switch(self, i):
-        bits = int(self._s()[C.ST_HOME_IN])
+        bits = self._s().home_in
         if bits < 0:
             raise HomingFailed(ALARM_HOMING_APPROACH, "this backend reports no home switches")
         return bool(bits >> i & 1)
@@ -155,9 +155,9 @@ class RtMover:
     def move(self, i, dist, speed, want=None):
         sup = self.sup
         s = self._s()
-        q0 = s[C.ST_COUNTS:C.ST_COUNTS + 5] / self.ppm
+        q0 = s.counts / self.ppm
         traj = joint_trajectory(q0, i, dist, speed, self.accel[i], sup.machine, sup.dt)
-        seq0, ended0 = s[C.ST_LATCH_SEQ], s[C.ST_ENDED]
+        seq0, ended0 = s.latch_seq, s.ended
         if want is not None:
             if not sup.wait_ack(sup.command(C.C_HOME_ARM, float(i), 1.0 if want else 0.0), 10.0):
                 raise HomingFailed(ALARM_HOMING_APPROACH, "the rt side did not take the switch latch")
@@ -169,7 +169,7 @@ class RtMover:
             while True:
                 self._check()
                 st = self._s()
-                if st[C.ST_LATCH_SEQ] != seq0 or st[C.ST_ENDED] > ended0:
+                if st.latch_seq != seq0 or st.ended > ended0:
                     break
                 time.sleep(0.002)
         except _Latched:
@@ -177,8 +177,8 @@ class RtMover:
         if want is not None:
             sup.wait_ack(sup.command(C.C_HOME_ARM, -1.0), 10.0)
         st = self._s()
-        if st[C.ST_LATCH_SEQ] != seq0:
-            latched = int(st[C.ST_LATCH + i])
+        if st.latch_seq != seq0:
+            latched = int(st.latch[i])
         sup._stop_queue()                   # at rest on the path, the rest of the move dropped
         self._check()
         return latched
@@ -186,24 +186,24 @@ class RtMover:
     def set_count(self, i, n):
         """Re-reference counter ``i`` to ``n`` (at rest). The rt side takes the command only at rest with
         nothing queued (a tick after a stop may still be settling) and then moves its start counters by
-        the shift (ST_COUNTS0): unchanged after the ack, it was not taken and goes again. Afterwards the
+        the shift (``counts0`` of its status): unchanged after the ack, it was not taken and goes again. Afterwards the
         NC, restarted from the new counters, may close a pulse or two of sub-pulse residue (or, on
         drives, what the position feedback moved while the reference was taken), counted like any motion."""
         sup = self.sup
-        c0 = float(self._s()[C.ST_COUNTS0 + i])
+        c0 = int(self._s().counts0[i])
         t0 = time.monotonic()
         while True:
             if self.count(i) == n:
                 return
             sup.wait_ack(sup.command(C.C_SET_COUNTS, float(i), float(n)), 10.0)
-            if float(self._s()[C.ST_COUNTS0 + i]) != c0:
+            if int(self._s().counts0[i]) != c0:
                 return
             self._check()
             if time.monotonic() - t0 > 10.0:
                 s = self._s()
                 raise HomingFailed(ALARM_HOMING_APPROACH, f"homing {AXES[i]}: the rt side did not re-reference "
-                                                          f"the counter in 10 s (not at rest: sigma {s[C.ST_SIGMA]:g}, "
-                                                          f"{int(s[C.ST_QUEUED])} samples queued, mode {int(s[C.ST_MODE])})")
+                                                          f"the counter in 10 s (not at rest: sigma {s.sigma:g}, "
+                                                          f"{s.queued} samples queued, mode {s.mode})")
             time.sleep(0.02)
 
 

@@ -64,9 +64,10 @@ from pmctl.hal.modbus_daq import DaqSession
 from pmctl.hal.modbus_vfd import REST_STEP_MM, SpindleSession, job_speed
 from pmctl.motion import channel as C
 from pmctl.motion.nc import RUN
-from pmctl.motion.probe import ProbeResult, check_probe_feeds, mark_probe_rows, probe_segments, split_at_probes
+from pmctl.motion.probe import check_probe_feeds, mark_probe_rows, probe_segments, split_at_probes
 from pmctl.motion.recorder import R_STRAIN, R_TICK
 from pmctl.motion.settings import resolve
+from pmctl.motion.status import RtStatus, read_status
 from pmctl.motion.timescale import (HELD, HOLDING, MOVING, STARVED, S_LINE, RowStream, full_speed_queue,
                                     iter_stream_rows, shape_trajectory)
 from pmctl.task.homing import AXES, HomingFailed, RtMover, Sequence
@@ -216,15 +217,13 @@ class Supervisor:
 
     def _spawn(self, counts, timeout_s):
         ch = self.ch
-        ch.st[:] = 0.0                    # nothing of a previous rt process's status may count
-        ch.st[C.ST_PHASE] = C.PH_STARTING
+        ch.reset_status(counts)           # nothing of a previous rt process's status may count
         ch.samples.clear()
         ch.records.clear()
         ch.commands.clear()
         ch.clear_result()
         self._hold_points.clear()
         self._hold_at_seen = 0
-        ch.st[C.ST_COUNTS:C.ST_COUNTS + 5] = np.asarray(counts, float)
         spec = {"shm": ch.name, "state_file": self.state_file, "counts": [int(c) for c in counts],
                 "ppid": os.getpid()}
         # the settings go as data over the spawn pipe (stdin): the rt process reads no config file
@@ -236,18 +235,18 @@ class Supervisor:
             pass                          # it died at once: said below
         self.proc = _RtProc(p)
         t0 = time.monotonic()
-        while ch.st[C.ST_PHASE] != C.PH_RUNNING:
+        while not self.status().running:
             if not self.proc.is_alive():
                 raise PmctlError(f"the rt motion process failed to start (exit code {self.proc.exitcode})")
             if time.monotonic() - t0 > timeout_s:
                 self.proc.kill()
                 raise PmctlError(f"the rt motion process did not start within {timeout_s:g} s")
             time.sleep(0.01)
-        while self.ch.st[C.ST_TICK] < 2 and self.proc.is_alive():
+        while self.status().tick < 2 and self.proc.is_alive():
             time.sleep(0.005)
         self.rt_dead = False
         self._ended_base = 0
-        self._fault_seen = self.ch.st[C.ST_REASON_SEQ]
+        self._fault_seen = self.status().reason_seq
 
     @property
     def rt_pid(self):
@@ -266,9 +265,9 @@ class Supervisor:
                 self.proc.terminate()
                 self.proc.join(5)
         if self.ch is not None:
-            counts = self.ch.st[C.ST_COUNTS:C.ST_COUNTS + 5].astype(np.int64).copy()
+            self.final_status = self.status()
+            counts = self.final_status.counts.copy()
             self.exited_reason = self.ch.reason()
-            self.final_status = self.ch.status()
             self.rt_result = self.ch.result()
         self._stop.set()
         for t in self._threads:
@@ -348,7 +347,7 @@ class Supervisor:
 
     def _tick(self) -> int:
         ch = self.ch
-        return int(ch.st[C.ST_TICK]) if ch is not None else 0
+        return read_status(ch).tick if ch is not None else 0
 
     def _device_fault(self, why: str):
         """The spindle's or the DAQ's polling thread saw a fault or a lost link: a controlled stop
@@ -451,7 +450,7 @@ class Supervisor:
     def _follow_hold_points(self, s):
         """(monitor thread) The rt side reached C_HOLD_AT points and holds: their events go to the
         events thread, which performs them and releases the hold."""
-        seq = int(s[C.ST_HOLD_AT_SEQ])
+        seq = s.hold_at_seq
         while self._hold_at_seen < seq:
             self._hold_at_seen += 1
             with self._lock:
@@ -548,7 +547,11 @@ class Supervisor:
                 return
             _patient(sp.vfd, lambda: sp.vfd.start(want))
         t0 = time.monotonic()
-        _patient(sp.vfd, sp.vfd.wait_at_speed)
+        got = _patient(sp.vfd, sp.vfd.wait_at_speed)
+        if rpm and sp.monitor is not None:
+            # the reading that releases the path is the spindle's speed from here on: the monitor's
+            # next poll may come after the path has moved on (offline, ticks run back to back)
+            sp.monitor.samples.append((self._tick(), -got if sp.vfd.rpm_cmd < 0 else got))
         self.log(f"spindle {'M5' if not rpm else ('M3' if rpm > 0 else 'M4') + f' S{abs(rpm):g}'}: "
                  f"{'stopped' if not rpm else 'at speed'} after {time.monotonic() - t0:.2f} s")
         if rpm and sp.monitor is None:
@@ -606,23 +609,28 @@ class Supervisor:
             return True
 
     # ------------------------------------------------------------ status
+    def status(self) -> RtStatus:
+        """A fresh snapshot of the rt side's status (pmctl.motion.status: named fields)."""
+        return read_status(self.ch)
+
     def raw(self) -> np.ndarray:
+        """The status block as the rt side wrote it (a copy; diagnostics and tests: read :meth:`status`)."""
         return self.ch.status()
 
     def counts(self) -> np.ndarray:
-        return self.raw()[C.ST_COUNTS:C.ST_COUNTS + 5].astype(np.int64)
+        return self.status().counts
 
     def pose(self):
         """Tool tip and axis in W of the pulse counters (FK; the status block's model pose is the
         one at the start of the rt side's last tick, one tick behind the counters)."""
-        s = self.raw()
-        counts = s[C.ST_COUNTS:C.ST_COUNTS + 5]
+        s = self.status()
+        counts = s.counts.astype(float)
         key = counts.tobytes()
         if self._pose_cache is not None and self._pose_cache[0] == key:
             return self._pose_cache[1][0].copy(), self._pose_cache[1][1].copy()
         pose, ok = K.fk_batch((counts / self.machine.resolution.pulses_per_mm)[None], self.machine)
         if not ok[0]:
-            return s[C.ST_TIP:C.ST_TIP + 3].copy(), s[C.ST_AXIS:C.ST_AXIS + 3].copy()
+            return s.tip_mm.copy(), s.axis.copy()
         out = (pose.tip[0].copy(), pose.axis[0] / np.linalg.norm(pose.axis[0]))
         self._pose_cache = (key, out)
         return out[0].copy(), out[1].copy()
@@ -634,8 +642,8 @@ class Supervisor:
         with self._lock:
             if self.items:
                 return True
-        s = self.raw()
-        return s[C.ST_QUEUED] > 1 or s[C.ST_FOLLOW] in (MOVING, HOLDING, STARVED) or s[C.ST_SIGMA] > 0
+        s = self.status()
+        return s.queued > 1 or s.follow in (MOVING, HOLDING, STARVED) or s.sigma > 0
 
     def state_name(self) -> str:
         """grbl machine state: Idle Run Hold:0 Hold:1 Jog Home Alarm Check."""
@@ -643,12 +651,12 @@ class Supervisor:
             return "Alarm"
         if self.homing:
             return "Home"
-        s = self.raw()
-        fol = s[C.ST_FOLLOW]
-        if s[C.ST_HOLD] and self._auto_hold and not self.operator_hold and not self.paused:
+        s = self.status()
+        fol = s.follow
+        if s.hold and self._auto_hold and not self.operator_hold and not self.paused:
             return "Run"                 # the path waits where an event takes effect (a spindle speed...)
-        if s[C.ST_HOLD] and (self.busy() or fol in (HOLDING, HELD)):
-            return "Hold:0" if (fol == HELD or (s[C.ST_SIGMA] == 0 and fol != HOLDING)) else "Hold:1"
+        if s.hold and (self.busy() or fol in (HOLDING, HELD)):
+            return "Hold:0" if (fol == HELD or (s.sigma == 0 and fol != HOLDING)) else "Hold:1"
         if self.check_mode:
             return "Check"
         if self.busy():
@@ -658,8 +666,7 @@ class Supervisor:
         return "Idle"
 
     def current_line(self) -> int:
-        s = self.raw()
-        line = int(s[C.ST_LINE])
+        line = self.status().line
         with self._lock:
             for it in self.items:
                 if line in it.lines:
@@ -783,7 +790,7 @@ class Supervisor:
         """Wait until the rt side has applied command ``seq`` (it acknowledges in its status)."""
         t0 = time.monotonic()
         while time.monotonic() - t0 < timeout_s and not self.rt_dead:
-            if self.raw()[C.ST_CMD_ACK] >= seq:
+            if self.status().cmd_ack >= seq:
                 return True
             time.sleep(0.002)
         return False
@@ -913,11 +920,11 @@ class Supervisor:
             t0 = time.monotonic()
             self.wait_ack(seq, timeout_s)
             while time.monotonic() - t0 < timeout_s and not self.rt_dead:
-                s = self.raw()
-                if s[C.ST_QUEUED] == 0 and s[C.ST_SIGMA] == 0 and not s[C.ST_HOLD]:
+                s = self.status()
+                if s.queued == 0 and s.sigma == 0 and not s.hold:
                     break
                 time.sleep(0.005)
-            self._ended_base = int(self.raw()[C.ST_ENDED])
+            self._ended_base = self.status().ended
         self._abort.clear()
 
     def estop(self, reason="E-stop"):
@@ -927,7 +934,7 @@ class Supervisor:
             self._gen += 1
         if self.ch is not None and not self.rt_dead:
             self.command(C.C_ESTOP)
-            self._ended_base = int(self.raw()[C.ST_ENDED])
+            self._ended_base = self.status().ended
         self.raise_alarm(ALARM_ESTOP, reason)
         self._drop_hold_points()
         self._spindle_off("at the E-stop")
@@ -936,14 +943,14 @@ class Supervisor:
     def unlock(self):
         """$X: clear the alarm; restart the rt process if it died; re-arm the NC after a fault."""
         if self.rt_dead:
-            counts = self.ch.st[C.ST_COUNTS:C.ST_COUNTS + 5].astype(np.int64).copy()
+            counts = self.status().counts.copy()
             self._spawn(counts, 60.0)
         elif self.ch is not None:
             self.wait_ack(self.command(C.C_UNLOCK))
             t0 = time.monotonic()
-            while time.monotonic() - t0 < 1.0 and self.raw()[C.ST_MODE] != RUN:
+            while time.monotonic() - t0 < 1.0 and self.status().mode != RUN:
                 time.sleep(0.005)
-            if self.raw()[C.ST_MODE] != RUN:
+            if self.status().mode != RUN:
                 raise MotionRefused(f"cannot unlock: {self.ch.reason() or 'the rt side stays halted'}", 9)
         self.alarm, self.alarm_msg = 0, ""
 
@@ -955,9 +962,9 @@ class Supervisor:
             raise MotionRefused("homing is already under way", 8)
         if not (self.alarm or self.rt_dead) and self.busy():
             raise MotionRefused("$H only when idle: motion is queued or under way", 8)
-        if self.rt_dead or self.raw()[C.ST_MODE] != RUN:
+        if self.rt_dead or self.status().mode != RUN:
             self.unlock()                 # restart / re-arm the rt side first (refused while an E-stop holds)
-        if int(self.raw()[C.ST_HOME_IN]) < 0:
+        if self.status().home_in < 0:
             raise MotionRefused(f"backend {self.backend!r} reports no home switches", 5)
         self.homing_abort.clear()
         with self._lock:
@@ -1091,7 +1098,7 @@ class Supervisor:
 
     def _queued_s(self) -> float:
         """Seconds of samples queued ahead of the tool (at 100 % feed)."""
-        return float(self.raw()[C.ST_QUEUED]) * self.dt
+        return self.status().queued * self.dt
 
     def _low_water_s(self) -> float:
         """Below this much motion queued ahead of the tool the open stream is planned to rest at its
@@ -1230,14 +1237,14 @@ class Supervisor:
                 continue
             seg = probe_segments(piece, self.machine, start[0])[0]
             seg.feed *= self.plan_feed_override      # the feed as planned (the monitor's speed and stop)
-            seq0 = self.raw()[C.ST_PROBE_SEQ]
+            seq0 = self.status().probe_seq
             tab = self.ch.probe
             tab[1:] = seg.to_row()
             tab[0] += 1.0                    # the announcement last: the rt side takes the whole row
             it.planned = True
             self._push_rows((mark_probe_rows(r, seg.feed, self.svc.probe) for r in rows_iter), it)
             s = self._wait_probe(seq0, it)
-            res = ProbeResult.from_row(s[C.ST_PROBE:C.ST_PROBE + C.PROBE_RESULT_WIDTH])
+            res = s.probe()
             it.probe_results.append(res)
             self._emit("probe", res.as_dict())
             if res.error:
@@ -1245,7 +1252,7 @@ class Supervisor:
                 with self._lock:
                     self.items.clear()
                     self._gen += 1
-                    self._ended_base = int(s[C.ST_ENDED])
+                    self._ended_base = s.ended
                 self.raise_alarm(ALARM_PROBE_FAIL_CONTACT, res.error)
                 return
             start = (np.asarray(res.stop, float), np.asarray(seg.axis, float))
@@ -1259,12 +1266,12 @@ class Supervisor:
                             self.items[i + 1].start = start
 
     def _wait_probe(self, seq0, it):
-        """The status block once the rt side has reported the probe ended (ST_PROBE_SEQ past seq0)."""
+        """The rt status once the rt side has reported the probe ended (``probe_seq`` past seq0)."""
         while True:
             if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
                 raise _Aborted()
-            s = self.raw()
-            if s[C.ST_PROBE_SEQ] > seq0:
+            s = self.status()
+            if s.probe_seq > seq0:
                 return s
             time.sleep(0.002)
 
@@ -1312,14 +1319,14 @@ class Supervisor:
     def _take_fault(self, ch, s):
         """A fault the rt side reported (status ``s``) and not yet taken: the queue dropped, the alarm
         raised with its reason."""
-        if s[C.ST_REASON_SEQ] == self._fault_seen or s[C.ST_FAULT] == C.F_NONE:
+        if s.reason_seq == self._fault_seen or not s.stopped:
             return
-        self._fault_seen = s[C.ST_REASON_SEQ]
+        self._fault_seen = s.reason_seq
         reason = ch.reason()
         with self._lock:
             self.items.clear()
             self._gen += 1
-            self._ended_base = int(s[C.ST_ENDED])
+            self._ended_base = s.ended
         self._drop_hold_points()
         code = ALARM_SOFT_LIMIT if reason.startswith(("soft limit", "path error")) else (
             ALARM_ESTOP if reason.startswith("E-stop") else ALARM_MOTOR_FAULT)
@@ -1334,14 +1341,14 @@ class Supervisor:
             if ch is None:
                 continue
             self._drain_records()
-            s = ch.status()
+            s = read_status(ch)
             self._last_status = s
-            if s[C.ST_HOLD_AT_SEQ] != self._hold_at_seen:
+            if s.hold_at_seq != self._hold_at_seen:
                 self._follow_hold_points(s)
             self._take_fault(ch, s)
             if self.proc is not None and not self.proc.is_alive() and not self.rt_dead and not self._stop.is_set() \
                     and not self._quitting:
-                self._take_fault(ch, ch.status())     # its last word: a fault it stopped on, written before it left
+                self._take_fault(ch, read_status(ch))     # its last word: a fault it stopped on, written before it left
                 r = ch.result()
                 if not self.alarm and r and r.get("status") == "fault" and r.get("reason"):
                     self.homed = False
@@ -1361,7 +1368,7 @@ class Supervisor:
                 self._emit("rt_dead", {"exitcode": code})
                 continue
             # retire finished items: the rt side counts the job ends it passed
-            ended = int(s[C.ST_ENDED])
+            ended = s.ended
             with self._lock:
                 while self.items and self.items[0].planned:
                     head = self.items[0]

@@ -353,8 +353,7 @@ class _RunView:
     planned are extrapolated from the job line the planned ones reached."""
 
     def __init__(self, sup, last_line: int, job=None):
-        from pmctl.motion import channel as C
-        self.C, self.sup, self.last_line = C, sup, max(int(last_line), 1)
+        self.sup, self.last_line = sup, max(int(last_line), 1)
         self.tick0 = None
         self.item = None                 # the job's supervisor Item, once submitted
         self.s0 = 0.0                    # the rt side's path clock (samples run) when it was submitted
@@ -370,15 +369,16 @@ class _RunView:
         return float(self.share[k - 1]) if k else 0.0
 
     def _st(self):
+        from pmctl.motion.status import read_status
         ch = self.sup.ch
-        return ch.st if ch is not None else None
+        return read_status(ch) if ch is not None else None
 
     @property
     def tick(self):
         st = self._st()
         if st is None or self.tick0 is None:
             return 0
-        return max(int(st[self.C.ST_TICK]) - self.tick0, 0)
+        return max(st.tick - self.tick0, 0)
 
     @property
     def n_ticks(self):
@@ -388,12 +388,12 @@ class _RunView:
         total = float(it.pushed)
         if not it.all_pushed:
             total /= max(self._planned_share(it.pushed_line), 1e-3)
-        return self.tick + int(max(0.0, total - (float(st[self.C.ST_S]) - self.s0)))
+        return self.tick + int(max(0.0, total - (st.path_s - self.s0)))
 
     @property
     def mode(self):
         st = self._st()
-        return int(st[self.C.ST_MODE]) if st is not None else 0
+        return st.mode if st is not None else 0
 
 
 def _nominal_shares(job):
@@ -441,7 +441,6 @@ def _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loo
     from pmctl import hal
     from pmctl.hal.base import Backend
     from pmctl.hal.modbus_vfd import job_speed
-    from pmctl.motion import channel as C
     from pmctl.motion.recorder import R_S, R_TICK
     from pmctl.task.run_sink import RunSink
     from pmctl.task.supervisor import Supervisor
@@ -469,7 +468,7 @@ def _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loo
     def _stop(signum, frame):
         if not stop_req:
             stop_req.append((STOP_SIGNALS.get(signal.Signals(signum).name, f"signal {signum}"),
-                             int(sup.ch.st[C.ST_TICK]) if sup.ch is not None else 0))
+                             sup.status().tick if sup.ch is not None else 0))
     old = _catch_stop_signals(_stop)
     rec = None
     try:
@@ -529,7 +528,7 @@ def _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loo
 def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick, s0, rec_err, sink, rec, machine,
                             cfg, dt, counts0, backend_name, state_file, path=None) -> int:
 
-    from pmctl.motion import channel as C
+    from pmctl.motion.status import F_FAULT
     log = out.log
     settle = int(round(cfg.settle_s * cfg.rate_hz))
     status = reason = ""
@@ -537,12 +536,12 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
     bad_input = ""
     t_wall = time.monotonic()
     try:
-        s = sup.raw()
-        view.tick0 = int(s[C.ST_TICK])
+        s = sup.status()
+        view.tick0 = s.tick
         it = None
         if not stop_req:
-            s0.append(float(s[C.ST_S]))
-            ended0 = int(s[C.ST_ENDED])
+            s0.append(s.path_s)
+            ended0 = s.ended
             it = sup.submit(job, kind="job", name=Path(args.job).name, source=str(args.job), path=path)
             view.item, view.s0 = it, s0[0]
         prog.start()
@@ -555,9 +554,9 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
             if sup.rt_dead:
                 status, reason = "fault", sup.alarm_msg or "the rt motion process died"
                 break
-            s = sup.raw()
-            if s[C.ST_FAULT] != C.F_NONE:
-                status = "fault" if s[C.ST_FAULT] == C.F_FAULT else "stopped"
+            s = sup.status()
+            if s.stopped:
+                status = "fault" if s.fault == F_FAULT else "stopped"
                 reason = sup.ch.reason()
                 break
             if sup.device_fault:
@@ -568,9 +567,9 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
                     bad_input = it.error
                 status, reason = "fault", f"planning failed: {it.error}"
                 break
-            if done_tick is None and int(s[C.ST_ENDED]) > ended0 and sup.retired(it):
-                done_tick = int(s[C.ST_TICK])       # at the job's last sample: the plant settles
-            if done_tick is not None and int(s[C.ST_TICK]) >= done_tick + settle:
+            if done_tick is None and s.ended > ended0 and sup.retired(it):
+                done_tick = s.tick       # at the job's last sample: the plant settles
+            if done_tick is not None and s.tick >= done_tick + settle:
                 status = "done"
                 break
             time.sleep(0.005)
@@ -586,8 +585,8 @@ def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick,
         raise PmctlError(bad_input)
     if r is None:
         status, reason = "fault", "the rt motion process ended without its result" + (f" ({reason})" if reason else "")
-        r = {"ticks": int(fs[C.ST_TICK]) if fs is not None else 0, "sent_ok": False, "clean": False, "timing": {},
-             "dropped": int(fs[C.ST_DROPPED]) if fs is not None else 0}
+        r = {"ticks": fs.tick if fs is not None else 0, "sent_ok": False, "clean": False, "timing": {},
+             "dropped": fs.dropped if fs is not None else 0}
     elif r.get("status") == "fault" and status != "fault":      # e.g. a following error while stopping
         status, reason = "fault", r.get("reason", "")
     ticks = int(r["ticks"])

@@ -33,7 +33,6 @@ import time
 
 from pmctl.core.errors import PmctlError
 from pmctl.interfaces.console.grbl import spindle_rpm
-from pmctl.motion import channel as C
 from pmctl.task.gcode import reader_options
 from pmctl.task.planner import load_job
 from pmctl.task.supervisor import roll_pitch_deg
@@ -138,19 +137,19 @@ class ControlServer:
 
     def status(self) -> dict:
         sup = self.sup
-        s = sup.raw()
+        s = sup.status()
         tip, axis = sup.pose()
         a, b = roll_pitch_deg(axis)
         return {"ok": True, "state": sup.state_name(), "mpos": [round(float(x), 6) + 0.0 for x in (*tip, a, b)],
-                "counts": [int(x) for x in s[C.ST_COUNTS:C.ST_COUNTS + 5]], "line": sup.current_line(),
-                "sent": [int(x) for x in s[C.ST_SENT:C.ST_SENT + 5]], "homed": bool(sup.homed),
-                "sigma": float(s[C.ST_SIGMA]), "feed_override": float(s[C.ST_FEED_OV]),
-                "rapid_override": float(s[C.ST_RAPID_OV]), "spindle_override": float(sup.spindle_ov),
+                "counts": s.counts.tolist(), "line": sup.current_line(),
+                "sent": s.sent.tolist(), "homed": bool(sup.homed),
+                "sigma": s.sigma, "feed_override": s.feed_override,
+                "rapid_override": s.rapid_override, "spindle_override": float(sup.spindle_ov),
                 "spindle_rpm": spindle_rpm(sup), "queued_items": sup.queued_items(),
                 "alarm": sup.alarm, "alarm_msg": sup.alarm_msg, "rt_alive": not sup.rt_dead,
                 "paused": sup.paused, "coolant": sorted(sup.coolant), "outputs": dict(sup.outputs),
                 "optional_stop": bool(sup.optional_stop),
-                "tick": int(s[C.ST_TICK]), "dropped_records": int(s[C.ST_DROPPED])}
+                "tick": s.tick, "dropped_records": s.dropped}
 
     def handle(self, req) -> dict:
         sup = self.sup

@@ -49,7 +49,6 @@ import time
 import numpy as np
 
 from pmctl import __version__
-from pmctl.motion import channel as C
 from pmctl.motion.probe import check_probe_feeds
 from pmctl.task.interp import AXES, WCS_NAMES, LineError, LineInterpreter, moves_job
 from pmctl.core.job import DWELL, EVENT, Job
@@ -293,7 +292,7 @@ class GrblConsole:
     def n_word(self) -> int:
         """The N word of the line being executed (0: the line had none; grbl reports Ln only then)."""
         sup = self.sup
-        line = int(sup.raw()[C.ST_LINE])
+        line = sup.status().line
         with sup._lock:
             for it in sup.items:
                 if line in it.lines:
@@ -326,9 +325,9 @@ class GrblConsole:
         line = self.n_word()
         if line > 0 and state not in ("Idle", "Alarm", "Jog"):
             parts.append(f"Ln:{line}")
-        raw = sup.raw()
-        fo = int(round(raw[C.ST_FEED_OV] * 100)) or self.feed_ov
-        ro = int(round(raw[C.ST_RAPID_OV] * 100)) or self.rapid_ov
+        rt = sup.status()
+        fo = int(round(rt.feed_override * 100)) or self.feed_ov
+        ro = int(round(rt.rapid_override * 100)) or self.rapid_ov
         parts.append(f"Ov:{fo},{ro},{self.spindle_ov}")
         parts.append("WCO:" + mm3(wco))
         return "<" + "|".join(parts) + ">"
@@ -351,7 +350,7 @@ class GrblConsole:
                 if head is not it:
                     break
                 if line is None:
-                    line = int(sup.raw()[C.ST_LINE])
+                    line = sup.status().line
                 if line <= seq:                  # the tool is on this block (or before it)
                     break
             blocks.popleft()
@@ -645,7 +644,7 @@ class GrblConsole:
 
     def _settings_list(self):
         m, p = self.sup.machine, self.sup.params
-        switches = self.sup.ch is not None and self.sup.raw()[C.ST_HOME_IN] >= 0
+        switches = self.sup.ch is not None and self.sup.status().home_in >= 0
         out = [(10, self.settings[10]), (13, 0), (20, 1), (21, 0), (22, 1 if self.homing and switches else 0)]
         ppm = m.resolution.pulses_per_mm
         for i in range(5):
