@@ -27,7 +27,7 @@ from pmctl.core.recording import read_recording
 from pmctl.motion.service_config import load_service_config
 from pmctl.task.cldata import MAX_COORD_MM, parse_cl
 from pmctl.task.gcode import MAX_DWELL_S, parse_gcode
-from pmctl.task.job import ARC, DWELL, LINE, RAPID, read_job_text
+from pmctl.task.job import ARC, DWELL, EVENT, LINE, RAPID, read_job_text
 
 ROOT = Path(__file__).resolve().parents[1]
 JOBS = ROOT / "examples" / "jobs"
@@ -123,12 +123,14 @@ GCODE_BYTES = st.sampled_from(["cone.ngc", "spiral.ngc"]).flatmap(lambda n: muta
 def check_job(job, source):
     assert job.source == str(source)
     for m in job.moves:
-        assert m.kind in (RAPID, LINE, ARC, DWELL)
-        _finite(m.tip, m.axis, [m.feed, m.spindle_rpm, m.sweep, m.dwell])
+        assert m.kind in (RAPID, LINE, ARC, DWELL, EVENT)
+        _finite(m.tip, m.axis, [m.feed, m.spindle_rpm, m.sweep, m.dwell, m.tool_offset, m.duration, m.tolerance])
         assert abs(np.linalg.norm(m.axis) - 1.0) < 1e-9
-        assert m.spindle_rpm >= 0 and m.line >= 0
+        assert m.line >= 0 and m.duration >= 0 and m.tolerance >= 0
+        if m.kind == EVENT:
+            assert m.events and all(isinstance(name, str) for name, _ in m.events)
         if m.kind in (LINE, ARC):
-            assert m.feed > 0
+            assert m.feed > 0 or m.duration > 0
         if m.kind == ARC:
             _finite(m.center)
         if m.kind == DWELL:

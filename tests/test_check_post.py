@@ -86,7 +86,7 @@ def test_a_program_placed_outside_the_workspace_is_one_problem(tmp_path):
 
 @pytest.mark.parametrize("text,line,column,kind", [
     ("G0 X1 Y1 Z60\nG1 X2 Y\n", 2, 7, "syntax"),
-    ("G0 X1 Y1 Z60\nG5 X2 Y2\n", 2, 1, "unsupported"),
+    ("G0 X1 Y1 Z60\nG5.2 X2 Y2\n", 2, 1, "unsupported"),      # NURBS (G5, the cubic spline, is supported)
 ])
 def test_check_reports_the_readers_refusal_with_its_kind(tmp_path, text, line, column, kind):
     p = tmp_path / "r.ngc"
@@ -114,7 +114,7 @@ def test_check_of_a_good_job_says_what_the_run_will_do(machine):
     traj = plan(job, machine, DT)
     assert s["moves"] == len(job.moves) and s["tools"] == []
     assert s["machining_time_s"] == pytest.approx(len(traj) * DT, abs=1e-9)   # what the planner plans
-    tips = np.array([m.tip for m in job.moves])
+    tips = np.array([m.tip for m in job.moves if m.kind != EVENT])       # programmed points (S M3: an event)
     assert s["extents"]["z_mm"] == [tips[:, 2].min(), tips[:, 2].max()]
     seg_len = np.linalg.norm(np.diff(np.vstack([home_pose(machine)[0], tips]), axis=0), axis=1)
     assert s["length_mm"] >= seg_len.sum() - 1e-9           # (arcs are longer than their chords)
@@ -129,16 +129,32 @@ def test_run_refuses_a_job_with_problems_before_anything_moves(tmp_path):
     assert err.count("\n") == 1 and f"{p}:3: " in err and "(and 1 more problem: pmctl check lists them)" in err
 
 
-def test_run_refuses_a_tool_change_it_cannot_perform():
-    from pmctl.interfaces.commands.run import _refuse_tool_changes
+def test_run_on_a_real_machine_refuses_a_tool_change_or_a_pause_it_cannot_perform():
+    from pmctl.interfaces.commands.run import _refuse_operator_waits
     job = Job((Move(RAPID, np.array([0.0, 0.0, 60.0]), UP, line=1),
                Move(EVENT, np.zeros(3), UP, line=2, events=(("spindle", 0.0), ("tool_change", 3))),
-               Move(LINE, np.array([5.0, 0.0, 60.0]), UP, line=3, feed=10.0)), "t.ngc")
-    _refuse_tool_changes(job, 3)                            # tool 3 is loaded: nothing to do
+               Move(LINE, np.array([5.0, 0.0, 60.0]), UP, line=3, feed=10.0),
+               Move(EVENT, np.zeros(3), UP, line=4, events=(("pause", "M1"),))), "t.ngc")
+    _refuse_operator_waits(job, 3)                          # tool 3 is loaded, M1 not taken: nothing to do
     for tool in (None, 2):
         with pytest.raises(InputError) as e:
-            _refuse_tool_changes(job, tool)
+            _refuse_operator_waits(job, tool)
         assert e.value.line == 2 and "T3" in e.value.reason and "--tool 3" in e.value.reason
+    m0 = Job(job.moves[:1] + (Move(EVENT, np.zeros(3), UP, line=5, events=(("pause", "M0"),)),), "t.ngc")
+    with pytest.raises(InputError) as e:
+        _refuse_operator_waits(m0, None)
+    assert e.value.line == 5 and "M0" in e.value.reason and "pmctl serve" in e.value.reason
+
+
+def test_run_on_the_sim_changes_tools_and_goes_on_after_m0_to_done(tmp_path):
+    """The simulation's stand-in operator: a CAM-style program with T2 M6, G43 H2 and M0 (which a real
+    machine's pmctl run refuses) runs to done on the sim, each wait answered and said."""
+    p = tmp_path / "tc.ngc"
+    p.write_text("G21 G90 G17\nT2 M6\nG43 H2\nG0 X5 Y0 Z60\nM0\nG1 X10 F600\nG49\nM30\n")
+    code, out, err = cli("run", "--job", str(p), "--backend", "sim", "--no-realtime", "--state", "", "--quiet")
+    assert code == 0, err
+    assert "tool change: load tool 2: done by the simulation's operator" in out + err
+    assert "program paused (M0): done by the simulation's operator" in out + err
 
 
 # ---------------------------------------------------------------- pmctl post
@@ -158,8 +174,9 @@ def test_post_per_move_gives_the_programmed_poses_back_through_fk(tmp_path, mach
     head, rows = read_csv(out)
     assert head == ["line", "L1", "L2", "L3", "X", "Y"]
     job = load_job(JOBS / "cone.ngc", machine)
-    tips = np.array([m.tip for m in job.moves])
-    assert np.array_equal(rows[:, 0], [m.line for m in job.moves])
+    moves = [m for m in job.moves if m.kind != EVENT]            # a row per programmed pose (S M3: an event)
+    tips = np.array([m.tip for m in moves])
+    assert np.array_equal(rows[:, 0], [m.line for m in moves])
     fk, ok = K.fk_batch(rows[:, 1:], machine)
     assert ok.all() and np.abs(fk.tip - tips).max() < 1e-9
 

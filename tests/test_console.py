@@ -46,7 +46,7 @@ def test_system_commands(daemon):
 
 def test_bad_input_never_disturbs_the_next_valid_line(daemon):
     s, *_ = daemon
-    cases = ["G1 X", "Q7", "hello world", "G1 X1 X2", "G1 F0 X1", "G2 X1", "G99", "%%%%", "X" + "9" * 300,
+    cases = ["G1 X", "Q7", "hello world", "G1 X1 X2", "G1 F0 X1", "G2 X1", "G7.5", "%%%%", "X" + "9" * 300,
              "\x01\x02\x03\x04"]
     for bad in cases:
         a = s.send(bad)

@@ -9,7 +9,6 @@ G49 are accepted. Through the supervisor (EVENT moves as the RS-274 interpreter 
 change M6 and M0 hold the path until cycle start and say why, M1 only with the optional stop on,
 outputs and messages are recorded where the path reaches them."""
 
-import threading
 import time
 
 import numpy as np
@@ -112,13 +111,6 @@ def test_g43_1_with_a_zero_offset_and_g49_are_accepted(daemon):
         assert s.send(line) == "ok", line
 
 
-def _rs274():
-    import importlib.util
-    return importlib.util.find_spec("pmctl.task.rs274") is not None
-
-
-@pytest.mark.skipif(not _rs274(), reason="the console's M6, M0, M62 and (MSG,) words come with the RS-274 "
-                                         "interpreter (pmctl.task.rs274); the supervisor's side is tested below")
 def test_tool_change_pause_output_and_message_over_the_pty(daemon):
     s, *_ = daemon
     x0 = s.status()["pos"][0]

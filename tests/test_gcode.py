@@ -1,4 +1,5 @@
-"""RS-274 subset reader: modal state, arcs, units, errors with line/column, hypothesis round trips."""
+"""The G-code job reader (pmctl.task.gcode over pmctl.task.rs274): modal state, arcs, units, events, problems
+with line/column/kind, hypothesis round trips. The LinuxCNC differential tests are in tests/test_rs274_oracle.py."""
 
 from __future__ import annotations
 
@@ -11,9 +12,9 @@ from hypothesis import given, settings, strategies as st
 
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
-from pmctl.core.errors import InputError
-from pmctl.task.gcode import ARC_RADIUS_TOL_MM, parse_gcode, read_gcode
-from pmctl.task.job import ARC, DWELL, LINE, RAPID, load_job
+from pmctl.core.errors import InputError, JobProblems
+from pmctl.task.gcode import ARC_RADIUS_TOL_MM, interpret, parse_gcode, read_gcode
+from pmctl.task.job import ARC, DWELL, EVENT, LINE, RAPID, load_job
 
 JOBS = Path(__file__).resolve().parents[1] / "examples" / "jobs"
 START = (0.0, 0.0, 100.0)
@@ -34,13 +35,18 @@ def error_of(text):
     return e.value
 
 
+def motion(job):
+    """The moves that go somewhere or wait (EVENT moves carry what happens on the way)."""
+    return [m for m in job.moves if m.kind != EVENT]
+
+
 # ---------------------------------------------------------------- bundled programs
 
 @pytest.mark.parametrize("name", ["cone.ngc", "spiral.ngc"])
 def test_bundled_programs_parse_and_are_reachable(machine, name):
     job = read_gcode(JOBS / name, machine)
     assert len(job.moves) > 10
-    assert len(job.points) == len([m for m in job.moves if m.kind != DWELL])
+    assert len(job.points) == len([m for m in job.moves if m.kind not in (DWELL, EVENT)])
     # every programmed axis is a unit vector pointing up, within the tilt limit
     axes = np.array([m.axis for m in job.moves])
     assert np.allclose(np.linalg.norm(axes, axis=1), 1.0, atol=1e-12)
@@ -65,8 +71,10 @@ def test_modal_state_and_words():
     job = parse("%\nN10 G21 G90 G17 (set up) ; comment\nG0 X10 Y0 Z50\nF600 S9000 M3\nG1 X20\n"
                 "Y5 A10 B-5\nG4 P0.25\nM5\nG0 Z60\nM30\nG1 X1000 (never read)\n%")
     kinds = [m.kind for m in job.moves]
-    assert kinds == [RAPID, LINE, LINE, DWELL, RAPID]
-    rap, l1, l2, dw, r2 = job.moves
+    assert kinds == [RAPID, EVENT, LINE, LINE, DWELL, EVENT, RAPID]
+    rap, on, l1, l2, dw, off, r2 = job.moves
+    assert on.events == (("spindle", 9000.0),) and on.line == 4 and np.array_equal(on.tip, rap.tip)
+    assert off.events == (("spindle", 0.0),) and off.line == 8
     assert np.allclose(rap.tip, [10, 0, 50]) and rap.line == 3
     assert l1.feed == pytest.approx(10.0) and l1.spindle_rpm == 9000 and l1.line == 5
     assert np.allclose(l2.tip, [20, 5, 50])                  # G1 stays modal
@@ -123,35 +131,41 @@ def test_arc_centres_and_sweeps():
     assert helix.sweep == pytest.approx(6 * math.pi) and helix.tip[2] == 90
 
 
-@pytest.mark.parametrize("text,line,words", [
-    ("G0 X1\nG1 X5", 2, "no F"),
-    ("G0 X1\nG0 X1 W2", 2, "unknown word 'W2': axis W"),
-    ("G1 F100 X", 1, "missing value after 'X'"),
-    ("G0 X1\n\nG18", 3, "unsupported G-code G18"),
-    ("G0 X1 (abc", 1, "never closed"),
-    ("G0 X1 (a (b) c)", 1, "nested"),
-    ("X5", 1, "no motion mode"),
-    ("G0 G1 X1", 1, "two motion codes"),
-    ("F600\nG0 X10 Y0\nG2 X10 Y6 I3 J0", 3, "differs from start radius"),
-    ("G0 X1 X2", 1, "repeated"),
-    ("F600 G0 X0 Y0\nG2 X30 Y0 R5", 2, "too small"),
-    ("G4", 1, "needs P"),
-    ("G1 F0 X1", 1, "must be > 0"),
-    ("M7", 1, "unsupported M-code"),
-    ("G0 X1 I2", 1, "need G2/G3"),
-    ("G0 X1\nG1 F600 X2 P3", 2, "'P' only"),
-    ("F600 G2 X0 Y0 I0 J0", 1, "radius is zero"),
-    ("F600 G3 X5 Y5", 1, "needs I/J or R"),
-    ("G0 X1 Y1\nF600 G2 X1 Y1 R5", 2, "full circle"),
-    ("G20 G21", 1, "conflicting"),
-    ("G0 X1\nG1 X2 F-3", 2, "must be > 0"),
-    ("G0 X1 $", 1, "expected a word letter"),
-    ("N1.5 G0 X1", 1, "line number"),
+@pytest.mark.parametrize("text,line,words,kind", [
+    ("G0 X1\nG1 X5", 2, "no F", "syntax"),
+    ("G0 X1\nG0 X1 W2", 2, "W2: axis W is not on this machine", "machine"),
+    ("G1 F100 X", 1, "missing value after 'X'", "syntax"),
+    ("G0 X1\n\nG5.2 X1 Y1 P1 L3", 3, "G5.2 NURBS blocks are not supported", "unsupported"),
+    ("G0 X1 (abc", 1, "never closed", "syntax"),
+    ("G0 X1 (a (b) c)", 1, "nested", "syntax"),
+    ("X5", 1, "no motion mode", "syntax"),
+    ("G0 G1 X1", 1, "two G-codes of the same modal group on one line (G0 and G1)", "syntax"),
+    ("F600\nG0 X10 Y0\nG2 X10 Y6 I3 J0", 3, "differs from the radius to its start", "syntax"),
+    ("G0 X1 X2", 1, "appears twice", "syntax"),
+    ("F600 G0 X0 Y0\nG2 X30 Y0 R5", 2, "too small", "syntax"),
+    ("G4", 1, "needs P", "syntax"),
+    ("G1 F0 X1", 1, "must be > 0", "syntax"),
+    ("M7 M48", 1, "M48 (enable overrides) is not supported", "unsupported"),
+    ("G0 X1 I2", 1, "I2 has nothing to use it: I is an arc centre (G2/G3)", "syntax"),
+    ("G0 X1\nG1 F600 X2 P3", 2, "P3 has nothing to use it", "syntax"),
+    ("F600 G2 X0 Y0 I0 J0", 1, "zero-radius arc", "syntax"),
+    ("F600 G3 X5 Y5", 1, "needs its centre: I J K (offsets) or R (radius)", "syntax"),
+    ("G0 X1 Y1\nF600 G2 X1 Y1 R5", 2, "full circle", "syntax"),
+    ("G20 G21", 1, "same modal group", "syntax"),
+    ("G0 X1\nG1 X2 F-3", 2, "must be > 0", "syntax"),
+    ("G0 X1 $", 1, "expected a word letter", "syntax"),
+    ("N1.5 G0 X1", 1, "line number", "syntax"),
+    ("G0 X1 C5", 1, "C5: axis C is not on this machine", "machine"),
+    ("M428", 1, "M428 (tool centre point control of another controller)", "machine"),
+    ("G43.4 H1", 1, "G43.4 (tool centre point control of another machine)", "machine"),
+    ("G68.2 X0 Y0 Z0 I0 J30 K0", 1, "G68.2 (tilted working plane)", "machine"),
+    ("M101", 1, "user M-codes (M100-M199) run only when configured", "unsupported"),
 ])
-def test_bad_lines_are_reported_with_their_line(text, line, words):
+def test_bad_lines_are_reported_with_their_line(text, line, words, kind):
     e = error_of(text)
     assert e.line == line and e.path == "t.ngc"
     assert words in e.reason, e.reason
+    assert isinstance(e, JobProblems) and e.problems[0].kind == kind
 
 
 def test_error_column_points_at_the_word():
@@ -162,10 +176,24 @@ def test_error_column_points_at_the_word():
 def test_nothing_from_a_program_with_a_bad_last_line(tmp_path, machine):
     good = (JOBS / "spiral.ngc").read_text().replace("M30", "")
     p = tmp_path / "bad.ngc"
-    p.write_text(good + "G1 X1 Y1 W3\n")
+    p.write_text(good + "G1 X1 Y1 Q3\n")
     with pytest.raises(InputError) as e:
         load_job(p, machine)
-    assert e.value.line == good.count("\n") + 1 and "unknown word 'W3'" in str(e.value)
+    assert e.value.line == good.count("\n") + 1 and "Q3 has nothing to use it" in str(e.value)
+
+
+def test_every_problem_is_listed_with_its_kind_and_the_program_goes_on():
+    text = ("G21 G90\nG0 X1 Y1 Z90\nG1 X2 C4 F600\nG1 X3 Q1\nG2 X9 Y9 I0 J0\nG5.2 X1 Y1 P1 L3\nG43 H77\n"
+            "G1 X4\nM30\n")
+    job, problems = interpret(text, "t.ngc", start=(START, (0.0, 0.0, 1.0)))
+    got = [(p.line, p.kind) for p in problems]
+    assert got == [(3, "machine"), (4, "syntax"), (5, "syntax"), (6, "unsupported"), (7, "machine")], problems
+    assert "tool 77 is not in the tool table" in problems[4].message and "add it, or use G43.1" in problems[4].message
+    # the machine problems leave the line's meaning: C is dropped, the move to X2 is made; the bad lines are not
+    ends = [float(m.tip[0]) for m in motion(job) if m.kind != DWELL]
+    assert ends == [1.0, 2.0, 4.0]
+    e = error_of(text)
+    assert "(and 4 more problems: pmctl check lists them)" in e.reason and len(e.problems) == 5
 
 
 def test_unreachable_programmed_pose_is_reported(tmp_path, machine):
@@ -275,15 +303,15 @@ def test_junk_raises_only_input_error(text):
     ("G4 P" + "9" * 400, 4, "out of range"),
     ("G4 P100000", 4, "dwell P100000 must be within 0 .. 3600 s"),
     ("G0 X10 Y0 Z100\nF60 G2 X10 Y0 I-10 P100000", 20, "arc turns P100000"),
-    ("G0 X1\nG1 F600 X2 Y[1+2]", 13, "expressions [...] are not supported"),
-    ("#1 = 5", 1, "parameters (#...) are not supported"),
-    ("G0 X#1", 5, "parameters (#...) are not supported"),
-    ("o100 sub", 1, "O-word subroutines and control flow are not supported"),
-    ("O<probe> call", 1, "O-word"),
-    ("G0 X0 Y0 Z100\nG81 X1 Y1 Z-1 R2 F100", 1, "G81: canned cycles are not supported"),
-    ("G18", 1, "only the XY plane (G17)"),
-    ("G42", 1, "cutter radius compensation"),
-    ("T1 M6", 1, "tool selection (T)"),
+    ("G0 X1\nG1 F600 X2 Y[1/0]", 15, "division by zero"),
+    ("#1 = [2 + ]", 11, "missing value after '+'"),
+    ("G0 X#<nothing>", 4, "named parameter #<nothing> is not defined"),
+    ("o100 endsub", 1, "o100 endsub without a matching o100 sub"),
+    ("O<probe> call", 1, "no subroutine o<probe> in this file nor probe.ngc on the subroutine path"),
+    ("G0 X0 Y0 Z100\nG81 X1 Y1 Z-1 F100", 1, "G81 needs R (the retract plane)"),
+    ("G33 Z-10 K1", 1, "G33 (spindle-synchronised motion) needs a spindle encoder"),
+    ("G42.1 D6 G18", 1, "cutter compensation runs in the XY plane (G17) only"),
+    ("G38.5 Z1 F10", 1, "G38.5 (probe away from the workpiece) is not supported"),
     ("G0 X\u0661", 4, "missing value"),                   # an Arabic-Indic digit is not a digit here
 ])
 def test_numbers_and_unsupported_features_are_refused_by_name(text, col, words):
@@ -294,10 +322,12 @@ def test_numbers_and_unsupported_features_are_refused_by_name(text, col, words):
 
 def test_accepted_no_op_codes_change_nothing():
     plain = parse("G0 X10 Y5 Z80\nF300 G1 X20")
-    preamble = parse("G17 G21 G90 G94 G40 G49 G54 G80 G97 G61\nG64 P0.01 Q0.01\nG0 X10 Y5 Z80\nF300 G1 X20\nM9")
+    preamble = parse("G17 G21 G90 G94 G40 G49 G54 G80 G97 G61\nG64\nG0 X10 Y5 Z80\nF300 G1 X20\nM9")
     assert [m.kind for m in plain.moves] == [m.kind for m in preamble.moves]
     for a, b in zip(plain.moves, preamble.moves):
-        assert np.array_equal(a.tip, b.tip) and a.feed == b.feed
+        assert np.array_equal(a.tip, b.tip) and a.feed == b.feed and b.tolerance == 0.0
+    blended = parse("G64 P0.01 Q0.02\nG0 X10 Y5 Z80\nF300 G1 X20\nG61\nG1 X30")
+    assert [m.tolerance for m in blended.moves] == [0.01, 0.01, 0.0]          # G64 P -> Move.tolerance
 
 
 def test_percent_delimited_program_stops_at_the_closing_percent():
@@ -310,13 +340,14 @@ def test_percent_delimited_program_stops_at_the_closing_percent():
     assert len(parse("%\nG0 X1 Y1 Z90\nM2\n").moves) == 1          # M2 ends it before any closing %
 
 
-def test_spindle_never_runs_at_zero_rpm_in_silence():
-    e = error_of("G0 X1 Y1 Z90\nM3\nF600 G1 X5")
-    assert e.line == 2 and e.column == 1 and "M3 with no spindle speed" in e.reason
-    e = error_of("S1000 M3\nS0")
-    assert e.line == 2 and "S0 while the spindle turns" in e.reason
-    job = parse("S1000 M3\nF600 G1 X5 Y0 Z90\nS0 M5\nG1 X6\nS500 M3\nG1 X7")
-    assert [m.spindle_rpm for m in job.moves] == [1000.0, 0.0, 500.0]
+def test_spindle_changes_are_events_in_program_order():
+    # LinuxCNC's meaning (the old reader refused M3 without S and S0 while turning): M3 with S0 turns at 0 rpm
+    # until an S comes; every change of the commanded spindle is an event where the path reaches it
+    job = parse("G0 X1 Y1 Z90\nM3\nS1000 F600 G1 X5\nS0\nG1 X6\nS500 M4\nG1 X7\nM5\n")
+    assert [(m.kind, m.events) for m in job.moves if m.kind == EVENT] == [
+        (EVENT, (("spindle", 0.0),)), (EVENT, (("spindle", 1000.0),)), (EVENT, (("spindle", 0.0),)),
+        (EVENT, (("spindle", -500.0),)), (EVENT, (("spindle", 0.0),))]
+    assert [m.spindle_rpm for m in job.moves if m.kind == LINE] == [1000.0, 0.0, -500.0]
 
 
 def test_msg_comments_are_kept_for_the_operator():
@@ -330,6 +361,14 @@ def test_non_utf8_job_file_names_line_and_column(tmp_path, machine):
     with pytest.raises(InputError) as e:
         read_gcode(p, machine)
     assert e.value.line == 2 and e.value.column == 11 and "0xff is not UTF-8" in e.value.reason
+
+
+def test_no_move_count_cap_and_the_tool_axis_is_shared():
+    n = 50_010                               # the old reader refused the line that crossed 50 000 moves
+    text = "G0 X0 Y0 Z90\nF600\n" + "\n".join(f"G1 X{(i % 200) * 0.1:.1f}" for i in range(n))
+    job = parse(text)
+    assert len(job.moves) == n + 1 and job.moves[-1].line == n + 2
+    assert len({id(m.axis) for m in job.moves}) == 1           # one axis array while the tilt stays the same
 
 
 def test_job_files_beyond_the_size_bounds_are_refused_before_parsing(tmp_path, monkeypatch, machine):
@@ -381,12 +420,12 @@ def test_g38_needs_an_axis_word_and_a_feed_and_names_the_line(mode, pre_lines, z
 
 
 @pytest.mark.parametrize("text,words", [
-    ("G38.4 Z1 F10", "G38.4/G38.5"),
-    ("G38.5 Z1 F10", "G38.4/G38.5"),
-    ("G38.2 G1 Z1 F10", "two motion codes"),
+    ("G38.4 Z1 F10", "G38.4 (probe away from the workpiece) is not supported"),
+    ("G38.5 Z1 F10", "G38.5 (probe away from the workpiece) is not supported"),
+    ("G38.2 G1 Z1 F10", "same modal group"),
     ("G38.2 Z99 A5 F10", "tool axis must stay put"),
     ("G38.3 Z100 F10", "target is the current position"),
-    ("G38.2 X5 Y5 I1 J1 F10", "I/J/R words need G2/G3"),
+    ("G38.2 X5 Y5 I1 J1 F10", "I1 has nothing to use it"),
 ])
 def test_g38_refusals_are_named(text, words):
     e = error_of(text)

@@ -2,8 +2,10 @@
 (a pymodbus server on 127.0.0.1): a job that ends with M5 is followed by another one queued just
 after it at the same speed. The first job's M5 is written from a thread of its own; the second job
 must not take the spindle for running while that M5 is still on its way, or it would cut with the
-spindle stopping under it."""
+spindle stopping under it. The jobs carry their speed per move (as CL data does): G-code's M3/M5 are
+EVENT moves, which take effect where the path gets to them (tests/test_console_events.py)."""
 
+import dataclasses
 import threading
 import time
 
@@ -13,11 +15,17 @@ from pmctl.core import kinematics as K
 from pmctl.hal import modbus_vfd
 from pmctl.motion import channel as C
 from pmctl.motion.nc import counts_of
-from pmctl.task.job import home_pose
-from pmctl.task.planner import load_job
+from pmctl.task.job import EVENT, home_pose
+from pmctl.task.planner import load_job as load_with_events
 from pmctl.task.supervisor import Supervisor
 
 RPM = 6000.0
+
+
+def load_job(path, machine, start):
+    """The job with its speed per move only (its spindle EVENT moves left out)."""
+    job = load_with_events(path, machine, start=start)
+    return dataclasses.replace(job, moves=tuple(m for m in job.moves if m.kind != EVENT))
 
 
 def _service(tmp_path):

@@ -271,6 +271,54 @@ def homing_from_dict(data, path) -> HomingConfig:
     return h
 
 
+@dataclass(frozen=True)
+class InterpreterConfig:
+    """[interpreter]: what the RS-274 interpreter (pmctl.task.rs274, docs/gcode.md) takes from the service
+    config. Paths are absolute here (relative ones in the file are relative to the file's folder)."""
+    tool_table: str = str(CONFIG_DIR / "tools.tbl")   # LinuxCNC .tbl: T P Z (length offset) D (diameter);
+                                                      # absent from the file: the bundled config/tools.tbl
+    subroutine_path: tuple = ()            # folders searched for o<name> call files (name.ngc)
+    user_m_codes: tuple = ()               # M100-M199 a program may use (EVENT user_m; else refused)
+    optional_stop: bool = True             # M1 pauses like M0 (false: M1 is skipped)
+    block_delete: bool = False             # lines starting with '/' are skipped
+    digital_outputs: int = 4               # M62-M65 P0 .. P(n-1)
+    analog_outputs: int = 4                # M67/M68 E0 .. E(n-1)
+
+
+def interpreter_from_dict(data, path) -> InterpreterConfig:
+    s = Table(path, data, "interpreter")
+    d = InterpreterConfig()
+    here = Path(path).parent if Path(str(path)).is_file() else CONFIG_DIR
+
+    def resolve(p: str) -> str:
+        q = Path(os.path.expanduser(p))
+        return str(q if q.is_absolute() else here / q)
+
+    table = s.string("tool_table", default=d.tool_table)      # absent: the bundled table
+    if not table:
+        raise ConfigError(path, "interpreter.tool_table", "must name a tool table file (LinuxCNC .tbl)")
+    present, folders = s._get("subroutine_path", [], False)
+    if not isinstance(folders, list) or not all(isinstance(f, str) and f and "\0" not in f for f in folders):
+        raise ConfigError(path, "interpreter.subroutine_path", "must be a list of folder names (strings)")
+    present, codes = s._get("user_m_codes", [], False)
+    if not isinstance(codes, list) or not all(isinstance(c, int) and not isinstance(c, bool) for c in codes):
+        raise ConfigError(path, "interpreter.user_m_codes", "must be a list of integers (M100-M199)")
+    for c in codes:
+        if not 100 <= c <= 199:
+            raise ConfigError(path, "interpreter.user_m_codes", f"{c} is not a user M-code (100 .. 199)")
+    cfg = InterpreterConfig(
+        tool_table=resolve(table),
+        subroutine_path=tuple(resolve(f) for f in folders),
+        user_m_codes=tuple(sorted(set(codes))),
+        optional_stop=s.boolean("optional_stop", default=d.optional_stop),
+        block_delete=s.boolean("block_delete", default=d.block_delete),
+        digital_outputs=s.integer("digital_outputs", default=d.digital_outputs, lo=0, hi=64),
+        analog_outputs=s.integer("analog_outputs", default=d.analog_outputs, lo=0, hi=64),
+    )
+    s.finish()
+    return cfg
+
+
 @dataclass
 class ServiceConfig:
     loop: LoopConfig = field(default_factory=LoopConfig)
@@ -282,6 +330,7 @@ class ServiceConfig:
     daq: object = None          # [daq]: pmctl.hal.modbus_daq.DaqOptions, None = no strain DAQ
     probe: object = None        # [probe]: pmctl.motion.probe.ProbeConfig (stop on contact, G38.2/G38.3)
     homing: HomingConfig = field(default_factory=HomingConfig)   # [homing]
+    interpreter: InterpreterConfig = field(default_factory=InterpreterConfig)   # [interpreter]
 
     @property
     def backend_options(self) -> dict:
@@ -304,7 +353,7 @@ def load_service_config(path: str | Path | None = None) -> ServiceConfig:
 
 
 def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
-    check_tables(path, data, (), ("loop", "nc", "hal", "spindle", "daq", "probe", "homing"))
+    check_tables(path, data, (), ("loop", "nc", "hal", "spindle", "daq", "probe", "homing", "interpreter"))
     s = Table(path, data.get("loop", {}), "loop")
     d = LoopConfig()
     loop = LoopConfig(
@@ -394,10 +443,11 @@ def service_from_dict(data: dict, path="<dict>") -> ServiceConfig:
     from pmctl.motion.probe import ProbeConfig
     probe = ProbeConfig.from_dict(data.get("probe", {}), path)
     homing = homing_from_dict(data.get("homing", {}), path)
+    interp = interpreter_from_dict(data.get("interpreter", {}), path)
     return ServiceConfig(loop, nc, backend, source=str(path), backend_tables=tables,
                          spindle=spindle if spindle is not None and spindle.enabled else None,
                          daq=daq if daq is not None and daq.enabled else None, probe=probe,
-                         homing=homing)
+                         homing=homing, interpreter=interp)
 
 
 @dataclass

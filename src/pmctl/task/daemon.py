@@ -159,7 +159,10 @@ class Daemon:
         line = jline if line is None else int(line)
         if start is not None:
             start = (np.asarray(start[:3], float), np.asarray(start[3:], float))
-        job = load_job(path, sup.machine, start=start)
+        from pmctl.task.gcode import reader_options
+        offsets = self.console.interp.offsets() if getattr(self, "console", None) is not None else \
+            self.journal.data.get("offsets")
+        job = load_job(path, sup.machine, start=start, **reader_options(path, sup.svc.interpreter, offsets))
         tip, axis = sup.pose()
         rest = resume_job(job, line, tip, axis, sup.machine, sup.params,
                           CLEARANCE_MM if clearance_mm is None else float(clearance_mm))

@@ -1,30 +1,42 @@
-"""Line-by-line G-code interpreter for streamed lines (the operator console): modal state kept from
-line to line, work offsets, and the same reader and reachability check as a job file.
+"""The console's line interpreter: pmctl's RS-274 interpreter (pmctl.task.rs274) run one line at a time,
+with the modal state, the work offsets and the tool offset kept from line to line, and grbl's error
+codes for the sender.
 
-Each line is tokenised and executed by pmctl.task.gcode (the job reader's own line executor), after
-the codes a job file does not use are taken out here:
-- work coordinate systems ``G54``-``G59``, ``G10 L2 Pn`` (set offset) and ``G10 L20 Pn`` (set so
-  that the current position reads the given value), ``G92`` / ``G92.1``, ``G53`` (machine
-  coordinates for this line);
-- ``M7 M8 M9`` (coolant) and ``T`` (tool number) are accepted and ignored (no such hardware).
-Coordinates of X Y Z A B in absolute mode are program (work) coordinates: W = program + WCO, with
-WCO = the active G5x offset + the G92 offset. A line with an error changes nothing (its modal
-changes included): the state is restored. Errors raise :class:`LineError` with grbl's error code.
+It is the same interpreter as a job file's (the same words, meanings and refusals: docs/gcode.md),
+with these differences of the console:
+
+- the modal state starts (and a soft reset or M2/M30 returns to) grbl's: G0 G54 G17 G21 G90 G94 M5
+  M9, no feed, no tool length offset (``reset_modal``);
+- the coordinate systems, G92 and the G28/G30 positions persist in the journal (``offsets()``, the
+  format of ``{"wcs": {"G54": [x, y, z, a, b], ...}, "g92": [...], "active": "G54", "g28": ...,
+  "g30": ...}``; older journals with only ``wcs``/``g92``/``active`` load as they are);
+- a line without motion still gives its events as an ``EVENT`` move (M3/M4/M5/S, M7/M8/M9, M6,
+  M62-M68, G43/G43.1/G49, messages, pauses), so the console queues them in program order;
+- O-word control flow spans lines and runs in job files only; a single-line ``o<name> call`` of a
+  subroutine file on the subroutine path runs here too. Cutter compensation (its corners need the
+  next move) runs in job files only.
+
+A line with a problem changes nothing (its modal changes included) and raises :class:`LineError`
+with grbl's error code; the probe flag ``st.probe_ok = False`` refuses G38 (a reader with no stop on
+contact).
 """
 
 from __future__ import annotations
 
-import copy
-import math
+import re
 
 import numpy as np
 
 from pmctl.core.errors import InputError
-from pmctl.task import gcode as G
-from pmctl.task.job import DWELL, Job, check_reach
+from pmctl.task.job import DWELL, EVENT, Job
+from pmctl.task.rs274 import make_config, start_position
+from pmctl.task.rs274.flow import Source
+from pmctl.task.rs274.program import Interpreter
+from pmctl.task.rs274.words import LexError
 
 AXES = "XYZAB"
-WCS_NAMES = ("G54", "G55", "G56", "G57", "G58", "G59")
+WCS_NAMES = ("G54", "G55", "G56", "G57", "G58", "G59")     # grbl's ($# lists these)
+_ALL_WCS = ("G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3")
 
 
 class LineError(Exception):
@@ -33,247 +45,231 @@ class LineError(Exception):
         self.code = code
 
 
-def error_code(msg: str) -> int:
-    """grbl 1.1 error code of a reader message."""
-    m = msg
-    if "expected a word letter" in m:
-        return 1
-    if "missing value" in m or "bad number" in m:
-        return 2
-    if "unknown word" in m or "unsupported G-code" in m or "unsupported M-code" in m:
+_CODES = [   # (pattern in the message, grbl 1.1 error code); first match wins
+    (r"expected a word letter|'\)' without|comment|never closed|nested", 1),
+    (r"missing value|missing parameter|bad value|is not an integer", 2),
+    (r"line number", 27),
+    (r"two G-codes of the same modal group|two M-codes of the same modal group", 21),
+    (r"both use the axis words", 24),
+    (r"appears twice", 25),
+    (r"with no F|F0: the feed|feed rate must be > 0", 22),
+    (r"needs axis words", 26),
+    (r"with no motion mode|G80 \(which cancels", 31),
+    (r"G53 needs G0 or G1", 30),
+    (r"needs P|needs L|needs Q|needs D|needs H|needs E|needs R|needs its centre|needs an axis word", 28),
+    (r"radius|too small to reach|R arc", 33),
+    (r"has nothing to use it", 36),
+    (r"out of range|must be", 4),
+]
+
+
+def error_code(msg: str, kind: str = "syntax") -> int:
+    """grbl 1.1 error code of an interpreter problem (20: an unsupported command, and what this machine
+    lacks; a syntax problem by its message)."""
+    if kind in ("unsupported", "machine"):
         return 20
-    if "two motion codes" in m or "conflicting modal" in m:
-        return 21
-    if "no F" in m:
-        return 22
-    if "repeated" in m:
-        return 25
-    if "line number" in m:
-        return 27
-    if "G4 dwell needs P" in m:
-        return 28
-    if "arc" in m and ("radius" in m or "R " in m or "|R|" in m):
-        return 33
-    if "I/J/R words need" in m or "without an arc end" in m:
-        return 36
-    if "axis words with no motion mode" in m:
-        return 31
-    if "only goes with G4" in m:
-        return 36
-    if "comment" in m:
-        return 1
-    if "must be" in m:
-        return 4
+    for pat, code in _CODES:
+        if re.search(pat, msg):
+            return code
     return 20
 
 
+class _Snapshot:
+    """The console interpreter's whole state (``interp.st``): restorable (``interp.st = saved``), with
+    the modes a jog needs (``units``: mm per program unit, ``absolute``) and the probe switch."""
+
+    def __init__(self, owner, state=None):
+        it = owner.it
+        self._owner = owner
+        self.state = state if state is not None else (it.ex.st.copy(), list(it.params.numbered),
+                                                      dict(it.params.globals), it.cfg.tools)
+
+    def __deepcopy__(self, memo):
+        st, num, glob, tools = self.state
+        return _Snapshot(self._owner, (st.copy(), list(num), dict(glob), tools))
+
+    @property
+    def units(self):
+        return self.state[0].units
+
+    @property
+    def absolute(self):
+        return self.state[0].absolute
+
+    @property
+    def probe_ok(self):
+        return self._owner.it.cfg.probe_ok
+
+    @probe_ok.setter
+    def probe_ok(self, v):
+        self._owner.it.cfg.probe_ok = bool(v)
+
+
 class LineInterpreter:
-    def __init__(self, machine, tip, axis, offsets=None):
+    def __init__(self, machine, tip, axis, offsets=None, *, config=None):
         self.machine = machine
-        self.st = G._State(tip, axis)
-        o = offsets or {}
-        self.wcs = {n: list(map(float, o.get("wcs", {}).get(n, [0.0] * 5))) for n in WCS_NAMES}
-        self.g92 = list(map(float, o.get("g92", [0.0] * 5)))
-        self.active = o.get("active", "G54") if o.get("active", "G54") in WCS_NAMES else "G54"
+        from pmctl.task.job import home_pose
+        cfg = make_config(config, home=home_pose(machine), ahead=False)
+        self.it = Interpreter(cfg, start_position(tip, axis), offsets or None)
         self.line_no = 0
         self.changed = False           # offsets changed (persist them)
+        self._reset_state()
 
     # ---- state
+    @property
+    def st(self):
+        return _Snapshot(self)
+
+    @st.setter
+    def st(self, snap):
+        st, num, glob, tools = snap.state
+        it = self.it
+        it.ex.st = st.copy()
+        it.params.numbered[:] = num
+        it.params.globals.clear()
+        it.params.globals.update(glob)
+        it.cfg.tools = tools
+
     def offsets(self) -> dict:
-        return {"wcs": {k: list(v) for k, v in self.wcs.items()}, "g92": list(self.g92), "active": self.active}
+        return self.it.offsets()
+
+    @property
+    def wcs(self) -> dict:
+        return self.it.offsets()["wcs"]
+
+    @property
+    def g92(self) -> list:
+        return list(self.it.ex.st.g92)
+
+    @property
+    def active(self) -> str:
+        return _ALL_WCS[self.it.ex.st.cs - 1]
 
     def wco(self) -> list[float]:
-        w = self.wcs[self.active]
-        return [w[i] + self.g92[i] for i in range(5)]
+        st = self.it.ex.st
+        return [st.g5x[i] + st.g92[i] for i in range(5)]
+
+    def tlo(self) -> float:
+        """The tool length offset in force (mm; G43/G43.1, 0 after G49)."""
+        return self.it.ex.st.tlo
 
     def position_w(self) -> list[float]:
         """The interpreter's current position: tip in W (mm) and A, B (deg)."""
-        return [*map(float, self.st.pos), self.st.a, self.st.b]
+        return [float(x) for x in self.it.ex.st.pos]
 
     def sync(self, tip, axis):
         """Set the interpreter's position to where the machine is (after a reset, a jog, a hold)."""
-        from pmctl.core import kinematics as K
-        self.st.pos = np.array(tip, float)
-        a, b = K.roll_pitch_from_axis(np.asarray(axis, float))
-        self.st.a, self.st.b = math.degrees(float(a)), math.degrees(float(b))
+        self.it.ex.st.pos = start_position(tip, axis)
+
+    def _reset_state(self):
+        st = self.it.ex.st
+        st.units, st.absolute, st.ijk_absolute, st.plane = 1.0, True, False, 170
+        st.motion, st.feed_mode, st.feed, st.speed, st.spindle = 0, 940, 0.0, 0.0, 0
+        st.mist = st.flood = False
+        st.comp, st.comp_first, st.cq, st.cq_end = 0, True, (), None
+        st.cycle = st.cycle_il = None
+        st.path, st.tolerance, st.naive_tolerance = 640, 0.0, 0.0
+        st.tlo, st.tlo_code = 0.0, 490
+        st.ended = False
 
     def reset_modal(self):
-        """Soft reset: G0 G54 G17 G21 G90 G94 M5, no feed (offsets are kept)."""
-        st = self.st
-        st.units, st.absolute, st.motion, st.feed, st.s, st.spindle_on = 1.0, True, None, None, 0.0, False
-        if self.active != "G54":
-            self.active = "G54"
+        """Soft reset: G0 G54 G17 G21 G90 G94 M5 M9 G49, no feed (offsets are kept)."""
+        self._reset_state()
+        if self.it.ex.st.cs != 1:
+            self.it.ex.select_cs(self.it.ex.st, 1)
             self.changed = True           # journalled (the console persists after the reset)
 
     def parser_state(self) -> str:
-        st = self.st
-        motion = {None: "G0", 0: "G0", 10: "G1", 20: "G2", 30: "G3"}[st.motion]
-        feed = (st.feed or 0.0) * 60.0 / st.units
-        return (f"{motion} {self.active} G17 {'G20' if st.units != 1.0 else 'G21'} {'G90' if st.absolute else 'G91'} "
-                f"G94 {'M3' if st.spindle_on else 'M5'} M9 T0 F{feed:g} S{st.s:g}")
+        st = self.it.ex.st
+        motion = {0: "G0", 10: "G1", 20: "G2", 30: "G3", 382: "G38.2", 383: "G38.3", 800: "G80"}.get(
+            st.motion, f"G{st.motion // 10}" + (f".{st.motion % 10}" if st.motion % 10 else ""))
+        wcs = _ALL_WCS[st.cs - 1]
+        plane = {170: "G17", 180: "G18", 190: "G19"}[st.plane]
+        coolant = " ".join(x for x, on in (("M7", st.mist), ("M8", st.flood)) if on) or "M9"
+        spindle = {1: "M3", -1: "M4", 0: "M5"}[st.spindle]
+        feed = (st.feed or 0.0) / st.units
+        fm = {930: "G93", 940: "G94", 950: "G95"}[st.feed_mode]
+        return (f"{motion} {wcs} {plane} {'G20' if st.units != 1.0 else 'G21'} {'G90' if st.absolute else 'G91'} "
+                f"{fm} {spindle} {coolant} T{st.tool} F{feed:g} S{st.speed:g}")
 
     # ---- a line
+    def _offset_key(self):
+        num = self.it.params.numbered
+        return (tuple(num[5161:5391]), self.it.ex.st.cs)
+
     def execute(self, text: str, seq: int):
         """Execute one line. Returns (moves, n_word, flags) where flags has 'end' (M2/M30) and
         'sync' (an offset changed). Raises LineError; on an error nothing changes."""
-        saved = (copy.deepcopy(self.st), copy.deepcopy(self.wcs), list(self.g92), self.active)
+        saved = _Snapshot(self)
         try:
             return self._execute(text, seq)
         except LineError:
-            self.st, self.wcs, self.g92, self.active = saved
+            self.st = saved
             raise
-        except InputError as e:
-            self.st, self.wcs, self.g92, self.active = saved
-            raise LineError(error_code(str(e)), str(e).split(": ", 1)[-1]) from None
 
     def _execute(self, text, seq):
-        path = "console"
-        chars = G._strip_comments(text, path, seq)
-        if not chars or (len(chars) == 1 and chars[0][1] == "%"):
+        it = self.it
+        try:
+            src = Source(text, "console")
+            ln = src.lex(0) if src.lines else None
+        except LexError as e:
+            raise LineError(error_code(e.message), e.message) from None
+        if ln is not None and ln.oword is not None and ln.oword.keyword != "call":
+            raise LineError(20, "O-word control flow runs in job files; at the console only a single-line "
+                                "o<name> call of a subroutine file")
+        if ln is not None and ln.grbl is not None:
+            raise LineError(3, "not a G-code line")
+        if src.problems:
+            raise LineError(error_code(src.problems[0].message), src.problems[0].message)
+        if ln is None or ln.percent or (ln.blank and not ln.comments):
             return [], 0, {}
-        # pull out what the job reader does not know, as raw (letter, value) words
-        words = _tokens(chars, path, seq)
-        gcodes = [round(v * 10) for k, v, _ in words if k == "G"]
         n_word = 0
-        flags = {}
-        keep = []
-        g10 = g92 = g53 = False
-        for k, v, col in words:
-            if k == "G":
-                c = round(v * 10)
-                if c in (540, 550, 560, 570, 580, 590):
-                    name = WCS_NAMES[(c - 540) // 10]
-                    if name != self.active:       # the active system is journalled with the offsets
-                        self.active = name
-                        self.changed = True
-                        flags["sync"] = True
-                    continue
-                if c in (591, 592, 593):
-                    raise LineError(29, "G59.1-G59.3 are not supported")
-                if c == 100:
-                    g10 = True
-                    continue
-                if c == 920:
-                    g92 = True
-                    continue
-                if c == 921:
-                    self.g92 = [0.0] * 5
-                    self.changed = True
-                    flags["sync"] = True
-                    continue
-                if c == 530:
-                    g53 = True
-                    continue
-                if c in (800, 940, 490, 400, 610):
-                    continue              # cancel modes that are already in force
-            if k == "M" and v in (7, 8, 9):
-                continue
-            if k == "T":
-                continue
-            if k == "N":
+        for letter, v, _ in ln.words:
+            if letter == "n" and v.__class__ is float:
                 if v != int(v) or not 0 <= v <= 9_999_999:
                     raise LineError(27, f"line number N{v:g} out of range")
                 n_word = int(v)
-            keep.append((k, v, col))
-        if not g10 and any(k == "L" for k, _, _ in keep):
-            raise LineError(20, "'L' only goes with G10")
-        if g10 or g92:
-            self._offset_command(keep, g10, g92, gcodes)
-            flags["sync"] = True
-            return [], n_word, flags
-        # program -> W coordinates: absolute axis words get the work offset (G53: none)
-        st = self.st
-        absolute = st.absolute
-        for k, v, _ in keep:
-            if k == "G" and round(v * 10) in (900, 910):
-                absolute = round(v * 10) == 900
-            if k == "G" and round(v * 10) in (200, 210):
-                pass
-        wco = [0.0] * 5 if g53 else self.wco()
-        units = st.units
-        for k, v, _ in keep:
-            if k == "G" and round(v * 10) == 200:
-                units = G.MM_PER_INCH
-            if k == "G" and round(v * 10) == 210:
-                units = 1.0
-        out = []
-        for k, v, col in keep:
-            if absolute and k in AXES:
-                i = AXES.index(k)
-                off = wco[i] / (units if i < 3 else 1.0)
-                v = v + off
-            out.append((k, v, col))
-        moves, points, plines = [], [], []
-        end = G._execute_line(out, st, path, seq, moves, points, plines)
-        if end:
+        for letter, v, _ in ln.words:
+            if letter == "g" and v.__class__ is float and round(v * 10) in (410, 420, 411, 421):
+                raise LineError(20, "cutter compensation (G41/G42) runs in job files only: its corners need "
+                                    "the next move")
+        before = self._offset_key()
+        mark, pmark = len(it.moves), len(it.problems)
+        it.ex.st.ended = False
+        if ln.oword is not None:
+            it.run_program(src)
+            result = "end" if it.ex.st.ended else None
+        else:
+            result = it.block(src, 0, ln, lineno=seq)
+            it.ex.flush_events(it.ex.st)
+        moves = it.moves[mark:]
+        del it.moves[mark:]
+        del it.messages[:]
+        if len(it.problems) > pmark:
+            p = it.problems[pmark]
+            del it.problems[pmark:]
+            raise LineError(error_code(p.message, p.kind), p.message)
+        del it.problems[:]
+        flags = {}
+        if result == "end":
             flags["end"] = True
             self.reset_modal()
-            if self.changed:
-                flags["sync"] = True      # M2/M30 went back to G54: journalled
-        ends = [m for m in moves if m.kind != DWELL]
+        if self._offset_key() != before:
+            self.changed = True
+        if self.changed:
+            flags["sync"] = True
+        ends = [m for m in moves if m.kind != DWELL and m.kind != EVENT]
         if ends:
-            tips = np.array([m.tip for m in ends])
-            axes = np.array([m.axis for m in ends])
+            from pmctl.task.gcode import check_job_reach
             try:
-                check_reach(tips, axes, np.full(len(ends), seq), self.machine, path)
+                check_job_reach(moves_job(moves), self.machine, "console")
             except InputError as e:
                 raise LineError(33, f"target unreachable: {str(e).split(': ', 2)[-1]}") from None
         return moves, n_word, flags
 
-    def _offset_command(self, words, g10, g92, gcodes):
-        vals = {k: v for k, v, _ in words if k in AXES or k in "LP"}
-        other = [k for k, _, _ in words if k not in AXES and k not in "LPN"]
-        if other:
-            raise LineError(24 if "G" in other else 36, "offset commands take only axis words (and L, P)")
-        st = self.st
-        cur = self.position_w()
-        u = st.units
-        if g92:
-            if not any(k in vals for k in AXES):
-                raise LineError(26, "G92 needs axis words")
-            w = self.wcs[self.active]
-            for i, k in enumerate(AXES):
-                if k in vals:
-                    p = vals[k] * (u if i < 3 else 1.0)
-                    self.g92[i] = cur[i] - w[i] - p
-        else:
-            L = vals.get("L")
-            P = vals.get("P", 0)
-            if L not in (2, 20):
-                raise LineError(28, "G10 needs L2 or L20")
-            if P != int(P) or not 0 <= P <= 6:
-                raise LineError(29, "G10 P must be 0 (active) or 1-6 (G54-G59)")
-            name = self.active if int(P) == 0 else WCS_NAMES[int(P) - 1]
-            w = self.wcs[name]
-            for i, k in enumerate(AXES):
-                if k in vals:
-                    p = vals[k] * (u if i < 3 else 1.0)
-                    w[i] = p if L == 2 else cur[i] - self.g92[i] - p
-        self.changed = True
-
-
-def _tokens(chars, path, lineno):
-    """(letter, value, column) words of a comment-free line; letters outside the job reader's set
-    that the console knows (T) are accepted here."""
-    text = "".join(c for _, c in chars)
-    cols = [c for c, _ in chars]
-    words = []
-    i = 0
-    while i < len(text):
-        letter = text[i].upper()
-        col = cols[i]
-        if not letter.isalpha():
-            raise LineError(1, f"expected a word letter, got {text[i]!r}")
-        m = G._NUMBER.match(text, i + 1)
-        if not m:
-            raise LineError(2, f"missing value after '{letter}'")
-        if letter not in G.LETTERS and letter not in "LT":
-            raise LineError(20, f"unknown word {letter}{m.group(0)}")
-        words.append((letter, float(m.group(0)), col))
-        i = m.end()
-    return words
-
 
 def moves_job(moves, name="console") -> Job:
-    pts = np.array([m.tip for m in moves if m.kind != DWELL], float).reshape(-1, 3)
-    return Job(tuple(moves), name, pts, np.array([m.line for m in moves if m.kind != DWELL], int))
+    ends = [m for m in moves if m.kind != DWELL and m.kind != EVENT]
+    pts = np.array([m.tip for m in ends], float).reshape(-1, 3)
+    return Job(tuple(moves), name, pts, np.array([m.line for m in ends], int))
+

@@ -34,8 +34,10 @@ Fields added for the full RS-274 reader (each defaults to the old meaning):
 - ``tolerance``: G64 P, the path tolerance (mm) the planner may use to blend or merge (0: exact path);
 - ``events``: for ``EVENT``, a tuple of (name, value) in program order: ``("spindle", rpm)`` (signed, 0
   = stop), ``("coolant", "mist" | "flood" | "off")``, ``("tool_change", n)`` (M6: wait for the operator),
-  ``("pause", "M0" | "M1" | "M60")``, ``("output", (name, index, value))`` (M62-M68; the sim records them),
-  ``("message", text)``, ``("user_m", (code, p, q))`` (a configured M100-M199);
+  ``("tool_offset", mm)`` (G43/G43.1/G49 changed the tool length offset at rest: the EVENT's tip is the
+  new tip, the reference tool's point has not moved), ``("pause", "M0" | "M1" | "M60")``,
+  ``("output", (name, index, value))`` (M62-M68, name "digital" or "analog"; the sim records them),
+  ``("message", text)``, ``("user_m", (code, p, q))`` (a configured M100-M199); docs/gcode.md, "Events";
 - ``file``: the source file when it is not the job's own (an external O-word subroutine); "" otherwise.
 
 ``load_job(path, machine)`` reads a file of either format by its suffix; ``read_job_text(path)`` is how
@@ -191,17 +193,16 @@ def problem_kind(reason: str) -> str:
 
 def parse_job(path, machine, *, start=None, **options) -> tuple:
     """Read and parse a job file without checking it against the machine, and without raising:
-    (Job or None, [Problem, ...]). Every problem the reader reports is listed (a reader that stops at
-    its first refusal gives one). The machine and the planner are checked by pmctl.task.jobcheck.
+    (Job or None, [Problem, ...]). Every problem the reader reports is listed: the G-code reader
+    (pmctl.task.rs274) finds them all and gives the job of the blocks that had none; the CL reader
+    stops at its first refusal (no job). The machine and the planner are checked by pmctl.task.jobcheck.
     ``start`` and ``options`` as for :func:`load_job`."""
     path = Path(path)
     suffix = path.suffix.lower()
     try:
         if suffix in GCODE_SUFFIXES:
-            from pmctl.task.gcode import parse_gcode
-            tip, axis = home_pose(machine) if start is None else start
-            # the RS-274 interpreter's (job, problems) reader takes the place of this line
-            return parse_gcode(read_job_text(path), path, tip, axis), []
+            from pmctl.task.gcode import interpret_file      # (job, problems): every problem, no raise
+            return interpret_file(path, machine, start=start, **options)
         if suffix in CL_SUFFIXES:
             from pmctl.task.cldata import cl_job, parse_cl
             vector = options.pop("vector", "axis")

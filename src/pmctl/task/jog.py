@@ -13,9 +13,10 @@ import math
 import numpy as np
 
 from pmctl.core import kinematics as K
-from pmctl.task import gcode as G
 from pmctl.task.interp import AXES, LineError
 from pmctl.task.job import LINE, Job, Move
+from pmctl.task.rs274.modal import MM_PER_INCH
+from pmctl.task.rs274.words import LexError, lex_line
 
 CHECK_POINTS = 64
 
@@ -23,26 +24,24 @@ CHECK_POINTS = 64
 def parse_jog(text: str, interp, start_tip, start_axis):
     """(end tip, end axis, feed mm/s) of a jog line in the console's frame; raises LineError."""
     try:
-        chars = G._strip_comments(text, "console", 0)
-    except Exception:
-        raise LineError(16, "bad jog line") from None
+        ln = lex_line(text)
+    except LexError as e:
+        raise LineError(1 if "word letter" in e.message else 16, f"bad jog line: {e.message}") from None
+    if ln.oword is not None or ln.assigns or ln.delete or ln.percent:
+        raise LineError(16, "bad jog line: only G20 G21 G90 G91 G53, axis words and F")
     words = []
-    txt = "".join(c for _, c in chars).upper()
-    i = 0
-    while i < len(txt):
-        letter = txt[i]
-        m = G._NUMBER.match(txt, i + 1)
-        if not letter.isalpha() or not m:
-            raise LineError(16 if letter.isalpha() else 1, "bad jog word")
-        words.append((letter, float(m.group(0))))
-        i = m.end()
-    units, absolute, machine = interp.st.units, interp.st.absolute, False
+    for letter, v, _ in ln.words:
+        if v.__class__ is not float:
+            raise LineError(16, "a jog takes plain numbers (no expressions or parameters)")
+        words.append((letter.upper(), v))
+    st = interp.st
+    units, absolute, machine = st.units, st.absolute, False
     vals = {}
     for k, v in words:
         if k == "G":
             c = round(v * 10)
             if c == 200:
-                units = G.MM_PER_INCH
+                units = MM_PER_INCH
             elif c == 210:
                 units = 1.0
             elif c == 900:

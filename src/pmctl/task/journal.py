@@ -2,7 +2,8 @@
 counters (which the rt process keeps in its own counter file, pmctl.motion.state_store).
 
 ``<state file>.journal`` holds, as one JSON object written atomically (temp file, fsync, rename,
-fsync of the folder): the work offsets (G54-G59, G92, the active system), the console settings
+fsync of the folder): the work offsets (G54-G59.3 with their XY rotations, G92, the active system,
+the G28/G30 positions: pmctl.task.rs274's ``offsets()``; older journals without the new keys load), the console settings
 ($10), whether the machine is homed, the job in progress (its file, or "console"), its line and
 the pose it was planned from (for a resume), and when it was written. A
 damaged journal is an error naming the file: the daemon does not guess offsets.
@@ -18,9 +19,9 @@ from pathlib import Path
 
 from pmctl.core.errors import InputError
 from pmctl.motion.state_store import atomic_write      # shared with the pulse counters
+from pmctl.task.rs274.modal import WCS_NAMES           # G54-G59.3
 
 FORMAT = "pmctl-journal/1"
-WCS_NAMES = ("G54", "G55", "G56", "G57", "G58", "G59")
 
 
 def _numbers(v, n) -> bool:
@@ -68,13 +69,17 @@ class Journal:
             raise InputError(self.path, 1, "offsets.wcs: expected an object")
         for k, v in wcs.items():
             if k not in WCS_NAMES:
-                raise InputError(self.path, 1, f"offsets.wcs.{k}: not a work coordinate system (G54-G59)")
+                raise InputError(self.path, 1, f"offsets.wcs.{k}: not a work coordinate system (G54-G59.3)")
             if not _numbers(v, 5):
                 raise InputError(self.path, 1, f"offsets.wcs.{k}: expected 5 numbers")
-        if not _numbers(off.get("g92", [0.0] * 5), 5):
-            raise InputError(self.path, 1, "offsets.g92: expected 5 numbers")
+        for k in ("g92", "g28", "g30"):
+            if not _numbers(off.get(k, [0.0] * 5), 5):
+                raise InputError(self.path, 1, f"offsets.{k}: expected 5 numbers")
+        rot = off.get("rotation", {})
+        if not isinstance(rot, dict) or any(k not in WCS_NAMES or not _numbers([v], 1) for k, v in rot.items()):
+            raise InputError(self.path, 1, "offsets.rotation: expected work coordinate system -> degrees")
         if off.get("active", "G54") not in WCS_NAMES:
-            raise InputError(self.path, 1, f"offsets.active: expected one of G54-G59, got {off.get('active')!r}")
+            raise InputError(self.path, 1, f"offsets.active: expected one of G54-G59.3, got {off.get('active')!r}")
         settings = d.get("settings", {})
         s10 = settings.get("10", 1) if isinstance(settings, dict) else None
         if isinstance(s10, bool) or not isinstance(s10, int) or not 0 <= s10 <= 255:

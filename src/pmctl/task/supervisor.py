@@ -179,6 +179,11 @@ class Supervisor:
         self._plan_rpm = None             # the spindle speed at the end of what is planned (None: as commanded)
         self.paused = ""                  # a pause (M0, M1, M6) waiting for cycle start: what to do
         self.optional_stop = False        # M1 pauses only with this switch on (pmctl ctl optional-stop on)
+        # who answers a tool change or a pause when no operator is at a console: None (they wait for
+        # cycle start), or a callable(what) that performs it and logs (pmctl run on the simulation)
+        self.stand_in_operator = None
+        self.tool = None                  # the tool in the spindle, once a tool change was confirmed (None: not known)
+        self._pause_tool = None           # the tool a waiting tool-change pause asks for
         self.coolant = set()              # "mist" (M7), "flood" (M8); M9 clears
         self.outputs = {}                 # M62-M68: "name index" -> value, as last set
         self._strain = None               # the plant's strain of the last drained record (a simulated DAQ serves it)
@@ -522,6 +527,12 @@ class Supervisor:
                 return
             what = (f"tool change: load tool {value}" if name == "tool_change" else
                     f"program paused ({value})")
+            if self.stand_in_operator is not None:
+                self.stand_in_operator(what)
+                if name == "tool_change":
+                    self.tool = int(value)
+                return
+            self._pause_tool = int(value) if name == "tool_change" else None
             self.paused = f"{what}; then cycle start (~ on the console, or pmctl ctl resume)"
             self.log(self.paused)
             self._emit("pause", {"msg": self.paused})
@@ -752,6 +763,8 @@ class Supervisor:
         if self.paused:                  # cycle start after M0, M1 or a tool change: the program goes on
             self.log(f"resumed after: {self.paused}")
             self.paused = ""
+            if self._pause_tool is not None:      # the operator confirmed the tool change
+                self.tool, self._pause_tool = self._pause_tool, None
             self._auto_item = None
             self._emit("resumed", {})
         elif self._auto_hold:            # the path waits for an event: the events thread releases it

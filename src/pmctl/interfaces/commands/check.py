@@ -78,6 +78,8 @@ class Context:
         self.plan_machine = machine_for_planning(machine, params)
         self.batch = setup.shaper is not None
         self.feed_override = args.feed_override
+        from pmctl.task.gcode import reader_options
+        self.reader = reader_options(args.job, svc.interpreter)    # the [interpreter] settings (tool table...)
         state_file = svc.loop.state_file if args.state is None else args.state
         saved = (load_counters(state_file, machine=machine.name, pulses_per_mm=machine.resolution.pulses_per_mm)
                  if state_file else None)
@@ -93,7 +95,7 @@ def run(args) -> int:
     from pmctl.task.jobcheck import check_file
     ctx = Context(args)
     rep = check_file(args.job, ctx.plan_machine, ctx.dt, start=ctx.start, feed_override=ctx.feed_override,
-                     batch=ctx.batch)
+                     batch=ctx.batch, **ctx.reader)
     if args.json:
         print(json.dumps(rep.as_dict(), indent=1))
         return 0 if rep.ok else 1

@@ -50,7 +50,7 @@ def run(args) -> int:
             raise PmctlError(f"--dt {args.dt:g} s must be a positive multiple of the tick period {ctx.dt:g} s")
         every = int(round(k))
     rep = check_file(args.job, ctx.plan_machine, ctx.dt, start=ctx.start, feed_override=ctx.feed_override,
-                     batch=ctx.batch)
+                     batch=ctx.batch, **ctx.reader)
     if not rep.ok:
         raise JobProblems(rep.problems)
     out = Path(args.out)

@@ -93,7 +93,8 @@ def add_parser(sub):
     p.add_argument("--feed-override", type=float, default=1.0, help="feed override factor (default 1)")
     p.add_argument("--tool", type=int, default=None, metavar="N",
                    help="the tool in the spindle at the start: a tool change (M6) to it goes on, a change to "
-                        "another tool is refused (pmctl run has no operator to change tools)")
+                        "another tool is refused on a real machine (pmctl run has no operator to change "
+                        "tools); on --backend sim the simulation's operator changes tools and answers M0")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=run)
 
@@ -287,10 +288,13 @@ def run(args) -> int:
     # machine and planned (_run_client) before anything moves: pmctl check's check
     from pmctl.core.errors import JobProblems
     from pmctl.task.job import parse_job
-    job, problems = parse_job(args.job, machine, start=(st.tip, st.axis))
+    from pmctl.task.gcode import reader_options
+    job, problems = parse_job(args.job, machine, start=(st.tip, st.axis),
+                              **reader_options(args.job, svc.interpreter))    # tool table, search path...
     if problems:
         raise JobProblems(problems)
-    _refuse_tool_changes(job, args.tool)
+    if backend_name != "sim":      # the simulation's stand-in operator changes tools and answers pauses
+        _refuse_operator_waits(job, args.tool)
     if not job.moves:                 # nothing to run (an empty file, only comments and M30): say so
         from pmctl.core.errors import InputError
         raise InputError(args.job, None, "no motion in the job (no move and no dwell): nothing to run")
@@ -313,9 +317,11 @@ def run(args) -> int:
                        nc_over, strain_in_loop, where, setup.notes)
 
 
-def _refuse_tool_changes(job, tool):
-    """A tool change (EVENT tool_change, M6) that pmctl run cannot perform: any but to ``tool``, the
-    tool already in the spindle (--tool). InputError naming the line."""
+def _refuse_operator_waits(job, tool):
+    """What pmctl run on a real machine cannot do, refused before anything moves (InputError naming
+    the line): a tool change (M6) to any tool but ``tool``, the one already in the spindle (--tool),
+    and a program pause (M0, M60) that waits for a cycle start no one can give here. (M1 is not
+    taken: the optional-stop switch is off in pmctl run.)"""
     from pmctl.core.errors import InputError
     from pmctl.task.job import EVENT
     for m in job.moves:
@@ -328,6 +334,11 @@ def _refuse_tool_changes(job, tool):
                                  f"tool change to T{int(value)}: pmctl run cannot change tools and {have}; load "
                                  f"tool {int(value)} and run with --tool {int(value)}, split the job at the change, "
                                  "or queue it in pmctl serve where the operator changes tools")
+            if name == "pause" and value != "M1":
+                raise InputError(m.file or job.source, m.line or None,
+                                 f"{value} program pause: pmctl run has no cycle start to continue after it; "
+                                 "queue the job in pmctl serve (cycle start: ~ on the console or pmctl ctl "
+                                 f"resume), or remove the {value}")
 
 
 def _catch_stop_signals(handler) -> dict:
@@ -446,6 +457,8 @@ def _run_client(args, out, machine, svc, cfg, params, backend_name, state_file, 
     sup = Supervisor(args.config, service=args.service, backend=backend_name, state_file=state_file or "",
                      realtime=cfg.realtime, rate_hz=cfg.rate_hz, log=log, offline=not cfg.realtime, nc=nc_over,
                      hal=hal_over)
+    if backend_name == "sim":                # the simulation's stand-in operator: tool changes and pauses
+        sup.stand_in_operator = lambda what: log(f"{what}: done by the simulation's operator, the job goes on")
     notes = list(setup_notes)              # chain modes, K_theta auto, shaper: as this run resolved them
     if sup.plan_machine is not sup.machine:
         notes.append(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: "

@@ -157,8 +157,13 @@ class ControlServer:
             return self.status()
         if cmd == "queue":
             if "add" in req:
+                from pmctl.task.gcode import reader_options
                 path = str(req["add"])
-                job = load_job(path, sup.machine, start=sup.end_pose())
+                console = getattr(self.daemon, "console", None)   # the work offsets in force, as at the console
+                offsets = console.interp.offsets() if console is not None else \
+                    self.daemon.journal.data.get("offsets")
+                job = load_job(path, sup.machine, start=sup.end_pose(),
+                               **reader_options(path, sup.svc.interpreter, offsets))
                 it = sup.submit(job, kind="job", name=os.path.basename(path), source=os.path.abspath(path))
                 return {"ok": True, "index": it.index}
             with sup._lock:

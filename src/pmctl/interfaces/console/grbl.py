@@ -26,8 +26,7 @@ Two threads:
 - M-codes take effect in program order where the stream gets to them: a line's spindle (M3 M4 M5 S),
   coolant (M7 M8 M9), tool change (M6), pause (M0 M1), output and message words come from the
   interpreter as EVENT moves (pmctl.task.job) queued with the motion; the supervisor holds the path
-  where each takes effect (a lone one at once when idle). ``_bridge_events`` makes them from the
-  line's change of the parser state while the line interpreter gives none (spindle, coolant).
+  where each takes effect (a lone one at once when idle).
 
 A bad line changes nothing: not the queued motion, not the parser state, not the next line.
 """
@@ -39,7 +38,6 @@ import copy
 import math
 import os
 import queue
-import re
 import select
 import threading
 import time
@@ -49,7 +47,7 @@ import numpy as np
 from pmctl import __version__
 from pmctl.motion import channel as C
 from pmctl.task.interp import AXES, WCS_NAMES, LineError, LineInterpreter, moves_job
-from pmctl.task.job import DWELL, EVENT, Move
+from pmctl.task.job import DWELL
 from pmctl.task.supervisor import MotionRefused, roll_pitch_deg
 
 RX_BUFFER = 128
@@ -76,7 +74,8 @@ class GrblConsole:
         self.homing = homing                  # callable() -> (ok, msg) for $H, or None
         self.jogger = jogger
         tip, axis = sup.pose()
-        self.interp = LineInterpreter(sup.machine, tip, axis, journal.data.get("offsets"))
+        self.interp = LineInterpreter(sup.machine, tip, axis, journal.data.get("offsets"),
+                                      config=getattr(getattr(sup, "svc", None), "interpreter", None))
         self.last_prb = None                  # the last probe's ProbeResult ($# reports it)
         self.settings = {10: int(journal.data.get("settings", {}).get("10", 1))}
         self.lines: queue.Queue = queue.Queue()
@@ -91,6 +90,7 @@ class GrblConsole:
         self._rx_pending = 0                  # bytes of lines received and not yet answered (Bf:'s second field)
         self._line_bytes = 0
         self._pgm_end = []                    # items ending with M2/M30: [MSG:Pgm End] when they have run
+        self._last_item = None                # the last item the console queued
         self.batch_t = 0.0
         self.seq = 0
         self.spindle_ov = 100
@@ -447,15 +447,7 @@ class GrblConsole:
             if last != "gcode":
                 self.interp.sync(*self.sup.end_pose())
         st0 = copy.deepcopy(self.interp.st)     # a refused probe line changes nothing
-        try:
-            moves, n_word, flags = self.interp.execute(text, self.seq)
-        except LineError as e:
-            zero = _G43_1_ZERO.fullmatch(text.upper().replace(" ", ""))
-            if e.code != 20 or not zero:
-                raise
-            # bCNC's reset and CNCjs's probe widget: G43.1 with a zero offset is no offset (G49)
-            moves, n_word, flags = self.interp.execute(zero.group(1) + "G49" + zero.group(3), self.seq)
-        moves = self._bridge_events(st0, text, moves, flags)
+        moves, n_word, flags = self.interp.execute(text, self.seq)
         if any(m.probe for m in moves) and not self.sup.check_mode:
             return self._probe(moves, n_word, st0, gen)
         if flags.get("sync"):
@@ -481,37 +473,14 @@ class GrblConsole:
         if flags.get("end") or sync:
             it = self._flush(gen)     # waits (the answer with it) while the motion queue is full
             if flags.get("end") and not self.sup.check_mode:
+                if it is None and self.sup.busy():
+                    it = self._last_item      # an end line without motion: the end is where the queued motion ends
                 if it is not None:
                     self._pgm_end.append(it)
                 elif not self.sup.busy():
                     self.write("[MSG:Pgm End]")
         if sync and not self._synchronize(gen):
             return                    # a soft reset dropped the line: no answer
-
-    def _bridge_events(self, st0, text, moves, flags):
-        """EVENT moves for a line whose interpreter gives none (the line interpreter before the RS-274
-        one): the spindle as the line changed the parser state (M3/M4 S, M5, and M2/M30, which stop
-        it), then coolant M7/M8/M9 in the line's order; at the line's start point, before its
-        motion (RS-274's order). A line that brought its own EVENT moves is left alone."""
-        if any(m.kind == EVENT for m in moves):
-            return moves
-        st = self.interp.st
-        try:
-            rpm0 = st0.s * st0.spindle_on if st0.spindle_on else 0.0
-            rpm1 = st.s * st.spindle_on if st.spindle_on else 0.0
-            pos, a, b = st0.pos, st0.a, st0.b
-        except AttributeError:        # the RS-274 interpreter's state: it gives its EVENT moves itself
-            return moves
-        events = [("spindle", float(rpm1))] if rpm1 != rpm0 else []
-        code = _COMMENT.sub("", text.upper())
-        events += [("coolant", {7: "mist", 8: "flood", 9: "off"}[int(m)]) for m in _COOLANT.findall(code)]
-        if flags.get("end"):
-            events.append(("coolant", "off"))
-        if not events:
-            return moves
-        from pmctl.core import kinematics as K
-        axis = K.axis_from_roll_pitch(math.radians(a), math.radians(b))
-        return [Move(EVENT, np.array(pos, float), axis, line=self.seq, events=tuple(events)), *moves]
 
     def _synchronize(self, gen) -> bool:
         """grbl's protocol_buffer_synchronize: wait until every queued item has run and the machine
@@ -539,6 +508,7 @@ class GrblConsole:
         it = None
         try:                          # the batch stays visible (state Run) until the item is queued
             it = self.sup.submit(moves_job(batch, "console"), kind="gcode", name="console", lines=lines)
+            self._last_item = it
             return it
         except MotionRefused:
             return None
@@ -599,10 +569,11 @@ class GrblConsole:
             for n in WCS_NAMES:
                 self.write(f"[{n}:" + mm3(self.interp.wcs[n]) + "]")
             z = ",".join(["0.000"] * 5)
-            self.write(f"[G28:{z}]")
-            self.write(f"[G30:{z}]")
+            offsets = self.interp.offsets()
+            self.write("[G28:" + mm3(offsets["g28"]) + "]")
+            self.write("[G30:" + mm3(offsets["g30"]) + "]")
             self.write("[G92:" + mm3(self.interp.g92) + "]")
-            self.write("[TLO:0.000]")
+            self.write(f"[TLO:{mm3([self.interp.tlo()])}]")
             self.write(self.last_prb.prb() if self.last_prb is not None else f"[PRB:{z}:0]")
         elif cmd == "$G":
             self.write(f"[GC:{self.interp.parser_state()}]")
@@ -684,9 +655,6 @@ class GrblConsole:
         return out
 
 
-_G43_1_ZERO = re.compile(r"(.*?)G0*43\.1((?:[XYZAB][+-]?0*(?:\.0*)?(?![0-9.]))+)(.*)")
-_COMMENT = re.compile(r"\([^)]*\)|;.*")
-_COOLANT = re.compile(r"M0*([789])(?![0-9.])")
 
 
 def accessories(sup) -> str:
