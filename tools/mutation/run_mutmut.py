@@ -57,10 +57,12 @@ from hand_mutants import ROOT, _copy_tree  # noqa: E402
 @dataclass(frozen=True)
 class Target:
     """Functions of one module: ``funcs`` mutmut name globs judged whole; ``spans`` {name: [(first
-    line's anchor text, last line's anchor text), ...]} judged only inside those lines."""
+    line's anchor text, last line's anchor text), ...]} judged only inside those lines, less the
+    lines holding a ``skip`` text (bookkeeping inside a span: timing statistics)."""
     module: str
     funcs: tuple = ()
     spans: dict = field(default_factory=dict)
+    skip: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -115,7 +117,8 @@ GROUPS = {
                                        ("if self.quit:", "st = _stopping(st, why)"),
                                        ("if in_row >= cfg.max_overruns_in_row", "st = _stopping("),
                                        ("except Exception as e:", "st = _halt(st, reason)")],
-                 "xǁControlLoopǁset_chain_offsets": [("for chain, mm in items:", "self.chain_offset = off")]}),),
+                 "xǁControlLoopǁset_chain_offsets": [("for chain, mm in items:", "self.chain_offset = off")]},
+                ("comp[w] = ",)),),
         ("tests/test_safety_loop.py", "tests/test_loop.py", "tests/test_stall_hold.py", "tests/test_safety_hold.py"),
         "not bundled and not end_to_end and not k_theta and not tracks and not tracking and not restart_from "
         "and not survive_a_crash and not sigterm and not console",
@@ -236,9 +239,9 @@ def _function_lines(source: str, key: str) -> tuple[int, int]:
     raise RuntimeError(f"{key}: no such function")
 
 
-def _span_lines(source: str, key: str, spans) -> set[int]:
+def _span_lines(source: str, key: str, spans, skip=()) -> set[int]:
     """File lines (1-based) inside the spans of a function: each from the one line of the function
-    holding its first anchor to the next line holding its last."""
+    holding its first anchor to the next line holding its last; lines holding a ``skip`` text left out."""
     lo, hi = _function_lines(source, key)
     lines = source.splitlines()
     out = set()
@@ -250,7 +253,7 @@ def _span_lines(source: str, key: str, spans) -> set[int]:
         last = [i for i in range(first[0], hi + 1) if b in lines[i - 1]]
         if not last:
             raise RuntimeError(f"{key}: the span's end {b!r} is not after {a!r}")
-        out.update(range(first[0], last[0] + 1))
+        out.update(i for i in range(first[0], last[0] + 1) if not any(t in lines[i - 1] for t in skip))
     return out
 
 
@@ -271,7 +274,7 @@ def _select_in_copy(spec: dict) -> dict:
         source = path.read_text()
         d = SourceFileMutationData(path=path)
         d.load()
-        span_sets = {k: _span_lines(source, k, v) for k, v in t["spans"].items()}
+        span_sets = {k: _span_lines(source, k, v, t["skip"]) for k, v in t["spans"].items()}
         for key in d.exit_code_by_key:
             fn = key.partition("__mutmut_")[0].rpartition(".")[2]
             whole = any(fnmatch.fnmatchcase(fn, g) for g in t["funcs"])
@@ -296,9 +299,8 @@ def _select_in_copy(spec: dict) -> dict:
 
 
 def _select(work: Path, g: Group) -> dict:
-    spec = {"targets": [{"module": t.module, "funcs": list(t.funcs), "spans": {k: [list(s) for s in v]
-                                                                             for k, v in t.spans.items()}}
-                        for t in g.targets]}
+    spec = {"targets": [{"module": t.module, "funcs": list(t.funcs), "skip": list(t.skip),
+                         "spans": {k: [list(s) for s in v] for k, v in t.spans.items()}} for t in g.targets]}
     out = work / "scope.json"
     env = dict(os.environ)
     env.pop("PYTHONPATH", None)
@@ -341,8 +343,8 @@ def _base(work_root: Path, ref: str | None) -> Path:
 
 
 def run_group(name: str, ref: str | None, work_root: Path, max_children: int, survivors: bool,
-              resume: bool = False, dry: bool = False, only: list | None = None) -> dict:
-    """One group: its mutants in scope (or ``only`` those), run; the counts and the survivors."""
+              resume: bool = False, dry: bool = False, only=None) -> dict:
+    """One group: its mutants in scope (or those ``only(name)`` takes), run; the counts and the survivors."""
     g = GROUPS[name]
     work = work_root / name
     t0 = time.monotonic()
@@ -358,7 +360,7 @@ def run_group(name: str, ref: str | None, work_root: Path, max_children: int, su
         scope = json.loads((work / "scope.json").read_text())
     sel = json.loads(re.search(r"^pytest_add_cli_args_test_selection = (.*)$", (work / "pyproject.toml").read_text(),
                                re.M).group(1))
-    chosen = scope["chosen"] if only is None else [m for m in scope["chosen"] if m in set(only)]
+    chosen = scope["chosen"] if only is None else [m for m in scope["chosen"] if only(m)]
     todo = [] if dry else chosen
     if not fresh:
         done = _results(work)
@@ -382,7 +384,7 @@ def run_group(name: str, ref: str | None, work_root: Path, max_children: int, su
            "out_of_scope": scope["out_of_scope"], "per_function": scope["per_function"], "counts": counts,
            "killed": killed, "judged": judged, "rate": killed / judged if judged else None,
            "seconds": round(secs), "survived": sorted(k for k, v in res.items() if v not in KILLED),
-           "statuses": res}
+           "statuses": res, "in_scope": scope["chosen"]}
     if survivors:
         diffs = {}
         for m in out["survived"]:
@@ -437,11 +439,12 @@ def main(argv=None) -> int:
             if a.rerun:
                 if g not in before:
                     ap.error(f"{a.rerun} has no group {g}")
-                only = before[g]["survived"]
+                surv, known = set(before[g]["survived"]), set(before[g]["statuses"])
+                only = lambda m, surv=surv, known=known: m in surv or m not in known      # noqa: E731
             r = run_group(g, a.ref, root, a.max_children, a.survivors, a.resume, a.dry_run, only)
             if a.rerun:            # the earlier run's kills stand (tests were only added)
                 p = before[g]
-                r["statuses"] = {**p["statuses"], **r["statuses"]}
+                r["statuses"] = {m: r["statuses"].get(m, p["statuses"].get(m, "not checked")) for m in r["in_scope"]}
                 r["counts"] = {}
                 for st in r["statuses"].values():
                     r["counts"][st] = r["counts"].get(st, 0) + 1
@@ -449,7 +452,7 @@ def main(argv=None) -> int:
                 r["judged"] = sum(v for k, v in r["counts"].items() if k not in ("not checked", "skipped"))
                 r["rate"] = r["killed"] / r["judged"] if r["judged"] else None
                 r["survived"] = sorted(k for k, v in r["statuses"].items() if v not in KILLED)
-                r["mutants"], r["rerun_of"] = p["mutants"], a.rerun
+                r["mutants"], r["rerun_of"] = len(r["in_scope"]), a.rerun
                 r["seconds_total"] = p.get("seconds_total", p["seconds"]) + r["seconds"]
             results.append(r)
             rate = "-" if r["rate"] is None else f"{100 * r['rate']:.0f} %"
