@@ -13,6 +13,7 @@ against the loopback sim (a real-time run only where the rule is about the clock
 - chain-length offset inputs beyond the chains or the bound are refused, said once, and the rest kept.
 """
 
+import re
 import time
 
 import numpy as np
@@ -218,20 +219,86 @@ def test_a_stall_while_nothing_moves_stops_nothing():
     assert any("at rest, nothing was commanded to move: no stop" in m for m in logs), logs
 
 
+STALL = re.compile(r"^loop stalled: ([0-9.]+) ms between two commands, ([0-9.]+) ms of it computing "
+                   r"\(limit ([0-9.]+) ms\)(?:; the process was not scheduled for ([0-9]+) ms: .*)?$")
+
+
 def test_a_stall_during_a_move_goes_to_on_stall_when_there_is_one():
+    """Two 60 ms sleeps during a move (stall limit 30 ms): each goes to ``on_stall`` with a reason that
+    says the gap between two commands (at least the sleep, at most the run's duration), the part of
+    it spent computing (no more than the gap), the limit, and the time the process was not running."""
     tr = line_traj([0, 0, 5], [10, 0, 5], rp(0, 0), rp(0, 0), 10.0, DT)
     cfg = LoopConfig(realtime=True, lock_memory=False, stall_timeout_s=0.03, max_overruns_in_row=10**6)
     told = []
 
     def hook(loop, k, st):
-        if k == 300:
+        if k in (300, 600):
             time.sleep(0.06)
         return st
     lp, be, c0, tg = _loop(tr, cfg=cfg, hook=hook)
     lp.on_stall = told.append
+    t0 = time.monotonic()
     res = lp.run()
+    run_ms = (time.monotonic() - t0) * 1e3
     assert res.status == "done", res.reason
-    assert told and told[0].startswith("loop stalled: ") and lp.stalls == len(told)
+    assert lp.stalls == len(told) >= 2            # (a busy machine may add stalls of its own)
+    slept = 0
+    for why in told:
+        m = STALL.match(why)
+        assert m, why
+        gap, comp, lim = float(m[1]), float(m[2]), float(m[3])
+        assert lim == 30.0 and 30.0 <= gap <= run_ms and 0.0 <= comp <= gap + 0.1, why
+        if m[4] is not None:
+            assert abs(int(m[4]) - (gap - comp)) <= 1.0, why
+        if gap >= 60.0:
+            slept += 1
+            assert m[4] is not None, why          # a sleep, not computing: the hint says so
+    assert slept >= 2
+
+
+def test_missed_deadlines_in_a_row_stop_at_the_limit_and_quit_then_is_a_stop():
+    """Real time, exit_when_done=False (the daemon's rt loop): from tick 300 every tick overruns its
+    1 ms deadline (the hook sleeps 3 ms); the run is stopped (braked, then halted) when the count in a
+    row reaches max_overruns_in_row, and says that count; quit after the halt ends it as a stop, with
+    the stop's reason."""
+    halted = []
+
+    def hook(loop, k, st):
+        if st.mode == HALTED:
+            halted.append(k)
+            if len(halted) == 20:
+                loop.quit = True
+        elif k >= 300:
+            time.sleep(0.003)
+        return st
+    cfg = LoopConfig(realtime=True, lock_memory=False, stall_timeout_s=5.0, max_overruns_in_row=4)
+    lp, be, c0, tg = _loop(cfg=cfg, hook=hook, exit_when_done=False)
+    res = lp.run()
+    assert res.reason == "4 deadlines missed in a row at 1000 Hz"
+    assert res.status == "stopped" and res.state.mode == HALTED
+    assert res.timing.max_overruns_in_row >= 4
+
+
+def test_an_unexpected_error_after_the_backend_took_the_pulses_halts_with_them_counted():
+    """An error of the loop's own (here: in the hook, after the tick's pulses were written) halts it
+    with the error's text; the pulses the backend took are in the counters: they equal the device's."""
+    def hook(loop, k, st):
+        if k == 150:
+            raise RuntimeError("boom")
+        return st
+    lp, be, c0, tg = _loop(hook=hook)
+    res = lp.run()
+    assert res.status == "fault" and res.reason == "loop error at tick 150: RuntimeError: boom"
+    assert res.state.mode == HALTED
+    assert np.array_equal(res.state.counts, be.counts) and np.array_equal(be.counts, c0 + res.pulses_sent)
+
+
+def test_an_offline_run_reports_no_slow_ticks_when_none_took_the_stall_limit():
+    logs = []
+    lp, be, c0, tg = _loop(logs=logs)
+    res = lp.run()
+    assert res.status == "done"
+    assert not [m for m in logs if "took longer than the stall limit" in m], logs
 
 
 class _PositionSim(SimBackend):
@@ -260,8 +327,8 @@ def test_chain_offset_inputs_beyond_the_chains_or_the_bound_are_refused_once_and
     logs = []
     lp, be, c0, tg = _loop(logs=logs)
     lim = P.chain_offset_max_mm
-    assert lp.set_chain_offsets([0.1, -0.15, 0.12]) and np.array_equal(lp.chain_offset, [0.1, -0.15, 0.12])
-    assert not lp.set_chain_offsets({3: 0.1, 0: 0.05})             # no chain 3; chain 0 taken
+    assert lp.set_chain_offsets([0.1, -0.15, 0.12]) is True and np.array_equal(lp.chain_offset, [0.1, -0.15, 0.12])
+    assert lp.set_chain_offsets({3: 0.1, 0: 0.05}) is False         # no chain 3; chain 0 taken
     assert np.array_equal(lp.chain_offset, [0.05, -0.15, 0.12])
     assert logs == ["chain offset refused: chain 3 is not 0, 1 or 2 (L1, L2, L3)"]
     assert not lp.set_chain_offsets({-1: 0.1})
@@ -274,3 +341,5 @@ def test_chain_offset_inputs_beyond_the_chains_or_the_bound_are_refused_once_and
     assert not lp.set_chain_offset(1, float("nan"))
     assert len([m for m in logs if m.startswith("chain offset refused: L2 ")]) == 2   # said again after a good one
     assert lp.set_chain_offsets((0.0, 0.0, -lim)) and np.array_equal(lp.chain_offset, [0.0, 0.0, -lim])
+    assert lp.set_chain_offsets((0.03, 2 * lim, 0.04)) is False     # one beyond the bound: the others taken
+    assert np.array_equal(lp.chain_offset, [0.03, 0.0, 0.04])
