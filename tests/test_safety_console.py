@@ -104,7 +104,7 @@ def test_a_hold_stops_a_g0_on_the_line_and_cycle_start_finishes_it(console):
     assert -40.0 + 1.0 < x < -0.5                  # stopped short of the target, on the line
     assert held["pos"][1] == pytest.approx(0.0, abs=2e-3)
     time.sleep(0.2)
-    assert s.status()["pos"][0] == pytest.approx(x, abs=1e-3)     # and it stays there
+    assert s.status()["pos"][0] == pytest.approx(x, abs=0.01)     # and it stays there (a pulse or two)
     s.realtime(b"~")
     st = _idle(s)
     assert st["pos"][0] == pytest.approx(-40.0, abs=2e-3)
@@ -133,7 +133,7 @@ def test_a_hold_or_a_jog_cancel_during_a_jog_cancels_it(console, byte):
     assert 0.5 < st["pos"][0] < 19.0, st
     assert not sup.operator_hold
     time.sleep(0.2)
-    assert s.status()["pos"][0] == pytest.approx(st["pos"][0], abs=1e-3)
+    assert s.status()["pos"][0] == pytest.approx(st["pos"][0], abs=0.01)
 
 
 def _ov(s, want, timeout=10.0):
@@ -182,7 +182,7 @@ def test_a_soft_reset_stops_a_g0_drops_the_half_line_and_resets_the_overrides(co
     assert s.send("") == "ok"                       # the rest of the dropped line ends nothing
     time.sleep(0.2)
     st = _idle(s)
-    assert st["pos"][0] == pytest.approx(x, abs=1e-3) and st["pos"][1] == pytest.approx(0.0, abs=2e-3)
+    assert st["pos"][0] == pytest.approx(x, abs=0.01) and st["pos"][1] == pytest.approx(0.0, abs=2e-3)
 
 
 def test_bytes_from_0x80_up_are_never_part_of_a_line_and_both_line_ends_count(console):
