@@ -168,8 +168,9 @@ def test_the_override_bytes_step_and_bound_as_grbls(console):
 def test_a_soft_reset_stops_a_g0_drops_the_half_line_and_resets_the_overrides(console):
     s, sup, con = console
     _home_x(s)
-    s.realtime(b"\x91\x91\x96")
-    assert _ov(s, "120,50,100") == "120,50,100"
+    s.realtime(b"\x91\x91\x96\x9a")
+    assert _ov(s, "120,50,110") == "120,50,110"
+    assert s.wait_for(lambda: (sup.raw()[C.ST_FEED_OV], sup.raw()[C.ST_RAPID_OV]) == (1.2, 0.5), 10)
     assert s.send("G0 X-40") == "ok"
     _moving(s)
     s.realtime(b"G0 Y30")                           # half a line, then the reset
@@ -179,7 +180,18 @@ def test_a_soft_reset_stops_a_g0_drops_the_half_line_and_resets_the_overrides(co
     x = st["pos"][0]
     assert -40.0 + 1.0 < x < -0.5 and st["pos"][1] == pytest.approx(0.0, abs=2e-3)
     assert _ov(s, "100,100,100") == "100,100,100"
-    assert s.send("") == "ok"                       # the rest of the dropped line ends nothing
+    # the overrides as the rt process applies them and as the spindle gets them: back to 100 %
+    assert s.wait_for(lambda: (sup.raw()[C.ST_FEED_OV], sup.raw()[C.ST_RAPID_OV]) == (1.0, 1.0), 10)
+    assert sup.spindle_ov == 1.0
+    # grbl clears its RX buffer: Bf (status mask $10=3) says the planner's 15 blocks and the 128
+    # bytes free, before and after the next line
+    assert s.send("$10=3") == "ok"
+    try:
+        assert s.status()["Bf"] == "15,128"
+        assert s.send("") == "ok"                   # the rest of the dropped line ends nothing
+        assert s.status()["Bf"] == "15,128"
+    finally:
+        assert s.send("$10=1") == "ok"
     time.sleep(0.2)
     st = _idle(s)
     assert st["pos"][0] == pytest.approx(x, abs=0.01) and st["pos"][1] == pytest.approx(0.0, abs=2e-3)
