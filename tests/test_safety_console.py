@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from grbl_sender import Sender
+from test_console_overrides import wait_ov as _ov
 from pmctl.core import kinematics as K
 from pmctl.interfaces.console.grbl import GrblConsole
 from pmctl.interfaces.console.port import ConsolePort
@@ -134,16 +135,6 @@ def test_a_hold_or_a_jog_cancel_during_a_jog_cancels_it(console, byte):
     assert not sup.operator_hold
     time.sleep(0.2)
     assert s.status()["pos"][0] == pytest.approx(st["pos"][0], abs=0.01)
-
-
-def _ov(s, want, timeout=10.0):
-    """The status report's Ov: once it says ``want``."""
-    t0 = time.time()
-    st = s.status()
-    while st["Ov"] != want and time.time() - t0 < timeout:
-        time.sleep(0.02)
-        st = s.status()
-    return st["Ov"]
 
 
 def test_the_override_bytes_step_and_bound_as_grbls(console):

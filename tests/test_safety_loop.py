@@ -170,17 +170,25 @@ def test_quit_ends_the_loop_as_a_stop_with_its_reason(reason):
     assert res.status == "stopped" and res.reason == (reason or "quit") and res.ticks == 150
 
 
+def _quit_once_halted(halted, running=None):
+    """A hook that notes the ticks the NC is halted in ``halted`` and quits at the 20th; ``running(k)``
+    runs on the others."""
+    def hook(loop, k, st):
+        if st.mode == HALTED:
+            halted.append(k)
+            if len(halted) == 20:
+                loop.quit = True
+        elif running is not None:
+            running(k)
+        return st
+    return hook
+
+
 def test_quit_after_a_fault_is_a_fault_with_the_faults_reason():
     """exit_when_done=False (the daemon's rt loop): a following-error fault halts the NC, the loop
     runs on; quit then ends it as the fault it was."""
     halted = []
-
-    def hook(loop, k, st):
-        if st.mode == HALTED:
-            halted.append(k)
-        if len(halted) == 20:
-            loop.quit = True
-        return st
+    hook = _quit_once_halted(halted)
     be = hal.create("sim", M, DT, {"lost_steps_at_tick": 200, "lost_steps_axis": 3, "lost_steps_mm": 0.5})
     lp, be, c0, tg = _loop(be=be, hook=hook, exit_when_done=False)
     res = lp.run()
@@ -262,15 +270,7 @@ def test_missed_deadlines_in_a_row_stop_at_the_limit_and_quit_then_is_a_stop():
     row reaches max_overruns_in_row, and says that count; quit after the halt ends it as a stop, with
     the stop's reason."""
     halted = []
-
-    def hook(loop, k, st):
-        if st.mode == HALTED:
-            halted.append(k)
-            if len(halted) == 20:
-                loop.quit = True
-        elif k >= 300:
-            time.sleep(0.003)
-        return st
+    hook = _quit_once_halted(halted, running=lambda k: time.sleep(0.003) if k >= 300 else None)
     cfg = LoopConfig(realtime=True, lock_memory=False, stall_timeout_s=5.0, max_overruns_in_row=4)
     lp, be, c0, tg = _loop(cfg=cfg, hook=hook, exit_when_done=False)
     res = lp.run()
