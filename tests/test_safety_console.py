@@ -145,10 +145,12 @@ def test_the_override_bytes_step_and_bound_as_grbls(console):
     _idle(s)
     steps = [(b"\x91\x91\x91", "130,100,100"), (b"\x92", "120,100,100"), (b"\x93", "121,100,100"),
              (b"\x94\x94", "119,100,100"), (b"\x90", "100,100,100"), (b"\x91" * 12, "200,100,100"),
-             (b"\x92" * 25, "10,100,100"), (b"\x90", "100,100,100"),
+             (b"\x92", "190,100,100"), (b"\x92" * 25, "10,100,100"), (b"\x91", "20,100,100"),
+             (b"\x90", "100,100,100"),
              (b"\x96", "100,50,100"), (b"\x97", "100,25,100"), (b"\x95", "100,100,100"),
              (b"\x9a\x9a", "100,100,120"), (b"\x9b", "100,100,110"), (b"\x9c", "100,100,111"),
-             (b"\x9d\x9d", "100,100,109"), (b"\x9a" * 12, "100,100,200"), (b"\x9b" * 25, "100,100,10"),
+             (b"\x9d\x9d", "100,100,109"), (b"\x9a" * 12, "100,100,200"), (b"\x9b", "100,100,190"),
+             (b"\x9b" * 25, "100,100,10"), (b"\x9a", "100,100,20"),
              (b"\x99", "100,100,100")]
     for data, want in steps:
         s.realtime(data)
@@ -189,17 +191,18 @@ def test_a_soft_reset_stops_a_g0_drops_the_half_line_and_resets_the_overrides(co
 
 
 def test_bytes_from_0x80_up_are_never_part_of_a_line_and_both_line_ends_count(console):
-    """0x80 and 0xA0 (no command here) inside a line are dropped from it; a line ends at \\n or at
+    """0x80, 0x98, 0x9E (spindle stop: only in a hold), 0x9F and 0xA0 (no command here) inside a line
+    are dropped from it and change nothing; a line ends at \\n or at
     \\r (a bare \\r on an empty line is nothing); a line of more than 256 bytes is refused whole with
     error:11, and the next line runs."""
     s, sup, con = console
     _home_x(s)
     n0 = len(s.answers)
     s.pending.append(12)
-    s.realtime(b"G1 F600\x80 X1\xa0\r")
+    s.realtime(b"G1 F600\x80 X\x98\x9e1\x9f\xa0\r")
     assert s.wait_for(lambda: len(s.answers) > n0, 30) and s.answers[n0] == "ok"
     st = _idle(s)
-    assert st["pos"][0] == pytest.approx(1.0, abs=2e-3)
+    assert st["pos"][0] == pytest.approx(1.0, abs=2e-3) and st["Ov"] == "100,100,100"
     s.realtime(b"\r")
     assert s.send("G1 X3") == "ok" and len(s.answers) == n0 + 2
     assert s.send("(" + "a" * 300 + ")") == "error:11"
