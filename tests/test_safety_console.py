@@ -155,6 +155,7 @@ def test_the_override_bytes_step_and_bound_as_grbls(console):
     for data, want in steps:
         s.realtime(data)
         assert _ov(s, want) == want, data
+        assert sup.spindle_ov == int(want.split(",")[2]) / 100.0, data     # what the spindle is given
     assert sup.raw()[C.ST_FEED_OV] == 1.0 and sup.raw()[C.ST_RAPID_OV] == 1.0
 
 
