@@ -16,6 +16,7 @@ process, where a mutation tool's switch does not reach; these pin the realtime h
 Each test waits for evidence with generous bounds; no timing is asserted.
 """
 
+import os
 import time
 
 import numpy as np
@@ -209,3 +210,34 @@ def test_bytes_from_0x80_up_are_never_part_of_a_line_and_both_line_ends_count(co
     assert s.send("(" + "a" * 300 + ")") == "error:11"
     assert s.send("G1 X2") == "ok"
     assert _idle(s)["pos"][0] == pytest.approx(2.0, abs=2e-3)
+
+
+def test_bf_counts_the_bytes_of_the_lines_not_yet_answered(console):
+    """grbl's character counting: held (Hold:0) with the planner's 15 blocks full, the next lines
+    wait unanswered in the RX buffer, and Bf's second field is 128 less their bytes (line ends
+    counted), as the sender counts them; once released, all are answered and Bf is 15,128 again."""
+    s, sup, con = console
+    _home_x(s)
+    assert s.send("$10=3") == "ok"
+    try:
+        s.realtime(b"!")
+        assert s.wait_state(("Hold:0",), 10)["state"] == "Hold:0"
+        n0 = len(s.answers)
+        lines = [f"G1 X{0.01 * (i + 1):.2f} F600" for i in range(15)] + ["G1 X0.5", "G1 Y0.25\r"]
+        for ln in lines:
+            data = (ln if ln.endswith("\r") else ln + "\n").encode()
+            s.pending.append(len(data))
+            os.write(s.fd, data)
+        assert s.wait_for(lambda: len(s.answers) - n0 >= 15, 30)
+        st = s.status()
+        assert st["state"] == "Hold:0" and len(s.answers) - n0 == 15
+        waiting = len("G1 X0.5") + 1 + len("G1 Y0.25") + 1         # the two lines past the 15 blocks
+        assert st["Bf"] == f"0,{128 - waiting}" and sum(s.pending) == waiting
+        s.realtime(b"~")
+        assert s.wait_for(lambda: len(s.answers) - n0 == len(lines), 60)
+        assert all(a == "ok" for a in s.answers[n0:])
+        st = _idle(s)
+        assert st["pos"][0] == pytest.approx(0.5, abs=2e-3) and st["pos"][1] == pytest.approx(0.25, abs=2e-3)
+        assert s.status()["Bf"] == "15,128"
+    finally:
+        assert s.send("$10=1") == "ok"
