@@ -195,8 +195,8 @@ def test_a_soft_reset_stops_a_g0_drops_the_half_line_and_resets_the_overrides(co
 def test_bytes_from_0x80_up_are_never_part_of_a_line_and_both_line_ends_count(console):
     """0x80, 0x98, 0x9E (spindle stop: only in a hold), 0x9F and 0xA0 (no command here) inside a line
     are dropped from it and change nothing; a line ends at \\n or at
-    \\r (a bare \\r on an empty line is nothing); a line of more than 256 bytes is refused whole with
-    error:11, and the next line runs."""
+    \\r (a bare \\r on an empty line is nothing); a line of more than 256 bytes (257) is refused whole
+    with error:11, one of 256 runs, and so does the next line."""
     s, sup, con = console
     _home_x(s)
     n0 = len(s.answers)
@@ -208,6 +208,8 @@ def test_bytes_from_0x80_up_are_never_part_of_a_line_and_both_line_ends_count(co
     s.realtime(b"\r")
     assert s.send("G1 X3") == "ok" and len(s.answers) == n0 + 2
     assert s.send("(" + "a" * 300 + ")") == "error:11"
+    assert s.send("(" + "a" * 254 + ")") == "ok"                   # 256 bytes: the longest line
+    assert s.send("(" + "a" * 255 + ")") == "error:11"             # 257
     assert s.send("G1 X2") == "ok"
     assert _idle(s)["pos"][0] == pytest.approx(2.0, abs=2e-3)
 
