@@ -328,7 +328,8 @@ def _base(work_root: Path, ref: str | None) -> Path:
     """The copy (of the working tree or ``ref``) with its C extensions built, once per run; each group
     starts from a copy of it."""
     base = work_root / "_base"
-    if not (base / ".built").exists():
+    mark = _fingerprint(ref)
+    if not (base / ".built").exists() or (base / ".built").read_text() != mark:   # (a --work folder reused)
         if base.exists():
             shutil.rmtree(base)
         base.mkdir(parents=True)
@@ -338,8 +339,23 @@ def _base(work_root: Path, ref: str | None) -> Path:
         if r.returncode:
             raise RuntimeError(r.stderr[-2000:])
         shutil.rmtree(base / "build", ignore_errors=True)
-        (base / ".built").write_text(ref or "working tree")
+        (base / ".built").write_text(mark)
     return base
+
+
+def _fingerprint(ref: str | None) -> str:
+    """What the copy is of: the revision ``ref``, or HEAD with a hash of the working tree's changes and
+    untracked files (a reused scratch folder is copied again when the tests or the code changed)."""
+    def git(*a):
+        return subprocess.run(["git", "-C", str(ROOT), *a], check=True, capture_output=True).stdout
+    if ref:
+        return "ref " + git("rev-parse", ref).decode().strip()
+    import hashlib
+    h = hashlib.sha256(git("diff", "HEAD", "--binary"))
+    for f in sorted(git("ls-files", "-z", "--others", "--exclude-standard").split(b"\0")):
+        if f and (ROOT / f.decode()).is_file():
+            h.update(f + b"\0" + (ROOT / f.decode()).read_bytes())
+    return f"working tree {git('rev-parse', 'HEAD').decode().strip()} {h.hexdigest()}"
 
 
 def run_group(name: str, ref: str | None, work_root: Path, max_children: int, survivors: bool,
