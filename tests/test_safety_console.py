@@ -25,7 +25,7 @@ import pytest
 from grbl_sender import Sender
 from test_console_overrides import wait_ov as _ov
 from pmctl.core import kinematics as K
-from pmctl.interfaces.console.grbl import GrblConsole
+from pmctl.interfaces.console.grbl import PLANNER_BLOCKS, GrblConsole
 from pmctl.interfaces.console.port import ConsolePort
 from pmctl.motion import channel as C
 from pmctl.motion.nc import counts_of
@@ -178,13 +178,13 @@ def test_a_soft_reset_stops_a_g0_drops_the_half_line_and_resets_the_overrides(co
     # the overrides as the rt process applies them and as the spindle gets them: back to 100 %
     assert s.wait_for(lambda: (sup.raw()[C.ST_FEED_OV], sup.raw()[C.ST_RAPID_OV]) == (1.0, 1.0), 10)
     assert sup.spindle_ov == 1.0
-    # grbl clears its RX buffer: Bf (status mask $10=3) says the planner's 15 blocks and the 128
+    # grbl clears its RX buffer: Bf (status mask $10=3) says the planner's blocks and the 128
     # bytes free, before and after the next line
     assert s.send("$10=3") == "ok"
     try:
-        assert s.status()["Bf"] == "15,128"
+        assert s.status()["Bf"] == f"{PLANNER_BLOCKS},128"
         assert s.send("") == "ok"                   # the rest of the dropped line ends nothing
-        assert s.status()["Bf"] == "15,128"
+        assert s.status()["Bf"] == f"{PLANNER_BLOCKS},128"
     finally:
         assert s.send("$10=1") == "ok"
     time.sleep(0.2)
@@ -215,9 +215,10 @@ def test_bytes_from_0x80_up_are_never_part_of_a_line_and_both_line_ends_count(co
 
 
 def test_bf_counts_the_bytes_of_the_lines_not_yet_answered(console):
-    """grbl's character counting: held (Hold:0) with the planner's 15 blocks full, the next lines
-    wait unanswered in the RX buffer, and Bf's second field is 128 less their bytes (line ends
-    counted), as the sender counts them; once released, all are answered and Bf is 15,128 again."""
+    """grbl's character counting: held (Hold:0) with the planner's PLANNER_BLOCKS blocks full, the
+    next lines wait unanswered in the RX buffer, and Bf's second field is 128 less their bytes (line
+    ends counted), as the sender counts them; once released, all are answered and Bf is back to
+    PLANNER_BLOCKS,128."""
     s, sup, con = console
     _home_x(s)
     assert s.send("$10=3") == "ok"
@@ -225,21 +226,21 @@ def test_bf_counts_the_bytes_of_the_lines_not_yet_answered(console):
         s.realtime(b"!")
         assert s.wait_state(("Hold:0",), 10)["state"] == "Hold:0"
         n0 = len(s.answers)
-        lines = [f"G1 X{0.01 * (i + 1):.2f} F600" for i in range(15)] + ["G1 X0.5", "G1 Y0.25\r"]
+        lines = [f"G1 X{0.001 * (i + 1):.3f} F600" for i in range(PLANNER_BLOCKS)] + ["G1 X0.5", "G1 Y0.25\r"]
         for ln in lines:
             data = (ln if ln.endswith("\r") else ln + "\n").encode()
             s.pending.append(len(data))
             os.write(s.fd, data)
-        assert s.wait_for(lambda: len(s.answers) - n0 >= 15, 30)
+        assert s.wait_for(lambda: len(s.answers) - n0 >= PLANNER_BLOCKS, 30)
         st = s.status()
-        assert st["state"] == "Hold:0" and len(s.answers) - n0 == 15
-        waiting = len("G1 X0.5") + 1 + len("G1 Y0.25") + 1         # the two lines past the 15 blocks
+        assert st["state"] == "Hold:0" and len(s.answers) - n0 == PLANNER_BLOCKS
+        waiting = len("G1 X0.5") + 1 + len("G1 Y0.25") + 1         # the two lines past the full planner
         assert st["Bf"] == f"0,{128 - waiting}" and sum(s.pending) == waiting
         s.realtime(b"~")
         assert s.wait_for(lambda: len(s.answers) - n0 == len(lines), 60)
         assert all(a == "ok" for a in s.answers[n0:])
         st = _idle(s)
         assert st["pos"][0] == pytest.approx(0.5, abs=2e-3) and st["pos"][1] == pytest.approx(0.25, abs=2e-3)
-        assert s.status()["Bf"] == "15,128"
+        assert s.status()["Bf"] == f"{PLANNER_BLOCKS},128"
     finally:
         assert s.send("$10=1") == "ok"
