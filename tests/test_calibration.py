@@ -107,11 +107,17 @@ def test_reported_uncertainties_match_the_spread_of_repeated_identifications(k, 
     was 0.82 at the stated noise), and the reported 1-sigma of every identified parameter matches
     the spread of its estimates over the 60 runs -- at twice the noise because the covariance is
     scaled by chi^2 (scaled by sqrt(chi^2) the reported sigmas are 0.71 of the spread). The pooled
-    (spread / sigma)^2 is 1 within 20 %, each parameter's ratio within 0.7..1.4."""
+    (spread / sigma)^2 is 1 within 20 %, each parameter's ratio within 0.7..1.4. The predicted
+    accuracy (the 1-sigma of the tool tip and axis the identified model predicts at the measured
+    poses) is the RMS of what the 60 identified models actually predict there against the true
+    machine, within 10 % (measured 0.99..1.02): the tip's in um from the tip's three variances alone,
+    the axis' in urad from all three of its components."""
     rng = np.random.default_rng(5)
     gt = Mo.random_geometry(G, rng)
     tip, ax = Mo.random_tool_poses(M, 40, rng)
     q = K.ik_batch(tip, ax, M).q
+    truth = Mo.predict(q, gt)
+    e_tip, e_ax, p_tip, p_ax = [], [], [], []
     dps, sig, chi2, ranks = [], [], [], set()
     for _ in range(60):
         mt, ma = Mo.simulate_measurement(q, gt, rng, tip_sigma_mm=k * I.TIP_SIGMA_MM,
@@ -124,6 +130,15 @@ def test_reported_uncertainties_match_the_spread_of_repeated_identifications(k, 
         sig.append(res.sigma)
         chi2.append(res.chi2_red)
         ranks.add(res.rank)
+        pr = Mo.predict(q, res.geometry)
+        e_tip.append(np.sum((pr.tip - truth.tip) ** 2, -1))
+        e_ax.append(np.sum((pr.axis - truth.axis) ** 2, -1))
+        p_tip.append(res.predicted_tip_um)
+        p_ax.append(res.predicted_axis_urad)
+        assert res.predicted_tip_max_um >= res.predicted_tip_um > 0      # the worst pose, the RMS over them
+    tip_ratio = np.mean(p_tip) / (1e3 * np.sqrt(np.mean(e_tip)))
+    ax_ratio = np.mean(p_ax) / (1e6 * np.sqrt(np.mean(e_ax)))
+    assert 0.9 < tip_ratio < 1.1 and 0.9 < ax_ratio < 1.1, (tip_ratio, ax_ratio)
     dps, sig = np.array(dps), np.array(sig)
     assert len(ranks) == 1                       # the same combinations identified every time
     assert abs(np.mean(chi2) / k ** 2 - 1.0) < 0.08, np.mean(chi2)
@@ -134,6 +149,125 @@ def test_reported_uncertainties_match_the_spread_of_repeated_identifications(k, 
     z2 = np.mean(((dps[:, m] - dps[:, m].mean(0)) / sig[:, m]) ** 2) * len(dps) / (len(dps) - 1)
     assert 0.8 < z2 < 1.2, (z2, np.round(ratio, 2))
     assert np.all((ratio > 0.7) & (ratio < 1.4)), np.round(ratio, 2)
+
+
+def test_uncertainties_are_the_stated_noises_unless_the_fit_is_worse():
+    """The same machine and poses measured at 0, 0.5, 1, 1.2 and 2 x the stated noise: where the
+    residuals are within the stated noise (chi^2 <= 1) the reported 1-sigma of every parameter and
+    of the weakest identified combinations is the stated noise's (the noise-free identification's,
+    within 1 %), never smaller because the fit happened to be better; where they are worse
+    (chi^2 = 1.31 at 1.2 x, 3.6 at 2 x) both are sqrt(chi^2) times that."""
+    sig, weak, chi2 = {}, {}, {}
+    for k in (0.0, 0.5, 1.0, 1.2, 2.0):
+        gt, q, mt, ma, _ = measured(3, 40, noise=k > 0) if k in (0.0, 1.0) else _measured_at(3, 40, k)
+        res = I.identify(q, mt, ma, G)
+        sig[k], weak[k], chi2[k] = res.sigma, [d.sigma for d in res.weak], res.chi2_red
+        assert res.rank + len(res.fixed) == Mo.N_PARAMS == len(res.sigma)
+    m = sig[0.0] > 0
+    assert chi2[0.0] < 1e-3 and chi2[0.5] < 0.5 and chi2[1.0] < 1.0 < chi2[1.2] < 2.0 < chi2[2.0]
+    for k in (0.5, 1.0, 1.2, 2.0):
+        f = math.sqrt(max(chi2[k], 1.0))
+        assert np.allclose(sig[k][m] / sig[0.0][m], f, rtol=0.01), (k, f)
+        assert np.allclose(np.array(weak[k]) / weak[0.0], f, rtol=0.01), (k, f)
+
+
+def _measured_at(seed, n, k):
+    """``measured`` with k x the stated noise (2 um tip, 10 urad axis)."""
+    rng = np.random.default_rng(seed)
+    gt = Mo.random_geometry(G, rng)
+    tip, ax = Mo.random_tool_poses(M, n, rng)
+    q = K.ik_batch(tip, ax, M).q
+    mt, ma = Mo.simulate_measurement(q, gt, rng, tip_sigma_mm=k * I.TIP_SIGMA_MM, axis_sigma_rad=k * I.AXIS_SIGMA_RAD)
+    return gt, q, mt, ma, rng
+
+
+def test_chi_square_counts_three_degrees_of_freedom_per_tip_less_the_identified_ones():
+    """Measured tips only (2 um): chi^2 per degree of freedom is the whitened residual sum (n tips x
+    their squared RMS / (2 um)^2) over 3n less the identified combinations; with 6 poses the fit
+    takes all but one of the 18 measured values and chi^2 is the whole residual sum."""
+    for n in (40, 6):
+        gt, q, mt, ma, _ = measured(3, n)
+        res = I.identify(q, mt, None, G)
+        ss = n * (res.tip_rms_um / (1e3 * I.TIP_SIGMA_MM)) ** 2
+        dof = 3 * n - res.rank if n == 40 else 1
+        assert res.chi2_red * dof == pytest.approx(ss, rel=1e-9), (n, res.rank)
+
+
+def test_the_reported_directions_keep_to_the_callers_limits():
+    """A combination is identified when its relative singular value is at least ``rcond`` and its
+    1-sigma at most ``max_sigma``, for the limits the caller gives (here tighter than the defaults,
+    so that combinations the defaults identify are fixed): none of the reported weak ones breaks
+    them, every fixed one breaks one, and rank + fixed = the 30 parameters."""
+    gt, q, mt, ma, _ = measured(3, 40)
+    ranks = {}
+    for rcond, max_sigma in ((I.RCOND, I.MAX_SIGMA), (0.006, I.MAX_SIGMA), (I.RCOND, 0.02)):
+        res = I.identify(q, mt, ma, G, rcond=rcond, max_sigma=max_sigma)
+        assert res.rank + len(res.fixed) == Mo.N_PARAMS
+        assert all(d.singular_value >= rcond and d.sigma <= max_sigma for d in res.weak), res.weak
+        assert all(d.singular_value < rcond or d.sigma > max_sigma for d in res.fixed)
+        ranks[rcond, max_sigma] = res.rank
+    assert ranks[0.006, I.MAX_SIGMA] < ranks[I.RCOND, I.MAX_SIGMA] and ranks[I.RCOND, 0.02] < ranks[I.RCOND, I.MAX_SIGMA]
+
+
+def test_a_poor_axis_probe_adds_nothing_to_the_predicted_tip_accuracy():
+    """The tool axis measured 1000 x worse than usual (10 mrad) tells nothing about the tip that the
+    tips do not: the predicted tip accuracy (um, from the tip's variances) is the tip-only
+    identification's within 1 % (1.449 um both), though the predicted axis accuracy is 2.2 mrad."""
+    gt, q, mt, ma, _ = _measured_at(3, 40, 1.0)
+    rng = np.random.default_rng(30)
+    ma = Mo.simulate_measurement(q, gt, rng, axis_sigma_rad=1e-2)[1]
+    poor = I.identify(q, mt, ma, G, axis_sigma_rad=1e-2)
+    tip_only = I.identify(q, mt, None, G)
+    assert poor.predicted_axis_urad > 1000.0
+    assert poor.predicted_tip_um == pytest.approx(tip_only.predicted_tip_um, rel=0.01)
+
+
+def test_the_identified_directions_of_a_known_jacobian():
+    """analyse on whitened Jacobians whose answer is known. Independent parameters measured with
+    gains c (columns of norm c, any units): each one's 1-sigma is 1/c (least squares with unit
+    noise), it is identified iff 1/c <= max_sigma (0.4 yes, 0.5 yes, 2 and 10 no), and every one has
+    relative singular value 1 (the column scaling makes the decision independent of units: a gain
+    of 0.1 next to one of 1e7 is not a numerical rank loss). A parameter no measurement sees (a zero
+    column) is unidentifiable (sigma inf), the others unchanged. Two parameters measured only nearly
+    together (columns at an angle theta, gain 1e8: their difference known to 0.004 at theta = 4e-6)
+    are both identified when the relative singular value of the difference, theta/2, is 2e-6, and
+    the difference is fixed at 8e-7, below rcond = 1e-6 (lost in rounding), though its sigma would
+    be small (0.009)."""
+    gains = np.array([1e7, 2.5, 0.1, 2.0, 1e3, 0.5, 40.0, 1.0] * 4)[:Mo.N_PARAMS]
+    J = np.zeros((Mo.N_PARAMS + 6, Mo.N_PARAMS))
+    J[np.arange(Mo.N_PARAMS), np.arange(Mo.N_PARAMS)] = gains
+
+    def by_param(J):
+        D, U, s, Vt, keep, dirs = I.analyse(J)
+        out = {}
+        for d, kept in zip(dirs, keep):
+            (name, w), = d.terms if len(d.terms) == 1 else [(None, None)]
+            out[name] = (d.sigma, bool(kept), d.singular_value)
+        return out
+
+    got = by_param(J)
+    for j, c in enumerate(gains):
+        sigma, kept, rel = got[Mo.PARAM_NAMES[j]]
+        assert sigma == pytest.approx(1.0 / c, rel=1e-12) and rel == pytest.approx(1.0, rel=1e-12)
+        assert kept == (1.0 / c <= I.MAX_SIGMA)
+    J0 = J.copy()
+    J0[:, 6] = 0.0
+    got0 = by_param(J0)
+    assert got0[Mo.PARAM_NAMES[6]][:2] == (math.inf, False)
+    assert all(got0[n] == pytest.approx(got[n], rel=1e-12) for n in Mo.PARAM_NAMES if n != Mo.PARAM_NAMES[6])
+    for theta, identified in ((4e-6, True), (1.6e-6, False)):
+        Jp = np.zeros((Mo.N_PARAMS + 6, Mo.N_PARAMS))
+        Jp[np.arange(Mo.N_PARAMS), np.arange(Mo.N_PARAMS)] = 1e8
+        Jp[:, 1] = 1e8 * (math.cos(theta) * np.eye(Mo.N_PARAMS + 6)[0] + math.sin(theta) * np.eye(Mo.N_PARAMS + 6)[1])
+        D, U, s, Vt, keep, dirs = I.analyse(Jp)
+        k = int(np.argmin(s))
+        assert dirs[k].singular_value == pytest.approx(theta / 2, rel=1e-3)
+        if identified:
+            assert dirs[k].sigma == pytest.approx(1e-8 / (math.sqrt(2) * math.sin(theta / 2)), rel=1e-3)
+            assert dirs[k].sigma < 0.01
+        else:
+            assert dirs[k].sigma == math.inf
+        assert keep.sum() == Mo.N_PARAMS - (not identified) and bool(keep[k]) == identified
 
 
 def test_unidentifiable_directions_are_reported_and_not_fitted_to_noise():

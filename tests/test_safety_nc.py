@@ -222,3 +222,47 @@ def test_a_chain_offset_beyond_its_bound_is_clipped_and_a_nan_one_holds(impl):
         prev = off
         want = [-min(k * step, 0.2), 0.0, min(k * step, 0.1)]
         assert np.allclose(off, want, atol=1e-12), (k, off, want)
+
+
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+def test_the_tilt_stop_trips_between_095_and_105_of_its_limit(impl):
+    """The measured pose tilted 6 deg, at rest on its target: with the tilt limit at 6/0.95 deg the NC
+    runs on; at 6/1.05 deg it stops (from rest: HALTED at once, no pulse) naming the tilt and the limit."""
+    st_home = initial_state(M, counts_of(HOME, NCParams.from_machine(M, DT, kv=400.0)))
+    tilt = math.radians(6.0)
+    axis = np.array([math.sin(tilt), 0.0, math.cos(tilt)])
+    q = K.ik(st_home.tip, axis, M).q
+    for share, mode in ((0.95, RUN), (1.05, HALTED)):
+        params = replace(NCParams.from_machine(M, DT, kv=400.0), theta2_max_rad=tilt / share)
+        st0 = initial_state(M, counts_of(q, params))
+        fb = Feedback()
+        fb.enc[:] = st0.counts / params.pulses_per_mm
+        tg = np.concatenate([st0.tip, st0.axis, np.zeros(6)])
+        nc = PythonNC(M, params) if impl == "python" else make_nc(M, params, "compiled")
+        pulses, st = nc.step(nc.load(st0), tg, fb)
+        assert st.mode == mode, (share, st.reason)
+        if mode == HALTED:
+            assert not pulses.any()
+            assert st.reason == f"soft limit: tilt 6.000 deg over {math.degrees(tilt / share):g} deg", st.reason
+
+
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+def test_the_chain_offset_stops_slewing_once_the_nc_is_stopping(impl):
+    """A chain-length offset slews in at chain_offset_rate_mm_s while the NC runs; once it is stopping
+    (braking for a fault) the applied offset stays where it was: no length change during a stop."""
+    params = NCParams.from_machine(M, DT, kv=400.0)
+    st = initial_state(M, counts_of(HOME, params))
+    fb = Feedback()
+    fb.enc[:] = st.counts / params.pulses_per_mm
+    tg = np.concatenate([st.tip, st.axis, np.zeros(6)])
+    nc = PythonNC(M, params) if impl == "python" else make_nc(M, params, "compiled")
+    st = nc.load(st)
+    want = np.array([0.1, 0.0, 0.0])
+    for _ in range(10):
+        _, st = nc.step(st, tg, fb, want)
+    moved = float(st.offset[0])
+    assert moved == pytest.approx(10 * params.chain_offset_rate_mm_s * DT, rel=1e-9)
+    st = nc.load(replace(st.snapshot(), mode=STOPPING, reason="following error: X"))
+    for _ in range(10):
+        _, st = nc.step(st, tg, fb, want)
+    assert float(st.offset[0]) == moved

@@ -453,7 +453,7 @@ def _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loo
     if backend_name == "sim":                # the simulation's stand-in operator: tool changes and pauses
         sup.stand_in_operator = lambda what: log(f"{what}: done by the simulation's operator, the job goes on")
     notes = list(setup_notes)              # chain modes, K_theta auto, shaper: as this run resolved them
-    if sup.plan_machine is not sup.machine:
+    if sup.plan_machine is not sup.machine and not any("joint speeds capped" in n for n in notes):
         notes.append(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: "
                      f"planning with that")
     rpm0 = job_speed([m.spindle_rpm for m in job.moves])
