@@ -30,7 +30,7 @@ from pmctl.interfaces.console.port import ConsolePort
 from pmctl.motion import channel as C
 from pmctl.motion.nc import counts_of
 from pmctl.task.jog import make_jogger
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 from pmctl.task.journal import Journal
 from pmctl.task.supervisor import Supervisor
 
