@@ -34,7 +34,9 @@ from pathlib import Path
 import numpy as np
 
 KEYS = ("snr", "spread", "rel", "share", "left")
-MIN_DSSE = 30.0         # the acceptance threshold (pmctl.tools.twin.diagnose.accept), whitened: ~ 5 sigma of the held-out SSE difference of a null effect
+# the acceptance threshold (pmctl.tools.twin.diagnose.accept), whitened: ~ 5 sigma of the held-out SSE
+# difference of a null effect
+MIN_DSSE = 30.0
 
 # BEGIN FITTED (written by benchmarks/eval_diagnosis.py --calibrate --write; do not edit by hand)
 COEF = {'const': 0.462, 'snr': 1.0006, 'spread': -0.1804, 'rel': 0.2058, 'share': 0.1826, 'left': -0.0257, 'partial_cap': 0.152}
