@@ -150,7 +150,7 @@ def test_spindle_override_sets_the_vfd_frequency(tmp_path):
             assert wait_setpoint(setpoint_of(rpm)) == setpoint_of(rpm), (rt, ov)
             assert read(reg.command) == reg.run_forward
             assert wait_ov(s, f"100,100,{ov}") == f"100,100,{ov}"
-            assert s.status()["FS"].endswith(f",{rpm}")
+            assert s.wait_for(lambda: s.status()["FS"].endswith(f",{rpm}"), 10)
             assert abs(read(reg.setpoint) / 10000 * MAX_HZ - rpm / MAX_RPM * MAX_HZ) <= MAX_HZ / 10000   # Hz
         # the control socket's spindle override: the same set-point; the console's steps go on from it
         assert request(sock, {"cmd": "override", "spindle": 0.75})["ok"]
@@ -237,7 +237,7 @@ def test_spindle_stop_in_a_hold_and_cycle_start_waits_for_the_spindle(tmp_path):
         held = s.wait_state(("Hold:0",), 60)
         s.realtime(b"\x9e")                   # in the hold: the spindle stops
         assert wait_command(reg.stop) == reg.stop
-        assert s.status()["FS"].endswith(",0")
+        assert s.wait_for(lambda: s.status()["FS"].endswith(",0"), 10)   # the status follows the register
         s.realtime(b"\x9e")                   # again: it starts back
         assert wait_command(reg.run_forward) == reg.run_forward
         s.realtime(b"\x9e")                   # and stops again
