@@ -1,0 +1,224 @@
+"""Stop on contact pinned at its edges (pmctl.motion.probe), tick by tick:
+
+the real path follower (``make_follower`` on the planned samples of a G38 line, as ``pmctl run``
+builds it) and the real ProbeMonitor; the gauges read the gravity model of the commanded pose
+(pmctl.core.statics, computed here per tick) plus a chosen axial force on one chain. So the force the
+monitor sees is known exactly, and with it:
+
+- a force of 0.95 x the threshold never stops the move, 1.05 x does;
+- ``debounce_ticks - 1`` ticks over the threshold do not stop it, ``debounce_ticks`` ticks do;
+- a constant gauge offset is tared off (no contact); a force already growing during the tare stops it;
+- once stopped: sigma at rest, the tool past the first over-threshold tick by at most ``bound_mm``,
+  the rest of the move dropped, the job counted as ended, the scaler's rate limits and hold back;
+- ``cancel`` during the stop gives the rate limits back; the probing rows' feed cap.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pmctl.core import kinematics as K
+from pmctl.core import statics
+from pmctl.core.config import load_machine
+from pmctl.motion.loop import prepare, target_samples
+from pmctl.motion.probe import (ARMED, IDLE, STOPPING, TARE, ProbeConfig, ProbeMonitor, mark_probe_rows,
+                                probe_segments)
+from pmctl.motion.ring import ArraySource
+from pmctl.motion.service_config import NCConfig
+from pmctl.motion.timescale import FLAG_PROBE, JOINT_SHARE, S_CAP, S_FLAGS, make_follower
+from pmctl.task.gcode import parse_gcode
+from pmctl.task.job import home_pose
+from pmctl.task.planner import plan
+
+M = load_machine("prototype")
+DT = 1e-3
+PARAMS = NCConfig().params(M, DT)
+TIP0, AXIS0 = (np.asarray(x, float) for x in home_pose(M))
+GAIN = float(M.strain_gain)
+
+
+class Bench:
+    """One G38 move from home, 2 mm down at F60 (1 mm/s), followed tick by tick."""
+
+    def __init__(self, cfg=ProbeConfig(), text="G21 G90\nG38.2 Z{z:.4f} F60\n", params=PARAMS):
+        job = parse_gcode(text.format(z=TIP0[2] - 2.0), "p.ngc", TIP0, AXIS0)
+        traj = plan(job, M, DT, start=(TIP0, AXIS0))
+        tg = prepare(M, PARAMS, traj, DT)
+        self.fol = make_follower(ArraySource(target_samples(tg, DT, PARAMS)), PARAMS, DT)
+        self.fol.scaler.sigma = 1.0
+        self.segs = probe_segments(job, M, TIP0)
+        self.mon = ProbeMonitor(M, self.segs, cfg, DT, params)
+        self.cfg = cfg
+        self.k = 0
+        self.trace = []          # (tick, travel along the move mm, sigma, monitor state)
+
+    def gauges(self, tg, force_N):
+        """The three strains at this target: the gravity statics of its pose, plus ``force_N`` of
+        axial force on chain 1 (the monitor's sign convention: compression lowers the strain)."""
+        r = K.ik_batch(tg[:3], tg[3:6], M, check_limits=False)
+        s = statics.static_strain(r.P, r.R, M).reshape(3)
+        return [float(s[0]) - GAIN * force_N, float(s[1]), float(s[2])]
+
+    def run(self, force, ticks=4000):
+        """``force(k, travel_mm)`` N on chain 1 per tick, until the monitor has a result."""
+        seg = self.segs[0]
+        for _ in range(ticks):
+            tg = self.fol.next_target()
+            s = float(np.dot(tg[:3] - seg.start, seg.direction))
+            self.mon.tick(self.fol, tg, self.gauges(tg, force(self.k, s)), self.k)
+            self.trace.append((self.k, s, self.fol.scaler.sigma, self.mon.state))
+            self.k += 1
+            if self.mon.results:
+                return self.mon.results[0]
+        raise AssertionError("no probe result")
+
+
+def test_a_force_just_under_the_threshold_never_stops_the_move_and_just_over_it_does():
+    cfg = ProbeConfig()
+    b = Bench(cfg)
+    r = b.run(lambda k, s: 0.95 * cfg.threshold_N if s > 0.3 else 0.0)
+    assert not r.contact and r.error.startswith("probe fail") and "line 2" in r.error
+    assert abs(r.stop[2] - (TIP0[2] - 2.0)) < 1e-6               # the move ran to its programmed end
+    b = Bench(cfg)
+    r = b.run(lambda k, s: 1.05 * cfg.threshold_N if s > 0.3 else 0.0)
+    assert r.contact and r.error == ""
+    # the first over-threshold tick is where the averaged force crossed, filter_ticks after the step
+    first = next(k for k, s, *_ in b.trace if s > 0.3)
+    assert r.tick - first >= cfg.filter_ticks - 1
+
+
+@pytest.mark.parametrize("debounce", [2, 4])
+def test_debounce_minus_one_ticks_over_the_threshold_do_not_stop_it_debounce_ticks_do(debounce):
+    """A force pulse long enough that its moving average stays over the threshold for n ticks."""
+    cfg = ProbeConfig(debounce_ticks=debounce, filter_ticks=1)
+    for n, stops in ((debounce - 1, False), (debounce, True)):
+        b = Bench(cfg)
+        start = []
+
+        def force(k, s, n=n):
+            if s > 0.3 and not start:
+                start.append(k)
+            return 3.0 * cfg.threshold_N if start and k < start[0] + n else 0.0
+        r = b.run(force)
+        assert r.contact == stops, (n, r)
+        if stops:
+            assert r.tick == start[0] + n - 1
+
+
+def test_a_constant_gauge_offset_is_tared_off_and_the_noise_is_reported():
+    cfg = ProbeConfig()
+    rng = np.random.default_rng(7)
+    noise = rng.normal(0.0, 0.2, 5000)
+    b = Bench(cfg)
+    r = b.run(lambda k, s: 40.0 + noise[k])            # 8 x the threshold, from the start: an offset
+    assert not r.contact and r.error.startswith("probe fail")
+    # the reference ticks' spread of the averaged force: 0.2 N / sqrt(filter_ticks) per chain, one
+    # chain of three noisy: sqrt(1/3) of it
+    want = 0.2 / math.sqrt(cfg.filter_ticks) / math.sqrt(3.0)
+    assert 0.6 * want < r.noise_N < 1.4 * want, (r.noise_N, want)
+
+
+def test_a_force_growing_during_the_tare_stops_the_move():
+    """Contact before the reference is complete: a force rising at 10 N/mm from the start is seen
+    against the running reference (twice the threshold) once TARE_GUARD reference ticks are in."""
+    cfg = ProbeConfig(tare_ticks=400)
+    b = Bench(cfg)
+    r = b.run(lambda k, s: 200.0 * max(s, 0.0))
+    assert r.contact
+    armed_at = next(k for k, _, _, st in b.trace if st in (ARMED, STOPPING))
+    tare_ticks = sum(1 for _, _, _, st in b.trace if st == TARE)
+    assert tare_ticks < cfg.tare_ticks and armed_at == r.tick
+
+
+@pytest.mark.parametrize("feed", [60, 300])
+def test_the_stop_on_contact_comes_to_rest_within_its_bound_and_gives_the_limits_back(feed):
+    cfg = ProbeConfig()
+    b = Bench(cfg, text="G21 G90\nG38.3 Z{z:.4f} F%d\n" % feed)
+    sc = b.fol.scaler
+    a0, j0 = sc.accel, sc.jerk
+    ended0 = b.fol.ended_jobs
+    r = b.run(lambda k, s: 10.0 * cfg.threshold_N if s > 0.4 else 0.0)
+    v = feed / 60.0
+    assert r.contact and r.speed_mm_s == pytest.approx(v, rel=1e-6)
+    # the bound: debounce + 5 ticks at the feed plus the braking distance at the probe's deceleration
+    # (within the joints' limits: _effective_decel)
+    decel = b.mon._decel[2]
+    assert 0 < decel <= cfg.decel_mm_s2
+    assert r.bound_mm == pytest.approx(v * (cfg.debounce_ticks + 5) * DT + v * v / (2 * decel), rel=1e-12)
+    assert 0.0 < r.after_trigger_mm <= r.bound_mm
+    # at rest where it stopped, the rest of the move dropped and the job counted as ended
+    assert sc.sigma == 0.0 and b.fol.src.count() == 0 and b.fol.at_end and b.fol.ended_jobs == ended0 + 1
+    assert np.allclose(r.stop[:3], b.fol.next_target()[:3], atol=1e-9)
+    assert r.stop[2] > TIP0[2] - 2.0 + 1.0                        # well short of the programmed end
+    assert (sc.accel, sc.jerk, sc.hold) == (a0, j0, False)
+    assert b.mon.state == IDLE
+
+
+def test_a_hold_before_the_contact_is_kept_after_the_stop():
+    cfg = ProbeConfig()
+    b = Bench(cfg)
+    sc = b.fol.scaler
+
+    def force(k, s):
+        if s > 0.4:
+            sc.hold = True                 # the operator's hold arrives with the contact
+            return 10.0 * cfg.threshold_N
+        return 0.0
+    r = b.run(force)
+    assert r.contact and sc.hold is True
+
+
+def test_cancel_during_the_stop_gives_the_rate_limits_back():
+    cfg = ProbeConfig()
+    b = Bench(cfg)
+    sc = b.fol.scaler
+    a0, j0 = sc.accel, sc.jerk
+    for _ in range(3000):
+        tg = b.fol.next_target()
+        s = float(np.dot(tg[:3] - b.segs[0].start, b.segs[0].direction))
+        b.mon.tick(b.fol, tg, b.gauges(tg, 10.0 * cfg.threshold_N if s > 0.4 else 0.0), b.k)
+        b.k += 1
+        if b.mon.state == STOPPING:
+            break
+    assert b.mon.state == STOPPING and sc.accel > a0 and sc.hold
+    b.mon.cancel(b.fol)
+    assert (sc.accel, sc.jerk) == (a0, j0) and b.mon.state == IDLE and b.mon.seg is None and not b.mon.results
+    b2 = Bench(cfg)
+    b2.mon.cancel(b2.fol)                      # cancel while idle: nothing to give back
+    assert b2.mon.state == IDLE and (b2.fol.scaler.accel, b2.fol.scaler.jerk) == (a0, j0)
+
+
+def test_the_stops_deceleration_is_the_configured_one_within_the_joints_limits():
+    """Along the move, the deceleration asked of each joint (|dq/ds| x decel) stays within
+    JOINT_SHARE of its limit; the configured value is kept when the joints allow it."""
+    seg = Bench().segs[0]
+    h = 1e-3
+    r = K.ik_batch(np.stack([seg.start, seg.start + h * seg.direction]),
+                   np.broadcast_to(seg.axis, (2, 3)), M)
+    dq = np.abs(r.q[1] - r.q[0]) / h
+    lim = float(np.min(np.asarray(PARAMS.amax) * JOINT_SHARE / np.maximum(dq, 1e-12)))
+    for want in (100.0, 1e5):
+        mon = ProbeMonitor(M, [seg], ProbeConfig(decel_mm_s2=want), DT, PARAMS)
+        a = mon._decel[seg.line]
+        assert a == pytest.approx(min(want, lim), rel=1e-4)
+        assert np.all(dq * a <= np.asarray(PARAMS.amax) * JOINT_SHARE * (1 + 1e-4))
+    assert lim < 1e5                                   # the joints bind at 1e5 mm/s^2
+    assert ProbeMonitor(M, [seg], ProbeConfig(decel_mm_s2=1e5), DT, None)._decel[seg.line] == 1e5
+
+
+@pytest.mark.parametrize("feed_mm_s,cap", [(1.0, 1.0), (5.0, 1.0), (10.0, 0.5), (50.0, 0.1)])
+def test_probing_rows_are_flagged_and_capped_at_the_probe_feed_limit(feed_mm_s, cap):
+    """max_feed_mm_min 300 = 5 mm/s: a probing piece planned at F600 (10 mm/s) may run at half its
+    samples' speed whatever the feed override; slower pieces keep their caps."""
+    rows = np.zeros((4, 25))
+    rows[:, S_CAP] = [1.0, 0.8, 0.3, 2.0]
+    rows[:, S_FLAGS] = [0, 1, 2, 0]
+    out = mark_probe_rows(rows.copy(), feed_mm_s, ProbeConfig(max_feed_mm_min=300.0))
+    assert out[:, S_FLAGS].tolist() == [FLAG_PROBE, 1 + FLAG_PROBE, 2 + FLAG_PROBE, FLAG_PROBE]
+    assert out[:, S_CAP] == pytest.approx(np.minimum([1.0, 0.8, 0.3, 2.0], cap), rel=1e-12)
+    lowered = out[:, S_CAP] < rows[:, S_CAP]
+    # lowered to the probe feed limit (5 mm/s), never above the planned speed (a cap of 1)
+    assert np.allclose(out[lowered, S_CAP], min(1.0, 5.0 / feed_mm_s), rtol=1e-12) and lowered.any()
