@@ -43,7 +43,7 @@ GAIN = float(M.strain_gain)
 class Bench:
     """One G38 move from home, 2 mm down at F60 (1 mm/s), followed tick by tick."""
 
-    def __init__(self, cfg=ProbeConfig(), text="G21 G90\nG38.2 Z{z:.4f} F60\n", params=PARAMS):
+    def __init__(self, cfg=ProbeConfig(), text="G21 G90\nG38.2 Z{z:.4f} F60\n", params=PARAMS, chain=0):
         job = parse_gcode(text.format(z=TIP0[2] - 2.0), "p.ngc", TIP0, AXIS0)
         traj = plan(job, M, DT, start=(TIP0, AXIS0))
         tg = prepare(M, PARAMS, traj, DT)
@@ -52,18 +52,20 @@ class Bench:
         self.segs = probe_segments(job, M, TIP0)
         self.mon = ProbeMonitor(M, self.segs, cfg, DT, params)
         self.cfg = cfg
+        self.chain = chain       # the chain the force acts on
         self.k = 0
         self.trace = []          # (tick, travel along the move mm, sigma, monitor state)
 
     def gauges(self, tg, force_N):
         """The three strains at this target: the gravity statics of its pose, plus ``force_N`` of
-        axial force on chain 1 (the monitor's sign convention: compression lowers the strain)."""
+        axial force on ``self.chain`` (compression lowers the strain)."""
         r = K.ik_batch(tg[:3], tg[3:6], M, check_limits=False)
-        s = statics.static_strain(r.P, r.R, M).reshape(3)
-        return [float(s[0]) - GAIN * force_N, float(s[1]), float(s[2])]
+        s = [float(x) for x in statics.static_strain(r.P, r.R, M).reshape(3)]
+        s[self.chain] -= GAIN * force_N
+        return s
 
     def run(self, force, ticks=4000):
-        """``force(k, travel_mm)`` N on chain 1 per tick, until the monitor has a result."""
+        """``force(k, travel_mm)`` N on the chosen chain per tick, until the monitor has a result."""
         seg = self.segs[0]
         for _ in range(ticks):
             tg = self.fol.next_target()
@@ -76,14 +78,15 @@ class Bench:
         raise AssertionError("no probe result")
 
 
-def test_a_force_just_under_the_threshold_never_stops_the_move_and_just_over_it_does():
+@pytest.mark.parametrize("chain", [0, 1, 2])
+def test_a_force_just_under_the_threshold_never_stops_the_move_and_just_over_it_does(chain):
     cfg = ProbeConfig()
-    b = Bench(cfg)
+    b = Bench(cfg, chain=chain)
     r = b.run(lambda k, s: 0.95 * cfg.threshold_N if s > 0.3 else 0.0)
     assert not r.contact and r.error.startswith("probe fail") and "line 2" in r.error
     assert abs(r.stop[2] - (TIP0[2] - 2.0)) < 1e-6               # the move ran to its programmed end
-    b = Bench(cfg)
-    r = b.run(lambda k, s: 1.05 * cfg.threshold_N if s > 0.3 else 0.0)
+    b = Bench(cfg, chain=chain)
+    r = b.run(lambda k, s: -1.05 * cfg.threshold_N if s > 0.3 else 0.0)     # (either sign)
     assert r.contact and r.error == ""
     # the first over-threshold tick is where the averaged force crossed, filter_ticks after the step
     first = next(k for k, s, *_ in b.trace if s > 0.3)
@@ -112,7 +115,7 @@ def test_a_constant_gauge_offset_is_tared_off_and_the_noise_is_reported():
     cfg = ProbeConfig()
     rng = np.random.default_rng(7)
     noise = rng.normal(0.0, 0.2, 5000)
-    b = Bench(cfg)
+    b = Bench(cfg, chain=1)
     r = b.run(lambda k, s: 40.0 + noise[k])            # 8 x the threshold, from the start: an offset
     assert not r.contact and r.error.startswith("probe fail")
     # the reference ticks' spread of the averaged force: 0.2 N / sqrt(filter_ticks) per chain, one
@@ -121,11 +124,12 @@ def test_a_constant_gauge_offset_is_tared_off_and_the_noise_is_reported():
     assert 0.6 * want < r.noise_N < 1.4 * want, (r.noise_N, want)
 
 
-def test_a_force_growing_during_the_tare_stops_the_move():
+@pytest.mark.parametrize("chain", [0, 1, 2])
+def test_a_force_growing_during_the_tare_stops_the_move(chain):
     """Contact before the reference is complete: a force rising at 10 N/mm from the start is seen
     against the running reference (twice the threshold) once TARE_GUARD reference ticks are in."""
     cfg = ProbeConfig(tare_ticks=400)
-    b = Bench(cfg)
+    b = Bench(cfg, chain=chain)
     r = b.run(lambda k, s: 200.0 * max(s, 0.0))
     assert r.contact
     armed_at = next(k for k, _, _, st in b.trace if st in (ARMED, STOPPING))
