@@ -43,14 +43,20 @@ GAIN = float(M.strain_gain)
 class Bench:
     """One G38 move from home, 2 mm down at F60 (1 mm/s), followed tick by tick."""
 
-    def __init__(self, cfg=ProbeConfig(), text="G21 G90\nG38.2 Z{z:.4f} F60\n", params=PARAMS, chain=0):
+    def __init__(self, cfg=ProbeConfig(), text="G21 G90\nG38.2 Z{z:.4f} F60\n", params=PARAMS, chain=0,
+                 fetch=False):
         job = parse_gcode(text.format(z=TIP0[2] - 2.0), "p.ngc", TIP0, AXIS0)
         traj = plan(job, M, DT, start=(TIP0, AXIS0))
         tg = prepare(M, PARAMS, traj, DT)
         self.fol = make_follower(ArraySource(target_samples(tg, DT, PARAMS)), PARAMS, DT)
         self.fol.scaler.sigma = 1.0
         self.segs = probe_segments(job, M, TIP0)
-        self.mon = ProbeMonitor(M, self.segs, cfg, DT, params)
+        if fetch:                # the daemon's way: the segment handed over once the follower is on it
+            left = list(self.segs)
+            self.mon = ProbeMonitor(M, [], cfg, DT, params,
+                                    fetch=lambda fol: left.pop(0) if left and fol.line == left[0].line else None)
+        else:
+            self.mon = ProbeMonitor(M, self.segs, cfg, DT, params)
         self.cfg = cfg
         self.chain = chain       # the chain the force acts on
         self.k = 0
@@ -64,8 +70,9 @@ class Bench:
         s[self.chain] -= GAIN * force_N
         return s
 
-    def run(self, force, ticks=4000):
-        """``force(k, travel_mm)`` N on the chosen chain per tick, until the monitor has a result."""
+    def run(self, force, ticks=4000, results=1):
+        """``force(k, travel_mm)`` N on the chosen chain per tick (travel along the first probing
+        move), until the monitor has ``results`` results."""
         seg = self.segs[0]
         for _ in range(ticks):
             tg = self.fol.next_target()
@@ -73,8 +80,8 @@ class Bench:
             self.mon.tick(self.fol, tg, self.gauges(tg, force(self.k, s)), self.k)
             self.trace.append((self.k, s, self.fol.scaler.sigma, self.mon.state))
             self.k += 1
-            if self.mon.results:
-                return self.mon.results[0]
+            if len(self.mon.results) >= results:
+                return self.mon.results[results - 1]
         raise AssertionError("no probe result")
 
 
@@ -85,6 +92,7 @@ def test_a_force_just_under_the_threshold_never_stops_the_move_and_just_over_it_
     r = b.run(lambda k, s: 0.95 * cfg.threshold_N if s > 0.3 else 0.0)
     assert not r.contact and r.error.startswith("probe fail") and "line 2" in r.error
     assert abs(r.stop[2] - (TIP0[2] - 2.0)) < 1e-6               # the move ran to its programmed end
+    assert r.speed_mm_s == 0.0 and r.tick == -1 and r.bound_mm == 0.0
     b = Bench(cfg, chain=chain)
     r = b.run(lambda k, s: -1.05 * cfg.threshold_N if s > 0.3 else 0.0)     # (either sign)
     assert r.contact and r.error == ""
@@ -226,3 +234,35 @@ def test_probing_rows_are_flagged_and_capped_at_the_probe_feed_limit(feed_mm_s, 
     lowered = out[:, S_CAP] < rows[:, S_CAP]
     # lowered to the probe feed limit (5 mm/s), never above the planned speed (a cap of 1)
     assert np.allclose(out[lowered, S_CAP], min(1.0, 5.0 / feed_mm_s), rtol=1e-12) and lowered.any()
+
+
+@pytest.mark.parametrize("fetch", [False, True])
+def test_probes_one_after_another_each_judged_on_its_own(fetch):
+    """A G38.3 without contact followed directly by a G38.2 that meets a surface 1.5 mm down, then a
+    plain move: two results, the first without contact, the second stopped at the surface (the
+    monitor given the segments up front, or fetching each as the daemon's rt side does)."""
+    cfg = ProbeConfig(decel_mm_s2=1e5)                       # the joints bind: the stop's own deceleration
+    z = TIP0[2]
+    b = Bench(cfg, text=f"G21 G90\nG38.3 Z{z - 1:.4f} F60\nG38.2 Z{z - 3:.4f} F60\nG1 Z{z - 4:.4f} F60\n",
+              fetch=fetch)
+    r2 = b.run(lambda k, s: 10.0 * cfg.threshold_N if s > 1.5 else 0.0, ticks=6000, results=2)
+    r1 = b.mon.results[0]
+    # (recorded at the next move's first target: within a tick's travel, 1 um, of its end)
+    assert (r1.line, r1.contact, r1.error) == (2, False, "") and abs(r1.stop[2] - (z - 1)) <= 1.0 * DT
+    assert (r2.line, r2.contact, r2.error) == (3, True, "")
+    assert z - 1.5 - r2.bound_mm <= r2.stop[2] < z - 1.5
+    decel = ProbeMonitor(M, [b.segs[1]], cfg, DT, PARAMS)._decel[3]
+    assert decel < 1e5 and b.mon._decel[3] == decel
+    assert r2.bound_mm == pytest.approx(1.0 * (cfg.debounce_ticks + 5) * DT + 1.0 / (2 * decel), rel=1e-12)
+
+
+def test_a_probe_without_contact_followed_by_a_plain_move_hands_over_to_it():
+    z = TIP0[2]
+    b = Bench(text=f"G21 G90\nG38.3 Z{z - 1:.4f} F60\nG1 Z{z - 1.5:.4f} F60\n")
+    r = b.run(lambda k, s: 0.0)
+    assert not r.contact and r.line == 2 and b.mon.state == IDLE
+    for _ in range(1500):                                   # the plain move runs unwatched to its end
+        tg = b.fol.next_target()
+        b.mon.tick(b.fol, tg, b.gauges(tg, 0.0), b.k)
+        b.k += 1
+    assert len(b.mon.results) == 1 and abs(tg[2] - (z - 1.5)) < 1e-6
