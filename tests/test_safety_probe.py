@@ -58,7 +58,8 @@ class Bench:
         else:
             self.mon = ProbeMonitor(M, self.segs, cfg, DT, params)
         self.cfg = cfg
-        self.chain = chain       # the chain the force acts on
+        # the force's share on each chain: one chain, or a 3-vector (a tip force loads them all)
+        self.share = np.eye(3)[chain] if np.ndim(chain) == 0 else np.asarray(chain, float)
         self.k = 0
         self.trace = []          # (tick, travel along the move mm, sigma, monitor state)
 
@@ -66,9 +67,8 @@ class Bench:
         """The three strains at this target: the gravity statics of its pose, plus ``force_N`` of
         axial force on ``self.chain`` (compression lowers the strain)."""
         r = K.ik_batch(tg[:3], tg[3:6], M, check_limits=False)
-        s = [float(x) for x in statics.static_strain(r.P, r.R, M).reshape(3)]
-        s[self.chain] -= GAIN * force_N
-        return s
+        s = statics.static_strain(r.P, r.R, M).reshape(3) - GAIN * force_N * self.share
+        return [float(x) for x in s]
 
     def run(self, force, ticks=4000, results=1):
         """``force(k, travel_mm)`` N on the chosen chain per tick (travel along the first probing
@@ -85,8 +85,10 @@ class Bench:
         raise AssertionError("no probe result")
 
 
-@pytest.mark.parametrize("chain", [0, 1, 2])
+@pytest.mark.parametrize("chain", [0, 1, 2, (1.0, -1.0, 0.5), (-0.5, 0.25, 1.0)])
 def test_a_force_just_under_the_threshold_never_stops_the_move_and_just_over_it_does(chain):
+    """On one chain, or shared by all three with mixed signs (a tip force compresses some chains and
+    pulls others): the largest chain's share sets the trip."""
     cfg = ProbeConfig()
     b = Bench(cfg, chain=chain)
     r = b.run(lambda k, s: 0.95 * cfg.threshold_N if s > 0.3 else 0.0)
@@ -119,13 +121,19 @@ def test_debounce_minus_one_ticks_over_the_threshold_do_not_stop_it_debounce_tic
             assert r.tick == start[0] + n - 1
 
 
-def test_a_constant_gauge_offset_is_tared_off_and_the_noise_is_reported():
+@pytest.mark.parametrize("share", [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (1.0, -0.6, 0.3)])
+def test_a_constant_gauge_offset_is_tared_off_and_the_noise_is_reported(share):
     cfg = ProbeConfig()
     rng = np.random.default_rng(7)
     noise = rng.normal(0.0, 0.2, 5000)
-    b = Bench(cfg, chain=1)
+    b = Bench(cfg, chain=share)
     r = b.run(lambda k, s: 40.0 + noise[k])            # 8 x the threshold, from the start: an offset
     assert not r.contact and r.error.startswith("probe fail")
+    # the reference: filter_ticks - 1 ticks fill the moving average, then tare_ticks reference ticks at
+    # feed, the last of which arms the monitor (the trace holds the state after each tick)
+    assert sum(1 for *_, st in b.trace if st == TARE) == (cfg.filter_ticks - 1) + (cfg.tare_ticks - 1)
+    if share != (1.0, 0.0, 0.0) and share != (0.0, 1.0, 0.0) and share != (0.0, 0.0, 1.0):
+        return
     # the reference ticks' spread of the averaged force: 0.2 N / sqrt(filter_ticks) per chain, one
     # chain of three noisy: sqrt(1/3) of it
     want = 0.2 / math.sqrt(cfg.filter_ticks) / math.sqrt(3.0)
@@ -266,3 +274,36 @@ def test_a_probe_without_contact_followed_by_a_plain_move_hands_over_to_it():
         b.mon.tick(b.fol, tg, b.gauges(tg, 0.0), b.k)
         b.k += 1
     assert len(b.mon.results) == 1 and abs(tg[2] - (z - 1.5)) < 1e-6
+
+
+@pytest.mark.parametrize("feed,decel", [(300, 1000.0), (30, 10.0)])
+def test_the_stop_decelerates_at_the_probe_deceleration_reached_within_two_ticks(feed, decel):
+    """Along the path, tick by tick: the stop's deceleration reaches the configured one (the joints
+    allow it here) within two ticks of the detection (the jerk ramp bound_mm counts) and never
+    exceeds it."""
+    cfg = ProbeConfig(decel_mm_s2=decel)
+    b = Bench(cfg, text="G21 G90\nG38.3 Z{z:.4f} F%d\n" % feed)
+    r = b.run(lambda k, s: 10.0 * cfg.threshold_N if s > 0.4 else 0.0)
+    assert r.contact and b.mon._decel[2] == decel
+    k0 = b.trace[0][0]
+    s = np.array([t[1] for t in b.trace])
+    v = np.diff(s) / DT
+    a = -np.diff(v) / DT                    # a[i]: the change of speed over tick k0 + i + 2
+    i = r.tick - k0                         # the stop's first tick
+    assert a[i] >= 0.45 * decel and a[i + 1] >= 0.95 * decel
+    assert a[i:].max() <= decel * (1 + 1e-3)
+
+
+def test_a_diagonal_probe_finds_where_the_force_began():
+    """A probing move along x, y and z at once: the contact point lies on the line where the force
+    stepped in (the travel measured along the move's direction), within the moving average's reach."""
+    cfg = ProbeConfig()
+    b = Bench(cfg, text="G21 G90\nG38.2 X1.2 Y-0.9 Z{z:.4f} F60\n")
+    seg = b.segs[0]
+    assert min(abs(seg.direction)) > 0.3
+    r = b.run(lambda k, s: 10.0 * cfg.threshold_N if s > 0.5 else 0.0)
+    assert r.contact
+    want = seg.start + 0.5 * seg.direction
+    assert np.linalg.norm(r.point - want) < cfg.filter_ticks * 1.0 * DT, (r.point, want)
+    assert 0.0 < r.after_trigger_mm <= r.bound_mm
+    assert r.overtravel_mm == pytest.approx(float(np.dot(r.stop - r.point, seg.direction)), abs=1e-9)
