@@ -260,3 +260,43 @@ def test_a_chain_exactly_along_the_platform_normal_does_not_hide_the_others_swin
     P, R = _chain_along_the_normal(-1)
     assert P[2] < 0
     assert K.limit_violations(Q0, 0.0, P, R, M)[()] == "spherical joint swing 180.00 deg over 45 deg"
+
+
+def test_the_edge_of_the_round_off_allowance_is_still_accepted():
+    """A table position or tilt exactly 1e-9 past its limit (the allowance's edge) is accepted."""
+    q = np.array([Q0] * 4)
+    q[0, 3], q[1, 3], q[2, 4], q[3, 4] = -75.0 - 1e-9, 75.0 + 1e-9, -75.0 - 1e-9, 75.0 + 1e-9
+    assert _joints_only(q).tolist() == [""] * 4
+    t2 = np.radians([20.0 + 1e-9, -20.0 - 1e-9])
+    assert np.degrees(t2).tolist() == [20.0 + 1e-9, -20.0 - 1e-9]          # the same floats, round trip
+    r = K.limit_violations(np.array([Q0] * 2), t2, np.array([HOME.P] * 2), np.array([HOME.R] * 2), M)
+    assert r.tolist() == ["", ""]
+
+
+def test_a_pose_at_its_joint_and_tilt_limits_is_judged_by_the_limit_it_does_violate():
+    """Every joint and the tilt exactly at a limit (accepted), and the swing over a lowered limit:
+    the reason is the swing, not an edge that holds."""
+    m = _with_limits(spherical_swing_deg=1.0)
+    s = _swing_deg(HOME.P, HOME.R, M.geometry)
+    want = f"spherical joint swing {s:.2f} deg over 1 deg"
+    rows, t2 = [], []
+    for lo_hi in (0, 1):
+        for j, _, rng in JOINTS:
+            q = Q0.copy()
+            q[j] = rng[lo_hi] + (0.0 if j < 3 else (-1e-9 if lo_hi == 0 else 1e-9))
+            rows.append(q)
+            t2.append(0.0)
+        for edge in (20.0, 20.0 + 1e-9):
+            rows.append(Q0.copy())
+            t2.append(math.radians(edge) * (1 if lo_hi else -1))
+    n = len(rows)
+    out = K.limit_violations(np.array(rows), np.array(t2), np.array([HOME.P] * n), np.array([HOME.R] * n), m)
+    assert out.tolist() == [want] * n
+
+
+def test_one_pose_that_is_not_a_number_leaves_the_others_of_its_batch_alone():
+    q = np.array([Q0] * 3)
+    q[1, 0] = np.nan
+    assert _joints_only(q).tolist() == ["", _chain_text(0, np.nan), ""]
+    r = K.limit_violations(q, np.zeros(3), np.array([HOME.P] * 3), np.array([HOME.R] * 3), M)
+    assert r.tolist() == ["", _chain_text(0, np.nan), ""]
