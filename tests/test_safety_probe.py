@@ -132,6 +132,7 @@ def test_a_constant_gauge_offset_is_tared_off_and_the_noise_is_reported(share):
     # the reference: filter_ticks - 1 ticks fill the moving average, then tare_ticks reference ticks at
     # feed, the last of which arms the monitor (the trace holds the state after each tick)
     assert sum(1 for *_, st in b.trace if st == TARE) == (cfg.filter_ticks - 1) + (cfg.tare_ticks - 1)
+    assert b.trace[cfg.filter_ticks + cfg.tare_ticks][3] == ARMED
     if share != (1.0, 0.0, 0.0) and share != (0.0, 1.0, 0.0) and share != (0.0, 0.0, 1.0):
         return
     # the reference ticks' spread of the averaged force: 0.2 N / sqrt(filter_ticks) per chain, one
@@ -307,3 +308,11 @@ def test_a_diagonal_probe_finds_where_the_force_began():
     assert np.linalg.norm(r.point - want) < cfg.filter_ticks * 1.0 * DT, (r.point, want)
     assert 0.0 < r.after_trigger_mm <= r.bound_mm
     assert r.overtravel_mm == pytest.approx(float(np.dot(r.stop - r.point, seg.direction)), abs=1e-9)
+
+
+def test_a_probe_feed_limit_under_1_mm_s_caps_slow_probing_rows_too():
+    """max_feed_mm_min 30 (0.5 mm/s): a piece planned at 0.8 mm/s runs at most at 0.5 mm/s."""
+    rows = np.zeros((2, 25))
+    rows[:, S_CAP] = [1.0, 0.5]
+    out = mark_probe_rows(rows, 0.8, ProbeConfig(max_feed_mm_min=30.0))
+    assert out[:, S_CAP] * 0.8 == pytest.approx([0.5, 0.4], rel=1e-12)
