@@ -316,3 +316,13 @@ def test_a_probe_feed_limit_under_1_mm_s_caps_slow_probing_rows_too():
     rows[:, S_CAP] = [1.0, 0.5]
     out = mark_probe_rows(rows, 0.8, ProbeConfig(max_feed_mm_min=30.0))
     assert out[:, S_CAP] * 0.8 == pytest.approx([0.5, 0.4], rel=1e-12)
+
+
+def test_a_force_step_during_the_tare_of_25_times_the_threshold_stops_the_move():
+    """Against the running reference the guard trips at twice the threshold: a step to 2.5 x the
+    threshold while the reference is still being taken stops the move (left in the reference, it
+    would be tared off and the probe would go on to its end)."""
+    cfg = ProbeConfig(tare_ticks=400)
+    b = Bench(cfg)
+    r = b.run(lambda k, s: 2.5 * cfg.threshold_N if s > 0.1 else 0.0)
+    assert r.contact and r.point[2] == pytest.approx(TIP0[2] - 0.1, abs=cfg.filter_ticks * 1.0 * DT)
