@@ -325,4 +325,5 @@ def test_a_force_step_during_the_tare_of_25_times_the_threshold_stops_the_move()
     cfg = ProbeConfig(tare_ticks=400)
     b = Bench(cfg)
     r = b.run(lambda k, s: 2.5 * cfg.threshold_N if s > 0.1 else 0.0)
+    assert ARMED not in [st for *_, st in b.trace]           # stopped from the reference, before arming
     assert r.contact and r.point[2] == pytest.approx(TIP0[2] - 0.1, abs=cfg.filter_ticks * 1.0 * DT)
