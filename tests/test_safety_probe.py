@@ -30,7 +30,7 @@ from pmctl.motion.ring import ArraySource
 from pmctl.motion.service_config import NCConfig
 from pmctl.motion.timescale import FLAG_PROBE, JOINT_SHARE, S_CAP, S_FLAGS, make_follower
 from pmctl.task.gcode import parse_gcode
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 from pmctl.task.planner import plan
 
 M = load_machine("prototype")

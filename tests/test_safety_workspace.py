@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 
 from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
-from pmctl.task.job import home_pose
+from pmctl.core.job import home_pose
 
 M = load_machine()
 LIM = M.limits
