@@ -50,6 +50,7 @@ def test_a_bridge_caps_the_joint_speeds_to_the_step_rate_it_holds():
     emu = resolve(backend="stepdir", hal={"stepdir": {"port": "rp2040-emu"}}, offline=True)
     assert np.allclose(emu.params.vmax, 10.0)                     # 20 kstep/s / 2000 pulse/mm
     assert any("joint speeds capped at 10 mm/s" in n for n in emu.setup.notes)
+    assert not any("V-F converters limit" in n for n in emu.setup.notes)     # multi-pulse V-F: 100 mm/s
     fast = resolve(backend="stepdir", hal={"stepdir": {"max_step_rate_hz": 50_000}})
     assert np.allclose(fast.params.vmax, 25.0)
     host = resolve(backend="stepdir")                                  # the host build: no cap

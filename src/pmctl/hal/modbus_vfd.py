@@ -205,7 +205,7 @@ class SpindleVFD:
                     raise HalError(f"{self.device}: not at rest {self.opt.spinup_timeout_s:g} s after stop "
                                    f"(reversing), {self.r.name(self.r.speed_rpm)}")
                 time.sleep(self.opt.poll_ms / 1e3)
-        sp = int(round(abs(rpm) / self.opt.max_rpm * 10000))
+        sp = self._setpoint(rpm)
         self._write(self.r.setpoint, sp)
         self._write(self.r.command, self.r.run_forward if rpm > 0 else self.r.run_reverse)
         self.rpm_cmd = float(rpm)
@@ -214,12 +214,15 @@ class SpindleVFD:
         self._write(self.r.command, self.r.stop)
         self.rpm_cmd = 0.0
 
+    def _setpoint(self, rpm: float) -> int:
+        """The set-point register's value for ``rpm``: 0 .. 10000 of max_rpm."""
+        return int(round(abs(rpm) / self.opt.max_rpm * 10000))
+
     def at_speed(self, rpm_meas: float) -> bool:
         """Within at_speed_tolerance of the speed the set-point commands: the set-point has 10000 steps
         of max_rpm (S1 on a 24000 rpm spindle commands 0) and the speed register whole rpm, so the
         tolerance is never below one step of either."""
-        sp = round(abs(self.rpm_cmd) / self.opt.max_rpm * 10000)
-        want = sp / 10000 * self.opt.max_rpm
+        want = self._setpoint(self.rpm_cmd) / 10000 * self.opt.max_rpm
         return abs(rpm_meas - want) <= max(self.opt.at_speed_tolerance * want, self.opt.max_rpm / 10000, 1.0)
 
     def wait_at_speed(self, sleep=time.sleep) -> float:

@@ -127,6 +127,9 @@ def resolve(config="prototype", service=None, *, backend=None, rate_hz=None, rea
     # chain modes, K_theta auto (off on a backend without strain), the shaper; [daq] k_theta_source
     setup = nc_setup(svc, machine, dt, backend)
     params = svc.nc.params(machine, dt, where=svc.source, modes=setup.modes)
+    if np.any(params.vmax < machine.limits.joint_speed - 1e-9):
+        setup.notes.append(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {rate_hz:g} Hz: "
+                           f"planning with that")
     params = _cap_to_backend(params, svc, backend, setup.notes)
     svc.homing.check(params, svc.source)             # [homing] against this machine's joints
     return Settings(machine=machine, svc=svc, backend=backend, rate_hz=rate_hz, setup=setup, params=params,

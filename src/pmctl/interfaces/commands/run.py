@@ -452,10 +452,7 @@ def _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loo
     sup = Supervisor(args.config, service=args.service, state_file=state_file or "", log=log, settings=settings)
     if backend_name == "sim":                # the simulation's stand-in operator: tool changes and pauses
         sup.stand_in_operator = lambda what: log(f"{what}: done by the simulation's operator, the job goes on")
-    notes = list(setup_notes)              # chain modes, K_theta auto, shaper: as this run resolved them
-    if sup.plan_machine is not sup.machine and not any("joint speeds capped" in n for n in notes):
-        notes.append(f"V-F converters limit the joints to {params.vmax.min():.3g} mm/s at {cfg.rate_hz:g} Hz: "
-                     f"planning with that")
+    notes = list(setup_notes)              # chain modes, K_theta auto, shaper, joint caps: as resolved
     rpm0 = job_speed([m.spindle_rpm for m in job.moves])
     if rpm0 and svc.spindle is None:
         notes.append(f"no [spindle] in {svc.source}: the job's S{abs(rpm0):g} M{3 if rpm0 > 0 else 4} "
