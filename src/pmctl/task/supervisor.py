@@ -445,6 +445,7 @@ class Supervisor:
             self._hold_points.clear()
             self._plan_rpm = None
             self._auto_item = None
+            self._auto_hold = False         # nothing waits at an event any more: the state is no longer Run for it
         self.paused = ""
 
     def _follow_hold_points(self, s):
