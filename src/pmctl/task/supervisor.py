@@ -58,22 +58,21 @@ from pmctl.core import kinematics as K
 from pmctl.core.alarms import ALARM_ABORT, ALARM_ESTOP, ALARM_MOTOR_FAULT, ALARM_PROBE_FAIL_CONTACT, ALARM_SOFT_LIMIT
 from pmctl.core.errors import MotionRefused, PmctlError
 from pmctl.core.job import DWELL, EVENT, RAPID
-from pmctl.core.statics import static_strain
-from pmctl.hal import HalTimeout
-from pmctl.hal.modbus_daq import DaqSession
-from pmctl.hal.modbus_vfd import REST_STEP_MM, SpindleSession, job_speed
 from pmctl.motion import channel as C
 from pmctl.motion.nc import RUN
 from pmctl.motion.probe import check_probe_feeds, mark_probe_rows, probe_segments, split_at_probes
-from pmctl.motion.recorder import R_STRAIN, R_TICK
+from pmctl.motion.recorder import R_TICK
 from pmctl.motion.settings import resolve
 from pmctl.motion.status import RtStatus, read_status
 from pmctl.motion.timescale import (HELD, HOLDING, MOVING, STARVED, S_LINE, RowStream, full_speed_queue,
                                     iter_stream_rows, shape_trajectory)
+from pmctl.task.daq import Daq
+from pmctl.task.events import EventHub
 from pmctl.task.homing import AXES, HomingFailed, RtMover, Sequence
 from pmctl.task.interp import moves_job
 from pmctl.task.jobcheck import machine_for_planning
 from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
+from pmctl.task.spindle import Spindle
 from pmctl.task.stream_planner import StreamPlanner
 
 # the open stream of console blocks (Supervisor.stream, _stream_rows)
@@ -160,7 +159,8 @@ class Supervisor:
         self._stop = threading.Event()
         self._threads = []
         self.record_sink = None           # callable(rows) for drained records
-        self.listeners = []               # callables(event: str, detail: dict)
+        self.events = EventHub()          # the session's events (pmctl.task.events): the parts act on them
+        self.listeners = self.events.listeners     # callables(event: str, detail: dict): the outside's
         self._last_status = None
         self._fault_seen = 0.0
         self.started_at = time.time()
@@ -169,16 +169,11 @@ class Supervisor:
         self.plan_feed_override = 1.0     # the planner's feed factor (pmctl run --feed-override)
         self.final_status = None          # the rt side's last status block, kept at shutdown
         self.rt_result = None             # what the rt side reported as it exited (Channel.result)
-        # devices out of the tick (spindle VFD, strain DAQ): opened by open_devices()
-        self.spindle = None               # pmctl.hal.modbus_vfd.SpindleSession
-        self.daq = None                   # pmctl.hal.modbus_daq.DaqSession
-        self._devices_open = False
         self._stream_wake = threading.Event()     # a block appended to the open stream, or it closed
         self._hold_points = collections.deque()    # (ring row, events) of queued C_HOLD_AT points, in row order
         self._hold_at_seen = 0
         self._events_q: queue.Queue = queue.Queue()   # (queue generation, events) of the points reached
         self._auto_hold = False           # the path holds at a point while its events are performed
-        self._plan_rpm = None             # the spindle speed at the end of what is planned (None: as commanded)
         self.paused = ""                  # a pause (M0, M1, M6) waiting for cycle start: what to do
         self.optional_stop = False        # M1 pauses only with this switch on (pmctl ctl optional-stop on)
         # who answers a tool change or a pause when no operator is at a console: None (they wait for
@@ -188,15 +183,40 @@ class Supervisor:
         self._pause_tool = None           # the tool a waiting tool-change pause asks for
         self.coolant = set()              # "mist" (M7), "flood" (M8); M9 clears
         self.outputs = {}                 # M62-M68: "name index" -> value, as last set
-        self._strain = None               # the plant's strain of the last drained record (a simulated DAQ serves it)
-        self._rest_strain = [0.0, 0.0, 0.0]   # before the first record: the plant at rest at its start pose
         self.device_fault = ""            # the spindle's or the DAQ's fault that stopped motion
-        self.spindle_off_at_job_end = True   # M5 when a job ends with the spindle off (pmctl run: at shutdown)
-        self._spindle_note = False
-        self.spindle_prog = 0.0           # the programmed speed (signed rpm; 0: M5), before the override
-        self.spindle_ov = 1.0             # grbl's spindle speed override, 0.1 .. 2.0
-        self._spindle_ov_lock = threading.Lock()   # the override's set-point writes vs a stop's
-        self._spindle_ov_wake = None
+        # the parts out of the tick, driven by the events: the spindle VFD and the strain DAQ (opened
+        # by open_devices())
+        self._spindle = Spindle(self)
+        self._daq = Daq(self)
+
+    @property
+    def spindle(self):
+        """The spindle VFD's session (pmctl.hal.modbus_vfd.SpindleSession; None until connected)."""
+        return self._spindle.session
+
+    @property
+    def daq(self):
+        """The strain DAQ's session (pmctl.hal.modbus_daq.DaqSession; None without ``[daq]``)."""
+        return self._daq.session
+
+    @property
+    def spindle_ov(self) -> float:
+        """grbl's spindle speed override, 0.1 .. 2.0 (:meth:`spindle_override`)."""
+        return self._spindle.ov
+
+    @property
+    def spindle_off_at_job_end(self) -> bool:
+        """M5 when a job ends with the spindle off (pmctl run turns it off: M5 at the shutdown)."""
+        return self._spindle.off_at_job_end
+
+    @spindle_off_at_job_end.setter
+    def spindle_off_at_job_end(self, on: bool):
+        self._spindle.off_at_job_end = bool(on)
+
+    @property
+    def generation(self) -> int:
+        """The queue's generation: a reset or a fault that drops the queue starts a new one."""
+        return self._gen
 
     # ------------------------------------------------------------ lifecycle
     def start(self, counts0, timeout_s: float = 60.0):
@@ -286,70 +306,31 @@ class Supervisor:
         recording knows its channels and the spindle is at speed at the first tick. ``at``: the pulse
         counters the machine starts at (a simulated DAQ serves the plant's strain at rest there until
         the first record: its weight, not a zero that a slow estimate would take for the truth)."""
-        if at is not None and self._strain is None:
-            self._rest_strain = self._strain_at_rest(at)
+        if at is not None:
+            self._daq.at_rest(at)
         if spindle and self.spindle is None and self.svc.spindle is not None:
-            self._spindle_session()
-        if self._devices_open:
-            return
-        self._devices_open = True
-        self._open_daq()
-
-    def _open_daq(self):
-        """The strain DAQ (``[daq]``): connected here, polled for the whole session by its own
-        thread (samples stamped with the rt tick); a simulated one serves the plant's strain of the
-        last drained record. A fault or lost link is a controlled stop (``_device_fault``)."""
-        if self.svc.daq is None:
-            return
-        # slow compensation ([daq] compensate): each estimate becomes the NC's chain-length offsets
-        self.daq = DaqSession(self.svc.daq, lambda: self._strain or self._rest_strain, self.log, self.machine,
-                              self._set_chain_offsets).connect()
-        self.daq.watch(self._tick, self._device_fault)
-
-    def _strain_at_rest(self, counts):
-        """The static strain (microstrain per chain) of the platform's weight at pulse counters ``counts``."""
-        try:
-            pose = K.fk(np.asarray(counts, float) / self.params.pulses_per_mm, self.machine)
-            return [float(x) for x in static_strain(pose.P, pose.R, self.machine)]
-        except Exception:                  # noqa: BLE001 -- no pose there: the first record says
-            return [0.0, 0.0, 0.0]
-
-    def _spindle_session(self):
-        self.spindle = SpindleSession(self.svc.spindle, self.log).connect()
-        return self.spindle
+            self._spindle.connect()
+        self._daq.open()
 
     def spindle_start(self, rpm: float):
         """M3/M4 S``rpm`` (0: M5) and wait until at speed (the path waits: call between jobs); the
-        spindle is watched from then on."""
-        sp = self.spindle or self._spindle_session()
-        self._m5_written()
-        self.spindle_prog = float(rpm)
-        if rpm == 0:
-            with self._spindle_ov_lock:
-                sp.vfd.stop()
-            return
-        sp.start(self._spindle_rpm(rpm))
-        self._apply_spindle_ov()          # an override changed during the spin-up
-        if sp.monitor is None:
-            sp.watch(self._tick, self._device_fault)
-            if self.ch is not None and sp.monitor.samples:      # at speed now, not at the rt side's tick 0
-                sp.monitor.samples[0] = (self._tick(), sp.monitor.samples[0][1])
+        spindle is watched from then on (pmctl.task.spindle)."""
+        self._spindle.start(rpm)
 
     def close_devices(self):
         """M5 and disconnect the spindle, stop polling the DAQ (each whatever the other does)."""
-        for name in ("spindle", "daq"):
-            dev = getattr(self, name)
-            if dev is not None:
-                try:
-                    dev.close()
-                except Exception as e:        # noqa: BLE001 (reported; the counters are the rt side's)
-                    self.log(f"warning: closing the {name}: {e}")
+        for name, part in (("spindle", self._spindle), ("daq", self._daq)):
+            try:
+                part.close()
+            except Exception as e:        # noqa: BLE001 (reported; the counters are the rt side's)
+                self.log(f"warning: closing the {name}: {e}")
 
-    def _tick(self) -> int:
+    def rt_tick(self) -> int:
+        """The rt side's tick now (0 before the channel exists): what polled devices stamp samples with."""
         ch = self.ch
         return read_status(ch).tick if ch is not None else 0
 
-    def _device_fault(self, why: str):
+    def controlled_stop(self, why: str):
         """The spindle's or the DAQ's polling thread saw a fault or a lost link: a controlled stop
         on the path (the queue is dropped), ALARM 3 with the reason."""
         if self.device_fault:
@@ -370,12 +351,6 @@ class Supervisor:
         threading.Thread(target=stop, daemon=True, name="pmctl-device-stop").start()
 
     # ------------------------------------------------------------ events where the path gets to them
-    def _spindle_now(self) -> float:
-        """The spindle speed (signed programmed rpm) when the path reaches the end of what is planned."""
-        if self._plan_rpm is not None:
-            return self._plan_rpm
-        return float(self.spindle_prog)
-
     def _hold_point(self, row: int, rest: bool, events: tuple, it=None):
         """Hold the path at sample ``row`` of the ring and perform ``events`` there (sent before that
         sample is queued); item ``it`` is not done before they are."""
@@ -386,53 +361,20 @@ class Supervisor:
         self.wait_ack(seq, 1.0)
         for name, value in events:
             if name == "spindle":
-                self._plan_rpm = float(value)
+                self._spindle.plan_rpm = float(value)
 
     def _events_of(self, it, pieces, row0, per_move=True):
         """The planner's pieces, passed through; before each piece's samples are queued, its hold
         points are sent: the marks of its EVENT moves (on their exact stops), and for a job that
-        carries the spindle speed only per move, its first speed (at the item's first sample) and the
-        speed changes inside it (at the last sample of the old speed, as
-        pmctl.hal.modbus_vfd.speed_changes finds them in a whole plan)."""
-        moves = it.job.moves
-        events = any(m.kind == EVENT and any(n == "spindle" for n, _ in m.events) for m in moves)
-        on_lines = [] if events or not per_move else [m.line for m in moves if getattr(m, "spindle_rpm", 0.0)]
-        if on_lines and self.svc.spindle is None:
-            if not self._spindle_note:
-                rpm = job_speed([getattr(m, "spindle_rpm", 0.0) for m in moves])
-                self._spindle_note = True
-                self.log(f"no [spindle] in {self.svc.source}: the job's S{abs(rpm):g} M{3 if rpm > 0 else 4} "
-                         f"is not executed")
-            on_lines = []
-        last_on = max(on_lines) if on_lines else 0
+        carries the spindle speed only per move, its first speed and its speed changes
+        (pmctl.task.spindle: ``Spindle.speed_points``)."""
+        speeds = self._spindle.speed_points(it.job.moves, per_move)
         n0 = 0                         # samples before this piece
-        prev = None                    # the speed of the sample before
-        cur = None                     # the speed the spindle runs at (after the first on)
-        tail = (np.zeros((0, 3)), np.zeros((0, 3)))
         for tr in pieces:
             points = [(row0 + n0 + i, True, tuple(ev)) for i, _line, ev in tr.marks]
-            if on_lines:
-                v = np.asarray(tr.spindle_rpm, float)
-                line = np.asarray(tr.line)
-                tips = np.concatenate([tail[0], np.asarray(tr.tip, float)])
-                axes = np.concatenate([tail[1], np.asarray(tr.axis, float)])
-                off = len(tail[0])
-                for i in range(len(v)):
-                    x = float(v[i])
-                    if cur is None:
-                        if x:
-                            cur = x
-                            if x != self._spindle_now():     # the job's first speed, before its first sample
-                                points.insert(0, (row0, True, (("spindle", x),)))
-                    elif x != prev and x != cur and (x or int(line[i]) < last_on):
-                        cur = x
-                        j = off + i                       # index of sample c in tips: the stop is c - 1
-                        lo = max(0, j - 1 - 2)
-                        q = K.ik_batch(tips[lo:j + 1], axes[lo:j + 1], self.machine, check_limits=False).q
-                        rest = len(q) > 1 and float(np.abs(np.diff(q, axis=0)).max()) <= REST_STEP_MM
-                        points.append((row0 + n0 + i - 1, bool(rest), (("spindle", x),)))
-                    prev = x
-                tail = (tips[-3:], axes[-3:])
+            if speeds is not None:
+                first, changes = speeds.of(tr, row0, row0 + n0)
+                points = first + points + changes
             for row, rest, ev in sorted(points, key=lambda p: p[0]):
                 self._hold_point(row, rest, ev, it)
             n0 += len(tr)
@@ -443,7 +385,7 @@ class Supervisor:
         dropped its points too)."""
         with self._lock:
             self._hold_points.clear()
-            self._plan_rpm = None
+            self._spindle.plan_rpm = None
             self._auto_item = None
             self._auto_hold = False         # nothing waits at an event any more: the state is no longer Run for it
         self.paused = ""
@@ -480,7 +422,7 @@ class Supervisor:
                 self._auto_hold = False
                 self._auto_item = None
                 if gen == self._gen:
-                    self._device_fault(f"{name} {value}: {e}")
+                    self.controlled_stop(f"{name} {value}: {e}")
                 continue
             if gen == self._gen and not self.paused and not self.operator_hold and self._events_q.empty():
                 self.command(C.C_RESUME)
@@ -493,7 +435,7 @@ class Supervisor:
     def _perform(self, name, value, gen):
         """One event, where the path holds for it."""
         if name == "spindle":
-            self._set_spindle(float(value), gen)
+            self._spindle.set(float(value), gen)
         elif name == "coolant":
             if value == "off":
                 self.coolant.clear()
@@ -526,88 +468,9 @@ class Supervisor:
         else:
             self.log(f"event {name} {value!r}: nothing here performs it")
 
-    def _set_spindle(self, rpm: float, gen):
-        """M3/M4 S (``rpm`` signed; 0: M5) where the path holds: the VFD gets the speed (with the
-        spindle override) and the path waits until it is at speed (a stop: until it turns no more
-        than the tolerance). A reset meanwhile wins: its M5 is written after this start, or this
-        start not at all (both hold ``_spindle_ov_lock``)."""
-        if self.svc.spindle is None:
-            self.spindle_prog = rpm
-            if rpm and not self._spindle_note:
-                self._spindle_note = True
-                self.log(f"no [spindle] in {self.svc.source}: S{abs(rpm):g} M{3 if rpm > 0 else 4} is not executed")
-            return
-        sp = self.spindle or self._spindle_session()
-        self._m5_written()
-        want = self._spindle_rpm(rpm)
-        with self._spindle_ov_lock:
-            if gen != self._gen:
-                return
-            self.spindle_prog = rpm
-            if want == sp.vfd.rpm_cmd:
-                return
-            _patient(sp.vfd, lambda: sp.vfd.start(want))
-        t0 = time.monotonic()
-        got = _patient(sp.vfd, sp.vfd.wait_at_speed)
-        if rpm and sp.monitor is not None:
-            # the reading that releases the path is the spindle's speed from here on: the monitor's
-            # next poll may come after the path has moved on (offline, ticks run back to back)
-            sp.monitor.samples.append((self._tick(), -got if sp.vfd.rpm_cmd < 0 else got))
-        self.log(f"spindle {'M5' if not rpm else ('M3' if rpm > 0 else 'M4') + f' S{abs(rpm):g}'}: "
-                 f"{'stopped' if not rpm else 'at speed'} after {time.monotonic() - t0:.2f} s")
-        if rpm and sp.monitor is None:
-            sp.watch(self._tick, self._device_fault)
-
-    # ------------------------------------------------------------ spindle override
-    def _spindle_rpm(self, rpm: float) -> float:
-        """The speed sent to the VFD for the programmed ``rpm``: scaled by the spindle override, which
-        never takes it past the VFD's maximum (grbl: ``$30``; a programmed S beyond it stays the VFD's
-        error), signed as ``rpm``."""
-        if not rpm or self.spindle_ov == 1.0:
-            return float(rpm)
-        v = abs(float(rpm)) * self.spindle_ov
-        if self.svc.spindle is not None:
-            v = min(v, max(float(self.svc.spindle.max_rpm), abs(float(rpm))))
-        return math.copysign(v, rpm)
-
     def spindle_override(self, f: float):
-        """grbl's spindle speed override: the programmed speed x ``f`` (0.1 .. 2.0). A running spindle
-        gets the new set-point at once, from a thread of its own (a Modbus write is no business of
-        the caller's); a stopped one starts with it at its next M3/M4. Without ``[spindle]``: kept only."""
-        self.spindle_ov = min(2.0, max(0.1, float(f)))
-        if self.svc.spindle is None:
-            return
-        with self._lock:
-            if self._spindle_ov_wake is None:
-                self._spindle_ov_wake = threading.Event()
-                threading.Thread(target=self._spindle_ov_loop, daemon=True, name="pmctl-spindle-ov").start()
-        self._spindle_ov_wake.set()
-
-    def _spindle_ov_loop(self):
-        while not self._stop.is_set():
-            if not self._spindle_ov_wake.wait(0.2):
-                continue
-            self._spindle_ov_wake.clear()
-            t_end = time.monotonic() + self.svc.spindle.spinup_timeout_s
-            try:                          # a speed change the path waits for goes first (scaled already)
-                while not self._apply_spindle_ov() and time.monotonic() < t_end and not self._stop.is_set():
-                    time.sleep(0.01)
-            except Exception as e:        # noqa: BLE001 (the monitor reports a lost link)
-                self.log(f"warning: spindle override: {e}")
-
-    def _apply_spindle_ov(self) -> bool:
-        """The running spindle's set-point to the programmed speed with the current override; False:
-        not now, a speed change inside the job is under way. Never starts a stopped spindle: a stop
-        clears ``spindle_prog`` before its write, and every write holds ``_spindle_ov_lock``."""
-        with self._spindle_ov_lock:
-            sp = self.spindle
-            vfd = sp.vfd if sp is not None else None
-            if vfd is None or vfd.client is None or not self.spindle_prog or not vfd.rpm_cmd:
-                return True
-            want = self._spindle_rpm(self.spindle_prog)
-            if want != vfd.rpm_cmd and (want > 0) == (vfd.rpm_cmd > 0):
-                vfd.start(want)
-            return True
+        """grbl's spindle speed override: the programmed speed x ``f`` (0.1 .. 2.0); pmctl.task.spindle."""
+        self._spindle.override(f)
 
     # ------------------------------------------------------------ status
     def status(self) -> RtStatus:
@@ -815,65 +678,19 @@ class Supervisor:
             self._emit("resumed", {})
         elif self._auto_hold:            # the path waits for an event: the events thread releases it
             return
-        if self.spindle_stopped_in_hold:
-            # grbl: cycle start after a spindle stop in a hold brings the spindle back to its speed
-            # first; the path goes on once it is there (a thread: the Modbus writes and the spin-up wait
-            # are no business of the caller's, the console's reader)
-            threading.Thread(target=self._restore_spindle, args=(True,), daemon=True,
-                             name="pmctl-spindle-restore").start()
+        if self._spindle.resume():       # stopped in the hold: the path goes on once it is back at speed
             return
         self.command(C.C_RESUME)
 
-    spindle_stopped_in_hold = False
-
     def spindle_stop_toggle(self) -> bool:
-        """grbl's 0x9E: in a completed hold (Hold:0) with the spindle running, stop it; again (still in
-        the hold), start it back at its speed. Cycle start restores it and waits until it is at speed
-        before the path goes on. Anywhere else, and without a spindle VFD, nothing happens (False)."""
-        if (self.svc.spindle is None or self.spindle is None or not self.operator_hold
-                or self.state_name() != "Hold:0"):
-            return False                 # (a hold of the path for a spindle speed change is not one)
-        if self.spindle_stopped_in_hold:
-            threading.Thread(target=self._restore_spindle, args=(False,), daemon=True,
-                             name="pmctl-spindle-restore").start()
-            return True
-        if not self.spindle_prog or not self.spindle.vfd.rpm_cmd:
-            return False
-        self.spindle_stopped_in_hold = True
-        self._stop_vfd(self.spindle, "spindle stop in the hold")   # spindle_prog stays: the speed to come back to
-        return True
-
-    def _restore_spindle(self, then_resume: bool):
-        """The spindle back at its speed after a stop in the hold. 0x9E again (``then_resume`` False):
-        the start is written and the spindle counts as running at once, so a further 0x9E during the
-        spin-up stops it again. Cycle start (True): the path goes on once it is at speed."""
-        self._m5_written()
-        sp, rpm = self.spindle, self.spindle_prog
-        try:
-            if sp is not None and rpm and self.spindle_stopped_in_hold:
-                with self._spindle_ov_lock:
-                    sp.vfd.start(self._spindle_rpm(rpm))
-                    if not then_resume:
-                        self.spindle_stopped_in_hold = False
-                sp.vfd.wait_at_speed()
-                if sp.vfd.rpm_cmd:
-                    self.log(f"spindle back at speed after the stop in the hold ({abs(sp.vfd.rpm_cmd):g} rpm)")
-        except Exception as e:            # noqa: BLE001
-            self._device_fault(f"spindle VFD: restoring the speed after a stop in the hold: {e}")
-            return
-        if then_resume:
-            self.spindle_stopped_in_hold = False
-            self.command(C.C_RESUME)
+        """grbl's 0x9E: the spindle stopped in a completed hold, or started again (pmctl.task.spindle)."""
+        return self._spindle.stop_toggle()
 
     def feed_override(self, f: float):
         self.command(C.C_FEED_OV, float(f))
 
     def rapid_override(self, r: float):
         self.command(C.C_RAPID_OV, float(r))
-
-    def _set_chain_offsets(self, offsets_mm):
-        for i, mm in enumerate(offsets_mm):
-            self.set_chain_offset(i, float(mm))
 
     def set_chain_offset(self, chain: int, mm: float) -> bool:
         """The chain-length offset input of chain 0..2 (L1..L3), mm, added to the commanded length by
@@ -900,7 +717,7 @@ class Supervisor:
         if self.homing:
             self.homing_abort.set()
         self._stop_queue(timeout_s)
-        self._spindle_off("at the soft reset")
+        self.events.send("reset")
 
     def _stop_queue(self, timeout_s=10.0):
         """Stop on the path, drop every queued item and sample, wait until at rest."""
@@ -938,7 +755,7 @@ class Supervisor:
             self._ended_base = self.status().ended
         self.raise_alarm(ALARM_ESTOP, reason)
         self._drop_hold_points()
-        self._spindle_off("at the E-stop")
+        self.events.send("estop")
         self._abort.clear()
 
     def unlock(self):
@@ -1001,11 +818,7 @@ class Supervisor:
             self._emit("alarm", {"code": code, "msg": msg})
 
     def _emit(self, event, detail):
-        for fn in list(self.listeners):
-            try:
-                fn(event, detail)
-            except Exception:
-                pass
+        self.events.send(event, detail)
 
     def wait_idle(self, timeout_s=600.0, poll=0.01) -> bool:
         t0 = time.monotonic()
@@ -1291,8 +1104,6 @@ class Supervisor:
         if self.ch is None:
             return
         rows = self.ch.records.pop()
-        if len(rows):
-            self._strain = rows[-1, R_STRAIN:R_STRAIN + 3].tolist()
         if len(rows) and self.record_sink is not None:
             try:
                 self.record_sink(rows)
@@ -1300,22 +1111,7 @@ class Supervisor:
                 self.log(f"recording failed: {e}")
                 self.record_sink = None
         if len(rows):
-            self._trim_device_samples(int(rows[-1, R_TICK]))
-
-    def _trim_device_samples(self, tick: int):
-        """The spindle's and the DAQ's polled samples (tick-stamped) up to the last drained record are
-        no longer needed but the last (it holds on): memory does not grow with the session."""
-        lists = []
-        if self.spindle is not None and self.spindle.monitor is not None:
-            lists.append(self.spindle.monitor.samples)
-        if self.daq is not None and self.daq.daq is not None:
-            lists.append(self.daq.daq.samples)
-        for lst in lists:
-            i = 0
-            while i + 1 < len(lst) and lst[i + 1][0] <= tick:
-                i += 1
-            if i:
-                del lst[:i]           # appends by the polling thread go on at the end (one list op each)
+            self.events.send("records", rows=rows, tick=int(rows[-1, R_TICK]))
 
     def _take_fault(self, ch, s):
         """A fault the rt side reported (status ``s``) and not yet taken: the queue dropped, the alarm
@@ -1383,57 +1179,10 @@ class Supervisor:
                         if head.ends < head.parts:  # a piece of an item planned in pieces (probing)
                             continue
                     done = self.items.popleft()
-                    if not self.items:
-                        self._plan_rpm = None     # nothing planned ahead: the speed is the commanded one
-                    self._emit("item_done", {"kind": done.kind, "name": done.name, "index": done.index})
-                    self._spindle_at_job_end(done)
+                    self.events.send("item_done", {"kind": done.kind, "name": done.name, "index": done.index},
+                                     item=done)
 
     _ended_base = 0
-
-    def _spindle_at_job_end(self, it):
-        """M5 when a job that carries its speed per move (no spindle EVENT: those took effect where
-        the path got to them) ended with the spindle off and nothing queued needs it running."""
-        sp = self.spindle
-        if it.spindle_events or (it.spindle_events is None and any(
-                m.kind == "event" and any(n == "spindle" for n, _ in m.events) for m in it.job.moves)):
-            return
-        moves = [m for m in it.job.moves if m.kind not in ("dwell", "event")] \
-            or [m for m in it.job.moves if m.kind == "dwell"]       # (EVENT moves carry no speed)
-        if not self.spindle_off_at_job_end or sp is None or not sp.vfd.rpm_cmd or not moves \
-                or getattr(moves[-1], "spindle_rpm", 0.0) or self.items:
-            return
-        self._spindle_off("at the job's end")
-
-    def _spindle_off(self, when: str):
-        """M5 from a thread of its own (a Modbus write is no business of the caller's thread)."""
-        sp = self.spindle
-        self.spindle_prog = 0.0           # before the write: an override must not start it again
-        self.spindle_stopped_in_hold = False
-        if sp is None or sp.vfd is None or not sp.vfd.rpm_cmd:
-            return
-        self._stop_vfd(sp, f"M5 {when}")
-
-    def _stop_vfd(self, sp, what: str):
-        """Stop the spindle VFD from a thread of its own (``_m5``, which ``_m5_written`` waits for);
-        the write excludes the override's (``_spindle_ov_lock``)."""
-        def stop():
-            try:
-                with self._spindle_ov_lock:
-                    sp.vfd.stop()
-            except Exception as e:            # noqa: BLE001 (the monitor reports a lost link)
-                self.log(f"warning: {what}: {e}")
-        self._m5 = threading.Thread(target=stop, daemon=True, name="pmctl-m5")
-        self._m5.start()
-
-    _m5 = None
-
-    def _m5_written(self):
-        """Wait for an M5 under way in its thread: until it is written, the VFD's last command still
-        says running, and a job queued meanwhile at the same speed would skip its M3 and then run
-        with the spindle stopped by that late M5."""
-        t = self._m5
-        if t is not None and t is not threading.current_thread():
-            t.join()
 
 
 class _Aborted(Exception):
@@ -1448,20 +1197,6 @@ def _path_starts_at(path, start, tol_mm=1e-9) -> bool:
         return False
     return (float(np.abs(np.asarray(path.start_tip, float) - np.asarray(start[0], float)).max()) <= tol_mm
             and float(np.abs(np.asarray(path.start_axis, float) - np.asarray(start[1], float)).max()) <= tol_mm * 1e-2)
-
-
-def _patient(vfd, request):
-    """A VFD request (idempotent: a start, a wait at speed) tried again after an unanswered Modbus
-    request, up to the ``max_missed_polls`` the spindle monitor allows in a row (a busy computer or
-    link can miss one); then the link counts as lost."""
-    missed = 0
-    while True:
-        try:
-            return request()
-        except HalTimeout:
-            missed += 1
-            if missed >= vfd.opt.max_missed_polls:
-                raise
 
 
 class _RtProc:
