@@ -18,7 +18,8 @@ Events (the keyword arguments a handler gets):
 ``device_fault``    ``msg``: the spindle's or the DAQ's fault, a controlled stop
 ``rt_dead``         ``exitcode``: the rt process died
 ``position_lost``   (none): the counters are not trusted any more (a fault, a dead rt process)
-``reset``           (none): a soft reset stopped the machine on its path
+``reset``           (none): a soft reset begins (a homing cycle aborts)
+``reset_done``      (none): the soft reset stopped the machine on its path, the queue dropped
 ``estop``           (none): an E-stop
 ``shutdown``        (none): the session ends (the rt side is asked to exit)
 ``records``         ``rows``, ``tick``: a chunk of the rt side's per-tick records was drained

@@ -8,9 +8,9 @@ events drive it.
   (``item_done``);
 - grbl's spindle speed override (0.1 .. 2.0) and its spindle stop in a hold (0x9E), restored at
   cycle start before the path goes on;
-- M5 at a soft reset and an E-stop (``reset``, ``estop``); the monitor's polled samples trimmed to
-  the records drained (``records``); a fault or lost link of the VFD is the supervisor's
-  controlled stop (``Supervisor.controlled_stop``).
+- M5 at a soft reset and an E-stop (``reset_done``, ``estop``); the monitor's polled samples
+  trimmed to the records drained (``records``); a fault or lost link of the VFD is the
+  supervisor's controlled stop (``Supervisor.controlled_stop``).
 
 Every VFD write happens off the caller's thread where the caller is the console's reader or the
 monitor, and the override's writes exclude a stop's (``_ov_lock``): a reset's M5 always wins.
@@ -50,7 +50,7 @@ class Spindle:
         self._m5 = None                   # the thread writing an M5
         hub = sup.events
         hub.register("item_done", self._at_item_done)
-        hub.register("reset", lambda: self.off("at the soft reset"))
+        hub.register("reset_done", lambda: self.off("at the soft reset"))
         hub.register("estop", lambda: self.off("at the E-stop"))
         hub.register("records", self._trim)
 

@@ -55,23 +55,23 @@ from pathlib import Path
 import numpy as np
 
 from pmctl.core import kinematics as K
-from pmctl.core.alarms import ALARM_ABORT, ALARM_ESTOP, ALARM_MOTOR_FAULT, ALARM_PROBE_FAIL_CONTACT, ALARM_SOFT_LIMIT
+from pmctl.core.alarms import ALARM_ABORT, ALARM_ESTOP, ALARM_MOTOR_FAULT, ALARM_SOFT_LIMIT
 from pmctl.core.errors import MotionRefused, PmctlError
 from pmctl.core.job import DWELL, EVENT, RAPID
 from pmctl.motion import channel as C
 from pmctl.motion.nc import RUN
-from pmctl.motion.probe import check_probe_feeds, mark_probe_rows, probe_segments, split_at_probes
 from pmctl.motion.recorder import R_TICK
 from pmctl.motion.settings import resolve
-from pmctl.motion.status import RtStatus, read_status
+from pmctl.motion.status import F_FAULT, RtStatus, read_status
 from pmctl.motion.timescale import (HELD, HOLDING, MOVING, STARVED, S_LINE, RowStream, full_speed_queue,
                                     iter_stream_rows, shape_trajectory)
 from pmctl.task.daq import Daq
 from pmctl.task.events import EventHub
-from pmctl.task.homing import AXES, HomingFailed, RtMover, Sequence
+from pmctl.task.homing import Homing
 from pmctl.task.interp import moves_job
 from pmctl.task.jobcheck import machine_for_planning
 from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
+from pmctl.task.probing import Probing
 from pmctl.task.spindle import Spindle
 from pmctl.task.stream_planner import StreamPlanner
 
@@ -145,9 +145,6 @@ class Supervisor:
         self.alarm = 0
         self.alarm_msg = ""
         self.check_mode = False
-        self.homing = False
-        self.homing_abort = threading.Event()     # a reset during homing aborts the cycle (ALARM 6)
-        self.homed = False
         self.rt_dead = False
         self._quitting = False
         self.items: collections.deque[Item] = collections.deque()   # submitted, not finished
@@ -188,6 +185,22 @@ class Supervisor:
         # by open_devices())
         self._spindle = Spindle(self)
         self._daq = Daq(self)
+        self._probing = Probing(self)      # items with probing moves (G38.x), from the planner thread
+        self._homing = Homing(self)        # $H
+
+    @property
+    def homing(self) -> bool:
+        """A homing cycle is under way (pmctl.task.homing: the state Home, motion refused)."""
+        return self._homing.active
+
+    @property
+    def homed(self) -> bool:
+        """The machine was homed since its position was last lost (the daemon's journal keeps it)."""
+        return self._homing.homed
+
+    @homed.setter
+    def homed(self, yes: bool):
+        self._homing.homed = bool(yes)
 
     @property
     def spindle(self):
@@ -274,7 +287,7 @@ class Supervisor:
 
     def shutdown(self, reason="stopped", timeout_s=30.0) -> np.ndarray:
         """Hold on the path, let the rt side save its counters and exit; returns the final counters."""
-        self.homing_abort.set()
+        self.events.send("shutdown")
         self._abort.set()
         self._quitting = True         # the rt side's exit from here on is the asked-for one, not a death (ALARM 17)
         counts = None
@@ -567,9 +580,8 @@ class Supervisor:
             it = Item(kind, job, start, end, name, self.n_submitted, lines=dict(lines or {}), gen=self._gen,
                       source=str(source), path=path, stream=stream, open=stream,
                       inbox=list(job.moves) if stream else [], last_in=time.monotonic())
-            if any(m.probe for m in job.moves):
-                check_probe_feeds(job, self.svc.probe, source or name or job.source, self.plan_feed_override)
-                it.parts = len(split_at_probes(job))
+            if self._probing.wanted(job):
+                self._probing.prepare(it, source or name or job.source)
             self.n_submitted += 1
             self.items.append(it)
         self._plan_q.put(it)
@@ -714,18 +726,15 @@ class Supervisor:
     def soft_reset(self, timeout_s=10.0):
         """Stop now on the path, drop everything queued, keep the position (grbl ctrl-X). During
         homing it aborts the cycle (ALARM 6)."""
-        if self.homing:
-            self.homing_abort.set()
+        self.events.send("reset")         # (a homing cycle aborts)
         self._stop_queue(timeout_s)
-        self.events.send("reset")
+        self.events.send("reset_done")    # (the spindle stops)
 
     def _stop_queue(self, timeout_s=10.0):
         """Stop on the path, drop every queued item and sample, wait until at rest."""
         self._abort.set()
         self.operator_hold = False
-        with self._lock:
-            self.items.clear()
-            self._gen += 1
+        self._drop_queue()
         self._drop_hold_points()
         # the planner thread drops what it holds once it sees the abort
         while not self._plan_q.empty():
@@ -747,9 +756,7 @@ class Supervisor:
 
     def estop(self, reason="E-stop"):
         self._abort.set()
-        with self._lock:
-            self.items.clear()
-            self._gen += 1
+        self._drop_queue()
         if self.ch is not None and not self.rt_dead:
             self.command(C.C_ESTOP)
             self._ended_base = self.status().ended
@@ -776,40 +783,7 @@ class Supervisor:
         """``$H``: the homing cycle (pmctl.task.homing) with the [homing] settings; blocks until it
         ends. Returns (True, message) when homed (the alarm is cleared), (False, reason) when it
         failed (an alarm says why); MotionRefused when it cannot start (busy, no switches)."""
-        if self.homing:
-            raise MotionRefused("homing is already under way", 8)
-        if not (self.alarm or self.rt_dead) and self.busy():
-            raise MotionRefused("$H only when idle: motion is queued or under way", 8)
-        if self.rt_dead or self.status().mode != RUN:
-            self.unlock()                 # restart / re-arm the rt side first (refused while an E-stop holds)
-        if self.status().home_in < 0:
-            raise MotionRefused(f"backend {self.backend!r} reports no home switches", 5)
-        self.homing_abort.clear()
-        with self._lock:
-            self.items.clear()
-            self._gen += 1
-        self.alarm, self.alarm_msg = 0, ""
-        self.homing = True
-        self._emit("homing", {})
-        try:
-            shifts = Sequence(self.svc.homing, self.machine.resolution.pulses_per_mm).run(
-                RtMover(self, self.homing_abort))
-        except (HomingFailed, MotionRefused, PmctlError) as e:
-            self.homing = False
-            code = getattr(e, "code", 9) if isinstance(e, HomingFailed) else 9
-            if self.ch is not None and not self.rt_dead:
-                self._stop_queue()
-            if not self.alarm:
-                self.raise_alarm(code, f"homing failed: {e}")
-            self.homed = False
-            return False, str(e)
-        finally:
-            self.homing = False
-        self.homed = True
-        msg = "homed; counter corrections " + ", ".join(
-            f"{AXES[i]} {d / self.machine.resolution.pulses_per_mm[i]:+.4f} mm" for i, d in shifts.items())
-        self._emit("homed", {"shifts": {AXES[i]: int(d) for i, d in shifts.items()}, "msg": msg})
-        return True, msg
+        return self._homing.run()
 
     def raise_alarm(self, code: int, msg: str):
         first = not self.alarm
@@ -819,6 +793,33 @@ class Supervisor:
 
     def _emit(self, event, detail):
         self.events.send(event, detail)
+
+    def _drop_queue(self, ended=None):
+        """Drop every queued item (a reset, an E-stop, a fault, homing, a failed probe or plan): a new
+        queue generation, so that nothing planned for the old one goes on; ``ended``: the rt side's
+        count of passed job ends the new queue counts from."""
+        with self._lock:
+            dropped = list(self.items)
+            self.items.clear()
+            self._gen += 1
+            if ended is not None:
+                self._ended_base = ended
+        self.events.send("queue_dropped", items=dropped)
+
+    def _check_going(self, it):
+        """Raise _Aborted when item ``it`` is to be planned no further (a reset, a dropped queue, the end)."""
+        if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
+            raise _Aborted()
+
+    def _starts_after(self, it, start):
+        """Item ``it`` ends at ``start`` (tip, axis) (a probe stopped there): the item queued after it
+        starts from there."""
+        with self._lock:
+            it.end = start
+            if it in self.items:
+                i = self.items.index(it)
+                if i + 1 < len(self.items):
+                    self.items[i + 1].start = start
 
     def wait_idle(self, timeout_s=600.0, poll=0.01) -> bool:
         t0 = time.monotonic()
@@ -843,8 +844,8 @@ class Supervisor:
             if self._abort.is_set() or it.gen != self._gen:
                 continue
             try:
-                if it.parts > 1 or any(m.probe for m in it.job.moves):
-                    self._plan_probing(it)
+                if it.parts > 1 or self._probing.wanted(it.job):
+                    self._probing.plan(it)
                     continue
                 rows_iter = self._stream_rows(it) if it.stream else self._rows_of(it.job, it.start, it)
                 it.planned = True
@@ -858,6 +859,7 @@ class Supervisor:
                 with self._lock:
                     if it in self.items:
                         self.items.remove(it)
+                self.events.send("item_failed", item=it)
                 self.log(f"planning {it.name or it.kind} failed: {e}")
                 self._emit("error", {"msg": f"planning failed: {e}"})
                 if it.planned:
@@ -876,9 +878,8 @@ class Supervisor:
         the queue and raise an alarm saying why; the planner thread goes on (``$X`` unlocks)."""
         self.log(f"planner error on {it.name or it.kind}: {''.join(traceback.format_exception(e)).rstrip()}")
         it.error = f"internal error: {type(e).__name__}: {e}"      # (pmctl run waits on it)
-        with self._lock:
-            self.items.clear()
-            self._gen += 1
+        self._drop_queue()
+        self.events.send("item_failed", item=it)
         if self.ch is not None and not self.rt_dead:
             self.command(C.C_RESET)
         self.raise_alarm(ALARM_ABORT, f"internal error planning {it.name or it.kind}: {type(e).__name__}: {e}; "
@@ -941,8 +942,7 @@ class Supervisor:
     def _stream_inbox(self, it):
         """(the moves appended to the stream item since the last call, whether it is closed); raises
         _Aborted when the queue was dropped."""
-        if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
-            raise _Aborted()
+        self._check_going(it)
         self._stream_wake.clear()
         with self._lock:
             new, it.inbox = it.inbox, []
@@ -1020,8 +1020,7 @@ class Supervisor:
             total += len(rows)
             i = 0
             while i < len(rows):
-                if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
-                    raise _Aborted()
+                self._check_going(it)
                 n = self.ch.samples.push(rows[i:])
                 i += n
                 if n == 0:
@@ -1031,71 +1030,11 @@ class Supervisor:
                     it.pushed_line = int(rows[i - 1, S_LINE])
         return total
 
-    def _plan_probing(self, it):
-        """An item with probing moves, piece by piece (pmctl.motion.probe.split_at_probes): a probing
-        piece's segment goes into the channel's probe table, its samples flagged; then the planner
-        waits for the rt side's result and plans the next piece from where the probe stopped."""
-        start = (np.asarray(it.start[0], float), np.asarray(it.start[1], float))
-        pieces = split_at_probes(it.job)
-        for k, (piece, probe) in enumerate(pieces):
-            # the spindle: the item's start speed before its first piece (a speed change after a
-            # probe inside the same item is not waited for)
-            rows_iter = self._rows_of(piece, start, it if k == 0 else None)
-            if probe is None:
-                it.planned = True
-                if self._push_rows(rows_iter, it) == 0:
-                    self._ended_without_samples(it)
-                last = [m for m in piece.moves if m.kind != DWELL]
-                if last:
-                    start = (np.asarray(last[-1].tip, float), np.asarray(last[-1].axis, float))
-                continue
-            seg = probe_segments(piece, self.machine, start[0])[0]
-            seg.feed *= self.plan_feed_override      # the feed as planned (the monitor's speed and stop)
-            seq0 = self.status().probe_seq
-            tab = self.ch.probe
-            tab[1:] = seg.to_row()
-            tab[0] += 1.0                    # the announcement last: the rt side takes the whole row
-            it.planned = True
-            self._push_rows((mark_probe_rows(r, seg.feed, self.svc.probe) for r in rows_iter), it)
-            s = self._wait_probe(seq0, it)
-            res = s.probe()
-            it.probe_results.append(res)
-            self._emit("probe", res.as_dict())
-            if res.error:
-                # grbl's probe fail: the queue is dropped, motion locked until $X
-                with self._lock:
-                    self.items.clear()
-                    self._gen += 1
-                    self._ended_base = s.ended
-                self.raise_alarm(ALARM_PROBE_FAIL_CONTACT, res.error)
-                return
-            start = (np.asarray(res.stop, float), np.asarray(seg.axis, float))
-            if k == len(pieces) - 1 or all(m.kind == DWELL for p, _ in pieces[k + 1:] for m in p.moves):
-                # the item ends where the probe stopped: what is queued after it starts from there
-                with self._lock:
-                    it.end = start
-                    if it in self.items:
-                        i = self.items.index(it)
-                        if i + 1 < len(self.items):
-                            self.items[i + 1].start = start
-
-    def _wait_probe(self, seq0, it):
-        """The rt status once the rt side has reported the probe ended (``probe_seq`` past seq0)."""
-        while True:
-            if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
-                raise _Aborted()
-            s = self.status()
-            if s.probe_seq > seq0:
-                return s
-            time.sleep(0.002)
-
     def _planning_failed_midway(self, it, e):
         """A window of an item failed after its first samples were queued (validation passed, so
         rare): stop on the path now, drop everything queued after it and raise an alarm; nothing
         may continue from a pose the machine is not at."""
-        with self._lock:
-            self.items.clear()
-            self._gen += 1
+        self._drop_queue()
         if self.ch is not None and not self.rt_dead:
             self.command(C.C_RESET)
         self.raise_alarm(ALARM_ABORT, f"planning of {it.name or it.kind} failed during the job: {e}")
@@ -1120,17 +1059,15 @@ class Supervisor:
             return
         self._fault_seen = s.reason_seq
         reason = ch.reason()
-        with self._lock:
-            self.items.clear()
-            self._gen += 1
-            self._ended_base = s.ended
+        self._drop_queue(ended=s.ended)
         self._drop_hold_points()
         code = ALARM_SOFT_LIMIT if reason.startswith(("soft limit", "path error")) else (
             ALARM_ESTOP if reason.startswith("E-stop") else ALARM_MOTOR_FAULT)
         if code == ALARM_MOTOR_FAULT:
-            self.homed = False        # following error / lost backend: the position may be wrong
+            self.events.send("position_lost")     # following error / lost backend: the position may be wrong
         if not self.alarm:
             self.raise_alarm(code, reason)
+        self.events.send("stopped", reason=reason, fault=s.fault == F_FAULT)
 
     def _monitor(self):
         while not self._stop.wait(0.01):
@@ -1148,13 +1085,11 @@ class Supervisor:
                 self._take_fault(ch, read_status(ch))     # its last word: a fault it stopped on, written before it left
                 r = ch.result()
                 if not self.alarm and r and r.get("status") == "fault" and r.get("reason"):
-                    self.homed = False
+                    self.events.send("position_lost")
                     self.raise_alarm(ALARM_MOTOR_FAULT, str(r["reason"]))
                 self.rt_dead = True
-                self.homed = False            # the counters are kept, but not trusted
-                with self._lock:
-                    self.items.clear()
-                    self._gen += 1
+                self.events.send("position_lost")     # the counters are kept, but not trusted
+                self._drop_queue()
                 code = self.proc.exitcode
                 died = (f"rt motion process died (exit code {code}); last counters kept, not trusted until "
                         f"homed or confirmed")
