@@ -350,7 +350,7 @@ class Supervisor:
             return
         self.device_fault = why
         self.log(f"controlled stop: {why}")
-        self._emit("device_fault", {"msg": why})
+        self.events.send("device_fault", {"msg": why}, msg=why)
         if not self.alarm:
             self.raise_alarm(ALARM_ABORT, why)
 
@@ -1097,7 +1097,7 @@ class Supervisor:
                     self.log(f"{died} (after: {self.alarm_msg})")
                 else:
                     self.raise_alarm(ALARM_MOTOR_FAULT, died)
-                self._emit("rt_dead", {"exitcode": code})
+                self.events.send("rt_dead", {"exitcode": code}, exitcode=code)
                 continue
             # retire finished items: the rt side counts the job ends it passed
             ended = s.ended
