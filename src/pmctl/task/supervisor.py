@@ -9,11 +9,9 @@ It creates the channel (shared memory), starts the rt process and then, in its o
   raises an alarm, saves the last counters it reported (not trusted: the drives stopped on their
   own watchdog) and refuses motion until an unlock restarts it.
 
-Probing (G38.2/G38.3) is planned in pieces (pmctl.motion.probe.split_at_probes): the motion before a
-probe, the probing move alone (its samples flagged, its segment announced in the channel's probe
-table), then -- once the rt side reports the probe ended -- the rest of the item from where the
-probe stopped. The results land in ``Item.probe_results``; a G38.2 without contact raises ALARM 5
-and drops the queue (grbl's probe fail).
+Probing (G38.2/G38.3) is planned in pieces around the probes (pmctl.task.probing); the results land
+in ``Item.probe_results``; a G38.2 without contact raises ALARM 5 and drops the queue (grbl's probe
+fail).
 
 - acts on what happens where the path gets to it, in program order, as grbl's planner sync does:
   the EVENT moves of a job (pmctl.core.job: spindle, coolant, tool change, pause, outputs, messages),
@@ -24,12 +22,13 @@ and drops the queue (grbl's probe fail).
   the events (a spindle change waits until at speed) and releases the hold. A pause (M0, M1 with the
   optional stop on, M6 tool change) stays held until cycle start (``resume``). A job's first speed is
   such a point at its first sample. The state stays ``Run`` while the path waits for an event.
-- runs the devices that are no part of the tick: the spindle VFD (``[spindle]``) and the strain DAQ
-  (``[daq]``, polled for the whole session, serving a simulated DAQ the plant's strain from the
-  drained records); a fault or lost link of either is a controlled stop on the path with the reason
-  (ALARM 3).
+- sends the session's events (pmctl.task.events: an item done, the queue dropped, a stop, a reset,
+  the records drained, ...) to its parts, which act on them: the spindle VFD (``[spindle]``,
+  pmctl.task.spindle), the strain DAQ (``[daq]``, pmctl.task.daq), homing (pmctl.task.homing); a
+  fault or lost link of a device is a controlled stop on the path with the reason (ALARM 3,
+  ``controlled_stop``).
 
-``pmctl run`` is a one-shot client of this class (start, submit one job, wait, shutdown);
+``pmctl run`` is a one-shot client of this class (start, submit one job, wait for its events, shutdown);
 ``offline=True`` (its --no-realtime) runs the rt side's ticks back to back, waiting for samples.
 
 The machine state (grbl's: Idle, Run, Hold:0/1, Jog, Home, Alarm, Check) is derived here from
