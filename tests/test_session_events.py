@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, strategies as st
 
 from pmctl.hal.base import trim_polled
-from pmctl.interfaces.commands.run import _JobWatch
+from pmctl.task.job_watch import JobWatch
 from pmctl.task.events import EventHub
 
 
@@ -56,7 +56,7 @@ def test_trim_polled_keeps_the_last_sample_up_to_the_tick_and_everything_after(t
 def test_the_run_waits_on_its_own_item_and_a_drop_of_the_queue_that_held_it():
     hub = EventHub()
     sup = type("Sup", (), {"events": hub})()
-    w = _JobWatch(sup)
+    w = JobWatch(sup)
     mine, other = object(), object()
     w.item = mine
     hub.send("item_done", item=other)

@@ -491,63 +491,6 @@ class _RunResult:
         return {"done": EXIT_DONE, "stopped": EXIT_STOPPED}.get(self.status, EXIT_FAULT)
 
 
-class _JobWatch:
-    """What the supervisor's events (pmctl.task.events) said about the run's job: its item left the
-    queue (done, or dropped with the queue), its planning failed, the rt side stopped on its own,
-    a device fault, the rt process died. The handlers run in the supervisor's threads: they note
-    and wake the waiting run, nothing more."""
-
-    def __init__(self, sup):
-        self.sup = sup
-        self.item = None
-        self.left = False                # the item left the queue
-        self.failed = False              # its planning failed (item.error)
-        self.stopped = None              # (reason, fault) of the rt side's own stop
-        self.device_fault = ""
-        self.rt_dead = False
-        self.wake = threading.Event()
-        self._handlers = (("item_done", self._done), ("queue_dropped", self._dropped),
-                          ("item_failed", self._failed), ("stopped", self._stopped),
-                          ("device_fault", self._device_fault), ("rt_dead", self._rt_dead))
-        for event, fn in self._handlers:
-            sup.events.register(event, fn)
-
-    def close(self):
-        for event, fn in self._handlers:
-            self.sup.events.unregister(event, fn)
-
-    def _note(self):
-        self.wake.set()
-
-    def _done(self, item):
-        if item is self.item:
-            self.left = True
-            self._note()
-
-    def _dropped(self, items):
-        if any(it is self.item for it in items):
-            self.left = True
-            self._note()
-
-    def _failed(self, item):
-        if item is self.item:
-            self.failed = True
-            self._note()
-
-    def _stopped(self, reason, fault):
-        if self.stopped is None:
-            self.stopped = (reason, fault)
-        self._note()
-
-    def _device_fault(self, msg):
-        self.device_fault = self.device_fault or msg
-        self._note()
-
-    def _rt_dead(self, exitcode):
-        self.rt_dead = True
-        self._note()
-
-
 def _run_client(ctx: _RunContext, where: str) -> int:
     """The job through the machinery of the daemon: a Supervisor starts the rt motion process (its
     own process: loop, NC, backend), the job is submitted with its checked ``path`` (the check's
@@ -555,20 +498,13 @@ def _run_client(ctx: _RunContext, where: str) -> int:
     the sample ring (memory bounded by a window, whatever the job's length), the records stream back
     into the recording; then the supervisor shuts the rt side down and the run is reported with the
     timing figures the rt side hands over as it exits (Channel.result)."""
-    import numpy as np
-
     from pmctl import hal
     from pmctl.hal.base import Backend
     from pmctl.hal.modbus_vfd import job_speed
-    from pmctl.motion.recorder import R_S, R_TICK
-    from pmctl.motion.service_config import strain_in_loop as carries_strain
-    from pmctl.task.run_sink import RunSink
     from pmctl.task.supervisor import Supervisor
     args, job, settings = ctx.args, ctx.job, ctx.settings
     log = ctx.out.log
-    machine, svc, params, backend_name = settings.machine, settings.svc, settings.params, settings.backend
-    cfg, dt = ctx.cfg, ctx.dt
-    strain_in_loop = carries_strain(backend_name)
+    svc, params, backend_name, cfg = settings.svc, settings.params, settings.backend, ctx.cfg
     sup = ctx.sup = Supervisor(args.config, service=args.service, state_file=ctx.state_file or "", log=log,
                                settings=settings)
     if backend_name == "sim":                # the simulation's stand-in operator: tool changes and pauses
@@ -597,27 +533,7 @@ def _run_client(ctx: _RunContext, where: str) -> int:
         # the VFD link answers (and the DAQ) before the drives enable
         sup.open_devices(spindle=bool(rpm0), at=ctx.counts0)
         try:
-            sink = ctx.sink = RunSink(machine, params.pulses_per_mm, cfg.rate_hz, has_truth, 1 << 62, 0, sup.spindle,
-                                      sup.daq, load=strain_in_loop, strain=strain_in_loop)
-            if args.record:
-                plant = hal.create(backend_name, machine, dt, svc.backend_tables.get(backend_name, {})) \
-                    if has_truth else None          # not opened: its options describe the simulated plant
-                ctx.rec = _open_recording(args, machine, plant, backend_name, cfg, sink, 0)
-                sink.writer = ctx.rec
-
-            def feed(rows):            # the supervisor's monitor thread, every drained chunk of records
-                if ctx.job_tick is None and ctx.s0 is not None:
-                    moved = np.flatnonzero(rows[:, R_S] > ctx.s0)
-                    if len(moved):     # the first tick following the job's samples: its tracking starts
-                        ctx.job_tick = int(rows[moved[0], R_TICK])
-                        if sink.track is not None:
-                            sink.track.j0 = ctx.job_tick
-                try:
-                    sink(rows)
-                except Exception as e:
-                    ctx.rec_err.append(f"{type(e).__name__}: {e}")
-                    raise
-            sup.record_sink = feed
+            _open_sink(ctx, hal, has_truth)
             if rpm0 and sup.spindle is not None:
                 sup.spindle_start(rpm0)        # cutting waits for at speed
             sup.spindle_off_at_job_end = False     # M5 at the shutdown, after the last recorded tick
@@ -642,15 +558,50 @@ def _run_client(ctx: _RunContext, where: str) -> int:
             signal.signal(sig, h)
 
 
+def _open_sink(ctx: _RunContext, hal, has_truth: bool):
+    """Where the supervisor's drained records go: the RunSink (tracking figures; the spindle's and the
+    DAQ's samples per tick) and, with --record, the recording opened as ``<DIR>.partial/``."""
+    import numpy as np
+
+    from pmctl.motion.recorder import R_S, R_TICK
+    from pmctl.motion.service_config import strain_in_loop as carries_strain
+    from pmctl.task.run_sink import RunSink
+    sup, settings, cfg = ctx.sup, ctx.settings, ctx.cfg
+    machine, backend_name = settings.machine, settings.backend
+    strain_in_loop = carries_strain(backend_name)
+    sink = ctx.sink = RunSink(machine, settings.params.pulses_per_mm, cfg.rate_hz, has_truth, 1 << 62, 0,
+                              sup.spindle, sup.daq, load=strain_in_loop, strain=strain_in_loop)
+    if ctx.args.record:
+        plant = hal.create(backend_name, machine, ctx.dt, settings.svc.backend_tables.get(backend_name, {})) \
+            if has_truth else None          # not opened: its options describe the simulated plant
+        ctx.rec = _open_recording(ctx.args, machine, plant, backend_name, cfg, sink, 0)
+        sink.writer = ctx.rec
+
+    def feed(rows):            # the supervisor's monitor thread, every drained chunk of records
+        if ctx.job_tick is None and ctx.s0 is not None:
+            moved = np.flatnonzero(rows[:, R_S] > ctx.s0)
+            if len(moved):     # the first tick following the job's samples: its tracking starts
+                ctx.job_tick = int(rows[moved[0], R_TICK])
+                if sink.track is not None:
+                    sink.track.j0 = ctx.job_tick
+        try:
+            sink(rows)
+        except Exception as e:
+            ctx.rec_err.append(f"{type(e).__name__}: {e}")
+            raise
+    sup.record_sink = feed
+
+
 def _run_job(ctx: _RunContext) -> _RunResult:
     """Submit the job, wait for how it ends (the supervisor's events), shut the rt side down and
     gather what it measured; PmctlError when the job was refused before any of it moved."""
-    sup = ctx.sup
+    from pmctl.task.job_watch import JobWatch
+    sup, cfg = ctx.sup, ctx.cfg
     view = _RunView(sup, max((m.line for m in ctx.job.moves), default=1), ctx.job)
     prog = _Progress(view, Path(ctx.args.job).name, ctx.dt, ctx.args.quiet, ctx.out)
-    watch = _JobWatch(sup)
+    watch = JobWatch(sup)
     t_wall = time.monotonic()
-    res = None
+    end = None
     try:
         s = sup.status()
         view.tick0 = s.tick
@@ -661,57 +612,21 @@ def _run_job(ctx: _RunContext) -> _RunResult:
                                                source=str(ctx.args.job), path=ctx.path)
             view.item, view.s0 = ctx.item, ctx.s0
         prog.start()
-        res, bad_input = _wait_for_end(ctx, watch, ended0)
+        end = watch.wait(ended0, int(round(cfg.settle_s * cfg.rate_hz)),
+                         lambda: ctx.stop_req[0] if ctx.stop_req else None)
     finally:
         watch.close()
         prog.finish()
         # hold on the path; the rt side saves its counters and exits
-        sup.shutdown((res.reason if res is not None else "") or "done")
-    res.wall = time.monotonic() - t_wall
-    if bad_input:
+        sup.shutdown((end.reason if end is not None else "") or "done")
+    res = _RunResult(end.status, end.reason, end.stop_tick, dt=ctx.dt, realtime=bool(cfg.realtime),
+                     wall=time.monotonic() - t_wall)
+    if end.bad_input:
         if ctx.rec is not None:
             ctx.rec._discard()
-        raise PmctlError(bad_input)
+        raise PmctlError(end.bad_input)
     _gather(ctx, res)
     return res
-
-
-def _wait_for_end(ctx: _RunContext, watch: _JobWatch, ended0: int) -> tuple[_RunResult, str]:
-    """Wait until the job is done (its item left the queue, the rt side passed its end, and the plant
-    settled for ``settle_s``) or something ended the run: a stop signal, the rt process dead, the rt
-    side's own stop, a device fault, a planning failure (in that order when several came together).
-    Returns (result so far, the planning error when nothing of the job reached the rt side)."""
-    sup, it = ctx.sup, ctx.item
-    settle = int(round(ctx.cfg.settle_s * ctx.cfg.rate_hz))
-    res = _RunResult(dt=ctx.dt, realtime=bool(ctx.cfg.realtime))
-    done_tick = None
-    while True:
-        if ctx.stop_req:
-            res.status, res.reason = "stopped", ctx.stop_req[0][0]
-            res.stop_tick = ctx.stop_req[0][1]
-            return res, ""
-        if watch.rt_dead:
-            res.status, res.reason = "fault", sup.alarm_msg or "the rt motion process died"
-            return res, ""
-        if watch.stopped is not None:
-            res.reason, fault = watch.stopped
-            res.status = "fault" if fault else "stopped"
-            return res, ""
-        if watch.device_fault:
-            res.status, res.reason = "stopped", watch.device_fault
-            return res, ""
-        if watch.failed:
-            res.status, res.reason = "fault", f"planning failed: {it.error}"
-            return res, ("" if it.planned else it.error)   # nothing of it reached the rt side: bad input
-        if watch.left:
-            s = sup.status()
-            if done_tick is None and s.ended > ended0:
-                done_tick = s.tick       # at the job's last sample: the plant settles
-            if done_tick is not None and s.tick >= done_tick + settle:
-                res.status = "done"
-                return res, ""
-        watch.wake.wait(0.005)
-        watch.wake.clear()
 
 
 def _gather(ctx: _RunContext, res: _RunResult):
