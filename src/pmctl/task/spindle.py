@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 from pmctl.core import kinematics as K
+from pmctl.core.job import DWELL, EVENT
 from pmctl.hal import HalTimeout
 from pmctl.hal.base import trim_polled
 from pmctl.hal.modbus_vfd import REST_STEP_MM, SpindleSession, job_speed
@@ -136,8 +137,7 @@ class Spindle:
         """The hold points of a job that carries its speed only per move (``Move.spindle_rpm``: no
         spindle EVENT among ``moves``), or None: a :class:`_SpeedPoints` that the supervisor asks
         piece by piece as it plans them."""
-        events = any(m.kind == "event" and any(n == "spindle" for n, _ in m.events) for m in moves)
-        on_lines = [] if events or not per_move else [m.line for m in moves if getattr(m, "spindle_rpm", 0.0)]
+        on_lines = [] if has_spindle_event(moves) or not per_move else [m.line for m in moves if getattr(m, "spindle_rpm", 0.0)]
         if on_lines and self.opt is None:
             self.note_not_executed(job_speed([getattr(m, "spindle_rpm", 0.0) for m in moves]), "the job's ")
             on_lines = []
@@ -150,11 +150,10 @@ class Spindle:
         if not self.sup.items:
             self.plan_rpm = None          # nothing planned ahead: the speed is the commanded one
         sp = self.session
-        if item.spindle_events or (item.spindle_events is None and any(
-                m.kind == "event" and any(n == "spindle" for n, _ in m.events) for m in item.job.moves)):
+        if item.spindle_events or (item.spindle_events is None and has_spindle_event(item.job.moves)):
             return
-        moves = [m for m in item.job.moves if m.kind not in ("dwell", "event")] \
-            or [m for m in item.job.moves if m.kind == "dwell"]       # (EVENT moves carry no speed)
+        moves = [m for m in item.job.moves if m.kind not in (DWELL, EVENT)] \
+            or [m for m in item.job.moves if m.kind == DWELL]       # (EVENT moves carry no speed)
         if not self.off_at_job_end or sp is None or not sp.vfd.rpm_cmd or not moves \
                 or getattr(moves[-1], "spindle_rpm", 0.0) or self.sup.items:
             return
@@ -289,6 +288,12 @@ class Spindle:
         if then_resume:
             self.stopped_in_hold = False
             self.sup.command(C.C_RESUME)
+
+
+def has_spindle_event(moves) -> bool:
+    """Whether a spindle EVENT (M3/M4/M5 in program order) is among ``moves``: then the speed takes
+    effect where the path gets to it, not per move."""
+    return any(m.kind == EVENT and any(n == "spindle" for n, _ in m.events) for m in moves)
 
 
 class _SpeedPoints:

@@ -49,7 +49,6 @@ import threading
 import time
 import traceback
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -71,7 +70,7 @@ from pmctl.task.interp import moves_job
 from pmctl.task.jobcheck import machine_for_planning
 from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
 from pmctl.task.probing import Probing
-from pmctl.task.spindle import Spindle
+from pmctl.task.spindle import Spindle, has_spindle_event
 from pmctl.task.stream_planner import StreamPlanner
 
 # the open stream of console blocks (Supervisor.stream, _stream_rows)
@@ -595,7 +594,7 @@ class Supervisor:
         close, after an item of another kind). ``lines``: {stream line: reported line (N word)}.
         MotionRefused in alarm."""
         moving = [m for m in moves if m.kind not in (DWELL, EVENT)]
-        spindle = any(m.kind == EVENT and any(n == "spindle" for n, _ in m.events) for m in moves)
+        spindle = has_spindle_event(moves)
         with self._lock:
             it = self._stream_item
             if it is None or not it.open or it.gen != self._gen or it not in self.items:
