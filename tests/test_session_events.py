@@ -55,7 +55,7 @@ def test_trim_polled_keeps_the_last_sample_up_to_the_tick_and_everything_after(t
 
 def test_the_run_waits_on_its_own_item_and_a_drop_of_the_queue_that_held_it():
     hub = EventHub()
-    sup = type("Sup", (), {"events": hub})()
+    sup = type("Sup", (), {"events": hub, "ch": None})()        # no rt side yet
     w = JobWatch(sup)
     mine, other = object(), object()
     w.item = mine

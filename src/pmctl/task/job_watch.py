@@ -14,6 +14,8 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 
+from pmctl.motion.status import F_FAULT
+
 
 @dataclass
 class JobEnd:
@@ -42,6 +44,10 @@ class JobWatch:
                           ("device_fault", self._device_fault), ("rt_dead", self._rt_dead))
         for event, fn in self._handlers:
             sup.events.register(event, fn)
+        if sup.ch is not None:
+            s = sup.status()
+            if s.stopped:                # the rt side stopped before the watch began (its first ticks)
+                self.stopped = (sup.ch.reason(), s.fault == F_FAULT)
 
     def close(self):
         for event, fn in self._handlers:
