@@ -98,7 +98,11 @@ class CncJs:
 @pytest.fixture
 def rig(tmp_path):
     p, link = start_serve(tmp_path)
-    c = CncJs(tmp_path)
+    try:
+        c = CncJs(tmp_path)
+    except BaseException:                                 # CNCjs missing or broken: no serve left behind
+        stop_serve(p)
+        raise
     try:
         c.wait(lambda: any(e["ev"] == "connect" for e in c.log), 60, "socket.io connection")
         c.emit("open", str(link), {"controllerType": "Grbl", "baudrate": 115200})
