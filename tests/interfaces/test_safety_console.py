@@ -130,8 +130,8 @@ def test_a_hold_while_idle_is_a_hold_and_cycle_start_releases_it(console):
 def test_a_hold_or_a_jog_cancel_during_a_jog_cancels_it(console, byte):
     s, sup, con = console
     _home_x(s)
-    assert s.send("$J=G91 X20 F1200") == "ok"
-    st = _moving(s)
+    assert s.send("$J=G91 X20 F300") == "ok"          # 4 s of jogging: still under way when the byte comes,
+    st = _moving(s)                                    # however slowly a loaded machine polls
     assert st["state"] == "Jog"
     s.realtime(byte)
     st = _idle(s)                                   # a cancel, not a hold: Idle, nothing queued
