@@ -19,7 +19,7 @@ from pmctl.core.config import load_machine
 from pmctl.core.job import home_pose
 from pmctl.motion.nc import NCParams
 from pmctl.motion.ring import ArraySource, Ring
-from pmctl.motion.timescale import (FEED_OVERRIDE_RANGE, FLAG_END, HELD, IDLE, JOINT_SHARE, MOVING, S_AXIS, S_CAP,
+from pmctl.motion.timescale import (FEED_OVERRIDE_RANGE, FLAG_END, HELD, HOLDING, IDLE, JOINT_SHARE, MOVING, S_AXIS, S_CAP,
                                     S_FLAGS, S_LINE, S_QT, SIGMA_MAX, STARVED, WIDTH, CompiledFollower, TimeScaler,
                                     backward_pass, iter_job_rows, make_follower, sample_caps, scaling_limits)
 from pmctl.task.gcode import parse_gcode
@@ -95,6 +95,7 @@ def test_sample_caps_of_many_samples_are_each_samples_own():
 @example(cap=[2.0] * 30 + [0.0], dt=1e-3, decel=4.5, end=SIGMA_MAX)
 @example(cap=[2.0] * 30, dt=1e-3, decel=4.5, end=0.0)
 @example(cap=[2.0], dt=1e-3, decel=4.5, end=0.0)
+@example(cap=[0.0] * 10 + [1e-7], dt=0.05, decel=2.0, end=2.0)
 def test_the_backward_pass_is_the_fastest_sigma_that_can_still_slow_down_in_time(cap, dt, decel, end):
     """allowed <= cap everywhere; sigma can come down from each allowed value to the next one (and
     past the last sample to ``end``) at sigma' >= -decel, i.e. allowed_i^2 <= allowed_{i+1}^2 + 2
@@ -105,12 +106,11 @@ def test_the_backward_pass_is_the_fastest_sigma_that_can_still_slow_down_in_time
     assert a.shape == cap.shape
     if len(cap) == 0:
         return
-    tol = 1e-9
-    nxt = np.r_[a[1:], end]
-    reach = np.sqrt(nxt ** 2 + 2 * decel * dt)
-    assert np.all(a >= 0.0) and np.all(a <= cap + tol)
-    assert np.all(a <= reach + tol)
-    assert np.all(np.isclose(a, np.minimum(cap, reach), rtol=0, atol=1e-7)), np.max(np.abs(a - np.minimum(cap, reach)))
+    tol = 1e-12 * (SIGMA_MAX ** 2 + 2 * decel * dt * len(cap))    # the rounding of the closed form's squares
+    a2, reach2 = a ** 2, np.r_[a[1:], end] ** 2 + 2 * decel * dt
+    assert np.all(a >= 0.0) and np.all(a2 <= cap ** 2 + tol)
+    assert np.all(a2 <= reach2 + tol)
+    assert np.all(np.abs(a2 - np.minimum(cap ** 2, reach2)) <= tol), np.max(np.abs(a2 - np.minimum(cap ** 2, reach2)))
 
 
 def test_the_backward_pass_default_end_lets_sigma_run_on_and_a_zero_end_brakes_to_rest():
@@ -234,6 +234,7 @@ def test_with_nothing_queued_and_no_pose_the_target_is_a_valid_pose_at_rest(impl
 @example(lengths=[30, 1, 1, 30], feed=0.5, sigma=0.5, per_tick=1)
 @example(lengths=[7, 1], feed=1.4375, sigma=0.0, per_tick=1)
 @example(lengths=[9, 2, 9], feed=2.0, sigma=2.0, per_tick=3)
+@example(lengths=[30, 1, 1, 30], feed=1.0, sigma=1.0, per_tick=2)
 def test_every_job_end_is_counted_even_a_job_of_one_sample(impl, lengths, feed, sigma, per_tick):
     """Jobs back to back, all queued (a job of one sample: a line that plans to a single sample, as
     `M3 S1000` or a move to where the tool is), planned at ``per_tick`` samples a tick: the follower
@@ -321,3 +322,41 @@ def test_a_dwell_in_a_job_is_moving_not_idle(impl):
         assert fol.state == MOVING, fol.state
         still += not np.any(tg[6:])
     assert fol.at_end and still > 150          # the dwell's 0.2 s at rest on the path
+
+
+@pytest.mark.parametrize("impl", IMPLS)
+def test_a_queue_that_runs_dry_stops_on_its_last_sample_and_says_so(impl):
+    """Seven samples queued, no job end among them, four samples planned a tick, the feed override at
+    10 % (the queue is enough for that: not starved) but sigma at 2 (set from outside): sigma cannot
+    come down in time; the follower stops on the last queued sample (never past it), at rest, and
+    says the sample queue ran dry."""
+    rows = _line(7, end=False)
+    fol = make_follower(ArraySource(rows), PARAMS, DT, DT / 4, implementation=impl)
+    fol.scaler.set_feed_override(0.1)
+    fol.scaler.sigma = 2.0
+    fol.next_target()
+    assert fol.reason == "sample queue ran dry" and fol.state == MOVING
+    assert fol.sigma == 0.0 and fol.src.count() == 1
+    tg = fol.next_target()
+    assert np.array_equal(tg, np.r_[rows[-1, :6], np.zeros(6)]) and fol.state == STARVED
+
+
+@pytest.mark.parametrize("impl", IMPLS)
+def test_a_hold_says_holding_until_at_rest_then_held(impl):
+    """A hold in the middle of a line: the state is HOLDING while sigma comes down, HELD from the tick
+    the path is at rest on, and back to MOVING on resume."""
+    fol = make_follower(ArraySource(_line(3000)), PARAMS, DT, implementation=impl)
+    for _ in range(200):
+        fol.next_target()
+    assert fol.state == MOVING and fol.sigma == 1.0
+    fol.scaler.hold = True
+    states = []
+    for _ in range(400):
+        fol.next_target()
+        states.append((fol.state, fol.sigma))
+    moving = [st for st, s in states if s > 0.0]
+    assert len(moving) > 50 and set(moving) == {HOLDING}
+    assert states[-1] == (HELD, 0.0)
+    fol.scaler.hold = False
+    fol.next_target()
+    assert fol.state == MOVING
