@@ -5,25 +5,32 @@ tighter point, the feed override's range, and the follower's hold, starvation an
 
 These functions are shared by both path followers (the compiled one takes its rows, caps and
 limits from them), so the tick-for-tick comparison of tests/test_follow.py cannot see a change in
-them: each test here asserts the physical fact itself. All offline, a few seconds in all.
+them: each test here asserts the physical fact itself, and the follower's rules are checked in both
+followers. All offline ticks, but the last test: jobs queued behind a job of one sample, through the
+supervisor and its rt process on the sim (the follower once stepped over such a job's end uncounted,
+and the supervisor, which retires its items by that count, kept the last one queued).
 """
 
 import math
+import time
 from dataclasses import replace
 
 import numpy as np
 import pytest
 from hypothesis import assume, example, given, settings, strategies as st
 
+from pmctl.core import kinematics as K
 from pmctl.core.config import load_machine
 from pmctl.core.job import home_pose
-from pmctl.motion.nc import NCParams
+from pmctl.motion.nc import NCParams, counts_of
 from pmctl.motion.ring import ArraySource, Ring
-from pmctl.motion.timescale import (FEED_OVERRIDE_RANGE, FLAG_END, HELD, HOLDING, IDLE, JOINT_SHARE, MOVING, S_AXIS, S_CAP,
-                                    S_FLAGS, S_LINE, S_QT, SIGMA_MAX, STARVED, WIDTH, CompiledFollower, TimeScaler,
-                                    backward_pass, iter_job_rows, make_follower, sample_caps, scaling_limits)
+from pmctl.motion.timescale import (FEED_OVERRIDE_RANGE, FLAG_END, HELD, HOLDING, IDLE, JOINT_SHARE, MOVING,
+                                    S_AXIS, S_CAP, S_FLAGS, S_LINE, S_QT, SIGMA_MAX, STARVED, WIDTH,
+                                    CompiledFollower, TimeScaler, backward_pass, iter_job_rows, make_follower,
+                                    sample_caps, scaling_limits)
 from pmctl.task.gcode import parse_gcode
 from pmctl.task.planner import plan
+from pmctl.task.supervisor import Supervisor
 
 M = load_machine()
 DT = 1e-3
@@ -45,8 +52,6 @@ def test_sigmas_rate_limit_accelerates_the_fastest_joint_at_045_of_its_limit(vma
     assert abs(accel / jerk - 0.05) < 1e-15
     assert isinstance(accel, float)
 
-
-pos = st.floats(0.0, 1e4)
 
 
 @settings(max_examples=150, deadline=None)
@@ -159,7 +164,8 @@ def test_sigma_coming_down_through_its_goal_keeps_its_jerk_limit(impl, s0, frac)
             assert abs(sc.dsigma - prev) <= J * DT * (1 + 1e-12) and abs(sc.dsigma) <= A * (1 + 1e-12)
         low = min(low, sc.sigma)
         prev = sc.dsigma
-    ds0 = frac * A                  # below it by sigma'^2 / 2 jerk, less a tick's step: the rate came down at the jerk limit
+    # below the goal by sigma'^2 / 2 jerk, less a tick's step: the rate came down at the jerk limit
+    ds0 = frac * A
     assert low < s0 - 0.5 * ds0 ** 2 / J + ds0 * DT, (low, s0)
     assert sc.sigma == s0 and sc.dsigma == 0.0
 
@@ -360,3 +366,31 @@ def test_a_hold_says_holding_until_at_rest_then_held(impl):
     fol.scaler.hold = False
     fol.next_target()
     assert fol.state == MOVING
+
+
+def test_jobs_queued_behind_a_job_of_one_sample_all_finish(tmp_path):
+    """Through the supervisor and its rt process (sim): a move, a `G4 P0` (a job that plans to one
+    sample) and a move back, queued at once. Every item is retired (the rt side counted each job's
+    end) and the tool is back where it started; before the follower stopped on a one-sample job's
+    end, the last item stayed queued for good."""
+    svc = tmp_path / "service.toml"
+    svc.write_text('[loop]\nrate_hz = 1000\nstall_timeout_ms = 5000\nmax_overruns_in_row = 100000\n'
+                   'state_file = ""\n[hal]\nbackend = "sim"\n')
+    sup = Supervisor(service=str(svc), log=lambda m: None)
+    tip, axis = home_pose(sup.machine)
+    sup.start(counts_of(K.ik(tip, axis, sup.machine).q, sup.params))
+    try:
+        t1 = tip + np.array([-20.0, 0.0, 0.0])
+        for text, start, name in (("G21 G91\nG1 X-20 F1200\n", tip, "a"), ("G21 G90\nG4 P0\n", t1, "b"),
+                                  ("G21 G91\nG1 X20 F1200\n", t1, "c")):
+            sup.submit(parse_gcode(text, f"{name}.ngc", start, axis), name=name)
+        t0 = time.monotonic()
+        while sup.queued_items() and time.monotonic() - t0 < 120:
+            time.sleep(0.05)
+        assert sup.queued_items() == 0
+        q = K.ik(tip, axis, sup.machine).q
+        while not np.array_equal(sup.status().counts, counts_of(q, sup.params)) and time.monotonic() - t0 < 120:
+            time.sleep(0.05)
+        assert np.array_equal(sup.status().counts, counts_of(q, sup.params))
+    finally:
+        sup.shutdown()
