@@ -4,7 +4,7 @@ path's curvature, tool-tip speed, SIGMA_MAX), the backward pass that lowers sigm
 tighter point, the feed override's range, and the follower's hold, starvation and job-end rules.
 
 These functions are shared by both path followers (the compiled one takes its rows, caps and
-limits from them), so the tick-for-tick comparison of tests/test_follow.py cannot see a change in
+limits from them), so the tick-for-tick comparison of tests/motion/test_follow.py cannot see a change in
 them: each test here asserts the physical fact itself, and the follower's rules are checked in both
 followers. All offline ticks, but the last test: jobs queued behind a job of one sample, through the
 supervisor and its rt process on the sim (the follower once stepped over such a job's end uncounted,
@@ -368,6 +368,7 @@ def test_a_hold_says_holding_until_at_rest_then_held(impl):
     assert fol.state == MOVING
 
 
+@pytest.mark.slow
 def test_jobs_queued_behind_a_job_of_one_sample_all_finish(tmp_path):
     """Through the supervisor and its rt process (sim): a move, a `G4 P0` (a job that plans to one
     sample) and a move back, queued at once. Every item is retired (the rt side counted each job's
