@@ -31,6 +31,7 @@ from pmctl.motion.timescale import (FEED_OVERRIDE_RANGE, FLAG_END, HELD, HOLDING
 from pmctl.task.gcode import parse_gcode
 from pmctl.task.planner import plan
 from pmctl.task.supervisor import Supervisor
+from service_support import service_toml
 
 M = load_machine()
 DT = 1e-3
@@ -374,10 +375,7 @@ def test_jobs_queued_behind_a_job_of_one_sample_all_finish(tmp_path):
     sample) and a move back, queued at once. Every item is retired (the rt side counted each job's
     end) and the tool is back where it started; before the follower stopped on a one-sample job's
     end, the last item stayed queued for good."""
-    svc = tmp_path / "service.toml"
-    svc.write_text('[loop]\nrate_hz = 1000\nstall_timeout_ms = 5000\nmax_overruns_in_row = 100000\n'
-                   'state_file = ""\n[hal]\nbackend = "sim"\n')
-    sup = Supervisor(service=str(svc), log=lambda m: None)
+    sup = Supervisor(service=str(service_toml(tmp_path)), log=lambda m: None)
     tip, axis = home_pose(sup.machine)
     sup.start(counts_of(K.ik(tip, axis, sup.machine).q, sup.params))
     try:
