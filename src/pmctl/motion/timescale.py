@@ -485,17 +485,23 @@ class PathFollower:
         # ---- advance the path clock to the next tick's target
         f2 = f + sigma * self.k
         adv = int(f2)
-        if adv >= n - 1:                   # the queue ends here (a job end or starvation)
+        # never step over a job's end (at rest) short of the queue's last sample: stop on it, so it is
+        # counted. Row 0 is one only for a job of one sample right after the end passed above.
+        stop = 0 if flags & FLAG_END else -1
+        if stop < 0:
+            for i in range(1, min(adv, n - 2) + 1):
+                if int(src.row(i)[S_FLAGS]) & FLAG_END:
+                    stop = i
+                    break
+        if 0 <= stop < n - 1:
+            adv, f2 = stop, 0.0
+        elif adv >= n - 1:                 # the queue ends here (a job end or starvation)
             adv, f2 = n - 1, 0.0
             if not int(last[S_FLAGS]) & FLAG_END and sigma > 0:
                 self.reason = "sample queue ran dry"
             sc.sigma = sc.dsigma = 0.0
         else:
             f2 -= adv
-            for i in range(1, adv + 1):    # never step over a job's end (at rest): stop on it, so it is counted
-                if int(src.row(i)[S_FLAGS]) & FLAG_END:
-                    adv, f2 = i, 0.0
-                    break
         self.s_total += (adv + f2) - f
         if adv:
             src.advance(adv)

@@ -202,7 +202,7 @@ void fl_next(const fl_const *c, double *st, const fl_src *src, double *tg)
     static const double dflt[6] = {0.0, 0.0, 0.0, 0.0, 0.0, 1.0};
     const int END = c->flag_end;
     const double hold = st[FL_HOLD];
-    int64_t n = src_count(src), adv, i;
+    int64_t n = src_count(src), adv, i, stop;
     const double *r0, *r1, *last;
     double pose[6], nxt[6], ff[6], qt[5], qtt[5];
     double f, f2, goal, cap, sigma, inv;
@@ -275,7 +275,17 @@ void fl_next(const fl_const *c, double *st, const fl_src *src, double *tg)
     /* ---- advance the path clock to the next tick's target */
     f2 = f + sigma * c->k;
     adv = (int64_t)f2;
-    if (adv >= n - 1) {             /* the queue ends here (a job end or starvation) */
+    /* never step over a job's end (at rest) short of the queue's last sample: stop on it, so it is
+       counted. Row 0 is one only for a job of one sample right after the end passed above. */
+    stop = (flags & END) ? 0 : -1;
+    for (i = 1; stop < 0 && i <= adv && i < n - 1; i++) {
+        if (flags_of(c, src_row(src, i)) & END)
+            stop = i;
+    }
+    if (stop >= 0 && stop < n - 1) {
+        adv = stop;
+        f2 = 0.0;
+    } else if (adv >= n - 1) {      /* the queue ends here (a job end or starvation) */
         adv = n - 1;
         f2 = 0.0;
         if (!(flags_of(c, last) & END) && sigma > 0)
@@ -283,13 +293,6 @@ void fl_next(const fl_const *c, double *st, const fl_src *src, double *tg)
         st[FL_SIGMA] = st[FL_DSIGMA] = 0.0;
     } else {
         f2 -= (double)adv;
-        for (i = 1; i <= adv; i++) {   /* never step over a job's end: stop on it, so it is counted */
-            if (flags_of(c, src_row(src, i)) & END) {
-                adv = i;
-                f2 = 0.0;
-                break;
-            }
-        }
     }
     st[FL_S_TOTAL] += ((double)adv + f2) - f;
     if (adv)
