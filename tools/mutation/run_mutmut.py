@@ -149,7 +149,7 @@ GROUPS = {
         (Target("src/pmctl/tools/calibrate/identify.py", ("x_analyse",),
                 {"x_identify": [("n_ax = 0 if axis is None", "sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))"),
                                 ("var = np.einsum(", "res.predicted_axis_urad =")]}),),
-        ("tests/test_calibration.py",), None,
+        ("tests/test_safety_calibration.py", "tests/test_calibration.py"), None,
         "the identification's uncertainties: degrees of freedom, chi-square scaling, the identified "
         "directions (analyse), the predicted accuracy"),
     "twin": Group(
