@@ -159,7 +159,7 @@ GROUPS = {
                                    ("if not glob or max(", "if not glob or max("),
                                    ("if max((v[0] for v in sw.values())", "if max((v[0] for v in sw.values())"),
                                    ("kind, frac, detail = \"broadband\", 0.0, None", "continue")]})),
-        ("tests/test_twin_false_alarms.py",), None,
+        ("tests/test_safety_twin.py", "tests/test_twin_false_alarms.py"), "not clean_recording and not just_below",
         "the acceptance rule (accept: MIN_DSSE, REL_MIN, STRONG, the peak), the SHARE_MIN rule, and the "
         "unexplained block's no-structure rule (an excess without a structure is not reported)"),
 }
