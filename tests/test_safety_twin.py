@@ -25,7 +25,7 @@ import pytest
 from pmctl.core.config import load_machine
 from pmctl.tools.twin import diagnose as D, synth
 from pmctl.tools.twin import unexplained as U
-from pmctl.tools.twin.effects import SensorDrift, SensorOffset
+from pmctl.tools.twin.effects import ForcedVibration, SensorDrift, SensorOffset
 from pmctl.tools.twin.locate import locate
 
 M = load_machine()
@@ -151,6 +151,51 @@ def test_an_offset_that_is_only_part_of_its_channels_structure_is_refused(ctx, o
         assert ev["problems"][0].startswith("it removes only 1")
 
 
+def test_a_threshold_met_exactly_is_not_beaten(ctx):
+    """The rule's comparisons are strict where it says "beats" and "above": a held-out gain of exactly
+    max(MIN_DSSE, penalty) is refused, exactly STRONG x it is not strong, a peak of exactly MIN_PEAK
+    is no peak and a share of exactly REL_MIN is not enough; a drift removing exactly DRIFT_REL_MIN
+    of its channel is not refused for that."""
+    ev, _ = _offset_ev(ctx, 0.5)
+    base = _with(ev, pen=1.0, d_cv=2.0 * D.MIN_DSSE, rel=0.5, big=2.0)
+    assert D.accept(base)
+    assert not D.accept(_with(base, d_cv=D.MIN_DSSE))
+    assert not D.accept(_with(base, pen=50.0, d_cv=50.0))
+    assert not D.accept(_with(base, rel=D.REL_MIN))
+    assert not D.accept(_with(base, big=D.MIN_PEAK))
+    assert not D.accept(_with(base, d_cv=D.STRONG * D.MIN_DSSE, rel=0.01, big=0.5))
+    o = ctx.obs
+    y = np.random.default_rng(2).normal(0.0, 1.0, len(o.y))
+    m = o.mask_of("strain_1")
+    y[m] += 0.8 * (ctx.t[o.row[m]] - ctx.t[o.row[m]].mean())
+    drift = D.evaluate(SensorDrift("strain_1"), ctx, y, D.folds_of(ctx))
+    assert D.accept(_with(drift, rel=D.DRIFT_REL_MIN))
+
+
+def test_an_offset_alone_on_its_channel_is_all_of_its_structure_beyond_chance(ctx):
+    """An offset of 0.1 to 0.2 x noise on strain_1 and nothing else: the flexible description's ~50
+    columns a channel also fit noise, so the offset's raw share of their gain is well under 1 (0.46
+    to 0.75), but beyond chance (each gain less its number of coefficients) it is the whole of it:
+    1 within 0.15, and it passes the SHARE_MIN rule."""
+    for c in (0.1, 0.15, 0.2):
+        ev, y = _offset_ev(ctx, c, seed=8)
+        assert ev is not None and D._passes(ev, ctx, y), ev["problems"]
+        assert ev["share"] < 0.8 and ev["net_share"] == pytest.approx(1.0, abs=0.15), (c, ev["share"], ev["net_share"])
+
+
+def test_a_vibration_the_flexible_description_cannot_follow_has_its_share_capped(ctx):
+    """A 7.3 Hz line of 0.5 x noise on strain_2: the flexible description (slow functions of time and
+    position) takes next to nothing of it, the forced vibration takes it: both shares are the cap,
+    2, and it passes."""
+    o = ctx.obs
+    y = np.random.default_rng(7).normal(0.0, 1.0, len(o.y))
+    m = o.mask_of("strain_2")
+    y[m] += 0.5 * np.sin(2 * np.pi * 7.3 * ctx.t[o.row[m]])
+    ev = D.evaluate(ForcedVibration("strain_2", "channel"), ctx, y, D.folds_of(ctx))
+    assert D.accept(ev) and D._passes(ev, ctx, y), ev["problems"]
+    assert ev["share"] == 2.0 and ev["net_share"] == 2.0
+
+
 # ---------------------------------------------------------------- the unexplained block
 
 def _entries(ctx, y):
@@ -214,3 +259,43 @@ def test_on_few_samples_an_excess_must_also_stand_beyond_the_noise_of_its_chi_sq
         y[m] = wander * math.sqrt(0.8 * ms * n / (wander @ wander)) + white * math.sqrt(0.2 * ms * n / (white @ white))
         assert float(y[m] @ y[m]) - n == pytest.approx(k * chi, rel=1e-9)
         assert _entries(few, y) == ([(["tip_x"], "drift")] if reported else [])
+
+
+def test_an_excess_in_one_stretch_is_reported_there_when_it_has_structure(ctx):
+    """tip_y clean but for 2 s (5 to 7 s of 15) carrying a 3 Hz line of 4 x noise: reported as that
+    line, in the window where it is; the same stretch with white noise of 3.5 x the channel's instead
+    (no structure) is not."""
+    o = ctx.obs
+    m = o.mask_of("tip_y")
+    tt = ctx.t[o.row[m]]
+    s = (tt > 5.0) & (tt < 7.0)
+    y = np.random.default_rng(9).normal(0.0, 1.0, len(o.y))
+    yy = y[m]
+    yy[s] += 4.0 * np.sin(2 * np.pi * 3.0 * tt[s])
+    y[m] = yy
+    u = U.unexplained(ctx, y, locate(ctx, y))
+    assert [(e["channels"], e["signature"]) for e in u] == [(["tip_y"], "spectral line 3.00 Hz")]
+    (a, b), = u[0]["time_windows_s"]
+    assert 5.0 <= a < 5.2 and 6.8 < b <= 7.0 and u[0]["structure_fraction"] > 0.8
+    y = np.random.default_rng(9).normal(0.0, 1.0, len(o.y))
+    yy = y[m]
+    yy[s] *= 3.5
+    y[m] = yy
+    assert _entries(ctx, y) == []
+
+
+def test_bursts_that_hold_a_channels_excess_are_reported_as_intermittent(ctx):
+    """enc_X with three bursts of 0.3 s at 6 x noise (at 3, 8 and 12 s; the channel's excess over the
+    whole run 1.48): reported as intermittent, three bursts, from the windows where it stands above
+    noise."""
+    o = ctx.obs
+    m = o.mask_of("enc_X")
+    tt = ctx.t[o.row[m]]
+    y = np.random.default_rng(10).normal(0.0, 1.0, len(o.y))
+    yy = y[m]
+    for a in (3.0, 8.0, 12.0):
+        yy[(tt > a) & (tt < a + 0.3)] += 6.0
+    y[m] = yy
+    u = U.unexplained(ctx, y, locate(ctx, y))
+    assert [(e["channels"], e["signature"]) for e in u] == [(["enc_X"], "intermittent (3 bursts)")]
+    assert u[0]["excess_over_noise"] == pytest.approx(1.48, abs=0.05)
