@@ -196,6 +196,43 @@ def test_a_vibration_the_flexible_description_cannot_follow_has_its_share_capped
     assert ev["share"] == 2.0 and ev["net_share"] == 2.0
 
 
+@pytest.mark.parametrize("seed,net_share", [(25, 2.0), (7, 2.0), (3, 0.0)])
+def test_on_noise_that_the_flexible_description_fits_less_than_chance_the_share_is_all_or_nothing(ctx, seed, net_share):
+    """strain_1 pure noise, on which the flexible description gains less than its number of
+    coefficients (seeds where it does): there is no structure beyond chance, so an offset fitted
+    there is all of it (net share 2, the cap) when it gains more than its one coefficient (0.05 and
+    1.4 more), and none of it (0) when it gains less (0.84 less)."""
+    from pmctl.tools.twin.unexplained import flexible_gain
+    o = ctx.obs
+    y = np.random.default_rng(seed).normal(0.0, 1.0, len(o.y))
+    fit = SensorOffset("strain_1").fit(ctx, y, np.ones(len(y), bool))
+    aff = np.array([c == "strain_1" for c in o.channels])
+    d_flex, dof = flexible_gain(ctx, y, aff, with_dof=True)
+    m = o.mask_of("strain_1")
+    d_eff = float(y[m] @ y[m] - (y[m] - fit.pred[m]) @ (y[m] - fit.pred[m]))
+    assert d_flex < dof and (0.0 < d_eff - 1.0 < 2.0 if net_share else d_eff < 1.0)
+    ev = {"affected": aff, "fit": fit}
+    share = D._share(ev, ctx, y)
+    assert ev["net_share"] == net_share
+    assert share == pytest.approx(d_eff / d_flex, rel=1e-12) and share < 0.1
+
+
+def test_on_channels_too_short_for_the_flexible_description_an_effect_is_all_the_structure():
+    """An analysis of 50 samples a channel: the flexible description (over 50 coefficients) fits no
+    channel, so it removes nothing, and an offset fitted there is all of the structure: share and
+    net share the cap, 2."""
+    rng = np.random.default_rng(11)
+    case = synth.synth_case(rng, [], machine=M, seed=11, duration_s=15.0, rate_hz=400.0, run="calibration")
+    short = D.build_context(dict(case.columns), M, cap=50)
+    o = short.obs
+    assert int(o.mask_of("strain_1").sum()) == 50
+    y = np.random.default_rng(1).normal(0.0, 1.0, len(o.y))
+    y[o.mask_of("strain_1")] += 1.0
+    fit = SensorOffset("strain_1").fit(short, y, np.ones(len(y), bool))
+    ev = {"affected": np.array([c == "strain_1" for c in o.channels]), "fit": fit}
+    assert D._share(ev, short, y) == 2.0 and ev["net_share"] == 2.0
+
+
 # ---------------------------------------------------------------- the unexplained block
 
 def _entries(ctx, y):
@@ -299,3 +336,4 @@ def test_bursts_that_hold_a_channels_excess_are_reported_as_intermittent(ctx):
     u = U.unexplained(ctx, y, locate(ctx, y))
     assert [(e["channels"], e["signature"]) for e in u] == [(["enc_X"], "intermittent (3 bursts)")]
     assert u[0]["excess_over_noise"] == pytest.approx(1.48, abs=0.05)
+
