@@ -33,11 +33,16 @@ CAP = 3000
 UP, DOWN = 1.0 + 1e-9, 1.0 - 1e-9
 
 
+def _context(cap):
+    """The analysis context of a clean 15-s calibration run at 400 Hz, ``cap`` samples a channel."""
+    case = synth.synth_case(np.random.default_rng(11), [], machine=M, seed=11, duration_s=15.0, rate_hz=400.0,
+                            run="calibration")
+    return D.build_context(dict(case.columns), M, cap=cap)
+
+
 @pytest.fixture(scope="module")
 def ctx():
-    rng = np.random.default_rng(11)
-    case = synth.synth_case(rng, [], machine=M, seed=11, duration_s=15.0, rate_hz=400.0, run="calibration")
-    return D.build_context(dict(case.columns), M, cap=CAP)
+    return _context(CAP)
 
 
 def _offset_ev(ctx, size, channel="strain_1", seed=1):
@@ -220,9 +225,7 @@ def test_on_channels_too_short_for_the_flexible_description_an_effect_is_all_the
     """An analysis of 50 samples a channel: the flexible description (over 50 coefficients) fits no
     channel, so it removes nothing, and an offset fitted there is all of the structure: share and
     net share the cap, 2."""
-    rng = np.random.default_rng(11)
-    case = synth.synth_case(rng, [], machine=M, seed=11, duration_s=15.0, rate_hz=400.0, run="calibration")
-    short = D.build_context(dict(case.columns), M, cap=50)
+    short = _context(50)
     o = short.obs
     assert int(o.mask_of("strain_1").sum()) == 50
     y = np.random.default_rng(1).normal(0.0, 1.0, len(o.y))
@@ -275,9 +278,7 @@ def test_on_few_samples_an_excess_must_also_stand_beyond_the_noise_of_its_chi_sq
     channel's energy, in excess over its noise by more than EXCESS_MIN, is reported (as a drift)
     only when its chi-square excess sum(y^2) - n is beyond CHI_SIGMA = 8 standard deviations of
     noise's, 8 sqrt(2n) = 113: at 1 % under that, not; at 1 % over, yes."""
-    rng = np.random.default_rng(11)
-    case = synth.synth_case(rng, [], machine=M, seed=11, duration_s=15.0, rate_hz=400.0, run="calibration")
-    few = D.build_context(dict(case.columns), M, cap=100)
+    few = _context(100)
     o = few.obs
     m = o.mask_of("tip_x")
     n = int(m.sum())
