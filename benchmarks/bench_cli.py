@@ -4,7 +4,7 @@ max over repeated runs, with the load average), and what building the parsers im
     .venv/bin/python benchmarks/bench_cli.py [--repeat 20]
 
 Not a test: nothing here asserts a time. The goal is `pmctl --help` well under 1 s; the test suite
-checks the cause instead (tests/test_cli_help.py: building the parsers imports no numpy).
+checks the cause instead (tests/interfaces/test_cli_help.py: building the parsers imports no numpy).
 """
 
 import argparse

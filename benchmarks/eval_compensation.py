@@ -3,7 +3,7 @@ with a load-side play and pitch error -> `pmctl twin diagnose --write-compensati
 config names the table -> `pmctl run` again -> diagnose again. Prints the tool-tip error of both
 runs (the plant's true tip against the programmed path), the findings and the table's notes.
 
-The plant is the test plant of tests/test_compensation.py (the loopback sim plus a play operator
+The plant is the test plant of tests/core/test_compensation.py (the loopback sim plus a play operator
 and a sinusoidal pitch error on the motor position, added to its truth), put in place of the
 ``sim`` backend for this process. Takes a few minutes (two diagnoses).
 

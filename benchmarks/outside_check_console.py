@@ -98,7 +98,7 @@ def main() -> int:
         s.close()
         stop_serve(p)
     print("outside check (console part):", "PASS" if ok else "FAIL",
-          "(CNCjs streaming the spiral with a hold: tests/test_sender_cncjs.py)")
+          "(CNCjs streaming the spiral with a hold: tests/integration/test_sender_cncjs.py)")
     return 0 if ok else 1
 
 

@@ -1,5 +1,5 @@
 """The corpus of real part programs (tests/corpus/) and LinuxCNC's interpreter as its oracle, shared by
-tests/test_corpus.py (cheap checks), benchmarks/corpus_rs274.py (writes tests/corpus/rs274.json) and
+tests/integration/test_corpus.py (cheap checks), benchmarks/corpus_rs274.py (writes tests/corpus/rs274.json) and
 benchmarks/corpus_table.py (the side-by-side measure with ``pmctl check``).
 
 A corpus file is stored as found (``NAME.EXT``) or, above about 200 kB, gzipped (``NAME.EXT.gz``, the

@@ -1,6 +1,6 @@
 """The calibration's reported uncertainties pinned where a small error would hide (the mutation group
 ``calibration`` of tools/mutation/run_mutmut.py; the spread of repeated identifications is checked in
-tests/test_calibration.py):
+tests/tools/test_calibration.py):
 
 - the predicted accuracy at the measured poses is the hat matrix's trace: a least-squares fit of
   ``rank`` combinations to m whitened measurements takes exactly ``rank`` of their m noise

@@ -1,6 +1,6 @@
 """The twin's false-alarm rules pinned at their thresholds, quickly (the mutation group ``twin`` of
 tools/mutation/run_mutmut.py; whole clean and marginal recordings are diagnosed in
-tests/test_twin_false_alarms.py):
+tests/tools/test_twin_false_alarms.py):
 
 - the acceptance rule (pmctl.tools.twin.diagnose.accept) on real evaluations of a sensor offset:
   the held-out gain against max(MIN_DSSE, the BIC penalty), REL_MIN of the channels' energy, the

@@ -53,10 +53,10 @@ FOLLOW = "src/pmctl/motion/follow/follow.c"
 BRIDGE = "firmware_bridge/core.c"
 PROTO = "firmware_bridge/proto.c"
 
-SAFETY_NC = "tests/test_safety_nc.py"
-SAFETY_HOLD = "tests/test_safety_hold.py"
-SAFETY_LIMITS = "tests/test_safety_limits.py"
-TWIN_FA = "tests/test_twin_false_alarms.py"
+SAFETY_NC = "tests/motion/test_safety_nc.py"
+SAFETY_HOLD = "tests/task/test_safety_hold.py"
+SAFETY_LIMITS = "tests/task/test_safety_limits.py"
+TWIN_FA = "tests/tools/test_twin_false_alarms.py"
 
 MUTANTS = [
     # ---- the dangerous ones (1-5)
@@ -83,7 +83,7 @@ MUTANTS = [
     Mutant("H4", "src/pmctl/tools/calibrate/identify.py",
            "@ Vr * chi2 if chi2 > 1", "@ Vr * math.sqrt(chi2) if chi2 > 1",
            "calibration covariance scaled by sqrt(chi2) instead of chi2 (uncertainties too small)",
-           ("tests/test_calibration.py::-k uncertainties",)),
+           ("tests/tools/test_calibration.py::-k uncertainties",)),
     Mutant("H5a", "src/pmctl/tools/twin/calibration.py",
            "MIN_DSSE = 30.0", "MIN_DSSE = 15.0",
            "the twin's acceptance threshold halved", (TWIN_FA,)),
@@ -108,39 +108,39 @@ MUTANTS = [
     Mutant("H7", NCORE,
            "m = trunc(a >= 0.0 ? a / 1.0 + NC_VF_TIE : a / 1.0 - NC_VF_TIE);", "m = trunc(a / 1.0);",
            "the half-pulse tie broken by rounding again (C core)",
-           ("tests/test_ncore.py::-k half_a_pulse or tick_for_tick",)),
+           ("tests/motion/test_ncore.py::-k half_a_pulse or tick_for_tick",)),
     # ---- more of the C core
     Mutant("C1", NCORE,
            "        if (lim < c->min_ferror)\n            lim = c->min_ferror;\n", "",
-           "no MIN_FERROR floor: at rest any error trips (C core)", (SAFETY_NC, "tests/test_ncore.py")),
+           "no MIN_FERROR floor: at rest any error trips (C core)", (SAFETY_NC, "tests/motion/test_ncore.py")),
     Mutant("C2", NCORE,
            "        if (!isfinite(enc[i])) {", "        if (0) {",
            "a dead encoder (NaN) no longer halts (C core)", (SAFETY_NC,)),
     Mutant("C3", NCORE,
            "xq > c->upper[i] ||", "0 ||",
            "a joint already beyond its upper limit is not stopped (C core)",
-           (SAFETY_NC, "tests/test_ncore.py::-k soft_limit")),
+           (SAFETY_NC, "tests/motion/test_ncore.py::-k soft_limit")),
     Mutant("C4", NCORE,
            "if (perr > c->max_path_error) {", "if (perr > 2.0 * c->max_path_error) {",
            "path error stop at twice its limit (C core)", (SAFETY_NC,)),
     Mutant("C5", NCORE,
            "out[i] = m > 1.0 ? prev[i] + dq[i] / m : des[i];", "out[i] = des[i];",
-           "no acceleration limit on the joint rates (C core)", (SAFETY_NC, "tests/test_ncore.py")),
+           "no acceleration limit on the joint rates (C core)", (SAFETY_NC, "tests/motion/test_ncore.py")),
     Mutant("C6", NCORE,
            "if (m > c->max_pulses)\n                m = c->max_pulses;", "if (0)\n                m = c->max_pulses;",
-           "more pulses a tick than the converter may send (C core)", ("tests/test_ncore.py",)),
+           "more pulses a tick than the converter may send (C core)", ("tests/motion/test_ncore.py",)),
     Mutant("C7", NCORE,
            "if (c->rest_band[i] > 0.0 && fabs(qd_des[i]) <= c->rest_band[i]) {",
            "if (c->rest_band[i] > 0.0 && fabs(qd_des[i]) < 0.5 * c->rest_band[i]) {",
-           "the rest deadband halved (limit cycle at rest; C core)", ("tests/test_ncore.py::-k rest or half_a_pulse",)),
+           "the rest deadband halved (limit cycle at rest; C core)", ("tests/motion/test_ncore.py::-k rest or half_a_pulse",)),
     Mutant("F1", FOLLOW,
            "if (goal > cap)\n        goal = cap;", "if (0)\n        goal = cap;",
-           "the path's speed caps ignored (compiled follower)", ("tests/test_follow.py", "tests/test_timescale.py")),
+           "the path's speed caps ignored (compiled follower)", ("tests/motion/test_follow.py", "tests/motion/test_timescale.py")),
     Mutant("F2", FOLLOW,
            "    if (ds > A)\n        ds = A;\n    else if (ds < -A)\n        ds = -A;\n    if (e >= 0.0",
            "    if (e >= 0.0",
            "sigma's rate limit not applied after the joint interval (compiled follower)",
-           ("tests/test_follow.py", SAFETY_HOLD)),
+           ("tests/motion/test_follow.py", SAFETY_HOLD)),
     # ---- the step/dir bridge's portable core (a scratch copy only: firmware_bridge/ is the chip branch's)
     Mutant("B1", BRIDGE,
            "        } else {                             /* behind: a duplicate, already executed */\n"
@@ -148,22 +148,22 @@ MUTANTS = [
            "        } else {                             /* behind: a duplicate, already executed */\n"
            "            send_ack(c, SB_ACK_DUP, SB_E_OK, f->type);\n            return;\n        }",
            "a frame ahead of the sequence (frames lost) is executed instead of NAKed",
-           ("tests/test_stepdir.py::-k noise or corrupted or sequence",)),
+           ("tests/hal/test_stepdir.py::-k noise or corrupted or sequence",)),
     Mutant("B2", BRIDGE,
            "        if (wd <= now) {", "        if (0) {",
-           "the bridge's command watchdog never trips", ("tests/test_stepdir.py::-k watchdog or killed or lost",)),
+           "the bridge's command watchdog never trips", ("tests/hal/test_stepdir.py::-k watchdog or killed or lost",)),
     Mutant("B3", BRIDGE,
            "if ((uint32_t)(p < 0 ? -p : p) > sb_max_pulses(&c->cfg, 0))",
            "if ((uint32_t)(p < 0 ? -p : p) > 2u * sb_max_pulses(&c->cfg, 0))",
-           "a tick with more pulses than it holds is accepted", ("tests/test_safety_bridge.py",)),
+           "a tick with more pulses than it holds is accepted", ("tests/hal/test_safety_bridge.py",)),
     Mutant("B4", BRIDGE,
            "    if (c->inputs & SB_IN_ESTOP)", "    if (0)",
-           "the E-stop input ignored by the bridge", ("tests/test_stepdir.py::-k estop",)),
+           "the E-stop input ignored by the bridge", ("tests/hal/test_stepdir.py::-k estop",)),
     Mutant("B5", PROTO,
            "crc = (uint16_t)((crc << 8) ^ crc_table[((crc >> 8) ^ p[i]) & 0xffu]);",
            "crc = (uint16_t)((crc << 8) ^ crc_table[((crc >> 8) ^ p[i]) & 0x7fu]);",
            "the bridge's CRC computed wrong (frames refused or corrupted ones accepted)",
-           ("tests/test_bridge_protocol.py", "tests/test_stepdir.py::-k noise")),
+           ("tests/hal/test_bridge_protocol.py", "tests/hal/test_stepdir.py::-k noise")),
     # ---- the console's realtime bytes and the rt process (only real processes exercise them)
     Mutant("R1", "src/pmctl/interfaces/console/grbl.py",
            '                if state in ("Run", "Idle"):  # grbl 1.1: a hold while idle is a hold too (Hold:0)\n'
@@ -180,18 +180,18 @@ MUTANTS = [
 
 # tests of a file at a revision that does not have a mutant's own tests yet (``--ref``, the "before")
 FALLBACK = {
-    NCORE: ("tests/test_ncore.py", "tests/test_nc.py"),
-    "src/pmctl/motion/nc.py": ("tests/test_ncore.py", "tests/test_nc.py"),
-    FOLLOW: ("tests/test_follow.py", "tests/test_timescale.py"),
-    "src/pmctl/motion/timescale.py": ("tests/test_follow.py", "tests/test_timescale.py"),
-    "src/pmctl/tools/calibrate/identify.py": ("tests/test_calibration.py",),
-    "src/pmctl/tools/twin/diagnose.py": ("tests/test_diagnose.py", "tests/test_twin_honesty.py"),
-    "src/pmctl/tools/twin/calibration.py": ("tests/test_diagnose.py", "tests/test_twin_honesty.py"),
-    "src/pmctl/tools/twin/unexplained.py": ("tests/test_diagnose.py", "tests/test_twin_honesty.py"),
-    "src/pmctl/task/planner.py": ("tests/test_planner.py",),
-    "src/pmctl/core/kinematics.py": ("tests/test_kinematics.py",),
-    "src/pmctl/interfaces/console/grbl.py": ("tests/test_console_sync.py",),
-    "src/pmctl/motion/rtproc.py": ("tests/test_run_client.py::-k sigterm", "tests/test_first_hour.py::-k sigterm"),
+    NCORE: ("tests/motion/test_ncore.py", "tests/motion/test_nc.py"),
+    "src/pmctl/motion/nc.py": ("tests/motion/test_ncore.py", "tests/motion/test_nc.py"),
+    FOLLOW: ("tests/motion/test_follow.py", "tests/motion/test_timescale.py"),
+    "src/pmctl/motion/timescale.py": ("tests/motion/test_follow.py", "tests/motion/test_timescale.py"),
+    "src/pmctl/tools/calibrate/identify.py": ("tests/tools/test_calibration.py",),
+    "src/pmctl/tools/twin/diagnose.py": ("tests/tools/test_diagnose.py", "tests/tools/test_twin_honesty.py"),
+    "src/pmctl/tools/twin/calibration.py": ("tests/tools/test_diagnose.py", "tests/tools/test_twin_honesty.py"),
+    "src/pmctl/tools/twin/unexplained.py": ("tests/tools/test_diagnose.py", "tests/tools/test_twin_honesty.py"),
+    "src/pmctl/task/planner.py": ("tests/task/test_planner.py",),
+    "src/pmctl/core/kinematics.py": ("tests/core/test_kinematics.py",),
+    "src/pmctl/interfaces/console/grbl.py": ("tests/interfaces/test_console_sync.py",),
+    "src/pmctl/motion/rtproc.py": ("tests/interfaces/test_run_client.py::-k sigterm", "tests/integration/test_first_hour.py::-k sigterm"),
 }
 
 

@@ -87,26 +87,26 @@ GROUPS = {
                                ("if perr > params.max_path_error_mm:", "mode, reason = STOPPING, tilt_text("),
                                ("if mode == STOPPING:", "qdot = _limit_rates_l(_ZERO5, prev, L)"),
                                ("if mode == STOPPING and not any(qdot):", "acc = np.zeros(5)")]}),),
-        ("tests/test_safety_nc.py", "tests/test_nc.py", "tests/test_ncore.py"),
+        ("tests/motion/test_safety_nc.py", "tests/motion/test_nc.py", "tests/motion/test_ncore.py"),
         "not tick_for_tick and not same_pulses_with and not same_pulses_at_rest and not long_run "
         "and not bit_for_bit and not fk_equals_model_fk",
         "the NC's supervision: soft limits with the braking distance, following error, dead sensors, "
         "rate limits, the chain-offset slew; in nc_step the lines that apply them (halted/done, the "
         "faults, the path-error and tilt stops, braking to rest)"),
     "vf": Group((Target("src/pmctl/core/vf.py", ("x_vf_step", "x_vf_tick")),),
-                ("tests/test_vf.py", "tests/test_nc.py"), None,
+                ("tests/core/test_vf.py", "tests/motion/test_nc.py"), None,
                 "the V-F converters (pulses, residue, saturation, the tie margin)"),
     "timescale": Group(
         (Target(TS, ("xǁTimeScalerǁstep", "xǁTimeScalerǁset_feed_override", "xǁTimeScalerǁset_rapid_override",
                      "xǁPathFollowerǁnext_target", "x_backward_pass", "x_sample_caps", "x_scaling_limits")),),
-        ("tests/test_safety_follower.py", "tests/test_follow.py", "tests/test_safety_hold.py", "tests/test_timescale.py"),
+        ("tests/test_safety_follower.py", "tests/motion/test_follow.py", "tests/task/test_safety_hold.py", "tests/motion/test_timescale.py"),
         "not sigterm and not console and not memory",
         "sigma's rate and jerk limits, feed hold and overrides, caps, starvation, the backward pass"),
     "probe": Group(
         (Target(PROBE, ("xǁProbeMonitorǁtick", "xǁProbeMonitorǁ_contact", "xǁProbeMonitorǁ_arm",
                         "xǁProbeMonitorǁbound_mm", "xǁProbeMonitorǁ_effective_decel", "xǁProbeMonitorǁcancel",
                         "x_mark_probe_rows")),),
-        ("tests/test_safety_probe.py", "tests/test_probe.py"), "not recorded_load and not serve_record and not pmctl_run",
+        ("tests/motion/test_safety_probe.py", "tests/motion/test_probe.py"), "not recorded_load and not serve_record and not pmctl_run",
         "stop on contact: tare, threshold and debounce, the stop's deceleration, the overtravel bound, "
         "the probing rows' feed cap"),
     "loop": Group(
@@ -119,37 +119,37 @@ GROUPS = {
                                        ("except Exception as e:", "st = _halt(st, reason)")],
                  "xǁControlLoopǁset_chain_offsets": [("for chain, mm in items:", "self.chain_offset = off")]},
                 ("comp[w] = ",)),),
-        ("tests/test_safety_loop.py", "tests/test_loop.py", "tests/test_stall_hold.py", "tests/test_safety_hold.py"),
+        ("tests/motion/test_safety_loop.py", "tests/motion/test_loop.py", "tests/hal/test_stall_hold.py", "tests/task/test_safety_hold.py"),
         "not bundled and not end_to_end and not k_theta and not tracks and not tracking and not restart_from "
         "and not survive_a_crash and not sigterm and not console",
         "the loop's stop rules: backend faults halt (counters follow the device), a stop request holds on "
         "the path then halts at rest, the job's end after settling, quit, stalls and missed deadlines stop, "
         "an unexpected error halts with the pending pulses uncounted; chain-offset inputs bounded"),
     "bridge": Group((Target("src/pmctl/hal/bridge_protocol.py", ("x_*", "xǁParserǁ*")),),
-                    ("tests/test_bridge_protocol.py", "tests/test_safety_protocol.py", "tests/test_safety_bridge.py"),
+                    ("tests/hal/test_bridge_protocol.py", "tests/hal/test_safety_protocol.py", "tests/hal/test_safety_bridge.py"),
                     None, "framing, CRC, the parser, the codecs, the per-tick pulse limit"),
     "console": Group(
         (Target(GRBL, ("xǁGrblConsoleǁfeed", "xǁGrblConsoleǁ_override", "xǁGrblConsoleǁjog_cancel",
                        "xǁGrblConsoleǁstate"),
                 {"xǁGrblConsoleǁsoft_reset": [("self._reset_gen += 1", "self.sup.spindle_override(1.0)")]}),),
-        ("tests/test_safety_console.py",), None,
+        ("tests/interfaces/test_safety_console.py",), None,
         "the realtime bytes: status, hold (Run/Idle hold, Jog cancels), resume, soft reset (drops "
         "the lines and the queue, overrides back to 100 %), jog cancel, the overrides' steps and "
         "bounds, line assembly and the overlong line"),
     "planner": Group(
         (Target("src/pmctl/task/planner.py", ("x__violations", "x__check_samples", "x__check_reachable",
                                               "x__reach_problems")),),
-        ("tests/test_safety_planner.py", "tests/test_safety_limits.py"), None,
+        ("tests/test_safety_planner.py", "tests/task/test_safety_limits.py"), None,
         "the last check on the samples (joint and tip speed and acceleration), reachability of the "
         "programmed poses and of the path between them"),
     "swing": Group((Target("src/pmctl/core/kinematics.py", ("x_limit_violations",)),),
-                   ("tests/test_safety_workspace.py", "tests/test_safety_limits.py", "tests/test_kinematics.py"), None,
+                   ("tests/core/test_safety_workspace.py", "tests/task/test_safety_limits.py", "tests/core/test_kinematics.py"), None,
                    "the workspace limits (tilt, chains, table, spherical-joint swing, platform above the base)"),
     "calibration": Group(
         (Target("src/pmctl/tools/calibrate/identify.py", ("x_analyse",),
                 {"x_identify": [("n_ax = 0 if axis is None", "sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))"),
                                 ("var = np.einsum(", "res.predicted_axis_urad =")]}),),
-        ("tests/test_safety_calibration.py", "tests/test_calibration.py"), None,
+        ("tests/test_safety_calibration.py", "tests/tools/test_calibration.py"), None,
         "the identification's uncertainties: degrees of freedom, chi-square scaling, the identified "
         "directions (analyse), the predicted accuracy"),
     "twin": Group(
@@ -159,16 +159,16 @@ GROUPS = {
                                    ("if not glob or max(", "if not glob or max("),
                                    ("if max((v[0] for v in sw.values())", "if max((v[0] for v in sw.values())"),
                                    ("kind, frac, detail = \"broadband\", 0.0, None", "continue")]})),
-        ("tests/test_safety_twin.py", "tests/test_twin_false_alarms.py"), "not clean_recording and not just_below",
+        ("tests/test_safety_twin.py", "tests/tools/test_twin_false_alarms.py"), "not clean_recording and not just_below",
         "the acceptance rule (accept: MIN_DSSE, REL_MIN, STRONG, the peak), the SHARE_MIN rule, and the "
         "unexplained block's no-structure rule (an excess without a structure is not reported)"),
 }
 
 # a revision without any of a group's test files (``--ref`` before they were written): the tests it had
 FALLBACK = {
-    "planner": (("tests/test_planner.py",), None),
-    "twin": (("tests/test_diagnose.py",), "clean_recording or concealed_effect"),
-    "console": (("tests/test_console.py",), None),
+    "planner": (("tests/task/test_planner.py",), None),
+    "twin": (("tests/tools/test_diagnose.py",), "clean_recording or concealed_effect"),
+    "console": (("tests/interfaces/test_console.py",), None),
 }
 
 KILLED = {"killed", "timeout", "segfault", "caught by type check"}

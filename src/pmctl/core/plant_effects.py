@@ -5,7 +5,7 @@ concealed-effect recordings (:mod:`pmctl.tools.twin.synth`, whole runs at once) 
 models (:mod:`pmctl.tools.twin.effects`) share. Every effect with memory has a *batch* function
 (arrays over time, vectorised where the physics allows) and a *per-tick* class (its state, one
 value per axis: ``step`` takes the new input and returns the new output); both give the same
-numbers (tests/test_plant_effects.py checks them against each other on random inputs). Memoryless
+numbers (tests/core/test_plant_effects.py checks them against each other on random inputs). Memoryless
 effects are one function that takes scalars, per-axis vectors or whole arrays alike.
 
 Positions in mm, times in s. ``s`` is the screw (motor-side) position of an axis.

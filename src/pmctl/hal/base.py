@@ -83,6 +83,16 @@ def switch_positions(value, where: str, key: str) -> tuple:
     return tuple(float(x) for x in value)
 
 
+def trim_polled(samples: list, tick: int):
+    """Drop the tick-stamped samples of a polled device (``[(tick, ...), ...]``, in tick order) up to
+    ``tick`` but the last of them (it holds on until the next): memory does not grow with the
+    session. Appends by the polling thread go on at the end (one list operation each)."""
+    i = 0
+    while i + 1 < len(samples) and samples[i + 1][0] <= tick:
+        i += 1
+    if i:
+        del samples[:i]
+
 @dataclass
 class Status:
     ok: bool = True

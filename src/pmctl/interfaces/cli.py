@@ -2,7 +2,7 @@
 ``add_parser(subparsers)`` registering it and setting ``func``; errors become one line on stderr.
 
 Registering must stay light: no module imported while building the parser may import numpy,
-scipy or matplotlib at module level (``tests/test_cli_help.py`` checks it); heavy work is imported
+scipy or matplotlib at module level (``tests/interfaces/test_cli_help.py`` checks it); heavy work is imported
 inside ``func`` or through :func:`lazy`.
 
 Exit status (``main``): 0 done; 1 an error pmctl reports (bad input, config...); 2 usage; a

@@ -59,7 +59,7 @@ The hot path (one pose per tick) has its own small single-pose kinematics
 
 This file is the readable reference. The loop runs, by default, its C99 twin
 (:mod:`pmctl.motion.ncore`, ``nc.implementation`` in the service config; ``ncore.make_nc`` picks
-one), which does the same arithmetic in the same order; tests/test_ncore.py runs both on the same
+one), which does the same arithmetic in the same order; tests/motion/test_ncore.py runs both on the same
 inputs.
 """
 

@@ -22,7 +22,7 @@ Every target is a point of the planned path: a hold stops ON the path, never by 
 
 The per-tick part exists twice: :class:`PathFollower` (with :class:`TimeScaler`) is the readable
 reference, :class:`CompiledFollower` the same arithmetic in C99 (``follow/follow.c``, built at
-install as pmctl.motion._follow), equal to it tick for tick (tests/test_follow.py).
+install as pmctl.motion._follow), equal to it tick for tick (tests/motion/test_follow.py).
 :func:`make_follower` picks one by ``nc.implementation`` ("compiled", the default, or "python").
 
 Sample rows (``WIDTH`` floats): tip (3), axis (3), tip_tau (3), axis_tau (3), q_tau (5),
@@ -562,7 +562,7 @@ class CompiledScaler(TimeScaler):
 
 class CompiledFollower:
     """:class:`PathFollower` with its tick in C (pmctl.motion._follow: follow.c), the same
-    attributes, methods and results, tick for tick (tests/test_follow.py). ``next_target`` is the
+    attributes, methods and results, tick for tick (tests/motion/test_follow.py). ``next_target`` is the
     compiled call itself. The source is a Ring or an ArraySource: the C side reads their counters
     (``_ctr``) and rows (``data``) directly. Rows may be wider than WIDTH; the columns are this
     module's S_*."""

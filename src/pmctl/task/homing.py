@@ -17,12 +17,16 @@ the joint position of each edge). Per axis, as grbl and LinuxCNC do it:
 The moves are joint paths (q0 + e_i s(t), a trapezoidal s) streamed as pose samples (their FK) into
 the one path the machine moves on; the NC's IK of those poses is the joint path. :class:`Sequence`
 holds the logic against an abstract mover (so it can be checked without the rt side);
-:class:`RtMover` moves the machine through the supervisor's channel.
+:class:`RtMover` moves the machine through the supervisor's channel; :class:`Homing` is the
+supervisor's homing part: ``$H`` (``Supervisor.home``) runs its cycle, a soft reset or the session's
+end aborts it (ALARM 6), a fault or a dead rt process forgets that the machine was homed (the
+supervisor's events ``reset``, ``shutdown``, ``position_lost``).
 """
 
 from __future__ import annotations
 
 import math
+import threading
 import time
 
 import numpy as np
@@ -32,6 +36,7 @@ from pmctl.core.errors import MotionRefused, PmctlError
 from pmctl.hal.base import AXES
 from pmctl.core.alarms import ALARM_HOMING_APPROACH, ALARM_HOMING_PULLOFF, ALARM_HOMING_RESET
 from pmctl.motion import channel as C
+from pmctl.motion.nc import RUN
 from pmctl.motion.timescale import iter_job_rows, scaling_limits
 from pmctl.motion.trajectory import Trajectory
 
@@ -209,3 +214,62 @@ class RtMover:
 
 class _Latched(Exception):
     pass
+
+
+class Homing:
+    """The homing part of a :class:`pmctl.task.supervisor.Supervisor` (``sup``): whether a cycle is
+    under way (``active``: the machine state ``Home``, motion refused) and whether the machine is
+    homed (``homed``: the journal keeps it)."""
+
+    def __init__(self, sup):
+        self.sup = sup
+        self.active = False
+        self.homed = False
+        self.abort = threading.Event()     # a reset during homing aborts the cycle (ALARM 6)
+        sup.events.register("reset", self._reset)
+        sup.events.register("shutdown", self.abort.set)
+        sup.events.register("position_lost", self._lost)
+
+    def _reset(self):
+        if self.active:
+            self.abort.set()
+
+    def _lost(self):
+        self.homed = False                 # following error / lost backend / dead rt side: not trusted
+
+    def run(self):
+        """The cycle with the [homing] settings; blocks until it ends. Returns (True, message) when
+        homed (the alarm is cleared), (False, reason) when it failed (an alarm says why);
+        MotionRefused when it cannot start (busy, no switches)."""
+        sup = self.sup
+        if self.active:
+            raise MotionRefused("homing is already under way", 8)
+        if not (sup.alarm or sup.rt_dead) and sup.busy():
+            raise MotionRefused("$H only when idle: motion is queued or under way", 8)
+        if sup.rt_dead or sup.status().mode != RUN:
+            sup.unlock()                  # restart / re-arm the rt side first (refused while an E-stop holds)
+        if sup.status().home_in < 0:
+            raise MotionRefused(f"backend {sup.backend!r} reports no home switches", 5)
+        self.abort.clear()
+        sup._drop_queue()
+        sup.alarm, sup.alarm_msg = 0, ""
+        self.active = True
+        sup._emit("homing", {})
+        try:
+            shifts = Sequence(sup.svc.homing, sup.machine.resolution.pulses_per_mm).run(RtMover(sup, self.abort))
+        except (HomingFailed, MotionRefused, PmctlError) as e:
+            self.active = False
+            code = getattr(e, "code", 9) if isinstance(e, HomingFailed) else 9
+            if sup.ch is not None and not sup.rt_dead:
+                sup._stop_queue()
+            if not sup.alarm:
+                sup.raise_alarm(code, f"homing failed: {e}")
+            self.homed = False
+            return False, str(e)
+        finally:
+            self.active = False
+        self.homed = True
+        ppm = sup.machine.resolution.pulses_per_mm
+        msg = "homed; counter corrections " + ", ".join(f"{AXES[i]} {d / ppm[i]:+.4f} mm" for i, d in shifts.items())
+        sup._emit("homed", {"shifts": {AXES[i]: int(d) for i, d in shifts.items()}, "msg": msg})
+        return True, msg

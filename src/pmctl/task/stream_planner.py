@@ -122,7 +122,7 @@ class StreamPlanner:
         once the run waiting is ``run_cut_mm`` long, the supervisor when the console's queue is full
         of such blocks and nothing settles without them. The path then has a knot at that block (a
         programmed point, within the merge tolerance of ``plan``'s line), where the samples differ
-        from ``plan``'s by a little more than rounding (tests/test_stream_planner.py states how much)."""
+        from ``plan``'s by a little more than rounding (tests/task/test_stream_planner.py states how much)."""
         self._build(final=True)
 
     # ------------------------------------------------------------ samples out

@@ -9,11 +9,9 @@ It creates the channel (shared memory), starts the rt process and then, in its o
   raises an alarm, saves the last counters it reported (not trusted: the drives stopped on their
   own watchdog) and refuses motion until an unlock restarts it.
 
-Probing (G38.2/G38.3) is planned in pieces (pmctl.motion.probe.split_at_probes): the motion before a
-probe, the probing move alone (its samples flagged, its segment announced in the channel's probe
-table), then -- once the rt side reports the probe ended -- the rest of the item from where the
-probe stopped. The results land in ``Item.probe_results``; a G38.2 without contact raises ALARM 5
-and drops the queue (grbl's probe fail).
+Probing (G38.2/G38.3) is planned in pieces around the probes (pmctl.task.probing); the results land
+in ``Item.probe_results``; a G38.2 without contact raises ALARM 5 and drops the queue (grbl's probe
+fail).
 
 - acts on what happens where the path gets to it, in program order, as grbl's planner sync does:
   the EVENT moves of a job (pmctl.core.job: spindle, coolant, tool change, pause, outputs, messages),
@@ -24,12 +22,13 @@ and drops the queue (grbl's probe fail).
   the events (a spindle change waits until at speed) and releases the hold. A pause (M0, M1 with the
   optional stop on, M6 tool change) stays held until cycle start (``resume``). A job's first speed is
   such a point at its first sample. The state stays ``Run`` while the path waits for an event.
-- runs the devices that are no part of the tick: the spindle VFD (``[spindle]``) and the strain DAQ
-  (``[daq]``, polled for the whole session, serving a simulated DAQ the plant's strain from the
-  drained records); a fault or lost link of either is a controlled stop on the path with the reason
-  (ALARM 3).
+- sends the session's events (pmctl.task.events: an item done, the queue dropped, a stop, a reset,
+  the records drained, ...) to its parts, which act on them: the spindle VFD (``[spindle]``,
+  pmctl.task.spindle), the strain DAQ (``[daq]``, pmctl.task.daq), homing (pmctl.task.homing); a
+  fault or lost link of a device is a controlled stop on the path with the reason (ALARM 3,
+  ``controlled_stop``).
 
-``pmctl run`` is a one-shot client of this class (start, submit one job, wait, shutdown);
+``pmctl run`` is a one-shot client of this class (start, submit one job, wait for its events, shutdown);
 ``offline=True`` (its --no-realtime) runs the rt side's ticks back to back, waiting for samples.
 
 The machine state (grbl's: Idle, Run, Hold:0/1, Jog, Home, Alarm, Check) is derived here from
@@ -50,30 +49,28 @@ import threading
 import time
 import traceback
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from pmctl.core import kinematics as K
-from pmctl.core.alarms import ALARM_ABORT, ALARM_ESTOP, ALARM_MOTOR_FAULT, ALARM_PROBE_FAIL_CONTACT, ALARM_SOFT_LIMIT
+from pmctl.core.alarms import ALARM_ABORT, ALARM_ESTOP, ALARM_MOTOR_FAULT, ALARM_SOFT_LIMIT
 from pmctl.core.errors import MotionRefused, PmctlError
 from pmctl.core.job import DWELL, EVENT, RAPID
-from pmctl.core.statics import static_strain
-from pmctl.hal import HalTimeout
-from pmctl.hal.modbus_daq import DaqSession
-from pmctl.hal.modbus_vfd import REST_STEP_MM, SpindleSession, job_speed
 from pmctl.motion import channel as C
 from pmctl.motion.nc import RUN
-from pmctl.motion.probe import check_probe_feeds, mark_probe_rows, probe_segments, split_at_probes
-from pmctl.motion.recorder import R_STRAIN, R_TICK
+from pmctl.motion.recorder import R_TICK
 from pmctl.motion.settings import resolve
-from pmctl.motion.status import RtStatus, read_status
+from pmctl.motion.status import F_FAULT, RtStatus, read_status
 from pmctl.motion.timescale import (HELD, HOLDING, MOVING, STARVED, S_LINE, RowStream, full_speed_queue,
                                     iter_stream_rows, shape_trajectory)
-from pmctl.task.homing import AXES, HomingFailed, RtMover, Sequence
+from pmctl.task.daq import Daq
+from pmctl.task.events import EventHub
+from pmctl.task.homing import Homing
 from pmctl.task.interp import moves_job
 from pmctl.task.jobcheck import machine_for_planning
 from pmctl.task.planner import PlannerLimits, plan, plan_stream, validate
+from pmctl.task.probing import Probing
+from pmctl.task.spindle import Spindle, has_spindle_event
 from pmctl.task.stream_planner import StreamPlanner
 
 # the open stream of console blocks (Supervisor.stream, _stream_rows)
@@ -146,9 +143,6 @@ class Supervisor:
         self.alarm = 0
         self.alarm_msg = ""
         self.check_mode = False
-        self.homing = False
-        self.homing_abort = threading.Event()     # a reset during homing aborts the cycle (ALARM 6)
-        self.homed = False
         self.rt_dead = False
         self._quitting = False
         self.items: collections.deque[Item] = collections.deque()   # submitted, not finished
@@ -160,7 +154,8 @@ class Supervisor:
         self._stop = threading.Event()
         self._threads = []
         self.record_sink = None           # callable(rows) for drained records
-        self.listeners = []               # callables(event: str, detail: dict)
+        self.events = EventHub()          # the session's events (pmctl.task.events): the parts act on them
+        self.listeners = self.events.listeners     # callables(event: str, detail: dict): the outside's
         self._last_status = None
         self._fault_seen = 0.0
         self.started_at = time.time()
@@ -169,16 +164,11 @@ class Supervisor:
         self.plan_feed_override = 1.0     # the planner's feed factor (pmctl run --feed-override)
         self.final_status = None          # the rt side's last status block, kept at shutdown
         self.rt_result = None             # what the rt side reported as it exited (Channel.result)
-        # devices out of the tick (spindle VFD, strain DAQ): opened by open_devices()
-        self.spindle = None               # pmctl.hal.modbus_vfd.SpindleSession
-        self.daq = None                   # pmctl.hal.modbus_daq.DaqSession
-        self._devices_open = False
         self._stream_wake = threading.Event()     # a block appended to the open stream, or it closed
         self._hold_points = collections.deque()    # (ring row, events) of queued C_HOLD_AT points, in row order
         self._hold_at_seen = 0
         self._events_q: queue.Queue = queue.Queue()   # (queue generation, events) of the points reached
         self._auto_hold = False           # the path holds at a point while its events are performed
-        self._plan_rpm = None             # the spindle speed at the end of what is planned (None: as commanded)
         self.paused = ""                  # a pause (M0, M1, M6) waiting for cycle start: what to do
         self.optional_stop = False        # M1 pauses only with this switch on (pmctl ctl optional-stop on)
         # who answers a tool change or a pause when no operator is at a console: None (they wait for
@@ -188,15 +178,56 @@ class Supervisor:
         self._pause_tool = None           # the tool a waiting tool-change pause asks for
         self.coolant = set()              # "mist" (M7), "flood" (M8); M9 clears
         self.outputs = {}                 # M62-M68: "name index" -> value, as last set
-        self._strain = None               # the plant's strain of the last drained record (a simulated DAQ serves it)
-        self._rest_strain = [0.0, 0.0, 0.0]   # before the first record: the plant at rest at its start pose
         self.device_fault = ""            # the spindle's or the DAQ's fault that stopped motion
-        self.spindle_off_at_job_end = True   # M5 when a job ends with the spindle off (pmctl run: at shutdown)
-        self._spindle_note = False
-        self.spindle_prog = 0.0           # the programmed speed (signed rpm; 0: M5), before the override
-        self.spindle_ov = 1.0             # grbl's spindle speed override, 0.1 .. 2.0
-        self._spindle_ov_lock = threading.Lock()   # the override's set-point writes vs a stop's
-        self._spindle_ov_wake = None
+        # the parts out of the tick, driven by the events: the spindle VFD and the strain DAQ (opened
+        # by open_devices())
+        self._spindle = Spindle(self)
+        self._daq = Daq(self)
+        self._probing = Probing(self)      # items with probing moves (G38.x), from the planner thread
+        self._homing = Homing(self)        # $H
+
+    @property
+    def homing(self) -> bool:
+        """A homing cycle is under way (pmctl.task.homing: the state Home, motion refused)."""
+        return self._homing.active
+
+    @property
+    def homed(self) -> bool:
+        """The machine was homed since its position was last lost (the daemon's journal keeps it)."""
+        return self._homing.homed
+
+    @homed.setter
+    def homed(self, yes: bool):
+        self._homing.homed = bool(yes)
+
+    @property
+    def spindle(self):
+        """The spindle VFD's session (pmctl.hal.modbus_vfd.SpindleSession; None until connected)."""
+        return self._spindle.session
+
+    @property
+    def daq(self):
+        """The strain DAQ's session (pmctl.hal.modbus_daq.DaqSession; None without ``[daq]``)."""
+        return self._daq.session
+
+    @property
+    def spindle_ov(self) -> float:
+        """grbl's spindle speed override, 0.1 .. 2.0 (:meth:`spindle_override`)."""
+        return self._spindle.ov
+
+    @property
+    def spindle_off_at_job_end(self) -> bool:
+        """M5 when a job ends with the spindle off (pmctl run turns it off: M5 at the shutdown)."""
+        return self._spindle.off_at_job_end
+
+    @spindle_off_at_job_end.setter
+    def spindle_off_at_job_end(self, on: bool):
+        self._spindle.off_at_job_end = bool(on)
+
+    @property
+    def generation(self) -> int:
+        """The queue's generation: a reset or a fault that drops the queue starts a new one."""
+        return self._gen
 
     # ------------------------------------------------------------ lifecycle
     def start(self, counts0, timeout_s: float = 60.0):
@@ -254,7 +285,7 @@ class Supervisor:
 
     def shutdown(self, reason="stopped", timeout_s=30.0) -> np.ndarray:
         """Hold on the path, let the rt side save its counters and exit; returns the final counters."""
-        self.homing_abort.set()
+        self.events.send("shutdown")
         self._abort.set()
         self._quitting = True         # the rt side's exit from here on is the asked-for one, not a death (ALARM 17)
         counts = None
@@ -286,77 +317,38 @@ class Supervisor:
         recording knows its channels and the spindle is at speed at the first tick. ``at``: the pulse
         counters the machine starts at (a simulated DAQ serves the plant's strain at rest there until
         the first record: its weight, not a zero that a slow estimate would take for the truth)."""
-        if at is not None and self._strain is None:
-            self._rest_strain = self._strain_at_rest(at)
+        if at is not None:
+            self._daq.at_rest(at)
         if spindle and self.spindle is None and self.svc.spindle is not None:
-            self._spindle_session()
-        if self._devices_open:
-            return
-        self._devices_open = True
-        self._open_daq()
-
-    def _open_daq(self):
-        """The strain DAQ (``[daq]``): connected here, polled for the whole session by its own
-        thread (samples stamped with the rt tick); a simulated one serves the plant's strain of the
-        last drained record. A fault or lost link is a controlled stop (``_device_fault``)."""
-        if self.svc.daq is None:
-            return
-        # slow compensation ([daq] compensate): each estimate becomes the NC's chain-length offsets
-        self.daq = DaqSession(self.svc.daq, lambda: self._strain or self._rest_strain, self.log, self.machine,
-                              self._set_chain_offsets).connect()
-        self.daq.watch(self._tick, self._device_fault)
-
-    def _strain_at_rest(self, counts):
-        """The static strain (microstrain per chain) of the platform's weight at pulse counters ``counts``."""
-        try:
-            pose = K.fk(np.asarray(counts, float) / self.params.pulses_per_mm, self.machine)
-            return [float(x) for x in static_strain(pose.P, pose.R, self.machine)]
-        except Exception:                  # noqa: BLE001 -- no pose there: the first record says
-            return [0.0, 0.0, 0.0]
-
-    def _spindle_session(self):
-        self.spindle = SpindleSession(self.svc.spindle, self.log).connect()
-        return self.spindle
+            self._spindle.connect()
+        self._daq.open()
 
     def spindle_start(self, rpm: float):
         """M3/M4 S``rpm`` (0: M5) and wait until at speed (the path waits: call between jobs); the
-        spindle is watched from then on."""
-        sp = self.spindle or self._spindle_session()
-        self._m5_written()
-        self.spindle_prog = float(rpm)
-        if rpm == 0:
-            with self._spindle_ov_lock:
-                sp.vfd.stop()
-            return
-        sp.start(self._spindle_rpm(rpm))
-        self._apply_spindle_ov()          # an override changed during the spin-up
-        if sp.monitor is None:
-            sp.watch(self._tick, self._device_fault)
-            if self.ch is not None and sp.monitor.samples:      # at speed now, not at the rt side's tick 0
-                sp.monitor.samples[0] = (self._tick(), sp.monitor.samples[0][1])
+        spindle is watched from then on (pmctl.task.spindle)."""
+        self._spindle.start(rpm)
 
     def close_devices(self):
         """M5 and disconnect the spindle, stop polling the DAQ (each whatever the other does)."""
-        for name in ("spindle", "daq"):
-            dev = getattr(self, name)
-            if dev is not None:
-                try:
-                    dev.close()
-                except Exception as e:        # noqa: BLE001 (reported; the counters are the rt side's)
-                    self.log(f"warning: closing the {name}: {e}")
+        for name, part in (("spindle", self._spindle), ("daq", self._daq)):
+            try:
+                part.close()
+            except Exception as e:        # noqa: BLE001 (reported; the counters are the rt side's)
+                self.log(f"warning: closing the {name}: {e}")
 
-    def _tick(self) -> int:
+    def rt_tick(self) -> int:
+        """The rt side's tick now (0 before the channel exists): what polled devices stamp samples with."""
         ch = self.ch
         return read_status(ch).tick if ch is not None else 0
 
-    def _device_fault(self, why: str):
+    def controlled_stop(self, why: str):
         """The spindle's or the DAQ's polling thread saw a fault or a lost link: a controlled stop
         on the path (the queue is dropped), ALARM 3 with the reason."""
         if self.device_fault:
             return
         self.device_fault = why
         self.log(f"controlled stop: {why}")
-        self._emit("device_fault", {"msg": why})
+        self.events.send("device_fault", {"msg": why}, msg=why)
         if not self.alarm:
             self.raise_alarm(ALARM_ABORT, why)
 
@@ -370,12 +362,6 @@ class Supervisor:
         threading.Thread(target=stop, daemon=True, name="pmctl-device-stop").start()
 
     # ------------------------------------------------------------ events where the path gets to them
-    def _spindle_now(self) -> float:
-        """The spindle speed (signed programmed rpm) when the path reaches the end of what is planned."""
-        if self._plan_rpm is not None:
-            return self._plan_rpm
-        return float(self.spindle_prog)
-
     def _hold_point(self, row: int, rest: bool, events: tuple, it=None):
         """Hold the path at sample ``row`` of the ring and perform ``events`` there (sent before that
         sample is queued); item ``it`` is not done before they are."""
@@ -386,53 +372,20 @@ class Supervisor:
         self.wait_ack(seq, 1.0)
         for name, value in events:
             if name == "spindle":
-                self._plan_rpm = float(value)
+                self._spindle.plan_rpm = float(value)
 
     def _events_of(self, it, pieces, row0, per_move=True):
         """The planner's pieces, passed through; before each piece's samples are queued, its hold
         points are sent: the marks of its EVENT moves (on their exact stops), and for a job that
-        carries the spindle speed only per move, its first speed (at the item's first sample) and the
-        speed changes inside it (at the last sample of the old speed, as
-        pmctl.hal.modbus_vfd.speed_changes finds them in a whole plan)."""
-        moves = it.job.moves
-        events = any(m.kind == EVENT and any(n == "spindle" for n, _ in m.events) for m in moves)
-        on_lines = [] if events or not per_move else [m.line for m in moves if getattr(m, "spindle_rpm", 0.0)]
-        if on_lines and self.svc.spindle is None:
-            if not self._spindle_note:
-                rpm = job_speed([getattr(m, "spindle_rpm", 0.0) for m in moves])
-                self._spindle_note = True
-                self.log(f"no [spindle] in {self.svc.source}: the job's S{abs(rpm):g} M{3 if rpm > 0 else 4} "
-                         f"is not executed")
-            on_lines = []
-        last_on = max(on_lines) if on_lines else 0
+        carries the spindle speed only per move, its first speed and its speed changes
+        (pmctl.task.spindle: ``Spindle.speed_points``)."""
+        speeds = self._spindle.speed_points(it.job.moves, per_move)
         n0 = 0                         # samples before this piece
-        prev = None                    # the speed of the sample before
-        cur = None                     # the speed the spindle runs at (after the first on)
-        tail = (np.zeros((0, 3)), np.zeros((0, 3)))
         for tr in pieces:
             points = [(row0 + n0 + i, True, tuple(ev)) for i, _line, ev in tr.marks]
-            if on_lines:
-                v = np.asarray(tr.spindle_rpm, float)
-                line = np.asarray(tr.line)
-                tips = np.concatenate([tail[0], np.asarray(tr.tip, float)])
-                axes = np.concatenate([tail[1], np.asarray(tr.axis, float)])
-                off = len(tail[0])
-                for i in range(len(v)):
-                    x = float(v[i])
-                    if cur is None:
-                        if x:
-                            cur = x
-                            if x != self._spindle_now():     # the job's first speed, before its first sample
-                                points.insert(0, (row0, True, (("spindle", x),)))
-                    elif x != prev and x != cur and (x or int(line[i]) < last_on):
-                        cur = x
-                        j = off + i                       # index of sample c in tips: the stop is c - 1
-                        lo = max(0, j - 1 - 2)
-                        q = K.ik_batch(tips[lo:j + 1], axes[lo:j + 1], self.machine, check_limits=False).q
-                        rest = len(q) > 1 and float(np.abs(np.diff(q, axis=0)).max()) <= REST_STEP_MM
-                        points.append((row0 + n0 + i - 1, bool(rest), (("spindle", x),)))
-                    prev = x
-                tail = (tips[-3:], axes[-3:])
+            if speeds is not None:
+                first, changes = speeds.of(tr, row0, row0 + n0)
+                points = first + points + changes
             for row, rest, ev in sorted(points, key=lambda p: p[0]):
                 self._hold_point(row, rest, ev, it)
             n0 += len(tr)
@@ -443,7 +396,7 @@ class Supervisor:
         dropped its points too)."""
         with self._lock:
             self._hold_points.clear()
-            self._plan_rpm = None
+            self._spindle.plan_rpm = None
             self._auto_item = None
             self._auto_hold = False         # nothing waits at an event any more: the state is no longer Run for it
         self.paused = ""
@@ -480,7 +433,7 @@ class Supervisor:
                 self._auto_hold = False
                 self._auto_item = None
                 if gen == self._gen:
-                    self._device_fault(f"{name} {value}: {e}")
+                    self.controlled_stop(f"{name} {value}: {e}")
                 continue
             if gen == self._gen and not self.paused and not self.operator_hold and self._events_q.empty():
                 self.command(C.C_RESUME)
@@ -493,7 +446,7 @@ class Supervisor:
     def _perform(self, name, value, gen):
         """One event, where the path holds for it."""
         if name == "spindle":
-            self._set_spindle(float(value), gen)
+            self._spindle.set(float(value), gen)
         elif name == "coolant":
             if value == "off":
                 self.coolant.clear()
@@ -526,88 +479,9 @@ class Supervisor:
         else:
             self.log(f"event {name} {value!r}: nothing here performs it")
 
-    def _set_spindle(self, rpm: float, gen):
-        """M3/M4 S (``rpm`` signed; 0: M5) where the path holds: the VFD gets the speed (with the
-        spindle override) and the path waits until it is at speed (a stop: until it turns no more
-        than the tolerance). A reset meanwhile wins: its M5 is written after this start, or this
-        start not at all (both hold ``_spindle_ov_lock``)."""
-        if self.svc.spindle is None:
-            self.spindle_prog = rpm
-            if rpm and not self._spindle_note:
-                self._spindle_note = True
-                self.log(f"no [spindle] in {self.svc.source}: S{abs(rpm):g} M{3 if rpm > 0 else 4} is not executed")
-            return
-        sp = self.spindle or self._spindle_session()
-        self._m5_written()
-        want = self._spindle_rpm(rpm)
-        with self._spindle_ov_lock:
-            if gen != self._gen:
-                return
-            self.spindle_prog = rpm
-            if want == sp.vfd.rpm_cmd:
-                return
-            _patient(sp.vfd, lambda: sp.vfd.start(want))
-        t0 = time.monotonic()
-        got = _patient(sp.vfd, sp.vfd.wait_at_speed)
-        if rpm and sp.monitor is not None:
-            # the reading that releases the path is the spindle's speed from here on: the monitor's
-            # next poll may come after the path has moved on (offline, ticks run back to back)
-            sp.monitor.samples.append((self._tick(), -got if sp.vfd.rpm_cmd < 0 else got))
-        self.log(f"spindle {'M5' if not rpm else ('M3' if rpm > 0 else 'M4') + f' S{abs(rpm):g}'}: "
-                 f"{'stopped' if not rpm else 'at speed'} after {time.monotonic() - t0:.2f} s")
-        if rpm and sp.monitor is None:
-            sp.watch(self._tick, self._device_fault)
-
-    # ------------------------------------------------------------ spindle override
-    def _spindle_rpm(self, rpm: float) -> float:
-        """The speed sent to the VFD for the programmed ``rpm``: scaled by the spindle override, which
-        never takes it past the VFD's maximum (grbl: ``$30``; a programmed S beyond it stays the VFD's
-        error), signed as ``rpm``."""
-        if not rpm or self.spindle_ov == 1.0:
-            return float(rpm)
-        v = abs(float(rpm)) * self.spindle_ov
-        if self.svc.spindle is not None:
-            v = min(v, max(float(self.svc.spindle.max_rpm), abs(float(rpm))))
-        return math.copysign(v, rpm)
-
     def spindle_override(self, f: float):
-        """grbl's spindle speed override: the programmed speed x ``f`` (0.1 .. 2.0). A running spindle
-        gets the new set-point at once, from a thread of its own (a Modbus write is no business of
-        the caller's); a stopped one starts with it at its next M3/M4. Without ``[spindle]``: kept only."""
-        self.spindle_ov = min(2.0, max(0.1, float(f)))
-        if self.svc.spindle is None:
-            return
-        with self._lock:
-            if self._spindle_ov_wake is None:
-                self._spindle_ov_wake = threading.Event()
-                threading.Thread(target=self._spindle_ov_loop, daemon=True, name="pmctl-spindle-ov").start()
-        self._spindle_ov_wake.set()
-
-    def _spindle_ov_loop(self):
-        while not self._stop.is_set():
-            if not self._spindle_ov_wake.wait(0.2):
-                continue
-            self._spindle_ov_wake.clear()
-            t_end = time.monotonic() + self.svc.spindle.spinup_timeout_s
-            try:                          # a speed change the path waits for goes first (scaled already)
-                while not self._apply_spindle_ov() and time.monotonic() < t_end and not self._stop.is_set():
-                    time.sleep(0.01)
-            except Exception as e:        # noqa: BLE001 (the monitor reports a lost link)
-                self.log(f"warning: spindle override: {e}")
-
-    def _apply_spindle_ov(self) -> bool:
-        """The running spindle's set-point to the programmed speed with the current override; False:
-        not now, a speed change inside the job is under way. Never starts a stopped spindle: a stop
-        clears ``spindle_prog`` before its write, and every write holds ``_spindle_ov_lock``."""
-        with self._spindle_ov_lock:
-            sp = self.spindle
-            vfd = sp.vfd if sp is not None else None
-            if vfd is None or vfd.client is None or not self.spindle_prog or not vfd.rpm_cmd:
-                return True
-            want = self._spindle_rpm(self.spindle_prog)
-            if want != vfd.rpm_cmd and (want > 0) == (vfd.rpm_cmd > 0):
-                vfd.start(want)
-            return True
+        """grbl's spindle speed override: the programmed speed x ``f`` (0.1 .. 2.0); pmctl.task.spindle."""
+        self._spindle.override(f)
 
     # ------------------------------------------------------------ status
     def status(self) -> RtStatus:
@@ -704,9 +578,8 @@ class Supervisor:
             it = Item(kind, job, start, end, name, self.n_submitted, lines=dict(lines or {}), gen=self._gen,
                       source=str(source), path=path, stream=stream, open=stream,
                       inbox=list(job.moves) if stream else [], last_in=time.monotonic())
-            if any(m.probe for m in job.moves):
-                check_probe_feeds(job, self.svc.probe, source or name or job.source, self.plan_feed_override)
-                it.parts = len(split_at_probes(job))
+            if self._probing.wanted(job):
+                self._probing.prepare(it, source or name or job.source)
             self.n_submitted += 1
             self.items.append(it)
         self._plan_q.put(it)
@@ -721,7 +594,7 @@ class Supervisor:
         close, after an item of another kind). ``lines``: {stream line: reported line (N word)}.
         MotionRefused in alarm."""
         moving = [m for m in moves if m.kind not in (DWELL, EVENT)]
-        spindle = any(m.kind == EVENT and any(n == "spindle" for n, _ in m.events) for m in moves)
+        spindle = has_spindle_event(moves)
         with self._lock:
             it = self._stream_item
             if it is None or not it.open or it.gen != self._gen or it not in self.items:
@@ -815,65 +688,19 @@ class Supervisor:
             self._emit("resumed", {})
         elif self._auto_hold:            # the path waits for an event: the events thread releases it
             return
-        if self.spindle_stopped_in_hold:
-            # grbl: cycle start after a spindle stop in a hold brings the spindle back to its speed
-            # first; the path goes on once it is there (a thread: the Modbus writes and the spin-up wait
-            # are no business of the caller's, the console's reader)
-            threading.Thread(target=self._restore_spindle, args=(True,), daemon=True,
-                             name="pmctl-spindle-restore").start()
+        if self._spindle.resume():       # stopped in the hold: the path goes on once it is back at speed
             return
         self.command(C.C_RESUME)
 
-    spindle_stopped_in_hold = False
-
     def spindle_stop_toggle(self) -> bool:
-        """grbl's 0x9E: in a completed hold (Hold:0) with the spindle running, stop it; again (still in
-        the hold), start it back at its speed. Cycle start restores it and waits until it is at speed
-        before the path goes on. Anywhere else, and without a spindle VFD, nothing happens (False)."""
-        if (self.svc.spindle is None or self.spindle is None or not self.operator_hold
-                or self.state_name() != "Hold:0"):
-            return False                 # (a hold of the path for a spindle speed change is not one)
-        if self.spindle_stopped_in_hold:
-            threading.Thread(target=self._restore_spindle, args=(False,), daemon=True,
-                             name="pmctl-spindle-restore").start()
-            return True
-        if not self.spindle_prog or not self.spindle.vfd.rpm_cmd:
-            return False
-        self.spindle_stopped_in_hold = True
-        self._stop_vfd(self.spindle, "spindle stop in the hold")   # spindle_prog stays: the speed to come back to
-        return True
-
-    def _restore_spindle(self, then_resume: bool):
-        """The spindle back at its speed after a stop in the hold. 0x9E again (``then_resume`` False):
-        the start is written and the spindle counts as running at once, so a further 0x9E during the
-        spin-up stops it again. Cycle start (True): the path goes on once it is at speed."""
-        self._m5_written()
-        sp, rpm = self.spindle, self.spindle_prog
-        try:
-            if sp is not None and rpm and self.spindle_stopped_in_hold:
-                with self._spindle_ov_lock:
-                    sp.vfd.start(self._spindle_rpm(rpm))
-                    if not then_resume:
-                        self.spindle_stopped_in_hold = False
-                sp.vfd.wait_at_speed()
-                if sp.vfd.rpm_cmd:
-                    self.log(f"spindle back at speed after the stop in the hold ({abs(sp.vfd.rpm_cmd):g} rpm)")
-        except Exception as e:            # noqa: BLE001
-            self._device_fault(f"spindle VFD: restoring the speed after a stop in the hold: {e}")
-            return
-        if then_resume:
-            self.spindle_stopped_in_hold = False
-            self.command(C.C_RESUME)
+        """grbl's 0x9E: the spindle stopped in a completed hold, or started again (pmctl.task.spindle)."""
+        return self._spindle.stop_toggle()
 
     def feed_override(self, f: float):
         self.command(C.C_FEED_OV, float(f))
 
     def rapid_override(self, r: float):
         self.command(C.C_RAPID_OV, float(r))
-
-    def _set_chain_offsets(self, offsets_mm):
-        for i, mm in enumerate(offsets_mm):
-            self.set_chain_offset(i, float(mm))
 
     def set_chain_offset(self, chain: int, mm: float) -> bool:
         """The chain-length offset input of chain 0..2 (L1..L3), mm, added to the commanded length by
@@ -897,18 +724,15 @@ class Supervisor:
     def soft_reset(self, timeout_s=10.0):
         """Stop now on the path, drop everything queued, keep the position (grbl ctrl-X). During
         homing it aborts the cycle (ALARM 6)."""
-        if self.homing:
-            self.homing_abort.set()
+        self.events.send("reset")         # (a homing cycle aborts)
         self._stop_queue(timeout_s)
-        self._spindle_off("at the soft reset")
+        self.events.send("reset_done")    # (the spindle stops)
 
     def _stop_queue(self, timeout_s=10.0):
         """Stop on the path, drop every queued item and sample, wait until at rest."""
         self._abort.set()
         self.operator_hold = False
-        with self._lock:
-            self.items.clear()
-            self._gen += 1
+        self._drop_queue()
         self._drop_hold_points()
         # the planner thread drops what it holds once it sees the abort
         while not self._plan_q.empty():
@@ -930,15 +754,13 @@ class Supervisor:
 
     def estop(self, reason="E-stop"):
         self._abort.set()
-        with self._lock:
-            self.items.clear()
-            self._gen += 1
+        self._drop_queue()
         if self.ch is not None and not self.rt_dead:
             self.command(C.C_ESTOP)
             self._ended_base = self.status().ended
         self.raise_alarm(ALARM_ESTOP, reason)
         self._drop_hold_points()
-        self._spindle_off("at the E-stop")
+        self.events.send("estop")
         self._abort.clear()
 
     def unlock(self):
@@ -959,40 +781,7 @@ class Supervisor:
         """``$H``: the homing cycle (pmctl.task.homing) with the [homing] settings; blocks until it
         ends. Returns (True, message) when homed (the alarm is cleared), (False, reason) when it
         failed (an alarm says why); MotionRefused when it cannot start (busy, no switches)."""
-        if self.homing:
-            raise MotionRefused("homing is already under way", 8)
-        if not (self.alarm or self.rt_dead) and self.busy():
-            raise MotionRefused("$H only when idle: motion is queued or under way", 8)
-        if self.rt_dead or self.status().mode != RUN:
-            self.unlock()                 # restart / re-arm the rt side first (refused while an E-stop holds)
-        if self.status().home_in < 0:
-            raise MotionRefused(f"backend {self.backend!r} reports no home switches", 5)
-        self.homing_abort.clear()
-        with self._lock:
-            self.items.clear()
-            self._gen += 1
-        self.alarm, self.alarm_msg = 0, ""
-        self.homing = True
-        self._emit("homing", {})
-        try:
-            shifts = Sequence(self.svc.homing, self.machine.resolution.pulses_per_mm).run(
-                RtMover(self, self.homing_abort))
-        except (HomingFailed, MotionRefused, PmctlError) as e:
-            self.homing = False
-            code = getattr(e, "code", 9) if isinstance(e, HomingFailed) else 9
-            if self.ch is not None and not self.rt_dead:
-                self._stop_queue()
-            if not self.alarm:
-                self.raise_alarm(code, f"homing failed: {e}")
-            self.homed = False
-            return False, str(e)
-        finally:
-            self.homing = False
-        self.homed = True
-        msg = "homed; counter corrections " + ", ".join(
-            f"{AXES[i]} {d / self.machine.resolution.pulses_per_mm[i]:+.4f} mm" for i, d in shifts.items())
-        self._emit("homed", {"shifts": {AXES[i]: int(d) for i, d in shifts.items()}, "msg": msg})
-        return True, msg
+        return self._homing.run()
 
     def raise_alarm(self, code: int, msg: str):
         first = not self.alarm
@@ -1001,11 +790,34 @@ class Supervisor:
             self._emit("alarm", {"code": code, "msg": msg})
 
     def _emit(self, event, detail):
-        for fn in list(self.listeners):
-            try:
-                fn(event, detail)
-            except Exception:
-                pass
+        self.events.send(event, detail)
+
+    def _drop_queue(self, ended=None):
+        """Drop every queued item (a reset, an E-stop, a fault, homing, a failed probe or plan): a new
+        queue generation, so that nothing planned for the old one goes on; ``ended``: the rt side's
+        count of passed job ends the new queue counts from."""
+        with self._lock:
+            dropped = list(self.items)
+            self.items.clear()
+            self._gen += 1
+            if ended is not None:
+                self._ended_base = ended
+        self.events.send("queue_dropped", items=dropped)
+
+    def _check_going(self, it):
+        """Raise _Aborted when item ``it`` is to be planned no further (a reset, a dropped queue, the end)."""
+        if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
+            raise _Aborted()
+
+    def _starts_after(self, it, start):
+        """Item ``it`` ends at ``start`` (tip, axis) (a probe stopped there): the item queued after it
+        starts from there."""
+        with self._lock:
+            it.end = start
+            if it in self.items:
+                i = self.items.index(it)
+                if i + 1 < len(self.items):
+                    self.items[i + 1].start = start
 
     def wait_idle(self, timeout_s=600.0, poll=0.01) -> bool:
         t0 = time.monotonic()
@@ -1030,8 +842,8 @@ class Supervisor:
             if self._abort.is_set() or it.gen != self._gen:
                 continue
             try:
-                if it.parts > 1 or any(m.probe for m in it.job.moves):
-                    self._plan_probing(it)
+                if it.parts > 1 or self._probing.wanted(it.job):
+                    self._probing.plan(it)
                     continue
                 rows_iter = self._stream_rows(it) if it.stream else self._rows_of(it.job, it.start, it)
                 it.planned = True
@@ -1045,6 +857,7 @@ class Supervisor:
                 with self._lock:
                     if it in self.items:
                         self.items.remove(it)
+                self.events.send("item_failed", item=it)
                 self.log(f"planning {it.name or it.kind} failed: {e}")
                 self._emit("error", {"msg": f"planning failed: {e}"})
                 if it.planned:
@@ -1063,9 +876,8 @@ class Supervisor:
         the queue and raise an alarm saying why; the planner thread goes on (``$X`` unlocks)."""
         self.log(f"planner error on {it.name or it.kind}: {''.join(traceback.format_exception(e)).rstrip()}")
         it.error = f"internal error: {type(e).__name__}: {e}"      # (pmctl run waits on it)
-        with self._lock:
-            self.items.clear()
-            self._gen += 1
+        self._drop_queue()
+        self.events.send("item_failed", item=it)
         if self.ch is not None and not self.rt_dead:
             self.command(C.C_RESET)
         self.raise_alarm(ALARM_ABORT, f"internal error planning {it.name or it.kind}: {type(e).__name__}: {e}; "
@@ -1128,8 +940,7 @@ class Supervisor:
     def _stream_inbox(self, it):
         """(the moves appended to the stream item since the last call, whether it is closed); raises
         _Aborted when the queue was dropped."""
-        if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
-            raise _Aborted()
+        self._check_going(it)
         self._stream_wake.clear()
         with self._lock:
             new, it.inbox = it.inbox, []
@@ -1207,8 +1018,7 @@ class Supervisor:
             total += len(rows)
             i = 0
             while i < len(rows):
-                if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
-                    raise _Aborted()
+                self._check_going(it)
                 n = self.ch.samples.push(rows[i:])
                 i += n
                 if n == 0:
@@ -1218,71 +1028,11 @@ class Supervisor:
                     it.pushed_line = int(rows[i - 1, S_LINE])
         return total
 
-    def _plan_probing(self, it):
-        """An item with probing moves, piece by piece (pmctl.motion.probe.split_at_probes): a probing
-        piece's segment goes into the channel's probe table, its samples flagged; then the planner
-        waits for the rt side's result and plans the next piece from where the probe stopped."""
-        start = (np.asarray(it.start[0], float), np.asarray(it.start[1], float))
-        pieces = split_at_probes(it.job)
-        for k, (piece, probe) in enumerate(pieces):
-            # the spindle: the item's start speed before its first piece (a speed change after a
-            # probe inside the same item is not waited for)
-            rows_iter = self._rows_of(piece, start, it if k == 0 else None)
-            if probe is None:
-                it.planned = True
-                if self._push_rows(rows_iter, it) == 0:
-                    self._ended_without_samples(it)
-                last = [m for m in piece.moves if m.kind != DWELL]
-                if last:
-                    start = (np.asarray(last[-1].tip, float), np.asarray(last[-1].axis, float))
-                continue
-            seg = probe_segments(piece, self.machine, start[0])[0]
-            seg.feed *= self.plan_feed_override      # the feed as planned (the monitor's speed and stop)
-            seq0 = self.status().probe_seq
-            tab = self.ch.probe
-            tab[1:] = seg.to_row()
-            tab[0] += 1.0                    # the announcement last: the rt side takes the whole row
-            it.planned = True
-            self._push_rows((mark_probe_rows(r, seg.feed, self.svc.probe) for r in rows_iter), it)
-            s = self._wait_probe(seq0, it)
-            res = s.probe()
-            it.probe_results.append(res)
-            self._emit("probe", res.as_dict())
-            if res.error:
-                # grbl's probe fail: the queue is dropped, motion locked until $X
-                with self._lock:
-                    self.items.clear()
-                    self._gen += 1
-                    self._ended_base = s.ended
-                self.raise_alarm(ALARM_PROBE_FAIL_CONTACT, res.error)
-                return
-            start = (np.asarray(res.stop, float), np.asarray(seg.axis, float))
-            if k == len(pieces) - 1 or all(m.kind == DWELL for p, _ in pieces[k + 1:] for m in p.moves):
-                # the item ends where the probe stopped: what is queued after it starts from there
-                with self._lock:
-                    it.end = start
-                    if it in self.items:
-                        i = self.items.index(it)
-                        if i + 1 < len(self.items):
-                            self.items[i + 1].start = start
-
-    def _wait_probe(self, seq0, it):
-        """The rt status once the rt side has reported the probe ended (``probe_seq`` past seq0)."""
-        while True:
-            if self._abort.is_set() or self._stop.is_set() or self.rt_dead or it.gen != self._gen:
-                raise _Aborted()
-            s = self.status()
-            if s.probe_seq > seq0:
-                return s
-            time.sleep(0.002)
-
     def _planning_failed_midway(self, it, e):
         """A window of an item failed after its first samples were queued (validation passed, so
         rare): stop on the path now, drop everything queued after it and raise an alarm; nothing
         may continue from a pose the machine is not at."""
-        with self._lock:
-            self.items.clear()
-            self._gen += 1
+        self._drop_queue()
         if self.ch is not None and not self.rt_dead:
             self.command(C.C_RESET)
         self.raise_alarm(ALARM_ABORT, f"planning of {it.name or it.kind} failed during the job: {e}")
@@ -1291,8 +1041,6 @@ class Supervisor:
         if self.ch is None:
             return
         rows = self.ch.records.pop()
-        if len(rows):
-            self._strain = rows[-1, R_STRAIN:R_STRAIN + 3].tolist()
         if len(rows) and self.record_sink is not None:
             try:
                 self.record_sink(rows)
@@ -1300,22 +1048,7 @@ class Supervisor:
                 self.log(f"recording failed: {e}")
                 self.record_sink = None
         if len(rows):
-            self._trim_device_samples(int(rows[-1, R_TICK]))
-
-    def _trim_device_samples(self, tick: int):
-        """The spindle's and the DAQ's polled samples (tick-stamped) up to the last drained record are
-        no longer needed but the last (it holds on): memory does not grow with the session."""
-        lists = []
-        if self.spindle is not None and self.spindle.monitor is not None:
-            lists.append(self.spindle.monitor.samples)
-        if self.daq is not None and self.daq.daq is not None:
-            lists.append(self.daq.daq.samples)
-        for lst in lists:
-            i = 0
-            while i + 1 < len(lst) and lst[i + 1][0] <= tick:
-                i += 1
-            if i:
-                del lst[:i]           # appends by the polling thread go on at the end (one list op each)
+            self.events.send("records", rows=rows, tick=int(rows[-1, R_TICK]))
 
     def _take_fault(self, ch, s):
         """A fault the rt side reported (status ``s``) and not yet taken: the queue dropped, the alarm
@@ -1324,17 +1057,15 @@ class Supervisor:
             return
         self._fault_seen = s.reason_seq
         reason = ch.reason()
-        with self._lock:
-            self.items.clear()
-            self._gen += 1
-            self._ended_base = s.ended
+        self._drop_queue(ended=s.ended)
         self._drop_hold_points()
         code = ALARM_SOFT_LIMIT if reason.startswith(("soft limit", "path error")) else (
             ALARM_ESTOP if reason.startswith("E-stop") else ALARM_MOTOR_FAULT)
         if code == ALARM_MOTOR_FAULT:
-            self.homed = False        # following error / lost backend: the position may be wrong
+            self.events.send("position_lost")     # following error / lost backend: the position may be wrong
         if not self.alarm:
             self.raise_alarm(code, reason)
+        self.events.send("stopped", reason=reason, fault=s.fault == F_FAULT)
 
     def _monitor(self):
         while not self._stop.wait(0.01):
@@ -1352,13 +1083,11 @@ class Supervisor:
                 self._take_fault(ch, read_status(ch))     # its last word: a fault it stopped on, written before it left
                 r = ch.result()
                 if not self.alarm and r and r.get("status") == "fault" and r.get("reason"):
-                    self.homed = False
+                    self.events.send("position_lost")
                     self.raise_alarm(ALARM_MOTOR_FAULT, str(r["reason"]))
                 self.rt_dead = True
-                self.homed = False            # the counters are kept, but not trusted
-                with self._lock:
-                    self.items.clear()
-                    self._gen += 1
+                self.events.send("position_lost")     # the counters are kept, but not trusted
+                self._drop_queue()
                 code = self.proc.exitcode
                 died = (f"rt motion process died (exit code {code}); last counters kept, not trusted until "
                         f"homed or confirmed")
@@ -1366,7 +1095,7 @@ class Supervisor:
                     self.log(f"{died} (after: {self.alarm_msg})")
                 else:
                     self.raise_alarm(ALARM_MOTOR_FAULT, died)
-                self._emit("rt_dead", {"exitcode": code})
+                self.events.send("rt_dead", {"exitcode": code}, exitcode=code)
                 continue
             # retire finished items: the rt side counts the job ends it passed
             ended = s.ended
@@ -1383,57 +1112,10 @@ class Supervisor:
                         if head.ends < head.parts:  # a piece of an item planned in pieces (probing)
                             continue
                     done = self.items.popleft()
-                    if not self.items:
-                        self._plan_rpm = None     # nothing planned ahead: the speed is the commanded one
-                    self._emit("item_done", {"kind": done.kind, "name": done.name, "index": done.index})
-                    self._spindle_at_job_end(done)
+                    self.events.send("item_done", {"kind": done.kind, "name": done.name, "index": done.index},
+                                     item=done)
 
     _ended_base = 0
-
-    def _spindle_at_job_end(self, it):
-        """M5 when a job that carries its speed per move (no spindle EVENT: those took effect where
-        the path got to them) ended with the spindle off and nothing queued needs it running."""
-        sp = self.spindle
-        if it.spindle_events or (it.spindle_events is None and any(
-                m.kind == "event" and any(n == "spindle" for n, _ in m.events) for m in it.job.moves)):
-            return
-        moves = [m for m in it.job.moves if m.kind not in ("dwell", "event")] \
-            or [m for m in it.job.moves if m.kind == "dwell"]       # (EVENT moves carry no speed)
-        if not self.spindle_off_at_job_end or sp is None or not sp.vfd.rpm_cmd or not moves \
-                or getattr(moves[-1], "spindle_rpm", 0.0) or self.items:
-            return
-        self._spindle_off("at the job's end")
-
-    def _spindle_off(self, when: str):
-        """M5 from a thread of its own (a Modbus write is no business of the caller's thread)."""
-        sp = self.spindle
-        self.spindle_prog = 0.0           # before the write: an override must not start it again
-        self.spindle_stopped_in_hold = False
-        if sp is None or sp.vfd is None or not sp.vfd.rpm_cmd:
-            return
-        self._stop_vfd(sp, f"M5 {when}")
-
-    def _stop_vfd(self, sp, what: str):
-        """Stop the spindle VFD from a thread of its own (``_m5``, which ``_m5_written`` waits for);
-        the write excludes the override's (``_spindle_ov_lock``)."""
-        def stop():
-            try:
-                with self._spindle_ov_lock:
-                    sp.vfd.stop()
-            except Exception as e:            # noqa: BLE001 (the monitor reports a lost link)
-                self.log(f"warning: {what}: {e}")
-        self._m5 = threading.Thread(target=stop, daemon=True, name="pmctl-m5")
-        self._m5.start()
-
-    _m5 = None
-
-    def _m5_written(self):
-        """Wait for an M5 under way in its thread: until it is written, the VFD's last command still
-        says running, and a job queued meanwhile at the same speed would skip its M3 and then run
-        with the spindle stopped by that late M5."""
-        t = self._m5
-        if t is not None and t is not threading.current_thread():
-            t.join()
 
 
 class _Aborted(Exception):
@@ -1448,20 +1130,6 @@ def _path_starts_at(path, start, tol_mm=1e-9) -> bool:
         return False
     return (float(np.abs(np.asarray(path.start_tip, float) - np.asarray(start[0], float)).max()) <= tol_mm
             and float(np.abs(np.asarray(path.start_axis, float) - np.asarray(start[1], float)).max()) <= tol_mm * 1e-2)
-
-
-def _patient(vfd, request):
-    """A VFD request (idempotent: a start, a wait at speed) tried again after an unanswered Modbus
-    request, up to the ``max_missed_polls`` the spindle monitor allows in a row (a busy computer or
-    link can miss one); then the link counts as lost."""
-    missed = 0
-    while True:
-        try:
-            return request()
-        except HalTimeout:
-            missed += 1
-            if missed >= vfd.opt.max_missed_polls:
-                raise
 
 
 class _RtProc:

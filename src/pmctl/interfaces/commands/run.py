@@ -44,8 +44,8 @@ import signal
 import sys
 import threading
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 
 from pmctl.core.errors import InputError, JobProblems, PmctlError
 
@@ -216,19 +216,27 @@ def tracking_window(res, stop_tick: int | None) -> tuple[int, int, str]:
 
 
 def run(args) -> int:
-    from pmctl import hal
-    from pmctl.core import kinematics as K
-    from pmctl.core.recording import check_target
-    from pmctl.motion.nc import counts_of, initial_state
-    from pmctl.motion.state_store import StateLock, load_counters
-
+    """args -> Settings -> the job, checked whole -> run it -> print the result (its exit code)."""
+    from pmctl.motion.state_store import StateLock
     out = _Out()
-    log = out.log
+    # every input is checked before anything is said about the machine or anything moves
+    settings = _settings_of(args)
+    state_file = settings.svc.loop.state_file if args.state is None else args.state
+    lock = StateLock(state_file) if state_file else None      # noqa: F841 (held until the process exits)
+    counts0, where = _start_position(settings, state_file)
+    job, path = _checked_job(args, out, settings, counts0)
+    return _run_client(_RunContext(args, out, settings, state_file, counts0, job, path=path), where)
 
-    # ---- every input is checked before anything is said about the machine or anything moves
+
+def _settings_of(args):
+    """The run's flags checked (PmctlError naming the flag) and the settings resolved once for the
+    whole run (pmctl.motion.settings: the supervisor and the rt process get these)."""
+    from pmctl import hal
+    from pmctl.core.recording import check_target
+    from pmctl.motion.service_config import parse_k_theta_flag, parse_shaper_flag
+    from pmctl.motion.settings import resolve
     if args.rate is not None and not (math.isfinite(args.rate) and 10 <= args.rate <= 20000):
         raise PmctlError(f"--rate must be within 10 .. 20000 Hz, got {args.rate:g}")
-    from pmctl.motion.service_config import parse_k_theta_flag, parse_shaper_flag
     k_theta_arg = parse_k_theta_flag(args.k_theta)
     shaper_arg = parse_shaper_flag(getattr(args, "shaper", None))
     if not (math.isfinite(args.feed_override) and 0 < args.feed_override <= 10):
@@ -251,64 +259,64 @@ def run(args) -> int:
         nc_over["shaper"] = shaper_arg
     if args.pulse_mode:
         nc_over["pulse_mode"] = args.pulse_mode
-    from pmctl.motion.settings import resolve
-    # the settings, resolved once for the whole run (the supervisor and the rt process get these)
     settings = resolve(args.config, args.service, backend=args.backend, rate_hz=args.rate,
                        realtime=False if args.no_realtime else None, nc=nc_over,
                        hal={"stepdir": {"port": args.bridge}} if args.bridge else None)
     if args.bridge is not None and settings.backend != "stepdir":
         raise PmctlError(f"--bridge {args.bridge} is the step/dir bridge's: it needs --backend stepdir")
-    machine, svc, params, setup = settings.machine, settings.svc, settings.params, settings.setup
-    cfg = svc.loop
-    backend_name = settings.backend
-    state_file = cfg.state_file if args.state is None else args.state
-    dt = settings.dt
-    from pmctl.motion.service_config import strain_in_loop as carries_strain
-    strain_in_loop = carries_strain(backend_name)
+    return settings
 
-    # Where the machine is: saved counters, else home (said only once everything has been checked).
-    lock = StateLock(state_file) if state_file else None      # noqa: F841 (held until the process exits)
+
+def _start_position(settings, state_file: str):
+    """Where the machine is: (pulse counters, what to say about them): the saved counters, else home
+    (said only once everything has been checked)."""
+    from pmctl.core import kinematics as K
+    from pmctl.motion.nc import counts_of
+    from pmctl.motion.state_store import load_counters
+    from pmctl.task.planner import home_pose
+    machine = settings.machine
     saved = (load_counters(state_file, machine=machine.name, pulses_per_mm=machine.resolution.pulses_per_mm)
              if state_file else None)
     if saved is not None:
-        counts0 = saved.counts
         where = (f"position from {state_file} (tick {saved.tick}"
                  + (", clean stop)" if saved.clean else "; NOT a clean stop: re-home if in doubt)")
                  + (f"; {saved.note}" if saved.note else ""))
-    else:
-        from pmctl.task.planner import home_pose
-        h_tip, h_axis = home_pose(machine)
-        counts0 = counts_of(K.ik(h_tip, h_axis, machine).q, params)
-        where = "position: home" + (f" (no saved counters in {state_file})" if state_file else " (--state '')")
-    st = initial_state(machine, counts0)
+        return saved.counts, where
+    h_tip, h_axis = home_pose(machine)
+    counts0 = counts_of(K.ik(h_tip, h_axis, machine).q, settings.params)
+    return counts0, "position: home" + (f" (no saved counters in {state_file})" if state_file else " (--state '')")
 
-    # the job read and parsed (every problem the reader finds), then checked whole against the
-    # machine and planned (_run_client) before anything moves: pmctl check's check
-    from pmctl.task.job import parse_job
+
+def _checked_job(args, out, settings, counts0):
+    """(the job, its checked path): the job read and parsed (every problem the reader finds), then
+    checked whole against the machine and planned before anything moves (pmctl check's check, with
+    the V-F cap on the joint speeds the supervisor plans with); the supervisor's queue samples the
+    windows this check settled instead of planning them again. An input shaper plans the job whole:
+    the batch planner's bounds."""
+    from pmctl.motion.nc import initial_state
     from pmctl.task.gcode import reader_options
+    from pmctl.task.job import parse_job
+    from pmctl.task.jobcheck import check_job, machine_for_planning
+    machine, svc = settings.machine, settings.svc
+    st = initial_state(machine, counts0)
     job, problems = parse_job(args.job, machine, start=(st.tip, st.axis),
                               **reader_options(args.job, svc.interpreter))    # tool table, search path...
     if problems:
         raise JobProblems(problems)
-    if backend_name != "sim":      # the simulation's stand-in operator changes tools and answers pauses
+    if settings.backend != "sim":      # the simulation's stand-in operator changes tools and answers pauses
         _refuse_operator_waits(job, args.tool)
     if not job.moves:                 # nothing to run (an empty file, only comments and M30): say so
         raise InputError(args.job, None, "no motion in the job (no move and no dwell): nothing to run")
     for line, text in job.messages:                  # G-code (MSG, ...): for the operator, before it runs
-        log(f"message from {Path(args.job).name} line {line}: {text}")
+        out.log(f"message from {Path(args.job).name} line {line}: {text}")
     if any(m.probe for m in job.moves):
         from pmctl.motion.probe import check_probe_job
         check_probe_job(job, svc.probe, args.job, args.feed_override)
-    # the whole job checked against the machine and planned before anything moves (pmctl check, with
-    # the V-F cap on the joint speeds the supervisor plans with); the supervisor's queue samples the
-    # windows this check settled instead of planning them again. An input shaper plans the job whole:
-    # the batch planner's bounds
-    from pmctl.task.jobcheck import check_job, machine_for_planning
-    rep = check_job(job, machine_for_planning(machine, params), dt, feed_override=args.feed_override,
-                    start=(st.tip, st.axis), batch=setup.shaper is not None)
+    rep = check_job(job, machine_for_planning(machine, settings.params), settings.dt,
+                    feed_override=args.feed_override, start=(st.tip, st.axis), batch=settings.setup.shaper is not None)
     if not rep.ok:
         raise JobProblems(rep.problems)
-    return _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loop, where, path=rep.path)
+    return job, rep.path
 
 
 def _refuse_operator_waits(job, tool):
@@ -429,30 +437,79 @@ def _nominal_shares(job):
     return ls[keep], share[keep]
 
 
-def _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loop, where, path=None) -> int:
+@dataclass(eq=False)
+class _RunContext:
+    """One ``pmctl run`` in flight: what its wait, its recording and its report need."""
+    args: object                     # the parsed command line
+    out: _Out
+    settings: object                 # pmctl.motion.settings.Settings, resolved once
+    state_file: str
+    counts0: object                  # the pulse counters it starts at
+    job: object                      # pmctl.core.job.Job, checked whole
+    path: object = None              # its checked path (the settled windows the queue samples)
+    sup: object = None               # pmctl.task.supervisor.Supervisor
+    sink: object = None              # pmctl.task.run_sink.RunSink: the records' tracking and recording
+    rec: object = None               # the RecordingWriter (--record), or None
+    rec_err: list = field(default_factory=list)   # the recorder's error, if it stopped
+    stop_req: list = field(default_factory=list)  # [(reason, tick)] of a stop signal
+    job_tick: int | None = None      # the first tick following the job's samples: its tracking starts
+    s0: float | None = None          # the rt side's path clock when the job was submitted
+    item: object = None              # the job's supervisor Item, once submitted
+
+    @property
+    def cfg(self):
+        return self.settings.svc.loop
+
+    @property
+    def dt(self) -> float:
+        return self.settings.dt
+
+
+@dataclass(eq=False)
+class _RunResult:
+    """How a run ended and what it measured: the recording's run block and the report say it."""
+    status: str = ""                 # done | stopped | fault
+    reason: str = ""
+    stop_tick: int | None = None     # the tick of a stop request (a signal)
+    ticks: int = 0
+    dt: float = 0.0
+    wall: float = 0.0                # s, from the submission to the rt side's exit
+    job_start: int = 0               # the tick the job's tracking starts at
+    sent_ok: bool = False            # pulses sent = pulse counters
+    clean: bool = False              # the counters saved as a clean stop
+    dropped: int = 0                 # records the recorder missed
+    tracking: dict = field(default_factory=dict)
+    track_note: str = ""
+    timing: dict = field(default_factory=dict)
+    realtime: bool = False
+    probes: list = field(default_factory=list)
+    rec_error: str = ""
+    rec_rows: int | None = None      # rows of the finished recording (None: no recording)
+
+    @property
+    def exit_code(self) -> int:
+        return {"done": EXIT_DONE, "stopped": EXIT_STOPPED}.get(self.status, EXIT_FAULT)
+
+
+def _run_client(ctx: _RunContext, where: str) -> int:
     """The job through the machinery of the daemon: a Supervisor starts the rt motion process (its
     own process: loop, NC, backend), the job is submitted with its checked ``path`` (the check's
     settled windows are sampled, not planned again), planned window by window and streamed into
     the sample ring (memory bounded by a window, whatever the job's length), the records stream back
     into the recording; then the supervisor shuts the rt side down and the run is reported with the
     timing figures the rt side hands over as it exits (Channel.result)."""
-    import numpy as np
-
     from pmctl import hal
     from pmctl.hal.base import Backend
     from pmctl.hal.modbus_vfd import job_speed
-    from pmctl.motion.recorder import R_S, R_TICK
-    from pmctl.task.run_sink import RunSink
     from pmctl.task.supervisor import Supervisor
-    log = out.log
-    machine, svc, params, backend_name = settings.machine, settings.svc, settings.params, settings.backend
-    cfg = svc.loop
-    dt = settings.dt
-    setup_notes = settings.setup.notes
-    sup = Supervisor(args.config, service=args.service, state_file=state_file or "", log=log, settings=settings)
+    args, job, settings = ctx.args, ctx.job, ctx.settings
+    log = ctx.out.log
+    svc, params, backend_name, cfg = settings.svc, settings.params, settings.backend, ctx.cfg
+    sup = ctx.sup = Supervisor(args.config, service=args.service, state_file=ctx.state_file or "", log=log,
+                               settings=settings)
     if backend_name == "sim":                # the simulation's stand-in operator: tool changes and pauses
         sup.stand_in_operator = lambda what: log(f"{what}: done by the simulation's operator, the job goes on")
-    notes = list(setup_notes)              # chain modes, K_theta auto, shaper, joint caps: as resolved
+    notes = list(settings.setup.notes)     # chain modes, K_theta auto, shaper, joint caps: as resolved
     rpm0 = job_speed([m.spindle_rpm for m in job.moves])
     if rpm0 and svc.spindle is None:
         notes.append(f"no [spindle] in {svc.source}: the job's S{abs(rpm0):g} M{3 if rpm0 > 0 else 4} "
@@ -460,160 +517,154 @@ def _run_client(args, out, settings, state_file, counts0, st, job, strain_in_loo
 
     # From here on a stop signal is a controlled stop: before the rt side runs the job it is remembered
     # and nothing is submitted; after that the supervisor holds on the path and stops.
-    stop_req = []
+    stop_req = ctx.stop_req
 
     def _stop(signum, frame):
         if not stop_req:
             stop_req.append((STOP_SIGNALS.get(signal.Signals(signum).name, f"signal {signum}"),
                              sup.status().tick if sup.ch is not None else 0))
     old = _catch_stop_signals(_stop)
-    rec = None
     try:
         cls = hal.backend_class(backend_name)
         has_truth = cls.truth is not Backend.truth          # a simulation knows its load side
         log(where)
         for m in notes:
             log(m)
-        sup.open_devices(spindle=bool(rpm0), at=counts0)   # the VFD link answers (and the DAQ) before the drives enable
+        # the VFD link answers (and the DAQ) before the drives enable
+        sup.open_devices(spindle=bool(rpm0), at=ctx.counts0)
         try:
-            sink = RunSink(machine, params.pulses_per_mm, cfg.rate_hz, has_truth, 1 << 62, 0, sup.spindle, sup.daq,
-                           load=strain_in_loop, strain=strain_in_loop)
-            if args.record:
-                plant = hal.create(backend_name, machine, dt, svc.backend_tables.get(backend_name, {})) \
-                    if has_truth else None          # not opened: its options describe the simulated plant
-                rec = _open_recording(args, machine, plant, backend_name, cfg, sink, 0)
-                sink.writer = rec
-            job_tick, s0, rec_err = [None], [], []
-
-            def feed(rows):            # the supervisor's monitor thread, every drained chunk of records
-                if job_tick[0] is None and s0:
-                    moved = np.flatnonzero(rows[:, R_S] > s0[0])
-                    if len(moved):     # the first tick following the job's samples: its tracking starts
-                        job_tick[0] = int(rows[moved[0], R_TICK])
-                        if sink.track is not None:
-                            sink.track.j0 = job_tick[0]
-                try:
-                    sink(rows)
-                except Exception as e:
-                    rec_err.append(f"{type(e).__name__}: {e}")
-                    raise
-            sup.record_sink = feed
+            _open_sink(ctx, hal, has_truth)
             if rpm0 and sup.spindle is not None:
                 sup.spindle_start(rpm0)        # cutting waits for at speed
             sup.spindle_off_at_job_end = False     # M5 at the shutdown, after the last recorded tick
             sup.plan_feed_override = args.feed_override
-            sup.start(counts0)
+            sup.start(ctx.counts0)
         except BaseException:
             sup.close_devices()
-            if rec is not None:
-                rec._discard()             # nothing ran: nothing is left under any name
+            if ctx.rec is not None:
+                ctx.rec._discard()             # nothing ran: nothing is left under any name
             raise
         mode = "multi-pulse" if params.max_pulses_per_tick > 1 else "one pulse per tick (as in Kamiya et al. 2005)"
         log(f"{Path(args.job).name}: streamed to the rt motion process (pid {sup.rt_pid}) at {cfg.rate_hz:g} Hz, "
             f"backend {backend_name}, V-F {mode}, K_theta "
             f"{'/'.join(f'{k:.4g}' for k in sorted(set(sup.svc.nc.k_theta_per_s)))}/s, "
             f"{'real-time' if cfg.realtime else 'no real-time (ticks back to back, waiting for samples)'}")
-        view = _RunView(sup, max((m.line for m in job.moves), default=1), job)
-        prog = _Progress(view, Path(args.job).name, dt, args.quiet, out)
-        return _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick, s0, rec_err, sink, rec,
-                                       machine, cfg, dt, counts0, backend_name, state_file, path)
+        res = _run_job(ctx)
+        _finish_recording(ctx, res)
+        _report(ctx, res)
+        return res.exit_code
     finally:
         for sig, h in old.items():
             signal.signal(sig, h)
 
 
-def _client_wait_and_report(args, out, sup, job, prog, view, stop_req, job_tick, s0, rec_err, sink, rec, machine,
-                            cfg, dt, counts0, backend_name, state_file, path=None) -> int:
+def _open_sink(ctx: _RunContext, hal, has_truth: bool):
+    """Where the supervisor's drained records go: the RunSink (tracking figures; the spindle's and the
+    DAQ's samples per tick) and, with --record, the recording opened as ``<DIR>.partial/``."""
+    import numpy as np
 
-    from pmctl.motion.status import F_FAULT
-    log = out.log
-    settle = int(round(cfg.settle_s * cfg.rate_hz))
-    status = reason = ""
-    stop_tick = None
-    bad_input = ""
+    from pmctl.motion.recorder import R_S, R_TICK
+    from pmctl.motion.service_config import strain_in_loop as carries_strain
+    from pmctl.task.run_sink import RunSink
+    sup, settings, cfg = ctx.sup, ctx.settings, ctx.cfg
+    machine, backend_name = settings.machine, settings.backend
+    strain_in_loop = carries_strain(backend_name)
+    sink = ctx.sink = RunSink(machine, settings.params.pulses_per_mm, cfg.rate_hz, has_truth, 1 << 62, 0,
+                              sup.spindle, sup.daq, load=strain_in_loop, strain=strain_in_loop)
+    if ctx.args.record:
+        plant = hal.create(backend_name, machine, ctx.dt, settings.svc.backend_tables.get(backend_name, {})) \
+            if has_truth else None          # not opened: its options describe the simulated plant
+        ctx.rec = _open_recording(ctx.args, machine, plant, backend_name, cfg, sink, 0)
+        sink.writer = ctx.rec
+
+    def feed(rows):            # the supervisor's monitor thread, every drained chunk of records
+        if ctx.job_tick is None and ctx.s0 is not None:
+            moved = np.flatnonzero(rows[:, R_S] > ctx.s0)
+            if len(moved):     # the first tick following the job's samples: its tracking starts
+                ctx.job_tick = int(rows[moved[0], R_TICK])
+                if sink.track is not None:
+                    sink.track.j0 = ctx.job_tick
+        try:
+            sink(rows)
+        except Exception as e:
+            ctx.rec_err.append(f"{type(e).__name__}: {e}")
+            raise
+    sup.record_sink = feed
+
+
+def _run_job(ctx: _RunContext) -> _RunResult:
+    """Submit the job, wait for how it ends (the supervisor's events), shut the rt side down and
+    gather what it measured; PmctlError when the job was refused before any of it moved."""
+    from pmctl.task.job_watch import JobWatch
+    sup, cfg = ctx.sup, ctx.cfg
+    view = _RunView(sup, max((m.line for m in ctx.job.moves), default=1), ctx.job)
+    prog = _Progress(view, Path(ctx.args.job).name, ctx.dt, ctx.args.quiet, ctx.out)
+    watch = JobWatch(sup)
     t_wall = time.monotonic()
+    end = None
     try:
         s = sup.status()
         view.tick0 = s.tick
-        it = None
-        if not stop_req:
-            s0.append(s.path_s)
-            ended0 = s.ended
-            it = sup.submit(job, kind="job", name=Path(args.job).name, source=str(args.job), path=path)
-            view.item, view.s0 = it, s0[0]
+        ended0 = s.ended
+        if not ctx.stop_req:
+            ctx.s0 = s.path_s
+            watch.item = ctx.item = sup.submit(ctx.job, kind="job", name=Path(ctx.args.job).name,
+                                               source=str(ctx.args.job), path=ctx.path)
+            view.item, view.s0 = ctx.item, ctx.s0
         prog.start()
-        done_tick = None
-        while True:
-            if stop_req:
-                status, reason = "stopped", stop_req[0][0]
-                stop_tick = stop_req[0][1]
-                break
-            if sup.rt_dead:
-                status, reason = "fault", sup.alarm_msg or "the rt motion process died"
-                break
-            s = sup.status()
-            if s.stopped:
-                status = "fault" if s.fault == F_FAULT else "stopped"
-                reason = sup.ch.reason()
-                break
-            if sup.device_fault:
-                status, reason = "stopped", sup.device_fault
-                break
-            if it.error:
-                if not it.planned:        # nothing of it reached the rt side: bad input, nothing moved
-                    bad_input = it.error
-                status, reason = "fault", f"planning failed: {it.error}"
-                break
-            if done_tick is None and s.ended > ended0 and sup.retired(it):
-                done_tick = s.tick       # at the job's last sample: the plant settles
-            if done_tick is not None and s.tick >= done_tick + settle:
-                status = "done"
-                break
-            time.sleep(0.005)
+        end = watch.wait(ended0, int(round(cfg.settle_s * cfg.rate_hz)),
+                         lambda: ctx.stop_req[0] if ctx.stop_req else None)
     finally:
+        watch.close()
         prog.finish()
-        sup.shutdown(reason or "done")            # hold on the path; the rt side saves its counters and exits
-    wall = time.monotonic() - t_wall
+        # hold on the path; the rt side saves its counters and exits
+        sup.shutdown((end.reason if end is not None else "") or "done")
+    res = _RunResult(end.status, end.reason, end.stop_tick, dt=ctx.dt, realtime=bool(cfg.realtime),
+                     wall=time.monotonic() - t_wall)
+    if end.bad_input:
+        if ctx.rec is not None:
+            ctx.rec._discard()
+        raise PmctlError(end.bad_input)
+    _gather(ctx, res)
+    return res
+
+
+def _gather(ctx: _RunContext, res: _RunResult):
+    """What the rt side handed over as it exited (Channel.result), the probe results and the tracking
+    figures, into ``res``."""
+    sup = ctx.sup
     r = sup.rt_result
     fs = sup.final_status
-    if bad_input:
-        if rec is not None:
-            rec._discard()
-        raise PmctlError(bad_input)
     if r is None:
-        status, reason = "fault", "the rt motion process ended without its result" + (f" ({reason})" if reason else "")
+        res.status = "fault"
+        res.reason = "the rt motion process ended without its result" + (f" ({res.reason})" if res.reason else "")
         r = {"ticks": fs.tick if fs is not None else 0, "sent_ok": False, "clean": False, "timing": {},
              "dropped": fs.dropped if fs is not None else 0}
-    elif r.get("status") == "fault" and status != "fault":      # e.g. a following error while stopping
-        status, reason = "fault", r.get("reason", "")
-    ticks = int(r["ticks"])
-    if state_file and r.get("clean") is False and status != "fault":
-        log(f"warning: the rt side did not save {state_file} as a clean stop: the position may be off by the "
-            f"motion of the last persist interval; home the machine (or check it) before the next job")
+    elif r.get("status") == "fault" and res.status != "fault":      # e.g. a following error while stopping
+        res.status, res.reason = "fault", r.get("reason", "")
+    res.ticks = int(r["ticks"])
+    res.sent_ok, res.clean = bool(r.get("sent_ok")), bool(r.get("clean"))
+    if ctx.state_file and r.get("clean") is False and res.status != "fault":
+        ctx.out.log(f"warning: the rt side did not save {ctx.state_file} as a clean stop: the position may be off "
+                    f"by the motion of the last persist interval; home the machine (or check it) before the next job")
 
-    probes = list(getattr(it, "probe_results", None) or []) if it is not None else []
-    probe_err = next((p.error for p in probes if p.error), "")
-    if probe_err and status == "done":         # G38.2 without contact: grbl's probe-fail alarm
-        status, reason = "fault", probe_err
+    res.probes = list(getattr(ctx.item, "probe_results", None) or []) if ctx.item is not None else []
+    probe_err = next((p.error for p in res.probes if p.error), "")
+    if probe_err and res.status == "done":         # G38.2 without contact: grbl's probe-fail alarm
+        res.status, res.reason = "fault", probe_err
 
-    # ---- the recording first (the run's data must not depend on stdout staying open), then the report
-    rec_error = rec_err[0] if rec_err else ""
-    if rec_error:
-        log(f"warning: the recorder stopped at row {sink.rows}: {rec_error}; the recording ends there (marked "
-            f"incomplete): check the disk (space, permissions) and run the job again to record all of it")
-    j0 = job_tick[0] if job_tick[0] is not None else (stop_tick if stop_tick is not None else ticks)
-    res = SimpleNamespace(job_start=j0, ticks=ticks, status=status, reason=reason, dt=dt)
-    i0, i1, track_note = tracking_window(res, stop_tick)
-    ts = {}
-    if i1 > i0 and sink.track is not None and not rec_error:
-        ts = sink.track.stats(i0, i1)
-    tm = r.get("timing") or {}
-    dropped = int(r.get("dropped", 0))
-    rec_rows = _finish_recording(rec, args, backend_name, cfg, log, status, reason, ts, tm, track_note, dropped,
-                                 probes, rec_error, ticks, extra={"job_start_row": int(j0), "rt_pid": sup.rt_pid})
-    _report(out, args, status, reason, ticks, dt, wall, bool(r.get("sent_ok")), dropped, ts, track_note, probes, tm,
-            cfg.realtime, state_file, bool(r.get("clean")), rec_rows)
-    return {"done": EXIT_DONE, "stopped": EXIT_STOPPED}.get(status, EXIT_FAULT)
+    res.rec_error = ctx.rec_err[0] if ctx.rec_err else ""
+    if res.rec_error:
+        ctx.out.log(f"warning: the recorder stopped at row {ctx.sink.rows}: {res.rec_error}; the recording ends there "
+                    f"(marked incomplete): check the disk (space, permissions) and run the job again to record all "
+                    f"of it")
+    res.job_start = ctx.job_tick if ctx.job_tick is not None else (
+        res.stop_tick if res.stop_tick is not None else res.ticks)
+    i0, i1, res.track_note = tracking_window(res, res.stop_tick)
+    if i1 > i0 and ctx.sink.track is not None and not res.rec_error:
+        res.tracking = ctx.sink.track.stats(i0, i1)
+    res.timing = r.get("timing") or {}
+    res.dropped = int(r.get("dropped", 0))
 
 
 def _open_recording(args, machine, backend, backend_name, cfg, sink, job_start):
@@ -634,54 +685,56 @@ def _open_recording(args, machine, backend, backend_name, cfg, sink, job_start):
     return w.__enter__()
 
 
-def _finish_recording(rec, args, backend_name, cfg, log, status, reason, ts, tm, track_note, dropped, probes,
-                      rec_error, ticks, extra=None):
+def _finish_recording(ctx: _RunContext, res: _RunResult):
     """Write the run's end into the recording (recording.json's ``run`` block: status, reason,
-    tracking, timing, probe results) and rename ``<DIR>.partial`` to DIR; returns its rows, or None."""
+    tracking, timing, probe results) and rename ``<DIR>.partial`` to DIR; its rows go to
+    ``res.rec_rows`` (None: no recording, or it could not be finished)."""
+    rec, args, log = ctx.rec, ctx.args, ctx.out.log
     if rec is None:
-        return None
-    rec_rows = None
+        return
+    status, reason, dropped, rec_error = res.status, res.reason, res.dropped, res.rec_error
     run_meta = dict(rec.meta.get("run", {}))
-    run_meta.update(extra or {})
-    desc = (f"pmctl run {Path(args.job).name} on backend {backend_name} at {cfg.rate_hz:g} Hz: {status}"
+    run_meta.update({"job_start_row": int(res.job_start), "rt_pid": ctx.sup.rt_pid})
+    desc = (f"pmctl run {Path(args.job).name} on backend {ctx.settings.backend} at {ctx.cfg.rate_hz:g} Hz: {status}"
             + (f" ({reason})" if reason else ""))
-    run_meta.update({"status": status, "reason": reason, "tracking": ts, "timing": tm})
-    if track_note:
-        run_meta["tracking_note"] = track_note
+    run_meta.update({"status": status, "reason": reason, "tracking": res.tracking, "timing": res.timing})
+    if res.track_note:
+        run_meta["tracking_note"] = res.track_note
     if dropped:
         run_meta["dropped_rows"] = dropped
-    if probes:
-        run_meta["probe"] = [r.as_dict() for r in probes]
+    if res.probes:
+        run_meta["probe"] = [r.as_dict() for r in res.probes]
     # a stopped run is a complete recording of what happened: "complete" is about the file;
     # rows the recorder missed (dropped, or a recording error) make it incomplete
-    missing = dropped or rec_error or rec.rows != ticks
+    missing = dropped or rec_error or rec.rows != res.ticks
     why = (f"{dropped} rows dropped (the recorder fell behind the loop)" if dropped
            else f"recording error: {rec_error}" if rec_error
-           else f"{rec.rows} rows for {ticks} ticks")
+           else f"{rec.rows} rows for {res.ticks} ticks")
     if rec._done:
         log(f"warning: the recording {args.record} was abandoned during the run ({rec_error}); nothing of it was "
             f"kept: check the disk (space, permissions) and run the job again to record it")
     else:
         try:
-            rec_rows = rec.rows
+            res.rec_rows = rec.rows
             rec.finish(complete=not missing, reason=why if missing else "",
                        extra_meta={"description": desc, "run": run_meta})
         except Exception as e:
             log(f"warning: the recording {args.record} could not be finished: {e}; what was written "
                 f"may be left in {args.record}.partial (it reads as an incomplete recording)")
-            rec_rows = None
-    return rec_rows
+            res.rec_rows = None
 
 
-def _report(out, args, status, reason, ticks, dt, wall, sent_ok, dropped, ts, track_note, probes, tm, realtime,
-            state_file, clean, rec_rows):
+def _report(ctx: _RunContext, res: _RunResult):
     """The run's report on stdout (outside checks parse these lines: keep their wording)."""
+    out, args, dt = ctx.out, ctx.args, res.dt
+    status, reason, ticks, tm = res.status, res.reason, res.ticks, res.timing
+    ts, track_note = res.tracking, res.track_note
     say = out.say
     say(f"result: {status}" + (f" ({reason})" if reason else ""))
-    say(f"  ticks {ticks} ({ticks * dt:.2f} s machine time, {wall:.2f} s wall), "
-        f"pulses sent = pulse counters: {'yes' if sent_ok else 'NO'}")
-    if dropped:
-        say(f"  records dropped: {dropped} (the recorder fell behind the loop; the recording and the "
+    say(f"  ticks {ticks} ({ticks * dt:.2f} s machine time, {res.wall:.2f} s wall), "
+        f"pulses sent = pulse counters: {'yes' if res.sent_ok else 'NO'}")
+    if res.dropped:
+        say(f"  records dropped: {res.dropped} (the recorder fell behind the loop; the recording and the "
             f"tracking figures miss those ticks)")
     if ts:
         say(f"  tool-tip error (load side vs target, job part{', ' + track_note if track_note else ''}): "
@@ -689,7 +742,7 @@ def _report(out, args, status, reason, ticks, dt, wall, sent_ok, dropped, ts, tr
             f"tool axis RMS {ts['axis_rms_urad']:.2f} urad, max {ts['axis_max_urad']:.2f} urad")
     elif track_note:
         say(f"  tool-tip error: {track_note}")
-    for r in probes:
+    for r in res.probes:
         if r.contact:
             say(f"  probe G38.{r.mode} (line {r.line}): contact at X{r.point[0]:.4f} Y{r.point[1]:.4f} "
                 f"Z{r.point[2]:.4f} mm (tool tip in W); stopped {r.overtravel_mm * 1e3:.1f} um past it, "
@@ -703,9 +756,9 @@ def _report(out, args, status, reason, ticks, dt, wall, sent_ok, dropped, ts, tr
             f"max {tm['compute_max_us']:.0f} us (NC step median {tm['nc_median_us']:.0f} us, "
             f"p99 {tm['nc_p99_us']:.0f} us; period {dt * 1e6:.0f} us)"
             + (f"; lateness p99 {tm['late_p99_us']:.0f} us, max {tm['late_max_us']:.0f} us; "
-               f"overruns {tm['overruns']} (max {tm['max_overruns_in_row']} in a row)" if realtime
+               f"overruns {tm['overruns']} (max {tm['max_overruns_in_row']} in a row)" if res.realtime
                else "; lateness n/a (--no-realtime)"))
-    if state_file:
-        say(f"  counters: {state_file} ({'clean stop' if clean else 'NOT a clean stop'})")
-    if rec_rows is not None:
-        say(f"  recording: {args.record} ({rec_rows} rows)")
+    if ctx.state_file:
+        say(f"  counters: {ctx.state_file} ({'clean stop' if res.clean else 'NOT a clean stop'})")
+    if res.rec_rows is not None:
+        say(f"  recording: {args.record} ({res.rec_rows} rows)")

@@ -1,7 +1,7 @@
 /* The loop's path follower (pmctl.motion.timescale.PathFollower with its TimeScaler) in portable
  * C99: one call per tick advances the path clock at sigma along the queued sample rows and writes
  * the NC target. The arithmetic is timescale.py's, in the same order; timescale.py stays the
- * readable reference and the test oracle (tests/test_follow.py runs both on the same inputs).
+ * readable reference and the test oracle (tests/motion/test_follow.py runs both on the same inputs).
  *
  * All state lives in a caller-owned float64 buffer (FL_* below), the rows in the caller's sample
  * source: a single-producer single-consumer ring (pmctl.motion.ring: two int64 counters, rows

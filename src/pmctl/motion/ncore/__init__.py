@@ -3,7 +3,7 @@
 ``ncore.c`` / ``ncore.h`` do the arithmetic of nc.py in the same order on flat, caller-owned
 buffers (no allocation per tick; the buffers could as well live in shared memory);
 ``_ncoremodule.c`` is the CPython binding, built at install time (setup.py). nc.py stays the
-readable reference and the test oracle (tests/test_ncore.py runs both on the same inputs).
+readable reference and the test oracle (tests/motion/test_ncore.py runs both on the same inputs).
 
 The core reports why the mode changed as an event code plus its numbers; the reason text is made
 here by the same functions nc.py uses, so both implementations stop with the same words.
