@@ -337,3 +337,22 @@ def test_bursts_that_hold_a_channels_excess_are_reported_as_intermittent(ctx):
     assert [(e["channels"], e["signature"]) for e in u] == [(["enc_X"], "intermittent (3 bursts)")]
     assert u[0]["excess_over_noise"] == pytest.approx(1.48, abs=0.05)
 
+
+
+def test_an_excess_of_exactly_excess_min_is_reported(ctx):
+    """The size threshold is inclusive: strain_2 left at exactly twice its noise energy (excess 1:
+    +2 x noise over the first quarter of its samples in time, -2 x over the second, 0 after; every
+    other channel at 0) has the structure of a level change and is reported, with excess 1.0."""
+    o = ctx.obs
+    m = o.mask_of("strain_2")
+    n = int(m.sum())
+    assert n % 4 == 0
+    order = np.argsort(ctx.t[o.row[m]], kind="stable")
+    yy = np.zeros(n)
+    yy[order[: n // 4]] = 2.0
+    yy[order[n // 4: n // 2]] = -2.0
+    y = np.zeros(len(o.y))
+    y[m] = yy
+    assert float(y[m] @ y[m]) == 2.0 * n
+    u = U.unexplained(ctx, y, locate(ctx, y))
+    assert [e["channels"] for e in u] == [["strain_2"]] and u[0]["excess_over_noise"] == 1.0, u
