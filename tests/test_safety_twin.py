@@ -356,3 +356,25 @@ def test_an_excess_of_exactly_excess_min_is_reported(ctx):
     assert float(y[m] @ y[m]) == 2.0 * n
     u = U.unexplained(ctx, y, locate(ctx, y))
     assert [e["channels"] for e in u] == [["strain_2"]] and u[0]["excess_over_noise"] == 1.0, u
+
+
+def test_a_stretch_with_structure_is_reported_in_a_channel_whose_whole_excess_has_none(ctx):
+    """tip_y at 1.6 x its noise level everywhere (white: a noise level estimated wrong) with a 14 Hz
+    line of 3 x noise from 5 to 7 s: over the whole run its excess (1.4 x noise) has no structure (no
+    signature reaches STRUCT_MIN), but the one stretch above 2.5 x noise is the line: reported there,
+    as that line."""
+    o = ctx.obs
+    m = o.mask_of("tip_y")
+    tt = ctx.t[o.row[m]]
+    s = (tt > 5.0) & (tt < 7.0)
+    y = np.random.default_rng(9).normal(0.0, 1.0, len(o.y))
+    yy = 1.6 * y[m]
+    yy[s] += 3.0 * np.sin(2 * np.pi * 14.0 * tt[s])
+    y[m] = yy
+    loc = locate(ctx, y)
+    whole = U._signatures(ctx, "tip_y", m, y, loc["channels"]["tip_y"]["windows_s"])
+    assert max(v[0] for v in whole.values()) < U.STRUCT_MIN and math.sqrt(float(y[m] @ y[m]) / m.sum() - 1) > 1.0
+    u = U.unexplained(ctx, y, loc)
+    assert [(e["channels"], e["signature"][:16]) for e in u] == [(["tip_y"], "spectral line 14")], u
+    (a, b), = u[0]["time_windows_s"]
+    assert 5.0 <= a < 5.5 and 6.5 < b <= 7.0
