@@ -140,7 +140,7 @@ GROUPS = {
     "planner": Group(
         (Target("src/pmctl/task/planner.py", ("x__violations", "x__check_samples", "x__check_reachable",
                                               "x__reach_problems")),),
-        ("tests/test_safety_planner.py", "tests/task/test_safety_limits.py"), None,
+        ("tests/task/test_safety_planner.py", "tests/task/test_safety_limits.py"), None,
         "the last check on the samples (joint and tip speed and acceleration), reachability of the "
         "programmed poses and of the path between them"),
     "swing": Group((Target("src/pmctl/core/kinematics.py", ("x_limit_violations",)),),
@@ -150,7 +150,7 @@ GROUPS = {
         (Target("src/pmctl/tools/calibrate/identify.py", ("x_analyse",),
                 {"x_identify": [("n_ax = 0 if axis is None", "sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))"),
                                 ("var = np.einsum(", "res.predicted_axis_urad =")]}),),
-        ("tests/test_safety_calibration.py", "tests/tools/test_calibration.py"), None,
+        ("tests/tools/test_safety_calibration.py", "tests/tools/test_calibration.py"), None,
         "the identification's uncertainties: degrees of freedom, chi-square scaling, the identified "
         "directions (analyse), the predicted accuracy"),
     "twin": Group(
@@ -160,7 +160,7 @@ GROUPS = {
                                    ("if not glob or max(", "if not glob or max("),
                                    ("if max((v[0] for v in sw.values())", "if max((v[0] for v in sw.values())"),
                                    ("kind, frac, detail = \"broadband\", 0.0, None", "continue")]})),
-        ("tests/test_safety_twin.py", "tests/tools/test_twin_false_alarms.py"), "not clean_recording and not just_below",
+        ("tests/tools/test_safety_twin.py", "tests/tools/test_twin_false_alarms.py"), "not clean_recording and not just_below",
         "the acceptance rule (accept: MIN_DSSE, REL_MIN, STRONG, the peak), the SHARE_MIN rule, and the "
         "unexplained block's no-structure rule (an excess without a structure is not reported)"),
 }
