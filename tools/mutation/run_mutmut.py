@@ -99,7 +99,7 @@ GROUPS = {
     "timescale": Group(
         (Target(TS, ("xǁTimeScalerǁstep", "xǁTimeScalerǁset_feed_override", "xǁTimeScalerǁset_rapid_override",
                      "xǁPathFollowerǁnext_target", "x_backward_pass", "x_sample_caps", "x_scaling_limits")),),
-        ("tests/motion/test_safety_timescale.py", "tests/test_safety_follower.py", "tests/motion/test_follow.py",
+        ("tests/motion/test_safety_timescale.py", "tests/motion/test_follow.py",
          "tests/task/test_safety_hold.py", "tests/motion/test_timescale.py"),
         "not sigterm and not console and not memory",
         "sigma's rate and jerk limits, feed hold and overrides, caps, starvation, the backward pass"),
