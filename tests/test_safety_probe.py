@@ -161,7 +161,7 @@ def test_the_stop_on_contact_comes_to_rest_within_its_bound_and_gives_the_limits
     b = Bench(cfg, text="G21 G90\nG38.3 Z{z:.4f} F%d\n" % feed)
     sc = b.fol.scaler
     a0, j0 = sc.accel, sc.jerk
-    ended0 = b.fol.ended_jobs
+    b.fol.ended_jobs = ended0 = 5          # the daemon's follower has passed other jobs' ends before
     r = b.run(lambda k, s: 10.0 * cfg.threshold_N if s > 0.4 else 0.0)
     v = feed / 60.0
     assert r.contact and r.speed_mm_s == pytest.approx(v, rel=1e-6)
@@ -378,15 +378,17 @@ def test_the_gravity_load_changing_along_a_tilted_line_is_never_read_as_contact(
     assert r.contact and np.dot(r.point - seg.start, seg.direction) == pytest.approx(2.0, abs=cfg.filter_ticks * 5.0 * DT)
 
 
-@pytest.mark.parametrize("share", [(0.0, 1.0, 0.0), (1.0, -0.6, 0.3)])
-def test_the_reported_noise_is_the_spread_of_the_reference_ticks_per_chain(share):
+@pytest.mark.parametrize("share,contact", [((0.0, 1.0, 0.0), False), ((1.0, -0.6, 0.3), True)])
+def test_the_reported_noise_is_the_spread_of_the_reference_ticks_per_chain(share, contact):
     """A force alternating +-1 N tick by tick (no moving average: filter_ticks 1) over the 32
     reference ticks: its spread is exactly 1 N x the chain's share, so the reported noise, the rms
-    over the three chains, is sqrt(sum(share^2) / 3) N, to the model's interpolation error."""
+    over the three chains, is sqrt(sum(share^2) / 3) N, to the model's interpolation error; in the
+    result of a probe that ran to its end and of one stopped by a contact (a 10 x threshold step at
+    1 mm, well after the reference)."""
     cfg = ProbeConfig(filter_ticks=1)
     b = Bench(cfg, text="G21 G90\nG38.3 Z{z:.4f} F300\n", chain=share)
-    r = b.run(lambda k, s: 1.0 if k % 2 else -1.0)
-    assert not r.contact and r.error == ""
+    r = b.run(lambda k, s: (1.0 if k % 2 else -1.0) + (10.0 * cfg.threshold_N if contact and s > 1.0 else 0.0))
+    assert r.contact == contact and r.error == ""
     assert r.noise_N == pytest.approx(math.sqrt(sum(x * x for x in share) / 3.0), rel=1e-6)
 
 
