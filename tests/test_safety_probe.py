@@ -120,6 +120,9 @@ def test_debounce_minus_one_ticks_over_the_threshold_do_not_stop_it_debounce_tic
         assert r.contact == stops, (n, r)
         if stops:
             assert r.tick == start[0] + n - 1
+            # the travel past the trigger is counted from the first over-threshold tick (what bound_mm bounds)
+            s_at = {k: s for k, s, *_ in b.trace}
+            assert r.after_trigger_mm == pytest.approx(b.trace[-1][1] - s_at[start[0]], abs=1e-9)
 
 
 @pytest.mark.parametrize("share", [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (1.0, -0.6, 0.3)])
