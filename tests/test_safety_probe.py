@@ -38,6 +38,9 @@ DT = 1e-3
 PARAMS = NCConfig().params(M, DT)
 TIP0, AXIS0 = (np.asarray(x, float) for x in home_pose(M))
 GAIN = float(M.strain_gain)
+# a tilted tool axis, off the table's centre: the three chains carry different gravity loads, which
+# change along a probing line by different amounts (7 to 13 mN over 6 mm; at home all three are alike)
+TILTED = (TIP0 + np.array([25.0, -15.0, 0.0]), K.axis_from_roll_pitch(math.radians(8.0), math.radians(-12.0)))
 
 
 class Bench:
@@ -299,19 +302,25 @@ def test_the_stop_decelerates_at_the_probe_deceleration_reached_within_two_ticks
     assert a[i:].max() <= decel * (1 + 1e-3)
 
 
-def test_a_diagonal_probe_finds_where_the_force_began():
-    """A probing move along x, y and z at once: the contact point lies on the line where the force
-    stepped in (the travel measured along the move's direction), within the moving average's reach."""
+@pytest.mark.parametrize("start", [(TIP0, AXIS0), TILTED], ids=["home", "off-centre-tilted"])
+def test_a_diagonal_probe_finds_where_the_force_began(start):
+    """A probing move along x, y and z at once, from home or from x = 25, y = -15 with the tool
+    tilted: the travel is measured from the move's start along its direction, so the contact point
+    lies on the line where the force stepped in (within the moving average's reach), and the
+    overtravel and the travel past the trigger are the rest point's distances along the move."""
     cfg = ProbeConfig()
-    b = Bench(cfg, text="G21 G90\nG38.2 X1.2 Y-0.9 Z{z:.4f} F60\n")
+    tip0 = start[0]
+    b = Bench(cfg, text=f"G21 G90\nG38.2 X{tip0[0] + 1.2:.4f} Y{tip0[1] - 0.9:.4f} Z{{z:.4f}} F60\n", start=start)
     seg = b.segs[0]
-    assert min(abs(seg.direction)) > 0.3
+    assert min(abs(seg.direction)) > 0.3 and np.allclose(seg.start, tip0)
     r = b.run(lambda k, s: 10.0 * cfg.threshold_N if s > 0.5 else 0.0)
     assert r.contact
     want = seg.start + 0.5 * seg.direction
     assert np.linalg.norm(r.point - want) < cfg.filter_ticks * 1.0 * DT, (r.point, want)
     assert 0.0 < r.after_trigger_mm <= r.bound_mm
     assert r.overtravel_mm == pytest.approx(float(np.dot(r.stop - r.point, seg.direction)), abs=1e-9)
+    assert r.after_trigger_mm == pytest.approx(float(np.dot(r.stop - seg.start, seg.direction)) - 0.5,
+                                               abs=cfg.filter_ticks * 1.0 * DT)
 
 
 def test_a_probe_feed_limit_under_1_mm_s_caps_slow_probing_rows_too():
@@ -331,30 +340,6 @@ def test_a_force_step_during_the_tare_of_25_times_the_threshold_stops_the_move()
     r = b.run(lambda k, s: 2.5 * cfg.threshold_N if s > 0.1 else 0.0)
     assert ARMED not in [st for *_, st in b.trace]           # stopped from the reference, before arming
     assert r.contact and r.point[2] == pytest.approx(TIP0[2] - 0.1, abs=cfg.filter_ticks * 1.0 * DT)
-
-
-# a tilted tool axis, off the table's centre: the three chains carry different gravity loads, which
-# change along a probing line by different amounts (a few mN over 10 mm; at home all three are alike)
-TILTED = (TIP0 + np.array([25.0, -15.0, 0.0]), K.axis_from_roll_pitch(math.radians(8.0), math.radians(-12.0)))
-
-
-def test_an_off_centre_tilted_probe_finds_where_the_force_began():
-    """Started at x = 25, y = -15 with the tool tilted, along x, y and z at once: the travel is
-    measured from the move's start, so the contact point is where the force stepped in (within the
-    moving average's reach), and the overtravel is the rest point's distance past it along the move."""
-    cfg = ProbeConfig()
-    tip0 = TILTED[0]
-    b = Bench(cfg, text=f"G21 G90\nG38.2 X{tip0[0] + 1.2:.4f} Y{tip0[1] - 0.9:.4f} Z{{z:.4f}} F60\n", start=TILTED)
-    seg = b.segs[0]
-    assert min(abs(seg.direction)) > 0.3 and np.allclose(seg.start, tip0)
-    r = b.run(lambda k, s: 10.0 * cfg.threshold_N if s > 0.5 else 0.0)
-    assert r.contact
-    want = seg.start + 0.5 * seg.direction
-    assert np.linalg.norm(r.point - want) < cfg.filter_ticks * 1.0 * DT, (r.point, want)
-    assert 0.0 < r.after_trigger_mm <= r.bound_mm
-    assert r.overtravel_mm == pytest.approx(float(np.dot(r.stop - r.point, seg.direction)), abs=1e-9)
-    assert r.after_trigger_mm == pytest.approx(float(np.dot(r.stop - seg.start, seg.direction)) - 0.5,
-                                               abs=cfg.filter_ticks * 1.0 * DT)
 
 
 def test_the_gravity_load_changing_along_a_tilted_line_is_never_read_as_contact():
