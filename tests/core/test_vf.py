@@ -128,3 +128,25 @@ def test_the_defaults_are_the_seeds_converter():
     assert p.tolist() == [1, 1] and a.tolist() == [0.5, 1.0]
     p2, a2 = vf.vf_tick([0.0, 0.0], [1.5, 2.5], 1.0)
     assert p2 == [1, 1] and a2 == [0.5, 1.0]
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-1.0, 1.0, width=32, **finite), min_size=3, max_size=3), st.integers(20, 200),
+       st.sampled_from([1e-3, 5e-4]), st.floats(0.1, 10.0, **finite))
+def test_single_precision_rates_are_integrated_in_double(frac, n_ticks, dt, threshold):
+    """Rates held in float32 (a recorder's samples) are integrated as the doubles they stand for: the
+    pulses plus the residue equal the integral of those values to double precision, and every tick's
+    pulses and residue are those of the same rates given as float64. (Integrated in single precision,
+    each tick's u*dt would be rounded to 24 bits: a drift of 1e-8 of the travel.)"""
+    u32 = (np.array(frac, np.float32) * np.float32(0.9 * threshold / dt)).astype(np.float32)
+    u64 = u32.astype(np.float64)
+    acc32, acc64 = np.zeros(3), np.zeros(3)
+    total = np.zeros(3, np.int64)
+    for _ in range(n_ticks):
+        p32, acc32 = vf.vf_step(acc32, u32, dt, threshold, 1)
+        p64, acc64 = vf.vf_step(acc64, u64, dt, threshold, 1)
+        assert p32.tolist() == p64.tolist() and acc32.tolist() == acc64.tolist()
+        total += p32
+    integral = u64 * dt * n_ticks
+    np.testing.assert_allclose(total * threshold + acc32, integral, rtol=0,
+                               atol=1e-12 * (np.abs(integral).max() + threshold))

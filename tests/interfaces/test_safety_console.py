@@ -1,13 +1,14 @@
 """The console's realtime bytes, with the console in this process: a GrblConsole on a real pty (the
-daemon's ConsolePort), a real Supervisor with its rt motion process on the sim, and a grbl sender on
-the pty's other side (tests/grbl_sender.py). The other console tests run `pmctl serve` in a child
+daemon's ConsolePort), a real Supervisor with its rt motion process on the sim and its spindle on a
+simulated Modbus VFD (on loopback), and a grbl sender on the pty's other side (tests/grbl_sender.py). The other console tests run `pmctl serve` in a child
 process, where a mutation tool's switch does not reach; these pin the realtime handling itself:
 
 - ``?`` answers a status report at once, also in the middle of a line, which goes on unharmed;
 - ``!`` holds a running G0 on the line (Hold, the tool stops short of the target and stays), ``~``
   finishes it; ``!`` while idle is a hold too (Hold:0, grbl 1.1); ``!`` during a jog cancels the jog;
 - 0x85 cancels a jog; 0x18 stops a G0 short, drops the half-received line and the queue, sets the
-  overrides back to 100 % and greets again;
+  overrides back to 100 % and greets again; a second 0x18 drops the line the worker holds unanswered;
+- 0x9E, and no other byte, stops the spindle in Hold:0 and starts it back;
 - the override bytes step and bound as grbl's do (feed and spindle 10-200 %, +-10, +-1, 100; rapid
   100/50/25 %), the feed and rapid ones as the rt process reports them applied;
 - any byte from 0x80 up is a realtime byte, never part of a line; ``\\n`` and ``\\r`` end a line; a
@@ -39,11 +40,27 @@ pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def console(tmp_path_factory):
+def vfd():
+    """The spindle's VFD: a simulated Modbus inverter (a pymodbus server in this process, on loopback)
+    spinning up at 200000 rpm/s; the console's supervisor connects to it at the first M3."""
+    from pmctl.hal.modbus_vfd import VfdOptions, simulated
+    opt = VfdOptions.from_dict({"simulate": True, "port": 0, "sim_ramp_rpm_per_s": 200000.0,
+                                "max_rpm": 24000.0, "max_hz": 400.0})
+    srv, dev = simulated(opt)
+    try:
+        yield opt, dev
+    finally:
+        srv.stop()
+
+
+@pytest.fixture(scope="module")
+def console(tmp_path_factory, vfd):
     tmp = tmp_path_factory.mktemp("console")
     svc = tmp / "service.toml"
     svc.write_text('[loop]\nrate_hz = 1000\nstall_timeout_ms = 5000\nmax_overruns_in_row = 100000\n'
-                   'state_file = ""\n[hal]\nbackend = "sim"\n')
+                   'state_file = ""\n[hal]\nbackend = "sim"\n'
+                   f'[spindle]\nhost = "127.0.0.1"\nport = {vfd[0].port}\nsimulate = false\npoll_ms = 20\n'
+                   'max_rpm = 24000.0\nmax_hz = 400.0\n')
     sup = Supervisor(service=str(svc), log=lambda m: None)
     tip, axis = home_pose(sup.machine)
     sup.start(counts_of(K.ik(tip, axis, sup.machine).q, sup.params))
@@ -247,3 +264,65 @@ def test_bf_counts_the_bytes_of_the_lines_not_yet_answered(console):
         assert s.status()["Bf"] == f"{PLANNER_BLOCKS},128"
     finally:
         assert s.send("$10=1") == "ok"
+
+
+def test_a_second_soft_reset_drops_the_line_in_the_workers_hands_unanswered(console):
+    """Two resets: after the first, a probing line sent in a hold waits in the worker's hands (grbl
+    answers a probe once it has ended); Bf's RX field counts exactly its bytes, line end included (the
+    half line before the reset counted for nothing). The second reset drops it: it is never answered
+    (a character-counting sender counts its bytes free again from the greeting), and the tool has not
+    moved."""
+    s, sup, con = console
+    _home_x(s)
+    assert s.send("$10=3") == "ok"
+    try:
+        s.realtime(b"G0 Y3")                        # half a line, dropped by the first reset
+        s.reset()
+        p0 = _idle(s)["pos"]
+        s.realtime(b"!")
+        assert s.wait_state(("Hold:0",), 10)["state"] == "Hold:0"
+        n0 = len(s.answers)
+        line = "G91 G38.3 Z-1 F60"
+        s.send(line, wait=False)
+        assert s.wait_for(lambda: sup.queued_items() >= 1, 30)        # the probe queued, held
+        st = s.status()
+        assert st["state"] == "Hold:0" and st["Bf"] == f"{PLANNER_BLOCKS},{128 - len(line) - 1}", st
+        s.reset()
+        st = _idle(s)
+        assert st["Bf"] == f"{PLANNER_BLOCKS},128"
+        assert s.send("G90") == "ok" and s.answers[n0:] == ["ok"]       # the probe line: no answer
+        assert np.allclose(s.status()["pos"], p0, atol=1e-3)
+    finally:
+        s.reset()                                   # (a failed check may leave the probe held)
+        assert s.send("$10=1") == "ok"
+
+
+def test_the_spindle_stop_in_a_hold_is_byte_0x9e_alone(console, vfd):
+    """In Hold:0 with the spindle running (the fixture's simulated VFD): 0x9F, the byte after it,
+    leaves the spindle running; 0x9E stops it (the VFD's run command goes to stop), 0x9E again
+    starts it back; cycle start finishes the move with the spindle at its speed."""
+    s, sup, con = console
+    _, dev = vfd
+    _home_x(s)
+    try:
+        assert s.send("M3 S6000") == "ok" and s.send("G1 X-8 F600") == "ok"
+        _moving(s)
+        assert dev.run == 1 and dev.rpm > 5000
+        s.realtime(b"!")
+        assert s.wait_state(("Hold:0",), 30)["state"] == "Hold:0"
+        s.realtime(b"\x9f")
+        assert s.status()["FS"].endswith(",6000")          # (the report follows the byte: it was read)
+        sup._m5_written()
+        assert not sup.spindle_stopped_in_hold and dev.run == 1
+        s.realtime(b"\x9e")
+        assert s.wait_for(lambda: dev.run == 0, 10) and s.wait_for(lambda: dev.rpm == 0.0, 10)
+        assert s.status()["FS"].endswith(",0") and s.status()["state"] == "Hold:0"
+        s.realtime(b"\x9e")
+        assert s.wait_for(lambda: dev.run == 1, 10)
+        s.realtime(b"~")
+        st = _idle(s)
+        assert st["pos"][0] == pytest.approx(-8.0, abs=2e-3) and st["FS"].endswith(",6000")
+        assert dev.rpm >= 0.98 * 6000
+    finally:
+        s.send("M5")
+    assert s.wait_for(lambda: dev.run == 0, 10)

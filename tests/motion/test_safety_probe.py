@@ -24,7 +24,7 @@ from pmctl.core import kinematics as K
 from pmctl.core import statics
 from pmctl.core.config import load_machine
 from pmctl.motion.loop import prepare, target_samples
-from pmctl.motion.probe import (ARMED, IDLE, STOPPING, TARE, ProbeConfig, ProbeMonitor, mark_probe_rows,
+from pmctl.motion.probe import (ARMED, IDLE, STOPPING, TARE, TARE_GUARD, ProbeConfig, ProbeMonitor, mark_probe_rows,
                                 probe_segments)
 from pmctl.motion.ring import ArraySource
 from pmctl.motion.service_config import NCConfig
@@ -38,19 +38,23 @@ DT = 1e-3
 PARAMS = NCConfig().params(M, DT)
 TIP0, AXIS0 = (np.asarray(x, float) for x in home_pose(M))
 GAIN = float(M.strain_gain)
+# a tilted tool axis, off the table's centre: the three chains carry different gravity loads, which
+# change along a probing line by different amounts (7 to 13 mN over 6 mm; at home all three are alike)
+TILTED = (TIP0 + np.array([25.0, -15.0, 0.0]), K.axis_from_roll_pitch(math.radians(8.0), math.radians(-12.0)))
 
 
 class Bench:
     """One G38 move from home, 2 mm down at F60 (1 mm/s), followed tick by tick."""
 
     def __init__(self, cfg=ProbeConfig(), text="G21 G90\nG38.2 Z{z:.4f} F60\n", params=PARAMS, chain=0,
-                 fetch=False):
-        job = parse_gcode(text.format(z=TIP0[2] - 2.0), "p.ngc", TIP0, AXIS0)
-        traj = plan(job, M, DT, start=(TIP0, AXIS0))
+                 fetch=False, start=(TIP0, AXIS0)):
+        tip0, axis0 = (np.asarray(x, float) for x in start)
+        job = parse_gcode(text.format(z=tip0[2] - 2.0), "p.ngc", tip0, axis0)
+        traj = plan(job, M, DT, start=(tip0, axis0))
         tg = prepare(M, PARAMS, traj, DT)
         self.fol = make_follower(ArraySource(target_samples(tg, DT, PARAMS)), PARAMS, DT)
         self.fol.scaler.sigma = 1.0
-        self.segs = probe_segments(job, M, TIP0)
+        self.segs = probe_segments(job, M, tip0)
         if fetch:                # the daemon's way: the segment handed over once the follower is on it
             left = list(self.segs)
             self.mon = ProbeMonitor(M, [], cfg, DT, params,
@@ -119,6 +123,9 @@ def test_debounce_minus_one_ticks_over_the_threshold_do_not_stop_it_debounce_tic
         assert r.contact == stops, (n, r)
         if stops:
             assert r.tick == start[0] + n - 1
+            # the travel past the trigger is counted from the first over-threshold tick (what bound_mm bounds)
+            s_at = {k: s for k, s, *_ in b.trace}
+            assert r.after_trigger_mm == pytest.approx(b.trace[-1][1] - s_at[start[0]], abs=1e-9)
 
 
 @pytest.mark.parametrize("share", [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (1.0, -0.6, 0.3)])
@@ -160,7 +167,7 @@ def test_the_stop_on_contact_comes_to_rest_within_its_bound_and_gives_the_limits
     b = Bench(cfg, text="G21 G90\nG38.3 Z{z:.4f} F%d\n" % feed)
     sc = b.fol.scaler
     a0, j0 = sc.accel, sc.jerk
-    ended0 = b.fol.ended_jobs
+    b.fol.ended_jobs = ended0 = 5          # the daemon's follower has passed other jobs' ends before
     r = b.run(lambda k, s: 10.0 * cfg.threshold_N if s > 0.4 else 0.0)
     v = feed / 60.0
     assert r.contact and r.speed_mm_s == pytest.approx(v, rel=1e-6)
@@ -295,19 +302,25 @@ def test_the_stop_decelerates_at_the_probe_deceleration_reached_within_two_ticks
     assert a[i:].max() <= decel * (1 + 1e-3)
 
 
-def test_a_diagonal_probe_finds_where_the_force_began():
-    """A probing move along x, y and z at once: the contact point lies on the line where the force
-    stepped in (the travel measured along the move's direction), within the moving average's reach."""
+@pytest.mark.parametrize("start", [(TIP0, AXIS0), TILTED], ids=["home", "off-centre-tilted"])
+def test_a_diagonal_probe_finds_where_the_force_began(start):
+    """A probing move along x, y and z at once, from home or from x = 25, y = -15 with the tool
+    tilted: the travel is measured from the move's start along its direction, so the contact point
+    lies on the line where the force stepped in (within the moving average's reach), and the
+    overtravel and the travel past the trigger are the rest point's distances along the move."""
     cfg = ProbeConfig()
-    b = Bench(cfg, text="G21 G90\nG38.2 X1.2 Y-0.9 Z{z:.4f} F60\n")
+    tip0 = start[0]
+    b = Bench(cfg, text=f"G21 G90\nG38.2 X{tip0[0] + 1.2:.4f} Y{tip0[1] - 0.9:.4f} Z{{z:.4f}} F60\n", start=start)
     seg = b.segs[0]
-    assert min(abs(seg.direction)) > 0.3
+    assert min(abs(seg.direction)) > 0.3 and np.allclose(seg.start, tip0)
     r = b.run(lambda k, s: 10.0 * cfg.threshold_N if s > 0.5 else 0.0)
     assert r.contact
     want = seg.start + 0.5 * seg.direction
     assert np.linalg.norm(r.point - want) < cfg.filter_ticks * 1.0 * DT, (r.point, want)
     assert 0.0 < r.after_trigger_mm <= r.bound_mm
     assert r.overtravel_mm == pytest.approx(float(np.dot(r.stop - r.point, seg.direction)), abs=1e-9)
+    assert r.after_trigger_mm == pytest.approx(float(np.dot(r.stop - seg.start, seg.direction)) - 0.5,
+                                               abs=cfg.filter_ticks * 1.0 * DT)
 
 
 def test_a_probe_feed_limit_under_1_mm_s_caps_slow_probing_rows_too():
@@ -327,3 +340,77 @@ def test_a_force_step_during_the_tare_of_25_times_the_threshold_stops_the_move()
     r = b.run(lambda k, s: 2.5 * cfg.threshold_N if s > 0.1 else 0.0)
     assert ARMED not in [st for *_, st in b.trace]           # stopped from the reference, before arming
     assert r.contact and r.point[2] == pytest.approx(TIP0[2] - 0.1, abs=cfg.filter_ticks * 1.0 * DT)
+
+
+def test_the_gravity_load_changing_along_a_tilted_line_is_never_read_as_contact():
+    """With the tool tilted the chains' gravity loads change along a 6 mm probing line by 7 to 13 mN,
+    differently on each chain. The monitor subtracts each chain's own model at the tool's travel,
+    so with gauges reading exactly that load and no contact force, even a threshold of 0.1 mN (70
+    times smaller than the change, 20 times smaller than the change of one chain's load less
+    another's) never trips, and the reference's noise is below 1 uN."""
+    cfg = ProbeConfig(threshold_N=1e-4)
+    b = Bench(cfg, text=f"G21 G90\nG38.3 Z{TILTED[0][2] - 6.0:.4f} F300\n",
+              start=TILTED)
+    seg = b.segs[0]
+    load = (np.asarray(seg.grid_strain) - np.asarray(seg.grid_strain)[0]) / GAIN        # N, along the line
+    change = np.ptp(load, axis=0)
+    apart = [np.ptp(load[:, i] - load[:, j]) for i, j in ((0, 1), (1, 2), (2, 0))]
+    assert change.min() > 70 * cfg.threshold_N and min(apart) > 20 * cfg.threshold_N, (change, apart)
+    r = b.run(lambda k, s: 0.0)
+    assert not r.contact and r.error == "" and r.noise_N < 1e-6
+    assert abs(r.stop[2] - (TILTED[0][2] - 6.0)) < 1e-6
+    # and a force just over that threshold, on the chain whose load changes most, is seen
+    b = Bench(cfg, text=f"G21 G90\nG38.3 Z{TILTED[0][2] - 6.0:.4f} F300\n",
+              start=TILTED, chain=int(np.argmax(change)))
+    r = b.run(lambda k, s: 1.5 * cfg.threshold_N if s > 2.0 else 0.0)
+    assert r.contact and np.dot(r.point - seg.start, seg.direction) == pytest.approx(2.0, abs=cfg.filter_ticks * 5.0 * DT)
+
+
+@pytest.mark.parametrize("share,contact", [((0.0, 1.0, 0.0), False), ((1.0, -0.6, 0.3), True)])
+def test_the_reported_noise_is_the_spread_of_the_reference_ticks_per_chain(share, contact):
+    """A force alternating +-1 N tick by tick (no moving average: filter_ticks 1) over the 32
+    reference ticks: its spread is exactly 1 N x the chain's share, so the reported noise, the rms
+    over the three chains, is sqrt(sum(share^2) / 3) N, to the model's interpolation error; in the
+    result of a probe that ran to its end and of one stopped by a contact (a 10 x threshold step at
+    1 mm, well after the reference)."""
+    cfg = ProbeConfig(filter_ticks=1)
+    b = Bench(cfg, text="G21 G90\nG38.3 Z{z:.4f} F300\n", chain=share)
+    r = b.run(lambda k, s: (1.0 if k % 2 else -1.0) + (10.0 * cfg.threshold_N if contact and s > 1.0 else 0.0))
+    assert r.contact == contact and r.error == ""
+    assert r.noise_N == pytest.approx(math.sqrt(sum(x * x for x in share) / 3.0), rel=1e-6)
+
+
+def test_the_reference_is_taken_at_feed_not_while_held_at_the_start():
+    """Held at rest at the probe's start, the ball screws hold a static friction load (here 7 N on a
+    chain) that motion relieves: no reference tick is taken at rest, however long the hold, so the
+    reference is the moving one and the probe runs to its end without a false contact. (Taken at rest
+    it would carry the 7 N and read the moving tool as 7 N of contact.)"""
+    cfg = ProbeConfig()
+    b = Bench(cfg, text="G21 G90\nG38.2 Z{z:.4f} F300\n")
+    sc = b.fol.scaler
+    sc.sigma, sc.hold = 0.0, True
+    for _ in range(3 * (cfg.tare_ticks + cfg.filter_ticks)):
+        tg = b.fol.next_target()
+        b.mon.tick(b.fol, tg, b.gauges(tg, 7.0), b.k)
+        b.k += 1
+    assert sc.sigma == 0.0 and b.mon.state == TARE and b.mon.n_tare == 0
+    sc.hold = False
+    r = b.run(lambda k, s: 0.0)
+    assert not r.contact and r.error.startswith("probe fail")
+    assert abs(r.stop[2] - (TIP0[2] - 2.0)) < 1e-6
+
+
+def test_the_tare_guard_watches_from_its_first_reference_tick():
+    """A force of 6 x the threshold that steps in at reference tick TARE_GUARD (no moving average)
+    is seen on that very tick: against the running reference it is 7/8 of itself, over twice the
+    threshold."""
+    cfg = ProbeConfig(tare_ticks=400, filter_ticks=1)
+    b = Bench(cfg)
+    on = []
+
+    def force(k, s):
+        if not on and b.mon.state == TARE and b.mon.n_tare + 1 == TARE_GUARD:
+            on.append(k)
+        return 6.0 * cfg.threshold_N if on else 0.0
+    r = b.run(force)
+    assert r.contact and on and r.tick == on[0]
