@@ -312,8 +312,8 @@ def test_the_spindle_stop_in_a_hold_is_byte_0x9e_alone(console, vfd):
         assert s.wait_state(("Hold:0",), 30)["state"] == "Hold:0"
         s.realtime(b"\x9f")
         assert s.status()["FS"].endswith(",6000")          # (the report follows the byte: it was read)
-        sup._m5_written()
-        assert not sup.spindle_stopped_in_hold and dev.run == 1
+        sup._spindle._m5_written()
+        assert not sup._spindle.stopped_in_hold and dev.run == 1
         s.realtime(b"\x9e")
         assert s.wait_for(lambda: dev.run == 0, 10) and s.wait_for(lambda: dev.rpm == 0.0, 10)
         assert s.status()["FS"].endswith(",0") and s.status()["state"] == "Hold:0"
