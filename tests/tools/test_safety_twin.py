@@ -236,6 +236,28 @@ def test_on_channels_too_short_for_the_flexible_description_an_effect_is_all_the
     assert D._share(ev, short, y) == 2.0 and ev["net_share"] == 2.0
 
 
+@pytest.mark.parametrize("scale", [0.5, 1.5])
+def test_the_share_is_what_a_prediction_removes_from_the_residual_not_its_own_energy(ctx, scale):
+    """In a back-fit an effect's prediction is not the least-squares fit of the residual it is judged
+    on. A sensor offset predicted at half (or 1.5 times) its fitted size removes 1 - (1 - s)^2 of what
+    the fitted one removes (3/4 at s = 0.5 or 1.5), not s^2 of it (1/4 or 9/4: the prediction's own
+    energy, which equals the removed energy only for a least-squares fit)."""
+    import dataclasses
+    from pmctl.tools.twin.unexplained import flexible_gain
+    o = ctx.obs
+    y = np.random.default_rng(4).normal(0.0, 1.0, len(o.y))
+    m = o.mask_of("strain_1")
+    y[m] += 2.0
+    aff = np.array([c == "strain_1" for c in o.channels])
+    fit = SensorOffset("strain_1").fit(ctx, y, np.ones(len(y), bool))
+    d_flex = flexible_gain(ctx, y, aff)
+    full = {"affected": aff, "fit": fit}
+    part = {"affected": aff, "fit": dataclasses.replace(fit, pred=scale * fit.pred)}
+    removed_full = D._share(full, ctx, y) * d_flex
+    removed_part = D._share(part, ctx, y) * d_flex
+    assert removed_full == pytest.approx(float(fit.pred[m] @ fit.pred[m]), rel=1e-9)   # LS: y.p = p.p
+    assert removed_part == pytest.approx((1.0 - (1.0 - scale) ** 2) * removed_full, rel=1e-9)
+
 # ---------------------------------------------------------------- the unexplained block
 
 def _entries(ctx, y):
