@@ -257,7 +257,7 @@ class GrblConsole:
         self._buf.clear()
         self._overflow = False
         self._line_bytes = 0
-        while not self.lines.empty():
+        while True:                           # drop the queued lines, to the last (the worker may take it first)
             try:
                 self.lines.get_nowait()
             except queue.Empty:
