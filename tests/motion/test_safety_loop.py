@@ -346,3 +346,43 @@ def test_chain_offset_inputs_beyond_the_chains_or_the_bound_are_refused_once_and
     assert lp.set_chain_offsets((0.0, 0.0, -lim)) and np.array_equal(lp.chain_offset, [0.0, 0.0, -lim])
     assert lp.set_chain_offsets((0.03, 2 * lim, 0.04)) is False     # one beyond the bound: the others taken
     assert np.array_equal(lp.chain_offset, [0.03, 0.0, 0.04])
+
+
+@pytest.mark.parametrize("impl", ["python", "compiled"])
+def test_a_job_of_one_sample_queued_as_the_last_one_ends_is_run_and_settled_before_the_loop_ends(impl):
+    """The daemon's rt process queues jobs between ticks: a one-sample job (a G4 P0, a lone M3) that
+    arrives on the tick the follower reaches the first job's end is still run: both job ends are
+    counted and the loop ends after the settling time on the appended sample, later than the first
+    job alone (it must not end on the first job's settling time with a job still queued)."""
+    from dataclasses import replace
+    from pmctl.motion.loop import LoopParts, target_samples
+    from pmctl.motion.ring import Ring
+    from pmctl.motion.timescale import WIDTH, make_follower
+
+    def go(append):
+        tr = line_traj([0, 0, 5], [3, 0, 5], rp(0, 0), rp(0, 0), 10.0, DT)
+        tg = prepare(M, P, tr, DT)
+        rows = target_samples(tg, DT, P)
+        c0 = counts_of(tg.q[0], P)
+        be = hal.create("sim", M, DT, {})
+        be.open(c0)
+        fol = make_follower(Ring(8192, WIDTH), replace(P, implementation=impl), DT)
+        fol.src.push(rows)
+        pushed = []
+
+        def hook(loop, k, st):
+            if append and not pushed and fol.at_end:
+                pushed.append(k)
+                fol.src.push(rows[-1:])                    # one sample, a job end, where the tool is
+            return st
+        cfg = LoopConfig(realtime=False, stall_timeout_s=5.0, settle_s=0.02)
+        lp = ControlLoop(M, be, P, None, cfg, initial_state(M, c0),
+                         parts=LoopParts(follower=fol, hook=hook, log=lambda m: None))
+        res = lp.run()
+        assert res.status == "done", res.reason
+        return res.ticks, fol.ended_jobs, pushed
+
+    alone, ended_alone, _ = go(False)
+    ticks, ended, pushed = go(True)
+    assert ended_alone == 1 and ended == 2 and pushed
+    assert ticks == alone + 2                             # the appended sample's tick, then its settling
