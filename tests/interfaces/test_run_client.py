@@ -203,7 +203,9 @@ def test_a_stale_daq_mid_job_stops_the_supervisor_on_the_path(tmp_path):
     sup.start(c0)
     try:
         assert sup.daq is not None
-        job = _short_job(tmp_path / "short.ngc")
+        job = tmp_path / "long.ngc"                    # about 10 s: longer than a simulated device's
+        job.write_text("G17 G21 G90 G94\nG0 X5 Y0 Z65\n"  # patience without real-time priority (3 s)
+                       + "G1 X-5 F600\nG1 Y4\nG1 X5 Y0\n" * 4 + "M2\n")
         sup.submit(load_job(job, sup.machine, start=sup.pose()))
         t0 = time.monotonic()
         while time.monotonic() - t0 < 60 and sup.raw()[C.ST_SIGMA] == 0:

@@ -61,17 +61,20 @@ def test_a_bridge_caps_the_joint_speeds_to_the_step_rate_it_holds():
     assert np.allclose(resolve(backend="sim", hal={"stepdir": {"port": "rp2040-emu"}}).params.vmax, 100.0)
 
 
-def test_an_offline_run_gives_simulated_devices_time_and_real_ones_keep_theirs(tmp_path):
+def test_an_offline_or_unprioritised_run_gives_simulated_devices_time_and_real_ones_keep_theirs(tmp_path):
     shipped = tomllib.loads((CONFIG_DIR / "service.toml").read_text())
     assert shipped["spindle"]["simulate"] is True and shipped["spindle"]["timeout_ms"] < OFFLINE_SIM_TIMEOUT_MS
     off = resolve(offline=True)
     assert off.svc.spindle.timeout_ms == OFFLINE_SIM_TIMEOUT_MS
     assert off.svc.daq is None or off.svc.daq.max_age_ms >= OFFLINE_SIM_TIMEOUT_MS
-    paced = resolve(realtime=True)
+    paced = resolve(realtime=True, offline=False)          # pmctl serve with real-time priority
     assert paced.svc.spindle.timeout_ms == shipped["spindle"]["timeout_ms"]
+    desk = resolve(realtime=False, offline=False)          # pmctl serve --no-realtime
+    assert desk.svc.spindle.timeout_ms == OFFLINE_SIM_TIMEOUT_MS
     from test_stepdir_cli import _toml
     shipped["spindle"].update(simulate=False, port=502)
     svc = tmp_path / "service.toml"
     svc.write_text(_toml(shipped))
-    real = resolve(service=str(svc), offline=True)
-    assert not real.svc.spindle.simulate and real.svc.spindle.timeout_ms == shipped["spindle"]["timeout_ms"]
+    for kw in ({"offline": True}, {"realtime": False, "offline": False}):
+        real = resolve(service=str(svc), **kw)
+        assert not real.svc.spindle.simulate and real.svc.spindle.timeout_ms == shipped["spindle"]["timeout_ms"]

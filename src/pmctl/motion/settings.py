@@ -74,10 +74,13 @@ OFFLINE_SIM_TIMEOUT_MS = 3000.0    # a simulated VFD's or DAQ's answer in an off
 
 
 def _relax_simulated_devices(svc: ServiceConfig):
-    """An offline run (--no-realtime) is a simulation in which nothing is late: the simulated spindle
-    VFD and strain DAQ (``simulate = true``, served on the loopback by this process) get at least
+    """An offline run (``pmctl run --no-realtime``) is a simulation in which nothing is late, and a
+    loop without real-time priority (``pmctl serve --no-realtime``, ``realtime = false``: a desktop or
+    a CI machine) has no timing to defend: there the simulated spindle VFD and strain DAQ
+    (``simulate = true``, served on the loopback by a device-simulator process) get at least
     OFFLINE_SIM_TIMEOUT_MS to answer and for their data to count as fresh, so a loaded host (other
-    processes taking the CPU) is not a lost link. Real devices keep their timeouts."""
+    processes taking the CPU) is not a lost link. Real devices keep their timeouts, and so do
+    simulated ones under real-time priority (the hardware-in-the-loop setting)."""
     for dev in (svc.spindle, svc.daq):
         if dev is not None and getattr(dev, "simulate", False):
             dev.timeout_ms = max(float(dev.timeout_ms), OFFLINE_SIM_TIMEOUT_MS)
@@ -121,7 +124,7 @@ def resolve(config="prototype", service=None, *, backend=None, rate_hz=None, rea
     realtime = bool(svc.loop.realtime if realtime is None else realtime)
     offline = (not realtime) if offline is None else bool(offline)
     svc.loop.realtime = realtime
-    if offline:
+    if offline or not realtime:
         _relax_simulated_devices(svc)
     dt = 1.0 / rate_hz
     # chain modes, K_theta auto (off on a backend without strain), the shaper; [daq] k_theta_source
