@@ -366,6 +366,8 @@ class Supervisor:
         """Hold the path at sample ``row`` of the ring and perform ``events`` there (sent before that
         sample is queued); item ``it`` is not done before they are."""
         with self._lock:
+            if it is not None:
+                self._check_going(it)     # a point of a dropped item never reaches the rt side (after its reset)
             self._hold_points.append((row, tuple(events), it))
             seq = self.command(C.C_HOLD_AT, float(row), 1.0 if rest else 0.0)
         # the rt side takes commands after its path step: the point must be there before the sample
@@ -413,7 +415,7 @@ class Supervisor:
                 _row, events, it = self._hold_points.popleft()
                 self._auto_hold = True
                 self._auto_item = it
-                self._events_q.put((self._gen, events, it))
+                self._events_q.put((self._gen if it is None else it.gen, events, it))
 
     def _events_loop(self):
         """Performs the events of the hold points the path reached, one point after the other, then
@@ -549,6 +551,12 @@ class Supervisor:
         return line
 
     # ------------------------------------------------------------ motion requests
+    def _check_not_stopping(self):
+        """(under ``_lock``) A reset, an E-stop or a shutdown is dropping the queue: an item queued now
+        would be neither planned nor dropped (it would stay queued for ever, the state Run at rest)."""
+        if self._abort.is_set():
+            raise MotionRefused("a reset or stop is dropping the queue: nothing is queued meanwhile", 9)
+
     def _check_motion_allowed(self):
         if self.homing:
             raise MotionRefused("homing is under way", 8)
@@ -572,6 +580,7 @@ class Supervisor:
         self._check_motion_allowed()
         moves = [m for m in job.moves if m.kind not in ("dwell", "event")]     # those do not move
         with self._lock:
+            self._check_not_stopping()
             self.stream_close()           # what comes after it goes after it
             start = self.end_pose()
             end = (np.asarray(moves[-1].tip, float), np.asarray(moves[-1].axis, float)) if moves else start
@@ -596,6 +605,7 @@ class Supervisor:
         moving = [m for m in moves if m.kind not in (DWELL, EVENT)]
         spindle = has_spindle_event(moves)
         with self._lock:
+            self._check_not_stopping()
             it = self._stream_item
             if it is None or not it.open or it.gen != self._gen or it not in self.items:
                 it = self.submit(moves_job(list(moves), name), kind="gcode", name=name, lines=lines, stream=True)
@@ -639,8 +649,9 @@ class Supervisor:
         callable raises to stop) between pushes."""
         i = 0
         while i < len(rows):
-            cancelled()
-            n = self.ch.samples.push(rows[i:])
+            with self._lock:              # (see _push_rows)
+                cancelled()
+                n = self.ch.samples.push(rows[i:])
             i += n
             if n == 0:
                 time.sleep(0.005)
@@ -1018,8 +1029,9 @@ class Supervisor:
             total += len(rows)
             i = 0
             while i < len(rows):
-                self._check_going(it)
-                n = self.ch.samples.push(rows[i:])
+                with self._lock:          # (a drop's new generation, then its C_RESET: no sample after them)
+                    self._check_going(it)
+                    n = self.ch.samples.push(rows[i:])
                 i += n
                 if n == 0:
                     time.sleep(0.005)

@@ -86,6 +86,12 @@ class GrblConsole:
         self._wlock = threading.Lock()
         self._stop = threading.Event()
         self._reset_gen = 0
+        # a soft reset drops the line being executed: it queues no motion (the check of its reset
+        # generation and its submit are one step against the reset's increment, _queue_motion) and
+        # leaves the parser as the reset sets it (the reset waits for the line to end: _line_lock)
+        self._queue_lock = threading.Lock()
+        self._line_lock = threading.RLock()   # (RLock: $C's automatic reset runs inside its line)
+        self._line_gen = 0                    # the reset generation of the line being executed
         self.blocks = collections.deque()     # [console line, blocks, item] accepted, not run
         self._blocks_lock = threading.Lock()  # the reader (Bf:) and the worker both take run blocks off its front
         self._rx_lock = threading.Lock()
@@ -253,7 +259,8 @@ class GrblConsole:
         # 0x84 door, 0xA0/0xA1 coolant: no such hardware here; others: not commands
 
     def soft_reset(self):
-        self._reset_gen += 1
+        with self._queue_lock:                # the line in execution queues nothing from here on
+            self._reset_gen += 1
         self._buf.clear()
         self._overflow = False
         self._line_bytes = 0
@@ -268,10 +275,11 @@ class GrblConsole:
             self.blocks.clear()
         self._pgm_end.clear()
         self.sup.soft_reset()
-        self.interp.reset_modal()
-        self.interp.sync(*self.sup.pose())
-        if self.interp.changed:
-            self._persist()
+        with self._line_lock:                 # (its waits see the new generation and end it at once)
+            self.interp.reset_modal()
+            self.interp.sync(*self.sup.pose())
+            if self.interp.changed:
+                self._persist()
         self.feed_ov = self.rapid_ov = self.spindle_ov = 100
         self.sup.feed_override(1.0)
         self.sup.rapid_override(1.0)
@@ -398,25 +406,28 @@ class GrblConsole:
                 except UnicodeDecodeError:
                     answer = "error:1"
             if answer is None:
-                try:
-                    self.execute(text.strip(), gen)
-                    if gen == self._reset_gen:
+                with self._line_lock:
+                    try:
+                        self.execute(text.strip(), gen)
                         answer = "ok"
-                except LineError as e:
-                    answer = f"error:{e.code}"
-                except MotionRefused as e:
-                    answer = f"error:{e.code}"
-                except Exception as e:              # a bug must not kill the console
-                    self.log(f"console: {type(e).__name__}: {e}")
-                    answer = "error:20"
-            if gen == self._reset_gen:
+                    except LineError as e:
+                        answer = f"error:{e.code}"
+                    except MotionRefused as e:
+                        answer = f"error:{e.code}"
+                    except Exception as e:              # a bug must not kill the console
+                        self.log(f"console: {type(e).__name__}: {e}")
+                        answer = "error:20"
+            with self._queue_lock:        # (the answer comes before the reset's banner, or not at all)
+                if gen != self._reset_gen:
+                    continue              # a soft reset dropped the line meanwhile: no answer (grbl's)
                 with self._rx_lock:
                     self._rx_pending = max(0, self._rx_pending - nbytes)
-            if answer is not None:
-                self.write(answer)
+                if answer is not None:
+                    self.write(answer)
             self._announce_ends()
 
     def execute(self, text: str, gen: int = 0):
+        self._line_gen = gen
         if not text:
             return
         if "".join(text.split()).startswith("$"):
@@ -453,10 +464,12 @@ class GrblConsole:
                     return                # a soft reset dropped the line: no answer
                 raise MotionRefused("an alarm stopped the motion this line waited for", 9)
             try:
-                it = self.sup.stream(moves, {self.seq: n_word})
+                it = self._queue_motion(gen, lambda: self.sup.stream(moves, {self.seq: n_word}))
             except MotionRefused:
                 self.interp.st = st0
                 raise
+            if it is None:
+                return                    # a soft reset dropped the line: no answer
             self._last_item = it
             if n:
                 with self._blocks_lock:
@@ -472,6 +485,15 @@ class GrblConsole:
                     self.write("[MSG:Pgm End]")
         if sync and not self._synchronize(gen):
             return                    # a soft reset dropped the line: no answer
+
+    def _queue_motion(self, gen, submit):
+        """``submit()`` (queue a line's motion) unless a soft reset dropped the line (reset generation
+        ``gen``): then None. One step against the reset's increment, so a line the reset dropped never
+        moves, not even once the reset is over."""
+        with self._queue_lock:
+            if gen != self._reset_gen:
+                return None
+            return submit()
 
     def _synchronize(self, gen) -> bool:
         """grbl's protocol_buffer_synchronize: wait until every queued item has run and the machine
@@ -515,11 +537,13 @@ class GrblConsole:
                 return None
             time.sleep(0.01)
         try:
-            it = self.sup.submit(moves_job(moves, "console"), kind="gcode", name="console", lines=lines)
-            self._last_item = it
-            return it
+            it = self._queue_motion(self._line_gen if gen is None else gen, lambda: self.sup.submit(
+                moves_job(moves, "console"), kind="gcode", name="console", lines=lines))
         except MotionRefused:
             return None
+        if it is not None:
+            self._last_item = it
+        return it
 
     def _probe(self, moves, n_word, st0, gen):
         """A G38.2/G38.3 line, as grbl runs it: the motion queued before it goes first, the probe is
@@ -622,7 +646,7 @@ class GrblConsole:
                 raise LineError(8 if not sup.alarm else 9, "jog only when idle or jogging")
             if self.jogger is None:
                 raise LineError(3, "jogging not available")
-            self.jogger(cmd[3:], self.interp)
+            self._queue_motion(self._line_gen, lambda: self.jogger(cmd[3:], self.interp))
         elif cmd.startswith("$") and "=" in cmd:
             k, _, v = cmd[1:].partition("=")
             try:                            # grbl: a setting number or value that is no number
