@@ -437,3 +437,51 @@ def test_a_stretch_must_beat_struct_min_by_what_its_signatures_take_from_noise(c
         assert len(e) == 1 and e[0][0] == ["strain_3"] and e[0][1].startswith("spectral line 1"), e
     else:
         assert e == []
+
+
+def _stretch_of_line(ctx, frac, seed=1):
+    """strain_3 as in the test above (1.5 s at 8 x its noise energy, ``frac`` of it a 14 Hz line);
+    returns (residual, samples in its one window, the best signature's fraction there)."""
+    o = ctx.obs
+    m = o.mask_of("strain_3")
+    tt = ctx.t[o.row[m]]
+    s = (tt > 5.0) & (tt < 6.5)
+    r = np.random.default_rng(seed)
+    y = r.normal(0.0, 1.0, len(o.y))
+    yy = y[m]
+    line = np.sin(2 * np.pi * 14.0 * tt[s])
+    white = r.normal(0.0, 1.0, s.sum())
+    white -= line * (white @ line) / (line @ line)
+    k = s.sum()
+    yy[s] = line * math.sqrt(frac * 8.0 * k / (line @ line)) + white * math.sqrt((1 - frac) * 8.0 * k / (white @ white))
+    y[m] = yy
+    (a, b), = locate(ctx, y)["channels"]["strain_3"]["windows_s"]
+    mw = m & (ctx.t[o.row] >= a) & (ctx.t[o.row] <= b)
+    return y, int(mw.sum()), max(v[0] for v in U._signatures(ctx, "strain_3", mw, y).values())
+
+
+@pytest.mark.parametrize("side", [+1, -1])
+def test_a_stretch_is_reported_from_exactly_struct_min_plus_twelve_over_its_samples(ctx, side):
+    """The stretch's bound STRUCT_MIN + 12/nw is sharp: the line's share found by bisection so that
+    the window's best signature removes a quarter to three quarters of 1/nw more than that bound
+    (+1: reported, as the line) or less (-1: not reported). 1/nw is 0.0034 here (nw about 294): a
+    bound of 13/nw, or 11/nw, would decide the other way."""
+    lo, hi = 0.28, 0.40
+    for _ in range(40):
+        frac = 0.5 * (lo + hi)
+        y, nw, got = _stretch_of_line(ctx, frac)
+        bound = U.STRUCT_MIN + 12.0 / nw
+        if bound + side * 0.25 / nw <= got <= bound + side * 0.75 / nw or \
+                bound + side * 0.75 / nw <= got <= bound + side * 0.25 / nw:
+            break
+        if got < bound + side * 0.5 / nw:
+            lo = frac
+        else:
+            hi = frac
+    else:
+        pytest.fail(f"no share of the line puts the signature {side * 0.5:+}/nw from the bound (last {got}, {bound})")
+    e = _entries(ctx, y)
+    if side > 0:
+        assert len(e) == 1 and e[0][0] == ["strain_3"] and e[0][1].startswith("spectral line 1"), (e, got, bound, nw)
+    else:
+        assert e == [], (e, got, bound, nw)
