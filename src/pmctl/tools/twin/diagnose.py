@@ -373,7 +373,7 @@ def accept(ev) -> bool:
     under 1.5 µm of tracker noise); a STRONG gain waives the REL_MIN share of the channels' energy
     as well (those channels are mostly noise). The own checks and the SHARE_MIN rule still apply."""
     # an encoder counts whole pulses: structure below its pulse is quantisation, never waived
-    enc_only = ev.get("enc_only", False)
+    enc_only = ev["enc_only"]             # (evaluate's, always there)
     strong = not enc_only and ev["d_cv"] > STRONG * max(MIN_DSSE, ev["pen"])
     peak_ok = ev["big"] > MIN_PEAK or strong or (not enc_only and ev.get("line_evidence", False))
     # the share of the channels' energy: waived for a strong held-out gain too (a 2 µm pitch error

@@ -330,13 +330,14 @@ def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> li
         excess = math.sqrt(max(ms - 1.0, 0.0))
         local = local_ws = None
         glob = excess >= EXCESS_MIN and ss - n >= CHI_SIGMA * math.sqrt(2 * n)
-        wins_all = loc_after["channels"].get(name, {}).get("windows_s", [])
-        sig = _signatures(ctx, name, m, y, wins_all) if glob else {}
-        if not glob or max((v[0] for v in sig.values()), default=0.0) < STRUCT_MIN:
+        info = loc_after["channels"][name]          # (locate describes every observed channel)
+        wins = info["windows_s"]
+        sig = _signatures(ctx, name, m, y, wins) if glob else {}
+        # (_signatures always scores the reversal-locked, step, intermittent and position kinds)
+        if not glob or max(v[0] for v in sig.values()) < STRUCT_MIN:
             # not over the whole record: a stretch of it? (the longest window above 2.5 x noise),
             # or, short as each one may be, all of them together (a spike after each reversal,
             # an encoder's bursts)
-            wins = loc_after["channels"].get(name, {}).get("windows_s", [])
             tt_all = ctx.t[o.row]
             tries = [[w] for w in sorted(wins, key=lambda w: w[0] - w[1])]
             if len(wins) >= 2 and sum(b - a for a, b in wins) < 0.25 * ctx.duration:
@@ -359,7 +360,7 @@ def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> li
                 if exw >= 1.5 and ssw - nw > CHI_SIGMA * math.sqrt(2 * nw) and span < 0.7 * ctx.duration:
                     sw = _signatures(ctx, name, mw, y)
                     # a few dozen samples: a signature must beat what its columns take from noise
-                    if max((v[0] for v in sw.values()), default=0.0) >= STRUCT_MIN + 12.0 / nw:
+                    if max(v[0] for v in sw.values()) >= STRUCT_MIN + 12.0 / nw:
                         local = (ws[0][0], ws[-1][1]) if len(ws) == 1 else None
                         local_ws = ws
                         m, excess, sig = mw, exw, sw
@@ -391,8 +392,7 @@ def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> li
             axis = detail or axis
         else:
             label = kind
-        info = loc_after["channels"].get(name, {})
-        tw = [list(local)] if local else info.get("windows_s", [])
+        tw = [list(local)] if local else wins
         if kind == "step":
             tw = [[detail, detail]]
         region = _region(ctx, loc_after.get("regions", {}), name)
