@@ -269,6 +269,37 @@ def test_every_job_end_is_counted_even_a_job_of_one_sample(impl, lengths, feed, 
 
 
 @pytest.mark.parametrize("impl", IMPLS)
+@settings(max_examples=25, deadline=None)
+@given(first=st.integers(1, 30), ticks=st.integers(0, 80), after=st.lists(st.integers(1, 20), min_size=1, max_size=4))
+@example(first=5, ticks=80, after=[1])
+@example(first=1, ticks=3, after=[1, 1])
+def test_after_a_soft_reset_the_next_jobs_end_is_counted_even_a_job_of_one_sample(impl, first, ticks, after):
+    """A job run for ``ticks`` ticks (to its end and resting there, or stopped short), then a soft
+    reset (``clear``: the queue dropped), then jobs queued from where it stopped: every one of their
+    ends is counted, a job of one sample too (a move to where the tool already is). The follower once
+    kept "resting on a job's end" through the reset and took the next lone end for the one it had
+    counted: the supervisor kept that job queued for ever, the console said Run at rest."""
+    ring = Ring(256, WIDTH)
+    ring.push(_line(first))
+    fol = make_follower(ring, PARAMS, DT, implementation=impl)
+    for _ in range(ticks):
+        fol.next_target()
+    ended = fol.ended_jobs
+    fol.clear()
+    x = fol.next_target()[0]
+    assert fol.state == IDLE and fol.ended_jobs == ended
+    for i, n in enumerate(after):
+        ring.push(_line(n, x, line=10 + i))
+        x = x + 0.01 * (n - 1)
+    for _ in range(3000):
+        tg = fol.next_target()
+        if fol.at_end and ring.count() == 1:
+            break
+    assert fol.ended_jobs == ended + len(after), (fol.ended_jobs, ended, after)
+    assert abs(tg[0] - x) < 1e-12 and fol.sigma == 0.0
+
+
+@pytest.mark.parametrize("impl", IMPLS)
 def test_a_lone_sample_with_no_job_end_is_waited_on_at_rest(impl):
     """One sample queued and no job end (the planner behind): the follower stays on it at rest and
     says it is starved; the sample after it arriving with the job's end, it runs to that end."""

@@ -429,6 +429,7 @@ class PathFollower:
         self.frac = 0.0
         self.scaler.sigma = self.scaler.dsigma = 0.0
         self.state = IDLE
+        self.at_end = False           # the end it rested on is gone: the next job's end is a new one
 
     def next_target(self):
         src, sc = self.src, self.scaler

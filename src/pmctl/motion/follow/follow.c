@@ -186,6 +186,7 @@ void fl_clear(const fl_const *c, double *st, const fl_src *src)
     st[FL_FRAC] = 0.0;
     st[FL_SIGMA] = st[FL_DSIGMA] = 0.0;
     st[FL_STATE] = FL_IDLE;
+    st[FL_AT_END] = 0.0;    /* the end it rested on is gone: the next job's end is a new one */
 }
 
 static void target(double *tg, const double *pose, const double *ff)
