@@ -156,9 +156,9 @@ GROUPS = {
     "twin": Group(
         (Target("src/pmctl/tools/twin/diagnose.py", ("x_accept", "x__passes", "x__share")),
          Target("src/pmctl/tools/twin/unexplained.py", (),
-                {"x_unexplained": [("glob = excess >= EXCESS_MIN", "sig = _signatures(ctx, name, m, y, wins_all)"),
+                {"x_unexplained": [("glob = excess >= EXCESS_MIN", "sig = _signatures(ctx, name, m, y, wins)"),
                                    ("if not glob or max(", "if not glob or max("),
-                                   ("if max((v[0] for v in sw.values())", "if max((v[0] for v in sw.values())"),
+                                   ("if max(v[0] for v in sw.values())", "if max(v[0] for v in sw.values())"),
                                    ("kind, frac, detail = \"broadband\", 0.0, None", "continue")]})),
         ("tests/tools/test_safety_twin.py", "tests/tools/test_twin_false_alarms.py"), "not clean_recording and not just_below",
         "the acceptance rule (accept: MIN_DSSE, REL_MIN, STRONG, the peak), the SHARE_MIN rule, and the "
