@@ -163,6 +163,14 @@ class Sender:
         return [s for s in self.pushed[n0:]]
 
 
+def counters_clean_log(tmp: Path) -> str:
+    """The stopped ``pmctl serve``'s log (tmp/serve.err), once asserted to say that its rt side ended
+    with every pulse sent counted and the device's counters equal to its own."""
+    err = (tmp / "serve.err").read_text()
+    assert "pulses sent = counter change: yes; device counters = counters: yes" in err, err[-2000:]
+    return err
+
+
 def hold_still_resume(s, settle=0.3, atol=1e-3, timeout=60):
     """Feed hold (``!``): the machine comes to Hold:0 and stays where it held for ``settle`` s; then
     cycle start (``~``). Returns the held status."""

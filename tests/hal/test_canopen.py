@@ -307,12 +307,18 @@ def test_lost_heartbeat_stops():
     assert "node 3 (L3): heartbeat lost" in res.reason
 
 
-def test_cut_off_drive_stops_the_others_and_then_itself():
+def _drives_at_start():
+    """Five simulated drives on a fresh virtual bus, at the start of the test job: (bus channel, NC
+    parameters, the job's targets, start counters, the drives)."""
     ch = channel()
     tr, p = start_counts()
     tg = prepare(M, p, tr, DT, None)
     c0 = counts_of(tg.q[0], p)
-    sims = SimDriveSet((1, 2, 3, 4, 5), c0.tolist(), channel=ch, lag_s=1e-3)
+    return ch, p, tg, c0, SimDriveSet((1, 2, 3, 4, 5), c0.tolist(), channel=ch, lag_s=1e-3)
+
+
+def test_cut_off_drive_stops_the_others_and_then_itself():
+    ch, p, tg, c0, sims = _drives_at_start()
     try:
         be = hal.create("canopen", M, DT, {**FAST, "channel": ch, "read_timeout_ms": 30.0})
         be.open(c0)
@@ -335,11 +341,7 @@ def test_cut_off_drive_stops_the_others_and_then_itself():
 
 
 def test_drives_fault_by_themselves_when_the_host_stops_and_reenable_through_fault_reset():
-    ch = channel()
-    tr, p = start_counts()
-    tg = prepare(M, p, tr, DT, None)
-    c0 = counts_of(tg.q[0], p)
-    sims = SimDriveSet((1, 2, 3, 4, 5), c0.tolist(), channel=ch, lag_s=1e-3)
+    ch, p, tg, c0, sims = _drives_at_start()
     try:
         opts = {**FAST, "channel": ch, "simulate": False}
         be = hal.create("canopen", M, DT, opts)

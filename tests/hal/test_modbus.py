@@ -210,9 +210,10 @@ def test_speed_change_mid_job_waits_on_the_path_until_at_speed(tmp_path):
     assert first[6000] < first[12000] < first[-9000]
 
 
-def _spindle_run(inject, **extra):
-    """A 6 s line on the sim backend with the spindle watched as pmctl run does; ``inject(dev, srv)``
-    once the loop is under way."""
+def _paced_line_loop():
+    """A 6 s line on the sim backend (open at the line's start) and its loop, paced in real time:
+    back to back the compiled loop would finish the line before a device poll sees a fault.
+    Returns (loop, backend, start counters)."""
     dt = 1e-3
     tr = line_traj([-30, -20, 0], [30, 20, 5], rp(0, 0), rp(2, -1), 10.0, dt)
     p = NCParams.from_machine(M, dt, kv=400.0)
@@ -220,13 +221,17 @@ def _spindle_run(inject, **extra):
     c0 = counts_of(tg.q[0], p)
     be = hal.create("sim", M, dt, {})
     be.open(c0)
+    cfg = LoopConfig(rate_hz=1000, realtime=True, lock_memory=False, stall_timeout_s=5.0, max_overruns_in_row=10**6)
+    return ControlLoop(M, be, p, tg, cfg, initial_state(M, c0), log=lambda m: None), be, c0
+
+
+def _spindle_run(inject, **extra):
+    """A 6 s line on the sim backend with the spindle watched as pmctl run does; ``inject(dev, srv)``
+    once the loop is under way."""
+    lp, be, c0 = _paced_line_loop()
     sp = SpindleSession(VfdOptions.from_dict({"simulate": True, "port": 0, "poll_ms": 10.0,
                                               "sim_ramp_rpm_per_s": 40000.0, **extra}), log=lambda m: None).connect()
     sp.start(8000)
-    # paced ticks: back to back the compiled loop would finish the 6 s line before a poll sees the fault
-    cfg = LoopConfig(rate_hz=1000, realtime=True, lock_memory=False, stall_timeout_s=5.0, max_overruns_in_row=10**6)
-    lp = ControlLoop(M, be, p, tg, cfg,
-                     initial_state(M, c0), log=lambda m: None)
     sp.watch(lambda: lp.tick, lambda why: setattr(lp, "stop_request", why))
 
     def injector():
@@ -423,20 +428,11 @@ def test_k_theta_source_too_slow_for_the_chain_mode_is_refused():
 
 
 def _daq_run(inject):
-    dt = 1e-3
-    tr = line_traj([-30, -20, 0], [30, 20, 5], rp(0, 0), rp(2, -1), 10.0, dt)
-    p = NCParams.from_machine(M, dt, kv=400.0)
-    tg = prepare(M, p, tr, dt, None)
-    c0 = counts_of(tg.q[0], p)
-    be = hal.create("sim", M, dt, {})
-    be.open(c0)
+    """The paced 6 s line with the strain DAQ watched; ``inject(device)`` at tick 500."""
+    lp, be, c0 = _paced_line_loop()
     ses = DaqSession(DaqOptions.from_dict({"simulate": True, "port": 0, "timeout_ms": 100.0, "poll_ms": 10.0,
                                            "max_age_ms": 60.0}), lambda: be._fb.strain.tolist(),
                      log=lambda m: None).connect()
-    # paced ticks: back to back the compiled loop would finish the 6 s line before a poll sees the fault
-    cfg = LoopConfig(rate_hz=1000, realtime=True, lock_memory=False, stall_timeout_s=5.0, max_overruns_in_row=10**6)
-    lp = ControlLoop(M, be, p, tg, cfg,
-                     initial_state(M, c0), log=lambda m: None)
     return run_with_daq(lp, ses, 500, inject), be, c0, ses
 
 

@@ -330,8 +330,7 @@ def unexplained(ctx: Context, y: np.ndarray, loc_after: dict, rejected=()) -> li
         excess = math.sqrt(max(ms - 1.0, 0.0))
         local = local_ws = None
         glob = excess >= EXCESS_MIN and ss - n >= CHI_SIGMA * math.sqrt(2 * n)
-        info = loc_after["channels"][name]          # (locate describes every observed channel)
-        wins = info["windows_s"]
+        wins = loc_after["channels"][name]["windows_s"]      # (locate describes every observed channel)
         sig = _signatures(ctx, name, m, y, wins) if glob else {}
         # (_signatures always scores the reversal-locked, step, intermittent and position kinds)
         if not glob or max(v[0] for v in sig.values()) < STRUCT_MIN:
